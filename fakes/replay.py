@@ -1,0 +1,317 @@
+"""The ``replay`` driver: a recording directory (design sec. 6) or two plain video files.
+
+Plain videos take either a frame rate (both eyes stamped ``i / fps``, no skew) or one timestamp
+CSV per eye (header ``t_ns``, one integer per frame). Inconsistent inputs (missing or unreadable
+files, different sizes or frame counts between the eyes, timestamps that do not increase) are
+refused before anything plays; a video that decodes fewer frames than its header or timestamp
+file announce plays what it has and reports the truncation through ``problems()``.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from stereod.errors import ConfigError, InputError, MissingInputError
+from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
+from stereod.recording import read_manifest, read_timestamps
+
+log = logging.getLogger(__name__)
+
+
+class ReplayOptions(BaseModel):
+    """Options of the replay driver (the ``[driver.options]`` table)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    path: Path | None = Field(None, description="Recording directory")
+    left_video: Path | None = None
+    right_video: Path | None = None
+    fps: float | None = Field(None, gt=0, description="Frame rate of plain videos, Hz")
+    left_ts: Path | None = Field(None, description="Left timestamps CSV (t_ns)")
+    right_ts: Path | None = Field(None, description="Right timestamps CSV (t_ns)")
+    loop: bool = Field(False, description="Start again at the end, timestamps continuing")
+
+    @model_validator(mode="after")
+    def _one_input(self) -> ReplayOptions:
+        videos = self.left_video is not None or self.right_video is not None
+        if (self.path is None) == (not videos):
+            raise ValueError("give either path (a recording) or left_video and right_video")
+        if videos:
+            if self.left_video is None or self.right_video is None:
+                raise ValueError("plain videos need both left_video and right_video")
+            has_ts = self.left_ts is not None or self.right_ts is not None
+            if has_ts and (self.left_ts is None or self.right_ts is None):
+                raise ValueError("timestamps need both left_ts and right_ts")
+            if has_ts == (self.fps is not None):
+                raise ValueError("plain videos need either fps or left_ts and right_ts")
+        return self
+
+
+def _open_capture(path: Path, gray: bool) -> cv2.VideoCapture:
+    if not path.exists():
+        raise MissingInputError(f"{path}: no such video file")
+    if not path.is_file():
+        raise MissingInputError(f"{path}: not a file")
+    cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    if not cap.isOpened():
+        raise InputError(f"{path}: cannot open as a video (not a video file, or unsupported codec)")
+    if gray:
+        cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+    return cap
+
+
+def probe_video(path: Path) -> tuple[int, int, int]:
+    """(width, height, header frame count) of a video; the first frame must decode."""
+    cap = _open_capture(path, gray=False)
+    try:
+        ok, img = cap.read()
+        if not ok or img is None:
+            raise InputError(f"{path}: no frame decodes (corrupt or unsupported video)")
+        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        return img.shape[1], img.shape[0], max(n, 0)
+    finally:
+        cap.release()
+
+
+class VideoEye(EyeSource):
+    """One eye read from a video file with one timestamp per frame."""
+
+    def __init__(
+        self,
+        eye: Eye,
+        path: Path,
+        t_ns: np.ndarray | None,
+        seq: np.ndarray | None,
+        size: tuple[int, int],
+        *,
+        fps: float | None = None,
+        gray: bool,
+        expected: int,
+        expected_from: str,
+        loop: bool = False,
+    ) -> None:
+        self.eye = eye
+        self.path = path
+        if t_ns is None and fps is None:
+            raise ValueError("a video eye needs timestamps or a frame rate")
+        self._t = t_ns
+        self._seq = seq
+        self._fps = fps
+        self._size = size
+        self._gray = gray
+        self._expected = expected
+        self._expected_from = expected_from
+        self._loop = loop
+        self._cap: cv2.VideoCapture | None = _open_capture(path, gray)
+        self._i = 0
+        self._offset_ns = 0
+        self._seq_offset = 0
+        self.decoded = 0
+        self.bad_frames = 0
+        self.problems: list[str] = []
+
+    def read(self) -> Frame | None:
+        while True:
+            if self._cap is None:
+                return None
+            ok, img = self._cap.read()
+            if not ok or img is None:
+                if self._i < self._expected and self._offset_ns == 0:
+                    self.problems.append(
+                        f"{self.path}: truncated: {self._expected_from} says {self._expected} "
+                        f"frames, only {self._i} decoded; replayed those"
+                    )
+                if self._loop and self._i > 0:
+                    self._restart()
+                    continue
+                self.close()
+                return None
+            if self._t is not None and self._i >= len(self._t):
+                self.close()
+                raise InputError(
+                    f"{self.path}: has more frames than its {len(self._t)} timestamps "
+                    "(one timestamp row per frame)"
+                )
+            i = self._i
+            self._i += 1
+            if (img.shape[1], img.shape[0]) != self._size:
+                self.bad_frames += 1
+                self.problems.append(
+                    f"{self.path} frame {i}: size {img.shape[1]}x{img.shape[0]}, expected "
+                    f"{self._size[0]}x{self._size[1]}; skipped"
+                )
+                continue
+            if self._gray and img.ndim == 3:
+                img = img[..., 0].copy()
+            self.decoded += 1
+            t, seq = self._stamp(i)
+            return Frame(self.eye, img, t + self._offset_ns, seq + self._seq_offset)
+
+    def _stamp(self, i: int) -> tuple[int, int]:
+        if self._t is None:
+            assert self._fps is not None
+            return round(i * 1e9 / self._fps), i
+        return int(self._t[i]), int(self._seq[i]) if self._seq is not None else i
+
+    def _restart(self) -> None:
+        n = self._i
+        t0, s0 = self._stamp(0)
+        t1, s1 = self._stamp(n - 1)
+        period = (t1 - t0) // (n - 1) if n > 1 else 1
+        self._offset_ns += t1 - t0 + period
+        self._seq_offset += s1 - s0 + 1
+        self._expected = n
+        if self._cap is not None:
+            self._cap.release()
+        self._cap = _open_capture(self.path, self._gray)
+        self._i = 0
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+
+class ReplaySource(StereoSource):
+    """Two :class:`VideoEye` and what the input says about itself."""
+
+    def __init__(self, left: VideoEye, right: VideoEye, info: SourceInfo) -> None:
+        self._left, self._right, self._info = left, right, info
+
+    @property
+    def info(self) -> SourceInfo:
+        return self._info
+
+    @property
+    def left(self) -> VideoEye:
+        return self._left
+
+    @property
+    def right(self) -> VideoEye:
+        return self._right
+
+    def problems(self) -> list[str]:
+        return self._left.problems + self._right.problems
+
+
+class ReplayDriver(Driver):
+    """Replay a recording or two plain videos through the pipeline (not live: paced by the
+    daemon at the requested rate, never dropping frames)."""
+
+    name = "replay"
+
+    def __init__(self, options: dict[str, Any]) -> None:
+        try:
+            self.options = ReplayOptions.model_validate(options)
+        except ValidationError as exc:
+            e = exc.errors(include_url=False)[0]
+            loc = ".".join(str(p) for p in e["loc"])
+            where = f"driver.options.{loc}" if loc else "driver.options"
+            raise ConfigError(f"{where}: {e['msg'].removeprefix('Value error, ')}") from exc
+
+    def open(self) -> ReplaySource:
+        o = self.options
+        if o.path is not None:
+            return self._open_recording(o.path)
+        assert o.left_video is not None and o.right_video is not None
+        return self._open_videos(o.left_video, o.right_video)
+
+    def _open_recording(self, directory: Path) -> ReplaySource:
+        man = read_manifest(directory)
+        eyes = []
+        for eye, files in ((Eye.LEFT, man.left), (Eye.RIGHT, man.right)):
+            t, seq = read_timestamps(directory / files.timestamps)
+            if len(t) != files.frames:
+                raise InputError(
+                    f"{directory / files.timestamps}: {len(t)} timestamps, manifest says "
+                    f"{files.frames} frames"
+                )
+            eyes.append(
+                VideoEye(
+                    eye,
+                    directory / files.video,
+                    t,
+                    seq,
+                    (man.width, man.height),
+                    gray=not man.color,
+                    expected=files.frames,
+                    expected_from="the manifest",
+                    loop=self.options.loop,
+                )
+            )
+        info = SourceInfo(
+            width=man.width,
+            height=man.height,
+            fps=man.fps,
+            live=False,
+            description=f"recording {directory}",
+            settings=dict(man.settings),
+            utc_offset_ns=man.utc_offset_ns,
+        )
+        return ReplaySource(eyes[0], eyes[1], info)
+
+    def _open_videos(self, left: Path, right: Path) -> ReplaySource:
+        o = self.options
+        lw, lh, ln = probe_video(left)
+        rw, rh, rn = probe_video(right)
+        if (lw, lh) != (rw, rh):
+            raise InputError(
+                f"{left} is {lw}x{lh} but {right} is {rw}x{rh}: both eyes must have one size"
+            )
+        if o.fps is not None:
+            if ln and rn and ln != rn:
+                raise InputError(
+                    f"{left} has {ln} frames but {right} has {rn}: both eyes must have "
+                    "the same number of frames"
+                )
+            stamps: list[tuple[np.ndarray | None, np.ndarray | None, int, str]] = [
+                (None, None, ln, "the video header"),
+                (None, None, rn, "the video header"),
+            ]
+        else:
+            assert o.left_ts is not None and o.right_ts is not None
+            stamps = []
+            for video, ts_path, n in ((left, o.left_ts, ln), (right, o.right_ts, rn)):
+                t, seq = read_timestamps(ts_path)
+                if n and len(t) < n:
+                    raise InputError(
+                        f"{video} has {n} frames but {ts_path} has only {len(t)} timestamps"
+                    )
+                stamps.append((t, seq, len(t), str(ts_path)))
+            if stamps[0][2] != stamps[1][2]:
+                raise InputError(
+                    f"{o.left_ts} has {stamps[0][2]} timestamps but {o.right_ts} has "
+                    f"{stamps[1][2]}: both eyes must have the same number of frames"
+                )
+        eyes = [
+            VideoEye(
+                eye,
+                video,
+                t,
+                seq,
+                (lw, lh),
+                fps=o.fps,
+                gray=False,
+                expected=expected,
+                expected_from=source,
+                loop=o.loop,
+            )
+            for eye, video, (t, seq, expected, source) in (
+                (Eye.LEFT, left, stamps[0]),
+                (Eye.RIGHT, right, stamps[1]),
+            )
+        ]
+        info = SourceInfo(
+            width=lw,
+            height=lh,
+            fps=o.fps,
+            live=False,
+            description=f"videos {left} + {right}",
+        )
+        return ReplaySource(eyes[0], eyes[1], info)

@@ -1,0 +1,256 @@
+"""Synthetic stereo scenes with known 3D truth, and the ``synthetic`` driver that plays them.
+
+The rig is the canonical one of paper sec. III (two parallel pinhole cameras ``baseline_m``
+apart, square pixels, principal point at the image centre), looking at a textured wall at
+``wall_m``. Spheres move on straight lines at constant velocity; each eye renders them at its
+own capture instant, so a skew between the eyes shows up in the images exactly as it would with
+free-running cameras. Sensor noise, a slow lighting drift and colour are optional. The truth
+(every sphere's trajectory and the rig) is written beside the recording as ``truth.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from stereod.errors import ConfigError, InputError, MissingInputError
+from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
+from stereod.geometry.stereo import CanonicalRig
+from stereod.recording import Codec, RecordingWriter
+
+TRUTH = "truth.json"
+
+
+class Ball(BaseModel):
+    """A sphere on a straight line: at ``t_mid_s`` it is at ``centre_m`` (rig frame, m), and it
+    moves at ``speed_mps`` along ``heading_deg`` (eq. 23's convention) in the XZ plane, plus
+    ``vy_mps`` vertically. It is visible between ``t_on_s`` and ``t_off_s``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    centre_m: tuple[float, float, float] = (0.0, 0.1, 1.8)
+    heading_deg: float = 60.0
+    speed_mps: float = Field(0.7, ge=0.0)
+    vy_mps: float = 0.0
+    radius_m: float = Field(0.05, gt=0.0)
+    brightness: float = Field(225.0, ge=0.0, le=255.0, description="Grey level of the lit side")
+    t_mid_s: float = 2.0
+    t_on_s: float = 1.2
+    t_off_s: float = 2.8
+
+    @property
+    def velocity_mps(self) -> np.ndarray:
+        h = math.radians(self.heading_deg)
+        return np.array([self.speed_mps * math.sin(h), self.vy_mps, self.speed_mps * math.cos(h)])
+
+    def position_m(self, t_s: float | np.ndarray) -> np.ndarray:
+        """(3,) or (n, 3) rig-frame position (m) at time(s) ``t_s`` (s from the scene's start)."""
+        t = np.asarray(t_s, dtype=np.float64)
+        return np.asarray(self.centre_m) + (t[..., None] - self.t_mid_s) * self.velocity_mps
+
+    def visible(self, t_s: float) -> bool:
+        return self.t_on_s <= t_s <= self.t_off_s
+
+
+class Scene(BaseModel):
+    """Everything needed to render a stereo sequence; units in the field names."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    width_px: int = Field(640, gt=0)
+    height_px: int = Field(480, gt=0)
+    hfov_deg: float = Field(60.0, gt=0.0, lt=180.0)
+    baseline_m: float = Field(0.060, gt=0.0)
+    fps: float = Field(15.0, gt=0.0)
+    duration_s: float = Field(4.0, gt=0.0)
+    skew_s: float = Field(0.0, description="Right eye's capture delay after the left eye, s")
+    noise_sigma: float = Field(1.5, ge=0.0, description="Sensor noise, grey levels (1 sigma)")
+    drift: float = Field(0.0, ge=0.0, lt=1.0, description="Lighting gain amplitude (fraction)")
+    drift_period_s: float = Field(20.0, gt=0.0)
+    wall_m: float = Field(4.0, gt=0.0, description="Distance of the textured background wall, m")
+    color: bool = False
+    seed: int = 0
+    t0_ns: int = Field(1_000_000_000, ge=0, description="Monotonic time of the first frame, ns")
+    balls: list[Ball] = Field(default_factory=lambda: [Ball()])
+
+    @property
+    def rig(self) -> CanonicalRig:
+        return CanonicalRig(self.baseline_m, self.hfov_deg, self.width_px, self.height_px)
+
+    @property
+    def n_frames(self) -> int:
+        return int(math.floor(self.duration_s * self.fps + 1e-9))
+
+    def frame_time_s(self, eye: Eye, k: int) -> float:
+        """Capture instant of frame ``k`` of ``eye`` in seconds from the scene's start."""
+        return k / self.fps + (self.skew_s if eye is Eye.RIGHT else 0.0)
+
+    def t_ns(self, t_s: float) -> int:
+        return self.t0_ns + round(t_s * 1e9)
+
+
+def scene_from_truth(path: Path) -> Scene:
+    """Load the :class:`Scene` a recording was rendered from (its ``truth.json``)."""
+    try:
+        return Scene.model_validate_json(path.read_bytes())
+    except FileNotFoundError as exc:
+        raise MissingInputError(f"{path}: no such truth file") from exc
+    except ValidationError as exc:
+        raise InputError(f"{path}: not a scene truth file: {exc.errors()[0]['msg']}") from exc
+
+
+class Renderer:
+    """Draws the frames of a :class:`Scene` (deterministic for a given seed)."""
+
+    def __init__(self, scene: Scene) -> None:
+        self.scene = scene
+        rig = scene.rig
+        self._rig = rig
+        rng = np.random.default_rng(scene.seed)
+        pad = int(math.ceil(rig.baseline_m * rig.focal_px / scene.wall_m)) + 4
+        h, w = scene.height_px, scene.width_px + pad
+        channels = 3 if scene.color else 1
+        tex = np.zeros((h, w, channels), np.float32)
+        for scale, amp in ((64, 20.0), (16, 10.0), (4, 5.0)):
+            small = rng.normal(0.0, 1.0, (h // scale + 2, w // scale + 2, channels))
+            up = cv2.resize(small.astype(np.float32), (w, h), interpolation=cv2.INTER_CUBIC)
+            tex += amp * up.reshape(h, w, channels)
+        tex += 100.0 + np.linspace(-15, 15, w, dtype=np.float32)[None, :, None]
+        self._texture = np.clip(tex, 0, 255)
+        self._wall_disp = rig.baseline_m * rig.focal_px / scene.wall_m
+        self._pad = pad
+        self._rng = np.random.default_rng(scene.seed + 1)
+
+    def background(self, eye: Eye) -> np.ndarray:
+        """The wall as ``eye`` sees it, float32 (h, w, c): a wall point at left column x is at
+        right column x - B f / Z_wall (its disparity)."""
+        x0 = self._wall_disp if eye is Eye.RIGHT else 0.0
+        m = np.float32([[1, 0, x0], [0, 1, 0]])
+        bg = cv2.warpAffine(
+            self._texture,
+            m,
+            (self.scene.width_px, self.scene.height_px),
+            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        )
+        return bg.reshape(self.scene.height_px, self.scene.width_px, -1)
+
+    def render(self, eye: Eye, t_s: float, background: np.ndarray | None = None) -> np.ndarray:
+        """One uint8 frame of ``eye`` at ``t_s`` seconds: grey (h, w) or BGR (h, w, 3)."""
+        sc = self.scene
+        img = (self.background(eye) if background is None else background).copy()
+        balls = [b for b in sc.balls if b.visible(t_s)]
+        balls.sort(key=lambda b: -float(b.position_m(t_s)[2]))
+        shift = 8
+        for b in balls:
+            p = b.position_m(t_s)
+            if p[2] <= b.radius_m:
+                continue
+            left_px, right_px = self._rig.project(p[None, :])
+            uv = (left_px if eye is Eye.LEFT else right_px)[0]
+            r_px = self._rig.focal_px * b.radius_m / p[2]
+            centre = (int(round(uv[0] * (1 << shift))), int(round(uv[1] * (1 << shift))))
+            rad = int(round(r_px * (1 << shift)))
+            # A lit sphere: a dimmer rim, a brighter cap offset towards the light (up-left).
+            color = (b.brightness * 0.9,) * img.shape[2]
+            cv2.circle(img, centre, rad, color, -1, cv2.LINE_AA, shift)
+            hl = (centre[0] - rad // 4, centre[1] - rad // 4)
+            cv2.circle(img, hl, rad // 2, (b.brightness,) * img.shape[2], -1, cv2.LINE_AA, shift)
+        gain = 1.0 + sc.drift * math.sin(2 * math.pi * t_s / sc.drift_period_s)
+        if gain != 1.0:
+            img *= gain
+        if sc.noise_sigma > 0:
+            img += self._rng.normal(0.0, sc.noise_sigma, img.shape).astype(np.float32)
+        out = np.clip(img, 0, 255).astype(np.uint8)
+        return out if sc.color else out[..., 0]
+
+    def frames(self) -> Iterator[tuple[Frame, Frame]]:
+        """Both eyes' frames in order, stamped with the scene's monotonic times (ns)."""
+        sc = self.scene
+        bgs = {eye: self.background(eye) for eye in Eye}
+        for k in range(sc.n_frames):
+            pair = []
+            for eye in Eye:
+                t = sc.frame_time_s(eye, k)
+                pair.append(Frame(eye, self.render(eye, t, bgs[eye]), sc.t_ns(t), k))
+            yield pair[0], pair[1]
+
+
+def write_scene(scene: Scene, out: Path, codec: Codec = Codec.FFV1) -> Path:
+    """Render ``scene`` into recording directory ``out`` with its ``truth.json``; return ``out``."""
+    with RecordingWriter(
+        out,
+        scene.width_px,
+        scene.height_px,
+        fps=scene.fps,
+        codec=codec,
+        color=scene.color,
+        settings={"synthetic": True},
+    ) as writer:
+        for left, right in Renderer(scene).frames():
+            writer.write(left)
+            writer.write(right)
+    (out / TRUTH).write_text(json.dumps(scene.model_dump(mode="json"), indent=2) + "\n")
+    return out
+
+
+class _SynthEye(EyeSource):
+    def __init__(self, eye: Eye, source: _SynthSource) -> None:
+        self.eye = eye
+        self._source = source
+        self._k = 0
+
+    def read(self) -> Frame | None:
+        sc = self._source.scene
+        if self._k >= sc.n_frames:
+            return None
+        k = self._k
+        self._k += 1
+        t = sc.frame_time_s(self.eye, k)
+        img = self._source.renderer.render(self.eye, t, self._source.backgrounds[self.eye])
+        return Frame(self.eye, img, sc.t_ns(t), k)
+
+
+class _SynthSource(StereoSource):
+    def __init__(self, scene: Scene) -> None:
+        self.scene = scene
+        self.renderer = Renderer(scene)
+        self.backgrounds = {eye: self.renderer.background(eye) for eye in Eye}
+        self._left = _SynthEye(Eye.LEFT, self)
+        self._right = _SynthEye(Eye.RIGHT, self)
+
+    @property
+    def info(self) -> SourceInfo:
+        sc = self.scene
+        return SourceInfo(sc.width_px, sc.height_px, sc.fps, False, "synthetic scene")
+
+    @property
+    def left(self) -> EyeSource:
+        return self._left
+
+    @property
+    def right(self) -> EyeSource:
+        return self._right
+
+
+class SyntheticDriver(Driver):
+    """Render a :class:`Scene` on the fly (the ``[driver.options]`` table is the scene)."""
+
+    name = "synthetic"
+
+    def __init__(self, options: dict[str, Any]) -> None:
+        try:
+            self.scene = Scene.model_validate(options)
+        except ValidationError as exc:
+            e = exc.errors(include_url=False)[0]
+            loc = ".".join(str(p) for p in e["loc"])
+            raise ConfigError(f"driver.options.{loc}: {e['msg']}") from exc
+
+    def open(self) -> StereoSource:
+        return _SynthSource(self.scene)

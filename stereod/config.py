@@ -1,0 +1,233 @@
+"""Daemon configuration: one TOML file, ``STEREOD_...`` environment overrides, flags on top.
+
+Precedence, highest first: command-line flags, environment (``STEREOD_DETECTOR__BETA=0.05``:
+section and field joined by a double underscore), the TOML file, the defaults below. Every
+value is validated by pydantic-settings; :func:`load_config` turns a failure into one
+:class:`~stereod.errors.ConfigError` line naming the field, the value and what is allowed.
+
+Example::
+
+    [rig]
+    name = "bench"
+    baseline_m = 0.060     # m, the Minoru's
+    hfov_deg = 60.0        # deg, horizontal field of view of one eye
+
+    [driver]
+    name = "replay"
+    [driver.options]
+    path = "/var/lib/stereod/run1"
+"""
+
+from __future__ import annotations
+
+import contextvars
+import sys
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic.fields import FieldInfo
+from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
+
+from .detect import DetectorParams, Luminance
+from .errors import ConfigError
+from .geometry.stereo import MatchParams
+from .tracking import TrackerParams
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on 3.10 only
+    import tomli as tomllib
+
+DEFAULT_CONFIG_PATH = Path("/etc/stereod/stereod.toml")
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class RigConfig(_Section):
+    """The stereo rig: its name in key expressions and the canonical geometry (eq. 9)."""
+
+    name: str = Field("minoru", pattern=r"^[A-Za-z0-9_\-]+$", description="Rig name in keys")
+    baseline_m: float = Field(0.060, gt=0.0, le=10.0, description="Camera distance B, m")
+    hfov_deg: float = Field(60.0, gt=0.0, lt=180.0, description="Horizontal field of view, deg")
+
+
+class DriverConfig(_Section):
+    """Which frame source to open (entry point in ``stereod.drivers``) and its own options."""
+
+    name: str = Field("v4l2_minoru", description="replay, synthetic, v4l2_minoru, or a plug-in")
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class DetectorConfig(_Section):
+    """Paper sec. II parameters (see :class:`stereod.detect.DetectorParams`)."""
+
+    beta: float = Field(0.02, ge=0.0, lt=1.0, description="Background update, eq. 3, per frame")
+    threshold: float = Field(25.0, gt=0.0, le=255.0, description="t of eq. 4, grey levels")
+    min_area_px: int = Field(30, ge=1, description="Smallest blob, px")
+    warmup_frames: int = Field(10, ge=1, le=10000, description="Frames in the initial background")
+    open_px: int = Field(3, ge=0, le=31, description="Opening kernel side, px; 0 disables")
+    luminance: Luminance = Field(Luminance.BT601, description="bt601 or mean (eq. 2 exactly)")
+
+    def params(self) -> DetectorParams:
+        return DetectorParams(**self.model_dump())
+
+
+class PairingConfig(_Section):
+    """How the two eyes are paired by timestamp."""
+
+    tolerance_ms: float = Field(40.0, gt=0.0, le=1000.0, description="Largest |skew|, ms")
+    max_pending: int = Field(8, ge=2, le=1000, description="Frames one eye may wait, count")
+
+
+class MatchingConfig(_Section):
+    """How blobs are matched between the eyes (see :class:`stereod.geometry.stereo.MatchParams`)."""
+
+    row_tolerance_px: float = Field(6.0, gt=0.0, description="Largest |y_L - y_R|, px")
+    min_disparity_px: float = Field(0.5, ge=0.0, description="Smallest x_L - x_R, px")
+    max_disparity_px: float = Field(200.0, gt=0.0, description="Largest x_L - x_R, px")
+    max_area_ratio: float = Field(2.5, ge=1.0, description="Largest blob area ratio")
+    centroid_sigma_px: float = Field(0.5, gt=0.0, description="Centroid error per axis, px")
+
+    def params(self) -> MatchParams:
+        return MatchParams(
+            row_tolerance_px=self.row_tolerance_px,
+            min_disparity_px=self.min_disparity_px,
+            max_disparity_px=self.max_disparity_px,
+            max_area_ratio=self.max_area_ratio,
+        )
+
+
+class TrackingConfig(_Section):
+    """Association and motion (see :class:`stereod.tracking.TrackerParams`)."""
+
+    gate_m: float = Field(0.35, gt=0.0, description="Association gate, m")
+    time_base_s: float = Field(0.5, gt=0.0, le=60.0, description="tau of eq. 21, s")
+    max_coast_s: float = Field(0.5, ge=0.0, le=60.0, description="Track lives unseen, s")
+    confirm_hits: int = Field(3, ge=1, description="Observations to confirm a track")
+
+    def params(self) -> TrackerParams:
+        return TrackerParams(**self.model_dump())
+
+
+class ZenohConfig(_Section):
+    """The Zenoh session: key prefix, mode and endpoints (``tcp/127.0.0.1:7447``)."""
+
+    prefix: str = Field("stereod", pattern=r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$")
+    mode: Literal["peer", "client", "router"] = "peer"
+    connect: list[str] = Field(default_factory=list, description="Endpoints to connect to")
+    listen: list[str] = Field(default_factory=list, description="Endpoints to listen on")
+    multicast_scouting: bool = Field(False, description="Find peers by multicast")
+
+
+class DaemonConfig(_Section):
+    """Threads, queues and reporting."""
+
+    queue_size: int = Field(4, ge=1, le=1000, description="Pairs waiting for the pipeline")
+    publish_queue_size: int = Field(16, ge=1, le=10000, description="Messages waiting to go out")
+    status_period_s: float = Field(1.0, gt=0.0, le=60.0, description="Status interval, s")
+    detect_workers: int = Field(2, ge=1, le=2, description="Threads detecting the two eyes")
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+
+
+_file_data: contextvars.ContextVar[dict[str, Any]] = contextvars.ContextVar("_file_data")
+
+
+class _FileSource(PydanticBaseSettingsSource):
+    """The already parsed TOML file, below the environment in precedence."""
+
+    def get_field_value(self, field: FieldInfo, field_name: str) -> tuple[Any, str, bool]:
+        return _file_data.get({}).get(field_name), field_name, False
+
+    def __call__(self) -> dict[str, Any]:
+        return dict(_file_data.get({}))
+
+
+class StereodConfig(BaseSettings):
+    """The whole configuration; sections mirror the TOML tables."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="STEREOD_", env_nested_delimiter="__", extra="forbid", case_sensitive=False
+    )
+
+    rig: RigConfig = Field(default_factory=RigConfig)
+    driver: DriverConfig = Field(default_factory=DriverConfig)
+    detector: DetectorConfig = Field(default_factory=DetectorConfig)
+    pairing: PairingConfig = Field(default_factory=PairingConfig)
+    matching: MatchingConfig = Field(default_factory=MatchingConfig)
+    tracking: TrackingConfig = Field(default_factory=TrackingConfig)
+    zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
+    daemon: DaemonConfig = Field(default_factory=DaemonConfig)
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        return (init_settings, env_settings, _FileSource(settings_cls))
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    """Parse a TOML config file; errors name the file and what to do."""
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{path}: no such config file (pass --config FILE)") from exc
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read config file: {exc.strerror}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from exc
+
+
+def _describe(err: Any) -> str:
+    loc = ".".join(str(p) for p in err["loc"])
+    msg = err["msg"]
+    if err["type"] == "extra_forbidden":
+        return f"{loc}: unknown field (check the spelling against `stereod run --help`)"
+    if err["type"] == "missing":
+        return f"{loc}: required field is missing"
+    return f"{loc} = {err.get('input')!r}: {msg}"
+
+
+def format_validation_error(exc: ValidationError, origin: str) -> str:
+    """One line naming every bad field, its value and what is allowed."""
+    parts = [_describe(e) for e in exc.errors(include_url=False)]
+    return f"{origin}: invalid config: " + "; ".join(parts)
+
+
+def load_config(
+    path: Path | None = None, overrides: dict[str, Any] | None = None
+) -> StereodConfig:
+    """Build the configuration from ``path`` (TOML), the environment and ``overrides`` (flags).
+
+    ``overrides`` is a nested dict like ``{"detector": {"beta": 0.05}}``; ``None`` values are
+    ignored so unset flags do not mask the file.
+    """
+    data = read_toml(path) if path is not None else {}
+    token = _file_data.set(data)
+    try:
+        return StereodConfig(**_prune(overrides or {}))
+    except ValidationError as exc:
+        origin = str(path) if path is not None else "configuration"
+        raise ConfigError(format_validation_error(exc, origin)) from exc
+    finally:
+        _file_data.reset(token)
+
+
+def _prune(d: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            sub = _prune(v)
+            if sub:
+                out[k] = sub
+        elif v is not None:
+            out[k] = v
+    return out

@@ -1,0 +1,459 @@
+"""The running daemon: capture threads, pairer, pipeline thread, publisher thread, status loop.
+
+::
+
+    eye thread(s) --frames--> Pairer --pairs--> [queue] --> pipeline --messages--> [queue] --> Zenoh
+                                                                                         \\-> JSONL
+
+A live source gets one capture thread per eye and drop-oldest queues (a camera cannot wait); a
+file source gets one thread that merges the two eyes by timestamp, paced at ``rate`` times real
+time (0 = as fast as possible), and blocking queues (nothing is lost). Every drop is counted by
+reason and reported on the status key; a bad frame or a failing pair is counted and skipped.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from .config import StereodConfig
+from .errors import OutputError, StereodError
+from .frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoPair, StereoSource
+from .geometry.stereo import CanonicalRig
+from .messages import EyeStatus, StatsMessage, StatusMessage, dump
+from .pairing import Pairer
+from .pipeline import PairResult, Pipeline, PipelineParams
+from .publish import Publisher
+from .queues import BoundedQueue, Closed
+
+log = logging.getLogger(__name__)
+
+DROP_PIPELINE_BEHIND = "pipeline_behind"
+"""A pair waited too long for the pipeline and a newer one replaced it (live sources)."""
+DROP_PUBLISH_BEHIND = "publish_behind"
+"""A message waited too long for the publisher and a newer one replaced it (live sources)."""
+DROP_PIPELINE_ERROR = "pipeline_error"
+"""Processing a pair raised an error; the pair was skipped."""
+
+
+@dataclass
+class RunSummary:
+    """What a run did; ``error`` is set when it stopped on a fatal problem."""
+
+    pairs: int = 0
+    published: int = 0
+    objects: int = 0
+    frames: dict[str, int] = field(default_factory=dict)
+    drops: dict[str, int] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
+    error: StereodError | None = None
+
+
+@dataclass
+class _Outgoing:
+    payload: bytes
+    tracks: list[tuple[int, bytes]]
+    ended: list[int]
+    n_objects: int
+
+
+class _EyeHealth:
+    def __init__(self) -> None:
+        self.state = "starting"
+        self.frames = 0
+        self.errors = 0
+        self.last_error: str | None = None
+        self._frames_at_last_status = 0
+
+    def fps(self, period_s: float) -> float:
+        n = self.frames - self._frames_at_last_status
+        self._frames_at_last_status = self.frames
+        return n / period_s if period_s > 0 else 0.0
+
+
+class Daemon:
+    """Runs one rig from an opened driver until the input ends or :meth:`stop` is called."""
+
+    def __init__(
+        self,
+        cfg: StereodConfig,
+        driver: Driver,
+        *,
+        rate: float = 1.0,
+        jsonl: Path | None = None,
+        wait_subscriber_s: float = 0.0,
+    ) -> None:
+        self.cfg = cfg
+        self.driver = driver
+        self.rate = rate
+        self.jsonl = jsonl
+        self.wait_subscriber_s = wait_subscriber_s
+        self._stop = threading.Event()
+        self._status_now = threading.Event()
+        self._lock = threading.Lock()
+        self._problems: collections.deque[str] = collections.deque(maxlen=20)
+        self._all_problems: list[str] = []
+        self._eyes = {Eye.LEFT: _EyeHealth(), Eye.RIGHT: _EyeHealth()}
+        self._pipeline_ms: collections.deque[float] = collections.deque(maxlen=2000)
+        self._skews_ms: list[float] = []
+        self._residuals: list[float] = []
+        self._errors: collections.Counter[str] = collections.Counter()
+        self._fatal: StereodError | None = None
+        self._state = "starting"
+        self._started = time.monotonic()
+        self._summary = RunSummary()
+        self._info: SourceInfo | None = None
+        self._pairer = Pairer(int(cfg.pairing.tolerance_ms * 1e6), cfg.pairing.max_pending)
+
+    def stop(self) -> None:
+        """Ask the daemon to stop: capture ends, queued work drains, the session closes."""
+        self._stop.set()
+
+    def problem(self, text: str) -> None:
+        """Record a non-fatal problem: logged once, kept for the status key."""
+        log.warning("%s", text)
+        with self._lock:
+            self._problems.append(text)
+            self._all_problems.append(text)
+        self._status_now.set()
+
+    def run(self) -> RunSummary:
+        """Open the source and the session, run to the end of input or :meth:`stop`."""
+        jsonl_fh = self._open_jsonl()
+        try:
+            with self.driver.open() as source:
+                self._info = source.info
+                return self._run(source, jsonl_fh)
+        finally:
+            if jsonl_fh is not None:
+                jsonl_fh.close()
+
+    def _open_jsonl(self) -> IO[bytes] | None:
+        if self.jsonl is None:
+            return None
+        try:
+            return self.jsonl.open("wb")
+        except OSError as exc:
+            raise OutputError(f"{self.jsonl}: cannot write JSONL output: {exc.strerror}") from exc
+
+    def _run(self, source: StereoSource, jsonl_fh: IO[bytes] | None) -> RunSummary:
+        cfg = self.cfg
+        info = source.info
+        live = info.live
+        rig = CanonicalRig(cfg.rig.baseline_m, cfg.rig.hfov_deg, info.width, info.height)
+        params = PipelineParams(
+            rig_name=cfg.rig.name,
+            rig=rig,
+            detector=cfg.detector.params(),
+            matching=cfg.matching.params(),
+            tracker=cfg.tracking.params(),
+            centroid_sigma_px=cfg.matching.centroid_sigma_px,
+            detect_workers=cfg.daemon.detect_workers,
+        )
+        offset = info.utc_offset_ns
+        if offset is None and live:
+            offset = time.time_ns() - time.monotonic_ns()
+        self._utc_offset_ns = offset
+        self._pipeline = Pipeline(params, offset or 0)
+        self._rig = rig
+        self._pairs: BoundedQueue[tuple[StereoPair, int]] = BoundedQueue(
+            cfg.daemon.queue_size, drop_oldest=live
+        )
+        self._out: BoundedQueue[_Outgoing] = BoundedQueue(
+            cfg.daemon.publish_queue_size, drop_oldest=live
+        )
+        queryables = {
+            "config": lambda: self.cfg.model_dump_json().encode(),
+            "calibration": self._calibration_json,
+            "stats": lambda: dump(self.stats()),
+        }
+        with Publisher(cfg.zenoh, cfg.rig.name, queryables, self._status_now.set) as pub:
+            self._publisher = pub
+            self._wait_for_subscriber(pub)
+            self._state = "running"
+            threads = self._capture_threads(source, live)
+            threads.append(threading.Thread(target=self._pipeline_loop, name="pipeline"))
+            publisher = threading.Thread(
+                target=self._publish_loop, args=(pub, jsonl_fh), name="publish"
+            )
+            threads.append(publisher)
+            for t in threads:
+                t.start()
+            period = cfg.daemon.status_period_s
+            last = time.monotonic()
+            pub.status(dump(self._status_message(period)))
+            while publisher.is_alive():
+                self._status_now.wait(min(period, 0.25))
+                now = time.monotonic()
+                if self._status_now.is_set() or now - last >= period:
+                    self._status_now.clear()
+                    pub.status(dump(self._status_message(max(now - last, 1e-3))))
+                    last = now
+            for t in threads:
+                t.join()
+            self._pipeline.close()
+            for p in source.problems():
+                self.problem(p)
+            self._state = "finished"
+            pub.status(dump(self._status_message(max(time.monotonic() - last, 1e-3))))
+        return self._finish()
+
+    def _wait_for_subscriber(self, pub: Publisher) -> None:
+        deadline = time.monotonic() + self.wait_subscriber_s
+        while time.monotonic() < deadline and not self._stop.is_set():
+            if pub.has_objects_subscriber():
+                return
+            time.sleep(0.02)
+
+    def _finish(self) -> RunSummary:
+        s = self._summary
+        st = self._pairer.stats
+        s.pairs = st.pairs
+        s.frames = {e.value: n for e, n in st.frames.items()}
+        s.drops = self._drops()
+        s.problems = list(self._all_problems)
+        s.published = self._publisher.published
+        s.error = self._fatal
+        return s
+
+    def _drops(self) -> dict[str, int]:
+        d = dict(self._pairer.stats.drops)
+        if self._pairs.dropped:
+            d[DROP_PIPELINE_BEHIND] = self._pairs.dropped
+        if self._out.dropped:
+            d[DROP_PUBLISH_BEHIND] = self._out.dropped
+        d.update(self._errors)
+        return {k: v for k, v in d.items() if v}
+
+    # -- capture ---------------------------------------------------------------------------
+
+    def _capture_threads(self, source: StereoSource, live: bool) -> list[threading.Thread]:
+        if live:
+            self._eyes_done = 0
+            return [
+                threading.Thread(target=self._eye_loop, args=(eye,), name=f"capture-{eye.eye.value}")
+                for eye in (source.left, source.right)
+            ]
+        return [threading.Thread(target=self._merge_loop, args=(source,), name="capture")]
+
+    def _push(self, frame: Frame) -> bool:
+        if frame.image.shape[:2] != (self._rig.height_px, self._rig.width_px):
+            health = self._eyes[frame.eye]
+            health.errors += 1
+            health.last_error = (
+                f"frame {frame.seq} is {frame.image.shape[1]}x{frame.image.shape[0]}, "
+                f"stream is {self._rig.width_px}x{self._rig.height_px}"
+            )
+            self.problem(f"{frame.eye.value} eye: {health.last_error}; skipped")
+            return True
+        if self._utc_offset_ns is None:
+            self._utc_offset_ns = time.time_ns() - frame.t_ns
+            self._pipeline.utc_offset_ns = self._utc_offset_ns
+        with self._lock:
+            health = self._eyes[frame.eye]
+            health.frames += 1
+            health.state = "streaming"
+            pairs = self._pairer.push(frame)
+        now = time.perf_counter_ns()
+        return all(self._pairs.put((p, now), self._stop) for p in pairs)
+
+    def _eye_loop(self, eye: EyeSource) -> None:
+        health = self._eyes[eye.eye]
+        try:
+            while not self._stop.is_set():
+                frame = eye.read()
+                if frame is None:
+                    break
+                self._push(frame)
+        except StereodError as exc:
+            health.state = "down"
+            health.last_error = str(exc)
+            self.problem(f"{eye.eye.value} eye: {exc}")
+        finally:
+            if health.state != "down":
+                health.state = "ended"
+            with self._lock:
+                self._eyes_done += 1
+                last = self._eyes_done == 2
+            if last:
+                self._end_capture()
+
+    def _merge_loop(self, source: StereoSource) -> None:
+        heads: dict[Eye, Frame | None] = {}
+        eyes = {Eye.LEFT: source.left, Eye.RIGHT: source.right}
+        t_first: int | None = None
+        wall_first = 0.0
+        try:
+            for eye, src in eyes.items():
+                heads[eye] = src.read()
+            while not self._stop.is_set():
+                ready = [f for f in heads.values() if f is not None]
+                if not ready:
+                    break
+                frame = min(ready, key=lambda f: f.t_ns)
+                if self.rate > 0:
+                    if t_first is None:
+                        t_first, wall_first = frame.t_ns, time.monotonic()
+                    due = wall_first + (frame.t_ns - t_first) * 1e-9 / self.rate
+                    delay = due - time.monotonic()
+                    if delay > 0 and self._stop.wait(delay):
+                        break
+                if not self._push(frame):
+                    break
+                heads[frame.eye] = eyes[frame.eye].read()
+                if heads[frame.eye] is None:
+                    self._eyes[frame.eye].state = "ended"
+        except StereodError as exc:
+            self._fatal = exc
+            self.problem(str(exc))
+        finally:
+            for h in self._eyes.values():
+                if h.state != "down":
+                    h.state = "ended"
+            self._end_capture()
+
+    def _end_capture(self) -> None:
+        with self._lock:
+            pairs = self._pairer.flush()
+        now = time.perf_counter_ns()
+        for p in pairs:
+            self._pairs.put((p, now), self._stop)
+        self._pairs.close()
+
+    # -- pipeline and publishing -------------------------------------------------------------
+
+    def _pipeline_loop(self) -> None:
+        try:
+            while True:
+                try:
+                    item = self._pairs.get(timeout=0.25)
+                except Closed:
+                    break
+                if item is None:
+                    continue
+                pair, queued_at = item
+                try:
+                    result = self._pipeline.process(pair, time.perf_counter_ns() - queued_at)
+                except Exception as exc:  # one bad pair must not stop the daemon
+                    self._errors[DROP_PIPELINE_ERROR] += 1
+                    self.problem(f"pair {pair.seq}: processing failed: {exc}")
+                    continue
+                self._account(pair, result)
+                self._out.put(self._outgoing(result), self._stop)
+            ended = self._pipeline.tracker.end_all()
+            if ended:
+                self._out.put(_Outgoing(b"", [], ended, 0), self._stop)
+        finally:
+            self._out.close()
+
+    def _account(self, pair: StereoPair, result: PairResult) -> None:
+        with self._lock:
+            self._pipeline_ms.append(result.message.latency.pipeline_ms)
+            self._skews_ms.append(abs(pair.skew_ns) * 1e-6)
+            self._residuals.extend(float(r) for r in result.row_residuals_px)
+        self._summary.objects += len(result.message.objects)
+
+    @staticmethod
+    def _outgoing(result: PairResult) -> _Outgoing:
+        msg = result.message
+        tracks = [(o.track_id, dump(o)) for o in msg.objects]
+        return _Outgoing(dump(msg), tracks, result.ended, len(msg.objects))
+
+    def _publish_loop(self, pub: Publisher, jsonl_fh: IO[bytes] | None) -> None:
+        while True:
+            try:
+                out = self._out.get(timeout=0.25)
+            except Closed:
+                break
+            if out is None:
+                continue
+            if out.payload:
+                pub.objects(out.payload, out.tracks, out.ended)
+                if jsonl_fh is not None:
+                    jsonl_fh.write(out.payload + b"\n")
+            else:
+                pub.objects_end(out.ended)
+
+    # -- status ------------------------------------------------------------------------------
+
+    def _eye_status(self, eye: Eye, period_s: float) -> EyeStatus:
+        h = self._eyes[eye]
+        return EyeStatus(
+            state=h.state,  # type: ignore[arg-type]
+            fps=round(h.fps(period_s), 3),
+            frames=h.frames,
+            errors=h.errors,
+            last_error=h.last_error,
+        )
+
+    def _status_message(self, period_s: float) -> StatusMessage:
+        with self._lock:
+            skews, self._skews_ms = self._skews_ms, []
+            resid, self._residuals = self._residuals, []
+            problems = list(self._problems)
+        st = self._pairer.stats
+        eyes_ok = all(h.state in ("starting", "streaming") for h in self._eyes.values())
+        state = self._state
+        if state == "running" and not eyes_ok and self._info is not None and self._info.live:
+            state = "degraded"
+        info = self._info
+        return StatusMessage(
+            rig=self.cfg.rig.name,
+            state=state,  # type: ignore[arg-type]
+            stamp_utc_ns=time.time_ns(),
+            uptime_s=round(time.monotonic() - self._started, 3),
+            driver=self.driver.name,
+            source=info.description if info else "",
+            left=self._eye_status(Eye.LEFT, period_s),
+            right=self._eye_status(Eye.RIGHT, period_s),
+            pairs=st.pairs,
+            pairs_per_s=round(len(skews) / period_s, 3),
+            published=self._publisher.published,
+            drops=self._drops(),
+            skew_ms_mean=round(float(np.mean(skews)), 3) if skews else None,
+            skew_ms_max=round(float(np.max(skews)), 3) if skews else None,
+            queue_depth=len(self._pairs),
+            geometry="canonical",
+            epipolar_residual_px=round(float(np.median(resid)), 4) if resid else None,
+            problems=problems,
+        )
+
+    def stats(self) -> StatsMessage:
+        """Counters since start (the ``stats`` queryable)."""
+        with self._lock:
+            ms = np.array(self._pipeline_ms) if self._pipeline_ms else None
+        st = self._pairer.stats
+        return StatsMessage(
+            rig=self.cfg.rig.name,
+            frames={e.value: n for e, n in st.frames.items()},
+            pairs=st.pairs,
+            published=self._publisher.published,
+            publish_errors=self._publisher.errors,
+            drops=self._drops(),
+            queue_depth=len(self._pairs),
+            pipeline_ms_p50=float(np.percentile(ms, 50)) if ms is not None else None,
+            pipeline_ms_p99=float(np.percentile(ms, 99)) if ms is not None else None,
+        )
+
+    def _calibration_json(self) -> bytes:
+        r = self._rig
+        return json.dumps(
+            {
+                "geometry": "canonical",
+                "baseline_m": r.baseline_m,
+                "hfov_deg": r.hfov_deg,
+                "width_px": r.width_px,
+                "height_px": r.height_px,
+                "focal_px": r.focal_px,
+                "cx_px": r.cx_px,
+                "cy_px": r.cy_px,
+            }
+        ).encode()

@@ -1,0 +1,38 @@
+"""Find frame-source drivers through the ``stereod.drivers`` entry-point group.
+
+The core never imports a driver module by name, so a third party adds a driver by declaring an
+entry point ``name = "package.module:DriverClass"``; the class takes the ``[driver.options]``
+table as a dict and subclasses :class:`stereod.frames.Driver`.
+"""
+
+from __future__ import annotations
+
+from importlib.metadata import entry_points
+from typing import Any
+
+from .errors import ConfigError
+from .frames import Driver
+
+GROUP = "stereod.drivers"
+
+
+def available() -> list[str]:
+    """Names of the installed drivers, sorted."""
+    return sorted(ep.name for ep in entry_points(group=GROUP))
+
+
+def load_driver(name: str, options: dict[str, Any]) -> Driver:
+    """Instantiate driver ``name`` with ``options``; unknown names list what is installed."""
+    found = [ep for ep in entry_points(group=GROUP) if ep.name == name]
+    if not found:
+        raise ConfigError(
+            f"driver.name = {name!r}: no such driver; installed: {', '.join(available()) or 'none'}"
+        )
+    try:
+        cls = found[0].load()
+    except ImportError as exc:
+        raise ConfigError(f"driver.name = {name!r}: cannot load its module: {exc}") from exc
+    driver = cls(options)
+    if not isinstance(driver, Driver):
+        raise ConfigError(f"driver.name = {name!r}: {cls!r} is not a stereod Driver")
+    return driver

@@ -1,0 +1,138 @@
+"""Frames, stereo pairs and the one interface every frame source implements.
+
+A driver (V4L2 camera, replay of files, synthetic renderer) opens a :class:`StereoSource`, which
+hands out one :class:`EyeSource` per eye. The daemon reads each eye in its own thread when the
+source is live, or merges the two by timestamp in one thread when it is a file (so nothing is
+dropped and playback can be paced by the recorded timestamps).
+"""
+
+from __future__ import annotations
+
+import enum
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+
+class Eye(str, enum.Enum):
+    """Which camera of the rig a frame came from."""
+
+    LEFT = "left"
+    """The camera at x = -B/2 in the rig frame (on the left as the camera sees)."""
+    RIGHT = "right"
+    """The camera at x = +B/2 in the rig frame."""
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One image from one eye.
+
+    ``image`` is (h, w) uint8 luminance or (h, w, 3) uint8 BGR. ``t_ns`` is the capture instant on
+    the source's monotonic clock (the kernel's CLOCK_MONOTONIC for cameras), never the time it
+    was processed; ``seq`` is the source's frame sequence number (V4L2 ``sequence``).
+    """
+
+    eye: Eye
+    image: np.ndarray
+    t_ns: int
+    seq: int
+
+
+@dataclass(frozen=True, slots=True)
+class StereoPair:
+    """A left and a right frame taken close enough in time to be triangulated together.
+
+    ``skew_ns`` = right.t_ns - left.t_ns; ``t_ns`` is the midpoint of the two capture instants.
+    """
+
+    seq: int
+    left: Frame
+    right: Frame
+
+    @property
+    def skew_ns(self) -> int:
+        return self.right.t_ns - self.left.t_ns
+
+    @property
+    def t_ns(self) -> int:
+        return (self.left.t_ns + self.right.t_ns) // 2
+
+
+class EyeSource(ABC):
+    """Frames of one eye, in capture order."""
+
+    eye: Eye
+
+    @abstractmethod
+    def read(self) -> Frame | None:
+        """Block until the next frame; ``None`` at the end of a finite source.
+
+        Raises :class:`stereod.errors.StereodError` on a failure the caller should report.
+        """
+
+    def close(self) -> None:  # noqa: B027 - optional hook
+        """Release the eye's resources; idempotent."""
+
+
+@dataclass
+class SourceInfo:
+    """What a source says about itself: image size (px), nominal rate (Hz) and free-form settings."""
+
+    width: int
+    height: int
+    fps: float | None
+    live: bool
+    description: str
+    settings: dict[str, Any] = field(default_factory=dict)
+    utc_offset_ns: int | None = None
+    """Wall clock minus the source's monotonic clock (ns), when the source knows it."""
+
+
+class StereoSource(ABC):
+    """An opened stereo source: two eyes and a description. Use as a context manager."""
+
+    @property
+    @abstractmethod
+    def info(self) -> SourceInfo:
+        """Size, rate and whether frames arrive in real time from hardware (``live``)."""
+
+    @property
+    @abstractmethod
+    def left(self) -> EyeSource: ...
+
+    @property
+    @abstractmethod
+    def right(self) -> EyeSource: ...
+
+    def problems(self) -> list[str]:
+        """Non-fatal problems found while reading (for example a truncated video), one line each."""
+        return []
+
+    def close(self) -> None:
+        self.left.close()
+        self.right.close()
+
+    def __enter__(self) -> StereoSource:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class Driver(ABC):
+    """A named way to open a :class:`StereoSource`, registered in the ``stereod.drivers`` entry-point
+    group. ``options`` come from the ``[driver]`` table of the config."""
+
+    name: str = ""
+
+    @abstractmethod
+    def open(self) -> StereoSource:
+        """Open the source; raise a :class:`stereod.errors.StereodError` naming what failed."""

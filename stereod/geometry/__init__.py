@@ -1,0 +1,1 @@
+"""Stereo geometry: matching blobs between the eyes and triangulating them in the rig frame."""

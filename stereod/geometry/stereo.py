@@ -1,0 +1,164 @@
+"""Canonical stereo geometry (paper sec. III) and blob matching between the eyes.
+
+Rig frame (design sec. 3): origin at the midpoint of the baseline, X to the right as the camera
+sees, Y down, Z forward along the parallel optical axes; metres. The canonical rig has two
+identical pinhole cameras at x = -B/2 (left) and x = +B/2 (right) with square pixels and the
+principal point at the image centre ((w - 1) / 2, (h - 1) / 2) in OpenCV pixel coordinates.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..detect import Blobs
+
+
+@dataclass(frozen=True, slots=True)
+class CanonicalRig:
+    """Two parallel identical cameras ``baseline_m`` apart with horizontal field of view
+    ``hfov_deg`` over ``width_px`` pixels (eq. 9's B, phi_0 and x_0)."""
+
+    baseline_m: float
+    hfov_deg: float
+    width_px: int
+    height_px: int
+
+    def __post_init__(self) -> None:
+        if not self.baseline_m > 0:
+            raise ValueError(f"baseline must be > 0 m, got {self.baseline_m}")
+        if not 0 < self.hfov_deg < 180:
+            raise ValueError(f"horizontal field of view must be in (0, 180) deg, got {self.hfov_deg}")
+        if self.width_px <= 0 or self.height_px <= 0:
+            raise ValueError(f"image size must be positive, got {self.width_px}x{self.height_px}")
+
+    @property
+    def focal_px(self) -> float:
+        """f = x_0 / (2 tan(phi_0 / 2)) (px): eq. 9 is then D = B f / (x_L - x_R)."""
+        return self.width_px / (2.0 * math.tan(math.radians(self.hfov_deg) / 2.0))
+
+    @property
+    def cx_px(self) -> float:
+        return (self.width_px - 1) / 2.0
+
+    @property
+    def cy_px(self) -> float:
+        return (self.height_px - 1) / 2.0
+
+    @property
+    def pixel_angle_rad(self) -> float:
+        """Eq. 10: the angle of view of one pixel, delta phi = phi_0 / x_0 (rad)."""
+        return math.radians(self.hfov_deg) / self.width_px
+
+    def depth_error_one_px_m(self, depth_m: np.ndarray | float) -> np.ndarray | float:
+        """Eq. 12: distance error of a one-pixel positioning error, D^2 / B tan(delta phi) (m)."""
+        return np.square(depth_m) / self.baseline_m * math.tan(self.pixel_angle_rad)
+
+    def project(self, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pinhole projection of (n, 3) rig-frame points (m) into left and right (n, 2) px."""
+        p = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
+        f, half = self.focal_px, self.baseline_m / 2.0
+        z = p[:, 2]
+        y = f * p[:, 1] / z + self.cy_px
+        xl = f * (p[:, 0] + half) / z + self.cx_px
+        xr = f * (p[:, 0] - half) / z + self.cx_px
+        return np.stack([xl, y], axis=1), np.stack([xr, y], axis=1)
+
+    def triangulate(
+        self, left_px: np.ndarray, right_px: np.ndarray, sigma_px: float = 0.5
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Eq. 9 and the pinhole model: (n, 2) matched centroids (px) to (n, 3) points (m).
+
+        Z = B f / (x_L - x_R) (eq. 9); X and Y from the mean of the two rays. Returns the points
+        and their (n, 3, 3) covariance (m^2), propagated from an isotropic centroid error of
+        ``sigma_px`` per coordinate per eye through the Jacobian. A one-pixel disparity error
+        moves Z by D^2 / (B f), the exact form of eq. 12's D^2 / B tan(delta phi).
+        """
+        left = np.atleast_2d(np.asarray(left_px, dtype=np.float64))
+        right = np.atleast_2d(np.asarray(right_px, dtype=np.float64))
+        f, b = self.focal_px, self.baseline_m
+        d = left[:, 0] - right[:, 0]
+        z = b * f / d
+        u = 0.5 * (left[:, 0] + right[:, 0]) - self.cx_px
+        v = 0.5 * (left[:, 1] + right[:, 1]) - self.cy_px
+        x = u * z / f
+        y = v * z / f
+        points = np.stack([x, y, z], axis=1)
+        # Jacobian of (X, Y, Z) w.r.t. (x_L, x_R, y_L, y_R); dZ/dx_L = -Z/d, dZ/dx_R = Z/d.
+        n = len(d)
+        jac = np.zeros((n, 3, 4))
+        dz_dxl = -z / d
+        jac[:, 2, 0] = dz_dxl
+        jac[:, 2, 1] = -dz_dxl
+        jac[:, 0, 0] = 0.5 * z / f + u / f * dz_dxl
+        jac[:, 0, 1] = 0.5 * z / f - u / f * dz_dxl
+        jac[:, 1, 0] = v / f * dz_dxl
+        jac[:, 1, 1] = -v / f * dz_dxl
+        jac[:, 1, 2] = 0.5 * z / f
+        jac[:, 1, 3] = 0.5 * z / f
+        cov = sigma_px**2 * np.einsum("nik,njk->nij", jac, jac)
+        return points, cov
+
+
+@dataclass(frozen=True, slots=True)
+class MatchParams:
+    """How left and right blobs are matched.
+
+    ``row_tolerance_px``: largest |y_L - y_R| (px) on rectified rows.
+    ``min_disparity_px`` / ``max_disparity_px``: allowed x_L - x_R (px); the maximum sets the
+    nearest depth, B f / d_max. ``max_area_ratio``: largest ratio between the two blob areas.
+    """
+
+    row_tolerance_px: float = 6.0
+    min_disparity_px: float = 0.5
+    max_disparity_px: float = 200.0
+    max_area_ratio: float = 2.5
+
+
+def match_blobs(
+    left_px: np.ndarray,
+    left_area: np.ndarray,
+    right_px: np.ndarray,
+    right_area: np.ndarray,
+    params: MatchParams,
+) -> np.ndarray:
+    """Match blobs by row, disparity range and size; return (m, 2) int index pairs (left, right).
+
+    Candidates must lie on the same row within the tolerance, at a positive disparity in range,
+    with similar areas. Each blob is used once: pairs are taken greedily by increasing cost
+    (row difference in tolerances plus log area ratio), which is optimal for the few, well
+    separated blobs a scene has and needs no solver.
+    """
+    nl, nr = len(left_px), len(right_px)
+    if nl == 0 or nr == 0:
+        return np.zeros((0, 2), dtype=np.intp)
+    dy = np.abs(left_px[:, None, 1] - right_px[None, :, 1])
+    disp = left_px[:, None, 0] - right_px[None, :, 0]
+    ratio = np.abs(
+        np.log(np.maximum(left_area[:, None], 1) / np.maximum(right_area[None, :], 1).astype(float))
+    )
+    ok = (
+        (dy <= params.row_tolerance_px)
+        & (disp >= params.min_disparity_px)
+        & (disp <= params.max_disparity_px)
+        & (ratio <= math.log(params.max_area_ratio))
+    )
+    cost = np.where(ok, dy / params.row_tolerance_px + ratio, np.inf)
+    order = np.argsort(cost, axis=None)
+    used_l = np.zeros(nl, bool)
+    used_r = np.zeros(nr, bool)
+    out = []
+    for flat in order[: int(ok.sum())]:
+        i, j = divmod(int(flat), nr)
+        if used_l[i] or used_r[j]:
+            continue
+        used_l[i] = used_r[j] = True
+        out.append((i, j))
+    return np.array(out, dtype=np.intp).reshape(-1, 2)
+
+
+def matched_blobs(left: Blobs, right: Blobs, params: MatchParams) -> np.ndarray:
+    """:func:`match_blobs` on two :class:`~stereod.detect.Blobs`."""
+    return match_blobs(left.centroid_px, left.area_px, right.centroid_px, right.area_px, params)

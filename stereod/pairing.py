@@ -1,0 +1,119 @@
+"""Pair left and right frames by nearest capture timestamp (design sec. 1).
+
+The Minoru's eyes free-run, so a left frame's best partner is the right frame nearest in time,
+at most half a frame period away. The pairer sees both streams in arrival order and decides each
+pair as soon as it is unambiguous: the earlier head frame is paired with the other eye's head when
+no later frame of its own eye could be nearer to that partner. Every frame that is not paired is
+counted under a reason. The class is single-threaded and pure; the daemon serialises calls.
+"""
+
+from __future__ import annotations
+
+import collections
+from dataclasses import dataclass, field
+
+from .frames import Eye, Frame, StereoPair
+
+DROP_NO_PARTNER = "no_partner"
+"""No frame of the other eye within the tolerance."""
+DROP_SUPERSEDED = "superseded"
+"""The next frame of the same eye was nearer to the partner."""
+DROP_NON_MONOTONIC = "non_monotonic"
+"""The frame's timestamp was not after the previous frame of the same eye."""
+DROP_OVERFLOW = "overflow"
+"""Too many frames of one eye waited for the other eye (the other eye stalled)."""
+
+
+@dataclass
+class PairerStats:
+    """Counters since start: frames in per eye, pairs out, drops by reason."""
+
+    frames: dict[Eye, int] = field(default_factory=lambda: {Eye.LEFT: 0, Eye.RIGHT: 0})
+    pairs: int = 0
+    drops: dict[str, int] = field(default_factory=collections.Counter)
+
+
+class Pairer:
+    """Match the two eyes by nearest timestamp within ``tolerance_ns``.
+
+    ``max_pending`` bounds how many frames of one eye may wait for the other; beyond that the
+    oldest is dropped (``overflow``), so a stalled eye never grows memory.
+    """
+
+    def __init__(self, tolerance_ns: int, max_pending: int = 8) -> None:
+        if tolerance_ns <= 0:
+            raise ValueError(f"pairing tolerance must be > 0 ns, got {tolerance_ns}")
+        self.tolerance_ns = tolerance_ns
+        self.max_pending = max(2, max_pending)
+        self._pending: dict[Eye, collections.deque[Frame]] = {
+            Eye.LEFT: collections.deque(),
+            Eye.RIGHT: collections.deque(),
+        }
+        self._last_t: dict[Eye, int | None] = {Eye.LEFT: None, Eye.RIGHT: None}
+        self._period_ns: dict[Eye, float | None] = {Eye.LEFT: None, Eye.RIGHT: None}
+        self._next_seq = 0
+        self.stats = PairerStats()
+
+    def period_ns(self, eye: Eye) -> float | None:
+        """Running estimate of an eye's frame period (ns), from successive timestamps."""
+        return self._period_ns[eye]
+
+    def push(self, frame: Frame) -> list[StereoPair]:
+        """Take one frame; return the pairs that became unambiguous."""
+        eye = frame.eye
+        self.stats.frames[eye] += 1
+        last = self._last_t[eye]
+        if last is not None and frame.t_ns <= last:
+            self.stats.drops[DROP_NON_MONOTONIC] += 1
+            return []
+        if last is not None:
+            dt = float(frame.t_ns - last)
+            p = self._period_ns[eye]
+            self._period_ns[eye] = dt if p is None else 0.9 * p + 0.1 * dt
+        self._last_t[eye] = frame.t_ns
+        queue = self._pending[eye]
+        queue.append(frame)
+        if len(queue) > self.max_pending:
+            queue.popleft()
+            self.stats.drops[DROP_OVERFLOW] += 1
+        return self._match(final=False)
+
+    def flush(self) -> list[StereoPair]:
+        """End of input: pair what can be paired and count the rest as unpaired."""
+        pairs = self._match(final=True)
+        for queue in self._pending.values():
+            self.stats.drops[DROP_NO_PARTNER] += len(queue)
+            queue.clear()
+        return pairs
+
+    def pending(self) -> int:
+        """Frames waiting for a partner, both eyes."""
+        return sum(len(q) for q in self._pending.values())
+
+    def _match(self, *, final: bool) -> list[StereoPair]:
+        out: list[StereoPair] = []
+        left, right = self._pending[Eye.LEFT], self._pending[Eye.RIGHT]
+        while left and right:
+            early_q, other_q = (left, right) if left[0].t_ns <= right[0].t_ns else (right, left)
+            early, other = early_q[0], other_q[0]
+            gap = other.t_ns - early.t_ns
+            if gap > self.tolerance_ns:
+                early_q.popleft()
+                self.stats.drops[DROP_NO_PARTNER] += 1
+                continue
+            if len(early_q) > 1:
+                if abs(early_q[1].t_ns - other.t_ns) < gap:
+                    early_q.popleft()
+                    self.stats.drops[DROP_SUPERSEDED] += 1
+                    continue
+            elif not final:
+                period = self._period_ns[early.eye]
+                if period is None or 2 * gap > period:
+                    break
+            early_q.popleft()
+            other_q.popleft()
+            l_frame, r_frame = (early, other) if early.eye is Eye.LEFT else (other, early)
+            out.append(StereoPair(self._next_seq, l_frame, r_frame))
+            self._next_seq += 1
+            self.stats.pairs += 1
+        return out

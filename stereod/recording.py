@@ -1,0 +1,218 @@
+"""The project's recording format (design sec. 6): what a stereo source delivered, replayable.
+
+A recording is a directory::
+
+    recording.json   manifest (pydantic-validated): format version, size, rate, codec, settings
+    left.mkv         left eye video (FFV1 lossless by default; MJPG is lossy)
+    left.csv         ``t_ns,seq``: one row per frame, monotonic capture time (ns) and sequence
+    right.mkv, right.csv
+
+Replay reproduces the frames (bit-exact with FFV1) and the timestamps and sequence numbers.
+"""
+
+from __future__ import annotations
+
+import csv
+import enum
+import json
+import time
+from pathlib import Path
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from .errors import InputError, MissingInputError, OutputError
+from .frames import Eye, Frame
+
+MANIFEST = "recording.json"
+FORMAT = "stereod.recording/1"
+
+
+class Codec(str, enum.Enum):
+    """Video codec of a recording."""
+
+    FFV1 = "ffv1"
+    """Lossless (FFmpeg FFV1 in Matroska): replay gives back the exact pixels."""
+    MJPG = "mjpg"
+    """Motion JPEG in AVI: about 10x smaller, lossy."""
+
+
+_FOURCC = {Codec.FFV1: "FFV1", Codec.MJPG: "MJPG"}
+_EXT = {Codec.FFV1: ".mkv", Codec.MJPG: ".avi"}
+
+
+class EyeFiles(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    video: str
+    timestamps: str
+    frames: int = Field(ge=0)
+
+
+class Manifest(BaseModel):
+    """``recording.json``: how to read a recording back."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    format: Literal["stereod.recording/1"] = FORMAT
+    width: int = Field(gt=0)
+    height: int = Field(gt=0)
+    fps: float | None = Field(default=None, gt=0)
+    codec: Codec = Codec.FFV1
+    color: bool = False
+    left: EyeFiles
+    right: EyeFiles
+    utc_offset_ns: int | None = None
+    created_utc: str = ""
+    settings: dict[str, Any] = Field(default_factory=dict)
+    calibration: dict[str, Any] | None = None
+
+
+def read_manifest(directory: Path) -> Manifest:
+    """Load and validate ``recording.json``; errors name the file and the field."""
+    path = directory / MANIFEST
+    if not directory.exists():
+        raise MissingInputError(f"{directory}: no such recording directory")
+    if not path.is_file():
+        raise MissingInputError(
+            f"{directory}: not a recording ({MANIFEST} missing); for plain videos use "
+            "--left-video/--right-video"
+        )
+    try:
+        return Manifest.model_validate_json(path.read_bytes())
+    except ValidationError as exc:
+        e = exc.errors(include_url=False)[0]
+        loc = ".".join(str(p) for p in e["loc"])
+        raise InputError(f"{path}: field {loc}: {e['msg']}") from exc
+
+
+def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a timestamp CSV: header ``t_ns`` (optionally ``t_ns,seq``), one integer row per frame.
+
+    Returns (n,) int64 times (ns) and (n,) int64 sequence numbers (row index when absent).
+    Times must strictly increase; the error names the file and row.
+    """
+    try:
+        fh = path.open(newline="")
+    except FileNotFoundError as exc:
+        raise MissingInputError(f"{path}: no such timestamp file") from exc
+    except OSError as exc:
+        raise MissingInputError(f"{path}: cannot read timestamp file: {exc.strerror}") from exc
+    with fh:
+        rows = list(csv.reader(fh))
+    if not rows or [c.strip() for c in rows[0][:1]] != ["t_ns"]:
+        raise InputError(f"{path}: first line must be the header 't_ns' (or 't_ns,seq')")
+    has_seq = len(rows[0]) > 1 and rows[0][1].strip() == "seq"
+    t = np.empty(len(rows) - 1, np.int64)
+    seq = np.arange(len(rows) - 1, dtype=np.int64)
+    for i, row in enumerate(rows[1:]):
+        try:
+            t[i] = int(row[0])
+            if has_seq:
+                seq[i] = int(row[1])
+        except (ValueError, IndexError) as exc:
+            raise InputError(f"{path} line {i + 2}: expected an integer, got {row!r}") from exc
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if bad.size:
+        j = int(bad[0]) + 1
+        raise InputError(
+            f"{path} line {j + 2}: timestamp {t[j]} is not after {t[j - 1]} "
+            "(timestamps must strictly increase)"
+        )
+    return t, seq
+
+
+class RecordingWriter:
+    """Write frames of both eyes into a recording directory; use as a context manager."""
+
+    def __init__(
+        self,
+        directory: Path,
+        width: int,
+        height: int,
+        *,
+        fps: float | None,
+        codec: Codec = Codec.FFV1,
+        color: bool = False,
+        settings: dict[str, Any] | None = None,
+        utc_offset_ns: int | None = None,
+        calibration: dict[str, Any] | None = None,
+    ) -> None:
+        self.directory = directory
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"{directory}: cannot create recording directory: {exc}") from exc
+        self._manifest = dict(
+            width=width,
+            height=height,
+            fps=fps,
+            codec=codec,
+            color=color,
+            utc_offset_ns=utc_offset_ns,
+            settings=settings or {},
+            calibration=calibration,
+            created_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        )
+        self._writers: dict[Eye, cv2.VideoWriter] = {}
+        self._ts: dict[Eye, Any] = {}
+        self._counts = {Eye.LEFT: 0, Eye.RIGHT: 0}
+        fourcc = cv2.VideoWriter.fourcc(*_FOURCC[codec])
+        for eye in Eye:
+            video = directory / f"{eye.value}{_EXT[codec]}"
+            w = cv2.VideoWriter(str(video), fourcc, fps or 30.0, (width, height), isColor=color)
+            if not w.isOpened():
+                raise OutputError(f"{video}: cannot open for writing with codec {codec.value}")
+            self._writers[eye] = w
+            try:
+                fh = (directory / f"{eye.value}.csv").open("w", newline="")
+            except OSError as exc:
+                raise OutputError(f"{directory}: cannot write timestamps: {exc}") from exc
+            fh.write("t_ns,seq\n")
+            self._ts[eye] = fh
+        self._size = (height, width)
+
+    def write(self, frame: Frame) -> None:
+        """Append one frame (its pixels, capture time and sequence number)."""
+        img = frame.image
+        if img.shape[:2] != self._size:
+            raise InputError(
+                f"{frame.eye.value} frame is {img.shape[1]}x{img.shape[0]}, recording is "
+                f"{self._size[1]}x{self._size[0]}"
+            )
+        color = bool(self._manifest["color"])
+        if color and img.ndim == 2:
+            img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+        elif not color and img.ndim == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        self._writers[frame.eye].write(img)
+        self._ts[frame.eye].write(f"{frame.t_ns},{frame.seq}\n")
+        self._counts[frame.eye] += 1
+
+    def close(self) -> None:
+        """Finish the videos and write the manifest last (a recording without one is incomplete)."""
+        if not self._writers:
+            return
+        for w in self._writers.values():
+            w.release()
+        for fh in self._ts.values():
+            fh.close()
+        ext = _EXT[Codec(self._manifest["codec"])]
+        man = Manifest(
+            left=EyeFiles(video=f"left{ext}", timestamps="left.csv", frames=self._counts[Eye.LEFT]),
+            right=EyeFiles(
+                video=f"right{ext}", timestamps="right.csv", frames=self._counts[Eye.RIGHT]
+            ),
+            **self._manifest,
+        )
+        (self.directory / MANIFEST).write_text(
+            json.dumps(man.model_dump(mode="json"), indent=2) + "\n"
+        )
+        self._writers.clear()
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
