@@ -1,0 +1,68 @@
+"""Shared fixtures: paths to ../shared/data, loopback Zenoh endpoints, small rendered scenes."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+
+ROOT = Path(__file__).resolve().parent.parent
+SHARED_DATA = ROOT.parent / "shared" / "data"
+
+
+def shared_data(*parts: str) -> Path:
+    """A path under ../shared/data; skips the test with the reason when it is absent."""
+    path = SHARED_DATA.joinpath(*parts)
+    if not path.exists():
+        pytest.skip(f"{path} is absent (the shared data folder is not beside the project)")
+    return path
+
+
+def free_endpoint() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def zenoh_config(*, listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Config:
+    cfg = zenoh.Config()
+    cfg.insert_json5("scouting", json.dumps({"delay": 0, "multicast": {"enabled": False}}))
+    if listen:
+        cfg.insert_json5("listen/endpoints", json.dumps(listen))
+    if connect:
+        cfg.insert_json5("connect/endpoints", json.dumps(connect))
+    return cfg
+
+
+def stereod(*args: str, timeout: float = 120, env: dict[str, str] | None = None,
+            **kw: object) -> subprocess.CompletedProcess[str]:
+    """Run ``stereod ARGS`` as a subprocess, capturing text output."""
+    full_env = {**os.environ, **(env or {})}
+    return subprocess.run(
+        [sys.executable, "-m", "stereod.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=full_env,
+        cwd=ROOT,
+        **kw,  # type: ignore[arg-type]
+    )
+
+
+@pytest.fixture
+def endpoint() -> str:
+    return free_endpoint()
+
+
+@pytest.fixture
+def listener(endpoint: str) -> Iterator[zenoh.Session]:
+    """A real Zenoh session listening on a loopback endpoint; the daemon connects to it."""
+    with zenoh.open(zenoh_config(listen=[endpoint])) as session:
+        yield session

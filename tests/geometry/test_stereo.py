@@ -1,0 +1,97 @@
+"""Canonical geometry (eq. 9, 10, 12) and blob matching."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stereod.geometry.stereo import CanonicalRig, MatchParams, match_blobs
+
+RIG = CanonicalRig(baseline_m=0.06, hfov_deg=60.0, width_px=640, height_px=480)
+
+
+def test_focal_length_from_field_of_view() -> None:
+    # A point at the edge of the field of view projects to the image edge.
+    z = 2.0
+    x_edge = z * math.tan(math.radians(30.0))
+    left, _ = CanonicalRig(0.06, 60.0, 640, 480).project(np.array([[x_edge - 0.03, 0.0, z]]))
+    assert left[0, 0] == pytest.approx(RIG.cx_px + 320.0)
+
+
+def test_eq9_recovers_projected_points() -> None:
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(-1, 1, 200), rng.uniform(-0.5, 0.5, 200), rng.uniform(0.5, 6, 200)])
+    left, right = RIG.project(pts)
+    got, _ = RIG.triangulate(left, right)
+    np.testing.assert_allclose(got, pts, atol=1e-9)
+    # Eq. 9 verbatim: D = B x0 / (2 tan(phi0 / 2) (xL - xR)).
+    d_eq9 = 0.06 * 640 / (2 * math.tan(math.radians(30)) * (left[:, 0] - right[:, 0]))
+    np.testing.assert_allclose(got[:, 2], d_eq9, rtol=1e-12)
+
+
+def test_eq12_one_pixel_error() -> None:
+    d = np.array([0.5, 1.0, 2.0, 4.0])
+    expected = d**2 / 0.06 * math.tan(math.radians(60) / 640)  # eq. 10 and 12
+    np.testing.assert_allclose(RIG.depth_error_one_px_m(d), expected)
+    # To first order a one-pixel disparity error moves Z by D^2 / (B f); eq. 12 uses the angle of
+    # one pixel, phi0 / x0, in place of 1 / f = 2 tan(phi0 / 2) / x0, a ratio fixed by the lens.
+    phi0 = math.radians(60)
+    ratio = math.tan(phi0 / 640) * RIG.focal_px
+    assert ratio == pytest.approx(phi0 / 2 / math.tan(phi0 / 2), rel=1e-5)
+    for z in d:
+        disp = RIG.baseline_m * RIG.focal_px / z
+        exact = RIG.baseline_m * RIG.focal_px / (disp - 1) - z
+        first_order = z**2 / (RIG.baseline_m * RIG.focal_px)
+        assert exact == pytest.approx(first_order * disp / (disp - 1), rel=1e-9)
+        assert float(RIG.depth_error_one_px_m(z)) == pytest.approx(first_order * ratio, rel=1e-9)
+
+
+def test_covariance_matches_monte_carlo() -> None:
+    rng = np.random.default_rng(1)
+    p = np.array([[0.4, -0.2, 2.5]])
+    left, right = RIG.project(p)
+    sigma = 0.5
+    n = 20000
+    nl = left + rng.normal(0, sigma, (n, 2))
+    nr = right + rng.normal(0, sigma, (n, 2))
+    samples, _ = RIG.triangulate(nl, nr)
+    _, cov = RIG.triangulate(left, right, sigma_px=sigma)
+    mc = np.cov(samples.T)
+    np.testing.assert_allclose(np.sqrt(np.diag(cov[0])), np.sqrt(np.diag(mc)), rtol=0.05)
+    # Z sigma for sqrt(2) sigma of disparity is eq. 12's shape: D^2 / (B f) per pixel.
+    assert math.sqrt(cov[0, 2, 2]) == pytest.approx(2.5**2 / (0.06 * RIG.focal_px) * sigma * math.sqrt(2), rel=1e-9)
+
+
+def test_rig_rejects_nonsense() -> None:
+    with pytest.raises(ValueError, match="baseline"):
+        CanonicalRig(0.0, 60, 640, 480)
+    with pytest.raises(ValueError, match="field of view"):
+        CanonicalRig(0.06, 180, 640, 480)
+
+
+def test_matching_by_row_disparity_and_size() -> None:
+    left = np.array([[300.0, 100.0], [200.0, 300.0], [500.0, 50.0]])
+    right = np.array([[180.0, 301.0], [290.0, 100.5], [520.0, 50.0], [100.0, 100.0]])
+    la = np.array([100, 400, 50])
+    ra = np.array([380, 110, 50, 100])
+    idx = match_blobs(left, la, right, ra, MatchParams(max_disparity_px=150))
+    got = {(int(i), int(j)) for i, j in idx}
+    # Blob 2 would need a negative disparity; right blob 3 is at 200 px, beyond the range.
+    assert got == {(0, 1), (1, 0)}
+
+
+def test_matching_uses_each_blob_once_and_prefers_the_closer_row() -> None:
+    left = np.array([[300.0, 100.0], [310.0, 103.0]])
+    right = np.array([[250.0, 103.0]])
+    idx = match_blobs(left, np.array([100, 100]), right, np.array([100]), MatchParams())
+    assert idx.tolist() == [[1, 0]]
+
+
+def test_matching_rejects_very_different_sizes() -> None:
+    idx = match_blobs(
+        np.array([[300.0, 100.0]]), np.array([1000]), np.array([[250.0, 100.0]]), np.array([100]),
+        MatchParams(max_area_ratio=2.0),
+    )
+    assert idx.shape == (0, 2)

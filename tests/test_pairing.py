@@ -1,0 +1,133 @@
+"""Pairer: nearest timestamps within tolerance, every drop counted by reason."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stereod.frames import Eye, Frame
+from stereod.pairing import (
+    DROP_NO_PARTNER,
+    DROP_NON_MONOTONIC,
+    DROP_OVERFLOW,
+    Pairer,
+)
+
+IMG = np.zeros((2, 2), np.uint8)
+MS = 1_000_000
+
+
+def frames(eye: Eye, times_ns: list[int] | np.ndarray) -> list[Frame]:
+    return [Frame(eye, IMG, int(t), i) for i, t in enumerate(times_ns)]
+
+
+def interleave(left: list[Frame], right: list[Frame]) -> list[Frame]:
+    """Arrival order: by timestamp, as two free-running cameras deliver them."""
+    return sorted(left + right, key=lambda f: f.t_ns)
+
+
+def run(pairer: Pairer, stream: list[Frame]) -> list[tuple[int, int]]:
+    out = []
+    for f in stream:
+        out += pairer.push(f)
+    out += pairer.flush()
+    return [(p.left.seq, p.right.seq) for p in out]
+
+
+def nearest_truth(left_t: np.ndarray, right_t: np.ndarray, tol: int) -> list[tuple[int, int]]:
+    """Independent reference: mutual nearest neighbours within the tolerance."""
+    pairs = []
+    for i, t in enumerate(left_t):
+        j = int(np.argmin(np.abs(right_t - t)))
+        if abs(right_t[j] - t) <= tol and int(np.argmin(np.abs(left_t - right_t[j]))) == i:
+            pairs.append((i, j))
+    return pairs
+
+
+@pytest.mark.parametrize("skew_ms", [0.0, 5.0, 16.0, -16.0, 30.0])
+def test_constant_skew_pairs_every_frame_with_its_skew(skew_ms: float) -> None:
+    period = 1e9 / 30
+    left_t = np.arange(60) * period
+    right_t = left_t + skew_ms * MS
+    pairer = Pairer(tolerance_ns=20 * MS)
+    pairs = []
+    for f in interleave(frames(Eye.LEFT, left_t), frames(Eye.RIGHT, right_t)):
+        pairs += pairer.push(f)
+    pairs += pairer.flush()
+    expected = nearest_truth(left_t, right_t, 20 * MS)
+    assert [(p.left.seq, p.right.seq) for p in pairs] == expected
+    for p in pairs:
+        assert p.skew_ns == p.right.t_ns - p.left.t_ns
+        assert p.t_ns == (p.left.t_ns + p.right.t_ns) // 2
+    assert [p.seq for p in pairs] == list(range(len(pairs)))
+
+
+def test_jittered_free_running_eyes_match_mutual_nearest() -> None:
+    rng = np.random.default_rng(3)
+    period = 1e9 / 15
+    k = np.arange(200)
+    left_t = (k * period + rng.normal(0, 2 * MS, 200)).astype(np.int64)
+    right_t = (k * period + 21 * MS + rng.normal(0, 2 * MS, 200)).astype(np.int64)
+    tol = 40 * MS
+    pairer = Pairer(tolerance_ns=tol)
+    got = run(pairer, interleave(frames(Eye.LEFT, left_t), frames(Eye.RIGHT, right_t)))
+    assert got == nearest_truth(left_t, right_t, tol)
+    stats = pairer.stats
+    assert stats.frames[Eye.LEFT] == stats.frames[Eye.RIGHT] == 200
+    assert 2 * stats.pairs + sum(stats.drops.values()) == 400
+
+
+def test_drifting_clocks_keep_skew_within_half_a_period() -> None:
+    """Two free-running 15 Hz eyes whose phase drifts through every offset: each frame is used
+    once, in order, and no pair is further apart than half a period plus the jitter."""
+    rng = np.random.default_rng(5)
+    period = 1e9 / 15
+    left_t = np.cumsum(period + rng.normal(0, 1 * MS, 600)).astype(np.int64)
+    right_t = np.cumsum(period * 1.001 + rng.normal(0, 1 * MS, 600)).astype(np.int64)
+    pairer = Pairer(tolerance_ns=int(period))
+    got = run(pairer, interleave(frames(Eye.LEFT, left_t), frames(Eye.RIGHT, right_t)))
+    li, ri = (np.array(x) for x in zip(*got))
+    assert np.all(np.diff(li) > 0) and np.all(np.diff(ri) > 0)
+    skew = np.abs(right_t[ri] - left_t[li])
+    assert skew.max() <= period / 2 + 5 * MS, f"max skew {skew.max() / MS:.1f} ms"
+    assert len(got) >= 0.97 * 600, f"only {len(got)} of 600 frames paired"
+    assert 2 * pairer.stats.pairs + sum(pairer.stats.drops.values()) == 1200
+
+
+def test_dropped_frames_are_counted_and_partners_not_mismatched() -> None:
+    period = 1e9 / 30
+    left_t = np.arange(100) * period
+    right_t = left_t + 3 * MS
+    keep_right = np.ones(100, bool)
+    keep_right[[10, 11, 50]] = False
+    keep_left = np.ones(100, bool)
+    keep_left[70] = False
+    lf = [f for f, k in zip(frames(Eye.LEFT, left_t), keep_left) if k]
+    rf = [f for f, k in zip(frames(Eye.RIGHT, right_t), keep_right) if k]
+    pairer = Pairer(tolerance_ns=10 * MS)
+    got = run(pairer, interleave(lf, rf))
+    assert all(i == j for i, j in got), "a frame was paired with the wrong partner"
+    assert len(got) == 96
+    assert pairer.stats.drops[DROP_NO_PARTNER] == 4
+
+
+def test_non_monotonic_timestamp_is_dropped_and_counted() -> None:
+    pairer = Pairer(tolerance_ns=10 * MS)
+    left = frames(Eye.LEFT, [0, 33 * MS, 20 * MS, 66 * MS])
+    right = frames(Eye.RIGHT, [1 * MS, 34 * MS, 67 * MS])
+    got = run(pairer, [left[0], right[0], left[1], right[1], left[2], left[3], right[2]])
+    assert got == [(0, 0), (1, 1), (3, 2)]
+    assert pairer.stats.drops[DROP_NON_MONOTONIC] == 1
+
+
+def test_stalled_eye_does_not_grow_memory() -> None:
+    pairer = Pairer(tolerance_ns=10 * MS, max_pending=8)
+    for f in frames(Eye.LEFT, np.arange(1000) * 33 * MS):
+        assert pairer.push(f) == []
+        assert pairer.pending() <= 8
+    assert pairer.stats.drops[DROP_OVERFLOW] == 992
+
+
+def test_tolerance_must_be_positive() -> None:
+    with pytest.raises(ValueError, match="tolerance"):
+        Pairer(tolerance_ns=0)
