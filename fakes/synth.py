@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import json
 import math
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -207,19 +209,31 @@ class _SynthEye(EyeSource):
         self._k = 0
 
     def read(self) -> Frame | None:
-        sc = self._source.scene
+        src = self._source
+        sc = src.scene
         if self._k >= sc.n_frames:
             return None
         k = self._k
         self._k += 1
         t = sc.frame_time_s(self.eye, k)
-        img = self._source.renderer.render(self.eye, t, self._source.backgrounds[self.eye])
-        return Frame(self.eye, img, sc.t_ns(t), k)
+        with src.render_lock:
+            img = src.renderer.render(self.eye, t, src.backgrounds[self.eye])
+        if not src.live:
+            return Frame(self.eye, img, sc.t_ns(t), k)
+        # Like a camera: the frame is delivered at its capture instant, stamped on the
+        # host's monotonic clock.
+        delay = src.start_s + t - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        return Frame(self.eye, img, round((src.start_s + t) * 1e9), k)
 
 
 class _SynthSource(StereoSource):
-    def __init__(self, scene: Scene) -> None:
+    def __init__(self, scene: Scene, live: bool) -> None:
         self.scene = scene
+        self.live = live
+        self.start_s = time.monotonic()
+        self.render_lock = threading.Lock()
         self.renderer = Renderer(scene)
         self.backgrounds = {eye: self.renderer.background(eye) for eye in Eye}
         self._left = _SynthEye(Eye.LEFT, self)
@@ -228,7 +242,7 @@ class _SynthSource(StereoSource):
     @property
     def info(self) -> SourceInfo:
         sc = self.scene
-        return SourceInfo(sc.width_px, sc.height_px, sc.fps, False, "synthetic scene")
+        return SourceInfo(sc.width_px, sc.height_px, sc.fps, self.live, "synthetic scene")
 
     @property
     def left(self) -> EyeSource:
@@ -240,11 +254,17 @@ class _SynthSource(StereoSource):
 
 
 class SyntheticDriver(Driver):
-    """Render a :class:`Scene` on the fly (the ``[driver.options]`` table is the scene)."""
+    """Render a :class:`Scene` on the fly (the ``[driver.options]`` table is the scene).
+
+    With ``live = true`` it behaves like a camera: each eye delivers its frames at their capture
+    instants on the host's monotonic clock, and the daemon treats it as live (one thread per eye,
+    drop-oldest queues)."""
 
     name = "synthetic"
 
     def __init__(self, options: dict[str, Any]) -> None:
+        options = dict(options)
+        self.live = bool(options.pop("live", False))
         try:
             self.scene = Scene.model_validate(options)
         except ValidationError as exc:
@@ -253,4 +273,4 @@ class SyntheticDriver(Driver):
             raise ConfigError(f"driver.options.{loc}: {e['msg']}") from exc
 
     def open(self) -> StereoSource:
-        return _SynthSource(self.scene)
+        return _SynthSource(self.scene, self.live)

@@ -172,6 +172,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=4.0, metavar="S", help="length, s (4)")
     p.add_argument("--lead-in", type=float, default=1.2, metavar="S",
                    help="seconds of empty scene before the balls appear (background warm-up)")
+    p.add_argument("--travel", type=float, default=1.6, metavar="S",
+                   help="seconds each ball is in view, centred on its x, y, z (default 1.6)")
     p.add_argument("--noise", type=float, default=1.5, metavar="GREY",
                    help="sensor noise sigma, grey levels (default 1.5)")
     p.add_argument("--skew-ms", type=float, default=0.0, metavar="MS",
@@ -354,9 +356,10 @@ def scene_from_args(a: argparse.Namespace) -> Any:
         w, h = (int(x) for x in a.size.lower().split("x"))
     except ValueError as exc:
         raise ConfigError(f"--size {a.size!r}: expected WIDTHxHEIGHT in px, e.g. 640x480") from exc
-    if not a.lead_in < a.duration:
-        raise ConfigError(f"--lead-in {a.lead_in} s must be shorter than --duration {a.duration} s")
-    t_on, t_off = a.lead_in, a.duration
+    if not a.lead_in + a.travel <= a.duration:
+        raise ConfigError(f"--lead-in {a.lead_in} s + --travel {a.travel} s must fit in "
+                          f"--duration {a.duration} s")
+    t_on, t_off = a.lead_in, a.lead_in + a.travel
     balls = [_parse_ball(s) for s in (a.ball or [""])]
     for b in balls:
         b.update(t_on_s=t_on, t_off_s=t_off, t_mid_s=(t_on + t_off) / 2)

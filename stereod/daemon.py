@@ -16,6 +16,7 @@ from __future__ import annotations
 import collections
 import json
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass, field
@@ -101,6 +102,7 @@ class Daemon:
         self._lock = threading.Lock()
         self._problems: collections.deque[str] = collections.deque(maxlen=20)
         self._all_problems: list[str] = []
+        self._problem_counts: dict[str, int] = {}
         self._eyes = {Eye.LEFT: _EyeHealth(), Eye.RIGHT: _EyeHealth()}
         self._pipeline_ms: collections.deque[float] = collections.deque(maxlen=2000)
         self._skews_ms: list[float] = []
@@ -117,12 +119,19 @@ class Daemon:
         """Ask the daemon to stop: capture ends, queued work drains, the session closes."""
         self._stop.set()
 
-    def problem(self, text: str) -> None:
-        """Record a non-fatal problem: logged once, kept for the status key."""
-        log.warning("%s", text)
+    def problem(self, text: str, kind: str | None = None) -> None:
+        """Record a non-fatal problem for the status key and the run summary.
+
+        Problems of one ``kind`` (say, bad frames of one eye) are logged the 1st, 10th, 100th...
+        time only, so a stream of bad frames cannot flood the journal.
+        """
         with self._lock:
+            n = self._problem_counts[kind or text] = self._problem_counts.get(kind or text, 0) + 1
             self._problems.append(text)
-            self._all_problems.append(text)
+            if len(self._all_problems) < 1000:
+                self._all_problems.append(text)
+        if n == 1 or (kind is not None and math.log10(n).is_integer()):
+            log.warning("%s%s", text, f" ({n} times)" if n > 1 else "")
         self._status_now.set()
 
     def run(self) -> RunSummary:
@@ -252,7 +261,7 @@ class Daemon:
                 f"frame {frame.seq} is {frame.image.shape[1]}x{frame.image.shape[0]}, "
                 f"stream is {self._rig.width_px}x{self._rig.height_px}"
             )
-            self.problem(f"{frame.eye.value} eye: {health.last_error}; skipped")
+            self.problem(f"{frame.eye.value} eye: {health.last_error}; skipped", "bad_size")
             return True
         if self._utc_offset_ns is None:
             self._utc_offset_ns = time.time_ns() - frame.t_ns
@@ -344,7 +353,7 @@ class Daemon:
                     result = self._pipeline.process(pair, time.perf_counter_ns() - queued_at)
                 except Exception as exc:  # one bad pair must not stop the daemon
                     self._errors[DROP_PIPELINE_ERROR] += 1
-                    self.problem(f"pair {pair.seq}: processing failed: {exc}")
+                    self.problem(f"pair {pair.seq}: processing failed: {exc}", "pipeline_error")
                     continue
                 self._account(pair, result)
                 self._out.put(self._outgoing(result), self._stop)

@@ -1,0 +1,239 @@
+"""End to end: `stereod` as a subprocess, received over a real Zenoh session on loopback."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import zenoh
+
+from stereod.demo import angle_diff_deg
+from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
+
+from .conftest import ROOT, shared_data, stereod, zenoh_config
+
+pytestmark = pytest.mark.slow
+
+
+class Collector:
+    """Everything a subscriber receives on stereod/**, in arrival order."""
+
+    def __init__(self, session: zenoh.Session, key: str = "stereod/**") -> None:
+        self.samples: list[tuple[str, str, bytes]] = []
+        self._lock = threading.Lock()
+        self._sub = session.declare_subscriber(key, self._on)
+
+    def _on(self, s: zenoh.Sample) -> None:
+        with self._lock:
+            self.samples.append((str(s.key_expr), str(s.kind), s.payload.to_bytes()))
+
+    def messages(self, key: str) -> list[dict]:
+        with self._lock:
+            return [json.loads(p) for k, kind, p in self.samples if k == key and "PUT" in kind]
+
+    def deletes(self) -> list[str]:
+        with self._lock:
+            return [k for k, kind, _ in self.samples if "DELETE" in kind]
+
+    def wait_for(self, pred, timeout: float = 10.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if pred():
+                return True
+            time.sleep(0.05)
+        return pred()
+
+
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory: pytest.TempPathFactory) -> tuple[Scene, Path]:
+    scene = Scene(
+        balls=[Ball(heading_deg=60, speed_mps=0.7)], skew_s=0.0, drift=0.02, noise_sigma=1.5
+    )
+    out = tmp_path_factory.mktemp("scene") / "rec"
+    write_scene(scene, out)
+    return scene, out
+
+
+def test_replay_publishes_truthful_motion_over_zenoh(
+    scene_dir: tuple[Scene, Path], endpoint: str, listener: zenoh.Session, tmp_path: Path
+) -> None:
+    scene, rec = scene_dir
+    ball = scene.balls[0]
+    col = Collector(listener)
+    jsonl = tmp_path / "out.jsonl"
+    res = stereod("replay", str(rec), "--rate", "0", "--connect", endpoint,
+                  "--wait-subscriber", "10", "--jsonl", str(jsonl))
+    assert res.returncode == 0, res.stderr
+    assert "Traceback" not in res.stderr
+    key = "stereod/minoru/objects"
+    written = [json.loads(line) for line in jsonl.read_text().splitlines()]
+    assert len(written) == scene.n_frames
+    assert col.wait_for(lambda: len(col.messages(key)) == len(written))
+    received = col.messages(key)
+    assert received == written, "what arrived differs from what was published"
+    assert [m["seq"] for m in received] == list(range(scene.n_frames))
+
+    valid = [o for m in received for o in m["objects"] if o["velocity_valid"]]
+    assert len(valid) >= 10
+    for m in received:
+        for o in m["objects"]:
+            truth = ball.position_m((m["t_ns"] - scene.t0_ns) / 1e9)
+            bound = scene.rig.depth_error_one_px_m(truth[2])
+            assert abs(o["position_m"][2] - truth[2]) <= bound
+            assert np.linalg.norm(np.subtract(o["position_m"], truth)) < 0.05
+    heading = np.median([o["heading_deg"] for o in valid])
+    speed = np.median([o["speed_mps"] for o in valid])
+    assert abs(angle_diff_deg(heading, 60.0)) < 2.0, f"heading {heading:.2f} deg, truth 60"
+    assert speed == pytest.approx(0.7, rel=0.03), f"speed {speed:.3f} m/s, truth 0.7"
+
+    # Per-track keys carry the same states, and the track's end is a DELETE.
+    track = col.messages("stereod/minoru/objects/1")
+    assert len(track) == sum(len(m["objects"]) for m in received)
+    assert col.wait_for(lambda: "stereod/minoru/objects/1" in col.deletes())
+    assert col.wait_for(lambda: any(s["state"] == "finished" for s in col.messages("stereod/minoru/status")))
+    final = [s for s in col.messages("stereod/minoru/status") if s["state"] == "finished"][-1]
+    assert final["pairs"] == scene.n_frames and final["drops"] == {}
+    assert "60 pairs" in res.stdout
+
+
+def test_replay_plain_videos_with_timestamp_files(endpoint: str, listener: zenoh.Session, tmp_path: Path) -> None:
+    """Two plain videos with 20 ms of skew in their timestamp files."""
+    scene = Scene(skew_s=0.02, balls=[Ball(heading_deg=90, speed_mps=0.4, centre_m=(0, 0, 1.5))])
+    writers, stamps = {}, {"left": [], "right": []}
+    for eye in ("left", "right"):
+        writers[eye] = cv2.VideoWriter(str(tmp_path / f"{eye}.mkv"), cv2.VideoWriter.fourcc(*"FFV1"),
+                                       scene.fps, (scene.width_px, scene.height_px), isColor=False)
+    for left, right in Renderer(scene).frames():
+        for f in (left, right):
+            writers[f.eye.value].write(f.image)
+            stamps[f.eye.value].append(f.t_ns)
+    for eye, w in writers.items():
+        w.release()
+        (tmp_path / f"{eye}.csv").write_text("t_ns\n" + "".join(f"{t}\n" for t in stamps[eye]))
+    col = Collector(listener)
+    res = stereod("replay", "--left-video", str(tmp_path / "left.mkv"), "--right-video",
+                  str(tmp_path / "right.mkv"), "--left-ts", str(tmp_path / "left.csv"),
+                  "--right-ts", str(tmp_path / "right.csv"), "--rate", "0", "--connect", endpoint,
+                  "--wait-subscriber", "10")
+    assert res.returncode == 0, res.stderr
+    assert col.wait_for(lambda: len(col.messages("stereod/minoru/objects")) == scene.n_frames)
+    msgs = col.messages("stereod/minoru/objects")
+    assert all(m["skew_ns"] == 20_000_000 for m in msgs)
+    valid = [o for m in msgs for o in m["objects"] if o["velocity_valid"]]
+    assert valid and abs(angle_diff_deg(float(np.median([o["heading_deg"] for o in valid])), 90)) < 3
+
+
+def test_subscribe_prints_readably(scene_dir: tuple[Scene, Path], endpoint: str, listener: zenoh.Session) -> None:
+    _, rec = scene_dir
+    sub = subprocess.Popen(
+        [sys.executable, "-m", "stereod.cli", "subscribe", "stereod/minoru/objects", "--connect",
+         endpoint, "--duration", "60", "--count", "30"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )
+    try:
+        res = stereod("replay", str(rec), "--rate", "0", "--connect", endpoint, "--wait-subscriber", "10")
+        assert res.returncode == 0, res.stderr
+        out, err = sub.communicate(timeout=30)
+    finally:
+        sub.kill()
+    assert sub.returncode == 0, err
+    lines = out.splitlines()
+    assert sum(line.startswith("stereod/minoru/objects: seq ") for line in lines) == 30
+    assert any("pos (" in line and " m" in line for line in lines)
+
+
+def test_run_with_config_file_and_synthetic_driver(tmp_path: Path, endpoint: str, listener: zenoh.Session) -> None:
+    cfg = tmp_path / "stereod.toml"
+    cfg.write_text(
+        '[rig]\nname = "bench"\n'
+        '[driver]\nname = "synthetic"\n[driver.options]\nduration_s = 2.0\nfps = 15\n'
+        f'[zenoh]\nconnect = ["{endpoint}"]\n'
+    )
+    col = Collector(listener)
+    res = stereod("run", "--config", str(cfg), "--rate", "0")
+    assert res.returncode == 0, res.stderr
+    assert col.wait_for(lambda: len(col.messages("stereod/bench/objects")) == 30)
+    check = stereod("run", "--config", str(cfg), "--check")
+    assert check.returncode == 0 and json.loads(check.stdout)["rig"]["name"] == "bench"
+
+
+def one_line_error(res: subprocess.CompletedProcess[str], code: int, pattern: str) -> None:
+    assert res.returncode == code, (res.returncode, res.stderr)
+    lines = [line for line in res.stderr.splitlines() if line.startswith("stereod:")]
+    assert "Traceback" not in res.stderr, res.stderr
+    assert len(lines) == 1, res.stderr
+    assert __import__("re").search(pattern, lines[0]), lines[0]
+
+
+def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
+    one_line_error(stereod("replay", str(tmp_path / "nope")), 66, "no such recording directory")
+    junk = tmp_path / "junk.avi"
+    junk.write_text("junk")
+    one_line_error(stereod("replay", "--left-video", str(junk), "--right-video", str(junk), "--fps", "10"),
+                   65, "junk.avi: cannot open as a video|junk.avi: no frame decodes")
+    one_line_error(stereod("replay", str(tmp_path)), 66, "recording.json missing")
+    one_line_error(stereod("replay"), 78, "nothing to replay")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[detector]\nbeta = 3\n")
+    one_line_error(stereod("run", "--config", str(bad)), 78, r"detector\.beta = 3")
+    one_line_error(stereod("run", "--config", str(tmp_path / "none.toml")), 78, "no such config file")
+    one_line_error(stereod("run", "--driver", "warp"), 78, "driver.name = 'warp': no such driver")
+    one_line_error(stereod("replay", str(tmp_path), "--baseline", "-1"), 78, r"rig\.baseline_m = -1\.0")
+
+
+def test_truncated_video_finishes_and_says_so() -> None:
+    tree = shared_data("video", "tree.avi")
+    res = stereod("replay", "--left-video", str(tree), "--right-video", str(tree), "--fps", "15",
+                  "--rate", "0", "--listen", "tcp/127.0.0.1:0")
+    assert res.returncode == 65, res.stderr
+    assert "68 pairs" in res.stdout
+    assert "Traceback" not in res.stderr
+    assert "truncated" in res.stderr and "444" in res.stderr
+
+
+def test_different_sizes_and_counts_between_eyes(tmp_path: Path) -> None:
+    def video(name: str, n: int, size: tuple[int, int]) -> str:
+        w = cv2.VideoWriter(str(tmp_path / name), cv2.VideoWriter.fourcc(*"MJPG"), 10, size)
+        for _ in range(n):
+            w.write(np.zeros((size[1], size[0], 3), np.uint8))
+        w.release()
+        return str(tmp_path / name)
+
+    a, b, c = video("a.avi", 5, (64, 48)), video("b.avi", 5, (32, 24)), video("c.avi", 3, (64, 48))
+    one_line_error(stereod("replay", "--left-video", a, "--right-video", b, "--fps", "10"), 65, "must have one size")
+    one_line_error(stereod("replay", "--left-video", a, "--right-video", c, "--fps", "10"), 65, "same number of frames")
+    ts = tmp_path / "ts.csv"
+    ts.write_text("t_ns\n1\n5\n4\n6\n7\n")
+    one_line_error(stereod("replay", "--left-video", a, "--right-video", a, "--left-ts", str(ts),
+                           "--right-ts", str(ts)), 65, r"ts\.csv line 4: timestamp 4 is not after 5")
+
+
+def test_unwritable_jsonl_path(scene_dir: tuple[Scene, Path], tmp_path: Path) -> None:
+    _, rec = scene_dir
+    one_line_error(stereod("replay", str(rec), "--jsonl", str(tmp_path / "no" / "dir" / "x.jsonl")), 73,
+                   "cannot write JSONL")
+
+
+def test_schema_command_prints_json_schema() -> None:
+    res = stereod("schema", "stereod.objects/1")
+    assert res.returncode == 0
+    assert "velocity_mps" in json.loads(res.stdout)["$defs"]["ObjectState"]["properties"]
+
+
+def test_synth_command_writes_recording_and_truth(tmp_path: Path) -> None:
+    res = stereod("synth", str(tmp_path / "s"), "--ball", "heading=200,speed=0.5,z=2", "--duration",
+                  "3", "--size", "320x240", "--skew-ms", "10")
+    assert res.returncode == 0, res.stderr
+    truth = json.loads((tmp_path / "s" / "truth.json").read_text())
+    assert truth["balls"][0]["heading_deg"] == 200 and truth["width_px"] == 320
+    assert math.isclose(truth["skew_s"], 0.01)
+    bad = stereod("synth", str(tmp_path / "t"), "--ball", "heading=x")
+    one_line_error(bad, 78, "heading = 'x' is not a number")

@@ -1,0 +1,56 @@
+"""Configuration: precedence file < environment < flags, and one-line errors naming the field."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from stereod.config import load_config
+from stereod.errors import EX_CONFIG, ConfigError
+
+
+def test_defaults_are_the_minoru() -> None:
+    cfg = load_config()
+    assert cfg.rig.baseline_m == 0.060 and cfg.rig.name == "minoru"
+    assert cfg.zenoh.multicast_scouting is False
+
+
+def test_precedence(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    f = tmp_path / "c.toml"
+    f.write_text('[detector]\nbeta = 0.5\nthreshold = 10\nmin_area_px = 5\n[rig]\nname = "bench"\n')
+    monkeypatch.setenv("STEREOD_DETECTOR__THRESHOLD", "30")
+    monkeypatch.setenv("STEREOD_DETECTOR__MIN_AREA_PX", "7")
+    cfg = load_config(f, {"detector": {"min_area_px": 9, "beta": None}})
+    assert (cfg.detector.beta, cfg.detector.threshold, cfg.detector.min_area_px) == (0.5, 30.0, 9)
+    assert cfg.rig.name == "bench"
+
+
+@pytest.mark.parametrize(
+    ("toml", "pattern"),
+    [
+        ("[detector]\nbeta = 2.0\n", r"c\.toml: invalid config: detector\.beta = 2\.0: Input should be less than 1"),
+        ("[detector]\nbta = 0.1\n", r"detector\.bta: unknown field"),
+        ("[rig]\nname = 'a b'\n", r"rig\.name = 'a b': String should match pattern"),
+        ("[zenoh]\nmode = 'satellite'\n", r"zenoh\.mode = 'satellite': Input should be 'peer', 'client' or 'router'"),
+        ("[detector\n", r"c\.toml: invalid TOML"),
+    ],
+)
+def test_bad_values_are_one_line_naming_the_field(tmp_path: Path, toml: str, pattern: str) -> None:
+    f = tmp_path / "c.toml"
+    f.write_text(toml)
+    with pytest.raises(ConfigError, match=pattern) as err:
+        load_config(f)
+    assert "\n" not in str(err.value)
+    assert err.value.exit_code == EX_CONFIG
+
+
+def test_bad_environment_value(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("STEREOD_RIG__BASELINE_M", "-1")
+    with pytest.raises(ConfigError, match=r"rig\.baseline_m = '-1': Input should be greater than 0"):
+        load_config()
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="no such config file"):
+        load_config(tmp_path / "nope.toml")

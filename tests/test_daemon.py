@@ -1,0 +1,174 @@
+"""The daemon in-process: status, queryables, liveliness, live sources, bad frames, drops."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+import zenoh
+
+from stereod.config import load_config
+from stereod.daemon import Daemon
+from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
+from stereod_fakes.synth import SyntheticDriver
+
+from .conftest import zenoh_config
+
+
+def config(endpoint: str, **daemon: Any):
+    return load_config(overrides={"zenoh": {"connect": [endpoint]}, "daemon": daemon})
+
+
+def start(daemon: Daemon) -> tuple[threading.Thread, dict]:
+    out: dict = {}
+    t = threading.Thread(target=lambda: out.setdefault("summary", daemon.run()))
+    t.start()
+    return t, out
+
+
+def wait_alive(session: zenoh.Session, key: str, timeout: float = 10) -> None:
+    seen = threading.Event()
+    sub = session.liveliness().declare_subscriber(
+        key, lambda s: seen.set() if s.kind == zenoh.SampleKind.PUT else None, history=True
+    )
+    assert seen.wait(timeout), f"liveliness token {key} never appeared"
+    sub.undeclare()
+
+
+def query(session: zenoh.Session, key: str) -> dict:
+    replies = list(session.get(key, timeout=5))
+    assert replies, f"no reply on {key}"
+    return json.loads(replies[0].ok.payload.to_bytes())
+
+
+def test_queryables_liveliness_and_status_on_new_subscriber(endpoint: str, listener: zenoh.Session) -> None:
+    cfg = config(endpoint, status_period_s=30.0)
+    daemon = Daemon(cfg, SyntheticDriver({"duration_s": 3.0, "fps": 15}), rate=1.0)
+    thread, out = start(daemon)
+    try:
+        wait_alive(listener, "stereod/minoru/alive")
+        assert query(listener, "stereod/minoru/config")["rig"]["name"] == "minoru"
+        cal = query(listener, "stereod/minoru/calibration")
+        assert cal["geometry"] == "canonical" and cal["baseline_m"] == 0.06
+        stats = query(listener, "stereod/minoru/stats")
+        assert stats["schema"] == "stereod.stats/1"
+        # The status period is 30 s: a status arriving at once comes from the new-subscriber path.
+        got = threading.Event()
+        sub = listener.declare_subscriber("stereod/minoru/status", lambda s: got.set())
+        t0 = time.monotonic()
+        assert got.wait(5), "no status re-sent for a new subscriber"
+        assert time.monotonic() - t0 < 5
+        sub.undeclare()
+    finally:
+        daemon.stop()
+        thread.join(15)
+    assert not thread.is_alive()
+    # The token is withdrawn when the daemon stops.
+    left = list(listener.liveliness().get("stereod/minoru/alive", timeout=1))
+    assert left == []
+
+
+def test_live_source_runs_one_thread_per_eye(endpoint: str, listener: zenoh.Session) -> None:
+    msgs: list[dict] = []
+    sub = listener.declare_subscriber("stereod/minoru/objects", lambda s: msgs.append(json.loads(s.payload.to_bytes())))
+    driver = SyntheticDriver({"duration_s": 2.0, "fps": 15, "skew_s": 0.01, "live": True})
+    daemon = Daemon(config(endpoint), driver)
+    summary = daemon.run()
+    time.sleep(0.3)
+    sub.undeclare()
+    assert summary.error is None and summary.pairs == 30
+    assert msgs and all(abs(m["skew_ns"] - 10_000_000) < 1_000_000 for m in msgs)
+    # Live times are on this host's monotonic clock; UTC stamps are near now.
+    assert abs(msgs[-1]["stamp_utc_ns"] - time.time_ns()) < 5e9
+
+
+class _ListEye(EyeSource):
+    def __init__(self, eye: Eye, frames: list[Frame]) -> None:
+        self.eye = eye
+        self._frames = list(frames)
+
+    def read(self) -> Frame | None:
+        return self._frames.pop(0) if self._frames else None
+
+
+class _ListSource(StereoSource):
+    def __init__(self, left: list[Frame], right: list[Frame], live: bool) -> None:
+        self._l, self._r = _ListEye(Eye.LEFT, left), _ListEye(Eye.RIGHT, right)
+        self._live = live
+        self._size = left[0].image.shape[:2]
+
+    @property
+    def info(self) -> SourceInfo:
+        h, w = self._size
+        return SourceInfo(w, h, 10.0, self._live, "frames in a list")
+
+    @property
+    def left(self) -> EyeSource:
+        return self._l
+
+    @property
+    def right(self) -> EyeSource:
+        return self._r
+
+
+class ListDriver(Driver):
+    """A driver over frames held in memory: the daemon's own seam, for fault injection."""
+
+    name = "list"
+
+    def __init__(self, left: list[Frame], right: list[Frame], live: bool = False) -> None:
+        self.args = (left, right, live)
+
+    def open(self) -> StereoSource:
+        return _ListSource(*self.args)
+
+
+def frames(eye: Eye, n: int, size: tuple[int, int] = (48, 64), period_ns: int = 10**8) -> list[Frame]:
+    img = np.full(size, 100, np.uint8)
+    return [Frame(eye, img, 10**9 + k * period_ns, k) for k in range(n)]
+
+
+def test_wrong_size_frame_mid_stream_is_skipped_and_reported(endpoint: str, listener: zenoh.Session) -> None:
+    statuses: list[dict] = []
+    sub = listener.declare_subscriber("stereod/minoru/status", lambda s: statuses.append(json.loads(s.payload.to_bytes())))
+    left, right = frames(Eye.LEFT, 20), frames(Eye.RIGHT, 20)
+    left[7] = Frame(Eye.LEFT, np.zeros((24, 32), np.uint8), left[7].t_ns, 7)
+    daemon = Daemon(config(endpoint), ListDriver(left, right), rate=0, wait_subscriber_s=0)
+    summary = daemon.run()
+    time.sleep(0.3)
+    sub.undeclare()
+    assert summary.error is None
+    assert summary.pairs == 19
+    assert any("left eye: frame 7 is 32x24, stream is 64x48; skipped" in p for p in summary.problems)
+    final = statuses[-1]
+    assert final["state"] == "finished" and final["left"]["errors"] == 1
+    assert "frame 7 is 32x24" in final["problems"][-1]
+
+
+def test_pipeline_behind_drops_oldest_and_counts(endpoint: str) -> None:
+    """A live source faster than the pipeline: memory stays bounded, drops are counted."""
+    n = 400
+    # 640x480 frames delivered as fast as memory allows: far beyond the pipeline.
+    left = frames(Eye.LEFT, n, (480, 640), period_ns=1000)
+    right = frames(Eye.RIGHT, n, (480, 640), period_ns=1000)
+    cfg = config(endpoint, queue_size=2)
+    summary = Daemon(cfg, ListDriver(left, right, live=True), rate=0).run()
+    assert summary.error is None
+    dropped = summary.drops.get("pipeline_behind", 0)
+    assert dropped > 0
+    assert summary.published + dropped == summary.pairs
+
+
+@pytest.mark.parametrize("rate", [0.0, 4.0])
+def test_rate_paces_replay(rate: float, endpoint: str) -> None:
+    driver = SyntheticDriver({"duration_s": 1.0, "fps": 15})
+    t0 = time.monotonic()
+    summary = Daemon(config(endpoint), driver, rate=rate).run()
+    elapsed = time.monotonic() - t0
+    assert summary.pairs == 15
+    if rate:
+        assert elapsed >= 14 / 15 / rate, f"{elapsed:.2f} s is faster than {rate}x real time"

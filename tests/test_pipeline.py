@@ -1,0 +1,68 @@
+"""The pipeline on rendered scenes: 3D positions against the truth and the eq. 12 bound."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stereod.detect import DetectorParams
+from stereod.pairing import Pairer
+from stereod.pipeline import Pipeline, PipelineParams
+from stereod_fakes.synth import Ball, Renderer, Scene
+
+
+def run_scene(scene: Scene, workers: int = 1) -> list:
+    params = PipelineParams(rig_name="t", rig=scene.rig, detector=DetectorParams(), detect_workers=workers)
+    pipe = Pipeline(params, utc_offset_ns=0)
+    pairer = Pairer(tolerance_ns=40_000_000)
+    results = []
+    for left, right in Renderer(scene).frames():
+        for f in (left, right):
+            for pair in pairer.push(f):
+                results.append(pipe.process(pair))
+    for pair in pairer.flush():
+        results.append(pipe.process(pair))
+    pipe.close()
+    return results
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_positions_within_one_pixel_bound(workers: int) -> None:
+    scene = Scene(balls=[Ball(heading_deg=30, speed_mps=0.7, centre_m=(0.0, 0.0, 2.0))])
+    ball = scene.balls[0]
+    results = run_scene(scene, workers)
+    errs, seen = [], 0
+    for r in results:
+        for o in r.message.objects:
+            seen += 1
+            truth = ball.position_m((o.t_ns - scene.t0_ns) / 1e9)
+            err = np.abs(np.asarray(o.position_m) - truth)
+            bound = scene.rig.depth_error_one_px_m(truth[2])
+            assert err[2] <= bound, f"depth error {err[2]:.4f} m beyond eq. 12's {bound:.4f} m"
+            assert np.all(err <= 4 * np.asarray(o.position_sigma_m) + 1e-3)
+            errs.append(err)
+    assert seen >= 0.9 * ball_frames(scene)
+    assert np.median(np.array(errs)[:, 2]) < 0.01
+
+
+def ball_frames(scene: Scene) -> int:
+    b = scene.balls[0]
+    return int((b.t_off_s - b.t_on_s) * scene.fps)
+
+
+def test_two_balls_get_two_tracks_with_their_velocities() -> None:
+    balls = [
+        Ball(heading_deg=90, speed_mps=0.4, centre_m=(0.0, -0.2, 1.6)),
+        Ball(heading_deg=180, speed_mps=0.6, centre_m=(0.2, 0.2, 2.2), radius_m=0.06),
+    ]
+    results = run_scene(Scene(balls=balls))
+    final = {}
+    for r in results:
+        for o in r.message.objects:
+            if o.velocity_valid:
+                final[o.track_id] = o
+    assert len(final) == 2
+    by_heading = sorted(final.values(), key=lambda o: o.heading_deg)
+    for o, b in zip(by_heading, balls):
+        assert o.heading_deg == pytest.approx(b.heading_deg, abs=2.0)
+        assert o.speed_mps == pytest.approx(b.speed_mps, rel=0.05)

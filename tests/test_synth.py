@@ -1,0 +1,75 @@
+"""Synthetic renderer: what it draws is where the canonical rig projects the truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stereod.detect import Detector, DetectorParams
+from stereod.frames import Eye
+from stereod_fakes.synth import Ball, Renderer, Scene, SyntheticDriver, scene_from_truth, write_scene
+
+
+def test_ball_is_drawn_at_its_projection() -> None:
+    scene = Scene(noise_sigma=0.0, balls=[Ball(centre_m=(0.2, -0.1, 1.5), t_on_s=0.0, t_off_s=9)])
+    r = Renderer(scene)
+    for eye in Eye:
+        empty = r.background(eye)[..., 0]
+        img = r.render(eye, scene.balls[0].t_mid_s).astype(float)
+        diff = np.abs(img - empty) > 20
+        ys, xs = np.nonzero(diff)
+        left, right = scene.rig.project(np.array([scene.balls[0].centre_m]))
+        uv = (left if eye is Eye.LEFT else right)[0]
+        assert xs.mean() == pytest.approx(uv[0], abs=0.3)
+        assert ys.mean() == pytest.approx(uv[1], abs=0.3)
+        r_px = scene.rig.focal_px * 0.05 / 1.5
+        assert diff.sum() == pytest.approx(np.pi * r_px**2, rel=0.1)
+
+
+def test_wall_has_the_disparity_of_its_distance() -> None:
+    scene = Scene(wall_m=3.0, noise_sigma=0.0)
+    r = Renderer(scene)
+    left, right = r.background(Eye.LEFT)[..., 0], r.background(Eye.RIGHT)[..., 0]
+    d = scene.rig.baseline_m * scene.rig.focal_px / 3.0
+    shift = int(round(d))
+    # A wall point at left column x is at right column x - d.
+    err = np.abs(left[:, 100 + shift : 500 + shift] - right[:, 100:500]).mean()
+    assert err < 2.0
+
+
+def test_skew_renders_right_eye_later() -> None:
+    scene = Scene(skew_s=0.02)
+    frames = list(Renderer(scene).frames())
+    assert frames[3][1].t_ns - frames[3][0].t_ns == 20_000_000
+    assert frames[3][0].t_ns == scene.t0_ns + round(3 / scene.fps * 1e9)
+
+
+def test_detector_finds_rendered_ball_within_a_tenth_of_a_pixel() -> None:
+    scene = Scene(noise_sigma=1.5, balls=[Ball(t_on_s=1.0, t_off_s=3.0)])
+    det = Detector(DetectorParams())
+    errs = []
+    for left, _ in Renderer(scene).frames():
+        blobs = det.detect(left.image)
+        t = (left.t_ns - scene.t0_ns) / 1e9
+        if scene.balls[0].visible(t) and len(blobs) == 1:
+            uv = scene.rig.project(scene.balls[0].position_m(t)[None])[0][0]
+            errs.append(np.linalg.norm(blobs.centroid_px[0] - uv))
+    assert len(errs) >= 25
+    assert np.median(errs) < 0.1, f"median centroid error {np.median(errs):.3f} px"
+
+
+def test_write_scene_and_truth_round_trip(tmp_path: Path) -> None:
+    scene = Scene(duration_s=0.4, fps=10)
+    write_scene(scene, tmp_path / "s")
+    assert scene_from_truth(tmp_path / "s" / "truth.json") == scene
+    assert (tmp_path / "s" / "recording.json").is_file()
+
+
+def test_synthetic_driver_streams_the_scene() -> None:
+    with SyntheticDriver({"duration_s": 0.5, "fps": 10, "skew_s": 0.01}).open() as src:
+        lf = [src.left.read() for _ in range(6)]
+        assert lf[-1] is None
+        rf = src.right.read()
+        assert rf is not None and rf.t_ns - lf[0].t_ns == 10_000_000
