@@ -38,10 +38,18 @@ def _setup_logging(level: str) -> None:
 
 def _add_zenoh_flags(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("zenoh")
-    g.add_argument("--connect", action="append", metavar="ENDPOINT",
-                   help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    g.add_argument("--listen", action="append", metavar="ENDPOINT",
-                   help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    g.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    g.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
     g.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (peer)")
     g.add_argument("--prefix", help="key prefix (default: stereod)")
 
@@ -50,19 +58,42 @@ def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("rig and detector (override the config file)")
     g.add_argument("--config", type=Path, metavar="FILE", help="TOML config file")
     g.add_argument("--rig", help="rig name used in key expressions (default: minoru)")
-    g.add_argument("--baseline", type=float, metavar="M",
-                   help="distance between the cameras, m (default 0.060, the Minoru's)")
-    g.add_argument("--hfov", type=float, metavar="DEG",
-                   help="horizontal field of view of one eye, deg (default 60)")
-    g.add_argument("--beta", type=float, help="background update coefficient of eq. 3, per frame "
-                   "(default 0.02)")
-    g.add_argument("--threshold", type=float, metavar="GREY",
-                   help="difference threshold t of eq. 4, grey levels 0-255 (default 25)")
+    g.add_argument(
+        "--baseline",
+        type=float,
+        metavar="M",
+        help="distance between the cameras, m (default 0.060, the Minoru's)",
+    )
+    g.add_argument(
+        "--hfov",
+        type=float,
+        metavar="DEG",
+        help="horizontal field of view of one eye, deg (default 60)",
+    )
+    g.add_argument(
+        "--beta",
+        type=float,
+        help="background update coefficient of eq. 3, per frame (default 0.02)",
+    )
+    g.add_argument(
+        "--threshold",
+        type=float,
+        metavar="GREY",
+        help="difference threshold t of eq. 4, grey levels 0-255 (default 25)",
+    )
     g.add_argument("--min-area", type=int, metavar="PX", help="smallest blob, px (default 30)")
-    g.add_argument("--warmup", type=int, metavar="FRAMES",
-                   help="frames averaged into the initial background (default 10)")
-    g.add_argument("--time-base", type=float, metavar="S",
-                   help="time base tau of eq. 21 for velocity, s (default 0.5)")
+    g.add_argument(
+        "--warmup",
+        type=int,
+        metavar="FRAMES",
+        help="frames averaged into the initial background (default 10)",
+    )
+    g.add_argument(
+        "--time-base",
+        type=float,
+        metavar="S",
+        help="time base tau of eq. 21 for velocity, s (default 0.5)",
+    )
     _add_zenoh_flags(p)
 
 
@@ -110,17 +141,33 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--left-video", type=Path, metavar="FILE", help="left eye video")
     v.add_argument("--right-video", type=Path, metavar="FILE", help="right eye video")
     v.add_argument("--fps", type=float, help="frame rate of both videos, Hz")
-    v.add_argument("--left-ts", type=Path, metavar="CSV",
-                   help="left capture times: header t_ns, one integer (ns) per frame")
+    v.add_argument(
+        "--left-ts",
+        type=Path,
+        metavar="CSV",
+        help="left capture times: header t_ns, one integer (ns) per frame",
+    )
     v.add_argument("--right-ts", type=Path, metavar="CSV", help="right capture times, as --left-ts")
-    p.add_argument("--rate", type=float, default=1.0,
-                   help="playback speed: 1 real time (default), 2 twice as fast, 0 as fast as "
-                   "possible")
+    p.add_argument(
+        "--rate",
+        type=float,
+        default=1.0,
+        help="playback speed: 1 real time (default), 2 twice as fast, 0 as fast as possible",
+    )
     p.add_argument("--loop", action="store_true", help="start again at the end (until Ctrl-C)")
-    p.add_argument("--jsonl", type=Path, metavar="FILE",
-                   help="also write every objects message, exactly as published, one per line")
-    p.add_argument("--wait-subscriber", type=float, default=0.0, metavar="S",
-                   help="wait up to S seconds for a subscriber on the objects key before playing")
+    p.add_argument(
+        "--jsonl",
+        type=Path,
+        metavar="FILE",
+        help="also write every objects message, exactly as published, one per line",
+    )
+    p.add_argument(
+        "--wait-subscriber",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="wait up to S seconds for a subscriber on the objects key before playing",
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stdout")
     _add_pipeline_flags(p)
 
@@ -134,10 +181,15 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--driver", help="driver name (replay, synthetic, v4l2_minoru, ...)")
-    p.add_argument("--rate", type=float, default=1.0,
-                   help="playback speed for file drivers: 1 real time, 0 as fast as possible")
-    p.add_argument("--check", action="store_true",
-                   help="validate the configuration, print it as JSON and exit")
+    p.add_argument(
+        "--rate",
+        type=float,
+        default=1.0,
+        help="playback speed for file drivers: 1 real time, 0 as fast as possible",
+    )
+    p.add_argument(
+        "--check", action="store_true", help="validate the configuration, print it as JSON and exit"
+    )
     _add_pipeline_flags(p)
 
     p = sub.add_parser(
@@ -145,8 +197,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="print what arrives on the bus",
         description="Subscribe to stereod keys and print each sample readably (or --json).",
     )
-    p.add_argument("keyexpr", nargs="?", default="stereod/**",
-                   help="key expression (default: stereod/**)")
+    p.add_argument(
+        "keyexpr", nargs="?", default="stereod/**", help="key expression (default: stereod/**)"
+    )
     p.add_argument("--json", action="store_true", help="raw JSON, one line per sample")
     p.add_argument("--count", type=int, metavar="N", help="exit after N samples")
     p.add_argument("--duration", type=float, metavar="S", help="exit after S seconds")
@@ -159,30 +212,72 @@ def build_parser() -> argparse.ArgumentParser:
         "by a canonical stereo rig, into a recording directory with truth.json.",
     )
     p.add_argument("out", type=Path, help="output recording directory")
-    p.add_argument("--ball", action="append", metavar="SPEC",
-                   help="a sphere as comma-separated key=value: heading (deg), speed (m/s), "
-                   "x, y, z (m, position at mid-time), radius (m), vy (m/s); e.g. "
-                   "'heading=60,speed=0.7,z=1.8' (repeatable; default one such ball)")
+    p.add_argument(
+        "--ball",
+        action="append",
+        metavar="SPEC",
+        help="a sphere as comma-separated key=value: heading (deg), speed (m/s), "
+        "x, y, z (m, position at mid-time), radius (m), vy (m/s); e.g. "
+        "'heading=60,speed=0.7,z=1.8' (repeatable; default one such ball)",
+    )
     p.add_argument("--size", default="640x480", metavar="WxH", help="image size, px")
     p.add_argument("--fps", type=float, default=15.0, help="frame rate, Hz (default 15)")
-    p.add_argument("--hfov", type=float, default=60.0, metavar="DEG",
-                   help="horizontal field of view, deg (default 60)")
-    p.add_argument("--baseline", type=float, default=0.060, metavar="M",
-                   help="camera distance, m (default 0.060)")
+    p.add_argument(
+        "--hfov",
+        type=float,
+        default=60.0,
+        metavar="DEG",
+        help="horizontal field of view, deg (default 60)",
+    )
+    p.add_argument(
+        "--baseline",
+        type=float,
+        default=0.060,
+        metavar="M",
+        help="camera distance, m (default 0.060)",
+    )
     p.add_argument("--duration", type=float, default=4.0, metavar="S", help="length, s (4)")
-    p.add_argument("--lead-in", type=float, default=1.2, metavar="S",
-                   help="seconds of empty scene before the balls appear (background warm-up)")
-    p.add_argument("--travel", type=float, default=1.6, metavar="S",
-                   help="seconds each ball is in view, centred on its x, y, z (default 1.6)")
-    p.add_argument("--noise", type=float, default=1.5, metavar="GREY",
-                   help="sensor noise sigma, grey levels (default 1.5)")
-    p.add_argument("--skew-ms", type=float, default=0.0, metavar="MS",
-                   help="right eye's capture delay after the left, ms (default 0)")
-    p.add_argument("--drift", type=float, default=0.0,
-                   help="lighting gain amplitude, fraction (e.g. 0.05), period 20 s")
+    p.add_argument(
+        "--lead-in",
+        type=float,
+        default=1.2,
+        metavar="S",
+        help="seconds of empty scene before the balls appear (background warm-up)",
+    )
+    p.add_argument(
+        "--travel",
+        type=float,
+        default=1.6,
+        metavar="S",
+        help="seconds each ball is in view, centred on its x, y, z (default 1.6)",
+    )
+    p.add_argument(
+        "--noise",
+        type=float,
+        default=1.5,
+        metavar="GREY",
+        help="sensor noise sigma, grey levels (default 1.5)",
+    )
+    p.add_argument(
+        "--skew-ms",
+        type=float,
+        default=0.0,
+        metavar="MS",
+        help="right eye's capture delay after the left, ms (default 0)",
+    )
+    p.add_argument(
+        "--drift",
+        type=float,
+        default=0.0,
+        help="lighting gain amplitude, fraction (e.g. 0.05), period 20 s",
+    )
     p.add_argument("--color", action="store_true", help="BGR frames instead of grey")
-    p.add_argument("--codec", choices=["ffv1", "mjpg"], default="ffv1",
-                   help="ffv1 lossless (default) or mjpg lossy")
+    p.add_argument(
+        "--codec",
+        choices=["ffv1", "mjpg"],
+        default="ffv1",
+        help="ffv1 lossless (default) or mjpg lossy",
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed for texture and noise")
 
     p = sub.add_parser("schema", help="print the JSON Schema of the wire messages")
@@ -213,12 +308,19 @@ def _cmd_replay(a: argparse.Namespace) -> int:
             raise ConfigError("give a recording directory or --left-video/--right-video, not both")
         options = {"path": a.recording}
     elif a.left_video or a.right_video:
-        options = {"left_video": a.left_video, "right_video": a.right_video, "fps": a.fps,
-                   "left_ts": a.left_ts, "right_ts": a.right_ts}
+        options = {
+            "left_video": a.left_video,
+            "right_video": a.right_video,
+            "fps": a.fps,
+            "left_ts": a.left_ts,
+            "right_ts": a.right_ts,
+        }
         options = {k: v for k, v in options.items() if v is not None}
     else:
-        raise ConfigError("nothing to replay: give a recording directory or "
-                          "--left-video L --right-video R with --fps or --left-ts/--right-ts")
+        raise ConfigError(
+            "nothing to replay: give a recording directory or "
+            "--left-video L --right-video R with --fps or --left-ts/--right-ts"
+        )
     if a.loop:
         options["loop"] = True
     if a.rate < 0:
@@ -227,8 +329,13 @@ def _cmd_replay(a: argparse.Namespace) -> int:
     ov["driver"] = {"name": "replay", "options": options}
     cfg = load_config(a.config, ov)
     _setup_logging(cfg.daemon.log_level)
-    daemon = Daemon(cfg, load_driver("replay", options), rate=a.rate, jsonl=a.jsonl,
-                    wait_subscriber_s=a.wait_subscriber)
+    daemon = Daemon(
+        cfg,
+        load_driver("replay", options),
+        rate=a.rate,
+        jsonl=a.jsonl,
+        wait_subscriber_s=a.wait_subscriber,
+    )
     return _run_daemon(daemon, quiet=a.quiet)
 
 
@@ -300,8 +407,11 @@ def _cmd_subscribe(a: argparse.Namespace) -> int:
         payload = s.payload.to_bytes()
         deleted = s.kind == zenoh.SampleKind.DELETE
         if a.json:
-            line = json.dumps({"key": key, "delete": True}) if deleted else payload.decode(
-                "utf-8", "replace")
+            line = (
+                json.dumps({"key": key, "delete": True})
+                if deleted
+                else payload.decode("utf-8", "replace")
+            )
         else:
             line = format_sample(key, payload, deleted)
         with lock:
@@ -322,8 +432,13 @@ def _cmd_subscribe(a: argparse.Namespace) -> int:
 
 
 def _parse_ball(spec: str) -> dict[str, Any]:
-    keys = {"heading": "heading_deg", "speed": "speed_mps", "radius": "radius_m", "vy": "vy_mps",
-            "brightness": "brightness"}
+    keys = {
+        "heading": "heading_deg",
+        "speed": "speed_mps",
+        "radius": "radius_m",
+        "vy": "vy_mps",
+        "brightness": "brightness",
+    }
     out: dict[str, Any] = {}
     centre = [0.0, 0.1, 1.8]
     for part in filter(None, spec.split(",")):
@@ -340,8 +455,10 @@ def _parse_ball(spec: str) -> dict[str, Any]:
         elif k in keys:
             out[keys[k]] = val
         else:
-            raise ConfigError(f"--ball {spec!r}: unknown key {k!r} (heading, speed, x, y, z, "
-                              "radius, vy, brightness)")
+            raise ConfigError(
+                f"--ball {spec!r}: unknown key {k!r} (heading, speed, x, y, z, "
+                "radius, vy, brightness)"
+            )
     out["centre_m"] = tuple(centre)
     return out
 
@@ -349,7 +466,6 @@ def _parse_ball(spec: str) -> dict[str, Any]:
 def scene_from_args(a: argparse.Namespace) -> Any:
     """The :class:`stereod_fakes.synth.Scene` described by ``stereod synth`` flags."""
     from pydantic import ValidationError
-
     from stereod_fakes.synth import Scene
 
     try:
@@ -357,16 +473,28 @@ def scene_from_args(a: argparse.Namespace) -> Any:
     except ValueError as exc:
         raise ConfigError(f"--size {a.size!r}: expected WIDTHxHEIGHT in px, e.g. 640x480") from exc
     if not a.lead_in + a.travel <= a.duration:
-        raise ConfigError(f"--lead-in {a.lead_in} s + --travel {a.travel} s must fit in "
-                          f"--duration {a.duration} s")
+        raise ConfigError(
+            f"--lead-in {a.lead_in} s + --travel {a.travel} s must fit in --duration {a.duration} s"
+        )
     t_on, t_off = a.lead_in, a.lead_in + a.travel
     balls = [_parse_ball(s) for s in (a.ball or [""])]
     for b in balls:
         b.update(t_on_s=t_on, t_off_s=t_off, t_mid_s=(t_on + t_off) / 2)
     try:
-        return Scene(width_px=w, height_px=h, fps=a.fps, hfov_deg=a.hfov, baseline_m=a.baseline,
-                     duration_s=a.duration, noise_sigma=a.noise, skew_s=a.skew_ms / 1e3,
-                     drift=a.drift, color=a.color, seed=a.seed, balls=balls)
+        return Scene(
+            width_px=w,
+            height_px=h,
+            fps=a.fps,
+            hfov_deg=a.hfov,
+            baseline_m=a.baseline,
+            duration_s=a.duration,
+            noise_sigma=a.noise,
+            skew_s=a.skew_ms / 1e3,
+            drift=a.drift,
+            color=a.color,
+            seed=a.seed,
+            balls=balls,
+        )
     except ValidationError as exc:
         e = exc.errors(include_url=False)[0]
         loc = ".".join(str(p) for p in e["loc"])
@@ -374,13 +502,16 @@ def scene_from_args(a: argparse.Namespace) -> Any:
 
 
 def _cmd_synth(a: argparse.Namespace) -> int:
-    from stereod.recording import Codec
     from stereod_fakes.synth import write_scene
+
+    from stereod.recording import Codec
 
     scene = scene_from_args(a)
     write_scene(scene, a.out, Codec(a.codec))
-    print(f"wrote {scene.n_frames} stereo frames ({scene.width_px}x{scene.height_px} at "
-          f"{scene.fps:g} Hz) and truth.json to {a.out}")
+    print(
+        f"wrote {scene.n_frames} stereo frames ({scene.width_px}x{scene.height_px} at "
+        f"{scene.fps:g} Hz) and truth.json to {a.out}"
+    )
     return 0
 
 

@@ -202,9 +202,7 @@ def format_validation_error(exc: ValidationError, origin: str) -> str:
     return f"{origin}: invalid config: " + "; ".join(parts)
 
 
-def load_config(
-    path: Path | None = None, overrides: dict[str, Any] | None = None
-) -> StereodConfig:
+def load_config(path: Path | None = None, overrides: dict[str, Any] | None = None) -> StereodConfig:
     """Build the configuration from ``path`` (TOML), the environment and ``overrides`` (flags).
 
     ``overrides`` is a nested dict like ``{"detector": {"beta": 0.05}}``; ``None`` values are

@@ -248,7 +248,9 @@ class Daemon:
         if live:
             self._eyes_done = 0
             return [
-                threading.Thread(target=self._eye_loop, args=(eye,), name=f"capture-{eye.eye.value}")
+                threading.Thread(
+                    target=self._eye_loop, args=(eye,), name=f"capture-{eye.eye.value}"
+                )
                 for eye in (source.left, source.right)
             ]
         return [threading.Thread(target=self._merge_loop, args=(source,), name="capture")]

@@ -40,7 +40,11 @@ def angle_diff_deg(a: float, b: float) -> float:
 
 
 def run_demo(
-    *, rate: float = 1.0, keep: Path | None = None, heading_deg: float = 60.0, speed_mps: float = 0.7
+    *,
+    rate: float = 1.0,
+    keep: Path | None = None,
+    heading_deg: float = 60.0,
+    speed_mps: float = 0.7,
 ) -> int:
     """Run the demo; return 0 when heading and speed came out within the paper's own errors."""
     from stereod_fakes.synth import Ball, Scene, write_scene
@@ -79,7 +83,9 @@ def run_demo(
             cfg, load_driver("replay", {"path": out}), rate=rate, wait_subscriber_s=10.0
         )
         with open_session(ZenohConfig(connect=[endpoint])) as session:
-            sub = session.declare_subscriber(f"{cfg.zenoh.prefix}/{cfg.rig.name}/objects", on_sample)
+            sub = session.declare_subscriber(
+                f"{cfg.zenoh.prefix}/{cfg.rig.name}/objects", on_sample
+            )
             summary = daemon.run()
             sub.undeclare()
     if summary.error is not None:
@@ -110,7 +116,9 @@ def _report(scene: Any, received: list[dict[str, Any]]) -> int:
     raw_speed = float(np.linalg.norm(raw_v))
     dh = angle_diff_deg(heading, ball.heading_deg)
     ds = spd - ball.speed_mps
-    print(f"{len(received)} messages, {len(states)} object states, {len(valid)} with valid velocity")
+    print(
+        f"{len(received)} messages, {len(states)} object states, {len(valid)} with valid velocity"
+    )
     print(f"{'':24}{'heading (deg)':>14}{'speed (m/s)':>13}")
     print(f"{'true':24}{ball.heading_deg:14.1f}{ball.speed_mps:13.3f}")
     print(f"{'measured (median)':24}{heading:14.1f}{spd:13.3f}")

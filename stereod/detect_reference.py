@@ -13,7 +13,7 @@ from .detect import Blobs, DetectorParams, Luminance
 
 
 class ReferenceDetector:
-    """Eq. 2-5 on float64 arrays; same interface and parameters as :class:`stereod.detect.Detector`."""
+    """Eq. 2-5 on float64 arrays, with the parameters of :class:`stereod.detect.Detector`."""
 
     def __init__(self, params: DetectorParams) -> None:
         from scipy import ndimage
@@ -55,7 +55,10 @@ class ReferenceDetector:
         cy, cx = np.asarray(nd.center_of_mass(f, labels, idx), dtype=np.float64).T
         slices = nd.find_objects(labels)
         bbox = np.array(
-            [[s[1].start, s[0].start, s[1].stop - s[1].start, s[0].stop - s[0].start] for s in slices],
+            [
+                [s[1].start, s[0].start, s[1].stop - s[1].start, s[0].stop - s[0].start]
+                for s in slices
+            ],
             dtype=np.int32,
         )
         keep = area >= p.min_area_px

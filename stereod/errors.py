@@ -34,7 +34,7 @@ class StereodError(Exception):
 
 
 class ConfigError(StereodError):
-    """A configuration value is invalid; the message names the field, the value and what is allowed."""
+    """A configuration value is invalid; the message names the field, value and what is allowed."""
 
     exit_code = EX_CONFIG
 

@@ -79,7 +79,7 @@ class EyeSource(ABC):
 
 @dataclass
 class SourceInfo:
-    """What a source says about itself: image size (px), nominal rate (Hz) and free-form settings."""
+    """What a source says of itself: image size (px), nominal rate (Hz), free-form settings."""
 
     width: int
     height: int
@@ -128,8 +128,8 @@ class StereoSource(ABC):
 
 
 class Driver(ABC):
-    """A named way to open a :class:`StereoSource`, registered in the ``stereod.drivers`` entry-point
-    group. ``options`` come from the ``[driver]`` table of the config."""
+    """A named way to open a :class:`StereoSource`, registered in the ``stereod.drivers``
+    entry-point group; its options come from the ``[driver.options]`` table of the config."""
 
     name: str = ""
 

@@ -8,14 +8,14 @@ programs outside this project: keep them stable. ``stereod schema`` prints the J
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-OBJECTS_SCHEMA = "stereod.objects/1"
-OBJECT_SCHEMA = "stereod.object/1"
-STATUS_SCHEMA = "stereod.status/1"
-STATS_SCHEMA = "stereod.stats/1"
+OBJECTS_SCHEMA: Final = "stereod.objects/1"
+OBJECT_SCHEMA: Final = "stereod.object/1"
+STATUS_SCHEMA: Final = "stereod.status/1"
+STATS_SCHEMA: Final = "stereod.stats/1"
 
 Vec3 = tuple[float, float, float]
 Vec2 = tuple[float, float]
@@ -40,7 +40,7 @@ class EyeBlob(_Model):
 
 
 class ObjectState(_Model):
-    """One tracked object at one capture instant, rig frame (X right, Y down, Z forward), SI units."""
+    """One tracked object at one capture instant; rig frame (X right, Y down, Z forward), SI."""
 
     schema_: Literal["stereod.object/1"] = Field(OBJECT_SCHEMA, alias="schema")
     track_id: int = Field(description="Stable id of the track; never reused while running")

@@ -25,9 +25,9 @@ class PipelineParams:
 
     rig_name: str
     rig: CanonicalRig
-    detector: DetectorParams = DetectorParams()
-    matching: MatchParams = MatchParams()
-    tracker: TrackerParams = TrackerParams()
+    detector: DetectorParams = field(default_factory=DetectorParams)
+    matching: MatchParams = field(default_factory=MatchParams)
+    tracker: TrackerParams = field(default_factory=TrackerParams)
     centroid_sigma_px: float = 0.5
     detect_workers: int = 1
 

@@ -146,7 +146,8 @@ class Publisher:
 
     def has_objects_subscriber(self) -> bool:
         """Whether some subscriber matches the ``objects`` key right now."""
-        return bool(self._objects.matching_status.matching)
+        # The stub says bool; at runtime it is a MatchingStatus whose truth value is not defined.
+        return bool(self._objects.matching_status.matching)  # type: ignore[attr-defined]
 
     def _end_track(self, tid: int) -> None:
         pub = self._tracks.pop(tid, None)

@@ -17,7 +17,7 @@ import enum
 import json
 import time
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 import cv2
 import numpy as np
@@ -27,7 +27,7 @@ from .errors import InputError, MissingInputError, OutputError
 from .frames import Eye, Frame
 
 MANIFEST = "recording.json"
-FORMAT = "stereod.recording/1"
+FORMAT: Final = "stereod.recording/1"
 
 
 class Codec(str, enum.Enum):

@@ -15,7 +15,8 @@ def _v(vec: list[float] | None, fmt: str = "{:+.3f}") -> str:
 def format_object(o: dict[str, Any]) -> str:
     """One object as one line: id, state, position (m), velocity (m/s), speed, heading."""
     motion = (
-        f"v {_v(o['velocity_mps'])} m/s  |v| {o['speed_mps']:.3f} m/s  heading {o['heading_deg']:6.1f} deg"
+        f"v {_v(o['velocity_mps'])} m/s  |v| {o['speed_mps']:.3f} m/s  "
+        f"heading {o['heading_deg']:6.1f} deg"
         if o.get("velocity_valid")
         else "v (not yet valid)"
     )
@@ -33,7 +34,8 @@ def format_sample(key: str, payload: bytes, deleted: bool = False) -> str:
     schema = msg.get("schema", "") if isinstance(msg, dict) else ""
     if schema.startswith("stereod.objects/"):
         head = (
-            f"{key}: seq {msg['seq']}  t {msg['t_ns'] / 1e9:.3f} s  skew {msg['skew_ns'] / 1e6:+.1f} ms"
+            f"{key}: seq {msg['seq']}  t {msg['t_ns'] / 1e9:.3f} s  "
+            f"skew {msg['skew_ns'] / 1e6:+.1f} ms"
             f"  {len(msg['objects'])} object(s)  {msg['latency']['pipeline_ms']:.1f} ms"
         )
         return "\n".join([head] + [format_object(o) for o in msg["objects"]])

@@ -31,7 +31,9 @@ def free_endpoint() -> str:
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
-def zenoh_config(*, listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Config:
+def zenoh_config(
+    *, listen: list[str] | None = None, connect: list[str] | None = None
+) -> zenoh.Config:
     cfg = zenoh.Config()
     cfg.insert_json5("scouting", json.dumps({"delay": 0, "multicast": {"enabled": False}}))
     if listen:
@@ -41,8 +43,9 @@ def zenoh_config(*, listen: list[str] | None = None, connect: list[str] | None =
     return cfg
 
 
-def stereod(*args: str, timeout: float = 120, env: dict[str, str] | None = None,
-            **kw: object) -> subprocess.CompletedProcess[str]:
+def stereod(
+    *args: str, timeout: float = 120, env: dict[str, str] | None = None, **kw: object
+) -> subprocess.CompletedProcess[str]:
     """Run ``stereod ARGS`` as a subprocess, capturing text output."""
     full_env = {**os.environ, **(env or {})}
     return subprocess.run(

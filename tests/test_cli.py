@@ -14,11 +14,11 @@ import cv2
 import numpy as np
 import pytest
 import zenoh
-
-from stereod.demo import angle_diff_deg
 from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
 
-from .conftest import ROOT, shared_data, stereod, zenoh_config
+from stereod.demo import angle_diff_deg
+
+from .conftest import ROOT, shared_data, stereod
 
 pytestmark = pytest.mark.slow
 
@@ -69,8 +69,18 @@ def test_replay_publishes_truthful_motion_over_zenoh(
     ball = scene.balls[0]
     col = Collector(listener)
     jsonl = tmp_path / "out.jsonl"
-    res = stereod("replay", str(rec), "--rate", "0", "--connect", endpoint,
-                  "--wait-subscriber", "10", "--jsonl", str(jsonl))
+    res = stereod(
+        "replay",
+        str(rec),
+        "--rate",
+        "0",
+        "--connect",
+        endpoint,
+        "--wait-subscriber",
+        "10",
+        "--jsonl",
+        str(jsonl),
+    )
     assert res.returncode == 0, res.stderr
     assert "Traceback" not in res.stderr
     key = "stereod/minoru/objects"
@@ -98,19 +108,28 @@ def test_replay_publishes_truthful_motion_over_zenoh(
     track = col.messages("stereod/minoru/objects/1")
     assert len(track) == sum(len(m["objects"]) for m in received)
     assert col.wait_for(lambda: "stereod/minoru/objects/1" in col.deletes())
-    assert col.wait_for(lambda: any(s["state"] == "finished" for s in col.messages("stereod/minoru/status")))
+    assert col.wait_for(
+        lambda: any(s["state"] == "finished" for s in col.messages("stereod/minoru/status"))
+    )
     final = [s for s in col.messages("stereod/minoru/status") if s["state"] == "finished"][-1]
     assert final["pairs"] == scene.n_frames and final["drops"] == {}
     assert "60 pairs" in res.stdout
 
 
-def test_replay_plain_videos_with_timestamp_files(endpoint: str, listener: zenoh.Session, tmp_path: Path) -> None:
+def test_replay_plain_videos_with_timestamp_files(
+    endpoint: str, listener: zenoh.Session, tmp_path: Path
+) -> None:
     """Two plain videos with 20 ms of skew in their timestamp files."""
     scene = Scene(skew_s=0.02, balls=[Ball(heading_deg=90, speed_mps=0.4, centre_m=(0, 0, 1.5))])
     writers, stamps = {}, {"left": [], "right": []}
     for eye in ("left", "right"):
-        writers[eye] = cv2.VideoWriter(str(tmp_path / f"{eye}.mkv"), cv2.VideoWriter.fourcc(*"FFV1"),
-                                       scene.fps, (scene.width_px, scene.height_px), isColor=False)
+        writers[eye] = cv2.VideoWriter(
+            str(tmp_path / f"{eye}.mkv"),
+            cv2.VideoWriter.fourcc(*"FFV1"),
+            scene.fps,
+            (scene.width_px, scene.height_px),
+            isColor=False,
+        )
     for left, right in Renderer(scene).frames():
         for f in (left, right):
             writers[f.eye.value].write(f.image)
@@ -119,27 +138,60 @@ def test_replay_plain_videos_with_timestamp_files(endpoint: str, listener: zenoh
         w.release()
         (tmp_path / f"{eye}.csv").write_text("t_ns\n" + "".join(f"{t}\n" for t in stamps[eye]))
     col = Collector(listener)
-    res = stereod("replay", "--left-video", str(tmp_path / "left.mkv"), "--right-video",
-                  str(tmp_path / "right.mkv"), "--left-ts", str(tmp_path / "left.csv"),
-                  "--right-ts", str(tmp_path / "right.csv"), "--rate", "0", "--connect", endpoint,
-                  "--wait-subscriber", "10")
+    res = stereod(
+        "replay",
+        "--left-video",
+        str(tmp_path / "left.mkv"),
+        "--right-video",
+        str(tmp_path / "right.mkv"),
+        "--left-ts",
+        str(tmp_path / "left.csv"),
+        "--right-ts",
+        str(tmp_path / "right.csv"),
+        "--rate",
+        "0",
+        "--connect",
+        endpoint,
+        "--wait-subscriber",
+        "10",
+    )
     assert res.returncode == 0, res.stderr
     assert col.wait_for(lambda: len(col.messages("stereod/minoru/objects")) == scene.n_frames)
     msgs = col.messages("stereod/minoru/objects")
     assert all(m["skew_ns"] == 20_000_000 for m in msgs)
     valid = [o for m in msgs for o in m["objects"] if o["velocity_valid"]]
-    assert valid and abs(angle_diff_deg(float(np.median([o["heading_deg"] for o in valid])), 90)) < 3
+    assert (
+        valid and abs(angle_diff_deg(float(np.median([o["heading_deg"] for o in valid])), 90)) < 3
+    )
 
 
-def test_subscribe_prints_readably(scene_dir: tuple[Scene, Path], endpoint: str, listener: zenoh.Session) -> None:
+def test_subscribe_prints_readably(
+    scene_dir: tuple[Scene, Path], endpoint: str, listener: zenoh.Session
+) -> None:
     _, rec = scene_dir
     sub = subprocess.Popen(
-        [sys.executable, "-m", "stereod.cli", "subscribe", "stereod/minoru/objects", "--connect",
-         endpoint, "--duration", "60", "--count", "30"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+        [
+            sys.executable,
+            "-m",
+            "stereod.cli",
+            "subscribe",
+            "stereod/minoru/objects",
+            "--connect",
+            endpoint,
+            "--duration",
+            "60",
+            "--count",
+            "30",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
     )
     try:
-        res = stereod("replay", str(rec), "--rate", "0", "--connect", endpoint, "--wait-subscriber", "10")
+        res = stereod(
+            "replay", str(rec), "--rate", "0", "--connect", endpoint, "--wait-subscriber", "10"
+        )
         assert res.returncode == 0, res.stderr
         out, err = sub.communicate(timeout=30)
     finally:
@@ -150,7 +202,9 @@ def test_subscribe_prints_readably(scene_dir: tuple[Scene, Path], endpoint: str,
     assert any("pos (" in line and " m" in line for line in lines)
 
 
-def test_run_with_config_file_and_synthetic_driver(tmp_path: Path, endpoint: str, listener: zenoh.Session) -> None:
+def test_run_with_config_file_and_synthetic_driver(
+    tmp_path: Path, endpoint: str, listener: zenoh.Session
+) -> None:
     cfg = tmp_path / "stereod.toml"
     cfg.write_text(
         '[rig]\nname = "bench"\n'
@@ -177,22 +231,40 @@ def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
     one_line_error(stereod("replay", str(tmp_path / "nope")), 66, "no such recording directory")
     junk = tmp_path / "junk.avi"
     junk.write_text("junk")
-    one_line_error(stereod("replay", "--left-video", str(junk), "--right-video", str(junk), "--fps", "10"),
-                   65, "junk.avi: cannot open as a video|junk.avi: no frame decodes")
+    one_line_error(
+        stereod("replay", "--left-video", str(junk), "--right-video", str(junk), "--fps", "10"),
+        65,
+        "junk.avi: cannot open as a video|junk.avi: no frame decodes",
+    )
     one_line_error(stereod("replay", str(tmp_path)), 66, "recording.json missing")
     one_line_error(stereod("replay"), 78, "nothing to replay")
     bad = tmp_path / "bad.toml"
     bad.write_text("[detector]\nbeta = 3\n")
     one_line_error(stereod("run", "--config", str(bad)), 78, r"detector\.beta = 3")
-    one_line_error(stereod("run", "--config", str(tmp_path / "none.toml")), 78, "no such config file")
+    one_line_error(
+        stereod("run", "--config", str(tmp_path / "none.toml")), 78, "no such config file"
+    )
     one_line_error(stereod("run", "--driver", "warp"), 78, "driver.name = 'warp': no such driver")
-    one_line_error(stereod("replay", str(tmp_path), "--baseline", "-1"), 78, r"rig\.baseline_m = -1\.0")
+    one_line_error(
+        stereod("replay", str(tmp_path), "--baseline", "-1"), 78, r"rig\.baseline_m = -1\.0"
+    )
 
 
 def test_truncated_video_finishes_and_says_so() -> None:
     tree = shared_data("video", "tree.avi")
-    res = stereod("replay", "--left-video", str(tree), "--right-video", str(tree), "--fps", "15",
-                  "--rate", "0", "--listen", "tcp/127.0.0.1:0")
+    res = stereod(
+        "replay",
+        "--left-video",
+        str(tree),
+        "--right-video",
+        str(tree),
+        "--fps",
+        "15",
+        "--rate",
+        "0",
+        "--listen",
+        "tcp/127.0.0.1:0",
+    )
     assert res.returncode == 65, res.stderr
     assert "68 pairs" in res.stdout
     assert "Traceback" not in res.stderr
@@ -208,18 +280,42 @@ def test_different_sizes_and_counts_between_eyes(tmp_path: Path) -> None:
         return str(tmp_path / name)
 
     a, b, c = video("a.avi", 5, (64, 48)), video("b.avi", 5, (32, 24)), video("c.avi", 3, (64, 48))
-    one_line_error(stereod("replay", "--left-video", a, "--right-video", b, "--fps", "10"), 65, "must have one size")
-    one_line_error(stereod("replay", "--left-video", a, "--right-video", c, "--fps", "10"), 65, "same number of frames")
+    one_line_error(
+        stereod("replay", "--left-video", a, "--right-video", b, "--fps", "10"),
+        65,
+        "must have one size",
+    )
+    one_line_error(
+        stereod("replay", "--left-video", a, "--right-video", c, "--fps", "10"),
+        65,
+        "same number of frames",
+    )
     ts = tmp_path / "ts.csv"
     ts.write_text("t_ns\n1\n5\n4\n6\n7\n")
-    one_line_error(stereod("replay", "--left-video", a, "--right-video", a, "--left-ts", str(ts),
-                           "--right-ts", str(ts)), 65, r"ts\.csv line 4: timestamp 4 is not after 5")
+    one_line_error(
+        stereod(
+            "replay",
+            "--left-video",
+            a,
+            "--right-video",
+            a,
+            "--left-ts",
+            str(ts),
+            "--right-ts",
+            str(ts),
+        ),
+        65,
+        r"ts\.csv line 4: timestamp 4 is not after 5",
+    )
 
 
 def test_unwritable_jsonl_path(scene_dir: tuple[Scene, Path], tmp_path: Path) -> None:
     _, rec = scene_dir
-    one_line_error(stereod("replay", str(rec), "--jsonl", str(tmp_path / "no" / "dir" / "x.jsonl")), 73,
-                   "cannot write JSONL")
+    one_line_error(
+        stereod("replay", str(rec), "--jsonl", str(tmp_path / "no" / "dir" / "x.jsonl")),
+        73,
+        "cannot write JSONL",
+    )
 
 
 def test_schema_command_prints_json_schema() -> None:
@@ -229,8 +325,18 @@ def test_schema_command_prints_json_schema() -> None:
 
 
 def test_synth_command_writes_recording_and_truth(tmp_path: Path) -> None:
-    res = stereod("synth", str(tmp_path / "s"), "--ball", "heading=200,speed=0.5,z=2", "--duration",
-                  "3", "--size", "320x240", "--skew-ms", "10")
+    res = stereod(
+        "synth",
+        str(tmp_path / "s"),
+        "--ball",
+        "heading=200,speed=0.5,z=2",
+        "--duration",
+        "3",
+        "--size",
+        "320x240",
+        "--skew-ms",
+        "10",
+    )
     assert res.returncode == 0, res.stderr
     truth = json.loads((tmp_path / "s" / "truth.json").read_text())
     assert truth["balls"][0]["heading_deg"] == 200 and truth["width_px"] == 320

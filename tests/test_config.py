@@ -29,10 +29,16 @@ def test_precedence(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
 @pytest.mark.parametrize(
     ("toml", "pattern"),
     [
-        ("[detector]\nbeta = 2.0\n", r"c\.toml: invalid config: detector\.beta = 2\.0: Input should be less than 1"),
+        (
+            "[detector]\nbeta = 2.0\n",
+            r"c\.toml: invalid config: detector\.beta = 2\.0: Input should be less than 1",
+        ),
         ("[detector]\nbta = 0.1\n", r"detector\.bta: unknown field"),
         ("[rig]\nname = 'a b'\n", r"rig\.name = 'a b': String should match pattern"),
-        ("[zenoh]\nmode = 'satellite'\n", r"zenoh\.mode = 'satellite': Input should be 'peer', 'client' or 'router'"),
+        (
+            "[zenoh]\nmode = 'satellite'\n",
+            r"zenoh\.mode = 'satellite': Input should be 'peer', 'client' or 'router'",
+        ),
         ("[detector\n", r"c\.toml: invalid TOML"),
     ],
 )
@@ -47,7 +53,9 @@ def test_bad_values_are_one_line_naming_the_field(tmp_path: Path, toml: str, pat
 
 def test_bad_environment_value(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("STEREOD_RIG__BASELINE_M", "-1")
-    with pytest.raises(ConfigError, match=r"rig\.baseline_m = '-1': Input should be greater than 0"):
+    with pytest.raises(
+        ConfigError, match=r"rig\.baseline_m = '-1': Input should be greater than 0"
+    ):
         load_config()
 
 

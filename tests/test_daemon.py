@@ -10,13 +10,11 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
+from stereod_fakes.synth import SyntheticDriver
 
 from stereod.config import load_config
 from stereod.daemon import Daemon
 from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
-from stereod_fakes.synth import SyntheticDriver
-
-from .conftest import zenoh_config
 
 
 def config(endpoint: str, **daemon: Any):
@@ -45,10 +43,12 @@ def query(session: zenoh.Session, key: str) -> dict:
     return json.loads(replies[0].ok.payload.to_bytes())
 
 
-def test_queryables_liveliness_and_status_on_new_subscriber(endpoint: str, listener: zenoh.Session) -> None:
+def test_queryables_liveliness_and_status_on_new_subscriber(
+    endpoint: str, listener: zenoh.Session
+) -> None:
     cfg = config(endpoint, status_period_s=30.0)
     daemon = Daemon(cfg, SyntheticDriver({"duration_s": 3.0, "fps": 15}), rate=1.0)
-    thread, out = start(daemon)
+    thread, _ = start(daemon)
     try:
         wait_alive(listener, "stereod/minoru/alive")
         assert query(listener, "stereod/minoru/config")["rig"]["name"] == "minoru"
@@ -74,7 +74,9 @@ def test_queryables_liveliness_and_status_on_new_subscriber(endpoint: str, liste
 
 def test_live_source_runs_one_thread_per_eye(endpoint: str, listener: zenoh.Session) -> None:
     msgs: list[dict] = []
-    sub = listener.declare_subscriber("stereod/minoru/objects", lambda s: msgs.append(json.loads(s.payload.to_bytes())))
+    sub = listener.declare_subscriber(
+        "stereod/minoru/objects", lambda s: msgs.append(json.loads(s.payload.to_bytes()))
+    )
     driver = SyntheticDriver({"duration_s": 2.0, "fps": 15, "skew_s": 0.01, "live": True})
     daemon = Daemon(config(endpoint), driver)
     summary = daemon.run()
@@ -127,14 +129,20 @@ class ListDriver(Driver):
         return _ListSource(*self.args)
 
 
-def frames(eye: Eye, n: int, size: tuple[int, int] = (48, 64), period_ns: int = 10**8) -> list[Frame]:
+def frames(
+    eye: Eye, n: int, size: tuple[int, int] = (48, 64), period_ns: int = 10**8
+) -> list[Frame]:
     img = np.full(size, 100, np.uint8)
     return [Frame(eye, img, 10**9 + k * period_ns, k) for k in range(n)]
 
 
-def test_wrong_size_frame_mid_stream_is_skipped_and_reported(endpoint: str, listener: zenoh.Session) -> None:
+def test_wrong_size_frame_mid_stream_is_skipped_and_reported(
+    endpoint: str, listener: zenoh.Session
+) -> None:
     statuses: list[dict] = []
-    sub = listener.declare_subscriber("stereod/minoru/status", lambda s: statuses.append(json.loads(s.payload.to_bytes())))
+    sub = listener.declare_subscriber(
+        "stereod/minoru/status", lambda s: statuses.append(json.loads(s.payload.to_bytes()))
+    )
     left, right = frames(Eye.LEFT, 20), frames(Eye.RIGHT, 20)
     left[7] = Frame(Eye.LEFT, np.zeros((24, 32), np.uint8), left[7].t_ns, 7)
     daemon = Daemon(config(endpoint), ListDriver(left, right), rate=0, wait_subscriber_s=0)
@@ -143,7 +151,9 @@ def test_wrong_size_frame_mid_stream_is_skipped_and_reported(endpoint: str, list
     sub.undeclare()
     assert summary.error is None
     assert summary.pairs == 19
-    assert any("left eye: frame 7 is 32x24, stream is 64x48; skipped" in p for p in summary.problems)
+    assert any(
+        "left eye: frame 7 is 32x24, stream is 64x48; skipped" in p for p in summary.problems
+    )
     final = statuses[-1]
     assert final["state"] == "finished" and final["left"]["errors"] == 1
     assert "frame 7 is 32x24" in final["problems"][-1]

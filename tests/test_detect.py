@@ -37,7 +37,9 @@ def test_luminance_eq2_mean_and_bt601() -> None:
     mean = luminance(img, Luminance.MEAN)[0].astype(float)
     assert mean == pytest.approx([60, 85, 85], abs=0.5)
     bt = luminance(img, Luminance.BT601)[0].astype(float)
-    assert bt == pytest.approx([0.114 * 30 + 0.587 * 60 + 0.299 * 90, 0.114 * 255, 0.299 * 255], abs=0.6)
+    assert bt == pytest.approx(
+        [0.114 * 30 + 0.587 * 60 + 0.299 * 90, 0.114 * 255, 0.299 * 255], abs=0.6
+    )
 
 
 def test_square_centroid_bbox_area_are_exact() -> None:
@@ -108,7 +110,9 @@ def test_fast_path_agrees_with_reference_implementation(luma: Luminance) -> None
     rng = np.random.default_rng(7)
     h, w = 120, 160
     base = cv2.merge([textured(h, w, s) for s in (1, 2, 3)])
-    params = DetectorParams(beta=0.03, threshold=25, min_area_px=20, warmup_frames=5, luminance=luma)
+    params = DetectorParams(
+        beta=0.03, threshold=25, min_area_px=20, warmup_frames=5, luminance=luma
+    )
     fast, ref = Detector(params), ReferenceDetector(params)
     for k in range(30):
         img = np.clip(base.astype(int) + rng.normal(0, 2, base.shape), 0, 255).astype(np.uint8)

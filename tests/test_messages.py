@@ -18,7 +18,14 @@ def test_contract_fields_read_by_outside_programs() -> None:
     for name in ("schema", "rig", "seq", "t_ns", "stamp_utc_ns", "skew_ns", "geometry", "objects"):
         assert name in objects, name
     state = ObjectState.model_json_schema(by_alias=True)["properties"]
-    for name in ("track_id", "position_m", "velocity_mps", "speed_mps", "heading_deg", "velocity_valid"):
+    for name in (
+        "track_id",
+        "position_m",
+        "velocity_mps",
+        "speed_mps",
+        "heading_deg",
+        "velocity_valid",
+    ):
         assert name in state, name
 
 

@@ -4,15 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from stereod_fakes.synth import Ball, Renderer, Scene
 
 from stereod.detect import DetectorParams
 from stereod.pairing import Pairer
 from stereod.pipeline import Pipeline, PipelineParams
-from stereod_fakes.synth import Ball, Renderer, Scene
 
 
 def run_scene(scene: Scene, workers: int = 1) -> list:
-    params = PipelineParams(rig_name="t", rig=scene.rig, detector=DetectorParams(), detect_workers=workers)
+    params = PipelineParams(
+        rig_name="t", rig=scene.rig, detector=DetectorParams(), detect_workers=workers
+    )
     pipe = Pipeline(params, utc_offset_ns=0)
     pairer = Pairer(tolerance_ns=40_000_000)
     results = []

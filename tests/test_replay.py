@@ -7,9 +7,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from stereod_fakes.replay import ReplayDriver
 
 from stereod.errors import ConfigError, InputError, MissingInputError
-from stereod_fakes.replay import ReplayDriver
 
 from .conftest import shared_data
 
@@ -51,7 +51,7 @@ def test_videos_with_timestamp_files(tmp_path: Path) -> None:
     l, r = write_video(tmp_path / "l.avi", 5), write_video(tmp_path / "r.avi", 5)
     lt = write_ts(tmp_path / "l.csv", [10, 20, 30, 40, 50])
     rt = write_ts(tmp_path / "r.csv", [12, 22, 32, 42, 52])
-    left, right, _ = read_all(
+    _, right, _ = read_all(
         ReplayDriver({"left_video": l, "right_video": r, "left_ts": lt, "right_ts": rt})
     )
     assert [f.t_ns for f in right] == [12, 22, 32, 42, 52]
@@ -67,7 +67,9 @@ def test_loop_continues_timestamps(tmp_path: Path) -> None:
 
 def test_truncated_video_plays_what_decodes_and_says_so() -> None:
     tree = shared_data("video", "tree.avi")
-    left, right, problems = read_all(ReplayDriver({"left_video": tree, "right_video": tree, "fps": 15}))
+    left, right, problems = read_all(
+        ReplayDriver({"left_video": tree, "right_video": tree, "fps": 15})
+    )
     assert len(left) == len(right) == 68
     assert problems and "truncated" in problems[0] and "444" in problems[0] and "68" in problems[0]
 
@@ -75,15 +77,41 @@ def test_truncated_video_plays_what_decodes_and_says_so() -> None:
 @pytest.mark.parametrize(
     ("options", "exc", "pattern"),
     [
-        ({"left_video": "MISSING", "right_video": "R", "fps": 10}, MissingInputError, "no such video file"),
-        ({"left_video": "TEXT", "right_video": "R", "fps": 10}, InputError, "cannot open as a video|no frame decodes"),
-        ({"left_video": "L", "right_video": "SMALL", "fps": 10}, InputError, "64x48 but .* is 32x24"),
-        ({"left_video": "L", "right_video": "SHORT", "fps": 10}, InputError, "has 6 frames but .* has 4"),
-        ({"left_video": "L", "right_video": "R", "left_ts": "BADTS", "right_ts": "TS"}, InputError, "not after"),
-        ({"left_video": "L", "right_video": "R", "left_ts": "TS", "right_ts": "TS4"}, InputError, "6 frames but .* only 4 timestamps"),
+        (
+            {"left_video": "MISSING", "right_video": "R", "fps": 10},
+            MissingInputError,
+            "no such video file",
+        ),
+        (
+            {"left_video": "TEXT", "right_video": "R", "fps": 10},
+            InputError,
+            "cannot open as a video|no frame decodes",
+        ),
+        (
+            {"left_video": "L", "right_video": "SMALL", "fps": 10},
+            InputError,
+            "64x48 but .* is 32x24",
+        ),
+        (
+            {"left_video": "L", "right_video": "SHORT", "fps": 10},
+            InputError,
+            "has 6 frames but .* has 4",
+        ),
+        (
+            {"left_video": "L", "right_video": "R", "left_ts": "BADTS", "right_ts": "TS"},
+            InputError,
+            "not after",
+        ),
+        (
+            {"left_video": "L", "right_video": "R", "left_ts": "TS", "right_ts": "TS4"},
+            InputError,
+            "6 frames but .* only 4 timestamps",
+        ),
     ],
 )
-def test_bad_inputs_are_refused_up_front(tmp_path: Path, options: dict, exc: type, pattern: str) -> None:
+def test_bad_inputs_are_refused_up_front(
+    tmp_path: Path, options: dict, exc: type, pattern: str
+) -> None:
     files = {
         "L": write_video(tmp_path / "l.avi", 6),
         "R": write_video(tmp_path / "r.avi", 6),

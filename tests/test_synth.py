@@ -6,10 +6,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from stereod_fakes.synth import (
+    Ball,
+    Renderer,
+    Scene,
+    SyntheticDriver,
+    scene_from_truth,
+    write_scene,
+)
 
 from stereod.detect import Detector, DetectorParams
 from stereod.frames import Eye
-from stereod_fakes.synth import Ball, Renderer, Scene, SyntheticDriver, scene_from_truth, write_scene
 
 
 def test_ball_is_drawn_at_its_projection() -> None:

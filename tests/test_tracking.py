@@ -11,9 +11,16 @@ from stereod.tracking import Observation, Tracker, TrackerParams, TrackLifecycle
 def obs(p: np.ndarray, sigma: float = 0.01) -> Observation:
     z2 = np.zeros(2)
     return Observation(
-        position_m=np.asarray(p, float), cov_m2=np.eye(3) * sigma**2, left_px=z2, right_px=z2,
-        left_bbox_px=np.zeros(4, np.int32), right_bbox_px=np.zeros(4, np.int32),
-        left_area_px=1, right_area_px=1, disparity_px=1.0, size_m=0.1,
+        position_m=np.asarray(p, float),
+        cov_m2=np.eye(3) * sigma**2,
+        left_px=z2,
+        right_px=z2,
+        left_bbox_px=np.zeros(4, np.int32),
+        right_bbox_px=np.zeros(4, np.int32),
+        left_area_px=1,
+        right_area_px=1,
+        disparity_px=1.0,
+        size_m=0.1,
     )
 
 

@@ -30,7 +30,9 @@ class CanonicalRig:
         if not self.baseline_m > 0:
             raise ValueError(f"baseline must be > 0 m, got {self.baseline_m}")
         if not 0 < self.hfov_deg < 180:
-            raise ValueError(f"horizontal field of view must be in (0, 180) deg, got {self.hfov_deg}")
+            raise ValueError(
+                f"horizontal field of view must be in (0, 180) deg, got {self.hfov_deg}"
+            )
         if self.width_px <= 0 or self.height_px <= 0:
             raise ValueError(f"image size must be positive, got {self.width_px}x{self.height_px}")
 

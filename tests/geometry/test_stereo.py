@@ -22,7 +22,9 @@ def test_focal_length_from_field_of_view() -> None:
 
 def test_eq9_recovers_projected_points() -> None:
     rng = np.random.default_rng(0)
-    pts = np.column_stack([rng.uniform(-1, 1, 200), rng.uniform(-0.5, 0.5, 200), rng.uniform(0.5, 6, 200)])
+    pts = np.column_stack(
+        [rng.uniform(-1, 1, 200), rng.uniform(-0.5, 0.5, 200), rng.uniform(0.5, 6, 200)]
+    )
     left, right = RIG.project(pts)
     got, _ = RIG.triangulate(left, right)
     np.testing.assert_allclose(got, pts, atol=1e-9)
@@ -61,7 +63,9 @@ def test_covariance_matches_monte_carlo() -> None:
     mc = np.cov(samples.T)
     np.testing.assert_allclose(np.sqrt(np.diag(cov[0])), np.sqrt(np.diag(mc)), rtol=0.05)
     # Z sigma for sqrt(2) sigma of disparity is eq. 12's shape: D^2 / (B f) per pixel.
-    assert math.sqrt(cov[0, 2, 2]) == pytest.approx(2.5**2 / (0.06 * RIG.focal_px) * sigma * math.sqrt(2), rel=1e-9)
+    assert math.sqrt(cov[0, 2, 2]) == pytest.approx(
+        2.5**2 / (0.06 * RIG.focal_px) * sigma * math.sqrt(2), rel=1e-9
+    )
 
 
 def test_rig_rejects_nonsense() -> None:
@@ -91,7 +95,10 @@ def test_matching_uses_each_blob_once_and_prefers_the_closer_row() -> None:
 
 def test_matching_rejects_very_different_sizes() -> None:
     idx = match_blobs(
-        np.array([[300.0, 100.0]]), np.array([1000]), np.array([[250.0, 100.0]]), np.array([100]),
+        np.array([[300.0, 100.0]]),
+        np.array([1000]),
+        np.array([[250.0, 100.0]]),
+        np.array([100]),
         MatchParams(max_area_ratio=2.0),
     )
     assert idx.shape == (0, 2)
