@@ -62,6 +62,11 @@ def scene_dir(tmp_path_factory: pytest.TempPathFactory) -> tuple[Scene, Path]:
     return scene, out
 
 
+def fast_over(endpoint: str) -> list[str]:
+    """Replay flags: as fast as possible, to the test's listener, once it subscribes."""
+    return ["--rate", "0", "--connect", endpoint, "--wait-subscriber", "10"]
+
+
 def test_replay_publishes_truthful_motion_over_zenoh(
     scene_dir: tuple[Scene, Path], endpoint: str, listener: zenoh.Session, tmp_path: Path
 ) -> None:
@@ -72,12 +77,7 @@ def test_replay_publishes_truthful_motion_over_zenoh(
     res = stereod(
         "replay",
         str(rec),
-        "--rate",
-        "0",
-        "--connect",
-        endpoint,
-        "--wait-subscriber",
-        "10",
+        *fast_over(endpoint),
         "--jsonl",
         str(jsonl),
     )
@@ -148,12 +148,7 @@ def test_replay_plain_videos_with_timestamp_files(
         str(tmp_path / "left.csv"),
         "--right-ts",
         str(tmp_path / "right.csv"),
-        "--rate",
-        "0",
-        "--connect",
-        endpoint,
-        "--wait-subscriber",
-        "10",
+        *fast_over(endpoint),
     )
     assert res.returncode == 0, res.stderr
     assert col.wait_for(lambda: len(col.messages("stereod/minoru/objects")) == scene.n_frames)
@@ -189,9 +184,7 @@ def test_subscribe_prints_readably(
         cwd=ROOT,
     )
     try:
-        res = stereod(
-            "replay", str(rec), "--rate", "0", "--connect", endpoint, "--wait-subscriber", "10"
-        )
+        res = stereod("replay", str(rec), *fast_over(endpoint))
         assert res.returncode == 0, res.stderr
         out, err = sub.communicate(timeout=30)
     finally:

@@ -1,0 +1,54 @@
+"""The Zenoh publisher against a real session on loopback."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import zenoh
+
+from stereod.config import ZenohConfig
+from stereod.publish import Publisher, session_config
+
+
+def test_objects_tracks_deletes_and_failing_queryable(
+    endpoint: str, listener: zenoh.Session
+) -> None:
+    got: list[tuple[str, str, bytes]] = []
+    lock = threading.Lock()
+
+    def on(s: zenoh.Sample) -> None:
+        with lock:
+            got.append((str(s.key_expr), str(s.kind), s.payload.to_bytes()))
+
+    sub = listener.declare_subscriber("stereod/r/**", on)
+
+    def broken() -> bytes:
+        raise RuntimeError("no stats yet")
+
+    seen_status_sub = threading.Event()
+    with Publisher(
+        ZenohConfig(connect=[endpoint]), "r", {"stats": broken}, seen_status_sub.set
+    ) as pub:
+        deadline = time.monotonic() + 10
+        while not pub.has_objects_subscriber() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert pub.has_objects_subscriber()
+        assert seen_status_sub.wait(5), "matching listener did not fire for the status key"
+        pub.objects(b'{"n": 1}', [(7, b'{"t": 7}')], [])
+        pub.objects(b'{"n": 2}', [], [7])
+        replies = list(listener.get("stereod/r/stats", timeout=5))
+        assert replies and replies[0].err is not None
+        assert "no stats yet" in replies[0].err.payload.to_bytes().decode()
+        time.sleep(0.3)
+    sub.undeclare()
+    keys = [(k, kind.split(".")[-1]) for k, kind, _ in got]
+    assert ("stereod/r/objects", "PUT") in keys
+    assert ("stereod/r/objects/7", "PUT") in keys
+    assert ("stereod/r/objects/7", "DELETE") in keys
+    assert pub.published == 2 and pub.errors == 0
+
+
+def test_session_config_has_no_multicast_by_default() -> None:
+    cfg = session_config(ZenohConfig(listen=["tcp/127.0.0.1:0"]))
+    assert '"enabled":false' in cfg.get_json("scouting/multicast").replace(" ", "")
