@@ -46,6 +46,7 @@ class Ball(BaseModel):
     t_mid_s: float = 2.0
     t_on_s: float = 1.2
     t_off_s: float = 2.8
+    t_stop_s: float | None = Field(None, description="From this time on the ball stands still")
 
     @property
     def velocity_mps(self) -> np.ndarray:
@@ -55,7 +56,14 @@ class Ball(BaseModel):
     def position_m(self, t_s: float | np.ndarray) -> np.ndarray:
         """(3,) or (n, 3) rig-frame position (m) at time(s) ``t_s`` (s from the scene's start)."""
         t = np.asarray(t_s, dtype=np.float64)
+        if self.t_stop_s is not None:
+            t = np.minimum(t, self.t_stop_s)
         return np.asarray(self.centre_m) + (t[..., None] - self.t_mid_s) * self.velocity_mps
+
+    def velocity_at(self, t_s: float) -> np.ndarray:
+        """(3,) velocity (m/s) at ``t_s``: zero once stopped."""
+        stopped = self.t_stop_s is not None and t_s >= self.t_stop_s
+        return np.zeros(3) if stopped else self.velocity_mps
 
     def visible(self, t_s: float) -> bool:
         return self.t_on_s <= t_s <= self.t_off_s

@@ -80,6 +80,7 @@ class PairingConfig(_Section):
 
     tolerance_ms: float = Field(40.0, gt=0.0, le=1000.0, description="Largest |skew|, ms")
     max_pending: int = Field(8, ge=2, le=1000, description="Frames one eye may wait, count")
+    skew_compensation: bool = Field(True, description="Bring both eyes to one instant")
 
 
 class MatchingConfig(_Section):
@@ -101,15 +102,20 @@ class MatchingConfig(_Section):
 
 
 class TrackingConfig(_Section):
-    """Association and motion (see :class:`stereod.tracking.TrackerParams`)."""
+    """Association, Kalman filter and lifecycle (see :class:`stereod.tracking.TrackerParams`)."""
 
-    gate_m: float = Field(0.35, gt=0.0, description="Association gate, m")
+    gate_chi2: float = Field(16.3, gt=0.0, description="Mahalanobis gate, chi-square 3 dof")
+    accel_noise: float = Field(0.05, gt=0.0, description="White acceleration density, m^2/s^3")
     time_base_s: float = Field(0.5, gt=0.0, le=60.0, description="tau of eq. 21, s")
     max_coast_s: float = Field(0.5, ge=0.0, le=60.0, description="Track lives unseen, s")
     confirm_hits: int = Field(3, ge=1, description="Observations to confirm a track")
+    init_velocity_sigma_mps: float = Field(2.0, gt=0.0, description="New track's velocity sigma")
+    freeze_s: float = Field(10.0, ge=0.0, description="Stopped object kept out of background, s")
+    stationary_mps: float = Field(0.05, ge=0.0, description="Below this an object is stopped")
+    freeze_background: bool = Field(True, description="Do not learn background under tracks")
 
     def params(self) -> TrackerParams:
-        return TrackerParams(**self.model_dump())
+        return TrackerParams(**self.model_dump(exclude={"freeze_background"}))
 
 
 class ZenohConfig(_Section):

@@ -166,6 +166,8 @@ class Daemon:
             tracker=cfg.tracking.params(),
             centroid_sigma_px=cfg.matching.centroid_sigma_px,
             detect_workers=cfg.daemon.detect_workers,
+            skew_compensation=cfg.pairing.skew_compensation,
+            freeze_background=cfg.tracking.freeze_background,
         )
         offset = info.utc_offset_ns
         if offset is None and live:

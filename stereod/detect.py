@@ -91,6 +91,7 @@ class Detector:
         self.params = params
         self._background: np.ndarray | None = None
         self._bg8: np.ndarray | None = None
+        self._gray: np.ndarray | None = None
         self._seen = 0
         self._kernel = (
             cv2.getStructuringElement(cv2.MORPH_RECT, (params.open_px, params.open_px))
@@ -119,18 +120,23 @@ class Detector:
         self._seen = 0
 
     def detect(self, image: np.ndarray, update_mask: np.ndarray | None = None) -> Blobs:
-        """Find moving blobs in one frame and update the background (eq. 2-5).
+        """Find moving blobs in one frame, then update the background (eq. 2-5).
 
         ``update_mask`` (h, w) uint8, non-zero where eq. 3 may update T; ``None`` updates all.
         """
+        blobs = self.find(image)
+        self.learn(update_mask)
+        return blobs
+
+    def find(self, image: np.ndarray) -> Blobs:
+        """Eq. 2, 4 and 5 against the current background; call :meth:`learn` afterwards."""
         gray = luminance(image, self.params.luminance)
+        self._gray = gray
         if self._background is None or self._background.shape != gray.shape:
-            self._background = gray.astype(np.float32)
-            self._seen = 1
+            self._background = None
+            self._seen = 0
             return Blobs.empty()
         if self.warming_up:
-            self._seen += 1
-            cv2.accumulateWeighted(gray, self._background, 1.0 / self._seen)
             return Blobs.empty()
         self._bg8 = cv2.convertScaleAbs(self._background, dst=self._bg8)
         diff = cv2.absdiff(gray, self._bg8)
@@ -138,8 +144,23 @@ class Detector:
         if self._kernel is not None:
             mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, self._kernel)
         self.mask = mask
-        cv2.accumulateWeighted(gray, self._background, self.params.beta, mask=update_mask)
         return self._components(mask)
+
+    def learn(self, update_mask: np.ndarray | None = None) -> None:
+        """Eq. 3 with the frame last given to :meth:`find`: during warm-up a running mean (the
+        initial background), then T = T (1 - beta) + L beta where ``update_mask`` allows."""
+        gray = self._gray
+        if gray is None:
+            return
+        self._gray = None
+        if self._background is None:
+            self._background = gray.astype(np.float32)
+            self._seen = 1
+        elif self.warming_up:
+            self._seen += 1
+            cv2.accumulateWeighted(gray, self._background, 1.0 / self._seen)
+        else:
+            cv2.accumulateWeighted(gray, self._background, self.params.beta, mask=update_mask)
 
     def _components(self, mask: np.ndarray) -> Blobs:
         if cv2.countNonZero(mask) >= MAX_LABELS_16U:

@@ -44,17 +44,23 @@ class ObjectState(_Model):
 
     schema_: Literal["stereod.object/1"] = Field(OBJECT_SCHEMA, alias="schema")
     track_id: int = Field(description="Stable id of the track; never reused while running")
-    state: Literal["tentative", "confirmed"] = Field(description="Track lifecycle state")
+    state: Literal["tentative", "confirmed", "coasting"] = Field(
+        description="tentative (not yet confirmed), confirmed (seen in this pair), coasting "
+        "(confirmed, not seen in this pair: position and velocity are predicted, the blobs are "
+        "the last seen)"
+    )
     t_ns: int = Field(description="Capture instant, input's monotonic clock, ns")
     stamp_utc_ns: int = Field(description="Capture instant, UTC wall clock, ns")
     skew_ns: int = Field(description="Right minus left capture time of the pair, ns")
-    position_m: Vec3 = Field(description="Position in the rig frame, m")
-    position_sigma_m: Vec3 = Field(description="One-sigma position error per axis, m (eq. 12)")
-    velocity_mps: Vec3 = Field(description="Velocity in the rig frame, m/s")
+    position_m: Vec3 = Field(description="Position in the rig frame (Kalman filter), m")
+    position_sigma_m: Vec3 = Field(description="One-sigma position error per axis, m")
+    velocity_mps: Vec3 = Field(description="Velocity in the rig frame (Kalman filter), m/s")
     velocity_sigma_mps: Vec3 | None = Field(
         description="One-sigma velocity error per axis, m/s; null while unknown"
     )
-    velocity_valid: bool = Field(description="False until the velocity spans the time base")
+    velocity_valid: bool = Field(
+        description="False until the track is confirmed and has lived for the time base"
+    )
     speed_mps: float = Field(description="|velocity| (eq. 22), m/s")
     speed_sigma_mps: float | None = Field(description="One-sigma speed error, m/s")
     heading_deg: float = Field(

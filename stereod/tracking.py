@@ -1,20 +1,30 @@
-"""Associate 3D observations over time into tracks and derive their motion (eq. 21-23).
+"""3D tracks with stable ids, a lifecycle and a constant-velocity Kalman filter.
 
-This is the nearest-neighbour association the paper implies: each observation joins the track
-whose predicted position is nearest, within a gate (m); an unmatched observation starts a track;
-a track unseen for ``max_coast_s`` ends. Velocity comes from :mod:`stereod.motion` over the last
-``time_base_s`` seconds of the track. All times are seconds from timestamps, never frame counts.
+Each pair's observations are assigned to tracks globally (minimum total squared Mahalanobis
+distance, Hungarian algorithm), gated at a chi-square bound: an observation farther than the
+gate from every track's prediction starts a new track. The filter's measurement noise is each
+observation's triangulation covariance, so depth noise growing as Z^2 (eq. 12) is weighted
+correctly. Velocity, speed and heading come from the filter (eq. 22, 23 on its velocity); the
+paper's eq. 21 finite difference over ``time_base_s`` is kept beside them as the raw velocity.
+
+Lifecycle: ``tentative`` until ``confirm_hits`` observations, then ``confirmed``; a confirmed
+track not seen in a pair is ``coasting`` (predicted) until ``max_coast_s`` has passed, then it
+ends (a tentative track ends at its first miss). Ids are never reused. All times are seconds
+computed from timestamps, never frame counts.
 """
 
 from __future__ import annotations
 
 import collections
 import enum
+import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
-from . import motion
+from . import kalman, motion
 
 
 class TrackLifecycle(str, enum.Enum):
@@ -23,16 +33,18 @@ class TrackLifecycle(str, enum.Enum):
     TENTATIVE = "tentative"
     """Seen fewer than ``confirm_hits`` times: may be noise."""
     CONFIRMED = "confirmed"
-    """Seen often enough to be a real object."""
+    """Seen often enough to be a real object, and seen in the latest pair."""
+    COASTING = "coasting"
+    """Confirmed but not seen in the latest pair: its state is predicted."""
 
 
 @dataclass(frozen=True, slots=True)
 class Observation:
     """One object triangulated from one stereo pair.
 
-    ``position_m`` (3,) rig frame; ``cov_m2`` (3, 3); ``left_px``/``right_px`` (2,) centroids;
-    ``left_bbox_px``/``right_bbox_px`` (4,) x, y, w, h; areas in px; ``disparity_px``;
-    ``size_m`` the blob's width in metres (bbox width x Z / f).
+    ``position_m`` (3,) rig frame; ``cov_m2`` (3, 3); ``left_px``/``right_px`` (2,) measured
+    centroids; ``left_bbox_px``/``right_bbox_px`` (4,) x, y, w, h; areas in px;
+    ``disparity_px``; ``size_m`` the blob's width in metres (bbox width x Z / f).
     """
 
     position_m: np.ndarray
@@ -49,15 +61,27 @@ class Observation:
 
 @dataclass(frozen=True, slots=True)
 class TrackerParams:
-    """``gate_m``: largest distance (m) from a track's predicted position to join it.
-    ``time_base_s``: tau of eq. 21 (s), the span velocity is measured over.
-    ``max_coast_s``: how long (s) a track lives unseen. ``confirm_hits``: observations to confirm.
+    """``gate_chi2``: largest squared Mahalanobis distance to join a track (3 dof; 16.3 is
+    99.9 %). ``min_gate_m``: an observation this close (m) to a prediction may always join it,
+    however confident the filter (an object that brakes hard leaves the constant-velocity
+    model); a join beyond the chi-square gate is a manoeuvre and re-opens the velocity
+    uncertainty. ``accel_noise``: spectral density q of the white acceleration (m^2/s^3).
+    ``time_base_s``: tau of eq. 21 (s), and how long a track must live before its velocity is
+    valid. ``max_coast_s``: how long (s) a confirmed track lives unseen. ``confirm_hits``:
+    observations to confirm. ``init_velocity_sigma_mps``: prior velocity sigma of a new track.
+    ``freeze_s``: how long (s) after it was last seen moving an object keeps the background
+    frozen under it; ``stationary_mps``: below this speed an object is not moving.
     """
 
-    gate_m: float = 0.35
+    gate_chi2: float = 16.3
+    min_gate_m: float = 0.15
+    accel_noise: float = 0.05
     time_base_s: float = 0.5
     max_coast_s: float = 0.5
     confirm_hits: int = 3
+    init_velocity_sigma_mps: float = 2.0
+    freeze_s: float = 10.0
+    stationary_mps: float = 0.05
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,8 +92,11 @@ class TrackState:
     lifecycle: TrackLifecycle
     t_ns: int
     observation: Observation
+    """The latest observation (for a coasting track: the last one seen)."""
+    position_m: np.ndarray
+    position_cov_m2: np.ndarray
     velocity_mps: np.ndarray
-    velocity_sigma_mps: np.ndarray
+    velocity_cov: np.ndarray
     velocity_valid: bool
     speed_mps: float
     speed_sigma_mps: float
@@ -77,68 +104,147 @@ class TrackState:
     heading_sigma_deg: float
     raw_velocity_mps: np.ndarray | None
     age_s: float
+    freeze_background: bool
+    """Whether the background should not learn under this object now: it was seen moving, and
+    has not been stopped for longer than ``freeze_s``."""
+
+
+EyeHistory = collections.deque[tuple[int, np.ndarray]]
 
 
 @dataclass
-class _Track:
+class Track:
+    """One track's filter and histories (internal to the tracker, readable by the pipeline)."""
+
     track_id: int
     first_t_ns: int
-    hits: int = 0
+    kf: kalman.KalmanState
+    last: Observation
+    hits: int = 1
     last_seen_ns: int = 0
-    history: collections.deque[tuple[int, Observation]] = field(default_factory=collections.deque)
-    velocity: np.ndarray | None = None
-
-    @property
-    def last(self) -> Observation:
-        return self.history[-1][1]
+    last_moving_ns: int | None = None
+    """When the object was last seen clearly moving (speed above ``stationary_mps`` and three
+    sigmas); only an object seen moving freezes the background, for ``freeze_s`` after that
+    (a track born still, like a ghost of the background, never does)."""
+    freeze_spent: bool = False
+    """Set once the object has been still for ``freeze_s``: the background then takes it, and
+    the apparent motion of a blob fading into the background never re-arms the freeze."""
+    exact: bool = True
+    """Whether the filter has only seen observations taken at one instant (see update)."""
+    positions: collections.deque[tuple[int, np.ndarray]] = field(
+        default_factory=lambda: collections.deque(maxlen=256)
+    )
+    left_history: EyeHistory = field(default_factory=lambda: collections.deque(maxlen=8))
+    right_history: EyeHistory = field(default_factory=lambda: collections.deque(maxlen=8))
 
 
 class Tracker:
-    """Nearest-neighbour tracker with eq. 21-23 motion; call :meth:`update` once per pair."""
+    """Kalman tracker; per pair call :meth:`associate`, then :meth:`update` with the (possibly
+    refined) observations and the assignment it returned."""
 
     def __init__(self, params: TrackerParams) -> None:
         self.params = params
-        self._tracks: dict[int, _Track] = {}
+        self._tracks: dict[int, Track] = {}
         self._next_id = 1
 
     def live_ids(self) -> list[int]:
         return list(self._tracks)
 
-    def update(
-        self, t_ns: int, observations: list[Observation]
-    ) -> tuple[list[TrackState], list[int]]:
-        """Associate one pair's observations at ``t_ns``; return current states and ended ids."""
-        p = self.params
+    def track(self, track_id: int) -> Track:
+        return self._tracks[track_id]
+
+    def associate(
+        self,
+        t_ns: int,
+        observations: list[Observation],
+        candidates: Callable[[Track], list[Observation]] | None = None,
+    ) -> list[int | None]:
+        """The track id each observation belongs to (``None``: a new object), by minimum total
+        squared Mahalanobis distance within the gate.
+
+        ``candidates(track)``, when given, returns the observations as they would be if they
+        belonged to that track (for skew compensation along the track's own image motion);
+        the distance to a track is measured on those.
+        """
         tracks = list(self._tracks.values())
-        assigned: dict[int, _Track] = {}
-        if tracks and observations:
-            pred = np.array([self._predict(tr, t_ns) for tr in tracks])
-            obs = np.array([o.position_m for o in observations])
-            dist = np.linalg.norm(obs[:, None, :] - pred[None, :, :], axis=2)
-            used_t: set[int] = set()
-            for flat in np.argsort(dist, axis=None):
-                i, j = divmod(int(flat), len(tracks))
-                if dist[i, j] > p.gate_m:
-                    break
-                if i in assigned or j in used_t:
-                    continue
-                assigned[i] = tracks[j]
-                used_t.add(j)
+        out: list[int | None] = [None] * len(observations)
+        if not tracks or not observations:
+            return out
+        p = self.params
+        cost = np.empty((len(observations), len(tracks)))
+        dist = np.empty_like(cost)
+        for j, tr in enumerate(tracks):
+            pred = kalman.predict(tr.kf, t_ns, p.accel_noise)
+            obs = observations if candidates is None else candidates(tr)
+            for i, o in enumerate(obs):
+                cost[i, j] = kalman.mahalanobis2(pred, o.position_m, o.cov_m2)
+                dist[i, j] = float(np.linalg.norm(o.position_m - pred.position_m))
+        big = 1e6
+        feasible = (cost <= p.gate_chi2) | (dist <= p.min_gate_m)
+        gated = np.where(feasible, np.minimum(cost, 1e5), big)
+        rows, cols = linear_sum_assignment(gated)
+        for i, j in zip(rows, cols, strict=True):
+            if gated[i, j] < big:
+                out[i] = tracks[j].track_id
+        return out
+
+    def update(
+        self,
+        t_ns: int,
+        observations: list[Observation],
+        assignment: list[int | None],
+        eye_times_ns: tuple[int, int],
+        exact: list[bool] | None = None,
+    ) -> tuple[list[TrackState], list[int]]:
+        """Fold in one pair's observations at ``t_ns``; ``eye_times_ns`` are the left and right
+        capture instants of the centroids (for the eyes' 2D histories). ``exact[i]`` is False
+        when observation i mixes two capture instants (skew not compensated: a new track has
+        no image motion yet); a track's filter starts afresh at its first exact observation so
+        the biased ones never reach its velocity. Returns the state of every live track
+        (observed or coasting) and the ids of the tracks that ended."""
+        p = self.params
+        seen: set[int] = set()
         states: list[TrackState] = []
-        for i, ob in enumerate(observations):
-            tr = assigned.get(i)
-            if tr is None:
-                tr = _Track(self._next_id, first_t_ns=t_ns)
+        t_left, t_right = eye_times_ns
+        flags = exact if exact is not None else [True] * len(observations)
+        for ob, tid, ok in zip(observations, assignment, flags, strict=True):
+            if tid is None:
+                kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.init_velocity_sigma_mps)
+                tr = Track(self._next_id, first_t_ns=t_ns, kf=kf, last=ob, last_seen_ns=t_ns)
+                tr.exact = ok
                 self._next_id += 1
                 self._tracks[tr.track_id] = tr
-            states.append(self._observe(tr, t_ns, ob))
-        seen = {s.track_id for s in states}
+            else:
+                tr = self._tracks[tid]
+                if ok and not tr.exact:
+                    tr.kf = kalman.initiate(
+                        ob.position_m, ob.cov_m2, t_ns, p.init_velocity_sigma_mps
+                    )
+                    tr.exact = True
+                else:
+                    pred = kalman.predict(tr.kf, t_ns, p.accel_noise)
+                    if kalman.mahalanobis2(pred, ob.position_m, ob.cov_m2) > p.gate_chi2:
+                        pred = kalman.inflate_velocity(pred, p.init_velocity_sigma_mps)
+                    tr.kf = kalman.update(pred, ob.position_m, ob.cov_m2)
+                tr.hits += 1
+                tr.last = ob
+                tr.last_seen_ns = t_ns
+            tr.positions.append((t_ns, ob.position_m))
+            tr.left_history.append((t_left, ob.left_px))
+            tr.right_history.append((t_right, ob.right_px))
+            seen.add(tr.track_id)
+            states.append(self._state(tr, t_ns, observed=True))
         ended = []
         coast_ns = int(p.max_coast_s * 1e9)
         for tid, tr in list(self._tracks.items()):
-            if tid not in seen and t_ns - tr.last_seen_ns > coast_ns:
+            if tid in seen:
+                continue
+            if tr.hits < p.confirm_hits or t_ns - tr.last_seen_ns > coast_ns:
                 ended.append(tid)
                 del self._tracks[tid]
+            else:
+                tr.kf = kalman.predict(tr.kf, t_ns, p.accel_noise)
+                states.append(self._state(tr, t_ns, observed=False))
         return states, ended
 
     def end_all(self) -> list[int]:
@@ -147,58 +253,60 @@ class Tracker:
         self._tracks.clear()
         return ids
 
-    def _predict(self, tr: _Track, t_ns: int) -> np.ndarray:
-        last_t, last = tr.history[-1]
-        if tr.velocity is None:
-            return last.position_m
-        return last.position_m + tr.velocity * ((t_ns - last_t) * 1e-9)
+    def _raw_velocity(self, tr: Track, t_ns: int) -> np.ndarray | None:
+        """Eq. 21 between the newest position and the newest one at least tau older."""
+        base_ns = int(self.params.time_base_s * 1e9)
+        t_now, p_now = tr.positions[-1]
+        old = None
+        for t, pos in reversed(tr.positions):
+            if t_now - t >= base_ns:
+                old = (t, pos)
+                break
+        if old is None:
+            return None
+        return motion.finite_difference(old[1], p_now, (t_now - old[0]) * 1e-9)
 
-    def _observe(self, tr: _Track, t_ns: int, ob: Observation) -> TrackState:
+    def _state(self, tr: Track, t_ns: int, *, observed: bool) -> TrackState:
         p = self.params
-        tr.history.append((t_ns, ob))
-        tr.hits += 1
-        tr.last_seen_ns = t_ns
-        base_ns = int(p.time_base_s * 1e9)
-        # Keep the newest sample at least tau old (eq. 21's p1) and everything after it.
-        while len(tr.history) > 2 and t_ns - tr.history[1][0] >= base_ns:
-            tr.history.popleft()
-        t0 = tr.history[0][0]
-        span_ns = t_ns - t0
-        raw = None
-        valid = False
-        if len(tr.history) >= 2:
-            times = np.array([(t - t0) * 1e-9 for t, _ in tr.history])
-            pos = np.array([o.position_m for _, o in tr.history])
-            sig = np.array([np.sqrt(np.diag(o.cov_m2)) for _, o in tr.history])
-            vel, vsig = motion.fit_velocity(times, pos, sig)
-            tr.velocity = vel
-            if span_ns >= base_ns:
-                raw = motion.finite_difference(pos[0], pos[-1], span_ns * 1e-9)
-                valid = len(tr.history) >= 3
-        else:
-            vel, vsig = np.zeros(3), np.full(3, np.inf)
-            tr.velocity = None
+        vel = tr.kf.velocity_mps.copy()
+        vcov = tr.kf.velocity_cov.copy()
         spd = motion.speed(vel)
         spd_sigma = (
-            float(np.sqrt(np.sum(np.square(vel * vsig))) / spd) if spd > 0 else float(np.max(vsig))
+            math.sqrt(float(vel @ vcov @ vel)) / spd
+            if spd > 0
+            else math.sqrt(float(np.trace(vcov)))
         )
-        lifecycle = (
-            TrackLifecycle.CONFIRMED if tr.hits >= p.confirm_hits else TrackLifecycle.TENTATIVE
-        )
+        confirmed = tr.hits >= p.confirm_hits
+        age = (t_ns - tr.first_t_ns) * 1e-9
+        valid = confirmed and age >= p.time_base_s
+        if valid and spd > max(p.stationary_mps, 3.0 * spd_sigma):
+            tr.last_moving_ns = t_ns
+        still_for = None if tr.last_moving_ns is None else (t_ns - tr.last_moving_ns) * 1e-9
+        if still_for is not None and still_for >= p.freeze_s:
+            tr.freeze_spent = True
+        if not observed:
+            lifecycle = TrackLifecycle.COASTING
+        elif confirmed:
+            lifecycle = TrackLifecycle.CONFIRMED
+        else:
+            lifecycle = TrackLifecycle.TENTATIVE
         return TrackState(
             track_id=tr.track_id,
             lifecycle=lifecycle,
             t_ns=t_ns,
-            observation=ob,
+            observation=tr.last,
+            position_m=tr.kf.position_m.copy(),
+            position_cov_m2=tr.kf.P[:3, :3].copy(),
             velocity_mps=vel,
-            velocity_sigma_mps=vsig,
+            velocity_cov=vcov,
             velocity_valid=valid,
             speed_mps=spd,
             speed_sigma_mps=spd_sigma,
             heading_deg=motion.heading_deg(float(vel[0]), float(vel[2])),
             heading_sigma_deg=motion.heading_sigma_deg(
-                float(vel[0]), float(vel[2]), float(vsig[0]), float(vsig[2])
+                float(vel[0]), float(vel[2]), math.sqrt(vcov[0, 0]), math.sqrt(vcov[2, 2])
             ),
-            raw_velocity_mps=raw,
-            age_s=(t_ns - tr.first_t_ns) * 1e-9,
+            raw_velocity_mps=self._raw_velocity(tr, t_ns),
+            age_s=age,
+            freeze_background=still_for is not None and not tr.freeze_spent,
         )

@@ -9,6 +9,7 @@ from stereod_fakes.synth import Ball, Renderer, Scene
 from stereod.detect import DetectorParams
 from stereod.pairing import Pairer
 from stereod.pipeline import Pipeline, PipelineParams
+from stereod.tracking import TrackerParams
 
 
 def run_scene(scene: Scene, workers: int = 1) -> list:
@@ -68,3 +69,85 @@ def test_two_balls_get_two_tracks_with_their_velocities() -> None:
     for o, b in zip(by_heading, balls):
         assert o.heading_deg == pytest.approx(b.heading_deg, abs=2.0)
         assert o.speed_mps == pytest.approx(b.speed_mps, rel=0.05)
+
+
+def tracks_by_frame(scene: Scene, **params: object) -> list[dict[int, str]]:
+    pipe = Pipeline(PipelineParams("t", scene.rig, **params), utc_offset_ns=0)  # type: ignore[arg-type]
+    pairer = Pairer(tolerance_ns=40_000_000)
+    out = []
+    for left, right in Renderer(scene).frames():
+        for f in (left, right):
+            for pair in pairer.push(f):
+                msg = pipe.process(pair).message
+                out.append({o.track_id: o.state for o in msg.objects})
+    return out
+
+
+def test_crossing_objects_keep_their_ids() -> None:
+    """Two balls at different depths cross in front of each other (their images merge for a
+    few frames, while both tracks coast); afterwards each ball has the id it had before."""
+    balls = [
+        Ball(
+            heading_deg=90,
+            speed_mps=0.5,
+            centre_m=(0.0, 0.0, 1.6),
+            t_on_s=1.0,
+            t_off_s=3.4,
+            t_mid_s=2.2,
+        ),
+        Ball(
+            heading_deg=270,
+            speed_mps=0.5,
+            centre_m=(0.0, 0.03, 2.6),
+            t_on_s=1.0,
+            t_off_s=3.4,
+            t_mid_s=2.2,
+            radius_m=0.08,
+        ),
+    ]
+    scene = Scene(duration_s=3.6, balls=balls)
+    pipe = Pipeline(PipelineParams("t", scene.rig), utc_offset_ns=0)
+    pairer = Pairer(tolerance_ns=40_000_000)
+    before: dict[int, set[int]] = {0: set(), 1: set()}
+    after: dict[int, set[int]] = {0: set(), 1: set()}
+    for left, right in Renderer(scene).frames():
+        for f in (left, right):
+            for pair in pairer.push(f):
+                msg = pipe.process(pair).message
+                t = (msg.t_ns - scene.t0_ns) / 1e9
+                if abs(t - 2.2) < 0.4:
+                    continue
+                for o in msg.objects:
+                    if o.state == "confirmed":
+                        d = [
+                            np.linalg.norm(np.subtract(o.position_m, b.position_m(t)))
+                            for b in balls
+                        ]
+                        k = int(np.argmin(d))
+                        assert d[k] < 0.05, f"track {o.track_id} is {d[k]:.3f} m from ball {k}"
+                        (before if t < 2.2 else after)[k].add(o.track_id)
+    assert before == after, f"ids before the crossing {before}, after {after}"
+    assert all(len(ids) == 1 for ids in before.values()) and before[0] != before[1]
+
+
+def test_stopped_object_stays_tracked_while_background_is_frozen() -> None:
+    """A ball rolls in and stops. With the background frozen under it, it stays tracked; with
+    learning everywhere (the paper's eq. 3), it fades into the background and its track ends."""
+    ball = Ball(
+        heading_deg=90,
+        speed_mps=0.4,
+        centre_m=(0.0, 0.0, 1.6),
+        t_on_s=1.0,
+        t_off_s=1e9,
+        t_mid_s=1.5,
+        t_stop_s=2.0,
+    )
+    scene = Scene(duration_s=6.0, balls=[ball])
+    detector = DetectorParams(beta=0.05)
+    frozen = tracks_by_frame(scene, detector=detector)
+    learning = tracks_by_frame(scene, detector=detector, freeze_background=False)
+    assert frozen[-1] and set(frozen[-1].values()) == {"confirmed"}, frozen[-1]
+    assert learning[-1] == {}, "without freezing, the stopped ball should fade into the background"
+    # A short freeze lets the background take it after that time.
+    short = tracks_by_frame(scene, detector=detector, tracker=TrackerParams(freeze_s=1.0))
+    assert short[-1] == {}

@@ -1,0 +1,105 @@
+"""Constant-velocity Kalman filter in 3D, for one track.
+
+State x = [px, py, pz, vx, vy, vz] (m, m/s, rig frame), covariance P (6, 6). The motion model is
+constant velocity driven by white acceleration noise of spectral density ``q`` (m^2/s^3); the
+measurement is a position with its own covariance R (3, 3), from triangulation, so far points
+(depth sigma growing as Z^2, eq. 12) pull the estimate less than near ones. ``dt`` is seconds
+between capture timestamps, never a frame count.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+H = np.hstack([np.eye(3), np.zeros((3, 3))])
+"""Measurement matrix: the position part of the state, (3, 6)."""
+
+
+def transition(dt_s: float) -> np.ndarray:
+    """F (6, 6): p' = p + v dt, v' = v."""
+    f = np.eye(6)
+    f[0:3, 3:6] = dt_s * np.eye(3)
+    return f
+
+
+def process_noise(dt_s: float, q: float) -> np.ndarray:
+    """Q (6, 6) of a white-noise acceleration of spectral density ``q`` (m^2/s^3) over ``dt_s``."""
+    dt2, dt3 = dt_s * dt_s, dt_s * dt_s * dt_s
+    block = np.array([[dt3 / 3.0, dt2 / 2.0], [dt2 / 2.0, dt_s]]) * q
+    return np.kron(block, np.eye(3))
+
+
+@dataclass
+class KalmanState:
+    """x (6,) and P (6, 6) at time ``t_ns`` (monotonic, ns)."""
+
+    x: np.ndarray
+    P: np.ndarray
+    t_ns: int
+
+    @property
+    def position_m(self) -> np.ndarray:
+        return self.x[:3]
+
+    @property
+    def velocity_mps(self) -> np.ndarray:
+        return self.x[3:]
+
+    @property
+    def velocity_cov(self) -> np.ndarray:
+        return self.P[3:, 3:]
+
+
+def initiate(
+    z_m: np.ndarray, r_m2: np.ndarray, t_ns: int, velocity_sigma_mps: float
+) -> KalmanState:
+    """A state from a first position measurement ``z_m`` (3,) with covariance ``r_m2``; the
+    velocity starts at zero with sigma ``velocity_sigma_mps`` per axis."""
+    x = np.concatenate([np.asarray(z_m, float), np.zeros(3)])
+    p = np.zeros((6, 6))
+    p[:3, :3] = r_m2
+    p[3:, 3:] = np.eye(3) * velocity_sigma_mps**2
+    return KalmanState(x, p, t_ns)
+
+
+def predict(s: KalmanState, t_ns: int, q: float) -> KalmanState:
+    """The state at ``t_ns``: x = F x, P = F P F' + Q."""
+    dt = (t_ns - s.t_ns) * 1e-9
+    if dt == 0:
+        return s
+    f = transition(dt)
+    return KalmanState(f @ s.x, f @ s.P @ f.T + process_noise(abs(dt), q), t_ns)
+
+
+def inflate_velocity(s: KalmanState, sigma_mps: float) -> KalmanState:
+    """The state with its velocity uncertainty re-opened to ``sigma_mps`` per axis (and its
+    position-velocity correlation dropped): after a manoeuvre the old velocity is no guide."""
+    p = s.P.copy()
+    p[3:, 3:] = np.eye(3) * sigma_mps**2
+    p[:3, 3:] = 0.0
+    p[3:, :3] = 0.0
+    return KalmanState(s.x.copy(), p, s.t_ns)
+
+
+def innovation(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """y = z - H x (3,) and S = H P H' + R (3, 3)."""
+    y = np.asarray(z_m, float) - s.x[:3]
+    return y, s.P[:3, :3] + r_m2
+
+
+def mahalanobis2(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:
+    """Squared Mahalanobis distance y' S^-1 y of a measurement from the state (chi^2, 3 dof)."""
+    y, cov = innovation(s, z_m, r_m2)
+    return float(y @ np.linalg.solve(cov, y))
+
+
+def update(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> KalmanState:
+    """Fold in a position: K = P H' S^-1, x = x + K y, P = (I - K H) P (I - K H)' + K R K'."""
+    y, cov = innovation(s, z_m, r_m2)
+    k = np.linalg.solve(cov, s.P[:3, :]).T
+    x = s.x + k @ y
+    ikh = np.eye(6) - k @ H
+    p = ikh @ s.P @ ikh.T + k @ r_m2 @ k.T
+    return KalmanState(x, 0.5 * (p + p.T), s.t_ns)
