@@ -29,7 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
-from .detect import DetectorParams, Luminance
+from .detect import Centroid, DetectorParams, Luminance
 from .errors import ConfigError
 from .geometry.stereo import MatchParams
 from .tracking import TrackerParams
@@ -70,6 +70,7 @@ class DetectorConfig(_Section):
     warmup_frames: int = Field(10, ge=1, le=10000, description="Frames in the initial background")
     open_px: int = Field(3, ge=0, le=31, description="Opening kernel side, px; 0 disables")
     luminance: Luminance = Field(Luminance.BT601, description="bt601 or mean (eq. 2 exactly)")
+    centroid: Centroid = Field(Centroid.COVERAGE, description="coverage or binary (eq. 5)")
 
     def params(self) -> DetectorParams:
         return DetectorParams(**self.model_dump())
@@ -105,6 +106,8 @@ class TrackingConfig(_Section):
     """Association, Kalman filter and lifecycle (see :class:`stereod.tracking.TrackerParams`)."""
 
     gate_chi2: float = Field(16.3, gt=0.0, description="Mahalanobis gate, chi-square 3 dof")
+    min_gate_m: float = Field(0.15, ge=0.0, description="Always joinable within this, m")
+    gate_px: float = Field(60.0, gt=0.0, description="Image gate for skewed new tracks, px")
     accel_noise: float = Field(0.05, gt=0.0, description="White acceleration density, m^2/s^3")
     time_base_s: float = Field(0.5, gt=0.0, le=60.0, description="tau of eq. 21, s")
     max_coast_s: float = Field(0.5, ge=0.0, le=60.0, description="Track lives unseen, s")

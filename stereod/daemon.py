@@ -27,7 +27,16 @@ import numpy as np
 
 from .config import StereodConfig
 from .errors import OutputError, StereodError
-from .frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoPair, StereoSource
+from .frames import (
+    Driver,
+    Eye,
+    EyeSource,
+    Frame,
+    SourceInfo,
+    StereoPair,
+    StereoSource,
+    merged,
+)
 from .geometry.stereo import CanonicalRig
 from .messages import EyeStatus, StatsMessage, StatusMessage, dump
 from .pairing import Pairer
@@ -300,18 +309,12 @@ class Daemon:
                 self._end_capture()
 
     def _merge_loop(self, source: StereoSource) -> None:
-        heads: dict[Eye, Frame | None] = {}
-        eyes = {Eye.LEFT: source.left, Eye.RIGHT: source.right}
         t_first: int | None = None
         wall_first = 0.0
         try:
-            for eye, src in eyes.items():
-                heads[eye] = src.read()
-            while not self._stop.is_set():
-                ready = [f for f in heads.values() if f is not None]
-                if not ready:
+            for frame in merged(source.left, source.right):
+                if self._stop.is_set():
                     break
-                frame = min(ready, key=lambda f: f.t_ns)
                 if self.rate > 0:
                     if t_first is None:
                         t_first, wall_first = frame.t_ns, time.monotonic()
@@ -321,9 +324,6 @@ class Daemon:
                         break
                 if not self._push(frame):
                     break
-                heads[frame.eye] = eyes[frame.eye].read()
-                if heads[frame.eye] is None:
-                    self._eyes[frame.eye].state = "ended"
         except StereodError as exc:
             self._fatal = exc
             self.problem(str(exc))

@@ -22,6 +22,7 @@ import zenoh
 from .config import ZenohConfig, load_config
 from .daemon import Daemon
 from .drivers import load_driver
+from .motion import circular_median_deg
 from .publish import open_session
 from .subscribe import format_object
 
@@ -108,7 +109,7 @@ def _report(scene: Any, received: list[dict[str, Any]]) -> int:
         pos_err.append(float(np.linalg.norm(np.asarray(o["position_m"]) - truth)))
         z = truth[2]
         bound.append(scene.rig.depth_error_one_px_m(z))
-    heading = float(np.median([o["heading_deg"] for _, o in valid]))
+    heading = circular_median_deg([o["heading_deg"] for _, o in valid])
     spd = float(np.median([o["speed_mps"] for _, o in valid]))
     raw = [o["raw_velocity_mps"] for _, o in valid if o["raw_velocity_mps"] is not None]
     raw_v = np.median(np.asarray(raw), axis=0)

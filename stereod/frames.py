@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import enum
 from abc import ABC, abstractmethod
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
@@ -125,6 +126,20 @@ class StereoSource(ABC):
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+def merged(left: EyeSource, right: EyeSource) -> Iterator[Frame]:
+    """Both eyes' frames in capture-time order, reading each eye only as needed (file sources:
+    this is how they are fed to the pairer without dropping anything)."""
+    heads = {Eye.LEFT: left.read(), Eye.RIGHT: right.read()}
+    sources = {Eye.LEFT: left, Eye.RIGHT: right}
+    while True:
+        ready = [f for f in heads.values() if f is not None]
+        if not ready:
+            return
+        frame = min(ready, key=lambda f: f.t_ns)
+        yield frame
+        heads[frame.eye] = sources[frame.eye].read()
 
 
 class Driver(ABC):

@@ -73,3 +73,14 @@ def fit_velocity(
     else:
         sigma_v = np.full(3, np.inf)
     return v, sigma_v
+
+
+def circular_median_deg(angles_deg: np.ndarray | list[float]) -> float:
+    """Median of headings (deg) that wraps correctly at 0/360: the median of their differences
+    from the circular mean, added back, in [0, 360)."""
+    a = np.radians(np.asarray(angles_deg, dtype=np.float64))
+    if a.size == 0:
+        raise ValueError("no angles")
+    mean = math.atan2(float(np.sin(a).sum()), float(np.cos(a).sum()))
+    d = (a - mean + math.pi) % (2 * math.pi) - math.pi
+    return math.degrees(mean + float(np.median(d))) % 360.0

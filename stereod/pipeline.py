@@ -47,7 +47,7 @@ class PipelineParams:
     centroid_sigma_px: float = 0.5
     detect_workers: int = 1
     skew_compensation: bool = True
-    skew_window_s: float = 0.4
+    skew_window_s: float = 0.15
     freeze_background: bool = True
 
 
@@ -104,7 +104,7 @@ class Pipeline:
         observations = self._observe(lb, rb, idx, lpx, rpx)
         exact = [not compensate] * len(observations)
         if compensate:
-            cache: dict[int, tuple[list[Observation], bool]] = {}
+            cache: dict[int, tuple[list[Observation], list[bool]]] = {}
 
             raw = observations
 
@@ -113,16 +113,16 @@ class Pipeline:
                     cache[track.track_id] = self._compensated(
                         track, lb, rb, idx, lpx, rpx, (t_left, t_right), t_ns
                     )
-                # A track whose filter has only seen uncompensated observations is compared
-                # with uncompensated ones: both carry the same skew bias.
-                return cache[track.track_id][0] if track.exact else raw
+                return cache[track.track_id][0]
 
-            assignment = self.tracker.associate(t_ns, observations, candidates)
+            assignment = self.tracker.associate(t_ns, observations, candidates, (t_left, t_right))
             observations = list(raw)
             for i, tid in enumerate(assignment):
                 if tid is not None:
-                    shifted, exact[i] = cache[tid]
-                    observations[i] = shifted[i]
+                    if tid not in cache:
+                        candidates(self.tracker.track(tid))
+                    shifted, flags = cache[tid]
+                    observations[i], exact[i] = shifted[i], flags[i]
         else:
             assignment = self.tracker.associate(t_ns, observations)
         t2 = time.perf_counter_ns()
@@ -189,17 +189,22 @@ class Pipeline:
         rpx: np.ndarray,
         eye_times: tuple[int, int],
         t_ns: int,
-    ) -> tuple[list[Observation], bool]:
-        """Every observation as if it belonged to ``track``: both eyes' centroids moved to
-        ``t_ns`` along that track's 2D image motion, triangulated again. The flag says whether
-        the earlier eye had enough history to be moved (the observation is then exact)."""
+    ) -> tuple[list[Observation], list[bool]]:
+        """Every observation as if it belonged to ``track``: each eye's centroid moved to
+        ``t_ns`` along that eye's image velocity, fitted to the track's recent centroids in that
+        eye plus this one, then triangulated again. The flags say which observations could be
+        moved (the earlier eye had a past centroid): those are exact."""
         window = int(self.params.skew_window_s * 1e9)
-        vl = skew.image_velocity(track.left_history, window)
-        vr = skew.image_velocity(track.right_history, window)
-        tl = skew.shift_to(lpx, eye_times[0], vl, t_ns)
-        tr = skew.shift_to(rpx, eye_times[1], vr, t_ns)
-        earlier = vl if eye_times[0] < eye_times[1] else vr
-        return self._observe(lb, rb, idx, lpx, rpx, tl, tr), earlier is not None
+        t_left, t_right = eye_times
+        tl, tr = lpx.copy(), rpx.copy()
+        early_history = track.left_history if t_left < t_right else track.right_history
+        exact = [len(early_history) > 0] * len(lpx)
+        for k in range(len(lpx)):
+            vl = skew.image_velocity([*track.left_history, (t_left, lpx[k])], window)
+            vr = skew.image_velocity([*track.right_history, (t_right, rpx[k])], window)
+            tl[k] = skew.shift_to(lpx[k], t_left, vl, t_ns)
+            tr[k] = skew.shift_to(rpx[k], t_right, vr, t_ns)
+        return self._observe(lb, rb, idx, lpx, rpx, tl, tr), exact
 
     def _learn(self, states: list[TrackState], shape: tuple[int, ...]) -> None:
         """Eq. 3 on both eyes, not under objects being tracked (so a stopped one stays seen)."""

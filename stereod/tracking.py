@@ -25,6 +25,15 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from . import kalman, motion
+from .skew import image_velocity, shift_to
+
+
+def _image_distance(history: EyeHistory, centroid_px: np.ndarray, t_ns: int) -> float:
+    """Distance (px) from a centroid to where one eye's 2D track puts the object at ``t_ns``
+    (its last centroid moved along its image velocity when it has one)."""
+    t_last, last = history[-1]
+    predicted = shift_to(last, t_last, image_velocity(history, 10**9), t_ns)
+    return float(np.linalg.norm(centroid_px - predicted))
 
 
 class TrackLifecycle(str, enum.Enum):
@@ -61,20 +70,25 @@ class Observation:
 
 @dataclass(frozen=True, slots=True)
 class TrackerParams:
-    """``gate_chi2``: largest squared Mahalanobis distance to join a track (3 dof; 16.3 is
-    99.9 %). ``min_gate_m``: an observation this close (m) to a prediction may always join it,
-    however confident the filter (an object that brakes hard leaves the constant-velocity
+    """Tracker settings, SI units.
+
+    ``gate_chi2``: largest squared Mahalanobis distance to join a track (3 dof; 16.3 is
+    99.9 %). ``min_gate_m``: an observation this close (m) to a prediction may always join
+    it, however confident the filter (an object that brakes hard leaves the constant-velocity
     model); a join beyond the chi-square gate is a manoeuvre and re-opens the velocity
-    uncertainty. ``accel_noise``: spectral density q of the white acceleration (m^2/s^3).
-    ``time_base_s``: tau of eq. 21 (s), and how long a track must live before its velocity is
-    valid. ``max_coast_s``: how long (s) a confirmed track lives unseen. ``confirm_hits``:
-    observations to confirm. ``init_velocity_sigma_mps``: prior velocity sigma of a new track.
-    ``freeze_s``: how long (s) after it was last seen moving an object keeps the background
-    frozen under it; ``stationary_mps``: below this speed an object is not moving.
+    uncertainty. ``gate_px``: largest image distance (px, per eye) to join a track that has
+    only seen skewed observations. ``accel_noise``: spectral density q of the white
+    acceleration (m^2/s^3). ``time_base_s``: tau of eq. 21 (s), and how long a track's
+    filter must run before its velocity is valid. ``max_coast_s``: how long (s) a confirmed
+    track lives unseen. ``confirm_hits``: observations to confirm.
+    ``init_velocity_sigma_mps``: prior velocity sigma of a new track. ``freeze_s``: how long
+    (s) after it was last seen moving an object keeps the background frozen under it.
+    ``stationary_mps``: below this speed an object is not moving.
     """
 
     gate_chi2: float = 16.3
     min_gate_m: float = 0.15
+    gate_px: float = 60.0
     accel_noise: float = 0.05
     time_base_s: float = 0.5
     max_coast_s: float = 0.5
@@ -122,6 +136,8 @@ class Track:
     last: Observation
     hits: int = 1
     last_seen_ns: int = 0
+    kf_since_ns: int = 0
+    """When the filter was (re)started: its velocity is trusted ``time_base_s`` after that."""
     last_moving_ns: int | None = None
     """When the object was last seen clearly moving (speed above ``stationary_mps`` and three
     sigmas); only an object seen moving freezes the background, for ``freeze_s`` after that
@@ -158,35 +174,64 @@ class Tracker:
         t_ns: int,
         observations: list[Observation],
         candidates: Callable[[Track], list[Observation]] | None = None,
+        eye_times_ns: tuple[int, int] | None = None,
     ) -> list[int | None]:
-        """The track id each observation belongs to (``None``: a new object), by minimum total
-        squared Mahalanobis distance within the gate.
+        """The track id each observation belongs to (``None``: a new object).
 
-        ``candidates(track)``, when given, returns the observations as they would be if they
-        belonged to that track (for skew compensation along the track's own image motion);
-        the distance to a track is measured on those.
+        Tracks whose filter holds only exact observations are matched first, by minimum total
+        squared Mahalanobis distance within the gate; ``candidates(track)``, when given, returns
+        the observations as they would be if they belonged to that track (skew compensation
+        along the track's own image motion) and the distance is measured on those. Tracks not
+        yet exact (their one observation mixed two instants) are then matched in the images:
+        each eye's centroid against the track's last centroid in that eye, within
+        ``gate_px``, which no skew can bias.
         """
-        tracks = list(self._tracks.values())
         out: list[int | None] = [None] * len(observations)
+        tracks = list(self._tracks.values())
         if not tracks or not observations:
             return out
         p = self.params
-        cost = np.empty((len(observations), len(tracks)))
-        dist = np.empty_like(cost)
-        for j, tr in enumerate(tracks):
-            pred = kalman.predict(tr.kf, t_ns, p.accel_noise)
-            obs = observations if candidates is None else candidates(tr)
-            for i, o in enumerate(obs):
-                cost[i, j] = kalman.mahalanobis2(pred, o.position_m, o.cov_m2)
-                dist[i, j] = float(np.linalg.norm(o.position_m - pred.position_m))
-        big = 1e6
-        feasible = (cost <= p.gate_chi2) | (dist <= p.min_gate_m)
-        gated = np.where(feasible, np.minimum(cost, 1e5), big)
+        exact = [tr for tr in tracks if tr.exact]
+        if exact:
+            cost = np.empty((len(observations), len(exact)))
+            dist = np.empty_like(cost)
+            for j, tr in enumerate(exact):
+                pred = kalman.predict(tr.kf, t_ns, p.accel_noise)
+                obs = observations if candidates is None else candidates(tr)
+                for i, o in enumerate(obs):
+                    cost[i, j] = kalman.mahalanobis2(pred, o.position_m, o.cov_m2)
+                    dist[i, j] = float(np.linalg.norm(o.position_m - pred.position_m))
+            feasible = (cost <= p.gate_chi2) | (dist <= p.min_gate_m)
+            self._assign(np.minimum(cost, 1e5), feasible, exact, out)
+        fresh = [tr for tr in tracks if not tr.exact]
+        free = [i for i, a in enumerate(out) if a is None]
+        if fresh and free:
+            t_left, t_right = eye_times_ns if eye_times_ns is not None else (t_ns, t_ns)
+            cost = np.empty((len(free), len(fresh)))
+            for j, tr in enumerate(fresh):
+                for k, i in enumerate(free):
+                    o = observations[i]
+                    cost[k, j] = max(
+                        _image_distance(tr.left_history, o.left_px, t_left),
+                        _image_distance(tr.right_history, o.right_px, t_right),
+                    )
+            sub: list[int | None] = [None] * len(free)
+            self._assign(cost, cost <= p.gate_px, fresh, sub)
+            for k, i in enumerate(free):
+                out[i] = sub[k]
+        return out
+
+    @staticmethod
+    def _assign(
+        cost: np.ndarray, feasible: np.ndarray, tracks: list[Track], out: list[int | None]
+    ) -> None:
+        """Minimum-cost assignment of rows (observations) to feasible columns (tracks)."""
+        big = 1e9
+        gated = np.where(feasible, cost, big)
         rows, cols = linear_sum_assignment(gated)
         for i, j in zip(rows, cols, strict=True):
-            if gated[i, j] < big:
+            if feasible[i, j]:
                 out[i] = tracks[j].track_id
-        return out
 
     def update(
         self,
@@ -210,7 +255,14 @@ class Tracker:
         for ob, tid, ok in zip(observations, assignment, flags, strict=True):
             if tid is None:
                 kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.init_velocity_sigma_mps)
-                tr = Track(self._next_id, first_t_ns=t_ns, kf=kf, last=ob, last_seen_ns=t_ns)
+                tr = Track(
+                    self._next_id,
+                    first_t_ns=t_ns,
+                    kf=kf,
+                    last=ob,
+                    last_seen_ns=t_ns,
+                    kf_since_ns=t_ns,
+                )
                 tr.exact = ok
                 self._next_id += 1
                 self._tracks[tr.track_id] = tr
@@ -220,6 +272,7 @@ class Tracker:
                     tr.kf = kalman.initiate(
                         ob.position_m, ob.cov_m2, t_ns, p.init_velocity_sigma_mps
                     )
+                    tr.kf_since_ns = t_ns
                     tr.exact = True
                 else:
                     pred = kalman.predict(tr.kf, t_ns, p.accel_noise)
@@ -278,7 +331,7 @@ class Tracker:
         )
         confirmed = tr.hits >= p.confirm_hits
         age = (t_ns - tr.first_t_ns) * 1e-9
-        valid = confirmed and age >= p.time_base_s
+        valid = confirmed and (t_ns - tr.kf_since_ns) * 1e-9 >= p.time_base_s
         if valid and spd > max(p.stationary_mps, 3.0 * spd_sigma):
             tr.last_moving_ns = t_ns
         still_for = None if tr.last_moving_ns is None else (t_ns - tr.last_moving_ns) * 1e-9

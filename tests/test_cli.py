@@ -17,6 +17,7 @@ import zenoh
 from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
 
 from stereod.demo import angle_diff_deg
+from stereod.motion import circular_median_deg
 
 from .conftest import ROOT, shared_data, stereod
 
@@ -99,7 +100,7 @@ def test_replay_publishes_truthful_motion_over_zenoh(
             bound = scene.rig.depth_error_one_px_m(truth[2])
             assert abs(o["position_m"][2] - truth[2]) <= bound
             assert np.linalg.norm(np.subtract(o["position_m"], truth)) < 0.05
-    heading = np.median([o["heading_deg"] for o in valid])
+    heading = circular_median_deg([o["heading_deg"] for o in valid])
     speed = np.median([o["speed_mps"] for o in valid])
     assert abs(angle_diff_deg(heading, 60.0)) < 2.0, f"heading {heading:.2f} deg, truth 60"
     assert speed == pytest.approx(0.7, rel=0.03), f"speed {speed:.3f} m/s, truth 0.7"
@@ -156,7 +157,8 @@ def test_replay_plain_videos_with_timestamp_files(
     assert all(m["skew_ns"] == 20_000_000 for m in msgs)
     valid = [o for m in msgs for o in m["objects"] if o["velocity_valid"]]
     assert (
-        valid and abs(angle_diff_deg(float(np.median([o["heading_deg"] for o in valid])), 90)) < 3
+        valid
+        and abs(angle_diff_deg(circular_median_deg([o["heading_deg"] for o in valid]), 90)) < 3
     )
 
 

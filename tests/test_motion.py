@@ -59,3 +59,9 @@ def test_fit_velocity_sigma_is_calibrated() -> None:
         est.append(v)
     np.testing.assert_allclose(np.std(est, axis=0), s, rtol=0.05)
     assert math.isclose(float(np.mean(est, axis=0)[2]), 0.5, abs_tol=0.005)
+
+
+def test_circular_median_wraps_at_north() -> None:
+    assert motion.circular_median_deg([359.0, 0.5, 1.0, 358.5, 0.2]) == pytest.approx(0.2)
+    assert motion.circular_median_deg([170, 180, 190]) == pytest.approx(180)
+    assert motion.circular_median_deg([10.0]) == pytest.approx(10.0)
