@@ -27,13 +27,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from stereod_fakes.scenarios import TABLE_I, TableRow, replay_through_pipeline, table_one_scene
-from stereod_fakes.synth import Scene, write_scene
 
 from stereod.demo import angle_diff_deg
 from stereod.messages import ObjectsMessage
 from stereod.motion import circular_median_deg
 from stereod.pipeline import PipelineParams
+from stereod_fakes.scenarios import TABLE_I, TableRow, replay_through_pipeline, table_one_scene
+from stereod_fakes.synth import Scene, write_scene
 
 HEADING_TARGET_DEG = 1.0
 SPEED_TARGET = 0.03

@@ -19,13 +19,13 @@ import time
 from collections.abc import Callable
 
 import cv2
-from stereod_fakes.synth import Ball, Renderer, Scene
 
 from stereod.detect import DetectorParams
 from stereod.detect_reference import ReferenceDetector
 from stereod.frames import StereoPair
 from stereod.messages import dump
 from stereod.pipeline import Pipeline, PipelineParams
+from stereod_fakes.synth import Ball, Renderer, Scene
 
 SIZES = {"320x240": (320, 240), "640x480": (640, 480), "1280x720": (1280, 720)}
 

@@ -9,17 +9,18 @@ and the right eye half a frame late (the worst case of two free-running eyes).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-from stereod.frames import StereoPair, merged
+from stereod.frames import Frame, merged
 from stereod.messages import ObjectsMessage
 from stereod.pairing import Pairer
-from stereod.pipeline import Pipeline, PipelineParams
+from stereod.pipeline import PairResult, Pipeline, PipelineParams
 from stereod.recording import read_manifest
 
 from .replay import ReplayDriver
-from .synth import Ball, Scene
+from .synth import Ball, Renderer, Scene
 
 
 @dataclass(frozen=True)
@@ -79,21 +80,32 @@ def table_one_scene(
     )
 
 
+def run_pipeline(
+    frames: Iterable[Frame], params: PipelineParams, tolerance_ns: int
+) -> list[PairResult]:
+    """Pair ``frames`` (both eyes, each eye in order) and run every pair through a fresh
+    pipeline, as the daemon does minus threads and Zenoh."""
+    pipe = Pipeline(params, utc_offset_ns=0)
+    pairer = Pairer(tolerance_ns=tolerance_ns)
+    out: list[PairResult] = []
+    for frame in frames:
+        out.extend(pipe.process(p) for p in pairer.push(frame))
+    out.extend(pipe.process(p) for p in pairer.flush())
+    pipe.close()
+    return out
+
+
+def process_scene(scene: Scene, params: PipelineParams) -> list[PairResult]:
+    """Render ``scene`` in memory and run it through the pipeline."""
+    frames = (f for pair in Renderer(scene).frames() for f in pair)
+    return run_pipeline(frames, params, int(0.75e9 / scene.fps))
+
+
 def replay_through_pipeline(recording: Path, params: PipelineParams) -> list[ObjectsMessage]:
     """Every objects message the pipeline makes from a recording, in order (no Zenoh)."""
     man = read_manifest(recording)
     if (man.width, man.height) != (params.rig.width_px, params.rig.height_px):
         raise ValueError("the rig's image size must match the recording")
-    pipe = Pipeline(params, utc_offset_ns=0)
-    pairer = Pairer(tolerance_ns=int(0.75e9 / (man.fps or 15.0)))
-    out: list[ObjectsMessage] = []
-
-    def run(pairs: list[StereoPair]) -> None:
-        out.extend(pipe.process(p).message for p in pairs)
-
     with ReplayDriver({"path": recording}).open() as src:
-        for frame in merged(src.left, src.right):
-            run(pairer.push(frame))
-        run(pairer.flush())
-    pipe.close()
-    return out
+        results = run_pipeline(merged(src.left, src.right), params, int(0.75e9 / (man.fps or 15.0)))
+    return [r.message for r in results]

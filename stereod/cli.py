@@ -466,6 +466,7 @@ def _parse_ball(spec: str) -> dict[str, Any]:
 def scene_from_args(a: argparse.Namespace) -> Any:
     """The :class:`stereod_fakes.synth.Scene` described by ``stereod synth`` flags."""
     from pydantic import ValidationError
+
     from stereod_fakes.synth import Scene
 
     try:
@@ -502,9 +503,8 @@ def scene_from_args(a: argparse.Namespace) -> Any:
 
 
 def _cmd_synth(a: argparse.Namespace) -> int:
-    from stereod_fakes.synth import write_scene
-
     from stereod.recording import Codec
+    from stereod_fakes.synth import write_scene
 
     scene = scene_from_args(a)
     write_scene(scene, a.out, Codec(a.codec))

@@ -14,10 +14,10 @@ import cv2
 import numpy as np
 import pytest
 import zenoh
-from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
 
 from stereod.demo import angle_diff_deg
 from stereod.motion import circular_median_deg
+from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
 
 from .conftest import ROOT, shared_data, stereod
 

@@ -10,11 +10,11 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
-from stereod_fakes.synth import SyntheticDriver
 
 from stereod.config import load_config
 from stereod.daemon import Daemon
 from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
+from stereod_fakes.synth import SyntheticDriver
 
 
 def config(endpoint: str, **daemon: Any):

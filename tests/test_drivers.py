@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import pytest
-from stereod_fakes.replay import ReplayDriver
-from stereod_fakes.synth import SyntheticDriver
 
 from stereod.drivers import available, load_driver
 from stereod.errors import ConfigError
+from stereod_fakes.replay import ReplayDriver
+from stereod_fakes.synth import SyntheticDriver
 
 
 def test_installed_drivers_are_found_by_entry_point() -> None:

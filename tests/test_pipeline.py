@@ -4,29 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from stereod_fakes.synth import Ball, Renderer, Scene
 
 from stereod.detect import DetectorParams
-from stereod.pairing import Pairer
-from stereod.pipeline import Pipeline, PipelineParams
+from stereod.pipeline import PipelineParams
 from stereod.tracking import TrackerParams
+from stereod_fakes.scenarios import process_scene
+from stereod_fakes.synth import Ball, Scene
 
 
 def run_scene(scene: Scene, workers: int = 1) -> list:
     params = PipelineParams(
         rig_name="t", rig=scene.rig, detector=DetectorParams(), detect_workers=workers
     )
-    pipe = Pipeline(params, utc_offset_ns=0)
-    pairer = Pairer(tolerance_ns=40_000_000)
-    results = []
-    for left, right in Renderer(scene).frames():
-        for f in (left, right):
-            for pair in pairer.push(f):
-                results.append(pipe.process(pair))
-    for pair in pairer.flush():
-        results.append(pipe.process(pair))
-    pipe.close()
-    return results
+    return process_scene(scene, params)
 
 
 @pytest.mark.parametrize("workers", [1, 2])
@@ -72,15 +62,8 @@ def test_two_balls_get_two_tracks_with_their_velocities() -> None:
 
 
 def tracks_by_frame(scene: Scene, **params: object) -> list[dict[int, str]]:
-    pipe = Pipeline(PipelineParams("t", scene.rig, **params), utc_offset_ns=0)  # type: ignore[arg-type]
-    pairer = Pairer(tolerance_ns=40_000_000)
-    out = []
-    for left, right in Renderer(scene).frames():
-        for f in (left, right):
-            for pair in pairer.push(f):
-                msg = pipe.process(pair).message
-                out.append({o.track_id: o.state for o in msg.objects})
-    return out
+    results = process_scene(scene, PipelineParams("t", scene.rig, **params))  # type: ignore[arg-type]
+    return [{o.track_id: o.state for o in r.message.objects} for r in results]
 
 
 def test_crossing_objects_keep_their_ids() -> None:
@@ -106,26 +89,19 @@ def test_crossing_objects_keep_their_ids() -> None:
         ),
     ]
     scene = Scene(duration_s=3.6, balls=balls)
-    pipe = Pipeline(PipelineParams("t", scene.rig), utc_offset_ns=0)
-    pairer = Pairer(tolerance_ns=40_000_000)
     before: dict[int, set[int]] = {0: set(), 1: set()}
     after: dict[int, set[int]] = {0: set(), 1: set()}
-    for left, right in Renderer(scene).frames():
-        for f in (left, right):
-            for pair in pairer.push(f):
-                msg = pipe.process(pair).message
-                t = (msg.t_ns - scene.t0_ns) / 1e9
-                if abs(t - 2.2) < 0.4:
-                    continue
-                for o in msg.objects:
-                    if o.state == "confirmed":
-                        d = [
-                            np.linalg.norm(np.subtract(o.position_m, b.position_m(t)))
-                            for b in balls
-                        ]
-                        k = int(np.argmin(d))
-                        assert d[k] < 0.05, f"track {o.track_id} is {d[k]:.3f} m from ball {k}"
-                        (before if t < 2.2 else after)[k].add(o.track_id)
+    for result in process_scene(scene, PipelineParams("t", scene.rig)):
+        msg = result.message
+        t = (msg.t_ns - scene.t0_ns) / 1e9
+        if abs(t - 2.2) < 0.4:
+            continue
+        for o in msg.objects:
+            if o.state == "confirmed":
+                d = [np.linalg.norm(np.subtract(o.position_m, b.position_m(t))) for b in balls]
+                k = int(np.argmin(d))
+                assert d[k] < 0.05, f"track {o.track_id} is {d[k]:.3f} m from ball {k}"
+                (before if t < 2.2 else after)[k].add(o.track_id)
     assert before == after, f"ids before the crossing {before}, after {after}"
     assert all(len(ids) == 1 for ids in before.values()) and before[0] != before[1]
 

@@ -6,11 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from stereod_fakes.replay import ReplayDriver
 
 from stereod.errors import InputError, MissingInputError
 from stereod.frames import Eye, Frame
 from stereod.recording import Codec, RecordingWriter, read_manifest, read_timestamps
+from stereod_fakes.replay import ReplayDriver
 
 
 def random_frames(n: int, color: bool, seed: int = 0) -> list[tuple[Frame, Frame]]:

@@ -7,9 +7,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from stereod_fakes.replay import ReplayDriver
 
 from stereod.errors import ConfigError, InputError, MissingInputError
+from stereod_fakes.replay import ReplayDriver
 
 from .conftest import shared_data
 

@@ -6,12 +6,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from stereod_fakes.scenarios import TABLE_I, replay_through_pipeline, table_one_scene
-from stereod_fakes.synth import write_scene
 
 from stereod.demo import angle_diff_deg
 from stereod.motion import circular_median_deg
 from stereod.pipeline import PipelineParams
+from stereod_fakes.scenarios import TABLE_I, replay_through_pipeline, table_one_scene
+from stereod_fakes.synth import write_scene
 
 pytestmark = pytest.mark.slow
 

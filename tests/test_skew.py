@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from stereod_fakes.synth import Ball, Renderer, Scene
 
 from stereod import skew
-from stereod.pairing import Pairer
-from stereod.pipeline import Pipeline, PipelineParams
+from stereod.pipeline import PipelineParams
+from stereod_fakes.scenarios import process_scene
+from stereod_fakes.synth import Ball, Scene
 
 
 def test_image_velocity_and_shift() -> None:
@@ -37,17 +37,13 @@ def depth_errors(compensate: bool, skew_s: float) -> np.ndarray:
             )
         ],
     )
-    pipe = Pipeline(PipelineParams("t", scene.rig, skew_compensation=compensate), 0)
-    pairer = Pairer(int(0.05e9))
     ball = scene.balls[0]
     errs = []
-    for left, right in Renderer(scene).frames():
-        for f in (left, right):
-            for pair in pairer.push(f):
-                for o in pipe.process(pair).message.objects:
-                    if o.state == "confirmed":
-                        truth = ball.position_m((o.t_ns - scene.t0_ns) / 1e9)
-                        errs.append(abs(o.position_m[2] - truth[2]))
+    for r in process_scene(scene, PipelineParams("t", scene.rig, skew_compensation=compensate)):
+        for o in r.message.objects:
+            if o.state == "confirmed":
+                truth = ball.position_m((o.t_ns - scene.t0_ns) / 1e9)
+                errs.append(abs(o.position_m[2] - truth[2]))
     return np.array(errs)
 
 

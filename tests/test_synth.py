@@ -6,6 +6,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from stereod.detect import Detector, DetectorParams
+from stereod.frames import Eye
 from stereod_fakes.synth import (
     Ball,
     Renderer,
@@ -14,9 +17,6 @@ from stereod_fakes.synth import (
     scene_from_truth,
     write_scene,
 )
-
-from stereod.detect import Detector, DetectorParams
-from stereod.frames import Eye
 
 
 def test_ball_is_drawn_at_its_projection() -> None:
