@@ -19,6 +19,7 @@ test: $(VENV)/.installed
 
 lint: $(VENV)/.installed
 	$(BIN)/ruff check stereod fakes tests benchmarks
+	$(BIN)/ruff format --check stereod fakes tests benchmarks
 	$(BIN)/mypy
 
 bench: $(VENV)/.installed
