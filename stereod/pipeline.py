@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -21,6 +21,7 @@ import numpy as np
 from . import skew
 from .detect import Blobs, Detector, DetectorParams
 from .frames import StereoPair
+from .geometry.rectified import CalibratedRig
 from .geometry.stereo import CanonicalRig, MatchParams, matched_blobs
 from .messages import EyeBlob, Latency, ObjectsMessage, ObjectState
 from .tracking import Observation, Track, Tracker, TrackerParams, TrackState
@@ -40,7 +41,7 @@ class PipelineParams:
     """
 
     rig_name: str
-    rig: CanonicalRig
+    rig: CanonicalRig | CalibratedRig
     detector: DetectorParams = field(default_factory=DetectorParams)
     matching: MatchParams = field(default_factory=MatchParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
@@ -98,9 +99,13 @@ class Pipeline:
         t_left, t_right = pair.left.t_ns, pair.right.t_ns
         compensate = p.skew_compensation and t_left != t_right
         t_ns = skew.common_instant(t_left, t_right) if compensate else pair.t_ns
-        idx = matched_blobs(lb, rb, p.matching)
-        lpx = lb.centroid_px[idx[:, 0]]
-        rpx = rb.centroid_px[idx[:, 1]]
+        # Matching, compensation and triangulation work in rectified coordinates (identical to
+        # image coordinates for the canonical rig); messages report the image ones.
+        lrect = replace(lb, centroid_px=p.rig.rectify_left(lb.centroid_px))
+        rrect = replace(rb, centroid_px=p.rig.rectify_right(rb.centroid_px))
+        idx = matched_blobs(lrect, rrect, p.matching)
+        lpx = lrect.centroid_px[idx[:, 0]]
+        rpx = rrect.centroid_px[idx[:, 1]]
         observations = self._observe(lb, rb, idx, lpx, rpx)
         exact = [not compensate] * len(observations)
         if compensate:
@@ -169,6 +174,8 @@ class Pipeline:
                     cov_m2=cov[k],
                     left_px=lpx[k],
                     right_px=rpx[k],
+                    left_image_px=lb.centroid_px[i],
+                    right_image_px=rb.centroid_px[j],
                     left_bbox_px=lb.bbox_px[i],
                     right_bbox_px=rb.bbox_px[j],
                     left_area_px=int(lb.area_px[i]),
@@ -243,7 +250,8 @@ class Pipeline:
             skew_ns=skew_ns,
             left_seq=pair.left.seq,
             right_seq=pair.right.seq,
-            geometry="canonical",
+            geometry=self.params.rig.geometry,  # type: ignore[arg-type]
+            calibration_id=self.params.rig.calibration_id,
             latency=latency,
             objects=[object_state(s, stamp, skew_ns) for s in states],
         )
@@ -285,8 +293,8 @@ def object_state(s: TrackState, stamp_utc_ns: int, skew_ns: int) -> ObjectState:
         heading_deg=s.heading_deg,
         heading_sigma_deg=_finite(s.heading_sigma_deg),
         raw_velocity_mps=None if s.raw_velocity_mps is None else _vec(s.raw_velocity_mps),
-        left=_blob(ob.left_px, ob.left_bbox_px, ob.left_area_px),
-        right=_blob(ob.right_px, ob.right_bbox_px, ob.right_area_px),
+        left=_blob(ob.left_image_px, ob.left_bbox_px, ob.left_area_px),
+        right=_blob(ob.right_image_px, ob.right_bbox_px, ob.right_area_px),
         disparity_px=ob.disparity_px,
         size_m=ob.size_m,
         age_s=s.age_s,

@@ -52,14 +52,18 @@ class Observation:
     """One object triangulated from one stereo pair.
 
     ``position_m`` (3,) rig frame; ``cov_m2`` (3, 3); ``left_px``/``right_px`` (2,) measured
-    centroids; ``left_bbox_px``/``right_bbox_px`` (4,) x, y, w, h; areas in px;
-    ``disparity_px``; ``size_m`` the blob's width in metres (bbox width x Z / f).
+    centroids in rectified coordinates (the eyes' 2D tracks); ``left_image_px``/
+    ``right_image_px`` the same in image coordinates; ``left_bbox_px``/``right_bbox_px`` (4,)
+    x, y, w, h; areas in px; ``disparity_px``; ``size_m`` the blob's width in metres (bbox
+    width x Z / f).
     """
 
     position_m: np.ndarray
     cov_m2: np.ndarray
     left_px: np.ndarray
     right_px: np.ndarray
+    left_image_px: np.ndarray
+    right_image_px: np.ndarray
     left_bbox_px: np.ndarray
     right_bbox_px: np.ndarray
     left_area_px: int

@@ -68,40 +68,80 @@ class CanonicalRig:
         xr = f * (p[:, 0] - half) / z + self.cx_px
         return np.stack([xl, y], axis=1), np.stack([xr, y], axis=1)
 
+    @property
+    def calibration_id(self) -> str | None:
+        return None
+
+    geometry = "canonical"
+
+    def rectify_left(self, points_px: np.ndarray) -> np.ndarray:
+        """Image to rectified coordinates of the left eye: the identity for the canonical rig."""
+        return np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
+
+    def rectify_right(self, points_px: np.ndarray) -> np.ndarray:
+        """Image to rectified coordinates of the right eye: the identity here."""
+        return np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
+
     def triangulate(
         self, left_px: np.ndarray, right_px: np.ndarray, sigma_px: float = 0.5
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Eq. 9 and the pinhole model: (n, 2) matched centroids (px) to (n, 3) points (m).
+        """Eq. 9 and the pinhole model: (n, 2) matched centroids (px) to (n, 3) points (m) and
+        their (n, 3, 3) covariance (m^2); see :func:`triangulate_rectified`."""
+        return triangulate_rectified(
+            left_px,
+            right_px,
+            focal_px=self.focal_px,
+            baseline_m=self.baseline_m,
+            cx_left_px=self.cx_px,
+            cx_right_px=self.cx_px,
+            cy_px=self.cy_px,
+            sigma_px=sigma_px,
+        )
 
-        Z = B f / (x_L - x_R) (eq. 9); X and Y from the mean of the two rays. Returns the points
-        and their (n, 3, 3) covariance (m^2), propagated from an isotropic centroid error of
-        ``sigma_px`` per coordinate per eye through the Jacobian. A one-pixel disparity error
-        moves Z by D^2 / (B f), the exact form of eq. 12's D^2 / B tan(delta phi).
-        """
-        left = np.atleast_2d(np.asarray(left_px, dtype=np.float64))
-        right = np.atleast_2d(np.asarray(right_px, dtype=np.float64))
-        f, b = self.focal_px, self.baseline_m
-        d = left[:, 0] - right[:, 0]
-        z = b * f / d
-        u = 0.5 * (left[:, 0] + right[:, 0]) - self.cx_px
-        v = 0.5 * (left[:, 1] + right[:, 1]) - self.cy_px
-        x = u * z / f
-        y = v * z / f
-        points = np.stack([x, y, z], axis=1)
-        # Jacobian of (X, Y, Z) w.r.t. (x_L, x_R, y_L, y_R); dZ/dx_L = -Z/d, dZ/dx_R = Z/d.
-        n = len(d)
-        jac = np.zeros((n, 3, 4))
-        dz_dxl = -z / d
-        jac[:, 2, 0] = dz_dxl
-        jac[:, 2, 1] = -dz_dxl
-        jac[:, 0, 0] = 0.5 * z / f + u / f * dz_dxl
-        jac[:, 0, 1] = 0.5 * z / f - u / f * dz_dxl
-        jac[:, 1, 0] = v / f * dz_dxl
-        jac[:, 1, 1] = -v / f * dz_dxl
-        jac[:, 1, 2] = 0.5 * z / f
-        jac[:, 1, 3] = 0.5 * z / f
-        cov = sigma_px**2 * np.einsum("nik,njk->nij", jac, jac)
-        return points, cov
+
+def triangulate_rectified(
+    left_px: np.ndarray,
+    right_px: np.ndarray,
+    *,
+    focal_px: float,
+    baseline_m: float,
+    cx_left_px: float,
+    cx_right_px: float,
+    cy_px: float,
+    sigma_px: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Triangulate (n, 2) rectified left and right points (px) into the rig frame (m).
+
+    Z = B f / d with d = (x_L - cx_L) - (x_R - cx_R) (eq. 9); X and Y from the mean of the two
+    rays, shifted so the origin is the midpoint of the baseline. Returns the (n, 3) points and
+    their (n, 3, 3) covariance (m^2), propagated from an isotropic centroid error of
+    ``sigma_px`` per coordinate per eye through the Jacobian. A one-pixel disparity error moves
+    Z by D^2 / (B f), the exact form of eq. 12's D^2 / B tan(delta phi).
+    """
+    left = np.atleast_2d(np.asarray(left_px, dtype=np.float64))
+    right = np.atleast_2d(np.asarray(right_px, dtype=np.float64))
+    f, b = focal_px, baseline_m
+    ul = left[:, 0] - cx_left_px
+    ur = right[:, 0] - cx_right_px
+    d = ul - ur
+    z = b * f / d
+    u = 0.5 * (ul + ur)
+    v = 0.5 * (left[:, 1] + right[:, 1]) - cy_px
+    points = np.stack([u * z / f, v * z / f, z], axis=1)
+    # Jacobian of (X, Y, Z) w.r.t. (x_L, x_R, y_L, y_R); dZ/dx_L = -Z/d, dZ/dx_R = Z/d.
+    n = len(d)
+    jac = np.zeros((n, 3, 4))
+    dz_dxl = -z / d
+    jac[:, 2, 0] = dz_dxl
+    jac[:, 2, 1] = -dz_dxl
+    jac[:, 0, 0] = 0.5 * z / f + u / f * dz_dxl
+    jac[:, 0, 1] = 0.5 * z / f - u / f * dz_dxl
+    jac[:, 1, 0] = v / f * dz_dxl
+    jac[:, 1, 1] = -v / f * dz_dxl
+    jac[:, 1, 2] = 0.5 * z / f
+    jac[:, 1, 3] = 0.5 * z / f
+    cov = sigma_px**2 * np.einsum("nik,njk->nij", jac, jac)
+    return points, cov
 
 
 @dataclass(frozen=True, slots=True)

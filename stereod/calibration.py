@@ -1,0 +1,293 @@
+"""The calibration file: one versioned JSON document, validated on load (paper sec. IV-V).
+
+It holds both cameras' intrinsics (K, D: OpenCV's plumb-bob k1 k2 p1 p2 k3), the pair's
+extrinsics (R, T: a point X in the left camera's frame is R X + T in the right one's, eq. 19's
+form), the rectification (R1, R2, P1, P2, Q from ``stereoRectify``), the quality figures, the
+board and the date. Its id is a hash of the numbers, so the id names exactly one geometry and
+changes when any value does. Lengths are in the unit of the board's square (metres for a
+calibration made with ``--square`` in metres).
+
+Also here: export to ROS ``camera_info`` YAML and import of OpenCV FileStorage files (the
+intrinsics/extrinsics YAML of OpenCV's ``stereo_calib`` sample).
+"""
+
+from __future__ import annotations
+
+import datetime
+import hashlib
+import json
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from .errors import CalibrationError, MissingInputError, OutputError
+
+FORMAT = "stereod.calibration/1"
+
+Matrix = list[list[float]]
+
+_SHAPES: dict[str, tuple[int, int]] = {
+    "K1": (3, 3),
+    "K2": (3, 3),
+    "D1": (1, 5),
+    "D2": (1, 5),
+    "R": (3, 3),
+    "T": (3, 1),
+    "R1": (3, 3),
+    "R2": (3, 3),
+    "P1": (3, 4),
+    "P2": (3, 4),
+    "Q": (4, 4),
+}
+
+
+class Board(BaseModel):
+    """The chessboard: inner corners per row and column, square side (length unit)."""
+
+    model_config = ConfigDict(extra="forbid")
+    cols: int = Field(gt=1)
+    rows: int = Field(gt=1)
+    square: float = Field(gt=0)
+
+
+class Quality(BaseModel):
+    """How well the calibration fits its images (px)."""
+
+    model_config = ConfigDict(extra="forbid")
+    rms_left_px: float | None = None
+    rms_right_px: float | None = None
+    rms_stereo_px: float | None = None
+    epipolar_error_px: float | None = None
+    rectified_row_residual_px: float | None = None
+    pairs_used: int | None = None
+
+
+class Calibration(BaseModel):
+    """A stereo calibration; matrices as nested lists, shapes checked, every number finite."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    format: Literal["stereod.calibration/1"] = FORMAT
+    id: str = ""
+    image_size: tuple[int, int] = Field(description="width, height (px)")
+    K1: Matrix
+    D1: Matrix
+    K2: Matrix
+    D2: Matrix
+    R: Matrix
+    T: Matrix
+    R1: Matrix
+    R2: Matrix
+    P1: Matrix
+    P2: Matrix
+    Q: Matrix
+    quality: Quality = Field(default_factory=Quality)
+    board: Board | None = None
+    created_utc: str = ""
+    source: str = ""
+
+    @field_validator("image_size")
+    @classmethod
+    def _positive_size(cls, v: tuple[int, int]) -> tuple[int, int]:
+        if v[0] <= 0 or v[1] <= 0:
+            raise ValueError(f"must be positive, got {v[0]}x{v[1]}")
+        return v
+
+    @field_validator(*_SHAPES)
+    @classmethod
+    def _shape_and_finite(cls, v: Matrix, info: Any) -> Matrix:
+        want = _SHAPES[info.field_name]
+        a = np.asarray(v, dtype=np.float64)
+        if a.shape != want and not (info.field_name.startswith("D") and a.size == 5):
+            raise ValueError(f"must be {want[0]}x{want[1]}, got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError("contains a non-finite number (NaN or infinity)")
+        return a.reshape(want).tolist()
+
+    def array(self, name: str) -> np.ndarray:
+        """One matrix as a float64 array of its documented shape."""
+        return np.asarray(getattr(self, name), dtype=np.float64).reshape(_SHAPES[name])
+
+    @property
+    def baseline(self) -> float:
+        """|T|, in the board's length unit."""
+        return float(np.linalg.norm(self.array("T")))
+
+    def content_id(self) -> str:
+        """Hash of the numbers and image size: the calibration id."""
+        numbers = {k: self.array(k).round(12).tolist() for k in _SHAPES}
+        blob = json.dumps({"size": list(self.image_size), **numbers}, sort_keys=True)
+        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def from_arrays(
+    image_size: tuple[int, int],
+    arrays: dict[str, np.ndarray],
+    *,
+    quality: Quality | None = None,
+    board: Board | None = None,
+    source: str = "",
+) -> Calibration:
+    """A :class:`Calibration` from numpy arrays (K1, D1, K2, D2, R, T; R1..Q are computed with
+    ``stereoRectify`` when absent), stamped with today's date and its content id."""
+    a = {k: np.asarray(v, dtype=np.float64) for k, v in arrays.items()}
+    if "R1" not in a:
+        a.update(rectify(image_size, a["K1"], a["D1"], a["K2"], a["D2"], a["R"], a["T"]))
+    try:
+        cal = Calibration(
+            image_size=image_size,
+            **{k: a[k].reshape(_SHAPES[k]).tolist() for k in _SHAPES},
+            quality=quality or Quality(),
+            board=board,
+            created_utc=datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            source=source,
+        )
+    except ValidationError as exc:
+        raise CalibrationError(_describe(exc, "calibration")) from exc
+    return cal.model_copy(update={"id": cal.content_id()})
+
+
+def rectify(
+    image_size: tuple[int, int],
+    k1: np.ndarray,
+    d1: np.ndarray,
+    k2: np.ndarray,
+    d2: np.ndarray,
+    r: np.ndarray,
+    t: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """R1, R2, P1, P2, Q of ``stereoRectify`` (zero disparity at infinity, no scaling)."""
+    r1, r2, p1, p2, q, _, _ = cv2.stereoRectify(
+        k1, d1.reshape(1, -1), k2, d2.reshape(1, -1), image_size, r, t.reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1,
+    )
+    return {"R1": r1, "R2": r2, "P1": p1, "P2": p2, "Q": q}
+
+
+def _describe(exc: ValidationError, origin: str) -> str:
+    e = exc.errors(include_url=False)[0]
+    loc = ".".join(str(p) for p in e["loc"]) or "(file)"
+    msg = str(e["msg"]).removeprefix("Value error, ")
+    if e["type"] == "missing":
+        return f"{origin}: field {loc} is missing"
+    return f"{origin}: field {loc}: {msg}"
+
+
+def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
+    """Read and validate a calibration file; with ``image_size`` (w, h) also check that it was
+    made for frames of that size. Errors name the file and the field."""
+    try:
+        text = path.read_bytes()
+    except FileNotFoundError as exc:
+        raise MissingInputError(f"{path}: no such calibration file") from exc
+    except OSError as exc:
+        raise CalibrationError(f"{path}: cannot read calibration file: {exc.strerror}") from exc
+    try:
+        cal = Calibration.model_validate_json(text)
+    except ValidationError as exc:
+        raise CalibrationError(_describe(exc, str(path))) from exc
+    if cal.id and cal.id != cal.content_id():
+        raise CalibrationError(
+            f"{path}: field id: {cal.id} does not match the numbers ({cal.content_id()}); "
+            "the file was edited or damaged: recalibrate, or remove the id to accept it"
+        )
+    if not cal.id:
+        cal = cal.model_copy(update={"id": cal.content_id()})
+    if image_size is not None and tuple(cal.image_size) != tuple(image_size):
+        raise CalibrationError(
+            f"{path}: made for {cal.image_size[0]}x{cal.image_size[1]} frames, the stream is "
+            f"{image_size[0]}x{image_size[1]}: calibrate at this size or change the camera mode"
+        )
+    return cal
+
+
+def save(cal: Calibration, path: Path) -> None:
+    """Write a calibration file (JSON)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(cal.model_dump_json(indent=2) + "\n")
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write calibration: {exc.strerror}") from exc
+
+
+def _yaml_matrix(name: str, a: np.ndarray) -> str:
+    data = ", ".join(repr(float(x)) for x in a.ravel())
+    return f"{name}:\n  rows: {a.shape[0]}\n  cols: {a.shape[1]}\n  data: [{data}]\n"
+
+
+def ros_camera_info(cal: Calibration, eye: Literal["left", "right"]) -> str:
+    """ROS ``camera_info`` YAML (camera_calibration_parsers format) for one eye. The right
+    projection matrix carries P[0, 3] = -fx * B, as ROS expects."""
+    k, d, r, p = ("K1", "D1", "R1", "P1") if eye == "left" else ("K2", "D2", "R2", "P2")
+    w, h = cal.image_size
+    return (
+        f"image_width: {w}\nimage_height: {h}\ncamera_name: stereod_{eye}\n"
+        + _yaml_matrix("camera_matrix", cal.array(k))
+        + "distortion_model: plumb_bob\n"
+        + _yaml_matrix("distortion_coefficients", cal.array(d))
+        + _yaml_matrix("rectification_matrix", cal.array(r))
+        + _yaml_matrix("projection_matrix", cal.array(p))
+    )
+
+
+def export_ros(cal: Calibration, directory: Path) -> list[Path]:
+    """Write ``left.yaml`` and ``right.yaml`` into ``directory``; return their paths."""
+    out = []
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        for eye in ("left", "right"):
+            path = directory / f"{eye}.yaml"
+            path.write_text(ros_camera_info(cal, eye))  # type: ignore[arg-type]
+            out.append(path)
+    except OSError as exc:
+        raise OutputError(f"{directory}: cannot write ROS camera_info: {exc.strerror}") from exc
+    return out
+
+
+def import_opencv(
+    intrinsics: Path, extrinsics: Path | None, image_size: tuple[int, int]
+) -> Calibration:
+    """Read OpenCV FileStorage files (``M1 D1 M2 D2`` and ``R T``, optionally ``R1 R2 P1 P2
+    Q``) such as OpenCV's ``stereo_calib`` sample writes; ``extrinsics`` defaults to
+    ``extrinsics.yml`` beside the intrinsics. The rectification is recomputed for
+    ``image_size`` when the file lacks it."""
+    if extrinsics is None:
+        extrinsics = intrinsics.with_name("extrinsics" + intrinsics.suffix)
+    arrays: dict[str, np.ndarray] = {}
+    names = {"M1": "K1", "D1": "D1", "M2": "K2", "D2": "D2"}
+    for path, wanted in ((intrinsics, names), (extrinsics, {"R": "R", "T": "T"})):
+        if not path.is_file():
+            raise MissingInputError(f"{path}: no such OpenCV calibration file")
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        if not fs.isOpened():
+            raise CalibrationError(f"{path}: not an OpenCV FileStorage file (YAML or XML)")
+        try:
+            for key, ours in wanted.items():
+                node = fs.getNode(key)
+                if node.empty():
+                    raise CalibrationError(f"{path}: field {key} is missing")
+                arrays[ours] = node.mat()
+        finally:
+            fs.release()
+    for d in ("D1", "D2"):
+        v = arrays[d].ravel()
+        if v.size < 5:
+            v = np.concatenate([v, np.zeros(5 - v.size)])
+        elif v.size > 5:
+            if np.any(v[5:] != 0):
+                raise CalibrationError(
+                    f"{intrinsics}: field {d} has {v.size} coefficients (rational model); "
+                    "only plumb-bob k1 k2 p1 p2 k3 is supported"
+                )
+            v = v[:5]
+        arrays[d] = v.reshape(1, 5)
+    return from_arrays(image_size, arrays, source=f"imported from {intrinsics}")
+
+
+def rotation_angle_deg(r: np.ndarray) -> float:
+    """Angle (deg) of a rotation matrix."""
+    return math.degrees(float(np.linalg.norm(cv2.Rodrigues(np.asarray(r, np.float64))[0])))
