@@ -27,6 +27,8 @@ from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSour
 from stereod.geometry.stereo import CanonicalRig
 from stereod.recording import Codec, RecordingWriter
 
+from .rig import RayCaster, RigSpec
+
 TRUTH = "truth.json"
 
 
@@ -89,6 +91,11 @@ class Scene(BaseModel):
     seed: int = 0
     t0_ns: int = Field(1_000_000_000, ge=0, description="Monotonic time of the first frame, ns")
     balls: list[Ball] = Field(default_factory=lambda: [Ball()])
+    rig_spec: RigSpec | None = Field(
+        None,
+        description="A non-canonical rig (own intrinsics, distortion, rotation); "
+        "hfov_deg and baseline_m then only size the wall's texture",
+    )
 
     @property
     def rig(self) -> CanonicalRig:
@@ -162,7 +169,10 @@ class Renderer:
 
     def background(self, eye: Eye) -> np.ndarray:
         """The wall as ``eye`` sees it, float32 (h, w, c): a wall point at left column x is at
-        right column x - B f / Z_wall (its disparity)."""
+        right column x - B f / Z_wall (its disparity). Through a non-canonical rig every
+        pixel's ray is cast onto the wall instead."""
+        if self.scene.rig_spec is not None:
+            return self._background_cast(eye)
         x0 = self._wall_disp if eye is Eye.RIGHT else 0.0
         m = np.float32([[1, 0, x0], [0, 1, 0]])
         bg = cv2.warpAffine(
@@ -172,6 +182,36 @@ class Renderer:
             flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
         )
         return bg.reshape(self.scene.height_px, self.scene.width_px, -1)
+
+    def _background_cast(self, eye: Eye) -> np.ndarray:
+        sc = self.scene
+        assert sc.rig_spec is not None
+        caster = RayCaster(sc.rig_spec, sc.width_px, sc.height_px)
+        u, v, _ = caster.plane_coords(eye, np.eye(3), np.array([0.0, 0.0, sc.wall_m]))
+        f, r = self._rig.focal_px, self._rig
+        map_x = (f * (u + r.baseline_m / 2) / sc.wall_m + r.cx_px).astype(np.float32)
+        map_y = (f * v / sc.wall_m + r.cy_px).astype(np.float32)
+        tex = self._texture
+        planes = [
+            caster.average(
+                cv2.remap(
+                    tex[..., c], map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT
+                )
+            )
+            for c in range(tex.shape[2])
+        ]
+        return np.stack(planes, axis=-1).astype(np.float32)
+
+    def project(self, eye: Eye, p_m: np.ndarray) -> tuple[float, float, float]:
+        """Image position (px) of a world point in ``eye`` and its depth in that camera (m)."""
+        spec = self.scene.rig_spec
+        if spec is None:
+            left_px, right_px = self._rig.project(p_m[None, :])
+            u, v = (left_px if eye is Eye.LEFT else right_px)[0]
+            return float(u), float(v), float(p_m[2])
+        uv = spec.project(eye, p_m[None, :])[0]
+        depth = float(spec.to_camera(eye, p_m[None, :])[0, 2])
+        return float(uv[0]), float(uv[1]), depth
 
     def render(self, eye: Eye, t_s: float, background: np.ndarray | None = None) -> np.ndarray:
         """One uint8 frame of ``eye`` at ``t_s`` seconds: grey (h, w) or BGR (h, w, 3)."""
@@ -183,9 +223,9 @@ class Renderer:
             p = b.position_m(t_s)
             if p[2] <= b.radius_m:
                 continue
-            left_px, right_px = self._rig.project(p[None, :])
-            u, v = (left_px if eye is Eye.LEFT else right_px)[0]
-            r_px = self._rig.focal_px * b.radius_m / p[2]
+            u, v, depth = self.project(eye, p)
+            fx = self._rig.focal_px if sc.rig_spec is None else sc.rig_spec.camera(eye).fx
+            r_px = fx * b.radius_m / depth
             # A lit sphere: a dimmer disc, a brighter cap offset towards the light (up-left).
             _paint_disc(img, u, v, r_px, b.brightness * 0.9)
             _paint_disc(img, u - r_px / 4, v - r_px / 4, r_px / 2, b.brightness)

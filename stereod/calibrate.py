@@ -23,6 +23,8 @@ import numpy as np
 
 from .calibration import Board, Calibration, Quality, from_arrays, rectify
 from .errors import CalibrationError, InputError, MissingInputError
+from .frames import Frame
+from .pairing import Pairer
 
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 30, 0.01)
 STEREO_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-5)
@@ -76,16 +78,28 @@ def board_points(board: Board) -> np.ndarray:
     return pts
 
 
-def find_corners(gray: np.ndarray, board: Board, *, fast: bool = False) -> np.ndarray | None:
+def find_corners(
+    gray: np.ndarray, board: Board, *, fast: bool = False, window: int | None = None
+) -> np.ndarray | None:
     """The board's inner corners (n, 1, 2) float32 px, refined to sub-pixel; ``None`` when the
-    whole board is not seen. ``fast`` rejects frames without a board quickly (live use)."""
+    whole board is not seen. ``fast`` rejects frames without a board quickly (live use).
+    ``window`` is cornerSubPix's half window (px); by default it adapts to the board's size in
+    the image (OpenCV's stereo_calib sample uses 11 whatever the size)."""
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
     if fast:
         flags |= cv2.CALIB_CB_FAST_CHECK
     found, corners = cv2.findChessboardCorners(gray, (board.cols, board.rows), flags=flags)
     if not found:
         return None
-    return cv2.cornerSubPix(gray, corners, (11, 11), (-1, -1), SUBPIX_CRITERIA)
+    # The refinement window must not reach the next corner: at most 11 px (OpenCV's sample)
+    # and at most 0.4 of the smallest square seen.
+    grid = corners.reshape(board.rows, board.cols, 2)
+    side = min(
+        float(np.linalg.norm(np.diff(grid, axis=1), axis=2).min()),
+        float(np.linalg.norm(np.diff(grid, axis=0), axis=2).min()),
+    )
+    win = window if window is not None else int(max(2, min(11, 0.4 * side)))
+    return cv2.cornerSubPix(gray, corners, (win, win), (-1, -1), SUBPIX_CRITERIA)
 
 
 def _gray(image: np.ndarray) -> np.ndarray:
@@ -157,9 +171,11 @@ def detect_pairs(
     images: Iterable[tuple[str, np.ndarray, np.ndarray]],
     board: Board,
     progress: Callable[[int, str], None] | None = None,
+    window: int | None = None,
 ) -> tuple[list[tuple[str, np.ndarray, np.ndarray]], list[PairReport], tuple[int, int]]:
     """Find the board in both eyes of every pair; returns the usable pairs' corners, a report
-    per rejected pair, and the image size (w, h). Mixed sizes are an error naming the pair."""
+    per rejected pair, and the image size (w, h). Mixed sizes are an error naming the pair.
+    ``window``: see :func:`find_corners`."""
     found: list[tuple[str, np.ndarray, np.ndarray]] = []
     rejected: list[PairReport] = []
     size: tuple[int, int] | None = None
@@ -176,8 +192,8 @@ def detect_pairs(
                     f"{name}: {eye} image is {s[0]}x{s[1]}, earlier images are "
                     f"{size[0]}x{size[1]}: all images must have one size"
                 )
-        cl = find_corners(gl, board)
-        cr = find_corners(gr, board)
+        cl = find_corners(gl, board, window=window)
+        cr = find_corners(gr, board, window=window)
         if cl is None or cr is None:
             eyes = " and ".join(e for e, c in (("left", cl), ("right", cr)) if c is None)
             rejected.append(PairReport(name, False, f"board not found in the {eyes} image"))
@@ -189,8 +205,13 @@ def detect_pairs(
 
 
 def epipolar_errors(
-    left: np.ndarray, right: np.ndarray, k1: np.ndarray, d1: np.ndarray, k2: np.ndarray,
-    d2: np.ndarray, f: np.ndarray,
+    left: np.ndarray,
+    right: np.ndarray,
+    k1: np.ndarray,
+    d1: np.ndarray,
+    k2: np.ndarray,
+    d2: np.ndarray,
+    f: np.ndarray,
 ) -> np.ndarray:
     """Per point, the distances (px) of each undistorted point to the epipolar line of its
     partner, both views summed (OpenCV's stereo_calib sample's check)."""
@@ -224,13 +245,21 @@ def calibrate(
     rms_l, k1, d1, _, _ = cv2.calibrateCamera(obj, left, image_size, None, None)
     rms_r, k2, d2, _, _ = cv2.calibrateCamera(obj, right, image_size, None, None)
     rms, k1, d1, k2, d2, r, t, _, f = cv2.stereoCalibrate(
-        obj, left, right, k1, d1, k2, d2, image_size, flags=cv2.CALIB_FIX_INTRINSIC,
+        obj,
+        left,
+        right,
+        k1,
+        d1,
+        k2,
+        d2,
+        image_size,
+        flags=cv2.CALIB_FIX_INTRINSIC,
         criteria=STEREO_CRITERIA,
     )
     rect = rectify(image_size, k1, d1, k2, d2, r, t)
     pairs = list(rejected)
     epis, rows = [], []
-    for (name, cl, cr) in found:
+    for name, cl, cr in found:
         e = epipolar_errors(cl, cr, k1, d1, k2, d2, f)
         a = cv2.undistortPoints(cl, k1, d1, R=rect["R1"], P=rect["P1"]).reshape(-1, 2)
         b = cv2.undistortPoints(cr, k2, d2, R=rect["R2"], P=rect["P2"]).reshape(-1, 2)
@@ -278,10 +307,11 @@ def calibrate_files(
     board: Board,
     limits: Limits = Limits(),
     progress: Callable[[int, str], None] | None = None,
+    window: int | None = None,
 ) -> Report:
     """Calibrate from image files (``pairs_in_directory`` or ``pairs_from_list``)."""
     images = ((a.name, read_image(a), read_image(b)) for a, b in pairs)
-    found, rejected, size = detect_pairs(images, board, progress)
+    found, rejected, size = detect_pairs(images, board, progress, window)
     if not found:
         raise CalibrationRejected(
             f"the {board.cols}x{board.rows} board was not found in both images of any of the "
@@ -298,7 +328,7 @@ class LiveCollector:
     ``min_change`` of the image diagonal from every pose already kept.
     """
 
-    def __init__(self, board: Board, min_change: float = 0.08) -> None:
+    def __init__(self, board: Board, min_change: float = 0.05) -> None:
         self.board = board
         self.min_change = min_change
         self.kept: list[tuple[str, np.ndarray, np.ndarray]] = []
@@ -315,10 +345,64 @@ class LiveCollector:
             return False
         diag = math.hypot(*self.size)
         for _, kept, _ in self.kept:
-            if float(np.mean(np.linalg.norm(kept - cl, axis=2))) < self.min_change * diag:
+            moved = np.linalg.norm(kept.reshape(-1, 2) - cl.reshape(-1, 2), axis=1)
+            if float(np.mean(moved)) < self.min_change * diag:
                 return False
         cr = find_corners(gr, self.board, fast=True)
         if cr is None:
             return False
         self.kept.append((name, cl, cr))
         return True
+
+
+def collect_live(
+    frames: Iterable[Frame],
+    collector: LiveCollector,
+    wanted: int,
+    tolerance_ns: int,
+    every_s: float = 0.1,
+    progress: Callable[[int, int], None] | None = None,
+) -> None:
+    """Pair a stream's frames and offer a pair to ``collector`` at most every ``every_s``
+    seconds of stream time until it has ``wanted`` pairs or the stream ends."""
+    pairer = Pairer(tolerance_ns)
+    last_t: int | None = None
+    for frame in frames:
+        for pair in pairer.push(frame):
+            if last_t is not None and pair.t_ns - last_t < every_s * 1e9:
+                continue
+            last_t = pair.t_ns
+            if collector.offer(f"pair{pair.seq:05d}", pair.left.image, pair.right.image):
+                if progress is not None:
+                    progress(len(collector.kept), wanted)
+                if len(collector.kept) >= wanted:
+                    return
+
+
+def format_report(report: Report) -> str:
+    """The human-readable summary ``stereod calibrate`` prints."""
+    q = report.quality
+    cal = report.calibration
+    unit = "m" if cal.board is not None and cal.board.square < 1.0 else "square units"
+    lines = [
+        f"pairs used: {q.pairs_used}; rejected: {sum(not p.used for p in report.pairs)}",
+        f"RMS reprojection error: left {q.rms_left_px:.3f} px, right {q.rms_right_px:.3f} px, "
+        f"stereo {q.rms_stereo_px:.3f} px",
+        f"epipolar error (both views): {q.epipolar_error_px:.3f} px; rectified row residual "
+        f"|y_L - y_R|: {q.rectified_row_residual_px:.3f} px",
+        f"baseline |T|: {cal.baseline:.5g} {unit}; T = "
+        f"({', '.join(f'{v:+.4g}' for v in cal.array('T').ravel())}); relative rotation "
+        f"{_angle_deg(cal.array('R')):.3f} deg",
+        f"focal lengths: left {cal.array('K1')[0, 0]:.1f} px, right {cal.array('K2')[0, 0]:.1f} px",
+        "per pair (epipolar error, rectified row residual, px):",
+    ]
+    for p in report.pairs:
+        if p.used:
+            lines.append(f"  {p.name:<24} {p.epipolar_px:7.3f} {p.row_residual_px:7.3f}")
+        else:
+            lines.append(f"  {p.name:<24} rejected: {p.reason}")
+    return "\n".join(lines)
+
+
+def _angle_deg(r: np.ndarray) -> float:
+    return math.degrees(float(np.linalg.norm(cv2.Rodrigues(r)[0])))

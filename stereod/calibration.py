@@ -18,7 +18,7 @@ import hashlib
 import json
 import math
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 import cv2
 import numpy as np
@@ -26,7 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from .errors import CalibrationError, MissingInputError, OutputError
 
-FORMAT = "stereod.calibration/1"
+FORMAT: Final = "stereod.calibration/1"
 
 Matrix = list[list[float]]
 
@@ -106,7 +106,8 @@ class Calibration(BaseModel):
             raise ValueError(f"must be {want[0]}x{want[1]}, got shape {a.shape}")
         if not np.all(np.isfinite(a)):
             raise ValueError("contains a non-finite number (NaN or infinity)")
-        return a.reshape(want).tolist()
+        out: Matrix = a.reshape(want).tolist()  # type: ignore[assignment]
+        return out
 
     def array(self, name: str) -> np.ndarray:
         """One matrix as a float64 array of its documented shape."""
@@ -162,8 +163,15 @@ def rectify(
 ) -> dict[str, np.ndarray]:
     """R1, R2, P1, P2, Q of ``stereoRectify`` (zero disparity at infinity, no scaling)."""
     r1, r2, p1, p2, q, _, _ = cv2.stereoRectify(
-        k1, d1.reshape(1, -1), k2, d2.reshape(1, -1), image_size, r, t.reshape(3, 1),
-        flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1,
+        k1,
+        d1.reshape(1, -1),
+        k2,
+        d2.reshape(1, -1),
+        image_size,
+        r,
+        t.reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY,
+        alpha=-1,
     )
     return {"R1": r1, "R2": r2, "P1": p1, "P2": p2, "Q": q}
 

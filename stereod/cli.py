@@ -71,6 +71,12 @@ def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
         help="horizontal field of view of one eye, deg (default 60)",
     )
     g.add_argument(
+        "--calibration",
+        type=Path,
+        metavar="FILE",
+        help="calibration file from `stereod calibrate` (replaces --baseline/--hfov)",
+    )
+    g.add_argument(
         "--beta",
         type=float,
         help="background update coefficient of eq. 3, per frame (default 0.02)",
@@ -99,7 +105,12 @@ def _add_pipeline_flags(p: argparse.ArgumentParser) -> None:
 
 def _overrides(a: argparse.Namespace) -> dict[str, Any]:
     return {
-        "rig": {"name": a.rig, "baseline_m": a.baseline, "hfov_deg": a.hfov},
+        "rig": {
+            "name": a.rig,
+            "baseline_m": a.baseline,
+            "hfov_deg": a.hfov,
+            "calibration": a.calibration,
+        },
         "detector": {
             "beta": a.beta,
             "threshold": a.threshold,
@@ -279,6 +290,125 @@ def build_parser() -> argparse.ArgumentParser:
         help="ffv1 lossless (default) or mjpg lossy",
     )
     p.add_argument("--seed", type=int, default=0, help="random seed for texture and noise")
+
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate the stereo rig from chessboard pairs",
+        description="Find a chessboard in both images of each pair, calibrate each camera, "
+        "then the pair with the intrinsics fixed, then rectify (Zhang's method, OpenCV). "
+        "Prints per-camera and stereo RMS, epipolar error, baseline, rectified row residual "
+        "and per-pair residuals. Refuses a clearly bad result (too few pairs, RMS above "
+        "--max-rms, left and right swapped) unless --force; exit 65 then.",
+    )
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument(
+        "--pairs",
+        type=Path,
+        metavar="DIR",
+        help="folder of pairs: leftNN/rightNN images, or left/ and right/ folders",
+    )
+    src.add_argument(
+        "--list",
+        type=Path,
+        metavar="FILE",
+        help="list of pairs: an OpenCV imagelist (XML/YAML, left and right "
+        "alternating) or text with 'LEFT RIGHT' per line",
+    )
+    src.add_argument(
+        "--live",
+        action="store_true",
+        help="collect pairs from the configured driver (--config, --driver, "
+        "--recording) while the board is moved in front of the rig",
+    )
+    p.add_argument(
+        "--board",
+        required=True,
+        metavar="COLSxROWS",
+        help="inner corners of the chessboard, e.g. 9x6",
+    )
+    p.add_argument(
+        "--square",
+        required=True,
+        type=float,
+        metavar="M",
+        help="side of one square, m (every length of the result is in this unit)",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("calibration.json"),
+        metavar="FILE",
+        help="calibration file to write (default calibration.json)",
+    )
+    p.add_argument(
+        "--force", action="store_true", help="write even a calibration that fails the checks"
+    )
+    p.add_argument(
+        "--min-pairs",
+        type=int,
+        default=6,
+        metavar="N",
+        help="fewest usable pairs accepted (default 6)",
+    )
+    p.add_argument(
+        "--max-rms",
+        type=float,
+        default=1.0,
+        metavar="PX",
+        help="largest stereo RMS accepted, px (default 1.0)",
+    )
+    p.add_argument(
+        "--corner-window",
+        type=int,
+        metavar="PX",
+        help="half window of the sub-pixel corner refinement, px (default: adapted "
+        "to the squares' size in the image; OpenCV's stereo_calib sample uses 11)",
+    )
+    live = p.add_argument_group("live collection")
+    live.add_argument(
+        "--wanted",
+        type=int,
+        default=15,
+        metavar="N",
+        help="pairs to collect before calibrating (default 15)",
+    )
+    live.add_argument("--config", type=Path, metavar="FILE", help="TOML config with the driver")
+    live.add_argument("--driver", help="driver name (default from the config)")
+    live.add_argument(
+        "--recording",
+        type=Path,
+        metavar="DIR",
+        help="shorthand for the replay driver on this recording",
+    )
+
+    p = sub.add_parser("calibration", help="show, export or import calibration files")
+    csub = p.add_subparsers(dest="calibration_command", metavar="ACTION", required=True)
+    c = csub.add_parser("show", help="print a calibration file's figures")
+    c.add_argument("file", type=Path, help="calibration file")
+    c = csub.add_parser("export", help="write ROS camera_info YAML (left.yaml, right.yaml)")
+    c.add_argument("file", type=Path, help="calibration file")
+    c.add_argument("--ros", required=True, type=Path, metavar="DIR", help="output folder")
+    c = csub.add_parser(
+        "import",
+        help="convert OpenCV FileStorage files (stereo_calib's intrinsics.yml/extrinsics.yml)",
+    )
+    c.add_argument("intrinsics", type=Path, help="file with M1 D1 M2 D2")
+    c.add_argument(
+        "extrinsics",
+        type=Path,
+        nargs="?",
+        help="file with R T [R1 R2 P1 P2 Q] (default: extrinsics.yml beside)",
+    )
+    c.add_argument(
+        "--size", required=True, metavar="WxH", help="image size the calibration was made at, px"
+    )
+    c.add_argument(
+        "--out",
+        type=Path,
+        default=Path("calibration.json"),
+        metavar="FILE",
+        help="calibration file to write (default calibration.json)",
+    )
 
     p = sub.add_parser("schema", help="print the JSON Schema of the wire messages")
     p.add_argument("name", nargs="?", help="one schema, e.g. stereod.objects/1 (default: all)")
@@ -536,7 +666,121 @@ def _cmd_demo(a: argparse.Namespace) -> int:
     return run_demo(rate=a.rate, keep=a.keep, heading_deg=a.heading, speed_mps=a.speed)
 
 
+def _size(text: str, flag: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError as exc:
+        raise ConfigError(f"{flag} {text!r}: expected WIDTHxHEIGHT, e.g. 640x480") from exc
+    if w <= 0 or h <= 0:
+        raise ConfigError(f"{flag} {text!r}: both numbers must be positive")
+    return w, h
+
+
+def _cmd_calibrate(a: argparse.Namespace) -> int:
+    from . import calibrate as cb
+    from .calibration import Board, save
+
+    cols, rows = _size(a.board, "--board")
+    if a.square <= 0:
+        raise ConfigError(f"--square {a.square}: must be > 0 (m)")
+    board = Board(cols=cols, rows=rows, square=a.square)
+    limits = cb.Limits(min_pairs=a.min_pairs, max_rms_px=a.max_rms)
+    tty = sys.stderr.isatty()
+
+    def progress(k: int, name: str, total: int) -> None:
+        end = "\r" if tty else "\n"
+        print(f"looking for the board: {k}/{total} {name}", end=end, file=sys.stderr, flush=True)
+
+    if a.live:
+        report = _calibrate_live(a, board, limits)
+    else:
+        pairs = cb.pairs_in_directory(a.pairs) if a.pairs else cb.pairs_from_list(a.list)
+        report = cb.calibrate_files(
+            pairs, board, limits, lambda k, n: progress(k, n, len(pairs)), a.corner_window
+        )
+        if tty:
+            print(file=sys.stderr)
+    print(cb.format_report(report))
+    if report.problems:
+        for problem in report.problems:
+            print(f"stereod: calibration is clearly bad: {problem}", file=sys.stderr)
+        if not a.force:
+            print(
+                f"stereod: not written to {a.out} (use --force to write it anyway)", file=sys.stderr
+            )
+            return cb.CalibrationRejected.exit_code
+    save(report.calibration, a.out)
+    print(f"wrote {a.out} (calibration id {report.calibration.id})")
+    return 0
+
+
+def _calibrate_live(a: argparse.Namespace, board: Any, limits: Any) -> Any:
+    from . import calibrate as cb
+    from .config import load_config
+    from .drivers import load_driver
+    from .frames import merged
+
+    ov: dict[str, Any] = {}
+    if a.recording is not None:
+        ov["driver"] = {"name": "replay", "options": {"path": a.recording}}
+    elif a.driver:
+        ov["driver"] = {"name": a.driver}
+    cfg = load_config(a.config, ov)
+    collector = cb.LiveCollector(board)
+    driver = load_driver(cfg.driver.name, cfg.driver.options)
+
+    def progress(n: int, wanted: int) -> None:
+        print(f"pairs kept: {n}/{wanted}", file=sys.stderr, flush=True)
+
+    with driver.open() as source:
+        cb.collect_live(
+            merged(source.left, source.right),
+            collector,
+            a.wanted,
+            int(cfg.pairing.tolerance_ms * 1e6),
+            progress=progress,
+        )
+    if len(collector.kept) < a.wanted:
+        print(f"the stream ended with {len(collector.kept)} of {a.wanted} pairs", file=sys.stderr)
+    if collector.size is None or not collector.kept:
+        raise cb.CalibrationRejected(
+            f"the {board.cols}x{board.rows} board was not seen in both eyes in "
+            f"{collector.seen} pairs: check --board and that the board is in view"
+        )
+    return cb.calibrate(
+        collector.kept, board, collector.size, limits, source=f"live, {len(collector.kept)} pairs"
+    )
+
+
+def _cmd_calibration(a: argparse.Namespace) -> int:
+    from . import calibration as cal_mod
+    from .calibrate import Report, format_report
+
+    if a.calibration_command == "show":
+        cal = cal_mod.load(a.file)
+        print(
+            f"{a.file}: calibration {cal.id}, {cal.image_size[0]}x{cal.image_size[1]}, "
+            f"made {cal.created_utc or 'at an unknown date'} ({cal.source or 'unknown source'})"
+        )
+        if cal.quality.pairs_used:
+            print(format_report(Report(cal)).split("per pair")[0].rstrip())
+        else:
+            print(f"baseline |T|: {cal.baseline:.5g}")
+        return 0
+    if a.calibration_command == "export":
+        cal = cal_mod.load(a.file)
+        for path in cal_mod.export_ros(cal, a.ros):
+            print(f"wrote {path}")
+        return 0
+    cal = cal_mod.import_opencv(a.intrinsics, a.extrinsics, _size(a.size, "--size"))
+    cal_mod.save(cal, a.out)
+    print(f"wrote {a.out} (calibration id {cal.id}, baseline |T| {cal.baseline:.5g})")
+    return 0
+
+
 COMMANDS = {
+    "calibrate": _cmd_calibrate,
+    "calibration": _cmd_calibration,
     "replay": _cmd_replay,
     "run": _cmd_run,
     "subscribe": _cmd_subscribe,

@@ -52,6 +52,9 @@ class RigConfig(_Section):
     name: str = Field("minoru", pattern=r"^[A-Za-z0-9_\-]+$", description="Rig name in keys")
     baseline_m: float = Field(0.060, gt=0.0, le=10.0, description="Camera distance B, m")
     hfov_deg: float = Field(60.0, gt=0.0, lt=180.0, description="Horizontal field of view, deg")
+    calibration: Path | None = Field(
+        None, description="Calibration file (stereod calibrate); without it, the canonical rig"
+    )
 
 
 class DriverConfig(_Section):

@@ -25,8 +25,9 @@ from typing import IO
 
 import numpy as np
 
+from . import calibration
 from .config import StereodConfig
-from .errors import OutputError, StereodError
+from .errors import CalibrationError, OutputError, StereodError
 from .frames import (
     Driver,
     Eye,
@@ -37,6 +38,7 @@ from .frames import (
     StereoSource,
     merged,
 )
+from .geometry.rectified import CalibratedRig
 from .geometry.stereo import CanonicalRig
 from .messages import EyeStatus, StatsMessage, StatusMessage, dump
 from .pairing import Pairer
@@ -52,6 +54,18 @@ DROP_PUBLISH_BEHIND = "publish_behind"
 """A message waited too long for the publisher and a newer one replaced it (live sources)."""
 DROP_PIPELINE_ERROR = "pipeline_error"
 """Processing a pair raised an error; the pair was skipped."""
+
+
+def make_rig(cfg: StereodConfig, width: int, height: int) -> CanonicalRig | CalibratedRig:
+    """The geometry for frames of ``width`` x ``height`` px: the configured calibration, checked
+    against that size, or the canonical rig of eq. 9."""
+    if cfg.rig.calibration is None:
+        return CanonicalRig(cfg.rig.baseline_m, cfg.rig.hfov_deg, width, height)
+    cal = calibration.load(cfg.rig.calibration, (width, height))
+    try:
+        return CalibratedRig(cal)
+    except ValueError as exc:
+        raise CalibrationError(f"{cfg.rig.calibration}: {exc}") from exc
 
 
 @dataclass
@@ -166,7 +180,7 @@ class Daemon:
         cfg = self.cfg
         info = source.info
         live = info.live
-        rig = CanonicalRig(cfg.rig.baseline_m, cfg.rig.hfov_deg, info.width, info.height)
+        rig = make_rig(cfg, info.width, info.height)
         params = PipelineParams(
             rig_name=cfg.rig.name,
             rig=rig,
@@ -434,7 +448,8 @@ class Daemon:
             skew_ms_mean=round(float(np.mean(skews)), 3) if skews else None,
             skew_ms_max=round(float(np.max(skews)), 3) if skews else None,
             queue_depth=len(self._pairs),
-            geometry="canonical",
+            geometry=self._rig.geometry,  # type: ignore[arg-type]
+            calibration_id=self._rig.calibration_id,
             epipolar_residual_px=round(float(np.median(resid)), 4) if resid else None,
             problems=problems,
         )
@@ -458,6 +473,8 @@ class Daemon:
 
     def _calibration_json(self) -> bytes:
         r = self._rig
+        if isinstance(r, CalibratedRig):
+            return r.calibration.model_dump_json().encode()
         return json.dumps(
             {
                 "geometry": "canonical",

@@ -338,3 +338,69 @@ def test_synth_command_writes_recording_and_truth(tmp_path: Path) -> None:
     assert math.isclose(truth["skew_s"], 0.01)
     bad = stereod("synth", str(tmp_path / "t"), "--ball", "heading=x")
     one_line_error(bad, 78, "heading = 'x' is not a number")
+
+
+def test_replay_with_calibration_file(scene_dir: tuple[Scene, Path], tmp_path: Path) -> None:
+    """The canonical rig written as a calibration file gives the same positions, now marked
+    calibrated with the file's id; a calibration for another image size is refused."""
+    from stereod.calibration import from_arrays, save
+
+    scene, rec = scene_dir
+    r = scene.rig
+    k = np.array([[r.focal_px, 0, r.cx_px], [0, r.focal_px, r.cy_px], [0, 0, 1.0]])
+    cal = from_arrays(
+        (640, 480),
+        {
+            "K1": k,
+            "D1": np.zeros(5),
+            "K2": k,
+            "D2": np.zeros(5),
+            "R": np.eye(3),
+            "T": np.array([-r.baseline_m, 0, 0]),
+        },
+    )
+    path = tmp_path / "cal.json"
+    save(cal, path)
+    out = tmp_path / "cal.jsonl"
+    res = stereod(
+        "replay",
+        str(rec),
+        "--rate",
+        "0",
+        "--calibration",
+        str(path),
+        "--jsonl",
+        str(out),
+        "--listen",
+        "tcp/127.0.0.1:0",
+    )
+    assert res.returncode == 0, res.stderr
+    msgs = [json.loads(line) for line in out.read_text().splitlines()]
+    assert all(m["geometry"] == "calibrated" and m["calibration_id"] == cal.id for m in msgs)
+    ball = scene.balls[0]
+    errs = [
+        np.linalg.norm(
+            np.subtract(o["position_m"], ball.position_m((m["t_ns"] - scene.t0_ns) / 1e9))
+        )
+        for m in msgs
+        for o in m["objects"]
+        if o["state"] == "confirmed"
+    ]
+    assert errs and max(errs) < 0.02
+    small = from_arrays(
+        (320, 240),
+        {
+            "K1": k,
+            "D1": np.zeros(5),
+            "K2": k,
+            "D2": np.zeros(5),
+            "R": np.eye(3),
+            "T": np.array([-0.06, 0, 0]),
+        },
+    )
+    save(small, tmp_path / "small.json")
+    one_line_error(
+        stereod("replay", str(rec), "--calibration", str(tmp_path / "small.json")),
+        78,
+        "made for 320x240 frames, the stream is 640x480",
+    )

@@ -45,8 +45,9 @@ class CalibratedRig:
     def calibration_id(self) -> str | None:
         return self.calibration.id
 
-    def _rectify(self, pts: np.ndarray, k: np.ndarray, d: np.ndarray, r: np.ndarray,
-                 p: np.ndarray) -> np.ndarray:
+    def _rectify(
+        self, pts: np.ndarray, k: np.ndarray, d: np.ndarray, r: np.ndarray, p: np.ndarray
+    ) -> np.ndarray:
         a = np.asarray(pts, dtype=np.float64).reshape(-1, 1, 2)
         if a.shape[0] == 0:
             return np.zeros((0, 2))

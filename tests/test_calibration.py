@@ -1,0 +1,120 @@
+"""The calibration file: validation, ids, ROS export and OpenCV import round trips."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from stereod.calibration import Calibration, export_ros, from_arrays, import_opencv, load, save
+from stereod.errors import CalibrationError, MissingInputError
+from stereod.geometry.rectified import CalibratedRig
+from stereod_fakes.rig import minoru_like
+
+
+def a_calibration() -> Calibration:
+    rig = minoru_like()
+    return from_arrays(
+        (640, 480),
+        {
+            "K1": rig.left.K,
+            "D1": rig.left.D,
+            "K2": rig.right.K,
+            "D2": rig.right.D,
+            "R": rig.R,
+            "T": rig.T,
+        },
+        source="test",
+    )
+
+
+def test_save_load_round_trip_and_id(tmp_path: Path) -> None:
+    cal = a_calibration()
+    path = tmp_path / "c.json"
+    save(cal, path)
+    back = load(path, (640, 480))
+    assert back == cal and back.id == cal.content_id() and len(cal.id) == 16
+    other = from_arrays(
+        (640, 480),
+        {**{k: cal.array(k) for k in ("K1", "D1", "K2", "D2", "R")}, "T": cal.array("T") * 1.001},
+    )
+    assert other.id != cal.id
+
+
+@pytest.mark.parametrize(
+    ("edit", "pattern"),
+    [
+        (lambda d: d.pop("K1"), r"field K1 is missing"),
+        (lambda d: d.update(K1=[[1, 0], [0, 1]]), r"field K1: must be 3x3, got shape \(2, 2\)"),
+        (lambda d: d["T"].__setitem__(0, ["NaN"]), r"field T: contains a non-finite number"),
+        (lambda d: d.update(image_size=[0, 480]), r"field image_size: must be positive"),
+        (lambda d: d["P2"][0].__setitem__(3, 12.0), r"field id: .* does not match the numbers"),
+    ],
+)
+def test_bad_files_name_the_field(tmp_path: Path, edit, pattern: str) -> None:
+    data = json.loads(a_calibration().model_dump_json())
+    edit(data)
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(data).replace('"NaN"', "NaN"))
+    with pytest.raises(CalibrationError, match=pattern) as err:
+        load(path)
+    assert "\n" not in str(err.value) and str(path) in str(err.value)
+
+
+def test_size_mismatch_and_missing_file(tmp_path: Path) -> None:
+    path = tmp_path / "c.json"
+    save(a_calibration(), path)
+    with pytest.raises(CalibrationError, match="made for 640x480 frames, the stream is 320x240"):
+        load(path, (320, 240))
+    with pytest.raises(MissingInputError, match="no such calibration file"):
+        load(tmp_path / "none.json")
+    path.write_text("garbage{")
+    with pytest.raises(CalibrationError, match=r"c\.json: field"):
+        load(path)
+
+
+def test_ros_camera_info_round_trip(tmp_path: Path) -> None:
+    cal = a_calibration()
+    left, right = export_ros(cal, tmp_path)
+    for path, (k, d, r, p) in ((left, ("K1", "D1", "R1", "P1")), (right, ("K2", "D2", "R2", "P2"))):
+        info = yaml.safe_load(path.read_text())
+        assert (info["image_width"], info["image_height"]) == (640, 480)
+        assert info["distortion_model"] == "plumb_bob"
+        for field, name in (
+            ("camera_matrix", k),
+            ("distortion_coefficients", d),
+            ("rectification_matrix", r),
+            ("projection_matrix", p),
+        ):
+            m = info[field]
+            got = np.asarray(m["data"]).reshape(m["rows"], m["cols"])
+            np.testing.assert_array_equal(got, cal.array(name))
+    info = yaml.safe_load(right.read_text())
+    p2 = np.asarray(info["projection_matrix"]["data"]).reshape(3, 4)
+    assert p2[0, 3] == pytest.approx(-p2[0, 0] * 0.060, rel=1e-6)  # -fx * B, B in metres
+
+
+def test_opencv_filestorage_import_triangulates_like_the_source(tmp_path: Path) -> None:
+    cal = a_calibration()
+    intr = cv2.FileStorage(str(tmp_path / "intrinsics.yml"), cv2.FILE_STORAGE_WRITE)
+    for ours, theirs in (("K1", "M1"), ("D1", "D1"), ("K2", "M2"), ("D2", "D2")):
+        intr.write(theirs, cal.array(ours))
+    intr.release()
+    extr = cv2.FileStorage(str(tmp_path / "extrinsics.yml"), cv2.FILE_STORAGE_WRITE)
+    for name in ("R", "T", "R1", "R2", "P1", "P2", "Q"):
+        extr.write(name, cal.array(name))
+    extr.release()
+    imported = import_opencv(tmp_path / "intrinsics.yml", None, (640, 480))
+    src, dst = CalibratedRig(cal), CalibratedRig(imported)
+    rng = np.random.default_rng(0)
+    left = rng.uniform([50, 50], [590, 430], (20, 2))
+    right = left - [30.0, 0.0]
+    a, _ = src.triangulate(src.rectify_left(left), src.rectify_right(right))
+    b, _ = dst.triangulate(dst.rectify_left(left), dst.rectify_right(right))
+    np.testing.assert_allclose(b, a, rtol=1e-9)
+    with pytest.raises(MissingInputError, match="no such OpenCV calibration file"):
+        import_opencv(tmp_path / "nope.yml", None, (640, 480))
