@@ -410,6 +410,27 @@ def build_parser() -> argparse.ArgumentParser:
         help="calibration file to write (default calibration.json)",
     )
 
+    p = sub.add_parser(
+        "install-service",
+        help="install the systemd units, udev rules and a default config",
+        description="Write stereod.service and stereod@.service (with this stereod's path), "
+        "the Minoru udev rules and /etc/stereod/stereod.toml (never overwritten), then reload "
+        "udev and systemd when they are running. Then: systemctl enable --now stereod.",
+    )
+    p.add_argument(
+        "--prefix",
+        type=Path,
+        default=Path("/"),
+        metavar="DIR",
+        help="install under DIR instead of / (packaging, tests); nothing is reloaded",
+    )
+    p.add_argument("--dry-run", action="store_true", help="print the steps, change nothing")
+    p.add_argument(
+        "--uninstall",
+        action="store_true",
+        help="remove the units and rules (the configuration stays)",
+    )
+
     p = sub.add_parser("schema", help="print the JSON Schema of the wire messages")
     p.add_argument("name", nargs="?", help="one schema, e.g. stereod.objects/1 (default: all)")
 
@@ -469,13 +490,21 @@ def _cmd_replay(a: argparse.Namespace) -> int:
     return _run_daemon(daemon, quiet=a.quiet)
 
 
-def _run_daemon(daemon: Any, quiet: bool = False) -> int:
+def _run_daemon(daemon: Any, quiet: bool = False, problems_fail: bool = True) -> int:
+    """Run until the input ends or a signal; SIGHUP reloads. With ``problems_fail`` (replay)
+    a run that hit input problems exits 65 after printing them; a daemon exits 0 on a clean
+    stop, its problems having gone to the log and the status key."""
+
     def on_signal(signum: int, _frame: Any) -> None:
         log.info("signal %d: stopping", signum)
         daemon.stop()
 
+    def on_hup(_signum: int, _frame: Any) -> None:
+        daemon.reload()
+
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGHUP, on_hup)
     t0 = time.monotonic()
     summary = daemon.run()
     if not quiet:
@@ -489,7 +518,7 @@ def _run_daemon(daemon: Any, quiet: bool = False) -> int:
         )
     if summary.error is not None:
         raise summary.error
-    if summary.problems:
+    if summary.problems and problems_fail:
         for p in summary.problems:
             print(f"stereod: {p}", file=sys.stderr)
         return EX_DATAERR
@@ -513,7 +542,8 @@ def _cmd_run(a: argparse.Namespace) -> int:
         return 0
     _setup_logging(cfg.daemon.log_level)
     driver = load_driver(cfg.driver.name, cfg.driver.options)
-    return _run_daemon(Daemon(cfg, driver, rate=a.rate), quiet=True)
+    daemon = Daemon(cfg, driver, rate=a.rate, reload_config=lambda: load_config(path, ov))
+    return _run_daemon(daemon, quiet=True, problems_fail=False)
 
 
 def _cmd_subscribe(a: argparse.Namespace) -> int:
@@ -778,7 +808,21 @@ def _cmd_calibration(a: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_install_service(a: argparse.Namespace) -> int:
+    from .install import apply, plan
+
+    actions = plan(a.prefix, uninstall=a.uninstall)
+    for action in actions:
+        print(("would " if a.dry_run else "") + action.describe())
+    if not a.dry_run:
+        apply(actions)
+    if not actions:
+        print("nothing to do")
+    return 0
+
+
 COMMANDS = {
+    "install-service": _cmd_install_service,
     "calibrate": _cmd_calibrate,
     "calibration": _cmd_calibration,
     "replay": _cmd_replay,

@@ -19,6 +19,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -45,6 +46,7 @@ from .pairing import Pairer
 from .pipeline import PairResult, Pipeline, PipelineParams
 from .publish import Publisher
 from .queues import BoundedQueue, Closed
+from .sdnotify import Notifier
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +68,21 @@ def make_rig(cfg: StereodConfig, width: int, height: int) -> CanonicalRig | Cali
         return CalibratedRig(cal)
     except ValueError as exc:
         raise CalibrationError(f"{cfg.rig.calibration}: {exc}") from exc
+
+
+def pipeline_params(cfg: StereodConfig, width: int, height: int) -> PipelineParams:
+    """Pipeline parameters from a configuration, for frames of ``width`` x ``height`` px."""
+    return PipelineParams(
+        rig_name=cfg.rig.name,
+        rig=make_rig(cfg, width, height),
+        detector=cfg.detector.params(),
+        matching=cfg.matching.params(),
+        tracker=cfg.tracking.params(),
+        centroid_sigma_px=cfg.matching.centroid_sigma_px,
+        detect_workers=cfg.daemon.detect_workers,
+        skew_compensation=cfg.pairing.skew_compensation,
+        freeze_background=cfg.tracking.freeze_background,
+    )
 
 
 @dataclass
@@ -114,12 +131,20 @@ class Daemon:
         rate: float = 1.0,
         jsonl: Path | None = None,
         wait_subscriber_s: float = 0.0,
+        reload_config: Callable[[], StereodConfig] | None = None,
+        notifier: Notifier | None = None,
     ) -> None:
         self.cfg = cfg
         self.driver = driver
         self.rate = rate
         self.jsonl = jsonl
         self.wait_subscriber_s = wait_subscriber_s
+        self._reload_config = reload_config
+        self._reload_requested = threading.Event()
+        self._next_pipeline: Pipeline | None = None
+        self._notifier = notifier if notifier is not None else Notifier()
+        self._ready_sent = False
+        self._last_frame_s = 0.0
         self._stop = threading.Event()
         self._status_now = threading.Event()
         self._lock = threading.Lock()
@@ -140,7 +165,15 @@ class Daemon:
 
     def stop(self) -> None:
         """Ask the daemon to stop: capture ends, queued work drains, the session closes."""
+        if not self._stop.is_set():
+            self._notifier.notify(STOPPING=1)
         self._stop.set()
+
+    def reload(self) -> None:
+        """Ask for the configuration and calibration to be read again (SIGHUP); done by the
+        status loop, so it is safe to call from a signal handler."""
+        self._reload_requested.set()
+        self._status_now.set()
 
     def problem(self, text: str, kind: str | None = None) -> None:
         """Record a non-fatal problem for the status key and the run summary.
@@ -180,18 +213,8 @@ class Daemon:
         cfg = self.cfg
         info = source.info
         live = info.live
-        rig = make_rig(cfg, info.width, info.height)
-        params = PipelineParams(
-            rig_name=cfg.rig.name,
-            rig=rig,
-            detector=cfg.detector.params(),
-            matching=cfg.matching.params(),
-            tracker=cfg.tracking.params(),
-            centroid_sigma_px=cfg.matching.centroid_sigma_px,
-            detect_workers=cfg.daemon.detect_workers,
-            skew_compensation=cfg.pairing.skew_compensation,
-            freeze_background=cfg.tracking.freeze_background,
-        )
+        params = pipeline_params(cfg, info.width, info.height)
+        rig = params.rig
         offset = info.utc_offset_ns
         if offset is None and live:
             offset = time.time_ns() - time.monotonic_ns()
@@ -224,13 +247,23 @@ class Daemon:
             period = cfg.daemon.status_period_s
             last = time.monotonic()
             pub.status(dump(self._status_message(period)))
+            watchdog = self._notifier.watchdog_s
+            last_dog = 0.0
             while publisher.is_alive():
                 self._status_now.wait(min(period, 0.25))
                 now = time.monotonic()
+                if self._reload_requested.is_set():
+                    self._reload_requested.clear()
+                    self._do_reload(info.width, info.height)
                 if self._status_now.is_set() or now - last >= period:
                     self._status_now.clear()
-                    pub.status(dump(self._status_message(max(now - last, 1e-3))))
+                    status = self._status_message(max(now - last, 1e-3))
+                    pub.status(dump(status))
+                    self._notify_status(status)
                     last = now
+                if watchdog and now - last_dog >= watchdog / 2 and self._frames_flowing(watchdog):
+                    self._notifier.notify(WATCHDOG=1)
+                    last_dog = now
             for t in threads:
                 t.join()
             self._pipeline.close()
@@ -239,6 +272,54 @@ class Daemon:
             self._state = "finished"
             pub.status(dump(self._status_message(max(time.monotonic() - last, 1e-3))))
         return self._finish()
+
+    def _frames_flowing(self, within_s: float) -> bool:
+        """Frames arrived within the last ``within_s`` seconds (else the watchdog starves and
+        systemd restarts a stalled capture)."""
+        return time.monotonic() - self._last_frame_s < within_s
+
+    def _notify_status(self, status: StatusMessage) -> None:
+        if not self._notifier.enabled:
+            return
+        drops = sum(status.drops.values())
+        skew = f"{status.skew_ms_mean:.1f}" if status.skew_ms_mean is not None else "-"
+        self._notifier.notify(
+            STATUS=f"{status.state}: left {status.left.fps:.1f} fps, right "
+            f"{status.right.fps:.1f} fps, {status.pairs_per_s:.1f} pairs/s, skew {skew} ms, "
+            f"{drops} dropped"
+        )
+
+    def _do_reload(self, width: int, height: int) -> None:
+        """Read the configuration and calibration again. A valid new one replaces the pipeline
+        at the next pair; an invalid one leaves everything as it was and says why."""
+        if self._reload_config is None:
+            self.problem("reload requested but this run has no configuration file to re-read")
+            return
+        self._notifier.notify(RELOADING=1)
+        try:
+            cfg = self._reload_config()
+            params = pipeline_params(cfg, width, height)
+        except StereodError as exc:
+            self.problem(f"reload refused, keeping the running configuration: {exc}")
+            self._notifier.notify(READY=1)
+            return
+        needs_restart = [
+            name
+            for name in ("driver", "zenoh", "daemon")
+            if getattr(cfg, name) != getattr(self.cfg, name)
+        ]
+        if cfg.rig.name != self.cfg.rig.name:
+            needs_restart.append("rig.name")
+        if needs_restart:
+            self.problem(
+                f"reload: changes to {', '.join(needs_restart)} take effect at the next restart"
+            )
+        self._next_pipeline = self._pipeline.reconfigured(params)
+        self.cfg = cfg
+        self._rig = params.rig
+        log.info("configuration reloaded (geometry %s)", params.rig.geometry)
+        self._notifier.notify(READY=1)
+        self._status_now.set()
 
     def _wait_for_subscriber(self, pub: Publisher) -> None:
         deadline = time.monotonic() + self.wait_subscriber_s
@@ -298,6 +379,12 @@ class Daemon:
             health.frames += 1
             health.state = "streaming"
             pairs = self._pairer.push(frame)
+            self._last_frame_s = time.monotonic()
+            ready = not self._ready_sent and all(h.frames for h in self._eyes.values())
+            if ready:
+                self._ready_sent = True
+        if ready:
+            self._notifier.notify(READY=1, STATUS="streaming")
         now = time.perf_counter_ns()
         return all(self._pairs.put((p, now), self._stop) for p in pairs)
 
@@ -367,6 +454,15 @@ class Daemon:
                 if item is None:
                     continue
                 pair, queued_at = item
+                if self._next_pipeline is not None:
+                    old, self._pipeline, self._next_pipeline = (
+                        self._pipeline,
+                        self._next_pipeline,
+                        None,
+                    )
+                    ended = old.ended_by_reconfiguration
+                    if ended:
+                        self._out.put(_Outgoing(b"", [], ended, 0), self._stop)
                 try:
                     result = self._pipeline.process(pair, time.perf_counter_ns() - queued_at)
                 except Exception as exc:  # one bad pair must not stop the daemon

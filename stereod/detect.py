@@ -125,6 +125,12 @@ class Detector:
         """The float32 background T (grey levels), ``None`` before the first frame."""
         return self._background
 
+    def adopt(self, other: Detector) -> None:
+        """Take over another detector's background (its parameters may differ)."""
+        if other._background is not None:
+            self._background = other._background.copy()
+            self._seen = other._seen
+
     def reset(self) -> None:
         """Forget the background (after a lighting jump or a camera re-plug)."""
         self._background = None

@@ -72,6 +72,8 @@ class Pipeline:
         self.left = Detector(params.detector)
         self.right = Detector(params.detector)
         self.tracker = Tracker(params.tracker)
+        self.ended_by_reconfiguration: list[int] = []
+        """Tracks this pipeline ended when it was replaced by :meth:`reconfigured`."""
         self._pool = (
             ThreadPoolExecutor(2, thread_name_prefix="detect")
             if params.detect_workers > 1
@@ -82,6 +84,27 @@ class Pipeline:
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
+
+    def reconfigured(self, params: PipelineParams) -> Pipeline:
+        """A pipeline with new parameters that carries over what still holds: the background
+        models (always, so there is no new warm-up), and the tracks while neither the tracker
+        settings nor the geometry changed. Otherwise the old tracks end (their ids are listed
+        in ``ended_by_reconfiguration`` of this pipeline) and new ids continue after them."""
+        new = Pipeline(params, self.utc_offset_ns)
+        new.left.adopt(self.left)
+        new.right.adopt(self.right)
+        same_geometry = type(params.rig) is type(self.params.rig) and (
+            params.rig.calibration_id == self.params.rig.calibration_id
+            and (params.rig == self.params.rig or params.rig.calibration_id is not None)
+        )
+        if params.tracker == self.params.tracker and same_geometry:
+            new.tracker = self.tracker
+            self.ended_by_reconfiguration = []
+        else:
+            self.ended_by_reconfiguration = self.tracker.end_all()
+            new.tracker.continue_after(self.tracker)
+        self.close()
+        return new
 
     def process(self, pair: StereoPair, queued_ns: int = 0) -> PairResult:
         """Run one pair through eq. 2-5, 9, 12 and 21-23; ``queued_ns`` is the time the pair

@@ -304,6 +304,10 @@ class Tracker:
                 states.append(self._state(tr, t_ns, observed=False))
         return states, ended
 
+    def continue_after(self, other: Tracker) -> None:
+        """Number new tracks after ``other``'s, so ids are never reused while running."""
+        self._next_id = max(self._next_id, other._next_id)
+
     def end_all(self) -> list[int]:
         """End every live track (end of input); return their ids."""
         ids = list(self._tracks)

@@ -1,0 +1,1 @@
+"""The systemd units and default configuration, installed by ``stereod install-service``."""

@@ -1,0 +1,179 @@
+"""sd_notify against real datagram sockets, and a real `stereod run` driven like systemd does."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from stereod.calibration import from_arrays, save
+from stereod.sdnotify import Notifier
+
+from .conftest import ROOT
+
+pytestmark = pytest.mark.slow
+
+
+def receiver(tmp_path: Path, abstract: bool = False) -> tuple[socket.socket, str]:
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    if abstract:
+        name = f"stereod-test-{os.getpid()}-{time.monotonic_ns()}"
+        s.bind(b"\0" + name.encode())
+        return s, "@" + name
+    path = tmp_path / "notify.sock"
+    s.bind(str(path))
+    return s, str(path)
+
+
+@pytest.mark.parametrize("abstract", [False, True])
+def test_notifier_reaches_path_and_abstract_sockets(tmp_path: Path, abstract: bool) -> None:
+    sock, address = receiver(tmp_path, abstract)
+    sock.settimeout(2)
+    n = Notifier({"NOTIFY_SOCKET": address, "WATCHDOG_USEC": "3000000"})
+    assert n.enabled and n.watchdog_s == 3.0
+    assert n.notify(READY=1, STATUS="two\nlines")
+    assert sock.recv(4096) == b"READY=1\nSTATUS=two lines"
+    n.close()
+    sock.close()
+
+
+def test_no_socket_no_op() -> None:
+    n = Notifier({})
+    assert not n.enabled and n.watchdog_s is None and n.notify(READY=1) is False
+    assert Notifier({"WATCHDOG_USEC": "100", "WATCHDOG_PID": "1"}).watchdog_s is None
+
+
+def write_config(
+    path: Path, endpoint: str, threshold: float, calibration: Path | None = None
+) -> None:
+    cal = f'calibration = "{calibration}"\n' if calibration else ""
+    path.write_text(
+        f'[rig]\nname = "svc"\n{cal}'
+        '[driver]\nname = "synthetic"\n[driver.options]\nlive = true\nduration_s = 30.0\n'
+        f"fps = 15\n[detector]\nthreshold = {threshold}\n"
+        f'[zenoh]\nlisten = ["{endpoint}"]\n[daemon]\nstatus_period_s = 0.5\n'
+    )
+
+
+def collect(sock: socket.socket, until: str, timeout: float) -> list[str]:
+    got: list[str] = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        sock.settimeout(max(0.01, deadline - time.monotonic()))
+        try:
+            msg = sock.recv(4096).decode()
+        except TimeoutError:
+            break
+        got += msg.split("\n")
+        if any(line.startswith(until) for line in msg.split("\n")):
+            break
+    return got
+
+
+def test_run_speaks_the_notify_protocol_in_order(tmp_path: Path, endpoint: str) -> None:
+    sock, address = receiver(tmp_path)
+    cfg = tmp_path / "svc.toml"
+    write_config(cfg, endpoint, 25.0)
+    env = {**os.environ, "NOTIFY_SOCKET": address, "WATCHDOG_USEC": "1000000"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "stereod.cli", "run", "--config", str(cfg)],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        first = collect(sock, "READY=1", 30)
+        assert "READY=1" in first, first
+        running = collect(sock, "no such line", 2.0)
+        assert "WATCHDOG=1" in running, running
+        assert any(line.startswith("STATUS=running: left") for line in first + running)
+        write_config(cfg, endpoint, 30.0)
+        proc.send_signal(signal.SIGHUP)
+        reload = collect(sock, "READY=1", 10)
+        assert reload.index("RELOADING=1") < reload.index("READY=1"), reload
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=10)
+        stop_s = time.monotonic() - t0
+        tail = collect(sock, "STOPPING=1", 1)
+    finally:
+        proc.kill()
+        sock.close()
+    assert proc.returncode == 0, err
+    assert "STOPPING=1" in tail
+    assert stop_s < 2.0, f"SIGTERM took {stop_s:.2f} s"
+    assert "configuration reloaded" in err
+    assert "Traceback" not in err
+
+
+def test_garbage_calibration_on_reload_keeps_the_old_one(tmp_path: Path, endpoint: str) -> None:
+    k = np.array([[554.3, 0, 319.5], [0, 554.3, 239.5], [0, 0, 1.0]])
+    cal = from_arrays(
+        (640, 480),
+        {
+            "K1": k,
+            "D1": np.zeros(5),
+            "K2": k,
+            "D2": np.zeros(5),
+            "R": np.eye(3),
+            "T": np.array([-0.06, 0, 0]),
+        },
+    )
+    cal_path = tmp_path / "cal.json"
+    save(cal, cal_path)
+    cfg = tmp_path / "svc.toml"
+    write_config(cfg, endpoint, 25.0, cal_path)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "stereod.cli", "run", "--config", str(cfg)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    statuses: list[dict] = []
+    try:
+        zc = zenoh.Config()
+        zc.insert_json5("scouting", '{"delay": 0, "multicast": {"enabled": false}}')
+        zc.insert_json5("connect/endpoints", json.dumps([endpoint]))
+        with zenoh.open(zc) as s:
+            sub = s.declare_subscriber(
+                "stereod/svc/status",
+                lambda smp: statuses.append(json.loads(smp.payload.to_bytes())),
+            )
+            deadline = time.monotonic() + 30
+            while (
+                not any(st["state"] == "running" for st in statuses) and time.monotonic() < deadline
+            ):
+                time.sleep(0.05)
+            assert statuses and statuses[-1]["calibration_id"] == cal.id
+            cal_path.write_text("garbage, not JSON")
+            proc.send_signal(signal.SIGHUP)
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline and not any(
+                "reload refused" in p for st in statuses for p in st["problems"]
+            ):
+                time.sleep(0.05)
+            sub.undeclare()
+        assert proc.poll() is None, "the daemon must keep running"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=10)
+    problems = [p for st in statuses for p in st["problems"] if "reload refused" in p]
+    assert (
+        problems
+        and "cal.json" in problems[0]
+        and "keeping the running configuration" in problems[0]
+    )
+    assert statuses[-1]["calibration_id"] == cal.id
+    assert proc.returncode == 0, err

@@ -1,0 +1,1 @@
+"""The udev rules for the Minoru, installed by ``stereod install-service``."""
