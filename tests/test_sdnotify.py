@@ -104,7 +104,7 @@ def test_run_speaks_the_notify_protocol_in_order(tmp_path: Path, endpoint: str) 
         assert reload.index("RELOADING=1") < reload.index("READY=1"), reload
         t0 = time.monotonic()
         proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=10)
+        _, err = proc.communicate(timeout=10)
         stop_s = time.monotonic() - t0
         tail = collect(sock, "STOPPING=1", 1)
     finally:
@@ -168,7 +168,7 @@ def test_garbage_calibration_on_reload_keeps_the_old_one(tmp_path: Path, endpoin
         assert proc.poll() is None, "the daemon must keep running"
     finally:
         proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=10)
+        _, err = proc.communicate(timeout=10)
     problems = [p for st in statuses for p in st["problems"] if "reload refused" in p]
     assert (
         problems
