@@ -54,8 +54,15 @@ def test_queryables_liveliness_and_status_on_new_subscriber(
         assert query(listener, "stereod/minoru/config")["rig"]["name"] == "minoru"
         cal = query(listener, "stereod/minoru/calibration")
         assert cal["geometry"] == "canonical" and cal["baseline_m"] == 0.06
+        deadline = time.monotonic() + 10
         stats = query(listener, "stereod/minoru/stats")
+        while stats["pairs"] < 5 and time.monotonic() < deadline:
+            time.sleep(0.2)
+            stats = query(listener, "stereod/minoru/stats")
         assert stats["schema"] == "stereod.stats/1"
+        assert stats["pairs"] >= 5 and min(stats["frames"].values()) >= stats["pairs"]
+        assert 0 < stats["pipeline_ms_p50"] <= stats["pipeline_ms_p99"] < 1000
+        assert stats["publish_errors"] == 0 and stats["queue_depth"] >= 0
         # The status period is 30 s: a status arriving at once comes from the new-subscriber path.
         got = threading.Event()
         sub = listener.declare_subscriber("stereod/minoru/status", lambda s: got.set())
