@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint bench accuracy clean
+.PHONY: demo test vm lint bench accuracy clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -17,9 +17,12 @@ demo: $(VENV)/.installed
 test: $(VENV)/.installed
 	$(BIN)/python -m pytest -q
 
+vm: $(VENV)/.installed
+	bash tests/vm/run.sh
+
 lint: $(VENV)/.installed
-	$(BIN)/ruff check stereod fakes tests benchmarks
-	$(BIN)/ruff format --check stereod fakes tests benchmarks
+	$(BIN)/ruff check stereod fakes drivers tests benchmarks
+	$(BIN)/ruff format --check stereod fakes drivers tests benchmarks
 	$(BIN)/mypy
 
 bench: $(VENV)/.installed

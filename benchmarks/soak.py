@@ -53,9 +53,22 @@ def main() -> int:
         scene = Scene(duration_s=6.0, balls=[Ball(t_on_s=1.0, t_off_s=5.0, t_mid_s=3.0)])
         rec = write_scene(scene, Path(tmp) / "rec")
         proc = subprocess.Popen(
-            [sys.executable, "-m", "stereod.cli", "replay", str(rec), "--loop", "--rate", "1",
-             "--listen", endpoint, "-q"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+            [
+                sys.executable,
+                "-m",
+                "stereod.cli",
+                "replay",
+                str(rec),
+                "--loop",
+                "--rate",
+                "1",
+                "--listen",
+                endpoint,
+                "-q",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
         )
         cfg = zenoh.Config()
         cfg.insert_json5("scouting", '{"delay": 0, "multicast": {"enabled": false}}')
@@ -71,8 +84,10 @@ def main() -> int:
                         raise RuntimeError(f"daemon exited early: {proc.stderr.read()}")
                     t = time.monotonic() - t0
                     samples.append((t, rss_kib(proc.pid), fds(proc.pid)))
-                    print(f"{t:8.0f} {samples[-1][1] / 1024:10.1f} {samples[-1][2]:5d} "
-                          f"{received:9d}", flush=True)
+                    print(
+                        f"{t:8.0f} {samples[-1][1] / 1024:10.1f} {samples[-1][2]:5d} {received:9d}",
+                        flush=True,
+                    )
                     time.sleep(a.every)
                 sub.undeclare()
         finally:
@@ -82,9 +97,11 @@ def main() -> int:
     rss_growth = (warm[-1][1] - warm[0][1]) / 1024
     fd_growth = warm[-1][2] - warm[0][2]
     span = (warm[-1][0] - warm[0][0]) / 60
-    print(f"\nafter the first minute, over {span:.1f} min: RSS {warm[0][1] / 1024:.1f} -> "
-          f"{warm[-1][1] / 1024:.1f} MiB ({rss_growth:+.2f} MiB), open fds {warm[0][2]} -> "
-          f"{warm[-1][2]} ({fd_growth:+d}); {received} messages received")
+    print(
+        f"\nafter the first minute, over {span:.1f} min: RSS {warm[0][1] / 1024:.1f} -> "
+        f"{warm[-1][1] / 1024:.1f} MiB ({rss_growth:+.2f} MiB), open fds {warm[0][2]} -> "
+        f"{warm[-1][2]} ({fd_growth:+d}); {received} messages received"
+    )
     ok = rss_growth < 5.0 and fd_growth <= 0
     print("flat" if ok else "GROWING")
     return 0 if ok else 1

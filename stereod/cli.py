@@ -431,6 +431,39 @@ def build_parser() -> argparse.ArgumentParser:
         help="remove the units and rules (the configuration stays)",
     )
 
+    p = sub.add_parser(
+        "devices",
+        help="list video capture devices and find the Minoru's eyes",
+        description="List capture nodes (sysfs, index 0) with USB ids, port path, bus speed, "
+        "formats, frame sizes, frame rates and controls; mark the Minoru eyes (0ac8:3410, "
+        "0ac8:3420) and which eye each is by hub port.",
+    )
+    p.add_argument(
+        "--reset",
+        choices=["left", "right"],
+        metavar="EYE",
+        help="USB-reset a wedged eye (left or right)",
+    )
+    p.add_argument("--brief", action="store_true", help="one line per device, no modes")
+
+    p = sub.add_parser(
+        "record",
+        help="record what the cameras deliver, for replay",
+        description="Write both eyes' frames with their capture timestamps and sequence "
+        "numbers, the camera settings and the calibration in force into a recording "
+        "directory (replay it with `stereod replay DIR`).",
+    )
+    p.add_argument("out", type=Path, help="recording directory to create")
+    p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds of stream")
+    p.add_argument(
+        "--codec",
+        choices=["ffv1", "mjpg"],
+        default="ffv1",
+        help="ffv1 lossless (default) or mjpg lossy",
+    )
+    p.add_argument("--config", type=Path, metavar="FILE", help="TOML config with the driver")
+    p.add_argument("--driver", help="driver name (default from the config)")
+
     p = sub.add_parser("schema", help="print the JSON Schema of the wire messages")
     p.add_argument("name", nargs="?", help="one schema, e.g. stereod.objects/1 (default: all)")
 
@@ -821,7 +854,73 @@ def _cmd_install_service(a: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_devices(a: argparse.Namespace) -> int:
+    from stereod_v4l2_minoru.device import V4L2Device
+    from stereod_v4l2_minoru.discovery import find_nodes
+    from stereod_v4l2_minoru.usb import reset
+
+    nodes = find_nodes()
+    if a.reset:
+        eyes = [n for n in nodes if n.eye == a.reset]
+        if not eyes or eyes[0].usb is None or eyes[0].usb.busnum is None:
+            raise StereodError(f"no Minoru {a.reset} eye found to reset")
+        usb = eyes[0].usb
+        assert usb.devnum is not None
+        reset(usb.busnum, usb.devnum)
+        print(f"reset {a.reset} eye ({eyes[0].device}, USB {usb.port_path})")
+        return 0
+    if not nodes:
+        print("no video capture devices found")
+        return 0
+    for n in nodes:
+        u = n.usb
+        where = (
+            f"USB {u.vendor}:{u.product} port {u.port_path} {u.speed_mbps:g} Mbit/s"
+            if u and u.speed_mbps
+            else f"USB {u.vendor}:{u.product} port {u.port_path}"
+            if u
+            else "not USB"
+        )
+        mark = f"  Minoru {n.eye} eye" if n.eye else ("  Minoru" if u and u.is_minoru else "")
+        print(f"{n.device}: {n.name} ({where}){mark}")
+        if a.brief:
+            continue
+        try:
+            with V4L2Device(n.device) as dev:
+                for fourcc, desc in dev.formats():
+                    print(f"  {fourcc} ({desc})")
+                    for w, h in dev.frame_sizes(fourcc):
+                        rates = ", ".join(f"{r:g}" for r in dev.frame_rates(fourcc, w, h))
+                        print(f"    {w}x{h} at {rates} fps")
+                for c in dev.controls():
+                    print(f"  control {c.name} [{c.minimum}..{c.maximum}] default {c.default}")
+        except StereodError as exc:
+            print(f"  cannot query: {exc}")
+    return 0
+
+
+def _cmd_record(a: argparse.Namespace) -> int:
+    from .config import load_config
+    from .drivers import load_driver
+    from .record import record
+
+    ov: dict[str, Any] = {"driver": {"name": a.driver}} if a.driver else {}
+    cfg = load_config(a.config, ov)
+    _setup_logging(cfg.daemon.log_level)
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    driver = load_driver(cfg.driver.name, cfg.driver.options)
+    counts = record(
+        driver, a.out, seconds=a.seconds, codec=a.codec, calibration=cfg.rig.calibration, stop=stop
+    )
+    print(f"recorded {counts['left']} left and {counts['right']} right frames to {a.out}")
+    return 0
+
+
 COMMANDS = {
+    "devices": _cmd_devices,
+    "record": _cmd_record,
     "install-service": _cmd_install_service,
     "calibrate": _cmd_calibrate,
     "calibration": _cmd_calibration,

@@ -28,7 +28,7 @@ import numpy as np
 
 from . import calibration
 from .config import StereodConfig
-from .errors import CalibrationError, OutputError, StereodError
+from .errors import CalibrationError, DeviceLost, OutputError, StereodError
 from .frames import (
     Driver,
     Eye,
@@ -111,6 +111,7 @@ class _EyeHealth:
         self.state = "starting"
         self.frames = 0
         self.errors = 0
+        self.lost = 0
         self.last_error: str | None = None
         self._frames_at_last_status = 0
 
@@ -161,6 +162,7 @@ class Daemon:
         self._started = time.monotonic()
         self._summary = RunSummary()
         self._info: SourceInfo | None = None
+        self._source: StereoSource | None = None
         self._pairer = Pairer(int(cfg.pairing.tolerance_ms * 1e6), cfg.pairing.max_pending)
 
     def stop(self) -> None:
@@ -168,6 +170,10 @@ class Daemon:
         if not self._stop.is_set():
             self._notifier.notify(STOPPING=1)
         self._stop.set()
+        source = self._source
+        if source is not None:
+            source.left.interrupt()
+            source.right.interrupt()
 
     def reload(self) -> None:
         """Ask for the configuration and calibration to be read again (SIGHUP); done by the
@@ -196,6 +202,10 @@ class Daemon:
         try:
             with self.driver.open() as source:
                 self._info = source.info
+                self._source = source
+                if self._stop.is_set():
+                    source.left.interrupt()
+                    source.right.interrupt()
                 return self._run(source, jsonl_fh)
         finally:
             if jsonl_fh is not None:
@@ -341,6 +351,10 @@ class Daemon:
 
     def _drops(self) -> dict[str, int]:
         d = dict(self._pairer.stats.drops)
+        if self._source is not None:
+            for eye in (self._source.left, self._source.right):
+                for k, v in eye.stats().items():
+                    d[f"{eye.eye.value}_{k}"] = v
         if self._pairs.dropped:
             d[DROP_PIPELINE_BEHIND] = self._pairs.dropped
         if self._out.dropped:
@@ -392,9 +406,20 @@ class Daemon:
         health = self._eyes[eye.eye]
         try:
             while not self._stop.is_set():
-                frame = eye.read()
+                try:
+                    frame = eye.read()
+                except DeviceLost as exc:
+                    # The source reconnects by itself on the next read; the eye is down
+                    # until a frame arrives again.
+                    health.state = "down"
+                    health.last_error = str(exc)
+                    health.lost += 1
+                    self.problem(f"{eye.eye.value} eye down: {exc}; retrying")
+                    continue
                 if frame is None:
                     break
+                if health.state == "down":
+                    self.problem(f"{eye.eye.value} eye streaming again")
                 self._push(frame)
         except StereodError as exc:
             health.state = "down"

@@ -7,7 +7,8 @@
     ├── InputError                an input file or stream is missing, unreadable or inconsistent
     │   └── TruncatedInputError   a video ended before its header said it would
     ├── CalibrationError          a calibration file is missing, ill-shaped or does not fit
-    └── DeviceError               a camera device failed (open, ioctl, lost)
+    └── DeviceError               a camera device failed (open, ioctl)
+        └── DeviceLost            a camera went away while in use (the source retries)
 
 Foreign errors (OSError, cv2.error, pydantic.ValidationError) are translated into these at the
 boundary with ``raise ... from exc`` so callers only ever catch ``StereodError``.
@@ -71,3 +72,8 @@ class DeviceError(StereodError):
     """A camera device failed to open, configure or stream."""
 
     exit_code = EX_UNAVAILABLE
+
+
+class DeviceLost(DeviceError):
+    """A camera went away while in use (unplugged, reset); its source retries by itself, the
+    daemon reports the eye down and keeps running."""

@@ -77,6 +77,14 @@ class EyeSource(ABC):
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release the eye's resources; idempotent."""
 
+    def interrupt(self) -> None:  # noqa: B027 - optional hook
+        """Make a blocked :meth:`read` return ``None`` soon (the daemon is stopping); called
+        from another thread."""
+
+    def stats(self) -> dict[str, int]:
+        """Counters the source keeps (frames it skipped, gaps it saw), by reason."""
+        return {}
+
 
 @dataclass
 class SourceInfo:

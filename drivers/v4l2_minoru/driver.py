@@ -1,0 +1,255 @@
+"""The ``v4l2_minoru`` driver: both eyes of a Minoru streamed through V4L2, one thread each.
+
+Each eye is configured the same way (size, rate, pixel format, and controls: manual exposure,
+gain and white balance, so the background model is not fooled by auto exposure), and again
+after every re-plug. Frames carry the kernel's CLOCK_MONOTONIC capture time and V4L2 sequence
+number; sequence gaps and frames flagged as corrupt are counted. When an eye's device goes
+away (ENODEV, EIO, the node vanishes) :meth:`CameraEye.read` raises
+:class:`~stereod.errors.DeviceLost` once, then keeps trying to reopen it with a growing
+backoff, finding it again by its udev name or hub port, and streams on when it is back.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from stereod.errors import ConfigError, DeviceError, DeviceLost
+from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
+
+from . import raw
+from .convert import mjpeg_to_gray, yuyv_to_gray
+from .device import V4L2Device
+from .discovery import find_nodes, minoru_eyes
+from .ioctl import IO
+
+log = logging.getLogger(__name__)
+
+
+class MinoruOptions(BaseModel):
+    """The ``[driver.options]`` of ``v4l2_minoru``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    left: str | None = Field(
+        None,
+        description="Left eye node; default /dev/minoru/left, else the Minoru eye on hub port 1",
+    )
+    right: str | None = Field(
+        None,
+        description="Right eye node; default /dev/minoru/right, else the Minoru eye on hub port 2",
+    )
+    width: int = Field(640, gt=0)
+    height: int = Field(480, gt=0)
+    fps: float = Field(15.0, gt=0, description="Frame rate, Hz (640x480 fits USB 2.0 at 15)")
+    pixel_format: Literal["YUYV", "MJPG"] = "YUYV"
+    buffers: int = Field(4, ge=2, le=32)
+    manual_exposure: bool = Field(True, description="Lock exposure (exposure_auto = manual)")
+    controls: dict[str, int] = Field(
+        default_factory=dict,
+        description="Controls set on both eyes after every open, by name (exposure_absolute, "
+        "gain, white_balance_temperature, ...) or id (0x980913)",
+    )
+    retry_s: float = Field(0.5, gt=0, description="First reconnect delay, s (doubles)")
+    retry_max_s: float = Field(5.0, gt=0, description="Longest reconnect delay, s")
+    read_timeout_s: float = Field(0.5, gt=0)
+
+
+def _control_id(name: str) -> int:
+    if name in raw.CONTROLS:
+        return raw.CONTROLS[name]
+    try:
+        return int(name, 0)
+    except ValueError as exc:
+        raise ConfigError(
+            f"driver.options.controls.{name}: unknown control; known: "
+            f"{', '.join(sorted(raw.CONTROLS))}, or a numeric id"
+        ) from exc
+
+
+class CameraEye(EyeSource):
+    """One eye: opens, configures and streams its node; reconnects after a loss."""
+
+    def __init__(self, eye: Eye, opts: MinoruOptions, path: str, io: IO | None = None) -> None:
+        self.eye = eye
+        self.opts = opts
+        self.path = path
+        self.io = io
+        self.device: V4L2Device | None = None
+        self._interrupted = threading.Event()
+        self._last_seq: int | None = None
+        self._counters = {"sequence_gap": 0, "frame_error": 0, "reconnects": 0}
+        self._delay = opts.retry_s
+        self.fps: float | None = None
+
+    def _locate(self) -> str:
+        """The node now: the configured path when it exists, else the Minoru eye by port."""
+        if Path(self.path).exists():
+            return self.path
+        found = minoru_eyes(find_nodes()).get(self.eye.value)
+        return found or self.path
+
+    def start(self) -> None:
+        """Open, configure and start streaming (raises DeviceError naming what failed)."""
+        o = self.opts
+        dev = V4L2Device(self._locate(), self.io).open()
+        try:
+            dev.set_format(o.width, o.height, o.pixel_format)
+            self.fps = dev.set_fps(o.fps)
+            self._apply_controls(dev)
+            dev.start(o.buffers)
+        except Exception:
+            dev.close()
+            raise
+        self.device = dev
+        self._last_seq = None
+        log.info(
+            "%s eye streaming from %s: %dx%d %s at %.3g fps",
+            self.eye.value,
+            dev.path,
+            o.width,
+            o.height,
+            o.pixel_format,
+            self.fps,
+        )
+
+    def _apply_controls(self, dev: V4L2Device) -> None:
+        wanted: list[tuple[str, int, int]] = []
+        if self.opts.manual_exposure:
+            wanted.append(
+                ("exposure_auto", raw.CONTROLS["exposure_auto"], raw.V4L2_EXPOSURE_MANUAL)
+            )
+            wanted.append(("exposure_auto_priority", raw.CONTROLS["exposure_auto_priority"], 0))
+            wanted.append(("auto_white_balance", raw.CONTROLS["auto_white_balance"], 0))
+        wanted += [(n, _control_id(n), v) for n, v in self.opts.controls.items()]
+        available = {c.id for c in dev.controls()}
+        for name, cid, value in wanted:
+            if cid not in available:
+                if name in self.opts.controls:
+                    raise DeviceError(f"{dev.path}: has no control {name!r} (see stereod devices)")
+                continue
+            dev.set_control(cid, value)
+
+    def read(self) -> Frame | None:
+        while not self._interrupted.is_set():
+            if self.device is None:
+                try:
+                    self.start()
+                    self._delay = self.opts.retry_s
+                    self._counters["reconnects"] += 1
+                except DeviceError as exc:
+                    log.debug("%s eye: reopen failed: %s", self.eye.value, exc)
+                    self._interrupted.wait(self._delay)
+                    self._delay = min(self._delay * 2, self.opts.retry_max_s)
+                    continue
+            assert self.device is not None
+            try:
+                cap = self.device.read(self.opts.read_timeout_s)
+            except DeviceLost:
+                self.close()
+                raise
+            if cap is None:
+                continue
+            if cap.error:
+                self._counters["frame_error"] += 1
+                continue
+            if self._last_seq is not None and cap.sequence > self._last_seq + 1:
+                self._counters["sequence_gap"] += cap.sequence - self._last_seq - 1
+            self._last_seq = cap.sequence
+            o = self.opts
+            if o.pixel_format == "YUYV":
+                image = yuyv_to_gray(cap.data, o.width, o.height)
+            else:
+                decoded = mjpeg_to_gray(cap.data)
+                if decoded is None:
+                    self._counters["frame_error"] += 1
+                    continue
+                image = decoded
+            return Frame(self.eye, image, cap.t_ns, cap.sequence)
+        return None
+
+    def interrupt(self) -> None:
+        self._interrupted.set()
+
+    def stats(self) -> dict[str, int]:
+        return {k: v for k, v in self._counters.items() if v}
+
+    def close(self) -> None:
+        if self.device is not None:
+            self.device.close()
+            self.device = None
+
+
+class MinoruSource(StereoSource):
+    def __init__(self, left: CameraEye, right: CameraEye, opts: MinoruOptions) -> None:
+        self._left, self._right, self._opts = left, right, opts
+
+    @property
+    def info(self) -> SourceInfo:
+        o = self._opts
+        return SourceInfo(
+            width=o.width,
+            height=o.height,
+            fps=self._left.fps or o.fps,
+            live=True,
+            description=f"Minoru {self._left.path} + {self._right.path}",
+            settings=o.model_dump(),
+        )
+
+    @property
+    def left(self) -> CameraEye:
+        return self._left
+
+    @property
+    def right(self) -> CameraEye:
+        return self._right
+
+
+class MinoruDriver(Driver):
+    """Streams both eyes of a Minoru (or any two V4L2 capture nodes) as a live source."""
+
+    name = "v4l2_minoru"
+
+    def __init__(self, options: dict[str, Any], io: IO | None = None) -> None:
+        try:
+            self.options = MinoruOptions.model_validate(options)
+        except ValidationError as exc:
+            e = exc.errors(include_url=False)[0]
+            loc = ".".join(str(p) for p in e["loc"])
+            raise ConfigError(f"driver.options.{loc}: {e['msg']}") from exc
+        for name in self.options.controls:
+            _control_id(name)
+        self.io = io
+
+    def _paths(self) -> tuple[str, str]:
+        o = self.options
+        found = {}
+        if o.left is None or o.right is None:
+            found = minoru_eyes(find_nodes())
+        paths = []
+        for eye, given in (("left", o.left), ("right", o.right)):
+            default = f"/dev/minoru/{eye}"
+            path = given or (default if Path(default).exists() else found.get(eye))
+            if path is None:
+                raise DeviceError(
+                    f"no {eye} eye: no {default} and no Minoru eye on hub port "
+                    f"{1 if eye == 'left' else 2}; set driver.options.{eye} (see stereod devices)"
+                )
+            paths.append(path)
+        return paths[0], paths[1]
+
+    def open(self) -> MinoruSource:
+        left_path, right_path = self._paths()
+        left = CameraEye(Eye.LEFT, self.options, left_path, self.io)
+        right = CameraEye(Eye.RIGHT, self.options, right_path, self.io)
+        left.start()
+        try:
+            right.start()
+        except Exception:
+            left.close()
+            raise
+        return MinoruSource(left, right, self.options)

@@ -1,0 +1,98 @@
+"""``stereod record``: write what a source delivers into the recording format (design sec. 6).
+
+A live source is read one thread per eye (a camera cannot wait), a file source in timestamp
+order; frames keep their capture times and sequence numbers, so replaying the recording
+reproduces them exactly (bit for bit with the lossless FFV1 codec).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from pathlib import Path
+
+from .errors import DeviceLost, StereodError
+from .frames import Driver, EyeSource, merged
+from .recording import Codec, RecordingWriter
+
+
+def record(
+    driver: Driver,
+    out: Path,
+    *,
+    seconds: float | None = None,
+    codec: str = "ffv1",
+    calibration: Path | None = None,
+    stop: threading.Event | None = None,
+) -> dict[str, int]:
+    """Record until ``seconds`` of stream time, the end of input or ``stop``; return the frame
+    counts per eye."""
+    stop = stop or threading.Event()
+    cal = json.loads(calibration.read_text()) if calibration is not None else None
+    counts = {"left": 0, "right": 0}
+    lock = threading.Lock()
+    with driver.open() as source:
+        info = source.info
+        offset = time.time_ns() - time.monotonic_ns() if info.live else info.utc_offset_ns
+        first: list[int] = []
+        with RecordingWriter(
+            out,
+            info.width,
+            info.height,
+            fps=info.fps,
+            codec=Codec(codec),
+            color=False,
+            settings=info.settings,
+            utc_offset_ns=offset,
+            calibration=cal,
+        ) as writer:
+
+            def keep(frame_t: int) -> bool:
+                if not first:
+                    first.append(frame_t)
+                return seconds is None or frame_t - first[0] < seconds * 1e9
+
+            if info.live:
+                errors: list[StereodError] = []
+
+                def eye_loop(eye: EyeSource) -> None:
+                    while not stop.is_set():
+                        try:
+                            frame = eye.read()
+                        except DeviceLost:
+                            continue
+                        except StereodError as exc:
+                            errors.append(exc)
+                            stop.set()
+                            return
+                        if frame is None:
+                            return
+                        with lock:
+                            if not keep(frame.t_ns):
+                                stop.set()
+                                return
+                            writer.write(frame)
+                            counts[frame.eye.value] += 1
+
+                threads = [
+                    threading.Thread(target=eye_loop, args=(e,))
+                    for e in (source.left, source.right)
+                ]
+                for t in threads:
+                    t.start()
+                while any(t.is_alive() for t in threads):
+                    if stop.wait(0.1):
+                        source.left.interrupt()
+                        source.right.interrupt()
+                for t in threads:
+                    t.join()
+                if errors:
+                    raise errors[0]
+            else:
+                for frame in merged(source.left, source.right):
+                    if stop.is_set() or not keep(frame.t_ns):
+                        break
+                    writer.write(frame)
+                    counts[frame.eye.value] += 1
+    return counts

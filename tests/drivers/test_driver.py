@@ -1,0 +1,98 @@
+"""The device layer and the driver against the fake kernel at the IO seams."""
+
+from __future__ import annotations
+
+import pytest
+
+from stereod.errors import ConfigError, DeviceError, DeviceLost
+from stereod_fakes.v4l2_kernel import FakeCamera, FakeKernel
+from stereod_v4l2_minoru import raw
+from stereod_v4l2_minoru.device import V4L2Device
+from stereod_v4l2_minoru.driver import MinoruDriver
+
+OPTS = {"left": "/dev/fake0", "right": "/dev/fake1", "width": 64, "height": 48, "fps": 30}
+
+
+def kernel(**right: object) -> FakeKernel:
+    return FakeKernel({"/dev/fake0": FakeCamera(), "/dev/fake1": FakeCamera(**right)})
+
+
+def test_device_queries_and_streams() -> None:
+    k = kernel()
+    with V4L2Device("/dev/fake0", k) as dev:
+        assert dev.formats() == [("YUYV", "YUYV 4:2:2")]
+        assert (640, 480) in dev.frame_sizes("YUYV")
+        assert dev.frame_rates("YUYV", 640, 480) == [15.0, 30.0]
+        dev.set_format(64, 48, "YUYV")
+        assert dev.set_fps(30) == 30.0
+        dev.start(4)
+        caps = [dev.read(0.1) for _ in range(5)]
+        assert all(c is not None and c.monotonic for c in caps)
+        assert [c.sequence for c in caps] == [0, 1, 2, 3, 4]  # type: ignore[union-attr]
+        assert caps[1].t_ns - caps[0].t_ns == 33_333_000  # microsecond timeval  # type: ignore[union-attr]
+        with pytest.raises(DeviceError, match="asked for 100x100 YUYV, the device gives 640x480"):
+            dev.set_format(100, 100, "YUYV")
+
+
+def test_driver_streams_gray_with_timestamps_and_counts_gaps_and_errors() -> None:
+    k = kernel(skip_sequences={3, 4}, error_sequences={6})
+    src = MinoruDriver(OPTS, io=k).open()
+    try:
+        left = [src.left.read() for _ in range(6)]
+        right = [src.right.read() for _ in range(6)]
+        assert all(f is not None and f.image.shape == (48, 64) for f in left + right)
+        assert [f.seq for f in right] == [0, 1, 2, 5, 7, 8]  # type: ignore[union-attr]
+        assert src.right.stats() == {"sequence_gap": 3, "frame_error": 1}
+        assert src.left.stats() == {}
+        assert left[0].image[0, 0] == 20  # the Y byte of YUYV  # type: ignore[union-attr]
+        # Manual exposure on both eyes.
+        for cam in k.cameras.values():
+            assert cam.controls[raw.CONTROLS["exposure_auto"]] == raw.V4L2_EXPOSURE_MANUAL
+    finally:
+        src.close()
+
+
+def test_enospc_says_the_eyes_do_not_fit_the_bus() -> None:
+    with pytest.raises(DeviceError, match=r"not enough USB bandwidth .* 640x480 at 15 fps"):
+        MinoruDriver(OPTS, io=kernel(enospc_on_streamon=True)).open()
+
+
+def test_unplug_raises_lost_once_then_recovers_with_controls_reapplied() -> None:
+    k = kernel()
+    opts = {**OPTS, "retry_s": 0.01, "controls": {"gain": 42}}
+    src = MinoruDriver(opts, io=k).open()
+    try:
+        assert src.right.read() is not None
+        k.unplug("/dev/fake1")
+        with pytest.raises(DeviceLost):
+            src.right.read()
+        k.replug("/dev/fake1")
+        assert k.cameras["/dev/fake1"].controls[raw.CONTROLS["exposure_auto"]] == 3
+        f = src.right.read()
+        assert f is not None
+        cam = k.cameras["/dev/fake1"]
+        assert cam.controls[raw.CONTROLS["exposure_auto"]] == raw.V4L2_EXPOSURE_MANUAL
+        assert cam.controls[raw.CONTROLS["gain"]] == 42
+        assert src.right.stats()["reconnects"] == 1
+    finally:
+        src.close()
+
+
+def test_interrupt_ends_a_blocked_read() -> None:
+    k = kernel()
+    src = MinoruDriver({**OPTS, "retry_s": 0.01}, io=k).open()
+    k.unplug("/dev/fake0")
+    with pytest.raises(DeviceLost):
+        src.left.read()
+    src.left.interrupt()
+    assert src.left.read() is None
+    src.close()
+
+
+def test_option_errors() -> None:
+    with pytest.raises(ConfigError, match=r"driver\.options\.controls\.shutter: unknown control"):
+        MinoruDriver({"controls": {"shutter": 1}})
+    with pytest.raises(ConfigError, match=r"driver\.options\.fps"):
+        MinoruDriver({"fps": 0})
+    with pytest.raises(DeviceLost, match="no such device"):
+        MinoruDriver({**OPTS, "left": "/dev/none"}, io=kernel()).open()

@@ -1,0 +1,111 @@
+#!/usr/bin/env bash
+# Runs tests/vm inside a QEMU guest that loads the kernel's own virtual camera driver (vivid),
+# so the V4L2 driver is tested against real /dev/video nodes, timestamps and sequence numbers.
+#
+#   bash tests/vm/run.sh            (uses .venv, as created by `make test`)
+#
+# The guest boots Debian's kernel (the package linux-image-amd64 depends on, unpacked into
+# .vm/ with its modules, host untouched) under TCG, with a ~1 MB busybox initramfs that mounts
+# the host's root read-only over 9p and runs pytest in a chroot of it; results and the exit
+# code come back through a second, writable 9p folder.
+set -euo pipefail
+ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+CACHE="$ROOT/.vm"
+PY="${PYTHON:-$ROOT/.venv/bin/python}"
+TIMEOUT="${STEREOD_VM_TIMEOUT:-900}"
+
+need=()
+for cmd in qemu-system-x86_64 busybox modinfo depmod cpio; do
+    command -v "$cmd" >/dev/null 2>&1 || need+=("$cmd")
+done
+if [ "${#need[@]}" -gt 0 ]; then
+    echo "vm: installing qemu-system-x86 busybox-static kmod cpio (missing: ${need[*]})"
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+        qemu-system-x86 busybox-static kmod cpio >/dev/null
+fi
+
+pkg=$(apt-cache depends linux-image-amd64 2>/dev/null | awk '/Depends: linux-image-[0-9]/{print $2; exit}')
+if [ -z "$pkg" ]; then
+    apt-get update -qq
+    pkg=$(apt-cache depends linux-image-amd64 | awk '/Depends: linux-image-[0-9]/{print $2; exit}')
+fi
+KV=${pkg#linux-image-}
+KROOT="$CACHE/kernel/$KV"
+if [ ! -f "$KROOT/boot/vmlinuz-$KV" ]; then
+    echo "vm: fetching $pkg"
+    mkdir -p "$CACHE/dl" "$KROOT"
+    (cd "$CACHE/dl" && apt-get download "$pkg" >/dev/null)
+    dpkg-deb -x "$CACHE"/dl/"$pkg"_*.deb "$KROOT"
+    depmod -b "$KROOT" "$KV"
+    rm -f "$CACHE"/dl/"$pkg"_*.deb
+fi
+
+INITRD="$CACHE/initrd-$KV-$(sha256sum "$0" | cut -c1-12).gz"
+if [ ! -f "$INITRD" ]; then
+    work=$(mktemp -d)
+    mkdir -p "$work"/{bin,mods,proc,sys,dev,host,out}
+    cp "$(command -v busybox)" "$work/bin/busybox"
+    # The 9p-over-virtio modules and what they need, dependencies first.
+    declare -A seen=()
+    order=()
+    add() {
+        local m=$1 d
+        [ -n "${seen[$m]:-}" ] && return
+        seen[$m]=1
+        for d in $(modinfo -b "$KROOT" -k "$KV" -F depends "$m" | tr ',' ' '); do add "$d"; done
+        order+=("$m")
+    }
+    for m in virtio_pci 9pnet_virtio 9p; do add "$m"; done
+    for m in "${order[@]}"; do
+        cp "$(modinfo -b "$KROOT" -k "$KV" -F filename "$m")" "$work/mods/$m.ko"
+    done
+    cat > "$work/init" <<INIT
+#!/bin/busybox sh
+/bin/busybox --install -s /bin
+export PATH=/bin
+mount -t proc proc /proc; mount -t sysfs sysfs /sys; mount -t devtmpfs devtmpfs /dev
+for m in ${order[*]}; do insmod /mods/\$m.ko; done
+ip link set lo up
+mount -t 9p -o trans=virtio,version=9p2000.L,ro host /host
+mount -t 9p -o trans=virtio,version=9p2000.L out /out
+for d in proc sys dev; do mount --bind /\$d /host/\$d; done
+mkdir -p /host/dev/shm
+mount -t tmpfs tmpfs /host/dev/shm
+mount -t tmpfs tmpfs /host/mnt
+mkdir -p /host/mnt/out
+mount --bind /out /host/mnt/out
+chroot /host /bin/sh /mnt/out/cmd > /out/log 2>&1
+echo \$? > /out/rc
+sync
+poweroff -f
+INIT
+    chmod +x "$work/init"
+    (cd "$work" && find . | cpio -o -H newc 2>/dev/null | gzip -1) > "$INITRD"
+    rm -rf "$work"
+fi
+
+OUT=$(mktemp -d)
+trap 'rm -rf "$OUT"' EXIT
+cat > "$OUT/cmd" <<CMD
+export PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin
+export HOME=/mnt TMPDIR=/mnt PYTHONDONTWRITEBYTECODE=1 STEREOD_VM=1 STEREOD_VM_KERNEL="$KROOT"
+cd "$ROOT"
+"$PY" -m pytest -q -p no:cacheprovider tests/vm $*
+CMD
+echo "vm: booting $KV (TCG)"
+status=0
+timeout "$TIMEOUT" qemu-system-x86_64 -machine q35,accel=tcg -cpu max -m 1536 -smp 2 -nographic \
+    -no-reboot -kernel "$KROOT/boot/vmlinuz-$KV" -initrd "$INITRD" \
+    -append "console=ttyS0 quiet panic=-1" \
+    -fsdev local,id=host,path=/,security_model=none,readonly=on,multidevs=remap \
+    -device virtio-9p-pci,fsdev=host,mount_tag=host \
+    -fsdev local,id=out,path="$OUT",security_model=none \
+    -device virtio-9p-pci,fsdev=out,mount_tag=out >"$OUT/console" 2>&1 || status=$?
+cat "$OUT/log" 2>/dev/null || true
+if [ ! -f "$OUT/rc" ]; then
+    echo "vm: the guest did not finish (qemu exit $status); console:"
+    tail -30 "$OUT/console"
+    exit 1
+fi
+exit "$(cat "$OUT/rc")"

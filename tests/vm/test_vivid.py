@@ -1,0 +1,172 @@
+"""The V4L2 driver against the kernel's vivid driver (in the VM): real nodes, real kernel
+timestamps and sequence numbers, a real unplug and re-plug."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from stereod.frames import Eye
+from stereod.pairing import Pairer
+from stereod_fakes.replay import ReplayDriver
+from stereod_v4l2_minoru.device import V4L2Device
+from stereod_v4l2_minoru.driver import MinoruDriver
+
+from ..conftest import ROOT, free_endpoint, zenoh_config
+from .conftest import bind, unbind
+
+W, H, FPS = 320, 180, 25.0
+
+
+def options(nodes: list[str]) -> dict:
+    return {
+        "left": nodes[0],
+        "right": nodes[1],
+        "width": W,
+        "height": H,
+        "fps": FPS,
+        "manual_exposure": False,
+    }
+
+
+def test_capture_both_eyes_with_kernel_timestamps(vivid: list[str]) -> None:
+    with V4L2Device(vivid[0]) as dev:
+        assert "YUYV" in [f for f, _ in dev.formats()]
+        assert (W, H) in dev.frame_sizes("YUYV")
+    source = MinoruDriver(options(vivid)).open()
+    try:
+        frames = {Eye.LEFT: [], Eye.RIGHT: []}
+        for _ in range(25):  # alternately, as the two capture threads keep both eyes current
+            for eye in (source.left, source.right):
+                f = eye.read()
+                assert f is not None
+                frames[eye.eye].append(f)
+        for eye, fs in frames.items():
+            t = np.array([f.t_ns for f in fs])
+            seq = np.array([f.seq for f in fs])
+            assert np.all(np.diff(t) > 0), f"{eye} timestamps not increasing"
+            period = float(np.median(np.diff(t))) / 1e6
+            assert abs(period - 1000 / FPS) < 4, f"{eye} period {period:.1f} ms"
+            assert np.all(np.diff(seq) >= 1)
+            assert fs[0].image.shape == (H, W)
+            # CLOCK_MONOTONIC: the kernel stamps frames on the clock time.monotonic_ns reads.
+            assert abs(fs[-1].t_ns - time.monotonic_ns()) < 5e9
+        pairer = Pairer(int(1e9 / FPS))
+        pairs = []
+        for f in sorted(frames[Eye.LEFT] + frames[Eye.RIGHT], key=lambda f: f.t_ns):
+            pairs += pairer.push(f)
+        assert len(pairs) >= 15
+        assert max(abs(p.skew_ns) for p in pairs) <= 0.5e9 / FPS + 2e6
+        gaps = source.left.stats().get("sequence_gap", 0) + source.right.stats().get(
+            "sequence_gap", 0
+        )
+        assert gaps == sum(int(np.sum(np.diff([f.seq for f in fs]) - 1)) for fs in frames.values())
+    finally:
+        source.close()
+
+
+def write_config(path: Path, nodes: list[str], endpoint: str) -> None:
+    opts = options(nodes)
+    lines = "".join(f"{k} = {json.dumps(v)}\n" for k, v in opts.items())
+    path.write_text(
+        f'[rig]\nname = "vivid"\n[driver]\nname = "v4l2_minoru"\n[driver.options]\n{lines}'
+        f'[zenoh]\nlisten = ["{endpoint}"]\n[daemon]\nstatus_period_s = 0.5\n'
+    )
+
+
+def test_daemon_survives_unplug_and_resumes(vivid: list[str], tmp_path: Path) -> None:
+    endpoint = free_endpoint()
+    cfg = tmp_path / "vivid.toml"
+    write_config(cfg, vivid, endpoint)
+    log = (tmp_path / "daemon.log").open("w")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "stereod.cli", "run", "--config", str(cfg)],
+        cwd=ROOT,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, "STEREOD_LOG_LEVEL": "INFO"},
+    )
+    objects: list[dict] = []
+    statuses: list[dict] = []
+    try:
+        with zenoh.open(zenoh_config(connect=[endpoint])) as s:
+            s.declare_subscriber(
+                "stereod/vivid/objects", lambda m: objects.append(json.loads(m.payload.to_bytes()))
+            )
+            s.declare_subscriber(
+                "stereod/vivid/status", lambda m: statuses.append(json.loads(m.payload.to_bytes()))
+            )
+
+            def wait(pred, timeout: float) -> bool:
+                deadline = time.monotonic() + timeout
+                while time.monotonic() < deadline:
+                    if pred():
+                        return True
+                    time.sleep(0.1)
+                return False
+
+            assert wait(lambda: len(objects) >= 20, 120), (
+                f"no objects from the vivid streams ({len(statuses)} statuses): "
+                + (tmp_path / "daemon.log").read_text()[-3000:]
+            )
+            assert wait(lambda: any(st["left"]["state"] == "streaming" for st in statuses), 30)
+            unbind("vivid.0")
+            assert wait(lambda: any(st["left"]["state"] == "down" for st in statuses), 60), (
+                "the status key never said the left eye was down"
+            )
+            assert proc.poll() is None, "the daemon must survive the unplug"
+            down_at = len(objects)
+            bind("vivid.0")
+            assert wait(
+                lambda: (
+                    statuses[-1]["left"]["state"] == "streaming" and len(objects) > down_at + 10
+                ),
+                120,
+            ), "streaming did not resume"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=60)
+        log.close()
+    assert proc.returncode == 0, (tmp_path / "daemon.log").read_text()[-3000:]
+
+
+def test_record_and_replay_reproduce_timestamps(vivid: list[str], tmp_path: Path) -> None:
+    cfg = tmp_path / "rec.toml"
+    write_config(cfg, vivid, free_endpoint())
+    out = tmp_path / "rec"
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "stereod.cli",
+            "record",
+            str(out),
+            "--seconds",
+            "2",
+            "--config",
+            str(cfg),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, res.stderr
+    csv = {eye: (out / f"{eye}.csv").read_text().splitlines()[1:] for eye in ("left", "right")}
+    assert len(csv["left"]) >= 30
+    with ReplayDriver({"path": out}).open() as src:
+        for eye, reader in (("left", src.left), ("right", src.right)):
+            for row in csv[eye]:
+                t, seq = (int(x) for x in row.split(","))
+                f = reader.read()
+                assert f is not None and (f.t_ns, f.seq) == (t, seq)
+            assert reader.read() is None
