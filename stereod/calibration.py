@@ -152,6 +152,25 @@ def from_arrays(
     return cal.model_copy(update={"id": cal.content_id()})
 
 
+def canonical(baseline_m: float, hfov_deg: float, width: int, height: int) -> Calibration:
+    """The canonical rig of eq. 9 written as a calibration: identical distortion-free cameras,
+    principal point at the image centre, no rotation, the right one ``baseline_m`` along +x."""
+    f = width / (2.0 * math.tan(math.radians(hfov_deg) / 2.0))
+    k = np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+    return from_arrays(
+        (width, height),
+        {
+            "K1": k,
+            "D1": np.zeros(5),
+            "K2": k,
+            "D2": np.zeros(5),
+            "R": np.eye(3),
+            "T": np.array([-baseline_m, 0.0, 0.0]),
+        },
+        source=f"canonical rig: {baseline_m:g} m, {hfov_deg:g} deg",
+    )
+
+
 def rectify(
     image_size: tuple[int, int],
     k1: np.ndarray,

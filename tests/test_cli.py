@@ -343,22 +343,10 @@ def test_synth_command_writes_recording_and_truth(tmp_path: Path) -> None:
 def test_replay_with_calibration_file(scene_dir: tuple[Scene, Path], tmp_path: Path) -> None:
     """The canonical rig written as a calibration file gives the same positions, now marked
     calibrated with the file's id; a calibration for another image size is refused."""
-    from stereod.calibration import from_arrays, save
+    from stereod.calibration import canonical, save
 
     scene, rec = scene_dir
-    r = scene.rig
-    k = np.array([[r.focal_px, 0, r.cx_px], [0, r.focal_px, r.cy_px], [0, 0, 1.0]])
-    cal = from_arrays(
-        (640, 480),
-        {
-            "K1": k,
-            "D1": np.zeros(5),
-            "K2": k,
-            "D2": np.zeros(5),
-            "R": np.eye(3),
-            "T": np.array([-r.baseline_m, 0, 0]),
-        },
-    )
+    cal = canonical(scene.baseline_m, scene.hfov_deg, 640, 480)
     path = tmp_path / "cal.json"
     save(cal, path)
     out = tmp_path / "cal.jsonl"
@@ -387,17 +375,7 @@ def test_replay_with_calibration_file(scene_dir: tuple[Scene, Path], tmp_path: P
         if o["state"] == "confirmed"
     ]
     assert errs and max(errs) < 0.02
-    small = from_arrays(
-        (320, 240),
-        {
-            "K1": k,
-            "D1": np.zeros(5),
-            "K2": k,
-            "D2": np.zeros(5),
-            "R": np.eye(3),
-            "T": np.array([-0.06, 0, 0]),
-        },
-    )
+    small = canonical(0.06, 60.0, 320, 240)
     save(small, tmp_path / "small.json")
     one_line_error(
         stereod("replay", str(rec), "--calibration", str(tmp_path / "small.json")),

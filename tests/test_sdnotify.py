@@ -11,11 +11,10 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 import zenoh
 
-from stereod.calibration import from_arrays, save
+from stereod.calibration import canonical, save
 from stereod.sdnotify import Notifier
 
 from .conftest import ROOT
@@ -118,18 +117,7 @@ def test_run_speaks_the_notify_protocol_in_order(tmp_path: Path, endpoint: str) 
 
 
 def test_garbage_calibration_on_reload_keeps_the_old_one(tmp_path: Path, endpoint: str) -> None:
-    k = np.array([[554.3, 0, 319.5], [0, 554.3, 239.5], [0, 0, 1.0]])
-    cal = from_arrays(
-        (640, 480),
-        {
-            "K1": k,
-            "D1": np.zeros(5),
-            "K2": k,
-            "D2": np.zeros(5),
-            "R": np.eye(3),
-            "T": np.array([-0.06, 0, 0]),
-        },
-    )
+    cal = canonical(0.06, 60.0, 640, 480)
     cal_path = tmp_path / "cal.json"
     save(cal, cal_path)
     cfg = tmp_path / "svc.toml"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stereod.calibration import from_arrays
+from stereod.calibration import canonical, from_arrays
 from stereod.frames import Eye
 from stereod.geometry.rectified import CalibratedRig
 from stereod.geometry.stereo import CanonicalRig
@@ -47,18 +47,7 @@ def test_points_through_a_distorted_rotated_rig_are_recovered() -> None:
 
 def test_canonical_calibration_equals_canonical_rig() -> None:
     canon = CanonicalRig(0.06, 60.0, 640, 480)
-    k = np.array([[canon.focal_px, 0, canon.cx_px], [0, canon.focal_px, canon.cy_px], [0, 0, 1]])
-    cal = from_arrays(
-        (640, 480),
-        {
-            "K1": k,
-            "D1": np.zeros(5),
-            "K2": k,
-            "D2": np.zeros(5),
-            "R": np.eye(3),
-            "T": np.array([-0.06, 0, 0]),
-        },
-    )
+    cal = canonical(0.06, 60.0, 640, 480)
     rig = CalibratedRig(cal)
     pts = np.array([[0.2, -0.1, 1.5], [-0.4, 0.3, 3.0]])
     left, right = canon.project(pts)
