@@ -519,6 +519,7 @@ def _cmd_replay(a: argparse.Namespace) -> int:
         rate=a.rate,
         jsonl=a.jsonl,
         wait_subscriber_s=a.wait_subscriber,
+        reload_config=lambda: load_config(a.config, ov),
     )
     return _run_daemon(daemon, quiet=a.quiet)
 

@@ -35,6 +35,7 @@ KROOT="$CACHE/kernel/$KV"
 if [ ! -f "$KROOT/boot/vmlinuz-$KV" ]; then
     echo "vm: fetching $pkg"
     mkdir -p "$CACHE/dl" "$KROOT"
+    chmod 0777 "$CACHE/dl"  # apt downloads as its own user when it can
     (cd "$CACHE/dl" && apt-get download "$pkg" >/dev/null)
     dpkg-deb -x "$CACHE"/dl/"$pkg"_*.deb "$KROOT"
     depmod -b "$KROOT" "$KV"
