@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -60,6 +61,22 @@ class RigSpec(BaseModel):
     def T(self) -> np.ndarray:
         """Translation (3,) m: the right camera's centre is (B, 0, 0) in left coordinates."""
         return -self.R @ np.array([self.baseline_m, 0.0, 0.0])
+
+    def calibration(self, width: int = 640, height: int = 480, **changes: np.ndarray) -> Any:
+        """This rig's exact calibration (a :class:`stereod.calibration.Calibration`); keyword
+        arguments replace matrices (``R=np.eye(3)``) to build deliberately wrong ones."""
+        from stereod.calibration import from_arrays
+
+        arrays = {
+            "K1": self.left.K,
+            "D1": self.left.D,
+            "K2": self.right.K,
+            "D2": self.right.D,
+            "R": self.R,
+            "T": self.T,
+            **changes,
+        }
+        return from_arrays((width, height), arrays, source="synthetic rig")
 
     def camera(self, eye: Eye) -> CameraSpec:
         return self.left if eye is Eye.LEFT else self.right

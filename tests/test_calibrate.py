@@ -143,7 +143,7 @@ def test_cli_refuses_bad_calibration_unless_forced(tmp_path: Path) -> None:
         cv2.imwrite(str(tmp_path / f"left_{n}.png"), l)
         cv2.imwrite(str(tmp_path / f"right_{n}.png"), r)
     out = tmp_path / "c.json"
-    res = stereod(
+    args = [
         "calibrate",
         "--pairs",
         str(tmp_path),
@@ -153,20 +153,10 @@ def test_cli_refuses_bad_calibration_unless_forced(tmp_path: Path) -> None:
         "0.03",
         "--out",
         str(out),
-    )
+    ]
+    res = stereod(*args)
     assert res.returncode == 65 and not out.exists()
     assert "only 4 usable pairs" in res.stderr and "--force" in res.stderr
-    res = stereod(
-        "calibrate",
-        "--pairs",
-        str(tmp_path),
-        "--board",
-        "9x6",
-        "--square",
-        "0.03",
-        "--out",
-        str(out),
-        "--force",
-    )
+    res = stereod(*args, "--force")
     assert res.returncode == 0 and out.exists()
     assert "per pair" in res.stdout and "RMS reprojection error" in res.stdout

@@ -17,19 +17,8 @@ from stereod_fakes.rig import minoru_like
 
 
 def a_calibration() -> Calibration:
-    rig = minoru_like()
-    return from_arrays(
-        (640, 480),
-        {
-            "K1": rig.left.K,
-            "D1": rig.left.D,
-            "K2": rig.right.K,
-            "D2": rig.right.D,
-            "R": rig.R,
-            "T": rig.T,
-        },
-        source="test",
-    )
+    cal: Calibration = minoru_like().calibration()
+    return cal
 
 
 def test_save_load_round_trip_and_id(tmp_path: Path) -> None:

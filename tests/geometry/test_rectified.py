@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stereod.calibration import canonical, from_arrays
+from stereod.calibration import canonical
 from stereod.frames import Eye
 from stereod.geometry.rectified import CalibratedRig
 from stereod.geometry.stereo import CanonicalRig
@@ -16,17 +16,7 @@ def test_points_through_a_distorted_rotated_rig_are_recovered() -> None:
     """Project known points through the true cameras (distortion, rotation); triangulating the
     image points with the true calibration gives them back, in the rectified rig frame."""
     spec = minoru_like()
-    cal = from_arrays(
-        (640, 480),
-        {
-            "K1": spec.left.K,
-            "D1": spec.left.D,
-            "K2": spec.right.K,
-            "D2": spec.right.D,
-            "R": spec.R,
-            "T": spec.T,
-        },
-    )
+    cal = spec.calibration()
     rig = CalibratedRig(cal)
     rng = np.random.default_rng(1)
     world = np.column_stack(
@@ -58,16 +48,6 @@ def test_canonical_calibration_equals_canonical_rig() -> None:
 
 def test_swapped_calibration_is_refused() -> None:
     spec = minoru_like()
-    cal = from_arrays(
-        (640, 480),
-        {
-            "K1": spec.left.K,
-            "D1": spec.left.D,
-            "K2": spec.right.K,
-            "D2": spec.right.D,
-            "R": np.eye(3),
-            "T": np.array([0.06, 0, 0]),
-        },
-    )
+    cal = spec.calibration(R=np.eye(3), T=np.array([0.06, 0, 0]))
     with pytest.raises(ValueError, match="swapped"):
         CalibratedRig(cal)
