@@ -9,7 +9,6 @@ Usage: ``python benchmarks/soak.py [--minutes 30] [--every 10]``.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import socket
@@ -21,6 +20,8 @@ from pathlib import Path
 
 import zenoh
 
+from stereod.config import ZenohConfig
+from stereod.publish import open_session
 from stereod_fakes.synth import Ball, Scene, write_scene
 
 
@@ -70,13 +71,10 @@ def main() -> int:
             stderr=subprocess.PIPE,
             text=True,
         )
-        cfg = zenoh.Config()
-        cfg.insert_json5("scouting", '{"delay": 0, "multicast": {"enabled": false}}')
-        cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
         samples: list[tuple[float, int, int]] = []
         t0 = time.monotonic()
         try:
-            with zenoh.open(cfg) as session:
+            with open_session(ZenohConfig(connect=[endpoint])) as session:
                 sub = session.declare_subscriber("stereod/**", on)
                 print(f"{'t (s)':>8} {'RSS (MiB)':>10} {'fds':>5} {'messages':>9}", flush=True)
                 while time.monotonic() - t0 < a.minutes * 60:
@@ -93,7 +91,10 @@ def main() -> int:
         finally:
             proc.send_signal(signal.SIGTERM)
             proc.communicate(timeout=20)
-    warm = [s for s in samples if s[0] >= 60.0] or samples
+    warm = [s for s in samples if s[0] >= 60.0]
+    if len(warm) < 2:
+        print("\nno figure: run longer than the one-minute warm-up (--minutes)")
+        return 1
     rss_growth = (warm[-1][1] - warm[0][1]) / 1024
     fd_growth = warm[-1][2] - warm[0][2]
     span = (warm[-1][0] - warm[0][0]) / 60

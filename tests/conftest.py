@@ -32,9 +32,15 @@ def free_endpoint() -> str:
 
 
 def zenoh_config(
-    *, listen: list[str] | None = None, connect: list[str] | None = None
+    *,
+    listen: list[str] | None = None,
+    connect: list[str] | None = None,
+    mode: str | None = None,
 ) -> zenoh.Config:
+    """A test session's config: loopback endpoints, no multicast scouting."""
     cfg = zenoh.Config()
+    if mode:
+        cfg.insert_json5("mode", json.dumps(mode))
     cfg.insert_json5("scouting", json.dumps({"delay": 0, "multicast": {"enabled": False}}))
     if listen:
         cfg.insert_json5("listen/endpoints", json.dumps(listen))

@@ -16,7 +16,7 @@ import zenoh
 
 from stereod_fakes.synth import Scene, write_scene
 
-from .conftest import ROOT, free_endpoint
+from .conftest import ROOT, free_endpoint, zenoh_config
 
 pytestmark = pytest.mark.slow
 
@@ -43,14 +43,6 @@ def start_router(endpoint: str) -> subprocess.Popen[str]:
     )
     assert proc.stdout is not None and proc.stdout.readline().strip() == "up"
     return proc
-
-
-def client(endpoint: str) -> zenoh.Config:
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"client"')
-    cfg.insert_json5("scouting", '{"delay": 0, "multicast": {"enabled": false}}')
-    cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    return cfg
 
 
 def test_messages_flow_through_a_router_and_resume_after_it_restarts(tmp_path: Path) -> None:
@@ -98,7 +90,7 @@ def test_messages_flow_through_a_router_and_resume_after_it_restarts(tmp_path: P
         return False
 
     try:
-        with zenoh.open(client(endpoint)) as session:
+        with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as session:
             sub = session.declare_subscriber("stereod/minoru/objects", on)
             t0 = time.monotonic()
             assert wait_arrivals(t0, 10, 20), "no messages through the router"
@@ -127,10 +119,7 @@ def test_killed_subscriber_does_not_disturb_the_daemon(tmp_path: Path) -> None:
     rec = write_scene(Scene(duration_s=3.0, fps=15), tmp_path / "rec")
     endpoint = free_endpoint()
     received: list[int] = []
-    cfg = zenoh.Config()
-    cfg.insert_json5("scouting", '{"delay": 0, "multicast": {"enabled": false}}')
-    cfg.insert_json5("listen/endpoints", json.dumps([endpoint]))
-    with zenoh.open(cfg) as session:
+    with zenoh.open(zenoh_config(listen=[endpoint])) as session:
         sub = session.declare_subscriber(
             "stereod/minoru/objects",
             lambda s: received.append(json.loads(s.payload.to_bytes())["seq"]),

@@ -17,7 +17,7 @@ import zenoh
 from stereod.calibration import canonical, save
 from stereod.sdnotify import Notifier
 
-from .conftest import ROOT
+from .conftest import ROOT, zenoh_config
 
 pytestmark = pytest.mark.slow
 
@@ -131,10 +131,7 @@ def test_garbage_calibration_on_reload_keeps_the_old_one(tmp_path: Path, endpoin
     )
     statuses: list[dict] = []
     try:
-        zc = zenoh.Config()
-        zc.insert_json5("scouting", '{"delay": 0, "multicast": {"enabled": false}}')
-        zc.insert_json5("connect/endpoints", json.dumps([endpoint]))
-        with zenoh.open(zc) as s:
+        with zenoh.open(zenoh_config(connect=[endpoint])) as s:
             sub = s.declare_subscriber(
                 "stereod/svc/status",
                 lambda smp: statuses.append(json.loads(smp.payload.to_bytes())),
