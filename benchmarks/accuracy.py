@@ -28,12 +28,29 @@ from pathlib import Path
 
 import numpy as np
 
-from stereod.demo import angle_diff_deg
-from stereod.messages import ObjectsMessage
-from stereod.motion import circular_median_deg
-from stereod.pipeline import PipelineParams
-from stereod_fakes.scenarios import TABLE_I, TableRow, replay_through_pipeline, table_one_scene
+from stereod.frames import merged
+from stereod.messages import ObjectsMessage, objects_message
+from stereod.motion import angle_diff_deg, circular_median_deg
+from stereod.pipeline import Pipeline, PipelineParams
+from stereod.recording import read_manifest
+from stereod_fakes.replay import ReplayDriver
+from stereod_fakes.scenarios import TABLE_I, TableRow, table_one_scene
 from stereod_fakes.synth import Scene, write_scene
+
+
+def replay_through_pipeline(recording: Path, params: PipelineParams) -> list[ObjectsMessage]:
+    """Every objects message the pipeline makes from a recording, in order (no Zenoh)."""
+    man = read_manifest(recording)
+    with ReplayDriver({"path": recording}).open() as src, Pipeline(params) as pipe:
+        results = list(pipe.run(merged(src.left, src.right), int(0.75e9 / (man.fps or 15.0))))
+    rig = params.rig
+    return [
+        objects_message(
+            r, rig="bench", geometry=rig.geometry, calibration_id=None, utc_offset_ns=0
+        )
+        for r in results
+    ]
+
 
 HEADING_TARGET_DEG = 1.0
 SPEED_TARGET = 0.03
@@ -82,11 +99,11 @@ def summarise(scene: Scene, messages: list[ObjectsMessage]) -> Run | None:
 def run_scenario(row: TableRow, workdir: Path, seed: int) -> tuple[Scene, Run, Run | None]:
     scene = table_one_scene(row.heading_deg, row.speed_mps, seed=seed)
     rec = write_scene(scene, workdir / f"h{row.heading_deg:03.0f}")
-    params = PipelineParams("bench", scene.rig)
+    params = PipelineParams(scene.rig)
     on = summarise(scene, replay_through_pipeline(rec, params))
     if on is None:
         raise RuntimeError(f"heading {row.heading_deg}: no valid velocity with compensation on")
-    off_params = PipelineParams("bench", scene.rig, skew_compensation=False)
+    off_params = PipelineParams(scene.rig, skew_compensation=False)
     off = summarise(scene, replay_through_pipeline(rec, off_params))
     return scene, on, off
 

@@ -5,7 +5,7 @@ sensor noise), then times on the same pairs:
 
 - stereod: ``Pipeline.process`` (detect both eyes, match, triangulate, track) plus building the
   wire payloads (objects message and per-track states), as the daemon does per pair;
-- naive: paper sec. II in float numpy + scipy.ndimage (``stereod.detect_reference``), both eyes,
+- naive: paper sec. II in float numpy + scipy.ndimage (``tests/detect_reference.py``), both eyes,
   detection only;
 - MOG2: OpenCV's Gaussian-mixture background subtractor on both eyes plus connected components.
 
@@ -15,17 +15,22 @@ Prints pairs/s and the ratios. Usage: ``python benchmarks/throughput.py [--pairs
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import cv2
 
 from stereod.detect import DetectorParams
-from stereod.detect_reference import ReferenceDetector
 from stereod.frames import StereoPair
-from stereod.messages import dump
+from stereod.geometry import Geometry
+from stereod.messages import dump, objects_message
 from stereod.pipeline import Pipeline, PipelineParams
 from stereod_fakes.synth import Ball, Renderer, Scene
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.detect_reference import ReferenceDetector
 
 SIZES = {"320x240": (320, 240), "640x480": (640, 480), "1280x720": (1280, 720)}
 
@@ -64,15 +69,17 @@ def bench_stereod(pairs: list[StereoPair], w: int, h: int, workers: int, repeat:
 
     best = 0.0
     for _ in range(repeat):
-        pipe = Pipeline(
-            PipelineParams(
-                "bench", CanonicalRig(0.06, 60.0, w, h), DetectorParams(), detect_workers=workers
-            ),
-            utc_offset_ns=0,
-        )
+        rig = CanonicalRig(0.06, 60.0, w, h)
+        pipe = Pipeline(PipelineParams(rig, DetectorParams(), detect_workers=workers))
 
         def step(p: StereoPair, pipe: Pipeline = pipe) -> None:
-            msg = pipe.process(p).message
+            msg = objects_message(
+                pipe.process(p),
+                rig="bench",
+                geometry=Geometry.CANONICAL,
+                calibration_id=None,
+                utc_offset_ns=0,
+            )
             dump(msg)
             for o in msg.objects:
                 dump(o)

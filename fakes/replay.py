@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from stereod.errors import ConfigError, InputError, MissingInputError
+from stereod.errors import ConfigError, InputError, MissingInputError, describe_validation_error
 from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
 from stereod.recording import read_manifest, read_timestamps
 
@@ -182,22 +182,11 @@ class ReplaySource(StereoSource):
     """Two :class:`VideoEye` and what the input says about itself."""
 
     def __init__(self, left: VideoEye, right: VideoEye, info: SourceInfo) -> None:
-        self._left, self._right, self._info = left, right, info
-
-    @property
-    def info(self) -> SourceInfo:
-        return self._info
-
-    @property
-    def left(self) -> VideoEye:
-        return self._left
-
-    @property
-    def right(self) -> VideoEye:
-        return self._right
+        super().__init__(left, right, info)
+        self._eyes = (left, right)
 
     def problems(self) -> list[str]:
-        return self._left.problems + self._right.problems
+        return self._eyes[0].problems + self._eyes[1].problems
 
 
 class ReplayDriver(Driver):
@@ -210,10 +199,7 @@ class ReplayDriver(Driver):
         try:
             self.options = ReplayOptions.model_validate(options)
         except ValidationError as exc:
-            e = exc.errors(include_url=False)[0]
-            loc = ".".join(str(p) for p in e["loc"])
-            where = f"driver.options.{loc}" if loc else "driver.options"
-            raise ConfigError(f"{where}: {e['msg'].removeprefix('Value error, ')}") from exc
+            raise ConfigError(describe_validation_error(exc, "driver.options")) from exc
 
     def open(self) -> ReplaySource:
         o = self.options

@@ -1,5 +1,4 @@
-"""The paper's Table I scenarios as synthetic scenes, and a replay of a recording through the
-pipeline without the daemon around it (for benchmarks and accuracy tests).
+"""The paper's Table I scenarios as synthetic scenes (for benchmarks and accuracy tests).
 
 Table I: a robot moves at constant speed on the floor in front of a Minoru (0.060 m baseline),
 in eight directions. Here it is a 0.08 m sphere 0.25 m below the optical axes, crossing about
@@ -9,18 +8,9 @@ and the right eye half a frame late (the worst case of two free-running eyes).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from dataclasses import dataclass
-from pathlib import Path
 
-from stereod.frames import Frame, merged
-from stereod.messages import ObjectsMessage
-from stereod.pairing import Pairer
-from stereod.pipeline import PairResult, Pipeline, PipelineParams
-from stereod.recording import read_manifest
-
-from .replay import ReplayDriver
-from .synth import Ball, Renderer, Scene
+from .synth import Ball, Scene
 
 
 @dataclass(frozen=True)
@@ -78,34 +68,3 @@ def table_one_scene(
         seed=seed,
         balls=[ball],
     )
-
-
-def run_pipeline(
-    frames: Iterable[Frame], params: PipelineParams, tolerance_ns: int
-) -> list[PairResult]:
-    """Pair ``frames`` (both eyes, each eye in order) and run every pair through a fresh
-    pipeline, as the daemon does minus threads and Zenoh."""
-    pipe = Pipeline(params, utc_offset_ns=0)
-    pairer = Pairer(tolerance_ns=tolerance_ns)
-    out: list[PairResult] = []
-    for frame in frames:
-        out.extend(pipe.process(p) for p in pairer.push(frame))
-    out.extend(pipe.process(p) for p in pairer.flush())
-    pipe.close()
-    return out
-
-
-def process_scene(scene: Scene, params: PipelineParams) -> list[PairResult]:
-    """Render ``scene`` in memory and run it through the pipeline."""
-    frames = (f for pair in Renderer(scene).frames() for f in pair)
-    return run_pipeline(frames, params, int(0.75e9 / scene.fps))
-
-
-def replay_through_pipeline(recording: Path, params: PipelineParams) -> list[ObjectsMessage]:
-    """Every objects message the pipeline makes from a recording, in order (no Zenoh)."""
-    man = read_manifest(recording)
-    if (man.width, man.height) != (params.rig.width_px, params.rig.height_px):
-        raise ValueError("the rig's image size must match the recording")
-    with ReplayDriver({"path": recording}).open() as src:
-        results = run_pipeline(merged(src.left, src.right), params, int(0.75e9 / (man.fps or 15.0)))
-    return [r.message for r in results]

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from stereod.errors import ConfigError, InputError, MissingInputError
+from stereod.errors import ConfigError, InputError, MissingInputError, describe_validation_error
 from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
 from stereod.geometry.stereo import CanonicalRig
 from stereod.recording import Codec, RecordingWriter
@@ -120,7 +120,9 @@ def scene_from_truth(path: Path) -> Scene:
     except FileNotFoundError as exc:
         raise MissingInputError(f"{path}: no such truth file") from exc
     except ValidationError as exc:
-        raise InputError(f"{path}: not a scene truth file: {exc.errors()[0]['msg']}") from exc
+        raise InputError(
+            f"{path}: not a scene truth file: {describe_validation_error(exc)}"
+        ) from exc
 
 
 _SUPERSAMPLE = 8
@@ -301,21 +303,8 @@ class _SynthSource(StereoSource):
         self.render_lock = threading.Lock()
         self.renderer = Renderer(scene)
         self.backgrounds = {eye: self.renderer.background(eye) for eye in Eye}
-        self._left = _SynthEye(Eye.LEFT, self)
-        self._right = _SynthEye(Eye.RIGHT, self)
-
-    @property
-    def info(self) -> SourceInfo:
-        sc = self.scene
-        return SourceInfo(sc.width_px, sc.height_px, sc.fps, self.live, "synthetic scene")
-
-    @property
-    def left(self) -> EyeSource:
-        return self._left
-
-    @property
-    def right(self) -> EyeSource:
-        return self._right
+        info = SourceInfo(scene.width_px, scene.height_px, scene.fps, live, "synthetic scene")
+        super().__init__(_SynthEye(Eye.LEFT, self), _SynthEye(Eye.RIGHT, self), info)
 
 
 class SyntheticDriver(Driver):
@@ -333,9 +322,7 @@ class SyntheticDriver(Driver):
         try:
             self.scene = Scene.model_validate(options)
         except ValidationError as exc:
-            e = exc.errors(include_url=False)[0]
-            loc = ".".join(str(p) for p in e["loc"])
-            raise ConfigError(f"driver.options.{loc}: {e['msg']}") from exc
+            raise ConfigError(describe_validation_error(exc, "driver.options")) from exc
 
     def open(self) -> StereoSource:
         return _SynthSource(self.scene, self.live)

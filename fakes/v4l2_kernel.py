@@ -36,6 +36,10 @@ class FakeCamera:
     )
     skip_sequences: set[int] = field(default_factory=set)
     error_sequences: set[int] = field(default_factory=set)
+    short_sequences: set[int] = field(default_factory=set)
+    """Frames whose buffer comes back with half its bytes (a truncated transfer)."""
+    clock_copy: bool = False
+    """Stamp buffers with V4L2_BUF_FLAG_TIMESTAMP_COPY instead of MONOTONIC."""
     enospc_on_streamon: bool = False
     present: bool = True
     streaming: bool = False
@@ -170,9 +174,14 @@ class FakeKernel:
         frame = np.stack([y, np.full_like(y, 128)], axis=-1)
         cam.buffers[index][:] = frame.tobytes()
         t = cam.t0_ns + round(seq * 1e9 / cam.fps)
-        b.index, b.bytesused, b.sequence = index, len(cam.buffers[index]), seq
+        used = len(cam.buffers[index]) // (2 if seq in cam.short_sequences else 1)
+        b.index, b.bytesused, b.sequence = index, used, seq
         b.timestamp.tv_sec, b.timestamp.tv_usec = t // 1_000_000_000, (t % 1_000_000_000) // 1000
-        b.flags = raw.V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC
+        b.flags = (
+            raw.V4L2_BUF_FLAG_TIMESTAMP_COPY
+            if cam.clock_copy
+            else raw.V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC
+        )
         if seq in cam.error_sequences:
             b.flags |= raw.V4L2_BUF_FLAG_ERROR
 

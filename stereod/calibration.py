@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from .errors import CalibrationError, MissingInputError, OutputError
+from .errors import CalibrationError, MissingInputError, OutputError, describe_validation_error
 
 FORMAT: Final = "stereod.calibration/1"
 
@@ -148,7 +148,7 @@ def from_arrays(
             source=source,
         )
     except ValidationError as exc:
-        raise CalibrationError(_describe(exc, "calibration")) from exc
+        raise CalibrationError(f"calibration: {describe_validation_error(exc)}") from exc
     return cal.model_copy(update={"id": cal.content_id()})
 
 
@@ -195,15 +195,6 @@ def rectify(
     return {"R1": r1, "R2": r2, "P1": p1, "P2": p2, "Q": q}
 
 
-def _describe(exc: ValidationError, origin: str) -> str:
-    e = exc.errors(include_url=False)[0]
-    loc = ".".join(str(p) for p in e["loc"]) or "(file)"
-    msg = str(e["msg"]).removeprefix("Value error, ")
-    if e["type"] == "missing":
-        return f"{origin}: field {loc} is missing"
-    return f"{origin}: field {loc}: {msg}"
-
-
 def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
     """Read and validate a calibration file; with ``image_size`` (w, h) also check that it was
     made for frames of that size. Errors name the file and the field."""
@@ -216,7 +207,7 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
     try:
         cal = Calibration.model_validate_json(text)
     except ValidationError as exc:
-        raise CalibrationError(_describe(exc, str(path))) from exc
+        raise CalibrationError(f"{path}: {describe_validation_error(exc)}") from exc
     if cal.id and cal.id != cal.content_id():
         raise CalibrationError(
             f"{path}: field id: {cal.id} does not match the numbers ({cal.content_id()}); "

@@ -21,17 +21,27 @@ Example::
 from __future__ import annotations
 
 import contextvars
+import os
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from pydantic.fields import FieldInfo
-from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    SettingsError,
+)
 
+from . import keys
 from .detect import Centroid, DetectorParams, Luminance
-from .errors import ConfigError
+from .errors import ConfigError, describe_error
 from .geometry.stereo import MatchParams
+from .pairing import DEFAULT_TOLERANCE_NS
+from .pipeline import PipelineParams
 from .tracking import TrackerParams
 
 if sys.version_info >= (3, 11):
@@ -43,13 +53,24 @@ DEFAULT_CONFIG_PATH = Path("/etc/stereod/stereod.toml")
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+# The defaults of the pipeline's settings are stated once, in its parameter classes.
+_DETECT = DetectorParams()
+_MATCH = MatchParams()
+_TRACK = TrackerParams()
+
+
+def _pipe(name: str) -> Any:
+    """The default of one :class:`PipelineParams` field."""
+    return PipelineParams.__dataclass_fields__[name].default
 
 
 class RigConfig(_Section):
     """The stereo rig: its name in key expressions and the canonical geometry (eq. 9)."""
 
-    name: str = Field("minoru", pattern=r"^[A-Za-z0-9_\-]+$", description="Rig name in keys")
+    name: str = Field(keys.DEFAULT_RIG, pattern=keys.RIG_PATTERN, description="Rig name in keys")
     baseline_m: float = Field(0.060, gt=0.0, le=10.0, description="Camera distance B, m")
     hfov_deg: float = Field(60.0, gt=0.0, lt=180.0, description="Horizontal field of view, deg")
     calibration: Path | None = Field(
@@ -67,13 +88,21 @@ class DriverConfig(_Section):
 class DetectorConfig(_Section):
     """Paper sec. II parameters (see :class:`stereod.detect.DetectorParams`)."""
 
-    beta: float = Field(0.02, ge=0.0, lt=1.0, description="Background update, eq. 3, per frame")
-    threshold: float = Field(25.0, gt=0.0, le=255.0, description="t of eq. 4, grey levels")
-    min_area_px: int = Field(30, ge=1, description="Smallest blob, px")
-    warmup_frames: int = Field(10, ge=1, le=10000, description="Frames in the initial background")
-    open_px: int = Field(3, ge=0, le=31, description="Opening kernel side, px; 0 disables")
-    luminance: Luminance = Field(Luminance.BT601, description="bt601 or mean (eq. 2 exactly)")
-    centroid: Centroid = Field(Centroid.COVERAGE, description="coverage or binary (eq. 5)")
+    beta: float = Field(
+        _DETECT.beta, ge=0.0, lt=1.0, description="Background update, eq. 3, per frame"
+    )
+    threshold: float = Field(
+        _DETECT.threshold, gt=0.0, le=255.0, description="t of eq. 4, grey levels"
+    )
+    min_area_px: int = Field(_DETECT.min_area_px, ge=1, description="Smallest blob, px")
+    warmup_frames: int = Field(
+        _DETECT.warmup_frames, ge=1, le=10000, description="Frames in the initial background"
+    )
+    open_px: int = Field(
+        _DETECT.open_px, ge=0, le=31, description="Opening kernel side, px; 0 disables"
+    )
+    luminance: Luminance = Field(_DETECT.luminance, description="bt601 or mean (eq. 2 exactly)")
+    centroid: Centroid = Field(_DETECT.centroid, description="coverage or binary (eq. 5)")
 
     def params(self) -> DetectorParams:
         return DetectorParams(**self.model_dump())
@@ -82,43 +111,72 @@ class DetectorConfig(_Section):
 class PairingConfig(_Section):
     """How the two eyes are paired by timestamp."""
 
-    tolerance_ms: float = Field(40.0, gt=0.0, le=1000.0, description="Largest |skew|, ms")
+    tolerance_ms: float = Field(
+        DEFAULT_TOLERANCE_NS / 1e6, gt=0.0, le=1000.0, description="Largest |skew|, ms"
+    )
     max_pending: int = Field(8, ge=2, le=1000, description="Frames one eye may wait, count")
-    skew_compensation: bool = Field(True, description="Bring both eyes to one instant")
+    skew_compensation: bool = Field(
+        _pipe("skew_compensation"), description="Bring both eyes to one instant"
+    )
 
 
 class MatchingConfig(_Section):
     """How blobs are matched between the eyes (see :class:`stereod.geometry.stereo.MatchParams`)."""
 
-    row_tolerance_px: float = Field(6.0, gt=0.0, description="Largest |y_L - y_R|, px")
-    min_disparity_px: float = Field(0.5, ge=0.0, description="Smallest x_L - x_R, px")
-    max_disparity_px: float = Field(200.0, gt=0.0, description="Largest x_L - x_R, px")
-    max_area_ratio: float = Field(2.5, ge=1.0, description="Largest blob area ratio")
-    centroid_sigma_px: float = Field(0.5, gt=0.0, description="Centroid error per axis, px")
+    row_tolerance_px: float = Field(
+        _MATCH.row_tolerance_px, gt=0.0, description="Largest |y_L - y_R|, px"
+    )
+    min_disparity_px: float = Field(
+        _MATCH.min_disparity_px, ge=0.0, description="Smallest x_L - x_R, px"
+    )
+    max_disparity_px: float = Field(
+        _MATCH.max_disparity_px, gt=0.0, description="Largest x_L - x_R, px"
+    )
+    max_area_ratio: float = Field(
+        _MATCH.max_area_ratio, ge=1.0, description="Largest blob area ratio"
+    )
+    centroid_sigma_px: float = Field(
+        _pipe("centroid_sigma_px"), gt=0.0, description="Centroid error per axis, px"
+    )
 
     def params(self) -> MatchParams:
-        return MatchParams(
-            row_tolerance_px=self.row_tolerance_px,
-            min_disparity_px=self.min_disparity_px,
-            max_disparity_px=self.max_disparity_px,
-            max_area_ratio=self.max_area_ratio,
-        )
+        return MatchParams(**self.model_dump(exclude={"centroid_sigma_px"}))
 
 
 class TrackingConfig(_Section):
     """Association, Kalman filter and lifecycle (see :class:`stereod.tracking.TrackerParams`)."""
 
-    gate_chi2: float = Field(16.3, gt=0.0, description="Mahalanobis gate, chi-square 3 dof")
-    min_gate_m: float = Field(0.15, ge=0.0, description="Always joinable within this, m")
-    gate_px: float = Field(60.0, gt=0.0, description="Image gate for skewed new tracks, px")
-    accel_noise: float = Field(0.05, gt=0.0, description="White acceleration density, m^2/s^3")
-    time_base_s: float = Field(0.5, gt=0.0, le=60.0, description="tau of eq. 21, s")
-    max_coast_s: float = Field(0.5, ge=0.0, le=60.0, description="Track lives unseen, s")
-    confirm_hits: int = Field(3, ge=1, description="Observations to confirm a track")
-    init_velocity_sigma_mps: float = Field(2.0, gt=0.0, description="New track's velocity sigma")
-    freeze_s: float = Field(10.0, ge=0.0, description="Stopped object kept out of background, s")
-    stationary_mps: float = Field(0.05, ge=0.0, description="Below this an object is stopped")
-    freeze_background: bool = Field(True, description="Do not learn background under tracks")
+    gate_chi2: float = Field(
+        _TRACK.gate_chi2, gt=0.0, description="Mahalanobis gate, chi-square 3 dof"
+    )
+    min_gate_m: float = Field(
+        _TRACK.min_gate_m, ge=0.0, description="Always joinable within this, m"
+    )
+    gate_px: float = Field(
+        _TRACK.gate_px, gt=0.0, description="Image gate for skewed new tracks, px"
+    )
+    accel_noise: float = Field(
+        _TRACK.accel_noise, gt=0.0, description="White acceleration density, m^2/s^3"
+    )
+    time_base_s: float = Field(_TRACK.time_base_s, gt=0.0, le=60.0, description="tau of eq. 21, s")
+    max_coast_s: float = Field(
+        _TRACK.max_coast_s, ge=0.0, le=60.0, description="Track lives unseen, s"
+    )
+    confirm_hits: int = Field(
+        _TRACK.confirm_hits, ge=1, description="Observations to confirm a track"
+    )
+    init_velocity_sigma_mps: float = Field(
+        _TRACK.init_velocity_sigma_mps, gt=0.0, description="New track's velocity sigma"
+    )
+    freeze_s: float = Field(
+        _TRACK.freeze_s, ge=0.0, description="Stopped object kept out of background, s"
+    )
+    stationary_mps: float = Field(
+        _TRACK.stationary_mps, ge=0.0, description="Below this an object is stopped"
+    )
+    freeze_background: bool = Field(
+        _pipe("freeze_background"), description="Do not learn background under tracks"
+    )
 
     def params(self) -> TrackerParams:
         return TrackerParams(**self.model_dump(exclude={"freeze_background"}))
@@ -127,7 +185,7 @@ class TrackingConfig(_Section):
 class ZenohConfig(_Section):
     """The Zenoh session: key prefix, mode and endpoints (``tcp/127.0.0.1:7447``)."""
 
-    prefix: str = Field("stereod", pattern=r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$")
+    prefix: str = Field(keys.DEFAULT_PREFIX, pattern=keys.PREFIX_PATTERN)
     mode: Literal["peer", "client", "router"] = "peer"
     connect: list[str] = Field(default_factory=list, description="Endpoints to connect to")
     listen: list[str] = Field(default_factory=list, description="Endpoints to listen on")
@@ -196,22 +254,49 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: cannot read config file: {exc.strerror}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{path}: not a text file (byte {exc.start} is not UTF-8); a config is UTF-8 TOML"
+        ) from exc
 
 
-def _describe(err: Any) -> str:
-    loc = ".".join(str(p) for p in err["loc"])
-    msg = err["msg"]
-    if err["type"] == "extra_forbidden":
-        return f"{loc}: unknown field (check the spelling against `stereod run --help`)"
-    if err["type"] == "missing":
-        return f"{loc}: required field is missing"
-    return f"{loc} = {err.get('input')!r}: {msg}"
+ENV_PREFIX = "STEREOD_"
+ENV_OTHER = ("STEREOD_LOG_LEVEL", "STEREOD_CRASH_DIR")
+"""Variables with the prefix that are not configuration fields."""
 
 
-def format_validation_error(exc: ValidationError, origin: str) -> str:
-    """One line naming every bad field, its value and what is allowed."""
-    parts = [_describe(e) for e in exc.errors(include_url=False)]
-    return f"{origin}: invalid config: " + "; ".join(parts)
+def check_environment(environ: Mapping[str, str] | None = None) -> None:
+    """Refuse a ``STEREOD_`` variable that names no configuration field (a typo would otherwise
+    be ignored silently, while an unknown TOML key is refused)."""
+    env = os.environ if environ is None else environ
+    for name in env:
+        if not name.upper().startswith(ENV_PREFIX) or name.upper() in ENV_OTHER:
+            continue
+        section, sep, fld = name[len(ENV_PREFIX) :].lower().partition("__")
+        model = StereodConfig.model_fields.get(section)
+        known = model is not None and model.annotation is not None
+        if known and sep and fld:
+            sub_model = model.annotation  # type: ignore[union-attr]
+            head = fld.split("__", 1)[0]
+            known = head in getattr(sub_model, "model_fields", {})
+        if not known or not sep:
+            raise ConfigError(
+                f"environment variable {name}: names no configuration field (use "
+                "STEREOD_<SECTION>__<FIELD>, e.g. STEREOD_DETECTOR__BETA; see stereod run --check)"
+            )
+
+
+def _origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) -> str:
+    """Where the value at ``loc`` came from: a flag, the environment, the file, or defaults."""
+    node: Any = overrides
+    for part in loc:
+        node = node.get(part) if isinstance(node, dict) else None
+    if node is not None:
+        return "command line"
+    env = ENV_PREFIX + "__".join(str(p) for p in loc[:2]).upper()
+    if any(k.upper() == env for k in os.environ):
+        return f"environment {env}"
+    return str(path) if path is not None else "defaults"
 
 
 def load_config(path: Path | None = None, overrides: dict[str, Any] | None = None) -> StereodConfig:
@@ -221,12 +306,22 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
     ignored so unset flags do not mask the file.
     """
     data = read_toml(path) if path is not None else {}
+    check_environment()
     token = _file_data.set(data)
     try:
         return StereodConfig(**_prune(overrides or {}))
     except ValidationError as exc:
-        origin = str(path) if path is not None else "configuration"
-        raise ConfigError(format_validation_error(exc, origin)) from exc
+        pruned = _prune(overrides or {})
+        parts = [
+            f"{_origin(tuple(e['loc']), path, pruned)}: invalid config: {describe_error(e)}"
+            for e in exc.errors(include_url=False)
+        ]
+        raise ConfigError("; ".join(parts)) from exc
+    except SettingsError as exc:
+        raise ConfigError(
+            f"environment: {exc} (a list or table is written as JSON, e.g. "
+            "STEREOD_ZENOH__CONNECT='[\"tcp/127.0.0.1:7447\"]')"
+        ) from exc
     finally:
         _file_data.reset(token)
 

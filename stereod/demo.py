@@ -1,30 +1,36 @@
 """``stereod demo``: the whole system on a scene whose truth is known, in one command.
 
-It renders a ball crossing the default Minoru-like rig (0.060 m, 60 deg, 640x480 at 15 Hz),
-replays it through the daemon publishing on a loopback Zenoh endpoint, subscribes to the
-``objects`` key from a second session, prints what arrives, and compares the measured heading,
-speed and position with the truth.
+It has the ``synthetic`` driver render a ball crossing the default Minoru-like rig (0.060 m,
+60 deg, 640x480 at 15 Hz) into a recording, replays that through the daemon publishing on a
+loopback Zenoh endpoint, receives the ``objects`` messages with :mod:`stereod.client` in a
+second session, prints them, and compares the measured heading, speed and position with the
+truth. The truth is the ball's straight line, known in closed form from the demo's own
+parameters.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import socket
 import tempfile
 import threading
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
-import zenoh
 
+from .client import Event, ObjectsMessage, subscribe_objects
 from .config import ZenohConfig, load_config
 from .daemon import Daemon
 from .drivers import load_driver
-from .motion import circular_median_deg
+from .geometry.stereo import CanonicalRig
+from .motion import angle_diff_deg, circular_median_deg
 from .publish import open_session
+from .record import record
 from .subscribe import format_object
+
+T0_NS = 1_000_000_000
+"""Monotonic time of the scene's first frame (ns)."""
 
 
 def free_tcp_port() -> int:
@@ -34,10 +40,52 @@ def free_tcp_port() -> int:
         return int(s.getsockname()[1])
 
 
-def angle_diff_deg(a: float, b: float) -> float:
-    """Smallest signed difference a - b between two headings (deg), in (-180, 180]."""
-    d = (a - b + 180.0) % 360.0 - 180.0
-    return 180.0 if d == -180.0 else d
+@dataclass(frozen=True)
+class DemoBall:
+    """The demo's ball: at ``t_mid_s`` (s after the first frame) it is at ``centre_m`` (rig
+    frame, m) and it moves at ``speed_mps`` along ``heading_deg`` in the XZ plane."""
+
+    heading_deg: float
+    speed_mps: float
+    centre_m: tuple[float, float, float] = (0.0, 0.1, 1.8)
+    radius_m: float = 0.05
+    t_on_s: float = 1.2
+    t_off_s: float = 2.8
+
+    @property
+    def t_mid_s(self) -> float:
+        return 0.5 * (self.t_on_s + self.t_off_s)
+
+    @property
+    def velocity_mps(self) -> np.ndarray:
+        h = math.radians(self.heading_deg)
+        return self.speed_mps * np.array([math.sin(h), 0.0, math.cos(h)])
+
+    def position_m(self, t_ns: int) -> np.ndarray:
+        """Where the ball is at capture instant ``t_ns`` (m)."""
+        t_s = (t_ns - T0_NS) * 1e-9
+        return np.asarray(self.centre_m) + (t_s - self.t_mid_s) * self.velocity_mps
+
+    def scene_options(self) -> dict[str, object]:
+        """The ``synthetic`` driver's options that render this ball."""
+        return {
+            "duration_s": 4.0,
+            "fps": 15.0,
+            "drift": 0.02,
+            "noise_sigma": 1.5,
+            "t0_ns": T0_NS,
+            "balls": [
+                {
+                    "centre_m": list(self.centre_m),
+                    "heading_deg": self.heading_deg,
+                    "speed_mps": self.speed_mps,
+                    "radius_m": self.radius_m,
+                    "t_on_s": self.t_on_s,
+                    "t_off_s": self.t_off_s,
+                    "t_mid_s": self.t_mid_s,
+                }
+            ],
+        }
 
 
 def run_demo(
@@ -48,71 +96,58 @@ def run_demo(
     speed_mps: float = 0.7,
 ) -> int:
     """Run the demo; return 0 when heading and speed came out within the paper's own errors."""
-    from stereod_fakes.synth import Ball, Scene, write_scene
-
-    scene = Scene(
-        balls=[Ball(heading_deg=heading_deg, speed_mps=speed_mps)], drift=0.02, noise_sigma=1.5
-    )
-    ball = scene.balls[0]
+    ball = DemoBall(heading_deg, speed_mps)
     with tempfile.TemporaryDirectory(prefix="stereod-demo-") as tmp:
         out = keep if keep is not None else Path(tmp) / "scene"
-        write_scene(scene, out)
+        counts = record(load_driver("synthetic", ball.scene_options()), out)
         print(
-            f"rendered {scene.n_frames} stereo pairs to {out}: a {ball.radius_m * 100:.0f} cm ball "
-            f"at heading {heading_deg:g} deg, {speed_mps:g} m/s, around "
+            f"rendered {counts['left']} stereo pairs to {out}: a {ball.radius_m * 100:.0f} cm "
+            f"ball at heading {heading_deg:g} deg, {speed_mps:g} m/s, around "
             f"({', '.join(f'{c:g}' for c in ball.centre_m)}) m"
         )
-        port = free_tcp_port()
-        endpoint = f"tcp/127.0.0.1:{port}"
-        cfg = load_config(
-            overrides={
-                "rig": {"baseline_m": scene.baseline_m, "hfov_deg": scene.hfov_deg},
-                "zenoh": {"listen": [endpoint]},
-            }
-        )
-        received: list[dict[str, Any]] = []
+        endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+        cfg = load_config(overrides={"zenoh": {"listen": [endpoint]}})
+        received: list[ObjectsMessage] = []
         lock = threading.Lock()
 
-        def on_sample(sample: zenoh.Sample) -> None:
-            msg = json.loads(sample.payload.to_bytes())
+        def on_event(event: Event) -> None:
+            if not isinstance(event, ObjectsMessage):
+                return
             with lock:
-                received.append(msg)
-                for o in msg["objects"]:
-                    print(f"t {msg['t_ns'] / 1e9:6.3f} s" + format_object(o), flush=True)
+                received.append(event)
+                for o in event.objects:
+                    print(f"t {event.t_ns / 1e9:6.3f} s" + format_object(o), flush=True)
 
         daemon = Daemon(
             cfg, load_driver("replay", {"path": out}), rate=rate, wait_subscriber_s=10.0
         )
-        with open_session(ZenohConfig(connect=[endpoint])) as session:
-            sub = session.declare_subscriber(
-                f"{cfg.zenoh.prefix}/{cfg.rig.name}/objects", on_sample
-            )
+        with (
+            open_session(ZenohConfig(connect=[endpoint])) as session,
+            subscribe_objects(session, on_event, rig=cfg.rig.name, prefix=cfg.zenoh.prefix),
+        ):
             summary = daemon.run()
-            sub.undeclare()
     if summary.error is not None:
         raise summary.error
-    return _report(scene, received)
+    rig = CanonicalRig(cfg.rig.baseline_m, cfg.rig.hfov_deg, 640, 480)
+    return report(ball, rig, received)
 
 
-def _report(scene: Any, received: list[dict[str, Any]]) -> int:
-    ball = scene.balls[0]
-    states = [(m["t_ns"], o) for m in received for o in m["objects"]]
-    valid = [(t, o) for t, o in states if o["velocity_valid"]]
+def report(ball: DemoBall, rig: CanonicalRig, received: list[ObjectsMessage]) -> int:
+    """Print measured against true heading, speed and position; 0 within the paper's errors."""
+    states = [(m.t_ns, o) for m in received for o in m.objects]
+    valid = [o for _, o in states if o.velocity_valid]
     print()
     if not valid:
         print("no valid velocity was measured: is the ball in view?")
         return 1
-    pos_err = []
-    bound = []
-    for t, o in states:
-        truth = ball.position_m((t - scene.t0_ns) / 1e9)
-        pos_err.append(float(np.linalg.norm(np.asarray(o["position_m"]) - truth)))
-        z = truth[2]
-        bound.append(scene.rig.depth_error_one_px_m(z))
-    heading = circular_median_deg([o["heading_deg"] for _, o in valid])
-    spd = float(np.median([o["speed_mps"] for _, o in valid]))
-    raw = [o["raw_velocity_mps"] for _, o in valid if o["raw_velocity_mps"] is not None]
-    raw_v = np.median(np.asarray(raw), axis=0)
+    truth = np.array([ball.position_m(t) for t, _ in states])
+    pos = np.array([o.position_m for _, o in states])
+    pos_err = np.linalg.norm(pos - truth, axis=1)
+    bound = rig.depth_error_one_px_m(truth[:, 2])
+    heading = circular_median_deg([o.heading_deg for o in valid])
+    spd = float(np.median([o.speed_mps for o in valid]))
+    raw = [o.raw_velocity_mps for o in valid if o.raw_velocity_mps is not None]
+    raw_v = np.median(np.asarray(raw), axis=0) if raw else np.full(3, np.nan)
     raw_heading = math.degrees(math.atan2(raw_v[0], raw_v[2])) % 360.0
     raw_speed = float(np.linalg.norm(raw_v))
     dh = angle_diff_deg(heading, ball.heading_deg)

@@ -8,6 +8,7 @@ table as a dict and subclasses :class:`stereod.frames.Driver`.
 from __future__ import annotations
 
 from importlib.metadata import entry_points
+from pathlib import Path
 from typing import Any
 
 from .errors import ConfigError
@@ -21,18 +22,25 @@ def available() -> list[str]:
     return sorted(ep.name for ep in entry_points(group=GROUP))
 
 
-def load_driver(name: str, options: dict[str, Any]) -> Driver:
-    """Instantiate driver ``name`` with ``options``; unknown names list what is installed."""
+def load_driver(name: str, options: dict[str, Any], origin: Path | None = None) -> Driver:
+    """Instantiate driver ``name`` with ``options`` (validated by the driver: a bad option is
+    a :class:`ConfigError` naming ``origin``, the config file they came from, when given);
+    unknown names list what is installed."""
+    where = f"{origin}: " if origin is not None else ""
     found = [ep for ep in entry_points(group=GROUP) if ep.name == name]
     if not found:
         raise ConfigError(
-            f"driver.name = {name!r}: no such driver; installed: {', '.join(available()) or 'none'}"
+            f"{where}driver.name = {name!r}: no such driver; installed: "
+            f"{', '.join(available()) or 'none'}"
         )
     try:
         cls = found[0].load()
     except ImportError as exc:
         raise ConfigError(f"driver.name = {name!r}: cannot load its module: {exc}") from exc
-    driver = cls(options)
+    try:
+        driver = cls(options)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}{exc}") from exc
     if not isinstance(driver, Driver):
         raise ConfigError(f"driver.name = {name!r}: {cls!r} is not a stereod Driver")
     return driver

@@ -6,9 +6,11 @@
     ├── ConfigError               a configuration file, field or flag is invalid (exit 78)
     ├── InputError                an input file or stream is missing, unreadable or inconsistent
     │   └── TruncatedInputError   a video ended before its header said it would
+    ├── OutputError               an output file cannot be created or written (exit 73)
     ├── CalibrationError          a calibration file is missing, ill-shaped or does not fit
-    └── DeviceError               a camera device failed (open, ioctl)
-        └── DeviceLost            a camera went away while in use (the source retries)
+    ├── DeviceError               a camera device failed (open, ioctl)
+    │   └── DeviceLost            a camera went away while in use (the source retries)
+    └── InternalError             a bug: an unexpected exception, logged in full (exit 70)
 
 Foreign errors (OSError, cv2.error, pydantic.ValidationError) are translated into these at the
 boundary with ``raise ... from exc`` so callers only ever catch ``StereodError``.
@@ -16,12 +18,18 @@ boundary with ``raise ... from exc`` so callers only ever catch ``StereodError``
 
 from __future__ import annotations
 
+from typing import Any
+
+from pydantic import ValidationError
+
 EX_DATAERR = 65
 """Exit code for bad input data (sysexits.h EX_DATAERR)."""
 EX_NOINPUT = 66
 """Exit code for a missing or unreadable input file (sysexits.h EX_NOINPUT)."""
 EX_UNAVAILABLE = 69
 """Exit code for a device or service that cannot be reached (sysexits.h EX_UNAVAILABLE)."""
+EX_SOFTWARE = 70
+"""Exit code for an internal error, a bug (sysexits.h EX_SOFTWARE); the log has the details."""
 EX_CANTCREAT = 73
 """Exit code for an output that cannot be created (sysexits.h EX_CANTCREAT)."""
 EX_CONFIG = 78
@@ -77,3 +85,37 @@ class DeviceError(StereodError):
 class DeviceLost(DeviceError):
     """A camera went away while in use (unplugged, reset); its source retries by itself, the
     daemon reports the eye down and keeps running."""
+
+
+class InternalError(StereodError):
+    """Something unexpected failed (a bug); the full traceback is in the log."""
+
+    exit_code = EX_SOFTWARE
+
+
+def describe_validation_error(exc: ValidationError, prefix: str = "") -> str:
+    """One line naming every field a pydantic model refused, the value given and what is
+    allowed: ``driver.options.fps = -15: Input should be greater than 0``. ``prefix`` is the
+    section the model sits in (``driver.options``), if any."""
+    return "; ".join(describe_error(e, prefix) for e in exc.errors(include_url=False))
+
+
+def describe_error(e: Any, prefix: str = "") -> str:
+    """One of a ValidationError's ``errors()`` as ``field = value: what is wrong``."""
+    loc = ".".join(str(p) for p in (prefix.split(".") if prefix else []) + list(e["loc"]))
+    loc = loc or "(top level)"
+    msg = str(e["msg"]).removeprefix("Value error, ")
+    if e["type"] == "json_invalid":
+        return f"not valid JSON ({msg.removeprefix('Invalid JSON: ')})"
+    if e["type"] == "extra_forbidden":
+        return f"{loc}: unknown field (check its spelling)"
+    if e["type"] == "missing":
+        return f"{loc}: required field is missing"
+    if "input" in e and not isinstance(e["input"], dict | list):
+        return f"{loc} = {_shown(e['input'])}: {msg}"
+    return f"{loc}: {msg}"
+
+
+def _shown(value: object, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."

@@ -12,6 +12,7 @@ import enum
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from types import TracebackType
 from typing import Any
 
@@ -53,6 +54,23 @@ class StereoPair:
     left: Frame
     right: Frame
 
+    @classmethod
+    def of(
+        cls,
+        left_image: np.ndarray,
+        right_image: np.ndarray,
+        t_left_ns: int,
+        t_right_ns: int,
+        seq: int = 0,
+    ) -> StereoPair:
+        """A pair from two images (uint8 grey (h, w) or BGR (h, w, 3)) and their capture
+        instants (ns, one monotonic clock); both frames get sequence number ``seq``."""
+        return cls(
+            seq,
+            Frame(Eye.LEFT, left_image, int(t_left_ns), seq),
+            Frame(Eye.RIGHT, right_image, int(t_right_ns), seq),
+        )
+
     @property
     def skew_ns(self) -> int:
         return self.right.t_ns - self.left.t_ns
@@ -60,6 +78,19 @@ class StereoPair:
     @property
     def t_ns(self) -> int:
         return (self.left.t_ns + self.right.t_ns) // 2
+
+
+@dataclass
+class EyeCounters:
+    """What one eye's source counted since it opened, kept apart by kind.
+
+    ``drops``: frames the camera took that never arrived (sequence gaps), by reason;
+    ``errors``: frames that arrived unusable or were corrected (corrupt, undecodable, a
+    timestamp not on CLOCK_MONOTONIC), by reason.
+    """
+
+    drops: dict[str, int] = field(default_factory=dict)
+    errors: dict[str, int] = field(default_factory=dict)
 
 
 class EyeSource(ABC):
@@ -71,19 +102,25 @@ class EyeSource(ABC):
     def read(self) -> Frame | None:
         """Block until the next frame; ``None`` at the end of a finite source.
 
-        Raises :class:`stereod.errors.StereodError` on a failure the caller should report.
+        Raises :class:`stereod.errors.DeviceLost` when a live device went away (the next read
+        reopens it), or another :class:`stereod.errors.StereodError` on a failure to report.
         """
 
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release the eye's resources; idempotent."""
 
+    def recover(self) -> None:
+        """Start over after an unexpected failure of :meth:`read`, as after a re-plug: by
+        default the eye is closed, and a live source reopens it on the next read."""
+        self.close()
+
     def interrupt(self) -> None:  # noqa: B027 - optional hook
         """Make a blocked :meth:`read` return ``None`` soon (the daemon is stopping); called
         from another thread."""
 
-    def stats(self) -> dict[str, int]:
-        """Counters the source keeps (frames it skipped, gaps it saw), by reason."""
-        return {}
+    def counters(self) -> EyeCounters:
+        """Drops and errors the source counted (none by default)."""
+        return EyeCounters()
 
 
 @dataclass
@@ -98,23 +135,28 @@ class SourceInfo:
     settings: dict[str, Any] = field(default_factory=dict)
     utc_offset_ns: int | None = None
     """Wall clock minus the source's monotonic clock (ns), when the source knows it."""
+    inputs: list[Path] = field(default_factory=list)
+    """Files the source reads (an output must never overwrite one of them)."""
 
 
-class StereoSource(ABC):
+class StereoSource:
     """An opened stereo source: two eyes and a description. Use as a context manager."""
 
+    def __init__(self, left: EyeSource, right: EyeSource, info: SourceInfo) -> None:
+        self._left, self._right, self._info = left, right, info
+
     @property
-    @abstractmethod
     def info(self) -> SourceInfo:
         """Size, rate and whether frames arrive in real time from hardware (``live``)."""
+        return self._info
 
     @property
-    @abstractmethod
-    def left(self) -> EyeSource: ...
+    def left(self) -> EyeSource:
+        return self._left
 
     @property
-    @abstractmethod
-    def right(self) -> EyeSource: ...
+    def right(self) -> EyeSource:
+        return self._right
 
     def problems(self) -> list[str]:
         """Non-fatal problems found while reading (for example a truncated video), one line each."""

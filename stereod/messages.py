@@ -1,16 +1,30 @@
-"""Wire messages published on Zenoh (design sec. 4), defined once as pydantic models.
+"""Wire messages published on Zenoh (design sec. 4), defined once as pydantic models, and the
+translation of the pipeline's results into them.
 
 Payloads are JSON with encoding ``application/json;stereod.<message>/<version>``; every message
 has a ``schema`` field with that ``stereod.<message>/<version>`` string. Within a version fields
-are only ever added. Field names of :class:`ObjectsMessage` and :class:`ObjectState` are read by
-programs outside this project: keep them stable. ``stereod schema`` prints the JSON Schema.
+are only ever added, so readers are lenient: parsing ignores fields it does not know, and a
+program built against an older stereod reads a newer one's messages. Writers are strict: every
+message is built from typed fields and validated before it is sent. Field names of
+:class:`ObjectsMessage` and :class:`ObjectState` are read by programs outside this project: keep
+them stable. ``stereod schema`` prints the JSON Schema.
 """
 
 from __future__ import annotations
 
-from typing import Final, Literal
+import enum
+import math
+from typing import TYPE_CHECKING, Final, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+
+from .geometry import Geometry
+from .tracking import TrackLifecycle
+
+if TYPE_CHECKING:
+    from .pipeline import PairResult
+    from .tracking import TrackState
 
 OBJECTS_SCHEMA: Final = "stereod.objects/1"
 OBJECT_SCHEMA: Final = "stereod.object/1"
@@ -27,8 +41,36 @@ def encoding_for(schema: str) -> str:
     return f"application/json;{schema}"
 
 
+class EyeState(str, enum.Enum):
+    """Health of one eye on the status key."""
+
+    STARTING = "starting"
+    """No frame yet since the daemon started."""
+    STREAMING = "streaming"
+    """Frames arrive."""
+    DOWN = "down"
+    """The eye failed (unplugged, I/O error); its source is reopening it."""
+    ENDED = "ended"
+    """A finite source (a file) has no more frames."""
+
+
+class DaemonState(str, enum.Enum):
+    """Where the daemon is in its life, on the status key."""
+
+    STARTING = "starting"
+    """The session is open; capture has not started."""
+    RUNNING = "running"
+    """Frames are processed."""
+    DEGRADED = "degraded"
+    """Running, but a live eye is down: no pairs until it is back."""
+    STOPPING = "stopping"
+    """A stop was asked for (SIGTERM, SIGINT, end of input): the queues drain."""
+    FINISHED = "finished"
+    """Everything was processed; the session is about to close."""
+
+
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="ignore", frozen=True, populate_by_name=True)
 
 
 class EyeBlob(_Model):
@@ -44,7 +86,7 @@ class ObjectState(_Model):
 
     schema_: Literal["stereod.object/1"] = Field(OBJECT_SCHEMA, alias="schema")
     track_id: int = Field(description="Stable id of the track; never reused while running")
-    state: Literal["tentative", "confirmed", "coasting"] = Field(
+    state: TrackLifecycle = Field(
         description="tentative (not yet confirmed), confirmed (seen in this pair), coasting "
         "(confirmed, not seen in this pair: position and velocity are predicted, the blobs are "
         "the last seen)"
@@ -77,8 +119,6 @@ class ObjectState(_Model):
     size_m: float = Field(description="Blob width estimated from its bounding box and depth, m")
     age_s: float = Field(description="Time since the track started, s")
 
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
-
 
 class Latency(_Model):
     """Where the time of one pair went (ms)."""
@@ -101,18 +141,16 @@ class ObjectsMessage(_Model):
     skew_ns: int = Field(description="Right minus left capture time, ns")
     left_seq: int = Field(description="Left frame's source sequence number")
     right_seq: int = Field(description="Right frame's source sequence number")
-    geometry: Literal["canonical", "calibrated"]
+    geometry: Geometry
     calibration_id: str | None = None
     latency: Latency
     objects: list[ObjectState]
-
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
 
 
 class EyeStatus(_Model):
     """Health of one eye."""
 
-    state: Literal["starting", "streaming", "down", "ended"]
+    state: EyeState
     fps: float = Field(description="Frames per second over the last status period")
     frames: int
     errors: int = Field(description="Frames the source reported as bad and skipped")
@@ -124,7 +162,7 @@ class StatusMessage(_Model):
 
     schema_: Literal["stereod.status/1"] = Field(STATUS_SCHEMA, alias="schema")
     rig: str
-    state: Literal["starting", "running", "degraded", "stopping", "finished"]
+    state: DaemonState
     stamp_utc_ns: int
     uptime_s: float
     driver: str
@@ -134,18 +172,23 @@ class StatusMessage(_Model):
     pairs: int
     pairs_per_s: float
     published: int
-    drops: dict[str, int] = Field(description="Frames or pairs dropped, by reason")
+    drops: dict[str, int] = Field(description="Frames or pairs lost, by reason")
+    errors: dict[str, int] = Field(
+        default_factory=dict,
+        description="Frames that arrived unusable, were corrected, or failed to process, by reason",
+    )
+    reconnects: dict[str, int] = Field(
+        default_factory=dict, description="Times each eye streamed again after being down"
+    )
     skew_ms_mean: float | None
     skew_ms_max: float | None
     queue_depth: int
-    geometry: Literal["canonical", "calibrated"]
+    geometry: Geometry
     calibration_id: str | None = None
     epipolar_residual_px: float | None = Field(
         description="Median |y_left - y_right| of matched blobs over the last period, px"
     )
     problems: list[str] = Field(description="Recent problems, newest last, one line each")
-
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
 
 
 class StatsMessage(_Model):
@@ -158,11 +201,25 @@ class StatsMessage(_Model):
     published: int
     publish_errors: int
     drops: dict[str, int]
+    errors: dict[str, int] = Field(default_factory=dict)
+    reconnects: dict[str, int] = Field(default_factory=dict)
     queue_depth: int
     pipeline_ms_p50: float | None
     pipeline_ms_p99: float | None
 
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+
+class CanonicalGeometry(_Model):
+    """The ``calibration`` queryable's reply when no calibration is in use: the canonical rig
+    of eq. 9 the daemon assumes (its depth is only as good as the assumed field of view)."""
+
+    geometry: Literal["canonical"] = "canonical"
+    baseline_m: float = Field(description="Camera distance B, m")
+    hfov_deg: float = Field(description="Assumed horizontal field of view, deg")
+    width_px: int
+    height_px: int
+    focal_px: float = Field(description="f = x_0 / (2 tan(phi_0 / 2)), px")
+    cx_px: float
+    cy_px: float
 
 
 ALL_MESSAGES: dict[str, type[BaseModel]] = {
@@ -176,3 +233,81 @@ ALL_MESSAGES: dict[str, type[BaseModel]] = {
 def dump(msg: BaseModel) -> bytes:
     """Serialise a message to its JSON wire form (field aliases, e.g. ``schema``)."""
     return msg.model_dump_json(by_alias=True).encode()
+
+
+def _vec(a: np.ndarray) -> tuple[float, float, float]:
+    return (float(a[0]), float(a[1]), float(a[2]))
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+def _blob(centroid: np.ndarray, bbox: np.ndarray, area: int) -> EyeBlob:
+    return EyeBlob(
+        centroid_px=(float(centroid[0]), float(centroid[1])),
+        bbox_px=(int(bbox[0]), int(bbox[1]), int(bbox[2]), int(bbox[3])),
+        area_px=area,
+    )
+
+
+def object_state(s: TrackState, stamp_utc_ns: int, skew_ns: int) -> ObjectState:
+    """The wire form of one track's state at ``stamp_utc_ns`` (UTC, ns)."""
+    ob = s.observation
+    vsig = np.sqrt(np.diag(s.velocity_cov))
+    return ObjectState(
+        track_id=s.track_id,
+        state=s.lifecycle,
+        t_ns=s.t_ns,
+        stamp_utc_ns=stamp_utc_ns,
+        skew_ns=skew_ns,
+        position_m=_vec(s.position_m),
+        position_sigma_m=_vec(np.sqrt(np.diag(s.position_cov_m2))),
+        velocity_mps=_vec(s.velocity_mps),
+        velocity_sigma_mps=_vec(vsig) if np.all(np.isfinite(vsig)) else None,
+        velocity_valid=s.velocity_valid,
+        speed_mps=s.speed_mps,
+        speed_sigma_mps=_finite(s.speed_sigma_mps),
+        heading_deg=s.heading_deg,
+        heading_sigma_deg=_finite(s.heading_sigma_deg),
+        raw_velocity_mps=None if s.raw_velocity_mps is None else _vec(s.raw_velocity_mps),
+        left=_blob(ob.left_image_px, ob.left_bbox_px, ob.left_area_px),
+        right=_blob(ob.right_image_px, ob.right_bbox_px, ob.right_area_px),
+        disparity_px=ob.disparity_px,
+        size_m=ob.size_m,
+        age_s=s.age_s,
+    )
+
+
+def objects_message(
+    result: PairResult,
+    *,
+    rig: str,
+    geometry: Geometry,
+    calibration_id: str | None,
+    utc_offset_ns: int,
+    queue_ms: float = 0.0,
+) -> ObjectsMessage:
+    """The ``objects`` message of one pair: ``utc_offset_ns`` is the wall clock minus the
+    frames' monotonic clock (ns); ``queue_ms`` how long the pair waited for the pipeline."""
+    stamp = result.t_ns + utc_offset_ns
+    t = result.timings
+    return ObjectsMessage(
+        rig=rig,
+        seq=result.seq,
+        t_ns=result.t_ns,
+        stamp_utc_ns=stamp,
+        skew_ns=result.skew_ns,
+        left_seq=result.left_seq,
+        right_seq=result.right_seq,
+        geometry=geometry,
+        calibration_id=calibration_id,
+        latency=Latency(
+            detect_ms=t.detect_ms,
+            geometry_ms=t.geometry_ms,
+            track_ms=t.track_ms,
+            pipeline_ms=t.pipeline_ms,
+            queue_ms=queue_ms,
+        ),
+        objects=[object_state(s, stamp, result.skew_ns) for s in result.tracks],
+    )

@@ -84,3 +84,9 @@ def circular_median_deg(angles_deg: np.ndarray | list[float]) -> float:
     mean = math.atan2(float(np.sin(a).sum()), float(np.cos(a).sum()))
     d = (a - mean + math.pi) % (2 * math.pi) - math.pi
     return math.degrees(mean + float(np.median(d))) % 360.0
+
+
+def angle_diff_deg(a: float, b: float) -> float:
+    """Smallest signed difference a - b between two headings (deg), in (-180, 180]."""
+    d = (a - b + 180.0) % 360.0 - 180.0
+    return 180.0 if d == -180.0 else d

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 from .frames import Eye, Frame, StereoPair
 
+DEFAULT_TOLERANCE_NS = 40_000_000
+"""Largest |skew| (ns) of a pair by default: more than half a frame at 15 Hz and above."""
 DROP_NO_PARTNER = "no_partner"
 """No frame of the other eye within the tolerance."""
 DROP_SUPERSEDED = "superseded"
@@ -40,7 +42,7 @@ class Pairer:
     oldest is dropped (``overflow``), so a stalled eye never grows memory.
     """
 
-    def __init__(self, tolerance_ns: int, max_pending: int = 8) -> None:
+    def __init__(self, tolerance_ns: int = DEFAULT_TOLERANCE_NS, max_pending: int = 8) -> None:
         if tolerance_ns <= 0:
             raise ValueError(f"pairing tolerance must be > 0 ns, got {tolerance_ns}")
         self.tolerance_ns = tolerance_ns

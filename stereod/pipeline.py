@@ -1,17 +1,19 @@
-"""One stereo pair in, one objects message out (design sec. 1).
+"""One stereo pair in, the state of every track out (design sec. 1).
 
 detect both eyes (eq. 2-5) -> match blobs by row, disparity and size -> triangulate (eq. 9) ->
 associate with tracks -> skew compensation (each eye's centroid moved to one instant along its
 2D track) and triangulate again -> Kalman update -> background learning (eq. 3), frozen under
-tracked objects -> message.
+tracked objects.
 
 The pipeline is pure computation on arrays: no threads of its own beyond an optional two-worker
-pool that detects both eyes at once (OpenCV releases the GIL), no Zenoh, no devices.
+pool that detects both eyes at once (OpenCV releases the GIL), no Zenoh, no devices, no wire
+format (:func:`stereod.messages.objects_message` turns a result into the wire message).
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -20,10 +22,10 @@ import numpy as np
 
 from . import skew
 from .detect import Blobs, Detector, DetectorParams
-from .frames import StereoPair
+from .frames import Frame, StereoPair
 from .geometry.rectified import CalibratedRig
 from .geometry.stereo import CanonicalRig, MatchParams, matched_blobs
-from .messages import EyeBlob, Latency, ObjectsMessage, ObjectState
+from .pairing import DEFAULT_TOLERANCE_NS, Pairer
 from .tracking import Observation, Track, Tracker, TrackerParams, TrackState
 
 FREEZE_MARGIN_PX = 4
@@ -34,13 +36,15 @@ FREEZE_MARGIN_PX = 4
 class PipelineParams:
     """Everything the pipeline needs besides the frames.
 
+    ``rig``: the geometry (:class:`CanonicalRig` from a baseline and a field of view, or
+    :class:`CalibratedRig` from a calibration file); its image size must be the frames'.
     ``centroid_sigma_px``: assumed centroid error per axis (px), the source of every covariance.
+    ``detect_workers``: 2 detects the two eyes on two threads (OpenCV releases the GIL).
     ``skew_compensation``: move both eyes' centroids to one instant before triangulating.
     ``skew_window_s``: how much of an eye's 2D track (s) its image velocity is fitted over.
     ``freeze_background``: do not learn the background under tracked objects.
     """
 
-    rig_name: str
     rig: CanonicalRig | CalibratedRig
     detector: DetectorParams = field(default_factory=DetectorParams)
     matching: MatchParams = field(default_factory=MatchParams)
@@ -52,28 +56,62 @@ class PipelineParams:
     freeze_background: bool = True
 
 
-@dataclass
-class PairResult:
-    """What one pair produced: the message, the tracks that ended, and the raw blobs."""
+@dataclass(frozen=True, slots=True)
+class Timings:
+    """Where the time of one pair went inside the pipeline (ms, wall clock)."""
 
-    message: ObjectsMessage
+    detect_ms: float
+    geometry_ms: float
+    track_ms: float
+    pipeline_ms: float
+
+
+@dataclass(frozen=True)
+class PairResult:
+    """What one stereo pair produced.
+
+    ``t_ns`` is the instant the measurements refer to (the later eye's capture when skew is
+    compensated, else the pair's midpoint), on the frames' clock; ``tracks`` the state of every
+    live track at that instant (seen in this pair, or coasting); ``ended`` the ids of the tracks
+    that ended with this pair; ``left``/``right`` each eye's blobs (image px);
+    ``row_residuals_px`` the rectified |y_L - y_R| of every matched blob.
+    """
+
+    seq: int
+    t_ns: int
+    skew_ns: int
+    left_seq: int
+    right_seq: int
+    tracks: list[TrackState]
     ended: list[int]
     left: Blobs
     right: Blobs
+    timings: Timings
     row_residuals_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 class Pipeline:
-    """Stateful per-rig processing: background models, tracker, clock offset."""
+    """Stateful processing of one rig's stereo pairs: background models and tracker.
 
-    def __init__(self, params: PipelineParams, utc_offset_ns: int) -> None:
+    Feed it pairs in capture order with :meth:`process`, or any frames with :meth:`run`; it
+    needs no thread, bus or device, so it works on arrays from anywhere::
+
+        from stereod import CanonicalRig, Pipeline, PipelineParams, StereoPair
+
+        pipe = Pipeline(PipelineParams(CanonicalRig(0.060, 60.0, 640, 480)))
+        for k, (left, right, t_left_ns, t_right_ns) in enumerate(my_frames):
+            result = pipe.process(StereoPair.of(left, right, t_left_ns, t_right_ns, seq=k))
+            for track in result.tracks:
+                if track.velocity_valid:
+                    print(track.track_id, track.position_m, track.speed_mps, track.heading_deg)
+        pipe.close()
+    """
+
+    def __init__(self, params: PipelineParams) -> None:
         self.params = params
-        self.utc_offset_ns = utc_offset_ns
         self.left = Detector(params.detector)
         self.right = Detector(params.detector)
         self.tracker = Tracker(params.tracker)
-        self.ended_by_reconfiguration: list[int] = []
-        """Tracks this pipeline ended when it was replaced by :meth:`reconfigured`."""
         self._pool = (
             ThreadPoolExecutor(2, thread_name_prefix="detect")
             if params.detect_workers > 1
@@ -81,34 +119,58 @@ class Pipeline:
         )
 
     def close(self) -> None:
+        """Stop the detection workers (idempotent); the pipeline cannot process afterwards."""
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
 
-    def reconfigured(self, params: PipelineParams) -> Pipeline:
-        """A pipeline with new parameters that carries over what still holds: the background
-        models (always, so there is no new warm-up), and the tracks while neither the tracker
-        settings nor the geometry changed. Otherwise the old tracks end (their ids are listed
-        in ``ended_by_reconfiguration`` of this pipeline) and new ids continue after them."""
-        new = Pipeline(params, self.utc_offset_ns)
+    def __enter__(self) -> Pipeline:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def reconfigured(self, params: PipelineParams) -> tuple[Pipeline, list[int]]:
+        """A pipeline with new parameters that carries over what still holds, and the ids of
+        the tracks that ended. The background models always carry over (no new warm-up); the
+        tracks carry over while neither the tracker settings nor the geometry changed, and
+        otherwise end, new ids continuing after theirs. This pipeline is closed. Call it
+        from the thread that calls :meth:`process`, between pairs."""
+        new = Pipeline(params)
         new.left.adopt(self.left)
         new.right.adopt(self.right)
         same_geometry = type(params.rig) is type(self.params.rig) and (
             params.rig.calibration_id == self.params.rig.calibration_id
             and (params.rig == self.params.rig or params.rig.calibration_id is not None)
         )
+        ended: list[int] = []
         if params.tracker == self.params.tracker and same_geometry:
             new.tracker = self.tracker
-            self.ended_by_reconfiguration = []
         else:
-            self.ended_by_reconfiguration = self.tracker.end_all()
+            ended = self.tracker.end_all()
             new.tracker.continue_after(self.tracker)
         self.close()
-        return new
+        return new, ended
 
-    def process(self, pair: StereoPair, queued_ns: int = 0) -> PairResult:
-        """Run one pair through eq. 2-5, 9, 12 and 21-23; ``queued_ns`` is the time the pair
-        waited for the pipeline (ns), reported in the latency breakdown."""
+    def finish(self) -> list[int]:
+        """End every live track (end of input); return their ids."""
+        return self.tracker.end_all()
+
+    def run(
+        self, frames: Iterable[Frame], tolerance_ns: int = DEFAULT_TOLERANCE_NS
+    ) -> Iterator[PairResult]:
+        """Pair ``frames`` (both eyes, each eye in capture order, interleaved in any way) by
+        nearest capture time within ``tolerance_ns`` and yield each pair's result as soon as
+        the pair is formed. Tracks still live at the end stay live: :meth:`finish` ends them."""
+        pairer = Pairer(tolerance_ns)
+        for frame in frames:
+            for pair in pairer.push(frame):
+                yield self.process(pair)
+        for pair in pairer.flush():
+            yield self.process(pair)
+
+    def process(self, pair: StereoPair) -> PairResult:
+        """Run one pair through eq. 2-5, 9, 12 and 21-23."""
         p = self.params
         t0 = time.perf_counter_ns()
         if self._pool is not None:
@@ -159,15 +221,25 @@ class Pipeline:
         )
         self._learn(states, pair.left.image.shape[:2])
         t3 = time.perf_counter_ns()
-        latency = Latency(
+        timings = Timings(
             detect_ms=(t1 - t0) * 1e-6,
             geometry_ms=(t2 - t1) * 1e-6,
             track_ms=(t3 - t2) * 1e-6,
             pipeline_ms=(time.perf_counter_ns() - t0) * 1e-6,
-            queue_ms=queued_ns * 1e-6,
         )
-        residuals = np.abs(lpx[:, 1] - rpx[:, 1])
-        return PairResult(self._message(pair, states, t_ns, latency), ended, lb, rb, residuals)
+        return PairResult(
+            seq=pair.seq,
+            t_ns=t_ns,
+            skew_ns=pair.skew_ns,
+            left_seq=pair.left.seq,
+            right_seq=pair.right.seq,
+            tracks=states,
+            ended=ended,
+            left=lb,
+            right=rb,
+            timings=timings,
+            row_residuals_px=np.abs(lpx[:, 1] - rpx[:, 1]),
+        )
 
     def _observe(
         self,
@@ -259,66 +331,3 @@ class Pipeline:
                     masks[e] = mask
         self.left.learn(masks[0])
         self.right.learn(masks[1])
-
-    def _message(
-        self, pair: StereoPair, states: list[TrackState], t_ns: int, latency: Latency
-    ) -> ObjectsMessage:
-        stamp = t_ns + self.utc_offset_ns
-        skew_ns = pair.skew_ns
-        return ObjectsMessage(
-            rig=self.params.rig_name,
-            seq=pair.seq,
-            t_ns=t_ns,
-            stamp_utc_ns=stamp,
-            skew_ns=skew_ns,
-            left_seq=pair.left.seq,
-            right_seq=pair.right.seq,
-            geometry=self.params.rig.geometry,  # type: ignore[arg-type]
-            calibration_id=self.params.rig.calibration_id,
-            latency=latency,
-            objects=[object_state(s, stamp, skew_ns) for s in states],
-        )
-
-
-def _vec(a: np.ndarray) -> tuple[float, float, float]:
-    return (float(a[0]), float(a[1]), float(a[2]))
-
-
-def _finite(x: float) -> float | None:
-    return x if np.isfinite(x) else None
-
-
-def _blob(centroid: np.ndarray, bbox: np.ndarray, area: int) -> EyeBlob:
-    return EyeBlob(
-        centroid_px=(float(centroid[0]), float(centroid[1])),
-        bbox_px=(int(bbox[0]), int(bbox[1]), int(bbox[2]), int(bbox[3])),
-        area_px=area,
-    )
-
-
-def object_state(s: TrackState, stamp_utc_ns: int, skew_ns: int) -> ObjectState:
-    """The wire form of one track's state."""
-    ob = s.observation
-    vsig = np.sqrt(np.diag(s.velocity_cov))
-    return ObjectState(
-        track_id=s.track_id,
-        state=s.lifecycle.value,
-        t_ns=s.t_ns,
-        stamp_utc_ns=stamp_utc_ns,
-        skew_ns=skew_ns,
-        position_m=_vec(s.position_m),
-        position_sigma_m=_vec(np.sqrt(np.diag(s.position_cov_m2))),
-        velocity_mps=_vec(s.velocity_mps),
-        velocity_sigma_mps=_vec(vsig) if np.all(np.isfinite(vsig)) else None,
-        velocity_valid=s.velocity_valid,
-        speed_mps=s.speed_mps,
-        speed_sigma_mps=_finite(s.speed_sigma_mps),
-        heading_deg=s.heading_deg,
-        heading_sigma_deg=_finite(s.heading_sigma_deg),
-        raw_velocity_mps=None if s.raw_velocity_mps is None else _vec(s.raw_velocity_mps),
-        left=_blob(ob.left_image_px, ob.left_bbox_px, ob.left_area_px),
-        right=_blob(ob.right_image_px, ob.right_bbox_px, ob.right_area_px),
-        disparity_px=ob.disparity_px,
-        size_m=ob.size_m,
-        age_s=s.age_s,
-    )

@@ -18,6 +18,7 @@ from typing import Any
 
 import zenoh
 
+from . import keys
 from .config import ZenohConfig
 from .errors import ConfigError
 from .messages import OBJECT_SCHEMA, OBJECTS_SCHEMA, STATUS_SCHEMA, encoding_for
@@ -63,7 +64,9 @@ class Publisher:
         queryables: dict[str, Callable[[], bytes]],
         on_status_subscriber: Callable[[], None] | None = None,
     ) -> None:
-        self.base = f"{cfg.prefix}/{rig}"
+        self.rig = rig
+        self.prefix = cfg.prefix
+        self.base = keys.base(rig, prefix=cfg.prefix)
         self._cfg = cfg
         self._queryables = queryables
         self._on_status_subscriber = on_status_subscriber
@@ -78,13 +81,13 @@ class Publisher:
         s = open_session(self._cfg)
         self._session = s
         self._objects = s.declare_publisher(
-            f"{self.base}/objects",
+            keys.objects(self.rig, prefix=self.prefix),
             encoding=zenoh.Encoding(encoding_for(OBJECTS_SCHEMA)),
             congestion_control=zenoh.CongestionControl.DROP,
             priority=zenoh.Priority.DATA_HIGH,
         )
         self._status = s.declare_publisher(
-            f"{self.base}/status",
+            keys.status(self.rig, prefix=self.prefix),
             encoding=zenoh.Encoding(encoding_for(STATUS_SCHEMA)),
             congestion_control=zenoh.CongestionControl.DROP,
         )
@@ -92,9 +95,11 @@ class Publisher:
             self._entities.append(self._status.declare_matching_listener(self._matching))
         for name, fn in self._queryables.items():
             self._entities.append(
-                s.declare_queryable(f"{self.base}/{name}", self._replier(name, fn))
+                s.declare_queryable(
+                    keys.queryable(name, self.rig, prefix=self.prefix), self._replier(name, fn)
+                )
             )
-        self._alive = s.liveliness().declare_token(f"{self.base}/alive")
+        self._alive = s.liveliness().declare_token(keys.alive(self.rig, prefix=self.prefix))
         log.info("zenoh session open, publishing under %s/", self.base)
         return self
 
@@ -103,7 +108,7 @@ class Publisher:
             self._on_status_subscriber()
 
     def _replier(self, name: str, fn: Callable[[], bytes]) -> Callable[[zenoh.Query], None]:
-        key = f"{self.base}/{name}"
+        key = keys.queryable(name, self.rig, prefix=self.prefix)
 
         def reply(query: zenoh.Query) -> None:
             with query:
@@ -125,7 +130,7 @@ class Publisher:
                     if pub is None:
                         assert self._session is not None
                         pub = self._session.declare_publisher(
-                            f"{self.base}/objects/{tid}",
+                            keys.track(self.rig, tid, prefix=self.prefix),
                             encoding=zenoh.Encoding(encoding_for(OBJECT_SCHEMA)),
                             congestion_control=zenoh.CongestionControl.DROP,
                         )

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from .errors import InputError, MissingInputError, OutputError
+from .errors import InputError, MissingInputError, OutputError, describe_validation_error
 from .frames import Eye, Frame
 
 MANIFEST = "recording.json"
@@ -82,9 +82,7 @@ def read_manifest(directory: Path) -> Manifest:
     try:
         return Manifest.model_validate_json(path.read_bytes())
     except ValidationError as exc:
-        e = exc.errors(include_url=False)[0]
-        loc = ".".join(str(p) for p in e["loc"])
-        raise InputError(f"{path}: field {loc}: {e['msg']}") from exc
+        raise InputError(f"{path}: {describe_validation_error(exc)}") from exc
 
 
 def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:

@@ -22,9 +22,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from . import kalman, motion
+from .assignment import min_cost_assignment
 from .skew import image_velocity, shift_to
 
 
@@ -232,7 +232,7 @@ class Tracker:
         """Minimum-cost assignment of rows (observations) to feasible columns (tracks)."""
         big = 1e9
         gated = np.where(feasible, cost, big)
-        rows, cols = linear_sum_assignment(gated)
+        rows, cols = min_cost_assignment(gated)
         for i, j in zip(rows, cols, strict=True):
             if feasible[i, j]:
                 out[i] = tracks[j].track_id

@@ -37,10 +37,10 @@ def test_save_load_round_trip_and_id(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("edit", "pattern"),
     [
-        (lambda d: d.pop("K1"), r"field K1 is missing"),
-        (lambda d: d.update(K1=[[1, 0], [0, 1]]), r"field K1: must be 3x3, got shape \(2, 2\)"),
-        (lambda d: d["T"].__setitem__(0, ["NaN"]), r"field T: contains a non-finite number"),
-        (lambda d: d.update(image_size=[0, 480]), r"field image_size: must be positive"),
+        (lambda d: d.pop("K1"), r"K1: required field is missing"),
+        (lambda d: d.update(K1=[[1, 0], [0, 1]]), r"K1: must be 3x3, got shape \(2, 2\)"),
+        (lambda d: d["T"].__setitem__(0, ["NaN"]), r"T: contains a non-finite number"),
+        (lambda d: d.update(image_size=[0, 480]), r"image_size: must be positive"),
         (lambda d: d["P2"][0].__setitem__(3, 12.0), r"field id: .* does not match the numbers"),
     ],
 )
@@ -62,7 +62,7 @@ def test_size_mismatch_and_missing_file(tmp_path: Path) -> None:
     with pytest.raises(MissingInputError, match="no such calibration file"):
         load(tmp_path / "none.json")
     path.write_text("garbage{")
-    with pytest.raises(CalibrationError, match=r"c\.json: field"):
+    with pytest.raises(CalibrationError, match=r"c\.json: not valid JSON"):
         load(path)
 
 

@@ -15,8 +15,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from stereod.demo import angle_diff_deg
-from stereod.motion import circular_median_deg
+from stereod.motion import angle_diff_deg, circular_median_deg
 from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
 
 from .conftest import ROOT, shared_data, stereod
@@ -216,9 +215,9 @@ def test_run_with_config_file_and_synthetic_driver(
 
 def one_line_error(res: subprocess.CompletedProcess[str], code: int, pattern: str) -> None:
     assert res.returncode == code, (res.returncode, res.stderr)
-    lines = [line for line in res.stderr.splitlines() if line.startswith("stereod:")]
+    lines = res.stderr.splitlines()
     assert "Traceback" not in res.stderr, res.stderr
-    assert len(lines) == 1, res.stderr
+    assert len(lines) == 1 and lines[0].startswith("stereod"), res.stderr
     assert __import__("re").search(pattern, lines[0]), lines[0]
 
 
@@ -241,7 +240,13 @@ def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
     )
     one_line_error(stereod("run", "--driver", "warp"), 78, "driver.name = 'warp': no such driver")
     one_line_error(
-        stereod("replay", str(tmp_path), "--baseline", "-1"), 78, r"rig\.baseline_m = -1\.0"
+        stereod("replay", str(tmp_path), "--baseline", "-1"), 64, r"--baseline: -1: must be > 0 m"
+    )
+    env = {"STEREOD_RIG__BASELINE_M": "-1"}
+    one_line_error(
+        stereod("run", "--check", env=env),
+        78,
+        r"STEREOD_RIG__BASELINE_M: invalid config: rig\.baseline_m = '-1'",
     )
 
 
@@ -309,7 +314,7 @@ def test_unwritable_jsonl_path(scene_dir: tuple[Scene, Path], tmp_path: Path) ->
     one_line_error(
         stereod("replay", str(rec), "--jsonl", str(tmp_path / "no" / "dir" / "x.jsonl")),
         73,
-        "cannot write JSONL",
+        r"x\.jsonl: cannot create the output file",
     )
 
 
@@ -337,7 +342,7 @@ def test_synth_command_writes_recording_and_truth(tmp_path: Path) -> None:
     assert truth["balls"][0]["heading_deg"] == 200 and truth["width_px"] == 320
     assert math.isclose(truth["skew_s"], 0.01)
     bad = stereod("synth", str(tmp_path / "t"), "--ball", "heading=x")
-    one_line_error(bad, 78, "heading = 'x' is not a number")
+    one_line_error(bad, 78, "heading = 'x': 'x' is not a number")
 
 
 def test_replay_with_calibration_file(scene_dir: tuple[Scene, Path], tmp_path: Path) -> None:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from stereod.demo import angle_diff_deg, run_demo
+from stereod.demo import run_demo
+from stereod.motion import angle_diff_deg
 
 
 def test_angle_difference_wraps() -> None:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from stereod.detect import Centroid, Detector, DetectorParams, Luminance, luminance
-from stereod.detect_reference import ReferenceDetector
+from tests.detect_reference import ReferenceDetector
 
 from .conftest import shared_data
 

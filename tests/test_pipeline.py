@@ -5,35 +5,32 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from stereod import PipelineParams
 from stereod.detect import DetectorParams
-from stereod.pipeline import PipelineParams
 from stereod.tracking import TrackerParams
-from stereod_fakes.scenarios import process_scene
 from stereod_fakes.synth import Ball, Scene
+from tests.scenes import run_recording, run_scene, sigma, states
 
 
-def run_scene(scene: Scene, workers: int = 1) -> list:
-    params = PipelineParams(
-        rig_name="t", rig=scene.rig, detector=DetectorParams(), detect_workers=workers
-    )
-    return process_scene(scene, params)
+def run_default(scene: Scene, workers: int = 1) -> list:
+    params = PipelineParams(scene.rig, detector=DetectorParams(), detect_workers=workers)
+    return run_scene(scene, params)
 
 
 @pytest.mark.parametrize("workers", [1, 2])
 def test_positions_within_one_pixel_bound(workers: int) -> None:
     scene = Scene(balls=[Ball(heading_deg=30, speed_mps=0.7, centre_m=(0.0, 0.0, 2.0))])
     ball = scene.balls[0]
-    results = run_scene(scene, workers)
+    results = run_default(scene, workers)
     errs, seen = [], 0
-    for r in results:
-        for o in r.message.objects:
-            seen += 1
-            truth = ball.position_m((o.t_ns - scene.t0_ns) / 1e9)
-            err = np.abs(np.asarray(o.position_m) - truth)
-            bound = scene.rig.depth_error_one_px_m(truth[2])
-            assert err[2] <= bound, f"depth error {err[2]:.4f} m beyond eq. 12's {bound:.4f} m"
-            assert np.all(err <= 4 * np.asarray(o.position_sigma_m) + 1e-3)
-            errs.append(err)
+    for o in states(results):
+        seen += 1
+        truth = ball.position_m((o.t_ns - scene.t0_ns) / 1e9)
+        err = np.abs(o.position_m - truth)
+        bound = scene.rig.depth_error_one_px_m(truth[2])
+        assert err[2] <= bound, f"depth error {err[2]:.4f} m beyond eq. 12's {bound:.4f} m"
+        assert np.all(err <= 4 * sigma(o) + 1e-3)
+        errs.append(err)
     assert seen >= 0.9 * ball_frames(scene)
     assert np.median(np.array(errs)[:, 2]) < 0.01
 
@@ -48,12 +45,8 @@ def test_two_balls_get_two_tracks_with_their_velocities() -> None:
         Ball(heading_deg=90, speed_mps=0.4, centre_m=(0.0, -0.2, 1.6)),
         Ball(heading_deg=180, speed_mps=0.6, centre_m=(0.2, 0.2, 2.2), radius_m=0.06),
     ]
-    results = run_scene(Scene(balls=balls))
-    final = {}
-    for r in results:
-        for o in r.message.objects:
-            if o.velocity_valid:
-                final[o.track_id] = o
+    results = run_default(Scene(balls=balls))
+    final = {o.track_id: o for o in states(results, valid=True)}
     assert len(final) == 2
     by_heading = sorted(final.values(), key=lambda o: o.heading_deg)
     for o, b in zip(by_heading, balls):
@@ -62,8 +55,8 @@ def test_two_balls_get_two_tracks_with_their_velocities() -> None:
 
 
 def tracks_by_frame(scene: Scene, **params: object) -> list[dict[int, str]]:
-    results = process_scene(scene, PipelineParams("t", scene.rig, **params))  # type: ignore[arg-type]
-    return [{o.track_id: o.state for o in r.message.objects} for r in results]
+    results = run_scene(scene, PipelineParams(scene.rig, **params))  # type: ignore[arg-type]
+    return [{o.track_id: o.lifecycle.value for o in r.tracks} for r in results]
 
 
 def test_crossing_objects_keep_their_ids() -> None:
@@ -91,14 +84,13 @@ def test_crossing_objects_keep_their_ids() -> None:
     scene = Scene(duration_s=3.6, balls=balls)
     before: dict[int, set[int]] = {0: set(), 1: set()}
     after: dict[int, set[int]] = {0: set(), 1: set()}
-    for result in process_scene(scene, PipelineParams("t", scene.rig)):
-        msg = result.message
-        t = (msg.t_ns - scene.t0_ns) / 1e9
+    for result in run_scene(scene, PipelineParams(scene.rig)):
+        t = (result.t_ns - scene.t0_ns) / 1e9
         if abs(t - 2.2) < 0.4:
             continue
-        for o in msg.objects:
-            if o.state == "confirmed":
-                d = [np.linalg.norm(np.subtract(o.position_m, b.position_m(t))) for b in balls]
+        for o in result.tracks:
+            if o.lifecycle == "confirmed":
+                d = [np.linalg.norm(o.position_m - b.position_m(t)) for b in balls]
                 k = int(np.argmin(d))
                 assert d[k] < 0.05, f"track {o.track_id} is {d[k]:.3f} m from ball {k}"
                 (before if t < 2.2 else after)[k].add(o.track_id)
@@ -156,16 +148,15 @@ def test_non_canonical_rig_with_recovered_calibration(
     the canonical case. Truth is expressed in the calibration's rig frame (rectified axes)."""
     from stereod.geometry.rectified import CalibratedRig
     from stereod.motion import circular_median_deg
-    from stereod_fakes.scenarios import replay_through_pipeline, table_one_scene
+    from stereod_fakes.scenarios import table_one_scene
     from stereod_fakes.synth import write_scene
 
     spec, cal, _ = recovered_calibration
     scene = table_one_scene(heading, speed).model_copy(update={"rig_spec": spec})
     rec = write_scene(scene, tmp_path / "rec")
     rig = CalibratedRig(cal)
-    messages = replay_through_pipeline(rec, PipelineParams("t", rig))
-    assert all(m.geometry == "calibrated" and m.calibration_id == cal.id for m in messages)
-    valid = [o for m in messages for o in m.objects if o.velocity_valid and o.state == "confirmed"]
+    assert rig.geometry == "calibrated" and rig.calibration_id == cal.id
+    valid = states(run_recording(rec, PipelineParams(rig)), confirmed=True, valid=True)
     assert len(valid) >= 8
     v_rig = cal.array("R1") @ scene.balls[0].velocity_mps
     true_heading = float(np.degrees(np.arctan2(v_rig[0], v_rig[2])) % 360)

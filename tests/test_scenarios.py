@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stereod.demo import angle_diff_deg
-from stereod.motion import circular_median_deg
-from stereod.pipeline import PipelineParams
-from stereod_fakes.scenarios import TABLE_I, replay_through_pipeline, table_one_scene
+from stereod import PipelineParams
+from stereod.motion import angle_diff_deg, circular_median_deg
+from stereod_fakes.scenarios import TABLE_I, table_one_scene
 from stereod_fakes.synth import write_scene
+from tests.scenes import run_recording, states
 
 pytestmark = pytest.mark.slow
 
@@ -20,8 +20,7 @@ pytestmark = pytest.mark.slow
 def test_table_one_motion_within_targets(row, tmp_path: Path) -> None:
     scene = table_one_scene(row.heading_deg, row.speed_mps)
     rec = write_scene(scene, tmp_path / "rec")
-    messages = replay_through_pipeline(rec, PipelineParams("t", scene.rig))
-    valid = [o for m in messages for o in m.objects if o.velocity_valid and o.state == "confirmed"]
+    valid = states(run_recording(rec, PipelineParams(scene.rig)), confirmed=True, valid=True)
     assert len(valid) >= 8
     heading = circular_median_deg([o.heading_deg for o in valid])
     speed = float(np.median([o.speed_mps for o in valid]))
@@ -35,6 +34,6 @@ def test_without_compensation_half_frame_skew_breaks_tracks(tmp_path: Path) -> N
     row = TABLE_I[1]
     scene = table_one_scene(row.heading_deg, row.speed_mps)
     rec = write_scene(scene, tmp_path / "rec")
-    messages = replay_through_pipeline(rec, PipelineParams("t", scene.rig, skew_compensation=False))
-    valid = [o for m in messages for o in m.objects if o.velocity_valid]
+    results = run_recording(rec, PipelineParams(scene.rig, skew_compensation=False))
+    valid = states(results, valid=True)
     assert valid == []

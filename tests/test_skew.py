@@ -7,8 +7,8 @@ import pytest
 
 from stereod import skew
 from stereod.pipeline import PipelineParams
-from stereod_fakes.scenarios import process_scene
 from stereod_fakes.synth import Ball, Scene
+from tests.scenes import run_scene, states
 
 
 def test_image_velocity_and_shift() -> None:
@@ -39,11 +39,10 @@ def depth_errors(compensate: bool, skew_s: float) -> np.ndarray:
     )
     ball = scene.balls[0]
     errs = []
-    for r in process_scene(scene, PipelineParams("t", scene.rig, skew_compensation=compensate)):
-        for o in r.message.objects:
-            if o.state == "confirmed":
-                truth = ball.position_m((o.t_ns - scene.t0_ns) / 1e9)
-                errs.append(abs(o.position_m[2] - truth[2]))
+    results = run_scene(scene, PipelineParams(scene.rig, skew_compensation=compensate))
+    for o in states(results, confirmed=True):
+        truth = ball.position_m((o.t_ns - scene.t0_ns) / 1e9)
+        errs.append(abs(o.position_m[2] - truth[2]))
     return np.array(errs)
 
 

@@ -13,13 +13,22 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from stereod.errors import ConfigError, DeviceError, DeviceLost
-from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
+from stereod.errors import ConfigError, DeviceError, DeviceLost, describe_validation_error
+from stereod.frames import (
+    Driver,
+    Eye,
+    EyeCounters,
+    EyeSource,
+    Frame,
+    SourceInfo,
+    StereoSource,
+)
 
 from . import raw
 from .convert import mjpeg_to_gray, yuyv_to_gray
@@ -82,7 +91,7 @@ class CameraEye(EyeSource):
         self.device: V4L2Device | None = None
         self._interrupted = threading.Event()
         self._last_seq: int | None = None
-        self._counters = {"sequence_gap": 0, "frame_error": 0, "reconnects": 0}
+        self._counters = EyeCounters()
         self._delay = opts.retry_s
         self.fps: float | None = None
 
@@ -140,7 +149,6 @@ class CameraEye(EyeSource):
                 try:
                     self.start()
                     self._delay = self.opts.retry_s
-                    self._counters["reconnects"] += 1
                 except DeviceError as exc:
                     log.debug("%s eye: reopen failed: %s", self.eye.value, exc)
                     self._interrupted.wait(self._delay)
@@ -155,28 +163,49 @@ class CameraEye(EyeSource):
             if cap is None:
                 continue
             if cap.error:
-                self._counters["frame_error"] += 1
+                self._count(self._counters.errors, "frame_error")
                 continue
             if self._last_seq is not None and cap.sequence > self._last_seq + 1:
-                self._counters["sequence_gap"] += cap.sequence - self._last_seq - 1
+                self._count(self._counters.drops, "sequence_gap", cap.sequence - self._last_seq - 1)
             self._last_seq = cap.sequence
+            t_ns = cap.t_ns
+            if not cap.monotonic:
+                # The pairer, the filter and the UTC offset all assume CLOCK_MONOTONIC; a
+                # driver that stamps otherwise (or not at all) is stamped here at dequeue.
+                t_ns = time.monotonic_ns()
+                if not self._counters.errors.get("clock_not_monotonic"):
+                    log.warning(
+                        "%s eye: %s does not stamp frames on CLOCK_MONOTONIC; stamping them "
+                        "at dequeue instead (less exact)",
+                        self.eye.value,
+                        self.path,
+                    )
+                self._count(self._counters.errors, "clock_not_monotonic")
             o = self.opts
             if o.pixel_format == "YUYV":
+                if len(cap.data) < 2 * o.width * o.height:
+                    self._count(self._counters.errors, "short_frame")
+                    continue
                 image = yuyv_to_gray(cap.data, o.width, o.height)
             else:
                 decoded = mjpeg_to_gray(cap.data)
                 if decoded is None:
-                    self._counters["frame_error"] += 1
+                    self._count(self._counters.errors, "frame_error")
                     continue
                 image = decoded
-            return Frame(self.eye, image, cap.t_ns, cap.sequence)
+            return Frame(self.eye, image, t_ns, cap.sequence)
         return None
 
     def interrupt(self) -> None:
         self._interrupted.set()
 
-    def stats(self) -> dict[str, int]:
-        return {k: v for k, v in self._counters.items() if v}
+    @staticmethod
+    def _count(into: dict[str, int], reason: str, n: int = 1) -> None:
+        into[reason] = into.get(reason, 0) + n
+
+    def counters(self) -> EyeCounters:
+        c = self._counters
+        return EyeCounters(dict(c.drops), dict(c.errors))
 
     def close(self) -> None:
         if self.device is not None:
@@ -184,29 +213,17 @@ class CameraEye(EyeSource):
             self.device = None
 
 
-class MinoruSource(StereoSource):
-    def __init__(self, left: CameraEye, right: CameraEye, opts: MinoruOptions) -> None:
-        self._left, self._right, self._opts = left, right, opts
-
-    @property
-    def info(self) -> SourceInfo:
-        o = self._opts
-        return SourceInfo(
-            width=o.width,
-            height=o.height,
-            fps=self._left.fps or o.fps,
-            live=True,
-            description=f"Minoru {self._left.path} + {self._right.path}",
-            settings=o.model_dump(),
-        )
-
-    @property
-    def left(self) -> CameraEye:
-        return self._left
-
-    @property
-    def right(self) -> CameraEye:
-        return self._right
+def _source(left: CameraEye, right: CameraEye, o: MinoruOptions) -> StereoSource:
+    """Both eyes, started, with what they stream."""
+    info = SourceInfo(
+        width=o.width,
+        height=o.height,
+        fps=left.fps or o.fps,
+        live=True,
+        description=f"Minoru {left.path} + {right.path}",
+        settings=o.model_dump(),
+    )
+    return StereoSource(left, right, info)
 
 
 class MinoruDriver(Driver):
@@ -218,9 +235,7 @@ class MinoruDriver(Driver):
         try:
             self.options = MinoruOptions.model_validate(options)
         except ValidationError as exc:
-            e = exc.errors(include_url=False)[0]
-            loc = ".".join(str(p) for p in e["loc"])
-            raise ConfigError(f"driver.options.{loc}: {e['msg']}") from exc
+            raise ConfigError(describe_validation_error(exc, "driver.options")) from exc
         for name in self.options.controls:
             _control_id(name)
         self.io = io
@@ -242,7 +257,7 @@ class MinoruDriver(Driver):
             paths.append(path)
         return paths[0], paths[1]
 
-    def open(self) -> MinoruSource:
+    def open(self) -> StereoSource:
         left_path, right_path = self._paths()
         left = CameraEye(Eye.LEFT, self.options, left_path, self.io)
         right = CameraEye(Eye.RIGHT, self.options, right_path, self.io)
@@ -252,4 +267,4 @@ class MinoruDriver(Driver):
         except Exception:
             left.close()
             raise
-        return MinoruSource(left, right, self.options)
+        return _source(left, right, self.options)

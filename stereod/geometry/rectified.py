@@ -15,13 +15,14 @@ import cv2
 import numpy as np
 
 from ..calibration import Calibration
+from . import Geometry
 from .stereo import triangulate_rectified
 
 
 class CalibratedRig:
     """The geometry of one :class:`~stereod.calibration.Calibration`."""
 
-    geometry = "calibrated"
+    geometry = Geometry.CALIBRATED
 
     def __init__(self, cal: Calibration) -> None:
         self.calibration = cal

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..detect import Blobs
+from . import Geometry
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,7 +73,7 @@ class CanonicalRig:
     def calibration_id(self) -> str | None:
         return None
 
-    geometry = "canonical"
+    geometry = Geometry.CANONICAL
 
     def rectify_left(self, points_px: np.ndarray) -> np.ndarray:
         """Image to rectified coordinates of the left eye: the identity for the canonical rig."""

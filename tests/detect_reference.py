@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .detect import Blobs, DetectorParams, Luminance
+from stereod.detect import Blobs, DetectorParams, Luminance
 
 
 class ReferenceDetector:

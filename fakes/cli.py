@@ -1,0 +1,180 @@
+"""``stereod synth``: render a synthetic recording with its ground truth.
+
+A command of this package, not of the core: it is registered in the ``stereod.commands``
+entry-point group, like the drivers in ``stereod.drivers``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from pydantic import ValidationError
+
+from stereod.cli.common import number, path_arg, size_arg
+from stereod.errors import ConfigError, describe_validation_error
+from stereod.recording import Codec
+
+from .synth import Scene, write_scene
+
+BALL_KEYS = {
+    "heading": "heading_deg",
+    "speed": "speed_mps",
+    "radius": "radius_m",
+    "vy": "vy_mps",
+    "brightness": "brightness",
+}
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "synth",
+        help="render a synthetic stereo recording with ground truth",
+        description="Render spheres moving on straight lines in front of a textured wall, seen "
+        "by a canonical stereo rig, into a recording directory with truth.json.",
+    )
+    p.add_argument("out", type=path_arg, help="output recording directory")
+    p.add_argument(
+        "--ball",
+        action="append",
+        metavar="SPEC",
+        help="a sphere as comma-separated key=value: heading (deg), speed (m/s), "
+        "x, y, z (m, position at mid-time), radius (m), vy (m/s), brightness (grey); e.g. "
+        "'heading=60,speed=0.7,z=1.8' (repeatable; default one such ball)",
+    )
+    p.add_argument(
+        "--size", type=size_arg, default=(640, 480), metavar="WxH", help="image size, px"
+    )
+    p.add_argument(
+        "--fps", type=number(0.1, 1000.0, unit="Hz"), default=15.0, help="frame rate, Hz (15)"
+    )
+    p.add_argument(
+        "--hfov",
+        type=number(1.0, 179.0, unit="deg"),
+        default=60.0,
+        metavar="DEG",
+        help="horizontal field of view, deg (default 60)",
+    )
+    p.add_argument(
+        "--baseline",
+        type=number(0.0, 10.0, lo_open=True, unit="m"),
+        default=0.060,
+        metavar="M",
+        help="camera distance, m (default 0.060)",
+    )
+    p.add_argument(
+        "--duration",
+        type=number(0.0, 3600.0, lo_open=True, unit="s"),
+        default=4.0,
+        metavar="S",
+        help="length, s (4)",
+    )
+    p.add_argument(
+        "--lead-in",
+        type=number(0.0, 3600.0, unit="s"),
+        default=1.2,
+        metavar="S",
+        help="seconds of empty scene before the balls appear (background warm-up)",
+    )
+    p.add_argument(
+        "--travel",
+        type=number(0.0, 3600.0, lo_open=True, unit="s"),
+        default=1.6,
+        metavar="S",
+        help="seconds each ball is in view, centred on its x, y, z (default 1.6)",
+    )
+    p.add_argument(
+        "--noise",
+        type=number(0.0, 100.0),
+        default=1.5,
+        metavar="GREY",
+        help="sensor noise sigma, grey levels (default 1.5)",
+    )
+    p.add_argument(
+        "--skew-ms",
+        type=number(-1000.0, 1000.0, unit="ms"),
+        default=0.0,
+        metavar="MS",
+        help="right eye's capture delay after the left, ms (default 0)",
+    )
+    p.add_argument(
+        "--drift",
+        type=number(0.0, 0.99),
+        default=0.0,
+        help="lighting gain amplitude, fraction (e.g. 0.05), period 20 s",
+    )
+    p.add_argument("--color", action="store_true", help="BGR frames instead of grey")
+    p.add_argument(
+        "--codec",
+        choices=["ffv1", "mjpg"],
+        default="ffv1",
+        help="ffv1 lossless (default) or mjpg lossy",
+    )
+    p.add_argument("--seed", type=number(0, 2**32 - 1, integer=True), default=0, help="random seed")
+    p.set_defaults(func=run)
+
+
+def parse_ball(spec: str) -> dict[str, Any]:
+    """One ``--ball`` spec as :class:`~.synth.Ball` fields."""
+    out: dict[str, Any] = {}
+    centre = [0.0, 0.1, 1.8]
+    for part in filter(None, spec.split(",")):
+        k, sep, v = part.partition("=")
+        k = k.strip()
+        if not sep:
+            raise ConfigError(f"--ball {spec!r}: expected key=value, got {part!r}")
+        try:
+            val = number()(v)
+        except argparse.ArgumentTypeError as exc:
+            raise ConfigError(f"--ball {spec!r}: {k} = {v!r}: {exc}") from exc
+        if k in ("x", "y", "z"):
+            centre["xyz".index(k)] = val
+        elif k in BALL_KEYS:
+            out[BALL_KEYS[k]] = val
+        else:
+            raise ConfigError(
+                f"--ball {spec!r}: unknown key {k!r} (heading, speed, x, y, z, "
+                "radius, vy, brightness)"
+            )
+    out["centre_m"] = tuple(centre)
+    return out
+
+
+def scene_from_args(a: argparse.Namespace) -> Scene:
+    """The :class:`~.synth.Scene` described by ``stereod synth`` flags."""
+    w, h = a.size
+    if not a.lead_in + a.travel <= a.duration:
+        raise ConfigError(
+            f"--lead-in {a.lead_in} s + --travel {a.travel} s must fit in --duration {a.duration} s"
+        )
+    t_on, t_off = a.lead_in, a.lead_in + a.travel
+    balls = [parse_ball(s) for s in (a.ball or [""])]
+    for b in balls:
+        b.update(t_on_s=t_on, t_off_s=t_off, t_mid_s=(t_on + t_off) / 2)
+    try:
+        return Scene(
+            width_px=w,
+            height_px=h,
+            fps=a.fps,
+            hfov_deg=a.hfov,
+            baseline_m=a.baseline,
+            duration_s=a.duration,
+            noise_sigma=a.noise,
+            skew_s=a.skew_ms / 1e3,
+            drift=a.drift,
+            color=a.color,
+            seed=a.seed,
+            balls=balls,
+        )
+    except ValidationError as exc:
+        raise ConfigError(f"synth: {describe_validation_error(exc)}") from exc
+
+
+def run(a: argparse.Namespace) -> int:
+    scene = scene_from_args(a)
+    write_scene(scene, a.out, Codec(a.codec))
+    print(
+        f"wrote {scene.n_frames} stereo frames ({scene.width_px}x{scene.height_px} at "
+        f"{scene.fps:g} Hz) and truth.json to {a.out}"
+    )
+    return 0

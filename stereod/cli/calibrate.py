@@ -1,0 +1,174 @@
+"""``stereod calibrate``: calibrate the rig from chessboard pairs (files or live)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .. import calibrate as cb
+from ..calibration import Board, save
+from ..config import load_config
+from ..drivers import load_driver
+from ..frames import merged
+from .common import add_config, add_driver, number, path_arg, size_arg
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate the stereo rig from chessboard pairs",
+        description="Find a chessboard in both images of each pair, calibrate each camera, "
+        "then the pair with the intrinsics fixed, then rectify (Zhang's method, OpenCV). "
+        "Prints per-camera and stereo RMS, epipolar error, baseline, rectified row residual "
+        "and per-pair residuals. Refuses a clearly bad result (too few pairs, RMS above "
+        "--max-rms, left and right swapped) unless --force; exit 65 then.",
+    )
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument(
+        "--pairs",
+        type=path_arg,
+        metavar="DIR",
+        help="folder of pairs: leftNN/rightNN images, or left/ and right/ folders",
+    )
+    src.add_argument(
+        "--list",
+        type=path_arg,
+        metavar="FILE",
+        help="list of pairs: an OpenCV imagelist (XML/YAML, left and right "
+        "alternating) or text with 'LEFT RIGHT' per line",
+    )
+    src.add_argument(
+        "--live",
+        action="store_true",
+        help="collect pairs from the configured driver (--config, --driver, "
+        "--recording) while the board is moved in front of the rig",
+    )
+    p.add_argument(
+        "--board",
+        required=True,
+        type=size_arg,
+        metavar="COLSxROWS",
+        help="inner corners of the chessboard, e.g. 9x6",
+    )
+    p.add_argument(
+        "--square",
+        required=True,
+        type=number(0.0, 1000.0, lo_open=True, unit="m"),
+        metavar="M",
+        help="side of one square, m (every length of the result is in this unit)",
+    )
+    p.add_argument(
+        "--out",
+        type=path_arg,
+        default=Path("calibration.json"),
+        metavar="FILE",
+        help="calibration file to write (default calibration.json)",
+    )
+    p.add_argument(
+        "--force", action="store_true", help="write even a calibration that fails the checks"
+    )
+    p.add_argument(
+        "--min-pairs",
+        type=number(3, 10000, integer=True),
+        default=6,
+        metavar="N",
+        help="fewest usable pairs accepted (default 6)",
+    )
+    p.add_argument(
+        "--max-rms",
+        type=number(0.0, 100.0, lo_open=True, unit="px"),
+        default=1.0,
+        metavar="PX",
+        help="largest stereo RMS accepted, px (default 1.0)",
+    )
+    p.add_argument(
+        "--corner-window",
+        type=number(1, 100, integer=True),
+        metavar="PX",
+        help="half window of the sub-pixel corner refinement, px (default: adapted "
+        "to the squares' size in the image; OpenCV's stereo_calib sample uses 11)",
+    )
+    live = p.add_argument_group("live collection")
+    live.add_argument(
+        "--wanted",
+        type=number(3, 10000, integer=True),
+        default=15,
+        metavar="N",
+        help="pairs to collect before calibrating (default 15)",
+    )
+    add_config(live, " with the driver")
+    add_driver(live)
+    live.add_argument(
+        "--recording",
+        type=path_arg,
+        metavar="DIR",
+        help="shorthand for the replay driver on this recording",
+    )
+    p.set_defaults(func=run)
+
+
+def run(a: argparse.Namespace) -> int:
+    cols, rows = a.board
+    board = Board(cols=cols, rows=rows, square=a.square)
+    limits = cb.Limits(min_pairs=a.min_pairs, max_rms_px=a.max_rms)
+    tty = sys.stderr.isatty()
+
+    def progress(k: int, name: str, total: int) -> None:
+        end = "\r" if tty else "\n"
+        print(f"looking for the board: {k}/{total} {name}", end=end, file=sys.stderr, flush=True)
+
+    if a.live:
+        report = _live(a, board, limits)
+    else:
+        pairs = cb.pairs_in_directory(a.pairs) if a.pairs else cb.pairs_from_list(a.list)
+        report = cb.calibrate_files(
+            pairs, board, limits, lambda k, n: progress(k, n, len(pairs)), a.corner_window
+        )
+        if tty:
+            print(file=sys.stderr)
+    print(cb.format_report(report))
+    if report.problems:
+        for problem in report.problems:
+            print(f"stereod: calibration is clearly bad: {problem}", file=sys.stderr)
+        if not a.force:
+            print(
+                f"stereod: not written to {a.out} (use --force to write it anyway)", file=sys.stderr
+            )
+            return cb.CalibrationRejected.exit_code
+    save(report.calibration, a.out)
+    print(f"wrote {a.out} (calibration id {report.calibration.id})")
+    return 0
+
+
+def _live(a: argparse.Namespace, board: Board, limits: cb.Limits) -> cb.Report:
+    ov: dict[str, object] = {}
+    if a.recording is not None:
+        ov["driver"] = {"name": "replay", "options": {"path": a.recording}}
+    elif a.driver:
+        ov["driver"] = {"name": a.driver}
+    cfg = load_config(a.config, ov)
+    collector = cb.LiveCollector(board)
+    driver = load_driver(cfg.driver.name, cfg.driver.options, origin=a.config)
+
+    def progress(n: int, wanted: int) -> None:
+        print(f"pairs kept: {n}/{wanted}", file=sys.stderr, flush=True)
+
+    with driver.open() as source:
+        cb.collect_live(
+            merged(source.left, source.right),
+            collector,
+            a.wanted,
+            int(cfg.pairing.tolerance_ms * 1e6),
+            progress=progress,
+        )
+    if len(collector.kept) < a.wanted:
+        print(f"the stream ended with {len(collector.kept)} of {a.wanted} pairs", file=sys.stderr)
+    if collector.size is None or not collector.kept:
+        raise cb.CalibrationRejected(
+            f"the {board.cols}x{board.rows} board was not seen in both eyes in "
+            f"{collector.seen} pairs: check --board and that the board is in view"
+        )
+    return cb.calibrate(
+        collector.kept, board, collector.size, limits, source=f"live, {len(collector.kept)} pairs"
+    )

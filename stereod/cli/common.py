@@ -1,0 +1,256 @@
+"""What the commands share: option groups defined once, checked number types, logging setup,
+and running a daemon under signals.
+
+Numbers from the command line are checked where they are parsed: finite, in range, with the
+unit in the message, so a bad flag is one line and exit 64 before anything starts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import signal
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from ..errors import EX_DATAERR, ConfigError
+
+log = logging.getLogger("stereod")
+
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
+
+EPILOG_KEYS = """\
+keys (under --prefix, default 'stereod', and the rig name, default 'minoru'):
+  stereod/<rig>/objects             one JSON message per stereo pair
+  stereod/<rig>/objects/<track_id>  one track's state; DELETE when it ends
+  stereod/<rig>/status              health, 1 Hz and on change
+  stereod/<rig>/alive               liveliness token
+  stereod/<rig>/{config,calibration,stats}  queryables
+"""
+
+
+def number(
+    lo: float | None = None,
+    hi: float | None = None,
+    *,
+    lo_open: bool = False,
+    unit: str = "",
+    integer: bool = False,
+) -> Callable[[str], Any]:
+    """An argparse type: a finite number in [lo, hi] (lo excluded when ``lo_open``)."""
+
+    def parse(text: str) -> float | int:
+        try:
+            value: float | int = int(text) if integer else float(text)
+        except ValueError:
+            kind = "a whole number" if integer else "a number"
+            raise argparse.ArgumentTypeError(f"{text!r} is not {kind}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number")
+        u = f" {unit}" if unit else ""
+        if lo is not None and (value <= lo if lo_open else value < lo):
+            rel = ">" if lo_open else ">="
+            raise argparse.ArgumentTypeError(f"{text}: must be {rel} {lo:g}{u}")
+        if hi is not None and value > hi:
+            raise argparse.ArgumentTypeError(f"{text}: must be <= {hi:g}{u}")
+        return value
+
+    return parse
+
+
+def path_arg(text: str) -> Path:
+    """An argparse type: a path whose name is valid text (OpenCV and the log need that)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        shown = text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+        raise argparse.ArgumentTypeError(
+            f"{shown!r}: the path is not valid UTF-8; rename the file or folder"
+        ) from None
+    return Path(text)
+
+
+def add_rate(p: argparse.ArgumentParser, help_text: str) -> None:
+    p.add_argument("--rate", type=number(0.0, 1000.0), default=1.0, metavar="X", help=help_text)
+
+
+def add_config(p: argparse.ArgumentParser | argparse._ArgumentGroup, what: str = "") -> None:
+    p.add_argument("--config", type=path_arg, metavar="FILE", help=f"TOML config file{what}")
+
+
+def add_driver(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    p.add_argument("--driver", help="driver name (replay, synthetic, v4l2_minoru, ...)")
+
+
+def add_zenoh(p: argparse.ArgumentParser) -> None:
+    """--connect, --listen, --mode, --prefix."""
+    g = p.add_argument_group("zenoh")
+    g.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    g.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    g.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (peer)")
+    g.add_argument("--prefix", help="key prefix (default: stereod)")
+
+
+def add_pipeline(p: argparse.ArgumentParser) -> None:
+    """The rig, detector and tracker flags that override a config file, and the Zenoh ones."""
+    g = p.add_argument_group("rig and detector (override the config file)")
+    add_config(g)
+    g.add_argument("--rig", help="rig name used in key expressions (default: minoru)")
+    g.add_argument(
+        "--baseline",
+        type=number(0.0, 10.0, lo_open=True, unit="m"),
+        metavar="M",
+        help="distance between the cameras, m (default 0.060, the Minoru's)",
+    )
+    g.add_argument(
+        "--hfov",
+        type=number(0.0, 179.0, lo_open=True, unit="deg"),
+        metavar="DEG",
+        help="horizontal field of view of one eye, deg (default 60); without a calibration, "
+        "depth is only as good as this figure",
+    )
+    g.add_argument(
+        "--calibration",
+        type=path_arg,
+        metavar="FILE",
+        help="calibration file from `stereod calibrate` (replaces --baseline/--hfov)",
+    )
+    g.add_argument(
+        "--beta",
+        type=number(0.0, 1.0),
+        help="background update coefficient of eq. 3, per frame (default 0.02)",
+    )
+    g.add_argument(
+        "--threshold",
+        type=number(0.0, 255.0, lo_open=True),
+        metavar="GREY",
+        help="difference threshold t of eq. 4, grey levels 0-255 (default 25)",
+    )
+    g.add_argument(
+        "--min-area",
+        type=number(1, 10**7, integer=True),
+        metavar="PX",
+        help="smallest blob, px (default 30)",
+    )
+    g.add_argument(
+        "--warmup",
+        type=number(1, 10000, integer=True),
+        metavar="FRAMES",
+        help="frames averaged into the initial background (default 10)",
+    )
+    g.add_argument(
+        "--time-base",
+        type=number(0.0, 60.0, lo_open=True, unit="s"),
+        metavar="S",
+        help="time base tau of eq. 21 for velocity, s (default 0.5)",
+    )
+    add_zenoh(p)
+
+
+def zenoh_overrides(a: argparse.Namespace) -> dict[str, Any]:
+    return {"connect": a.connect, "listen": a.listen, "mode": a.mode, "prefix": a.prefix}
+
+
+def pipeline_overrides(a: argparse.Namespace) -> dict[str, Any]:
+    """The config overrides of :func:`add_pipeline`'s flags (unset flags are None)."""
+    return {
+        "rig": {
+            "name": a.rig,
+            "baseline_m": a.baseline,
+            "hfov_deg": a.hfov,
+            "calibration": a.calibration,
+        },
+        "detector": {
+            "beta": a.beta,
+            "threshold": a.threshold,
+            "min_area_px": a.min_area,
+            "warmup_frames": a.warmup,
+        },
+        "tracking": {"time_base_s": a.time_base},
+        "zenoh": zenoh_overrides(a),
+    }
+
+
+def quiet_third_party() -> None:
+    """Silence OpenCV's and FFmpeg's own messages on stderr: every problem they report (a
+    file that does not open, a truncated video) reaches the user once, in our words."""
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+    import cv2
+
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+
+
+def setup_logging(level: str) -> None:
+    """Configure the root logger (the entry point's job); STEREOD_LOG_LEVEL overrides."""
+    env = os.environ.get("STEREOD_LOG_LEVEL")
+    if env is not None:
+        if env.upper() not in LOG_LEVELS:
+            raise ConfigError(f"STEREOD_LOG_LEVEL={env!r}: must be one of {', '.join(LOG_LEVELS)}")
+        level = env.upper()
+    fmt = "%(levelname)s %(name)s: %(message)s"
+    if sys.stderr.isatty():
+        fmt = "%(asctime)s " + fmt
+    logging.basicConfig(level=level, format=fmt, force=True)
+
+
+def run_daemon(daemon: Any, *, quiet: bool = False, problems_fail: bool = True) -> int:
+    """Run until the input ends or a signal; SIGHUP reloads. With ``problems_fail`` (replay)
+    a run that hit input problems exits 65 after printing them; a daemon exits 0 on a clean
+    stop, its problems having gone to the log and the status key."""
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        log.info("signal %d: stopping", signum)
+        daemon.stop()
+
+    def on_hup(_signum: int, _frame: Any) -> None:
+        daemon.reload()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGHUP, on_hup)
+    t0 = time.monotonic()
+    summary = daemon.run()
+    if not quiet:
+        drops = ", ".join(f"{k} {v}" for k, v in summary.drops.items()) or "none"
+        print(
+            f"{summary.pairs} pairs from {summary.frames.get('left', 0)} left and "
+            f"{summary.frames.get('right', 0)} right frames, {summary.published} messages "
+            f"published, {summary.objects} object observations in "
+            f"{time.monotonic() - t0:.1f} s; drops: {drops}",
+            flush=True,
+        )
+    if summary.error is not None:
+        raise summary.error
+    if summary.problems and problems_fail:
+        for p in summary.problems:
+            print(f"stereod: {p}", file=sys.stderr)
+        return EX_DATAERR
+    return 0
+
+
+def size_arg(text: str) -> tuple[int, int]:
+    """An argparse type: ``WIDTHxHEIGHT`` (or ``COLSxROWS``), two positive whole numbers."""
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected two whole numbers like 640x480"
+        ) from None
+    if not (0 < w <= 100_000 and 0 < h <= 100_000):
+        raise argparse.ArgumentTypeError(f"{text!r}: both numbers must be in 1..100000")
+    return w, h

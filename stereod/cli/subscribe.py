@@ -1,0 +1,85 @@
+"""``stereod subscribe``: print what arrives on the bus, readably or as raw JSON."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import threading
+
+import zenoh
+from pydantic import ValidationError
+
+from ..config import ZenohConfig
+from ..errors import ConfigError, describe_validation_error
+from ..publish import open_session
+from ..subscribe import format_sample
+from .common import add_zenoh, number, zenoh_overrides
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "subscribe",
+        help="print what arrives on the bus",
+        description="Subscribe to stereod keys and print each sample readably (or --json).",
+    )
+    p.add_argument(
+        "keyexpr", nargs="?", default="stereod/**", help="key expression (default: stereod/**)"
+    )
+    p.add_argument("--json", action="store_true", help="raw JSON, one line per sample")
+    p.add_argument(
+        "--count", type=number(1, 10**12, integer=True), metavar="N", help="exit after N samples"
+    )
+    p.add_argument(
+        "--duration",
+        type=number(0.0, 10**9, lo_open=True, unit="s"),
+        metavar="S",
+        help="exit after S seconds",
+    )
+    add_zenoh(p)
+    p.set_defaults(func=run)
+
+
+def run(a: argparse.Namespace) -> int:
+    try:
+        zcfg = ZenohConfig(**{k: v for k, v in zenoh_overrides(a).items() if v is not None})
+    except ValidationError as exc:
+        raise ConfigError(f"zenoh flags: {describe_validation_error(exc)}") from exc
+    try:
+        key = zenoh.KeyExpr(a.keyexpr)
+    except zenoh.ZError as exc:
+        raise ConfigError(
+            f"key expression {a.keyexpr!r} is not valid (no empty chunks, e.g. 'stereod/**')"
+        ) from exc
+    done = threading.Event()
+    count = 0
+    lock = threading.Lock()
+
+    def on_sample(s: zenoh.Sample) -> None:
+        nonlocal count
+        key = str(s.key_expr)
+        payload = s.payload.to_bytes()
+        deleted = s.kind == zenoh.SampleKind.DELETE
+        if a.json:
+            line = (
+                json.dumps({"key": key, "delete": True})
+                if deleted
+                else payload.decode("utf-8", "replace")
+            )
+        else:
+            line = format_sample(key, payload, deleted)
+        with lock:
+            if done.is_set():
+                return
+            print(line, flush=True)
+            count += 1
+            if a.count is not None and count >= a.count:
+                done.set()
+
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    with open_session(zcfg) as session:
+        sub = session.declare_subscriber(key, on_sample)
+        done.wait(a.duration)
+        sub.undeclare()
+    return 0

@@ -1,0 +1,357 @@
+"""A typed client for programs that use a running stereod over Zenoh.
+
+Messages arrive parsed (:class:`~stereod.messages.ObjectsMessage` with its
+:class:`~stereod.messages.ObjectState` objects), together with the end of each track
+(:class:`TrackEnded`, from the DELETE on the track's key) and the daemon's liveliness
+(:class:`DaemonAlive`, from its ``alive`` token). Parsing is lenient: a newer daemon's extra
+fields are ignored. A sample that does not parse is counted in ``Subscription.rejected`` and
+skipped, never raised into Zenoh's thread. A callback::
+
+    import zenoh
+    from stereod.client import ObjectsMessage, TrackEnded, subscribe_objects
+
+    def on_event(event):
+        if isinstance(event, ObjectsMessage):
+            for o in event.objects:
+                print(o.track_id, o.position_m, o.speed_mps, o.heading_deg)
+        elif isinstance(event, TrackEnded):
+            print("track", event.track_id, "ended")
+
+    with zenoh.open(zenoh.Config()) as session, subscribe_objects(session, on_event):
+        input("press Enter to stop\\n")
+
+or an iterator, which also waits for the daemon before querying it::
+
+    with zenoh.open(zenoh.Config()) as session:
+        wait_alive(session, rig="minoru", timeout_s=10)
+        print(query_stats(session, rig="minoru").pairs, "pairs so far")
+        with object_events(session, rig="minoru") as events:
+            for event in events:
+                ...
+
+Key expressions come from :mod:`stereod.keys` (also available here as ``keys``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
+
+import zenoh
+from pydantic import ValidationError
+
+from . import keys
+from .calibration import Calibration
+from .messages import CanonicalGeometry, ObjectsMessage, ObjectState, StatsMessage, StatusMessage
+
+__all__ = [
+    "DaemonAlive",
+    "Event",
+    "ObjectState",
+    "ObjectsMessage",
+    "StatsMessage",
+    "StatusMessage",
+    "Subscription",
+    "TrackEnded",
+    "keys",
+    "object_events",
+    "parse_payload",
+    "query_calibration",
+    "query_config",
+    "query_stats",
+    "subscribe_objects",
+    "subscribe_status",
+    "wait_alive",
+]
+
+log = logging.getLogger(__name__)
+
+
+class QueryError(Exception):
+    """A query got no usable reply (no daemon, a timeout, or an error reply)."""
+
+
+@dataclass(frozen=True)
+class TrackEnded:
+    """A track of ``rig`` ended (its key got a DELETE): its id is never used again."""
+
+    rig: str
+    track_id: int
+
+
+@dataclass(frozen=True)
+class DaemonAlive:
+    """The daemon of ``rig`` appeared (``alive``) or went away (not ``alive``)."""
+
+    rig: str
+    alive: bool
+
+
+Event = ObjectsMessage | TrackEnded | DaemonAlive
+"""What :func:`subscribe_objects` delivers."""
+
+
+class Subscription:
+    """Declared Zenoh entities of one subscription; undeclared on :meth:`close` or ``with``."""
+
+    def __init__(self) -> None:
+        self._entities: list[Any] = []
+        self.rejected = 0
+        """Samples that did not parse (logged once, then counted)."""
+
+    def _rejected(self, key: str, exc: Exception) -> None:
+        self.rejected += 1
+        if self.rejected == 1:
+            log.warning("ignoring a sample on %s that does not parse: %s", key, exc)
+
+    def close(self) -> None:
+        for e in self._entities:
+            e.undeclare()
+        self._entities.clear()
+
+    def __enter__(self) -> Subscription:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def parse_payload(payload: bytes) -> ObjectsMessage | ObjectState | StatusMessage | Any:
+    """Any stereod payload as its typed message when its ``schema`` names one this version
+    knows (objects, object, status, stats); other JSON as plain data; None when not JSON."""
+    try:
+        data = json.loads(payload)
+    except ValueError:
+        return None
+    schema = data.get("schema", "") if isinstance(data, dict) else ""
+    family = schema.split("/", 1)[0]
+    model = _MODELS.get(family)
+    if model is None:
+        return data
+    try:
+        return model.model_validate(data)
+    except ValidationError:
+        return data
+
+
+_MODELS: dict[str, type[ObjectsMessage | ObjectState | StatusMessage | StatsMessage]] = {
+    "stereod.objects": ObjectsMessage,
+    "stereod.object": ObjectState,
+    "stereod.status": StatusMessage,
+    "stereod.stats": StatsMessage,
+}
+
+
+def subscribe_objects(
+    session: zenoh.Session,
+    callback: Callable[[Event], None],
+    *,
+    rig: str = keys.DEFAULT_RIG,
+    prefix: str = keys.DEFAULT_PREFIX,
+    track_ends: bool = True,
+    liveliness: bool = True,
+) -> Subscription:
+    """Call ``callback`` (on a Zenoh thread) with every ``objects`` message of ``rig`` (``*``
+    for every rig), each track's end, and the daemon's liveliness (the current state first)."""
+    sub = Subscription()
+
+    def on_objects(sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        try:
+            msg = ObjectsMessage.model_validate_json(sample.payload.to_bytes())
+        except (ValidationError, ValueError) as exc:
+            sub._rejected(key, exc)
+            return
+        callback(msg)
+
+    def on_track(sample: zenoh.Sample) -> None:
+        if sample.kind != zenoh.SampleKind.DELETE:
+            return
+        where = keys.parse(str(sample.key_expr), prefix=prefix)
+        try:
+            assert where is not None
+            callback(TrackEnded(where[0], int(where[1].rsplit("/", 1)[-1])))
+        except (AssertionError, ValueError) as exc:
+            sub._rejected(str(sample.key_expr), exc)
+
+    def on_alive(sample: zenoh.Sample) -> None:
+        where = keys.parse(str(sample.key_expr), prefix=prefix)
+        if where is not None:
+            callback(DaemonAlive(where[0], sample.kind == zenoh.SampleKind.PUT))
+
+    sub._entities.append(session.declare_subscriber(keys.objects(rig, prefix=prefix), on_objects))
+    if track_ends:
+        sub._entities.append(
+            session.declare_subscriber(keys.track(rig, "*", prefix=prefix), on_track)
+        )
+    if liveliness:
+        sub._entities.append(
+            session.liveliness().declare_subscriber(
+                keys.alive(rig, prefix=prefix), on_alive, history=True
+            )
+        )
+    return sub
+
+
+def subscribe_status(
+    session: zenoh.Session,
+    callback: Callable[[StatusMessage], None],
+    *,
+    rig: str = keys.DEFAULT_RIG,
+    prefix: str = keys.DEFAULT_PREFIX,
+) -> Subscription:
+    """Call ``callback`` with every status message of ``rig`` (1 Hz and on change)."""
+    sub = Subscription()
+
+    def on_status(sample: zenoh.Sample) -> None:
+        try:
+            msg = StatusMessage.model_validate_json(sample.payload.to_bytes())
+        except (ValidationError, ValueError) as exc:
+            sub._rejected(str(sample.key_expr), exc)
+            return
+        callback(msg)
+
+    sub._entities.append(session.declare_subscriber(keys.status(rig, prefix=prefix), on_status))
+    return sub
+
+
+class EventStream:
+    """An iterator over :data:`Event` (see :func:`object_events`)."""
+
+    def __init__(self, session: zenoh.Session, maxsize: int, **where: Any) -> None:
+        self._queue: queue.Queue[Event] = queue.Queue(maxsize)
+        self.dropped = 0
+        """Events dropped because the consumer fell more than ``maxsize`` behind."""
+        self._closed = threading.Event()
+        self._sub = subscribe_objects(session, self._put, **where)
+
+    def _put(self, event: Event) -> None:
+        try:
+            self._queue.put_nowait(event)
+        except queue.Full:
+            self.dropped += 1
+
+    def get(self, timeout_s: float | None = None) -> Event | None:
+        """The next event, or ``None`` after ``timeout_s`` seconds without one."""
+        try:
+            return self._queue.get(timeout=timeout_s)
+        except queue.Empty:
+            return None
+
+    def __iter__(self) -> Iterator[Event]:
+        while not self._closed.is_set():
+            event = self.get(0.1)
+            if event is not None:
+                yield event
+
+    def close(self) -> None:
+        self._closed.set()
+        self._sub.close()
+
+    def __enter__(self) -> EventStream:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def object_events(
+    session: zenoh.Session,
+    *,
+    rig: str = keys.DEFAULT_RIG,
+    prefix: str = keys.DEFAULT_PREFIX,
+    maxsize: int = 1000,
+) -> EventStream:
+    """The events of :func:`subscribe_objects` as an iterator (a context manager); at most
+    ``maxsize`` wait, beyond that the newest are dropped and counted in ``dropped``."""
+    return EventStream(session, maxsize, rig=rig, prefix=prefix)
+
+
+def wait_alive(
+    session: zenoh.Session,
+    *,
+    rig: str = keys.DEFAULT_RIG,
+    prefix: str = keys.DEFAULT_PREFIX,
+    timeout_s: float = 10.0,
+) -> bool:
+    """Wait until the daemon of ``rig`` is up (its liveliness token is declared last, so its
+    queryables answer once it is seen); False after ``timeout_s`` seconds."""
+    seen = threading.Event()
+    sub = session.liveliness().declare_subscriber(
+        keys.alive(rig, prefix=prefix),
+        lambda s: seen.set() if s.kind == zenoh.SampleKind.PUT else None,
+        history=True,
+    )
+    try:
+        return seen.wait(timeout_s)
+    finally:
+        sub.undeclare()
+
+
+def _query(session: zenoh.Session, key: str, timeout_s: float) -> bytes:
+    for reply in session.get(key, timeout=timeout_s):
+        if reply.ok is not None:
+            return reply.ok.payload.to_bytes()
+        raise QueryError(
+            f"{key}: the daemon replied with an error: {reply.err.payload.to_bytes()!r}"
+        )
+    raise QueryError(
+        f"{key}: no reply within {timeout_s:g} s (is the daemon running? see wait_alive)"
+    )
+
+
+def query_config(
+    session: zenoh.Session,
+    *,
+    rig: str = keys.DEFAULT_RIG,
+    prefix: str = keys.DEFAULT_PREFIX,
+    timeout_s: float = 5.0,
+) -> dict[str, Any]:
+    """The daemon's effective configuration (the TOML's sections as a dict)."""
+    data = json.loads(_query(session, keys.queryable("config", rig, prefix=prefix), timeout_s))
+    if not isinstance(data, dict):
+        raise QueryError("config: the reply is not a JSON object")
+    return data
+
+
+def query_calibration(
+    session: zenoh.Session,
+    *,
+    rig: str = keys.DEFAULT_RIG,
+    prefix: str = keys.DEFAULT_PREFIX,
+    timeout_s: float = 5.0,
+) -> Calibration | CanonicalGeometry:
+    """The geometry in force: the calibration file's content, or the canonical rig's figures."""
+    raw = _query(session, keys.queryable("calibration", rig, prefix=prefix), timeout_s)
+    try:
+        if json.loads(raw).get("geometry") == "canonical":
+            return CanonicalGeometry.model_validate_json(raw)
+        return Calibration.model_validate_json(raw)
+    except (ValidationError, ValueError, AttributeError) as exc:
+        raise QueryError(f"calibration: the reply does not parse: {exc}") from exc
+
+
+def query_stats(
+    session: zenoh.Session,
+    *,
+    rig: str = keys.DEFAULT_RIG,
+    prefix: str = keys.DEFAULT_PREFIX,
+    timeout_s: float = 5.0,
+) -> StatsMessage:
+    """Counters since the daemon started."""
+    raw = _query(session, keys.queryable("stats", rig, prefix=prefix), timeout_s)
+    try:
+        return StatsMessage.model_validate_json(raw)
+    except ValidationError as exc:
+        raise QueryError(f"stats: the reply does not parse: {exc}") from exc

@@ -1,0 +1,65 @@
+"""The output thread: sends each pair's payloads over Zenoh and, when asked, to a JSONL file.
+
+Publishing never blocks (Zenoh puts use congestion DROP). A JSONL write that fails (a full
+disk, a closed pipe) ends the run with :class:`~stereod.errors.OutputError` (exit 73); the
+thread keeps draining its queue so the pipeline is never left blocked behind it.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+from .errors import OutputError
+from .output_file import AtomicOutput
+from .processing import Outgoing
+from .publish import Publisher
+from .queues import BoundedQueue, Closed
+from .status import Health
+
+log = logging.getLogger(__name__)
+
+
+class Output:
+    """Drains the outgoing queue of one run (thread target: :meth:`loop`)."""
+
+    def __init__(
+        self,
+        out: BoundedQueue[Outgoing],
+        publisher: Publisher,
+        health: Health,
+        *,
+        jsonl: AtomicOutput | None,
+        on_fatal: Callable[[BaseException], None],
+        on_message: Callable[[Outgoing], None] | None = None,
+    ) -> None:
+        self.out = out
+        self.publisher = publisher
+        self.health = health
+        self.jsonl = jsonl
+        self._on_fatal = on_fatal
+        self._on_message = on_message
+
+    def loop(self) -> None:
+        while True:
+            try:
+                item = self.out.get(timeout=0.25)
+            except Closed:
+                break
+            if item is None:
+                continue
+            if item.message is None:
+                self.publisher.objects_end(item.ended)
+                continue
+            self.publisher.objects(item.payload, item.tracks, item.ended)
+            self.health.published = self.publisher.published
+            self.health.publish_errors = self.publisher.errors
+            if self._on_message is not None:
+                self._on_message(item)
+            if self.jsonl is not None:
+                try:
+                    self.jsonl.write(item.payload + b"\n")
+                except OutputError as exc:
+                    self.jsonl.discard()
+                    self.jsonl = None
+                    self._on_fatal(exc)

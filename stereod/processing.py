@@ -1,0 +1,145 @@
+"""The pipeline thread: the only thread that ever touches a :class:`~stereod.pipeline.Pipeline`.
+
+It takes pairs from the capture queue, runs them through the pipeline, turns each result into
+its wire payloads (the ``objects`` message and one state per live track) and queues them for
+the output thread. A reload hands new parameters over with :meth:`PipelineWorker.reconfigure`
+from any thread; the swap happens here, between two pairs, so no pair is processed half by one
+pipeline and half by another, the tracks that end get their DELETE, and ids are never reused.
+A pair that fails to process is counted and skipped; the thread goes on.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from .capture import QueuedPair
+from .geometry.rectified import CalibratedRig
+from .geometry.stereo import CanonicalRig
+from .messages import ObjectsMessage, dump, objects_message
+from .pipeline import PairResult, Pipeline, PipelineParams
+from .queues import BoundedQueue, Closed
+from .status import Health
+
+log = logging.getLogger(__name__)
+
+ERROR_PIPELINE = "pipeline_error"
+"""Processing a pair raised an error; the pair was skipped."""
+
+
+@dataclass
+class Outgoing:
+    """What the output thread sends for one pair (``message`` is None for a bare end of tracks).
+
+    ``payload`` the ``objects`` JSON; ``tracks`` (track id, state JSON) per live track;
+    ``ended`` the ids of tracks that ended (a DELETE each).
+    """
+
+    message: ObjectsMessage | None
+    payload: bytes = b""
+    tracks: list[tuple[int, bytes]] = field(default_factory=list)
+    ended: list[int] = field(default_factory=list)
+    result: PairResult | None = None
+
+
+class PipelineWorker:
+    """Runs one pipeline on the pairs of one run (thread target: :meth:`loop`)."""
+
+    def __init__(
+        self,
+        pipeline: Pipeline,
+        pairs: BoundedQueue[QueuedPair],
+        out: BoundedQueue[Outgoing],
+        health: Health,
+        *,
+        rig_name: str,
+        utc_offset_ns: Callable[[], int | None],
+        stop: threading.Event,
+    ) -> None:
+        self.pipeline = pipeline
+        self.pairs = pairs
+        self.out = out
+        self.health = health
+        self.rig_name = rig_name
+        self._utc_offset_ns = utc_offset_ns
+        self._stop = stop
+        self._pending: PipelineParams | None = None
+        self._lock = threading.Lock()
+        self.objects = 0
+        """Object states produced so far."""
+
+    @property
+    def rig(self) -> CanonicalRig | CalibratedRig:
+        """The geometry in force (after a pending reconfiguration, the new one)."""
+        with self._lock:
+            pending = self._pending
+        return (pending or self.pipeline.params).rig
+
+    def reconfigure(self, params: PipelineParams) -> None:
+        """Use ``params`` from the next pair on (any thread; the last call wins)."""
+        with self._lock:
+            self._pending = params
+
+    def _swap(self) -> None:
+        with self._lock:
+            params, self._pending = self._pending, None
+        if params is None:
+            return
+        self.pipeline, ended = self.pipeline.reconfigured(params)
+        rig = params.rig
+        self.health.geometry = rig.geometry
+        self.health.calibration_id = rig.calibration_id
+        if ended:
+            self.out.put(Outgoing(None, ended=ended), self._stop)
+
+    def loop(self) -> None:
+        try:
+            while True:
+                try:
+                    item = self.pairs.get(timeout=0.25)
+                except Closed:
+                    break
+                self._swap()
+                if item is None:
+                    continue
+                pair, queued_at = item
+                queued_ms = (time.perf_counter_ns() - queued_at) * 1e-6
+                try:
+                    result = self.pipeline.process(pair)
+                    outgoing = self.outgoing(result, queued_ms)
+                except Exception as exc:  # one bad pair must not stop the daemon
+                    self.health.error(ERROR_PIPELINE)
+                    self.health.problem(
+                        f"pair {pair.seq}: processing failed: {exc}", ERROR_PIPELINE
+                    )
+                    log.debug("pair %d failed", pair.seq, exc_info=True)
+                    continue
+                self.health.pair_done(
+                    result.timings.pipeline_ms, pair.skew_ns * 1e-6, result.row_residuals_px
+                )
+                self.objects += len(result.tracks)
+                self.out.put(outgoing, self._stop)
+            self._swap()
+            ended = self.pipeline.finish()
+            if ended:
+                self.out.put(Outgoing(None, ended=ended), self._stop)
+        finally:
+            self.pipeline.close()
+            self.out.close()
+
+    def outgoing(self, result: PairResult, queued_ms: float) -> Outgoing:
+        """The wire payloads of one result, serialised once here."""
+        rig = self.pipeline.params.rig
+        msg = objects_message(
+            result,
+            rig=self.rig_name,
+            geometry=rig.geometry,
+            calibration_id=rig.calibration_id,
+            utc_offset_ns=self._utc_offset_ns() or 0,
+            queue_ms=queued_ms,
+        )
+        tracks = [(o.track_id, dump(o)) for o in msg.objects]
+        return Outgoing(msg, dump(msg), tracks, result.ended, result)
