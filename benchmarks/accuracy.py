@@ -45,9 +45,7 @@ def replay_through_pipeline(recording: Path, params: PipelineParams) -> list[Obj
         results = list(pipe.run(merged(src.left, src.right), int(0.75e9 / (man.fps or 15.0))))
     rig = params.rig
     return [
-        objects_message(
-            r, rig="bench", geometry=rig.geometry, calibration_id=None, utc_offset_ns=0
-        )
+        objects_message(r, rig="bench", geometry=rig.geometry, calibration_id=None, utc_offset_ns=0)
         for r in results
     ]
 

@@ -24,6 +24,9 @@ from stereod.config import ZenohConfig
 from stereod.publish import open_session
 from stereod_fakes.synth import Ball, Scene, write_scene
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.processes import stereod_command
+
 
 def rss_kib(pid: int) -> int:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -54,10 +57,7 @@ def main() -> int:
         scene = Scene(duration_s=6.0, balls=[Ball(t_on_s=1.0, t_off_s=5.0, t_mid_s=3.0)])
         rec = write_scene(scene, Path(tmp) / "rec")
         proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "stereod.cli",
+            stereod_command(
                 "replay",
                 str(rec),
                 "--loop",
@@ -66,7 +66,7 @@ def main() -> int:
                 "--listen",
                 endpoint,
                 "-q",
-            ],
+            ),
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             text=True,

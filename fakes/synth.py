@@ -176,7 +176,7 @@ class Renderer:
         if self.scene.rig_spec is not None:
             return self._background_cast(eye)
         x0 = self._wall_disp if eye is Eye.RIGHT else 0.0
-        m = np.float32([[1, 0, x0], [0, 1, 0]])
+        m = np.array([[1, 0, x0], [0, 1, 0]], np.float32)
         bg = cv2.warpAffine(
             self._texture,
             m,
@@ -278,33 +278,67 @@ class _SynthEye(EyeSource):
     def read(self) -> Frame | None:
         src = self._source
         sc = src.scene
-        if self._k >= sc.n_frames:
+        n = sc.n_frames
+        if self._k >= n and not src.flags.loop:
             return None
         k = self._k
         self._k += 1
-        t = sc.frame_time_s(self.eye, k)
-        with src.render_lock:
-            img = src.renderer.render(self.eye, t, src.backgrounds[self.eye])
-        if not src.live:
+        lap, i = divmod(k, n)
+        t = sc.frame_time_s(self.eye, i) + lap * n / sc.fps
+        if src.prerendered is not None:
+            img = src.prerendered[self.eye][i]
+        else:
+            with src.render_lock:
+                img = src.renderer.render(self.eye, t, src.backgrounds[self.eye])
+        if not src.flags.live:
             return Frame(self.eye, img, sc.t_ns(t), k)
-        # Like a camera: the frame is delivered at its capture instant, stamped on the
-        # host's monotonic clock.
-        delay = src.start_s + t - time.monotonic()
+        # Like a camera: the frame is delivered at its capture instant, stamped on the host's
+        # monotonic clock; the clock starts at the first read of either eye.
+        start = src.start_s()
+        delay = start + t - time.monotonic()
         if delay > 0:
             time.sleep(delay)
-        return Frame(self.eye, img, round((src.start_s + t) * 1e9), k)
+        return Frame(self.eye, img, round((start + t) * 1e9), k)
 
 
 class _SynthSource(StereoSource):
-    def __init__(self, scene: Scene, live: bool) -> None:
+    def __init__(self, scene: Scene, flags: SynthFlags) -> None:
         self.scene = scene
-        self.live = live
-        self.start_s = time.monotonic()
+        self.flags = flags
         self.render_lock = threading.Lock()
         self.renderer = Renderer(scene)
         self.backgrounds = {eye: self.renderer.background(eye) for eye in Eye}
-        info = SourceInfo(scene.width_px, scene.height_px, scene.fps, live, "synthetic scene")
+        self.prerendered: dict[Eye, list[np.ndarray]] | None = None
+        if flags.prerender:
+            self.prerendered = {
+                eye: [
+                    self.renderer.render(eye, scene.frame_time_s(eye, k), self.backgrounds[eye])
+                    for k in range(scene.n_frames)
+                ]
+                for eye in Eye
+            }
+        self._start_s: float | None = None
+        info = SourceInfo(scene.width_px, scene.height_px, scene.fps, flags.live, "synthetic scene")
         super().__init__(_SynthEye(Eye.LEFT, self), _SynthEye(Eye.RIGHT, self), info)
+
+    def start_s(self) -> float:
+        """The host's monotonic time (s) of the scene's start: the first read."""
+        with self.render_lock:
+            if self._start_s is None:
+                self._start_s = time.monotonic()
+            return self._start_s
+
+
+class SynthFlags(BaseModel):
+    """How the ``synthetic`` driver plays its scene (options beside the scene's own fields)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    live: bool = Field(
+        False, description="Deliver each frame at its capture instant, like a camera"
+    )
+    prerender: bool = Field(False, description="Render every frame when opened, not when read")
+    loop: bool = Field(False, description="Start again at the end, timestamps continuing")
 
 
 class SyntheticDriver(Driver):
@@ -312,17 +346,21 @@ class SyntheticDriver(Driver):
 
     With ``live = true`` it behaves like a camera: each eye delivers its frames at their capture
     instants on the host's monotonic clock, and the daemon treats it as live (one thread per eye,
-    drop-oldest queues)."""
+    drop-oldest queues). ``prerender = true`` renders every frame when the source opens, so
+    that rendering costs nothing while it plays (benchmarks); ``loop = true`` plays the scene
+    again and again, timestamps continuing."""
 
     name = "synthetic"
 
     def __init__(self, options: dict[str, Any]) -> None:
         options = dict(options)
-        self.live = bool(options.pop("live", False))
+        own = {k: options.pop(k) for k in list(options) if k in SynthFlags.model_fields}
         try:
+            self.flags = SynthFlags.model_validate(own)
             self.scene = Scene.model_validate(options)
         except ValidationError as exc:
             raise ConfigError(describe_validation_error(exc, "driver.options")) from exc
+        self.live = self.flags.live
 
     def open(self) -> StereoSource:
-        return _SynthSource(self.scene, self.live)
+        return _SynthSource(self.scene, self.flags)

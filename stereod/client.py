@@ -55,6 +55,7 @@ __all__ = [
     "Event",
     "ObjectState",
     "ObjectsMessage",
+    "QueryError",
     "StatsMessage",
     "StatusMessage",
     "Subscription",

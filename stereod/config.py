@@ -1,9 +1,11 @@
 """Daemon configuration: one TOML file, ``STEREOD_...`` environment overrides, flags on top.
 
 Precedence, highest first: command-line flags, environment (``STEREOD_DETECTOR__BETA=0.05``:
-section and field joined by a double underscore), the TOML file, the defaults below. Every
-value is validated by pydantic-settings; :func:`load_config` turns a failure into one
-:class:`~stereod.errors.ConfigError` line naming the field, the value and what is allowed.
+section and field joined by a double underscore), the TOML file, the defaults below. The three
+are merged and every value validated once by the pydantic models below (a small layer of our
+own reads the environment: pydantic-settings would cost the daemon 16 MB of memory).
+:func:`load_config` turns a failure into one :class:`~stereod.errors.ConfigError` line naming
+where the value came from, the field, the value and what is allowed.
 
 Example::
 
@@ -20,21 +22,15 @@ Example::
 
 from __future__ import annotations
 
-import contextvars
+import json
 import os
 import sys
+import typing
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
-from pydantic.fields import FieldInfo
-from pydantic_settings import (
-    BaseSettings,
-    PydanticBaseSettingsSource,
-    SettingsConfigDict,
-    SettingsError,
-)
 
 from . import keys
 from .detect import Centroid, DetectorParams, Luminance
@@ -103,6 +99,12 @@ class DetectorConfig(_Section):
     )
     luminance: Luminance = Field(_DETECT.luminance, description="bt601 or mean (eq. 2 exactly)")
     centroid: Centroid = Field(_DETECT.centroid, description="coverage or binary (eq. 5)")
+    max_foreground: float = Field(
+        _DETECT.max_foreground,
+        gt=0.0,
+        le=1.0,
+        description="Share of the image above which a frame is saturated (no blobs)",
+    )
 
     def params(self) -> DetectorParams:
         return DetectorParams(**self.model_dump())
@@ -202,25 +204,10 @@ class DaemonConfig(_Section):
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
 
 
-_file_data: contextvars.ContextVar[dict[str, Any]] = contextvars.ContextVar("_file_data")
-
-
-class _FileSource(PydanticBaseSettingsSource):
-    """The already parsed TOML file, below the environment in precedence."""
-
-    def get_field_value(self, field: FieldInfo, field_name: str) -> tuple[Any, str, bool]:
-        return _file_data.get({}).get(field_name), field_name, False
-
-    def __call__(self) -> dict[str, Any]:
-        return dict(_file_data.get({}))
-
-
-class StereodConfig(BaseSettings):
+class StereodConfig(BaseModel):
     """The whole configuration; sections mirror the TOML tables."""
 
-    model_config = SettingsConfigDict(
-        env_prefix="STEREOD_", env_nested_delimiter="__", extra="forbid", case_sensitive=False
-    )
+    model_config = ConfigDict(extra="forbid")
 
     rig: RigConfig = Field(default_factory=RigConfig)
     driver: DriverConfig = Field(default_factory=DriverConfig)
@@ -230,17 +217,6 @@ class StereodConfig(BaseSettings):
     tracking: TrackingConfig = Field(default_factory=TrackingConfig)
     zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
     daemon: DaemonConfig = Field(default_factory=DaemonConfig)
-
-    @classmethod
-    def settings_customise_sources(
-        cls,
-        settings_cls: type[BaseSettings],
-        init_settings: PydanticBaseSettingsSource,
-        env_settings: PydanticBaseSettingsSource,
-        dotenv_settings: PydanticBaseSettingsSource,
-        file_secret_settings: PydanticBaseSettingsSource,
-    ) -> tuple[PydanticBaseSettingsSource, ...]:
-        return (init_settings, env_settings, _FileSource(settings_cls))
 
 
 def read_toml(path: Path) -> dict[str, Any]:
@@ -265,25 +241,47 @@ ENV_OTHER = ("STEREOD_LOG_LEVEL", "STEREOD_CRASH_DIR")
 """Variables with the prefix that are not configuration fields."""
 
 
-def check_environment(environ: Mapping[str, str] | None = None) -> None:
-    """Refuse a ``STEREOD_`` variable that names no configuration field (a typo would otherwise
-    be ignored silently, while an unknown TOML key is refused)."""
+def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
+    """The configuration that ``STEREOD_<SECTION>__<FIELD>`` variables set, as nested tables
+    (``STEREOD_DRIVER__OPTIONS__FPS`` reaches into the driver's options). A list or table
+    value is JSON; a variable that names no field is refused, as an unknown TOML key is."""
     env = os.environ if environ is None else environ
-    for name in env:
-        if not name.upper().startswith(ENV_PREFIX) or name.upper() in ENV_OTHER:
+    out: dict[str, Any] = {}
+    for name, value in sorted(env.items()):
+        upper = name.upper()
+        if not upper.startswith(ENV_PREFIX) or upper in ENV_OTHER:
             continue
-        section, sep, fld = name[len(ENV_PREFIX) :].lower().partition("__")
-        model = StereodConfig.model_fields.get(section)
-        known = model is not None and model.annotation is not None
-        if known and sep and fld:
-            sub_model = model.annotation  # type: ignore[union-attr]
-            head = fld.split("__", 1)[0]
-            known = head in getattr(sub_model, "model_fields", {})
-        if not known or not sep:
+        parts = name[len(ENV_PREFIX) :].lower().split("__")
+        section = StereodConfig.model_fields.get(parts[0])
+        fields = getattr(section.annotation, "model_fields", {}) if section else {}
+        fld = fields.get(parts[1]) if len(parts) > 1 else None
+        if fld is None or (len(parts) > 2 and typing.get_origin(fld.annotation) is not dict):
             raise ConfigError(
                 f"environment variable {name}: names no configuration field (use "
                 "STEREOD_<SECTION>__<FIELD>, e.g. STEREOD_DETECTOR__BETA; see stereod run --check)"
             )
+        parsed: Any = value
+        if len(parts) == 2 and typing.get_origin(fld.annotation) in (list, dict):
+            try:
+                parsed = json.loads(value)
+            except ValueError:
+                raise ConfigError(
+                    f"environment variable {name}={value!r}: a list or table is written as JSON, "
+                    "e.g. STEREOD_ZENOH__CONNECT='[\"tcp/127.0.0.1:7447\"]'"
+                ) from None
+        node = out
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = parsed
+    return out
+
+
+def _merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
+    """``top`` over ``base``, table by table."""
+    out = dict(base)
+    for k, v in top.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
 
 
 def _origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) -> str:
@@ -300,30 +298,22 @@ def _origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) 
 
 
 def load_config(path: Path | None = None, overrides: dict[str, Any] | None = None) -> StereodConfig:
-    """Build the configuration from ``path`` (TOML), the environment and ``overrides`` (flags).
+    """Build the configuration from ``path`` (TOML), the environment and ``overrides`` (flags),
+    later ones winning, and validate it once.
 
     ``overrides`` is a nested dict like ``{"detector": {"beta": 0.05}}``; ``None`` values are
     ignored so unset flags do not mask the file.
     """
     data = read_toml(path) if path is not None else {}
-    check_environment()
-    token = _file_data.set(data)
+    flags = _prune(overrides or {})
     try:
-        return StereodConfig(**_prune(overrides or {}))
+        return StereodConfig.model_validate(_merge(_merge(data, environment()), flags))
     except ValidationError as exc:
-        pruned = _prune(overrides or {})
         parts = [
-            f"{_origin(tuple(e['loc']), path, pruned)}: invalid config: {describe_error(e)}"
+            f"{_origin(tuple(e['loc']), path, flags)}: invalid config: {describe_error(e)}"
             for e in exc.errors(include_url=False)
         ]
         raise ConfigError("; ".join(parts)) from exc
-    except SettingsError as exc:
-        raise ConfigError(
-            f"environment: {exc} (a list or table is written as JSON, e.g. "
-            "STEREOD_ZENOH__CONNECT='[\"tcp/127.0.0.1:7447\"]')"
-        ) from exc
-    finally:
-        _file_data.reset(token)
 
 
 def _prune(d: dict[str, Any]) -> dict[str, Any]:

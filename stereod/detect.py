@@ -50,6 +50,9 @@ class DetectorParams:
     ``warmup_frames``: frames averaged into the initial background before detecting.
     ``open_px``: side of the square opening kernel (px), 0 or 1 to disable.
     ``luminance``: eq. 2 exactly or the camera's luma; ``centroid``: eq. 5 exactly or weighted.
+    ``max_foreground``: a frame whose foreground covers more than this share of the image is
+    saturated (the lights changed, the camera moved): no blobs are reported from it, and after
+    ``warmup_frames`` saturated frames in a row the background is learned afresh.
     """
 
     beta: float = 0.02
@@ -59,6 +62,7 @@ class DetectorParams:
     open_px: int = 3
     luminance: Luminance = Luminance.BT601
     centroid: Centroid = Centroid.COVERAGE
+    max_foreground: float = 0.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,7 +118,9 @@ class Detector:
         self.mask: np.ndarray | None = None
         """The last foreground bitmap M of eq. 4 (uint8, 0 or 255), for overlays and tests."""
         self.saturated = 0
-        """Frames whose foreground had too many components to label (counted, reported empty)."""
+        """Frames whose foreground covered more than ``max_foreground`` of the image (reported
+        empty)."""
+        self._saturated_run = 0
 
     @property
     def warming_up(self) -> bool:
@@ -132,9 +138,11 @@ class Detector:
             self._seen = other._seen
 
     def reset(self) -> None:
-        """Forget the background (after a lighting jump or a camera re-plug)."""
+        """Forget the background (after a lighting jump or a camera re-plug); the next frames
+        are its warm-up again."""
         self._background = None
         self._seen = 0
+        self._saturated_run = 0
 
     def detect(self, image: np.ndarray, update_mask: np.ndarray | None = None) -> Blobs:
         """Find moving blobs in one frame, then update the background (eq. 2-5).
@@ -161,6 +169,13 @@ class Detector:
         if self._kernel is not None:
             mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, self._kernel)
         self.mask = mask
+        if cv2.countNonZero(mask) > self.params.max_foreground * mask.size:
+            self.saturated += 1
+            self._saturated_run += 1
+            if self._saturated_run > self.params.warmup_frames:
+                self.reset()  # the scene changed for good: learn it again
+            return Blobs.empty()
+        self._saturated_run = 0
         return self._components(mask, diff)
 
     def learn(self, update_mask: np.ndarray | None = None) -> None:

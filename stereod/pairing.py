@@ -5,6 +5,12 @@ at most half a frame period away. The pairer sees both streams in arrival order 
 pair as soon as it is unambiguous: the earlier head frame is paired with the other eye's head when
 no later frame of its own eye could be nearer to that partner. Every frame that is not paired is
 counted under a reason. The class is single-threaded and pure; the daemon serialises calls.
+
+Near half a frame of skew both neighbours are almost equally near, and the strict nearest rule
+would drop a frame whenever jitter tips the balance. So the pairing keeps its phase until the
+other neighbour is nearer by more than ``HYSTERESIS`` of a period: every frame stays paired
+one-to-one while the skew hovers around half a frame (pairs then at most 0.6 frame apart, which
+skew compensation takes), and one frame is dropped only when the phase has really moved on.
 """
 
 from __future__ import annotations
@@ -14,6 +20,9 @@ from dataclasses import dataclass, field
 
 from .frames import Eye, Frame, StereoPair
 
+HYSTERESIS = 0.1
+"""Share of a frame period by which another partner must be nearer before the pairing changes
+phase (and one frame is dropped)."""
 DEFAULT_TOLERANCE_NS = 40_000_000
 """Largest |skew| (ns) of a pair by default: more than half a frame at 15 Hz and above."""
 DROP_NO_PARTNER = "no_partner"
@@ -103,15 +112,15 @@ class Pairer:
                 early_q.popleft()
                 self.stats.drops[DROP_NO_PARTNER] += 1
                 continue
+            period = self._period_ns[early.eye]
+            margin = HYSTERESIS * period if period is not None else 0.0
             if len(early_q) > 1:
-                if abs(early_q[1].t_ns - other.t_ns) < gap:
+                if abs(early_q[1].t_ns - other.t_ns) < gap - margin:
                     early_q.popleft()
                     self.stats.drops[DROP_SUPERSEDED] += 1
                     continue
-            elif not final:
-                period = self._period_ns[early.eye]
-                if period is None or 2 * gap > period:
-                    break
+            elif not final and (period is None or gap > (0.5 + HYSTERESIS) * period):
+                break
             early_q.popleft()
             other_q.popleft()
             l_frame, r_frame = (early, other) if early.eye is Eye.LEFT else (other, early)

@@ -68,6 +68,7 @@ class PipelineWorker:
         self._stop = stop
         self._pending: PipelineParams | None = None
         self._lock = threading.Lock()
+        self._saturated: dict[str, int] = {}
         self.objects = 0
         """Object states produced so far."""
 
@@ -117,6 +118,7 @@ class PipelineWorker:
                     )
                     log.debug("pair %d failed", pair.seq, exc_info=True)
                     continue
+                self._count_saturated()
                 self.health.pair_done(
                     result.timings.pipeline_ms, pair.skew_ns * 1e-6, result.row_residuals_px
                 )
@@ -129,6 +131,19 @@ class PipelineWorker:
         finally:
             self.pipeline.close()
             self.out.close()
+
+    def _count_saturated(self) -> None:
+        """Report frames the detectors found saturated (all foreground) since the last pair."""
+        for name, det in (("left", self.pipeline.left), ("right", self.pipeline.right)):
+            n = det.saturated - self._saturated.get(name, 0)
+            if n > 0:
+                self.health.error(f"{name}_saturated", n)
+                self.health.problem(
+                    f"{name} eye: the whole scene changed (most of the image is foreground); "
+                    "no objects until the background has learned it again",
+                    f"{name}_saturated",
+                )
+            self._saturated[name] = det.saturated
 
     def outgoing(self, result: PairResult, queued_ms: float) -> Outgoing:
         """The wire payloads of one result, serialised once here."""

@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import json
-import os
 import socket
 import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 import zenoh
+
+from tests.processes import run_stereod
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED_DATA = ROOT.parent / "shared" / "data"
@@ -53,16 +53,7 @@ def stereod(
     *args: str, timeout: float = 120, env: dict[str, str] | None = None, **kw: object
 ) -> subprocess.CompletedProcess[str]:
     """Run ``stereod ARGS`` as a subprocess, capturing text output."""
-    full_env = {**os.environ, **(env or {})}
-    return subprocess.run(
-        [sys.executable, "-m", "stereod.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        env=full_env,
-        cwd=ROOT,
-        **kw,  # type: ignore[arg-type]
-    )
+    return run_stereod(*args, timeout=timeout, env=env, **kw)
 
 
 @pytest.fixture

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import math
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -17,6 +16,7 @@ import zenoh
 
 from stereod.motion import angle_diff_deg, circular_median_deg
 from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
+from tests.processes import stereod_command
 
 from .conftest import ROOT, shared_data, stereod
 
@@ -166,10 +166,7 @@ def test_subscribe_prints_readably(
 ) -> None:
     _, rec = scene_dir
     sub = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "stereod.cli",
+        stereod_command(
             "subscribe",
             "stereod/minoru/objects",
             "--connect",
@@ -178,7 +175,7 @@ def test_subscribe_prints_readably(
             "60",
             "--count",
             "30",
-        ],
+        ),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -62,3 +62,32 @@ def test_bad_environment_value(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_missing_file(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="no such config file"):
         load_config(tmp_path / "nope.toml")
+
+
+def test_environment_reaches_lists_and_driver_options(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("STEREOD_ZENOH__CONNECT", '["tcp/127.0.0.1:7447"]')
+    monkeypatch.setenv("STEREOD_DRIVER__OPTIONS__FPS", "30")
+    monkeypatch.setenv("STEREOD_DETECTOR__BETA", "0.05")
+    cfg = load_config(overrides={"detector": {"beta": 0.07}})
+    assert cfg.zenoh.connect == ["tcp/127.0.0.1:7447"]
+    assert cfg.driver.options == {"fps": "30"}
+    assert cfg.detector.beta == 0.07  # a flag beats the environment
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "pattern"),
+    [
+        ("STEREOD_BOGUS__X", "1", "STEREOD_BOGUS__X: names no configuration field"),
+        ("STEREOD_DETECTOR", "1", "STEREOD_DETECTOR: names no configuration field"),
+        ("STEREOD_DETECTOR__BETA__X", "1", "names no configuration field"),
+        ("STEREOD_ZENOH__CONNECT", "foo", "a list or table is written as JSON"),
+        ("STEREOD_DETECTOR__BETA", "nan", r"environment STEREOD_DETECTOR__BETA: .*finite"),
+    ],
+)
+def test_bad_environment_is_one_line(
+    monkeypatch: pytest.MonkeyPatch, name: str, value: str, pattern: str
+) -> None:
+    monkeypatch.setenv(name, value)
+    with pytest.raises(ConfigError, match=pattern) as err:
+        load_config()
+    assert "\n" not in str(err.value)

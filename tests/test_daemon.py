@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import threading
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -96,32 +98,23 @@ def test_live_source_runs_one_thread_per_eye(endpoint: str, listener: zenoh.Sess
 
 
 class _ListEye(EyeSource):
-    def __init__(self, eye: Eye, frames: list[Frame]) -> None:
+    """Frames from a list; an entry that is an exception is raised by that read instead."""
+
+    def __init__(self, eye: Eye, frames: list[Frame | Exception]) -> None:
         self.eye = eye
         self._frames = list(frames)
+        self.recovered = 0
 
     def read(self) -> Frame | None:
-        return self._frames.pop(0) if self._frames else None
+        if not self._frames:
+            return None
+        item = self._frames.pop(0)
+        if isinstance(item, Exception):
+            raise item
+        return item
 
-
-class _ListSource(StereoSource):
-    def __init__(self, left: list[Frame], right: list[Frame], live: bool) -> None:
-        self._l, self._r = _ListEye(Eye.LEFT, left), _ListEye(Eye.RIGHT, right)
-        self._live = live
-        self._size = left[0].image.shape[:2]
-
-    @property
-    def info(self) -> SourceInfo:
-        h, w = self._size
-        return SourceInfo(w, h, 10.0, self._live, "frames in a list")
-
-    @property
-    def left(self) -> EyeSource:
-        return self._l
-
-    @property
-    def right(self) -> EyeSource:
-        return self._r
+    def recover(self) -> None:
+        self.recovered += 1
 
 
 class ListDriver(Driver):
@@ -129,11 +122,19 @@ class ListDriver(Driver):
 
     name = "list"
 
-    def __init__(self, left: list[Frame], right: list[Frame], live: bool = False) -> None:
+    def __init__(
+        self, left: list[Frame | Exception], right: list[Frame | Exception], live: bool = False
+    ) -> None:
         self.args = (left, right, live)
+        self.source: StereoSource | None = None
 
     def open(self) -> StereoSource:
-        return _ListSource(*self.args)
+        left, right, live = self.args
+        first = next(f for f in left if isinstance(f, Frame))
+        h, w = first.image.shape[:2]
+        info = SourceInfo(w, h, 10.0, live, "frames in a list")
+        self.source = StereoSource(_ListEye(Eye.LEFT, left), _ListEye(Eye.RIGHT, right), info)
+        return self.source
 
 
 def frames(
@@ -189,3 +190,115 @@ def test_rate_paces_replay(rate: float, endpoint: str) -> None:
     assert summary.pairs == 15
     if rate:
         assert elapsed >= 14 / 15 / rate, f"{elapsed:.2f} s is faster than {rate}x real time"
+
+
+def test_any_exception_in_an_eye_marks_it_down_and_it_recovers(endpoint: str) -> None:
+    """A live eye whose read raises something unexpected (a ValueError from a short buffer,
+    say) is not a dead thread: the eye is reported down, counted, recovered as after a
+    re-plug, and streams on; the run ends cleanly."""
+    left: list[Frame | Exception] = list(frames(Eye.LEFT, 30, period_ns=10**7))
+    left.insert(10, ValueError("buffer is smaller than requested size"))
+    right: list[Frame | Exception] = list(frames(Eye.RIGHT, 30, period_ns=10**7))
+    driver = ListDriver(left, right, live=True)
+    daemon = Daemon(config(endpoint), driver, rate=0)
+    summary = daemon.run()
+    assert summary.error is None
+    assert summary.errors.get("left_failed") == 1, summary.errors
+    assert daemon.health.stats().reconnects == {"left": 1}
+    assert any("left eye down: buffer is smaller" in p for p in summary.problems)
+    assert any("left eye streaming again" in p for p in summary.problems)
+    assert summary.frames["left"] == 30 and summary.pairs >= 10
+    assert driver.source is not None and driver.source.left.recovered == 1  # type: ignore[attr-defined]
+
+
+def test_stats_before_run() -> None:
+    """Every attribute exists from the constructor on: the stats are empty, not an error."""
+    daemon = Daemon(load_config(), SyntheticDriver({"duration_s": 1.0}))
+    stats = daemon.health.stats()
+    assert stats.pairs == 0 and stats.drops == {} and stats.pipeline_ms_p50 is None
+
+
+def _reload_configs(endpoint: str) -> Iterator[Any]:
+    """Configurations that alternate a tracker setting, so each reload ends every track."""
+    for k in itertools.count():
+        yield load_config(
+            overrides={
+                "zenoh": {"connect": [endpoint]},
+                "tracking": {"gate_chi2": 16.3 + (k % 2) * 0.1},
+            }
+        )
+
+
+@pytest.mark.slow
+def test_fifty_reloads_while_pairs_flow(endpoint: str, listener: zenoh.Session) -> None:
+    """Reloads hand new parameters to the pipeline thread, which swaps them in between pairs:
+    under 50 reloads no pair is lost, no track id is issued twice, and every track that
+    ends (by a reload or at the end) gets its DELETE."""
+    balls = [
+        {
+            "heading_deg": 90.0,
+            "speed_mps": 0.3,
+            "centre_m": [0.0, 0.0, 1.5],
+            "t_on_s": 0.7,
+            "t_off_s": 20.0,
+            "t_mid_s": 10.0,
+        },
+        {
+            "heading_deg": 270.0,
+            "speed_mps": 0.2,
+            "centre_m": [0.0, 0.15, 2.0],
+            "t_on_s": 0.7,
+            "t_off_s": 20.0,
+            "t_mid_s": 10.0,
+        },
+    ]
+    driver = SyntheticDriver(
+        {"duration_s": 20.0, "fps": 15, "width_px": 160, "height_px": 120, "balls": balls}
+    )
+    seqs: list[int] = []
+    events: list[tuple[str, int]] = []
+    lock = threading.Lock()
+
+    def on_objects(s: zenoh.Sample) -> None:
+        msg = json.loads(s.payload.to_bytes())
+        with lock:
+            seqs.append(msg["seq"])
+            events.extend(("seen", o["track_id"]) for o in msg["objects"])
+
+    def on_track(s: zenoh.Sample) -> None:
+        if s.kind == zenoh.SampleKind.DELETE:
+            with lock:
+                events.append(("deleted", int(str(s.key_expr).rsplit("/", 1)[1])))
+
+    subs = [
+        listener.declare_subscriber("stereod/minoru/objects", on_objects),
+        listener.declare_subscriber("stereod/minoru/objects/*", on_track),
+    ]
+    configs = _reload_configs(endpoint)
+    daemon = Daemon(
+        next(configs), driver, rate=2.0, wait_subscriber_s=5, reload_config=lambda: next(configs)
+    )
+    thread, out = start(daemon)
+    wait_alive(listener, "stereod/minoru/alive")
+    time.sleep(1.0)
+    for _ in range(50):
+        daemon.reload()
+        time.sleep(0.1)
+    thread.join(60)
+    time.sleep(0.5)
+    for sub in subs:
+        sub.undeclare()
+    summary = out["summary"]
+    assert summary.error is None
+    assert not any("processing failed" in p or "refused" in p for p in summary.problems)
+    assert seqs == list(range(summary.pairs)), "a pair was lost or reordered"
+    deleted: set[int] = set()
+    seen: set[int] = set()
+    for kind, tid in events:
+        if kind == "seen":
+            assert tid not in deleted, f"track {tid} appeared again after its DELETE"
+            seen.add(tid)
+        else:
+            deleted.add(tid)
+    assert seen and seen <= deleted, f"tracks without a DELETE: {seen - deleted}"
+    assert len(deleted) >= 20, f"only {len(deleted)} tracks ended: did the reloads apply?"

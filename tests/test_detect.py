@@ -186,3 +186,24 @@ def test_coverage_centroid_beats_binary_on_subpixel_discs() -> None:
     binary, coverage = np.mean(errs[Centroid.BINARY]), np.mean(errs[Centroid.COVERAGE])
     assert coverage < 0.08, f"coverage centroid mean error {coverage:.3f} px (binary {binary:.3f})"
     assert coverage < 0.8 * binary, f"coverage {coverage:.3f} px vs binary {binary:.3f} px"
+
+
+def test_a_lighting_jump_saturates_then_the_background_is_learned_again() -> None:
+    """The lights go up by 60 grey levels: every pixel is foreground. Such frames report no
+    blobs and are counted; after warmup_frames of them the background is learned afresh, and
+    an object that then appears is found alone (no ghost of the old scene)."""
+    p = DetectorParams(warmup_frames=5, beta=0.02)
+    det = Detector(p)
+    dark = np.full((60, 80), 80, np.uint8)
+    for _ in range(5):
+        det.detect(dark)
+    bright = dark + 60
+    seen = [len(det.detect(bright)) for _ in range(6)]
+    assert seen == [0] * 6 and det.saturated == 6
+    for _ in range(5):  # the warm-up of the new background
+        assert len(det.detect(bright)) == 0
+    obj = bright.copy()
+    obj[20:30, 30:40] = 250
+    blobs = det.detect(obj)
+    assert len(blobs) == 1 and tuple(blobs.bbox_px[0]) == (30, 20, 10, 10)
+    assert det.saturated == 6

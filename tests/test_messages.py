@@ -46,3 +46,28 @@ def test_schema_string_is_on_the_wire() -> None:
     msg = ObjectsMessage.model_validate(sample)
     assert json.loads(msg.model_dump_json(by_alias=True)) == sample
     assert sample["schema"] == "stereod.objects/1"
+
+
+def test_an_older_reader_ignores_fields_it_does_not_know() -> None:
+    """Fields are only ever added within a version: a reader built against today's models
+    parses a newer daemon's message that carries extra fields, at every level."""
+    sample = json.loads((Path(__file__).parent / "golden" / "objects_example.json").read_text())
+    newer = {**sample, "added_in_a_later_release": {"x": 1}}
+    newer["objects"] = [{**o, "acceleration_mps2": [0.0, 0.0, 0.0]} for o in sample["objects"]]
+    newer["latency"] = {**sample["latency"], "encode_ms": 0.1}
+    msg = ObjectsMessage.model_validate_json(json.dumps(newer))
+    assert msg.seq == sample["seq"]
+    assert msg.objects[0].position_m == tuple(sample["objects"][0]["position_m"])
+    assert json.loads(msg.model_dump_json(by_alias=True)) == sample
+
+
+def test_writers_stay_strict() -> None:
+    """The producer validates what it emits: a wrong type or a missing field is refused."""
+    from pydantic import ValidationError
+
+    sample = json.loads((Path(__file__).parent / "golden" / "objects_example.json").read_text())
+    with pytest.raises(ValidationError):
+        ObjectsMessage.model_validate({**sample, "seq": "many"})
+    del sample["objects"][0]["track_id"]
+    with pytest.raises(ValidationError):
+        ObjectsMessage.model_validate(sample)

@@ -87,5 +87,7 @@ def test_manifest_errors(tmp_path: Path) -> None:
     with pytest.raises(MissingInputError, match=r"recording\.json missing"):
         read_manifest(tmp_path)
     (tmp_path / "recording.json").write_text('{"width": -1}')
-    with pytest.raises(InputError, match=r"recording\.json: width = -1: Input should be greater than 0"):
+    with pytest.raises(
+        InputError, match=r"recording\.json: width = -1: Input should be greater than 0"
+    ):
         read_manifest(tmp_path)

@@ -15,6 +15,7 @@ import pytest
 import zenoh
 
 from stereod_fakes.synth import Scene, write_scene
+from tests.processes import stereod_command
 
 from .conftest import ROOT, free_endpoint, zenoh_config
 
@@ -50,10 +51,7 @@ def test_messages_flow_through_a_router_and_resume_after_it_restarts(tmp_path: P
     endpoint = free_endpoint()
     router = start_router(endpoint)
     daemon = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "stereod.cli",
+        stereod_command(
             "replay",
             str(rec),
             "--loop",
@@ -64,7 +62,7 @@ def test_messages_flow_through_a_router_and_resume_after_it_restarts(tmp_path: P
             "--connect",
             endpoint,
             "-q",
-        ],
+        ),
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -125,17 +123,14 @@ def test_killed_subscriber_does_not_disturb_the_daemon(tmp_path: Path) -> None:
             lambda s: received.append(json.loads(s.payload.to_bytes())["seq"]),
         )
         victim = subprocess.Popen(
-            [sys.executable, "-m", "stereod.cli", "subscribe", "--connect", endpoint, "--json"],
+            stereod_command("subscribe", "--connect", endpoint, "--json"),
             cwd=ROOT,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
         )
         daemon = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "stereod.cli",
+            stereod_command(
                 "replay",
                 str(rec),
                 "--rate",
@@ -144,7 +139,7 @@ def test_killed_subscriber_does_not_disturb_the_daemon(tmp_path: Path) -> None:
                 endpoint,
                 "--wait-subscriber",
                 "10",
-            ],
+            ),
             cwd=ROOT,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,

@@ -11,9 +11,10 @@ import contextlib
 import ctypes
 import errno
 import logging
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any
+from typing import Any, TypeVar
 
 from stereod.errors import DeviceError, DeviceLost
 
@@ -21,6 +22,8 @@ from . import raw
 from .ioctl import IO, SystemIO, xioctl
 
 log = logging.getLogger(__name__)
+
+S = TypeVar("S", bound=ctypes.Structure)
 
 
 @dataclass(frozen=True)
@@ -121,51 +124,59 @@ class V4L2Device:
             "capabilities": caps,
         }
 
+    def _enumerate(
+        self, request: int, make: Callable[[int, S | None], S], what: str, limit: int = 256
+    ) -> Iterator[S]:
+        """Every struct an ENUM/QUERY ioctl fills: ``make(i, previous)`` builds the i-th
+        request (an index, or the previous id with V4L2_CTRL_FLAG_NEXT_CTRL); the driver's
+        EINVAL after the last one ends the loop (linuxpy's ``iter_read``)."""
+        previous: S | None = None
+        for i in range(limit):
+            s = make(i, previous)
+            try:
+                self._ioctl(request, s, what)
+            except DeviceLost:
+                raise
+            except DeviceError:
+                return
+            yield s
+            previous = s
+
     def formats(self) -> list[tuple[str, str]]:
         """(fourcc, description) of every capture format."""
-        out = []
-        for i in range(64):
-            d = raw.v4l2_fmtdesc(index=i, type=raw.V4L2_BUF_TYPE_VIDEO_CAPTURE)
-            try:
-                self._ioctl(raw.VIDIOC_ENUM_FMT, d, "ENUM_FMT")
-            except DeviceLost:
-                raise
-            except DeviceError:
-                break
-            out.append((raw.fourcc_str(d.pixelformat), d.description.decode(errors="replace")))
-        return out
+        return [
+            (raw.fourcc_str(d.pixelformat), d.description.decode(errors="replace"))
+            for d in self._enumerate(
+                raw.VIDIOC_ENUM_FMT,
+                lambda i, _: raw.v4l2_fmtdesc(index=i, type=raw.V4L2_BUF_TYPE_VIDEO_CAPTURE),
+                "ENUM_FMT",
+            )
+        ]
 
     def frame_sizes(self, fourcc: str) -> list[tuple[int, int]]:
-        """Discrete frame sizes (w, h) px of a format."""
-        out = []
-        for i in range(64):
-            s = raw.v4l2_frmsizeenum(index=i, pixel_format=raw.fourcc(fourcc))
-            try:
-                self._ioctl(raw.VIDIOC_ENUM_FRAMESIZES, s, "ENUM_FRAMESIZES")
-            except DeviceLost:
-                raise
-            except DeviceError:
-                break
+        """Discrete frame sizes (w, h) px of a format (a stepwise range: its two ends)."""
+        out: list[tuple[int, int]] = []
+        for s in self._enumerate(
+            raw.VIDIOC_ENUM_FRAMESIZES,
+            lambda i, _: raw.v4l2_frmsizeenum(index=i, pixel_format=raw.fourcc(fourcc)),
+            "ENUM_FRAMESIZES",
+        ):
             if s.type != raw.V4L2_FRMSIZE_TYPE_DISCRETE:
                 sw = s.stepwise
-                out += [(sw.min_width, sw.min_height), (sw.max_width, sw.max_height)]
-                break
+                return [*out, (sw.min_width, sw.min_height), (sw.max_width, sw.max_height)]
             out.append((s.discrete.width, s.discrete.height))
         return out
 
     def frame_rates(self, fourcc: str, width: int, height: int) -> list[float]:
         """Discrete frame rates (Hz) of a format and size."""
-        out = []
-        for i in range(64):
-            f = raw.v4l2_frmivalenum(
+        out: list[float] = []
+        for f in self._enumerate(
+            raw.VIDIOC_ENUM_FRAMEINTERVALS,
+            lambda i, _: raw.v4l2_frmivalenum(
                 index=i, pixel_format=raw.fourcc(fourcc), width=width, height=height
-            )
-            try:
-                self._ioctl(raw.VIDIOC_ENUM_FRAMEINTERVALS, f, "ENUM_FRAMEINTERVALS")
-            except DeviceLost:
-                raise
-            except DeviceError:
-                break
+            ),
+            "ENUM_FRAMEINTERVALS",
+        ):
             if f.type != raw.V4L2_FRMIVAL_TYPE_DISCRETE:
                 break
             if f.discrete.numerator:
@@ -174,29 +185,19 @@ class V4L2Device:
 
     def controls(self) -> list[Control]:
         """Every enabled control."""
-        out = []
-        cid = raw.V4L2_CTRL_FLAG_NEXT_CTRL
-        for _ in range(256):
-            q = raw.v4l2_queryctrl(id=cid)
-            try:
-                self._ioctl(raw.VIDIOC_QUERYCTRL, q, "QUERYCTRL")
-            except DeviceLost:
-                raise
-            except DeviceError:
-                break
-            if not q.flags & raw.V4L2_CTRL_FLAG_DISABLED:
-                out.append(
-                    Control(
-                        q.id,
-                        q.name.decode(errors="replace"),
-                        q.minimum,
-                        q.maximum,
-                        q.step,
-                        q.default_value,
-                    )
-                )
-            cid = q.id | raw.V4L2_CTRL_FLAG_NEXT_CTRL
-        return out
+        return [
+            Control(
+                q.id, q.name.decode(errors="replace"), q.minimum, q.maximum, q.step, q.default_value
+            )
+            for q in self._enumerate(
+                raw.VIDIOC_QUERYCTRL,
+                lambda _, prev: raw.v4l2_queryctrl(
+                    id=(prev.id if prev is not None else 0) | raw.V4L2_CTRL_FLAG_NEXT_CTRL
+                ),
+                "QUERYCTRL",
+            )
+            if not q.flags & raw.V4L2_CTRL_FLAG_DISABLED
+        ]
 
     def get_control(self, cid: int) -> int:
         c = raw.v4l2_control(id=cid)

@@ -7,7 +7,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -21,6 +20,7 @@ from stereod_v4l2_minoru.device import V4L2Device
 from stereod_v4l2_minoru.driver import MinoruDriver
 
 from ..conftest import ROOT, free_endpoint, zenoh_config
+from ..processes import stereod_command
 from .conftest import bind, unbind
 
 W, H, FPS = 320, 180, 25.0
@@ -88,7 +88,7 @@ def test_daemon_survives_unplug_and_resumes(vivid: list[str], tmp_path: Path) ->
     write_config(cfg, vivid, endpoint)
     log = (tmp_path / "daemon.log").open("w")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "stereod.cli", "run", "--config", str(cfg)],
+        stereod_command("run", "--config", str(cfg)),
         cwd=ROOT,
         stdout=log,
         stderr=subprocess.STDOUT,
@@ -144,17 +144,7 @@ def test_record_and_replay_reproduce_timestamps(vivid: list[str], tmp_path: Path
     write_config(cfg, vivid, free_endpoint())
     out = tmp_path / "rec"
     res = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "stereod.cli",
-            "record",
-            str(out),
-            "--seconds",
-            "2",
-            "--config",
-            str(cfg),
-        ],
+        stereod_command("record", str(out), "--seconds", "2", "--config", str(cfg)),
         cwd=ROOT,
         capture_output=True,
         text=True,

@@ -1,0 +1,177 @@
+"""Latency, CPU and memory of the daemon at a camera's pace, measured from outside.
+
+The daemon runs as its own process (``stereod run``) on the ``synthetic`` driver in live mode:
+each eye delivers its frames at their capture instants on this host's CLOCK_MONOTONIC, as a
+camera does, at 640x480 and 30 Hz with a ball crossing the view again and again. The frames
+are rendered when the source opens, before the clock starts, so rendering costs nothing while
+it plays. This process subscribes to the ``objects`` key over Zenoh (loopback) and, for every
+message, takes the time from the pair's capture instant (``t_ns``, the later eye's frame) to
+its arrival here on the same monotonic clock.
+
+It reports the p50, p99 and largest latency, the daemon's CPU (share of one core, from
+/proc/<pid>/stat over the measured window) and its resident memory (VmRSS and its peak, VmHWM),
+and writes them to ``benchmarks/latency.md``. Targets: p99 <= 5 ms, CPU <= 10 % of one core,
+RSS <= 110 MB.
+
+Usage: ``python benchmarks/latency.py [--seconds 30] [--size 640x480] [--fps 30]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.processes import start_stereod
+
+TARGET_P99_MS = 5.0
+TARGET_CPU = 0.10
+TARGET_RSS_MB = 110.0
+
+
+def free_endpoint() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def proc_cpu_s(pid: int) -> float:
+    """User plus system CPU time (s) of a process so far."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def proc_mem_mb(pid: int) -> tuple[float, float]:
+    """(VmRSS, VmHWM) of a process, MB."""
+    status = Path(f"/proc/{pid}/status").read_text()
+    got = {
+        line.split(":")[0]: int(line.split()[1]) / 1024
+        for line in status.splitlines()
+        if line.startswith(("VmRSS", "VmHWM"))
+    }
+    return got["VmRSS"], got["VmHWM"]
+
+
+def config(endpoint: str, width: int, height: int, fps: float) -> str:
+    """The daemon's TOML: a live, prerendered, looping synthetic scene of 1.2 s."""
+    return f"""
+[rig]
+name = "bench"
+[driver]
+name = "synthetic"
+[driver.options]
+live = true
+prerender = true
+loop = true
+width_px = {width}
+height_px = {height}
+fps = {fps}
+duration_s = 1.2
+skew_s = {0.5 / fps}
+noise_sigma = 2.0
+[[driver.options.balls]]
+heading_deg = 90.0
+speed_mps = 1.5
+centre_m = [0.0, 0.1, 1.8]
+t_on_s = 0.3
+t_off_s = 1.2
+t_mid_s = 0.75
+[zenoh]
+listen = ["{endpoint}"]
+[daemon]
+log_level = "WARNING"
+"""
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seconds", type=float, default=30.0, help="measured time, s (30)")
+    ap.add_argument("--warmup", type=float, default=3.0, help="ignored first seconds (3)")
+    ap.add_argument("--size", default="640x480", help="image size, px (640x480)")
+    ap.add_argument("--fps", type=float, default=30.0, help="frame rate per eye, Hz (30)")
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "latency.md")
+    a = ap.parse_args()
+    width, height = (int(v) for v in a.size.split("x"))
+    endpoint = free_endpoint()
+    latencies_ms: list[float] = []
+    breakdown: list[dict[str, float]] = []
+    seqs: list[int] = []
+    measuring = threading.Event()
+    lock = threading.Lock()
+
+    def on_objects(sample: zenoh.Sample) -> None:
+        arrival = time.monotonic_ns()
+        if not measuring.is_set():
+            return
+        msg = json.loads(sample.payload.to_bytes())
+        with lock:
+            latencies_ms.append((arrival - msg["t_ns"]) * 1e-6)
+            breakdown.append(msg["latency"])
+            seqs.append(msg["seq"])
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = Path(tmp) / "latency.toml"
+        cfg.write_text(config(endpoint, width, height, a.fps))
+        proc = start_stereod("run", "--config", str(cfg), stdout=None, stderr=None)
+        try:
+            conf = zenoh.Config()
+            conf.insert_json5("scouting", json.dumps({"delay": 0, "multicast": {"enabled": False}}))
+            conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+            time.sleep(0.5)
+            with zenoh.open(conf) as session:
+                sub = session.declare_subscriber("stereod/bench/objects", on_objects)
+                time.sleep(a.warmup)
+                if proc.poll() is not None:
+                    print("the daemon ended early", file=sys.stderr)
+                    return 1
+                cpu0, wall0 = proc_cpu_s(proc.pid), time.monotonic()
+                measuring.set()
+                time.sleep(a.seconds)
+                measuring.clear()
+                cpu = (proc_cpu_s(proc.pid) - cpu0) / (time.monotonic() - wall0)
+                rss, hwm = proc_mem_mb(proc.pid)
+                sub.undeclare()
+        finally:
+            proc.terminate()
+            proc.wait(10)
+    lat = np.array(latencies_ms)
+    if lat.size == 0:
+        print("no message arrived", file=sys.stderr)
+        return 1
+    p50, p99, worst = np.percentile(lat, 50), np.percentile(lat, 99), lat.max()
+    expected = a.seconds * a.fps
+    ok = p99 <= TARGET_P99_MS and cpu <= TARGET_CPU and rss <= TARGET_RSS_MB
+    table = "\n".join(
+        [
+            "| size | rate | messages | p50 latency | p99 latency | max latency "
+            "| daemon CPU (one core) | RSS (peak) |",
+            "|---|---|---|---|---|---|---|---|",
+            f"| {width}x{height} | {a.fps:g} Hz | {lat.size} of {expected:.0f} | {p50:.2f} ms "
+            f"| {p99:.2f} ms | {worst:.2f} ms | {cpu * 100:.1f} % | {rss:.0f} MB ({hwm:.0f} MB) |",
+            "",
+            f"Targets: p99 <= {TARGET_P99_MS:g} ms, CPU <= {TARGET_CPU * 100:g} % of one core, "
+            f"RSS <= {TARGET_RSS_MB:g} MB: {'met' if ok else 'MISSED'}.",
+        ]
+    )
+    print(table)
+    if os.environ.get("LATENCY_DEBUG"):
+        for k in breakdown[0]:
+            v = np.array([b[k] for b in breakdown])
+            print(f"{k}: p50 {np.percentile(v, 50):.2f} p99 {np.percentile(v, 99):.2f}")
+        print("seq gaps", int(np.sum(np.diff(seqs) - 1)), "first", seqs[:5])
+    a.out.write_text(table + "\n")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

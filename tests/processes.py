@@ -1,0 +1,42 @@
+"""Starting ``stereod`` as a separate process, as a user would: one way, for tests and the
+benchmarks alike."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def stereod_command(*args: str) -> list[str]:
+    """The command line of ``stereod ARGS`` with this interpreter (no PATH lookup)."""
+    return [sys.executable, "-m", "stereod.cli", *args]
+
+
+def start_stereod(*args: str, env: dict[str, str] | None = None, **popen: Any) -> subprocess.Popen:
+    """``stereod ARGS`` in the background, output captured as text unless told otherwise."""
+    popen.setdefault("stdout", subprocess.PIPE)
+    popen.setdefault("stderr", subprocess.PIPE)
+    popen.setdefault("text", True)
+    return subprocess.Popen(
+        stereod_command(*args), cwd=ROOT, env={**os.environ, **(env or {})}, **popen
+    )
+
+
+def run_stereod(
+    *args: str, timeout: float = 120, env: dict[str, str] | None = None, **kw: Any
+) -> subprocess.CompletedProcess[str]:
+    """Run ``stereod ARGS`` to the end, capturing text output."""
+    return subprocess.run(
+        stereod_command(*args),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={**os.environ, **(env or {})},
+        cwd=ROOT,
+        **kw,
+    )

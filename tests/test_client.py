@@ -1,0 +1,145 @@
+"""The typed client against a real daemon over real Zenoh sessions on loopback."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from stereod import keys
+from stereod.client import (
+    DaemonAlive,
+    Event,
+    ObjectsMessage,
+    ObjectState,
+    QueryError,
+    TrackEnded,
+    object_events,
+    parse_payload,
+    query_calibration,
+    query_config,
+    query_stats,
+    subscribe_objects,
+    subscribe_status,
+    wait_alive,
+)
+from stereod.config import load_config
+from stereod.daemon import Daemon
+from stereod.messages import CanonicalGeometry, StatusMessage
+from stereod_fakes.synth import SyntheticDriver
+from tests.conftest import zenoh_config
+from tests.test_api import readme_examples
+
+SCENE = {"duration_s": 3.0, "fps": 15, "width_px": 320, "height_px": 240}
+
+
+def run_daemon(
+    endpoint: str, rate: float = 1.0, **scene: object
+) -> tuple[Daemon, threading.Thread]:
+    cfg = load_config(overrides={"zenoh": {"listen": [endpoint]}, "rig": {"name": "bench"}})
+    daemon = Daemon(cfg, SyntheticDriver({**SCENE, **scene}), rate=rate, wait_subscriber_s=10)
+    thread = threading.Thread(target=daemon.run)
+    thread.start()
+    return daemon, thread
+
+
+def test_key_builders() -> None:
+    assert keys.objects("bench") == "stereod/bench/objects"
+    assert keys.track("bench", 7, prefix="lab/a") == "lab/a/bench/objects/7"
+    assert keys.alive("*") == "stereod/*/alive"
+    assert keys.image("overlay") == "stereod/minoru/image/overlay"
+    assert keys.parse("stereod/bench/objects/7") == ("bench", "objects/7")
+    assert keys.parse("other/bench/objects") is None
+    for bad in ("a b", "a/b", ""):
+        with pytest.raises(ValueError, match="rig name"):
+            keys.objects(bad)
+    with pytest.raises(ValueError, match="queryable"):
+        keys.queryable("secrets")
+
+
+def test_events_are_typed_and_complete(endpoint: str) -> None:
+    """Objects messages arrive parsed; every track seen ends with a TrackEnded; the daemon's
+    liveliness is seen coming and going."""
+    events: list[Event] = []
+    lock = threading.Lock()
+
+    def on_event(event: Event) -> None:
+        with lock:
+            events.append(event)
+
+    with zenoh.open(zenoh_config(connect=[endpoint])) as session:
+        _, thread = run_daemon(endpoint, rate=0.0)
+        with subscribe_objects(session, on_event, rig="bench") as sub:
+            thread.join(30)
+            deadline = time.monotonic() + 5
+            while time.monotonic() < deadline:
+                with lock:
+                    if isinstance(events[-1], DaemonAlive) and not events[-1].alive:
+                        break
+                time.sleep(0.05)
+        assert sub.rejected == 0
+    messages = [e for e in events if isinstance(e, ObjectsMessage)]
+    assert len(messages) == 45
+    assert [m.seq for m in messages] == list(range(45))
+    states = [o for m in messages for o in m.objects]
+    assert states and all(isinstance(o, ObjectState) for o in states)
+    ended = {e.track_id for e in events if isinstance(e, TrackEnded)}
+    assert {o.track_id for o in states} <= ended
+    alive = [e.alive for e in events if isinstance(e, DaemonAlive)]
+    assert alive[0] is True and alive[-1] is False
+
+
+def test_queries_and_the_iterator(endpoint: str) -> None:
+    with zenoh.open(zenoh_config(connect=[endpoint])) as session:
+        assert not wait_alive(session, rig="bench", timeout_s=0.2)
+        with pytest.raises(QueryError, match="no reply"):
+            query_stats(session, rig="bench", timeout_s=0.3)
+        daemon, thread = run_daemon(endpoint, rate=1.0, duration_s=4.0)
+        try:
+            assert wait_alive(session, rig="bench", timeout_s=10)
+            assert query_config(session, rig="bench")["rig"]["name"] == "bench"
+            geometry = query_calibration(session, rig="bench")
+            assert isinstance(geometry, CanonicalGeometry)
+            assert geometry.baseline_m == 0.06 and geometry.width_px == 320
+            statuses: list[StatusMessage] = []
+            with (
+                subscribe_status(session, statuses.append, rig="bench"),
+                object_events(session, rig="bench") as events,
+            ):
+                got = [events.get(5.0) for _ in range(5)]
+                assert any(isinstance(e, ObjectsMessage) for e in got)
+                assert query_stats(session, rig="bench").pairs >= 1
+                time.sleep(1.2)
+            assert statuses and statuses[-1].rig == "bench"
+        finally:
+            daemon.stop()
+            thread.join(15)
+
+
+def test_parse_payload_is_lenient() -> None:
+    assert parse_payload(b"\xff") is None
+    assert parse_payload(b'{"schema": "other/1", "a": 1}') == {"schema": "other/1", "a": 1}
+    golden = (Path(__file__).parent / "golden" / "objects_example.json").read_bytes()
+    assert isinstance(parse_payload(golden), ObjectsMessage)
+
+
+@pytest.mark.slow
+def test_readme_client_example_runs(endpoint: str) -> None:
+    """The README's client program, as a user would run it, against a running daemon."""
+    code = readme_examples()["client"].replace('"minoru"', '"bench"')
+    daemon, thread = run_daemon(endpoint, rate=1.0, duration_s=4.0)
+    try:
+        res = subprocess.run(
+            [sys.executable, "-c", code, endpoint], capture_output=True, text=True, timeout=60
+        )
+    finally:
+        daemon.stop()
+        thread.join(15)
+    assert res.returncode == 0, res.stderr
+    assert "daemon up" in res.stdout
+    assert "heading" in res.stdout and " ended" in res.stdout, res.stdout
