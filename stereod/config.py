@@ -33,7 +33,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from . import keys
-from .detect import Centroid, DetectorParams, Luminance
+from .detect import Centroid, DetectorParams, Luminance, Warmup
 from .errors import ConfigError, describe_error
 from .geometry.stereo import MatchParams
 from .pairing import DEFAULT_TOLERANCE_NS
@@ -82,7 +82,8 @@ class DriverConfig(_Section):
 
 
 class DetectorConfig(_Section):
-    """Paper sec. II parameters (see :class:`stereod.detect.DetectorParams`)."""
+    """Paper sec. II parameters and what is added to them (see
+    :class:`stereod.detect.DetectorParams`)."""
 
     beta: float = Field(
         _DETECT.beta, ge=0.0, lt=1.0, description="Background update, eq. 3, per frame"
@@ -90,20 +91,38 @@ class DetectorConfig(_Section):
     threshold: float = Field(
         _DETECT.threshold, gt=0.0, le=255.0, description="t of eq. 4, grey levels"
     )
-    min_area_px: int = Field(_DETECT.min_area_px, ge=1, description="Smallest blob, px")
+    min_area_px: int = Field(_DETECT.min_area_px, ge=1, le=10**7, description="Smallest blob, px")
     warmup_frames: int = Field(
-        _DETECT.warmup_frames, ge=1, le=10000, description="Frames in the initial background"
+        _DETECT.warmup_frames, ge=1, le=1000, description="Frames in the initial background"
     )
+    warmup: Warmup = Field(_DETECT.warmup, description="median or mean of the warm-up frames")
     open_px: int = Field(
         _DETECT.open_px, ge=0, le=31, description="Opening kernel side, px; 0 disables"
     )
+    close_px: int = Field(
+        _DETECT.close_px, ge=0, le=31, description="Closing kernel side, px; 0 disables"
+    )
     luminance: Luminance = Field(_DETECT.luminance, description="bt601 or mean (eq. 2 exactly)")
     centroid: Centroid = Field(_DETECT.centroid, description="coverage or binary (eq. 5)")
+    color: bool = Field(_DETECT.color, description="Difference colour frames per channel")
+    hold_foreground: bool = Field(
+        _DETECT.hold_foreground, description="Do not learn the background under foreground"
+    )
+    hold_margin_px: int = Field(
+        _DETECT.hold_margin_px, ge=0, le=50, description="Growth of the held foreground, px"
+    )
+    absorb_s: float = Field(
+        _DETECT.absorb_s, gt=0.0, le=3600.0, description="Foreground still this long is learned, s"
+    )
+    fill_holes: bool = Field(_DETECT.fill_holes, description="An object's support is filled")
     max_foreground: float = Field(
         _DETECT.max_foreground,
         gt=0.0,
         le=1.0,
         description="Share of the image above which a frame is saturated (no blobs)",
+    )
+    max_blobs: int = Field(
+        _DETECT.max_blobs, ge=1, le=100000, description="More blobs than this: saturated"
     )
 
     def params(self) -> DetectorParams:
@@ -148,30 +167,39 @@ class MatchingConfig(_Section):
 class TrackingConfig(_Section):
     """Association, Kalman filter and lifecycle (see :class:`stereod.tracking.TrackerParams`)."""
 
-    gate_chi2: float = Field(
-        _TRACK.gate_chi2, gt=0.0, description="Mahalanobis gate, chi-square 3 dof"
-    )
-    min_gate_m: float = Field(
-        _TRACK.min_gate_m, ge=0.0, description="Always joinable within this, m"
-    )
     gate_px: float = Field(
-        _TRACK.gate_px, gt=0.0, description="Image gate for skewed new tracks, px"
+        _TRACK.gate_px, gt=0.0, le=1000.0, description="Image gate around a prediction, px"
+    )
+    motion_gate: float = Field(
+        _TRACK.motion_gate, ge=0.0, le=10.0, description="Gate growth per px of image motion"
+    )
+    max_speed_mps: float = Field(
+        _TRACK.max_speed_mps, gt=0.0, le=1000.0, description="Fastest object to follow, m/s"
+    )
+    manoeuvre_chi2: float = Field(
+        _TRACK.manoeuvre_chi2, gt=0.0, description="Mahalanobis bound of a manoeuvre, 3 dof"
+    )
+    manoeuvre_sigma_mps: float = Field(
+        _TRACK.manoeuvre_sigma_mps, gt=0.0, le=1000.0, description="Velocity sigma after one, m/s"
     )
     accel_noise: float = Field(
-        _TRACK.accel_noise, gt=0.0, description="White acceleration density, m^2/s^3"
+        _TRACK.accel_noise, gt=0.0, le=1e6, description="White acceleration density, m^2/s^3"
     )
     time_base_s: float = Field(_TRACK.time_base_s, gt=0.0, le=60.0, description="tau of eq. 21, s")
     max_coast_s: float = Field(
         _TRACK.max_coast_s, ge=0.0, le=60.0, description="Track lives unseen, s"
     )
     confirm_hits: int = Field(
-        _TRACK.confirm_hits, ge=1, description="Observations to confirm a track"
+        _TRACK.confirm_hits, ge=1, le=1000, description="Observations to confirm a track"
     )
-    init_velocity_sigma_mps: float = Field(
-        _TRACK.init_velocity_sigma_mps, gt=0.0, description="New track's velocity sigma"
+    valid_speed_sigma_mps: float = Field(
+        _TRACK.valid_speed_sigma_mps, gt=0.0, description="Speed sigma for a valid velocity, m/s"
+    )
+    valid_speed_sigma_rel: float = Field(
+        _TRACK.valid_speed_sigma_rel, ge=0.0, le=1.0, description="Or this share of the speed"
     )
     freeze_s: float = Field(
-        _TRACK.freeze_s, ge=0.0, description="Stopped object kept out of background, s"
+        _TRACK.freeze_s, ge=0.0, le=86400.0, description="Stopped object kept out of background, s"
     )
     stationary_mps: float = Field(
         _TRACK.stationary_mps, ge=0.0, description="Below this an object is stopped"

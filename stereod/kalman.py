@@ -74,12 +74,12 @@ def predict(s: KalmanState, t_ns: int, q: float) -> KalmanState:
 
 
 def inflate_velocity(s: KalmanState, sigma_mps: float) -> KalmanState:
-    """The state with its velocity uncertainty re-opened to ``sigma_mps`` per axis (and its
-    position-velocity correlation dropped): after a manoeuvre the old velocity is no guide."""
+    """The state with ``sigma_mps`` per axis added to its velocity uncertainty: after a
+    manoeuvre the old velocity is no guide. Apply it to the state before a prediction, so the
+    prediction correlates position with the re-opened velocity and the next measurement
+    corrects both."""
     p = s.P.copy()
-    p[3:, 3:] = np.eye(3) * sigma_mps**2
-    p[:3, 3:] = 0.0
-    p[3:, :3] = 0.0
+    p[3:, 3:] += np.eye(3) * sigma_mps**2
     return KalmanState(s.x.copy(), p, s.t_ns)
 
 
@@ -103,3 +103,21 @@ def update(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> KalmanState:
     ikh = np.eye(6) - k @ H
     p = ikh @ s.P @ ikh.T + k @ r_m2 @ k.T
     return KalmanState(x, 0.5 * (p + p.T), s.t_ns)
+
+
+def initiate_two(
+    z1_m: np.ndarray, r1_m2: np.ndarray, t1_ns: int, z2_m: np.ndarray, r2_m2: np.ndarray, t2_ns: int
+) -> KalmanState:
+    """A state at ``t2_ns`` from two position measurements: the position is the second, the
+    velocity their difference over the time between them (eq. 21 over one step), with the
+    covariance that follows: P_pp = R2, P_pv = R2 / dt, P_vv = (R1 + R2) / dt^2."""
+    dt = (t2_ns - t1_ns) * 1e-9
+    if not dt > 0:
+        raise ValueError(f"the second measurement must be later than the first, got dt={dt} s")
+    z2 = np.asarray(z2_m, float)
+    x = np.concatenate([z2, (z2 - np.asarray(z1_m, float)) / dt])
+    p = np.zeros((6, 6))
+    p[:3, :3] = r2_m2
+    p[:3, 3:] = p[3:, :3] = r2_m2 / dt
+    p[3:, 3:] = (r1_m2 + r2_m2) / (dt * dt)
+    return KalmanState(x, p, t2_ns)

@@ -24,9 +24,10 @@ from . import skew
 from .detect import Blobs, Detector, DetectorParams
 from .frames import Frame, StereoPair
 from .geometry.rectified import CalibratedRig
+from .geometry.refine import RefineParams, refine_match
 from .geometry.stereo import CanonicalRig, MatchParams, matched_blobs
 from .pairing import DEFAULT_TOLERANCE_NS, Pairer
-from .tracking import Observation, Track, Tracker, TrackerParams, TrackState
+from .tracking import Detection, Observation, Tracker, TrackerParams, TrackState
 
 FREEZE_MARGIN_PX = 4
 """Margin (px) around a tracked blob's box where the background is not learned either."""
@@ -43,17 +44,24 @@ class PipelineParams:
     ``skew_compensation``: move both eyes' centroids to one instant before triangulating.
     ``skew_window_s``: how much of an eye's 2D track (s) its image velocity is fitted over.
     ``freeze_background``: do not learn the background under tracked objects.
+    ``refine``: how the disparity is refined by matching appearance between the eyes.
+    ``max_image_speed_wps``: the fastest image motion to expect, in image widths per second
+    (a 20 m/s ball 2.5 m away crosses a 42 deg view in a tenth of a second): with the skew, it
+    bounds how far an object moves between the eyes' instants, and with no depth known yet,
+    between frames.
     """
 
     rig: CanonicalRig | CalibratedRig
     detector: DetectorParams = field(default_factory=DetectorParams)
     matching: MatchParams = field(default_factory=MatchParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
-    centroid_sigma_px: float = 0.5
+    centroid_sigma_px: float = 0.25
     detect_workers: int = 1
     skew_compensation: bool = True
     skew_window_s: float = 0.15
     freeze_background: bool = True
+    max_image_speed_wps: float = 10.0
+    refine: RefineParams = field(default_factory=RefineParams)
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,6 +96,24 @@ class PairResult:
     right: Blobs
     timings: Timings
     row_residuals_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def _boxes_mask(boxes: list[np.ndarray], shape: tuple[int, ...], inside: int) -> np.ndarray:
+    """A uint8 (h, w) mask that is ``inside`` in the boxes (x, y, w, h px, grown by
+    ``FREEZE_MARGIN_PX``) and the other of 0 and 255 elsewhere."""
+    mask = np.full(shape[:2], 255 - inside, np.uint8)
+    m = FREEZE_MARGIN_PX
+    for x, y, bw, bh in boxes:
+        p0 = (int(x) - m, int(y) - m)
+        p1 = (int(x + bw) + m, int(y + bh) + m)
+        cv2.rectangle(mask, p0, p1, inside, -1)
+    return mask
+
+
+def _touches_border(bbox: np.ndarray, rig: CanonicalRig | CalibratedRig) -> bool:
+    """Whether a blob's box (x, y, w, h px) reaches the image's edge (part may be cut off)."""
+    x, y, w, h = (int(v) for v in bbox)
+    return x <= 0 or y <= 0 or x + w >= rig.width_px or y + h >= rig.height_px
 
 
 class Pipeline:
@@ -174,50 +200,54 @@ class Pipeline:
         p = self.params
         t0 = time.perf_counter_ns()
         if self._pool is not None:
-            fut = self._pool.submit(self.right.find, pair.right.image)
-            lb = self.left.find(pair.left.image)
+            fut = self._pool.submit(self.right.find, pair.right.image, pair.right.t_ns)
+            lb = self.left.find(pair.left.image, pair.left.t_ns)
             rb = fut.result()
         else:
-            lb = self.left.find(pair.left.image)
-            rb = self.right.find(pair.right.image)
+            lb = self.left.find(pair.left.image, pair.left.t_ns)
+            rb = self.right.find(pair.right.image, pair.right.t_ns)
         t1 = time.perf_counter_ns()
         t_left, t_right = pair.left.t_ns, pair.right.t_ns
+        eye_times = (t_left, t_right)
         compensate = p.skew_compensation and t_left != t_right
         t_ns = skew.common_instant(t_left, t_right) if compensate else pair.t_ns
-        # Matching, compensation and triangulation work in rectified coordinates (identical to
-        # image coordinates for the canonical rig); messages report the image ones.
+        # Matching, association, compensation and triangulation work in rectified coordinates
+        # (identical to image coordinates for the canonical rig); messages report the image ones.
         lrect = replace(lb, centroid_px=p.rig.rectify_left(lb.centroid_px))
         rrect = replace(rb, centroid_px=p.rig.rectify_right(rb.centroid_px))
-        idx = matched_blobs(lrect, rrect, p.matching)
+        image_speed = p.max_image_speed_wps * p.rig.width_px
+        slack = abs(t_right - t_left) * 1e-9 * image_speed
+        idx = matched_blobs(lrect, rrect, p.matching, slack)
         lpx = lrect.centroid_px[idx[:, 0]]
         rpx = rrect.centroid_px[idx[:, 1]]
-        observations = self._observe(lb, rb, idx, lpx, rpx)
-        exact = [not compensate] * len(observations)
-        if compensate:
-            cache: dict[int, tuple[list[Observation], list[bool]]] = {}
-
-            raw = observations
-
-            def candidates(track: Track) -> list[Observation]:
-                if track.track_id not in cache:
-                    cache[track.track_id] = self._compensated(
-                        track, lb, rb, idx, lpx, rpx, (t_left, t_right), t_ns
-                    )
-                return cache[track.track_id][0]
-
-            assignment = self.tracker.associate(t_ns, observations, candidates, (t_left, t_right))
-            observations = list(raw)
-            for i, tid in enumerate(assignment):
-                if tid is not None:
-                    if tid not in cache:
-                        candidates(self.tracker.track(tid))
-                    shifted, flags = cache[tid]
-                    observations[i], exact[i] = shifted[i], flags[i]
-        else:
-            assignment = self.tracker.associate(t_ns, observations)
+        if p.refine.enabled:
+            self._refine(pair, lb, idx, lpx, rpx)
+        detections = self._detections(lb, rb, idx, lpx, rpx)
+        assignment, may_start = self.tracker.associate(detections, eye_times)
+        window = int(p.skew_window_s * 1e9)
+        observations: list[Observation | None] = []
+        first_again: dict[int, Observation] = {}
+        for k, tid in enumerate(assignment):
+            if tid is None and not may_start[k]:
+                observations.append(None)
+                continue
+            histories = self.tracker.histories(tid)
+            if compensate:
+                lc, rc, exact = skew.compensate(histories, lpx[k], rpx[k], eye_times, t_ns, window)
+            else:
+                lc, rc, exact = lpx[k], rpx[k], True
+            clipped = detections[k].clipped
+            observations.append(
+                self._observe(lb, rb, idx[k], lpx[k], rpx[k], lc, rc, exact, clipped)
+            )
+            track = self.tracker.track(tid) if tid is not None else None
+            if compensate and track is not None and track.first is not None and not clipped:
+                first_again[track.track_id] = self._first_again(
+                    track.track_id, lpx[k], rpx[k], eye_times
+                )
         t2 = time.perf_counter_ns()
         states, ended = self.tracker.update(
-            t_ns, observations, assignment, (t_left, t_right), exact
+            t_ns, observations, assignment, eye_times, detections, first_again
         )
         self._learn(states, pair.left.image.shape[:2])
         t3 = time.perf_counter_ns()
@@ -241,93 +271,130 @@ class Pipeline:
             row_residuals_px=np.abs(lpx[:, 1] - rpx[:, 1]),
         )
 
+    def _refine(
+        self, pair: StereoPair, lb: Blobs, idx: np.ndarray, lpx: np.ndarray, rpx: np.ndarray
+    ) -> None:
+        """Replace each right centroid in ``rpx`` by where the left blob's appearance is found
+        in the right image (:mod:`stereod.geometry.refine`), when it is found confidently."""
+        rig = self.params.rig
+        size = (rig.width_px, rig.height_px)
+        limg, rimg = pair.left.image, pair.right.image
+
+        def left(x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
+            return rig.rectified_patch(limg, True, x0, y0, x1, y1)
+
+        def right(x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
+            return rig.rectified_patch(rimg, False, x0, y0, x1, y1)
+
+        for k, i in enumerate(idx[:, 0]):
+            if not lb.support:
+                return
+            box, support = rig.rectified_support(True, lb.bbox_px[i], lb.support[i])
+            rpx[k], _ = refine_match(
+                left, right, size, box, support, lpx[k], rpx[k], self.params.refine
+            )
+
+    def _detections(
+        self, lb: Blobs, rb: Blobs, idx: np.ndarray, lpx: np.ndarray, rpx: np.ndarray
+    ) -> list[Detection]:
+        """Matched blob pairs as the tracker's detections (rectified px), each with the fastest
+        image motion it can have: ``max_speed_mps`` at its depth (f / Z = disparity / B pixels
+        per metre), or the fastest image motion at all when its disparity is too small to say
+        (a skewed first sight of a fast object)."""
+        p = self.params
+        ceiling = p.max_image_speed_wps * p.rig.width_px
+        out = []
+        for k, (i, j) in enumerate(idx):
+            d = float(lpx[k, 0] - rpx[k, 0])
+            limit = (
+                min(p.tracker.max_speed_mps * d / p.rig.baseline_m, ceiling) if d >= 2 else ceiling
+            )
+            out.append(
+                Detection(
+                    left_px=lpx[k],
+                    right_px=rpx[k],
+                    left_bbox_px=lb.bbox_px[i],
+                    right_bbox_px=rb.bbox_px[j],
+                    area_px=int(min(lb.area_px[i], rb.area_px[j])),
+                    image_speed_pxps=limit,
+                    clipped=_touches_border(lb.bbox_px[i], p.rig)
+                    or _touches_border(rb.bbox_px[j], p.rig),
+                )
+            )
+        return out
+
     def _observe(
         self,
         lb: Blobs,
         rb: Blobs,
-        idx: np.ndarray,
+        ij: np.ndarray,
         lpx: np.ndarray,
         rpx: np.ndarray,
-        tri_left: np.ndarray | None = None,
-        tri_right: np.ndarray | None = None,
-    ) -> list[Observation]:
-        """Observations from matched blobs; ``tri_*`` are the centroids to triangulate when they
-        differ from the measured ones (skew compensation)."""
-        if len(idx) == 0:
-            return []
+        tri_left: np.ndarray,
+        tri_right: np.ndarray,
+        exact: bool,
+        clipped: bool,
+    ) -> Observation:
+        """The observation of one matched pair of blobs; ``tri_*`` are the centroids to
+        triangulate (moved to one instant when skew is compensated)."""
         p = self.params
-        tl = lpx if tri_left is None else tri_left
-        tr = rpx if tri_right is None else tri_right
-        points, cov = p.rig.triangulate(tl, tr, p.centroid_sigma_px)
-        f = p.rig.focal_px
-        obs = []
-        for k, (i, j) in enumerate(idx):
-            width_px = 0.5 * (lb.bbox_px[i, 2] + rb.bbox_px[j, 2])
-            obs.append(
-                Observation(
-                    position_m=points[k],
-                    cov_m2=cov[k],
-                    left_px=lpx[k],
-                    right_px=rpx[k],
-                    left_image_px=lb.centroid_px[i],
-                    right_image_px=rb.centroid_px[j],
-                    left_bbox_px=lb.bbox_px[i],
-                    right_bbox_px=rb.bbox_px[j],
-                    left_area_px=int(lb.area_px[i]),
-                    right_area_px=int(rb.area_px[j]),
-                    disparity_px=float(tl[k, 0] - tr[k, 0]),
-                    size_m=float(width_px * points[k, 2] / f),
-                )
-            )
-        return obs
+        i, j = int(ij[0]), int(ij[1])
+        points, cov = p.rig.triangulate(tri_left[None, :], tri_right[None, :], p.centroid_sigma_px)
+        width_px = 0.5 * (lb.bbox_px[i, 2] + rb.bbox_px[j, 2])
+        return Observation(
+            position_m=points[0],
+            cov_m2=cov[0],
+            left_px=lpx,
+            right_px=rpx,
+            left_image_px=lb.centroid_px[i],
+            right_image_px=rb.centroid_px[j],
+            left_bbox_px=lb.bbox_px[i],
+            right_bbox_px=rb.bbox_px[j],
+            left_area_px=int(lb.area_px[i]),
+            right_area_px=int(rb.area_px[j]),
+            disparity_px=float(tri_left[0] - tri_right[0]),
+            size_m=float(width_px * points[0, 2] / p.rig.focal_px),
+            exact=exact,
+            clipped=clipped,
+        )
 
-    def _compensated(
-        self,
-        track: Track,
-        lb: Blobs,
-        rb: Blobs,
-        idx: np.ndarray,
-        lpx: np.ndarray,
-        rpx: np.ndarray,
-        eye_times: tuple[int, int],
-        t_ns: int,
-    ) -> tuple[list[Observation], list[bool]]:
-        """Every observation as if it belonged to ``track``: each eye's centroid moved to
-        ``t_ns`` along that eye's image velocity, fitted to the track's recent centroids in that
-        eye plus this one, then triangulated again. The flags say which observations could be
-        moved (the earlier eye had a past centroid): those are exact."""
-        window = int(self.params.skew_window_s * 1e9)
-        t_left, t_right = eye_times
-        tl, tr = lpx.copy(), rpx.copy()
-        early_history = track.left_history if t_left < t_right else track.right_history
-        exact = [len(early_history) > 0] * len(lpx)
-        for k in range(len(lpx)):
-            vl = skew.image_velocity([*track.left_history, (t_left, lpx[k])], window)
-            vr = skew.image_velocity([*track.right_history, (t_right, rpx[k])], window)
-            tl[k] = skew.shift_to(lpx[k], t_left, vl, t_ns)
-            tr[k] = skew.shift_to(rpx[k], t_right, vr, t_ns)
-        return self._observe(lb, rb, idx, lpx, rpx, tl, tr), exact
+    def _first_again(
+        self, track_id: int, lpx: np.ndarray, rpx: np.ndarray, eye_times: tuple[int, int]
+    ) -> Observation:
+        """A track's first observation brought to one instant, now that its second gives each
+        eye an image velocity (the first could not be compensated when it was made)."""
+        tr = self.tracker.track(track_id)
+        assert tr.first is not None
+        t0, ob0 = tr.first
+        (tl0, l0), (tr0, r0) = tr.left_history[0], tr.right_history[0]
+        vl = (lpx - l0) / max((eye_times[0] - tl0) * 1e-9, 1e-9)
+        vr = (rpx - r0) / max((eye_times[1] - tr0) * 1e-9, 1e-9)
+        l_at = skew.shift_to(l0, tl0, vl, t0)
+        r_at = skew.shift_to(r0, tr0, vr, t0)
+        p = self.params
+        points, cov = p.rig.triangulate(l_at[None, :], r_at[None, :], p.centroid_sigma_px)
+        return replace(
+            ob0,
+            position_m=points[0],
+            cov_m2=cov[0],
+            disparity_px=float(l_at[0] - r_at[0]),
+            exact=True,
+        )
 
     def _learn(self, states: list[TrackState], shape: tuple[int, ...]) -> None:
-        """Eq. 3 on both eyes, not under objects being tracked (so a stopped one stays seen)."""
-        masks: list[np.ndarray | None] = [None, None]
+        """Eq. 3 on both eyes: not under objects seen moving (so one that stops stays seen,
+        for ``freeze_s``), and at once under one that has been still longer than that (the
+        detector would otherwise hold it as foreground for its own ``absorb_s``)."""
+        frozen: list[list[np.ndarray]] = [[], []]
+        released: list[list[np.ndarray]] = [[], []]
         if self.params.freeze_background:
-            frozen = [s for s in states if s.freeze_background]
-            if frozen:
-                h, w = shape[0], shape[1]
-                m = FREEZE_MARGIN_PX
-                for e in range(2):
-                    mask = np.full((h, w), 255, np.uint8)
-                    for s in frozen:
-                        ob = s.observation
-                        x, y, bw, bh = (ob.left_bbox_px, ob.right_bbox_px)[e]
-                        cv2.rectangle(
-                            mask,
-                            (int(x) - m, int(y) - m),
-                            (int(x + bw) + m, int(y + bh) + m),
-                            0,
-                            -1,
-                        )
-                    masks[e] = mask
-        self.left.learn(masks[0])
-        self.right.learn(masks[1])
+            for s in states:
+                if s.freeze_background or s.release_background:
+                    ob = s.observation
+                    into = frozen if s.freeze_background else released
+                    into[0].append(ob.left_bbox_px)
+                    into[1].append(ob.right_bbox_px)
+        for e, det in enumerate((self.left, self.right)):
+            freeze = _boxes_mask(frozen[e], shape, 0) if frozen[e] else None
+            release = _boxes_mask(released[e], shape, 255) if released[e] else None
+            det.learn(freeze, release)

@@ -2,10 +2,18 @@
 
 The Minoru's eyes free-run, so the two frames of a pair are up to half a frame period apart
 (design sec. 7); an object moving sideways at 1 m/s moves 17 mm in 16.7 ms, a disparity error
-that becomes a 28 % depth error at typical range. Each eye's 2D track of a blob (its past
-centroids and kernel timestamps) gives that eye's image velocity (px/s); the earlier eye's
-centroid is moved forward to the later eye's capture instant, which becomes the measurement's
-time. Only past frames are used, so compensation adds no latency.
+that becomes a 28 % depth error at typical range. The later eye's centroid is brought back to
+the earlier eye's capture instant, which becomes the measurement's time: that eye saw the
+object one frame before, and that earlier frame and this one bracket the instant, so the
+centroid there is interpolated between two measurements, not extrapolated from a fitted
+velocity (interpolation errs by a T^2 / 8 of the image acceleration a, extrapolation by far
+more, and on a receding or approaching object the image motion does accelerate). Without the
+earlier frame (it was dropped), the eye's image velocity over its 2D track moves it. Only past
+frames are used, so compensation adds no latency.
+
+This is the one stage every detection passes through, once, after it was associated with a
+track in the images (:meth:`stereod.tracking.Tracker.associate`, which needs no compensation
+since it compares each eye at its own instant) and before it is triangulated.
 """
 
 from __future__ import annotations
@@ -19,13 +27,14 @@ from .motion import fit_velocity
 
 def image_velocity(history: Sequence[tuple[int, np.ndarray]], max_age_ns: int) -> np.ndarray | None:
     """Least-squares image velocity (2,) px/s of one eye's centroids (t_ns, (2,) px), using the
-    samples no older than ``max_age_ns`` before the newest; ``None`` with fewer than two."""
+    samples no older than ``max_age_ns`` before the newest, or the newest two when fewer are
+    that recent (after the object was hidden for a while); ``None`` with fewer than two."""
     if len(history) < 2:
         return None
     t_last = history[-1][0]
     recent = [(t, c) for t, c in history if t_last - t <= max_age_ns]
     if len(recent) < 2:
-        return None
+        recent = list(history)[-2:]
     t = np.array([(t - t_last) * 1e-9 for t, _ in recent])
     p = np.zeros((len(recent), 3))
     p[:, :2] = [c for _, c in recent]
@@ -34,8 +43,25 @@ def image_velocity(history: Sequence[tuple[int, np.ndarray]], max_age_ns: int) -
 
 
 def common_instant(t_left_ns: int, t_right_ns: int) -> int:
-    """The instant both eyes are brought to: the later capture (no extrapolation of the newer)."""
-    return max(t_left_ns, t_right_ns)
+    """The instant both eyes are brought to: the earlier capture (the later eye's previous
+    frame and this one bracket it)."""
+    return min(t_left_ns, t_right_ns)
+
+
+def at_instant(
+    history: EyeTrack, t_ns: int, centroid_px: np.ndarray, target_ns: int, window_ns: int
+) -> np.ndarray | None:
+    """One eye's centroid (2,) px taken at ``t_ns`` brought to ``target_ns``: interpolated
+    with its previous centroid when that is at or before the target, else moved along the
+    eye's image velocity; ``None`` when the eye has no history to do either."""
+    if t_ns == target_ns:
+        return centroid_px
+    if history:
+        t0, c0 = history[-1]
+        if t0 <= target_ns < t_ns:
+            return c0 + (centroid_px - c0) * ((target_ns - t0) / (t_ns - t0))
+    v = image_velocity([*history, (t_ns, centroid_px)], window_ns)
+    return None if v is None else shift_to(centroid_px, t_ns, v, target_ns)
 
 
 def shift_to(
@@ -46,3 +72,32 @@ def shift_to(
     if velocity_pxps is None or t_ns == target_ns:
         return centroid_px
     return centroid_px + velocity_pxps * ((target_ns - t_ns) * 1e-9)
+
+
+EyeTrack = Sequence[tuple[int, np.ndarray]]
+
+
+def compensate(
+    histories: tuple[EyeTrack, EyeTrack] | None,
+    left_px: np.ndarray,
+    right_px: np.ndarray,
+    eye_times_ns: tuple[int, int],
+    target_ns: int,
+    window_ns: int,
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Both eyes' centroids (2,) px brought to ``target_ns`` (:func:`at_instant`) with their
+    track's 2D history in that eye. Returns the two centroids and whether they now refer to
+    one instant (False when an eye had no history to bring it there)."""
+    t_left, t_right = eye_times_ns
+    if t_left == t_right == target_ns:
+        return left_px, right_px, True
+    if histories is None:
+        return left_px, right_px, False
+    left = at_instant(histories[0], t_left, left_px, target_ns, window_ns)
+    right = at_instant(histories[1], t_right, right_px, target_ns, window_ns)
+    exact = left is not None and right is not None
+    return (
+        left_px if left is None else left,
+        right_px if right is None else right,
+        exact,
+    )

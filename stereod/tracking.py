@@ -1,11 +1,23 @@
 """3D tracks with stable ids, a lifecycle and a constant-velocity Kalman filter.
 
-Each pair's observations are assigned to tracks globally (minimum total squared Mahalanobis
-distance, Hungarian algorithm), gated at a chi-square bound: an observation farther than the
-gate from every track's prediction starts a new track. The filter's measurement noise is each
-observation's triangulation covariance, so depth noise growing as Z^2 (eq. 12) is weighted
-correctly. Velocity, speed and heading come from the filter (eq. 22, 23 on its velocity); the
-paper's eq. 21 finite difference over ``time_base_s`` is kept beside them as the raw velocity.
+Association is done in the images, where skew cannot bias it: each track predicts where its
+object is in each eye at that eye's own capture instant (its last centroid moved along that
+eye's image velocity), and each stereo detection is assigned to the track it is nearest to in
+both eyes at once, globally (Hungarian algorithm), within a gate. A track with one observation
+has no velocity yet; its gate is how far an object at ``max_speed_mps`` can move in the image at
+its depth (its disparity gives the pixels per metre), so an object as fast as a thrown ball is
+followed from its second frame. A detection that a live object's prediction explains in both
+eyes (a piece of it) starts no track; one that two confirmed tracks fall into (two objects
+crossing, one hiding the other) updates neither: both coast until they part.
+
+The filter's measurement is each observation's triangulated position with its covariance, so
+depth noise growing as Z^2 (eq. 12) is weighted correctly. It starts at a track's second
+observation from the two positions, whose difference is its first velocity (eq. 21 over one
+frame); an observation far outside the filter's prediction re-opens its velocity uncertainty
+(a manoeuvre). Velocity, speed and heading come from the filter (eq. 22, 23 on its velocity);
+the paper's eq. 21 finite difference over ``time_base_s`` is kept beside them as the raw
+velocity. A velocity is valid once the track is confirmed and the speed's own sigma is small
+(``valid_speed_sigma_mps`` or ``valid_speed_sigma_rel`` of the speed, whichever is larger).
 
 Lifecycle: ``tentative`` until ``confirm_hits`` observations, then ``confirmed``; a confirmed
 track not seen in a pair is ``coasting`` (predicted) until ``max_coast_s`` has passed, then it
@@ -18,7 +30,6 @@ from __future__ import annotations
 import collections
 import enum
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,13 +38,8 @@ from . import kalman, motion
 from .assignment import min_cost_assignment
 from .skew import image_velocity, shift_to
 
-
-def _image_distance(history: EyeHistory, centroid_px: np.ndarray, t_ns: int) -> float:
-    """Distance (px) from a centroid to where one eye's 2D track puts the object at ``t_ns``
-    (its last centroid moved along its image velocity when it has one)."""
-    t_last, last = history[-1]
-    predicted = shift_to(last, t_last, image_velocity(history, 10**9), t_ns)
-    return float(np.linalg.norm(centroid_px - predicted))
+EyeHistory = collections.deque[tuple[int, np.ndarray]]
+"""One eye's 2D track: (capture instant ns, rectified centroid (2,) px), oldest first."""
 
 
 class TrackLifecycle(str, enum.Enum):
@@ -48,14 +54,34 @@ class TrackLifecycle(str, enum.Enum):
 
 
 @dataclass(frozen=True, slots=True)
+class Detection:
+    """One object as a matched pair of blobs, in rectified image coordinates (before
+    triangulation): ``left_px``/``right_px`` (2,) centroids at each eye's own capture instant,
+    ``left_bbox_px``/``right_bbox_px`` (4,) x, y, w, h (image px), ``area_px`` the smaller of
+    the two blob areas, and ``image_speed_pxps`` the fastest it can move in the images (px/s)
+    at ``max_speed_mps`` and its depth."""
+
+    left_px: np.ndarray
+    right_px: np.ndarray
+    left_bbox_px: np.ndarray
+    right_bbox_px: np.ndarray
+    area_px: int
+    image_speed_pxps: float
+    clipped: bool = False
+    """A blob touches the image border in either eye: part of the object is out of view and
+    its centroid and disparity are biased."""
+
+
+@dataclass(frozen=True, slots=True)
 class Observation:
     """One object triangulated from one stereo pair.
 
     ``position_m`` (3,) rig frame; ``cov_m2`` (3, 3); ``left_px``/``right_px`` (2,) measured
     centroids in rectified coordinates (the eyes' 2D tracks); ``left_image_px``/
     ``right_image_px`` the same in image coordinates; ``left_bbox_px``/``right_bbox_px`` (4,)
-    x, y, w, h; areas in px; ``disparity_px``; ``size_m`` the blob's width in metres (bbox
-    width x Z / f).
+    x, y, w, h; areas in px; ``disparity_px`` at the common instant; ``size_m`` the blob's
+    width in metres (bbox width x Z / f); ``exact``: both eyes were brought to one instant
+    (False only for a track's first observation with skew).
     """
 
     position_m: np.ndarray
@@ -70,34 +96,40 @@ class Observation:
     right_area_px: int
     disparity_px: float
     size_m: float
+    exact: bool = True
+    clipped: bool = False
 
 
 @dataclass(frozen=True, slots=True)
 class TrackerParams:
     """Tracker settings, SI units.
 
-    ``gate_chi2``: largest squared Mahalanobis distance to join a track (3 dof; 16.3 is
-    99.9 %). ``min_gate_m``: an observation this close (m) to a prediction may always join
-    it, however confident the filter (an object that brakes hard leaves the constant-velocity
-    model); a join beyond the chi-square gate is a manoeuvre and re-opens the velocity
-    uncertainty. ``gate_px``: largest image distance (px, per eye) to join a track that has
-    only seen skewed observations. ``accel_noise``: spectral density q of the white
-    acceleration (m^2/s^3). ``time_base_s``: tau of eq. 21 (s), and how long a track's
-    filter must run before its velocity is valid. ``max_coast_s``: how long (s) a confirmed
-    track lives unseen. ``confirm_hits``: observations to confirm.
-    ``init_velocity_sigma_mps``: prior velocity sigma of a new track. ``freeze_s``: how long
-    (s) after it was last seen moving an object keeps the background frozen under it.
-    ``stationary_mps``: below this speed an object is not moving.
+    ``gate_px``: image distance (px, per eye) within which a detection always may join a
+    track's prediction; a track that has a velocity adds ``motion_gate`` times how far it
+    moved in the image since it was last seen. ``max_speed_mps``: the fastest object to
+    follow (m/s); it sets the gate of a track with one observation. ``manoeuvre_chi2``: an
+    observation whose squared Mahalanobis distance from the filter's prediction exceeds this
+    (3 dof; 16.3 is 99.9 %) re-opens the velocity uncertainty to ``manoeuvre_sigma_mps``.
+    ``accel_noise``: spectral density q of the white acceleration (m^2/s^3).
+    ``time_base_s``: tau of eq. 21 (s). ``max_coast_s``: how long (s) a confirmed track lives
+    unseen. ``confirm_hits``: observations to confirm. ``valid_speed_sigma_mps``,
+    ``valid_speed_sigma_rel``: a velocity is valid once the speed's sigma is below the larger
+    of these (m/s; share of the speed). ``freeze_s``: how long (s) after it was last seen
+    moving an object keeps the background frozen under it. ``stationary_mps``: below this
+    speed an object is not moving.
     """
 
-    gate_chi2: float = 16.3
-    min_gate_m: float = 0.15
-    gate_px: float = 60.0
+    gate_px: float = 6.0
+    motion_gate: float = 0.5
+    max_speed_mps: float = 30.0
+    manoeuvre_chi2: float = 16.3
+    manoeuvre_sigma_mps: float = 2.0
     accel_noise: float = 0.05
     time_base_s: float = 0.5
     max_coast_s: float = 0.5
     confirm_hits: int = 3
-    init_velocity_sigma_mps: float = 2.0
+    valid_speed_sigma_mps: float = 0.1
+    valid_speed_sigma_rel: float = 0.1
     freeze_s: float = 10.0
     stationary_mps: float = 0.05
 
@@ -125,9 +157,9 @@ class TrackState:
     freeze_background: bool
     """Whether the background should not learn under this object now: it was seen moving, and
     has not been stopped for longer than ``freeze_s``."""
-
-
-EyeHistory = collections.deque[tuple[int, np.ndarray]]
+    release_background: bool = False
+    """Whether the background should learn this object now: it was seen moving, then stood
+    still for ``freeze_s``; it is part of the scene."""
 
 
 @dataclass
@@ -138,10 +170,10 @@ class Track:
     first_t_ns: int
     kf: kalman.KalmanState
     last: Observation
+    image_speed_pxps: float
+    area_px: float
     hits: int = 1
     last_seen_ns: int = 0
-    kf_since_ns: int = 0
-    """When the filter was (re)started: its velocity is trusted ``time_base_s`` after that."""
     last_moving_ns: int | None = None
     """When the object was last seen clearly moving (speed above ``stationary_mps`` and three
     sigmas); only an object seen moving freezes the background, for ``freeze_s`` after that
@@ -149,8 +181,16 @@ class Track:
     freeze_spent: bool = False
     """Set once the object has been still for ``freeze_s``: the background then takes it, and
     the apparent motion of a blob fading into the background never re-arms the freeze."""
-    exact: bool = True
-    """Whether the filter has only seen observations taken at one instant (see update)."""
+    updates: int = 0
+    """Filter updates so far (the noise scale learns fast at first, then settles)."""
+    noise_scale: float = 1.0
+    """How much larger (or smaller) this object's measurement noise is than its triangulation
+    covariance says, learned from the filter's innovations (1: as said)."""
+    started: bool = False
+    """Whether the filter runs (from the second whole observation on)."""
+    first: tuple[int, Observation] | None = None
+    """The first whole (not clipped) observation and its instant, kept until the second
+    starts the filter."""
     positions: collections.deque[tuple[int, np.ndarray]] = field(
         default_factory=lambda: collections.deque(maxlen=256)
     )
@@ -158,9 +198,67 @@ class Track:
     right_history: EyeHistory = field(default_factory=lambda: collections.deque(maxlen=8))
 
 
+def predict_px(history: EyeHistory, t_ns: int, window_ns: int) -> tuple[np.ndarray, float]:
+    """Where one eye's 2D track puts the object at ``t_ns`` (px), and how far (px) it moved
+    in the image since its last centroid (0 without a velocity)."""
+    t_last, last = history[-1]
+    v = image_velocity(history, window_ns)
+    if v is None:
+        return last, 0.0
+    moved = shift_to(last, t_last, v, t_ns)
+    return moved, float(np.linalg.norm(moved - last))
+
+
+def _inside(point: np.ndarray, bbox: np.ndarray, grow: float) -> bool:
+    x, y, w, h = (float(v) for v in bbox)
+    mx, my = grow * w, grow * h
+    return bool(x - mx <= point[0] <= x + w + mx and y - my <= point[1] <= y + h + my)
+
+
+def _moved(bbox: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """A box (x, y, w, h) moved by ``shift`` (2,) px."""
+    return np.array([bbox[0] + shift[0], bbox[1] + shift[1], bbox[2], bbox[3]], np.float64)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two boxes (x, y, w, h)."""
+    ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    union = float(a[2] * a[3] + b[2] * b[3]) - inter
+    return inter / union if union > 0 else 0.0
+
+
+def _piece(
+    d: Detection, detections: list[Detection], owners: list[int | None], tracks: list[Track]
+) -> bool:
+    """Whether a detection lies within a larger one of this pair, or within the box of a
+    track that was found this pair, in both eyes: a piece of that object, not another."""
+    for other in detections:
+        if (
+            other is not d
+            and other.area_px > d.area_px
+            and (
+                _inside(d.left_px, other.left_bbox_px, 0.0)
+                and _inside(d.right_px, other.right_bbox_px, 0.0)
+            )
+        ):
+            return True
+    found = {tid for tid in owners if tid is not None}
+    return any(
+        _inside(d.left_px, tr.last.left_bbox_px, 0.25)
+        and _inside(d.right_px, tr.last.right_bbox_px, 0.25)
+        for tr in tracks
+        if tr.track_id in found
+    )
+
+
 class Tracker:
-    """Kalman tracker; per pair call :meth:`associate`, then :meth:`update` with the (possibly
-    refined) observations and the assignment it returned."""
+    """Per pair: :meth:`associate` detections in the images, then :meth:`update` with the
+    observations triangulated from them (after skew compensation) and the same assignment."""
+
+    WINDOW_NS = 150_000_000
+    """How much of an eye's 2D track its image velocity is fitted over (ns)."""
 
     def __init__(self, params: TrackerParams) -> None:
         self.params = params
@@ -174,118 +272,132 @@ class Tracker:
         return self._tracks[track_id]
 
     def associate(
-        self,
-        t_ns: int,
-        observations: list[Observation],
-        candidates: Callable[[Track], list[Observation]] | None = None,
-        eye_times_ns: tuple[int, int] | None = None,
-    ) -> list[int | None]:
-        """The track id each observation belongs to (``None``: a new object).
-
-        Tracks whose filter holds only exact observations are matched first, by minimum total
-        squared Mahalanobis distance within the gate; ``candidates(track)``, when given, returns
-        the observations as they would be if they belonged to that track (skew compensation
-        along the track's own image motion) and the distance is measured on those. Tracks not
-        yet exact (their one observation mixed two instants) are then matched in the images:
-        each eye's centroid against the track's last centroid in that eye, within
-        ``gate_px``, which no skew can bias.
-        """
-        out: list[int | None] = [None] * len(observations)
-        tracks = list(self._tracks.values())
-        if not tracks or not observations:
-            return out
+        self, detections: list[Detection], eye_times_ns: tuple[int, int]
+    ) -> tuple[list[int | None], list[bool]]:
+        """The track each detection belongs to (``None``: none), and whether a detection
+        without a track may start one (not a piece of a live object, not two objects merged)."""
         p = self.params
-        exact = [tr for tr in tracks if tr.exact]
-        if exact:
-            cost = np.empty((len(observations), len(exact)))
-            dist = np.empty_like(cost)
-            for j, tr in enumerate(exact):
-                pred = kalman.predict(tr.kf, t_ns, p.accel_noise)
-                obs = observations if candidates is None else candidates(tr)
-                for i, o in enumerate(obs):
-                    cost[i, j] = kalman.mahalanobis2(pred, o.position_m, o.cov_m2)
-                    dist[i, j] = float(np.linalg.norm(o.position_m - pred.position_m))
-            feasible = (cost <= p.gate_chi2) | (dist <= p.min_gate_m)
-            self._assign(np.minimum(cost, 1e5), feasible, exact, out)
-        fresh = [tr for tr in tracks if not tr.exact]
-        free = [i for i, a in enumerate(out) if a is None]
-        if fresh and free:
-            t_left, t_right = eye_times_ns if eye_times_ns is not None else (t_ns, t_ns)
-            cost = np.empty((len(free), len(fresh)))
-            for j, tr in enumerate(fresh):
-                for k, i in enumerate(free):
-                    o = observations[i]
-                    cost[k, j] = max(
-                        _image_distance(tr.left_history, o.left_px, t_left),
-                        _image_distance(tr.right_history, o.right_px, t_right),
-                    )
-            sub: list[int | None] = [None] * len(free)
-            self._assign(cost, cost <= p.gate_px, fresh, sub)
-            for k, i in enumerate(free):
-                out[i] = sub[k]
-        return out
+        n = len(detections)
+        out: list[int | None] = [None] * n
+        may_start = [True] * n
+        tracks = list(self._tracks.values())
+        if not detections:
+            return out, may_start
+        if not tracks:
+            return out, [not _piece(d, detections, out, []) for d in detections]
+        t_left, t_right = eye_times_ns
+        cost = np.full((n, len(tracks)), np.inf)
+        inside = np.zeros((2, n, len(tracks)), bool)
+        boxes = []
+        for j, tr in enumerate(tracks):
+            pl, ml = predict_px(tr.left_history, t_left, self.WINDOW_NS)
+            pr, mr = predict_px(tr.right_history, t_right, self.WINDOW_NS)
+            boxes.append(
+                (
+                    _moved(tr.last.left_bbox_px, pl - tr.left_history[-1][1]),
+                    _moved(tr.last.right_bbox_px, pr - tr.right_history[-1][1]),
+                )
+            )
+            if len(tr.left_history) >= 2 and len(tr.right_history) >= 2:
+                gate = p.gate_px + p.motion_gate * max(ml, mr)
+            else:
+                dt = max(t_left - tr.left_history[-1][0], t_right - tr.right_history[-1][0])
+                gate = p.gate_px + tr.image_speed_pxps * dt * 1e-9
+            for i, d in enumerate(detections):
+                dist = max(
+                    float(np.linalg.norm(d.left_px - pl)), float(np.linalg.norm(d.right_px - pr))
+                )
+                if dist <= gate:
+                    cost[i, j] = dist / gate
+                inside[0, i, j] = _inside(pl, d.left_bbox_px, 0.0)
+                inside[1, i, j] = _inside(pr, d.right_bbox_px, 0.0)
+        confirmed = np.array([tr.hits >= p.confirm_hits for tr in tracks])
+        for i, d in enumerate(detections):
+            in_left, in_right = inside[0, i] & confirmed, inside[1, i] & confirmed
+            if in_left.sum() < 2 and in_right.sum() < 2:
+                continue
+            hosts = np.flatnonzero(in_left | in_right)
+            # Two objects in one blob, in one eye or both. It is one of them (the other hidden
+            # behind it) only if it looks like that one alone: its box where that one's box
+            # should be, in both eyes; else a centroid is a blend of both, and both coast
+            # until they part in both eyes.
+            alone = [
+                j
+                for j in hosts
+                if np.isfinite(cost[i, j])
+                and _iou(d.left_bbox_px, boxes[j][0]) >= 0.9
+                and _iou(d.right_bbox_px, boxes[j][1]) >= 0.9
+            ]
+            keep = cost[i, alone[0]] if len(alone) == 1 else np.inf
+            cost[i, :] = np.inf
+            if len(alone) == 1:
+                cost[i, alone[0]] = keep
+            may_start[i] = False
+        feasible = np.isfinite(cost)
+        if feasible.any():
+            rows, cols = min_cost_assignment(np.where(feasible, cost, 1e9))
+            for i, j in zip(rows, cols, strict=True):
+                if feasible[i, j]:
+                    out[i] = tracks[j].track_id
+        for i, d in enumerate(detections):
+            if out[i] is None and may_start[i]:
+                may_start[i] = not _piece(d, detections, out, tracks)
+        return out, may_start
 
-    @staticmethod
-    def _assign(
-        cost: np.ndarray, feasible: np.ndarray, tracks: list[Track], out: list[int | None]
-    ) -> None:
-        """Minimum-cost assignment of rows (observations) to feasible columns (tracks)."""
-        big = 1e9
-        gated = np.where(feasible, cost, big)
-        rows, cols = min_cost_assignment(gated)
-        for i, j in zip(rows, cols, strict=True):
-            if feasible[i, j]:
-                out[i] = tracks[j].track_id
+    def histories(self, track_id: int | None) -> tuple[EyeHistory, EyeHistory] | None:
+        """A track's two eye histories (for skew compensation), None for no track."""
+        if track_id is None:
+            return None
+        tr = self._tracks[track_id]
+        return tr.left_history, tr.right_history
 
     def update(
         self,
         t_ns: int,
-        observations: list[Observation],
+        observations: list[Observation | None],
         assignment: list[int | None],
         eye_times_ns: tuple[int, int],
-        exact: list[bool] | None = None,
+        detections: list[Detection],
+        first_again: dict[int, Observation] | None = None,
     ) -> tuple[list[TrackState], list[int]]:
-        """Fold in one pair's observations at ``t_ns``; ``eye_times_ns`` are the left and right
-        capture instants of the centroids (for the eyes' 2D histories). ``exact[i]`` is False
-        when observation i mixes two capture instants (skew not compensated: a new track has
-        no image motion yet); a track's filter starts afresh at its first exact observation so
-        the biased ones never reach its velocity. Returns the state of every live track
-        (observed or coasting) and the ids of the tracks that ended."""
+        """Fold in one pair's observations at ``t_ns`` (``None`` in ``observations`` is a
+        detection that neither joins nor starts a track); ``eye_times_ns`` are the left and
+        right capture instants of the centroids. ``first_again`` gives, for tracks at their
+        second observation, their first observation brought to one instant now that the
+        eyes' image velocities are known. Returns the state of every live track (observed or
+        coasting) and the ids of the tracks that ended."""
         p = self.params
         seen: set[int] = set()
         states: list[TrackState] = []
         t_left, t_right = eye_times_ns
-        flags = exact if exact is not None else [True] * len(observations)
-        for ob, tid, ok in zip(observations, assignment, flags, strict=True):
+        for ob, tid, det in zip(observations, assignment, detections, strict=True):
+            if ob is None:
+                continue
             if tid is None:
-                kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.init_velocity_sigma_mps)
+                kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
                 tr = Track(
                     self._next_id,
                     first_t_ns=t_ns,
                     kf=kf,
                     last=ob,
+                    image_speed_pxps=det.image_speed_pxps,
+                    area_px=float(det.area_px),
                     last_seen_ns=t_ns,
-                    kf_since_ns=t_ns,
                 )
-                tr.exact = ok
                 self._next_id += 1
                 self._tracks[tr.track_id] = tr
+                self._begin(tr, t_ns, ob)
             else:
                 tr = self._tracks[tid]
-                if ok and not tr.exact:
-                    tr.kf = kalman.initiate(
-                        ob.position_m, ob.cov_m2, t_ns, p.init_velocity_sigma_mps
-                    )
-                    tr.kf_since_ns = t_ns
-                    tr.exact = True
-                else:
-                    pred = kalman.predict(tr.kf, t_ns, p.accel_noise)
-                    if kalman.mahalanobis2(pred, ob.position_m, ob.cov_m2) > p.gate_chi2:
-                        pred = kalman.inflate_velocity(pred, p.init_velocity_sigma_mps)
-                    tr.kf = kalman.update(pred, ob.position_m, ob.cov_m2)
+                if not tr.started:
+                    self._begin(tr, t_ns, ob, None if first_again is None else first_again.get(tid))
+                elif not ob.clipped:
+                    self._filter(tr, t_ns, ob)
                 tr.hits += 1
                 tr.last = ob
                 tr.last_seen_ns = t_ns
+                tr.image_speed_pxps = det.image_speed_pxps
+                tr.area_px = 0.8 * tr.area_px + 0.2 * det.area_px
             tr.positions.append((t_ns, ob.position_m))
             tr.left_history.append((t_left, ob.left_px))
             tr.right_history.append((t_right, ob.right_px))
@@ -304,6 +416,60 @@ class Tracker:
                 states.append(self._state(tr, t_ns, observed=False))
         return states, ended
 
+    NOISE_RATE = 0.05
+    """How fast a track's measurement noise scale follows its innovations once settled (per
+    update; at first it follows the running mean)."""
+    NOISE_BOUNDS = (0.25, 20.0)
+    """A track's noise scale stays within these: at most twice as precise as the triangulation
+    covariance says (a tighter filter would follow the noise), at most 4.5 times less."""
+
+    def _filter(self, tr: Track, t_ns: int, ob: Observation) -> None:
+        """One predict/update of the filter. The measurement covariance is the
+        triangulation's scaled by the track's noise scale, which follows the normalised
+        innovation squared (expected 3 for 3 dof): a detector that does better than the
+        assumed centroid error earns a tighter filter, one that does worse a looser one. An
+        innovation beyond ``manoeuvre_chi2`` is a manoeuvre: the velocity is re-opened
+        instead, and the scale is left alone."""
+        p = self.params
+        r = ob.cov_m2 * tr.noise_scale
+        pred = kalman.predict(tr.kf, t_ns, p.accel_noise)
+        nis = kalman.mahalanobis2(pred, ob.position_m, r)
+        if nis > p.manoeuvre_chi2:
+            opened = kalman.inflate_velocity(tr.kf, p.manoeuvre_sigma_mps)
+            pred = kalman.predict(opened, t_ns, p.accel_noise)
+        else:
+            lo, hi = self.NOISE_BOUNDS
+            rate = max(self.NOISE_RATE, 1.0 / (tr.updates + 2))
+            scale = tr.noise_scale * (1.0 + rate * (nis / 3.0 - 1.0))
+            tr.noise_scale = min(max(scale, lo), hi)
+            tr.updates += 1
+        tr.kf = kalman.update(pred, ob.position_m, r)
+
+    def _begin(
+        self, tr: Track, t_ns: int, ob: Observation, first_again: Observation | None = None
+    ) -> None:
+        """A track before its filter runs: a clipped observation only places it; the first
+        whole one is kept (and the eyes' 2D histories start from it, so its successor can be
+        brought to one instant with a clean image velocity); the second starts the filter from
+        the two (the first compensated again, ``first_again``, now the velocities are known)."""
+        p = self.params
+        if ob.clipped or tr.first is None:
+            tr.kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
+            if not ob.clipped:
+                tr.first = (t_ns, ob)
+                tr.left_history.clear()
+                tr.right_history.clear()
+                tr.positions.clear()
+            return
+        t0, ob0 = tr.first
+        if first_again is not None:
+            ob0 = first_again
+        tr.kf = kalman.initiate_two(ob0.position_m, ob0.cov_m2, t0, ob.position_m, ob.cov_m2, t_ns)
+        tr.first = None
+        tr.started = True
+        tr.positions.clear()
+        tr.positions.append((t0, ob0.position_m))
+
     def continue_after(self, other: Tracker) -> None:
         """Number new tracks after ``other``'s, so ids are never reused while running."""
         self._next_id = max(self._next_id, other._next_id)
@@ -314,22 +480,19 @@ class Tracker:
         self._tracks.clear()
         return ids
 
-    def _raw_velocity(self, tr: Track, t_ns: int) -> np.ndarray | None:
+    def _raw_velocity(self, tr: Track) -> np.ndarray | None:
         """Eq. 21 between the newest position and the newest one at least tau older."""
         base_ns = int(self.params.time_base_s * 1e9)
         t_now, p_now = tr.positions[-1]
-        old = None
         for t, pos in reversed(tr.positions):
             if t_now - t >= base_ns:
-                old = (t, pos)
-                break
-        if old is None:
-            return None
-        return motion.finite_difference(old[1], p_now, (t_now - old[0]) * 1e-9)
+                return motion.finite_difference(pos, p_now, (t_now - t) * 1e-9)
+        return None
 
     def _state(self, tr: Track, t_ns: int, *, observed: bool) -> TrackState:
         p = self.params
-        vel = tr.kf.velocity_mps.copy()
+        started = tr.started
+        vel = tr.kf.velocity_mps.copy() if started else np.zeros(3)
         vcov = tr.kf.velocity_cov.copy()
         spd = motion.speed(vel)
         spd_sigma = (
@@ -338,8 +501,8 @@ class Tracker:
             else math.sqrt(float(np.trace(vcov)))
         )
         confirmed = tr.hits >= p.confirm_hits
-        age = (t_ns - tr.first_t_ns) * 1e-9
-        valid = confirmed and (t_ns - tr.kf_since_ns) * 1e-9 >= p.time_base_s
+        precise = spd_sigma <= max(p.valid_speed_sigma_mps, p.valid_speed_sigma_rel * spd)
+        valid = started and confirmed and precise
         if valid and spd > max(p.stationary_mps, 3.0 * spd_sigma):
             tr.last_moving_ns = t_ns
         still_for = None if tr.last_moving_ns is None else (t_ns - tr.last_moving_ns) * 1e-9
@@ -367,7 +530,8 @@ class Tracker:
             heading_sigma_deg=motion.heading_sigma_deg(
                 float(vel[0]), float(vel[2]), math.sqrt(vcov[0, 0]), math.sqrt(vcov[2, 2])
             ),
-            raw_velocity_mps=self._raw_velocity(tr, t_ns),
-            age_s=age,
+            raw_velocity_mps=self._raw_velocity(tr),
+            age_s=(t_ns - tr.first_t_ns) * 1e-9,
             freeze_background=still_for is not None and not tr.freeze_spent,
+            release_background=tr.freeze_spent,
         )

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from stereod import PipelineParams
 from stereod.detect import DetectorParams
+from stereod.motion import circular_median_deg
 from stereod.tracking import TrackerParams
 from stereod_fakes.synth import Ball, Scene
 from tests.scenes import run_recording, run_scene, sigma, states
@@ -46,12 +49,20 @@ def test_two_balls_get_two_tracks_with_their_velocities() -> None:
         Ball(heading_deg=180, speed_mps=0.6, centre_m=(0.2, 0.2, 2.2), radius_m=0.06),
     ]
     results = run_default(Scene(balls=balls))
-    final = {o.track_id: o for o in states(results, valid=True)}
-    assert len(final) == 2
-    by_heading = sorted(final.values(), key=lambda o: o.heading_deg)
-    for o, b in zip(by_heading, balls):
-        assert o.heading_deg == pytest.approx(b.heading_deg, abs=2.0)
-        assert o.speed_mps == pytest.approx(b.speed_mps, rel=0.05)
+    by_track: dict[int, list] = {}
+    for o in states(results, confirmed=True, valid=True):
+        by_track.setdefault(o.track_id, []).append(o)
+    assert len(by_track) == 2
+    medians = sorted(
+        (
+            circular_median_deg([o.heading_deg for o in s]),
+            float(np.median([o.speed_mps for o in s])),
+        )
+        for s in by_track.values()
+    )
+    for (heading, speed), b in zip(medians, balls):
+        assert heading == pytest.approx(b.heading_deg, abs=1.0)
+        assert speed == pytest.approx(b.speed_mps, rel=0.03)
 
 
 def tracks_by_frame(scene: Scene, **params: object) -> list[dict[int, str]]:
@@ -113,12 +124,17 @@ def test_stopped_object_stays_tracked_while_background_is_frozen() -> None:
     scene = Scene(duration_s=6.0, balls=[ball])
     detector = DetectorParams(beta=0.05)
     frozen = tracks_by_frame(scene, detector=detector)
-    learning = tracks_by_frame(scene, detector=detector, freeze_background=False)
+    paper = dataclasses.replace(detector, hold_foreground=False)
+    learning = tracks_by_frame(scene, detector=paper, freeze_background=False)
     assert frozen[-1] and set(frozen[-1].values()) == {"confirmed"}, frozen[-1]
-    assert learning[-1] == {}, "without freezing, the stopped ball should fade into the background"
+    assert learning[-1] == {}, "with eq. 3 everywhere, the stopped ball should fade"
     # A short freeze lets the background take it after that time.
     short = tracks_by_frame(scene, detector=detector, tracker=TrackerParams(freeze_s=1.0))
     assert short[-1] == {}
+    # Untracked, held foreground is absorbed after absorb_s.
+    held = dataclasses.replace(detector, absorb_s=1.0)
+    absorbed = tracks_by_frame(scene, detector=held, freeze_background=False)
+    assert absorbed[-1] == {}
 
 
 @pytest.fixture(scope="module")

@@ -18,8 +18,9 @@ def test_image_velocity_and_shift() -> None:
     np.testing.assert_allclose(v, [60.0, -20.0])
     np.testing.assert_allclose(skew.shift_to(np.array([10.0, 10.0]), 0, v, 25_000_000), [11.5, 9.5])
     assert skew.image_velocity(hist[:1], 10**9) is None
-    assert skew.image_velocity(hist, max_age_ns=10_000_000) is None
-    assert skew.common_instant(5, 9) == 9
+    # Samples older than the window: the newest two still give the velocity.
+    np.testing.assert_allclose(skew.image_velocity(hist, max_age_ns=10_000_000), [60.0, -20.0])
+    assert skew.common_instant(5, 9) == 5
 
 
 def depth_errors(compensate: bool, skew_s: float) -> np.ndarray:
@@ -60,3 +61,19 @@ def test_compensation_is_harmless_without_skew() -> None:
     assert np.median(depth_errors(True, 0.0)) == pytest.approx(
         np.median(depth_errors(False, 0.0)), abs=2e-3
     )
+
+
+def test_the_later_eye_is_interpolated_between_its_two_frames() -> None:
+    """The later eye's previous frame and this one bracket the earlier eye's instant: the
+    centroid there is interpolated, exact for any motion that is linear between frames, and
+    free of the lag a velocity fitted over older frames has when the image motion speeds up."""
+    hist = [(0, np.array([100.0, 50.0])), (33_000_000, np.array([110.0, 50.0]))]
+    now = np.array([130.0, 50.0])  # accelerating: 10 px, then 20 px per frame
+    got = skew.at_instant(hist, 66_000_000, now, 50_000_000, 150_000_000)
+    assert got is not None
+    np.testing.assert_allclose(got, [110.0 + 20.0 * 17 / 33, 50.0])
+    # Nothing before the target: the image velocity moves it instead; nothing at all: None.
+    moved = skew.at_instant(hist[1:], 66_000_000, now, 20_000_000, 10**9)
+    assert moved is not None
+    np.testing.assert_allclose(moved, [130.0 - 20.0 * 46 / 33, 50.0])
+    assert skew.at_instant([], 33_000_000, now, 20_000_000, 10**9) is None

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..calibration import Calibration
 from . import Geometry
-from .stereo import triangulate_rectified
+from .stereo import _grey, triangulate_rectified
 
 
 class CalibratedRig:
@@ -36,6 +36,7 @@ class CalibratedRig:
         self.cx_left_px = float(self._p1[0, 2])
         self.cx_right_px = float(self._p2[0, 2])
         self.cy_px = float(self._p1[1, 2])
+        self._map_cache: list[tuple[np.ndarray, np.ndarray] | None] = [None, None]
         if not self.baseline_m > 0:
             raise ValueError(
                 f"calibration {cal.id}: rectified baseline {self.baseline_m:.4g} is not positive "
@@ -45,6 +46,50 @@ class CalibratedRig:
     @property
     def calibration_id(self) -> str | None:
         return self.calibration.id
+
+    def _maps(self, left: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Rectification maps of one eye (rectified px -> image px), made on first use."""
+        key = 0 if left else 1
+        if self._map_cache[key] is None:
+            k, d, r, p = (
+                (self._k1, self._d1, self._r1, self._p1)
+                if left
+                else (self._k2, self._d2, self._r2, self._p2)
+            )
+            self._map_cache[key] = cv2.initUndistortRectifyMap(
+                k, d, r, p, (self.width_px, self.height_px), cv2.CV_32FC1
+            )
+        maps = self._map_cache[key]
+        assert maps is not None
+        return maps
+
+    def rectified_patch(
+        self, image: np.ndarray, left: bool, x0: int, y0: int, x1: int, y1: int
+    ) -> np.ndarray:
+        """The (y1 - y0, x1 - x0) uint8 grey patch of an eye's image over a rectified-px
+        rectangle, resampled through the rectification (only that window)."""
+        mx, my = self._maps(left)
+        patch = cv2.remap(image, mx[y0:y1, x0:x1], my[y0:y1, x0:x1], cv2.INTER_LINEAR)
+        return _grey(patch)
+
+    def rectified_support(
+        self, left: bool, bbox: np.ndarray, support: np.ndarray
+    ) -> tuple[tuple[int, int, int, int], np.ndarray]:
+        """A blob's box (x, y, w, h) and (h, w) support mask in rectified px."""
+        x, y, w, h = (int(v) for v in bbox)
+        corners = np.array([[x, y], [x + w, y], [x, y + h], [x + w, y + h]], np.float64)
+        rect = self.rectify_left(corners) if left else self.rectify_right(corners)
+        rx0, ry0 = np.floor(rect.min(axis=0)).astype(int)
+        rx1, ry1 = np.ceil(rect.max(axis=0)).astype(int)
+        rx0, ry0 = max(int(rx0), 0), max(int(ry0), 0)
+        rx1, ry1 = min(int(rx1), self.width_px), min(int(ry1), self.height_px)
+        if rx1 <= rx0 or ry1 <= ry0:
+            return (x, y, w, h), support
+        canvas = np.zeros((self.height_px, self.width_px), np.uint8)
+        canvas[y : y + h, x : x + w] = support
+        mx, my = self._maps(left)
+        warped = cv2.remap(canvas, mx[ry0:ry1, rx0:rx1], my[ry0:ry1, rx0:rx1], cv2.INTER_NEAREST)
+        return (rx0, ry0, rx1 - rx0, ry1 - ry0), warped
 
     def _rectify(
         self, pts: np.ndarray, k: np.ndarray, d: np.ndarray, r: np.ndarray, p: np.ndarray

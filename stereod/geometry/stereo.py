@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..detect import Blobs
@@ -83,6 +84,20 @@ class CanonicalRig:
         """Image to rectified coordinates of the right eye: the identity here."""
         return np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
 
+    def rectified_patch(
+        self, image: np.ndarray, left: bool, x0: int, y0: int, x1: int, y1: int
+    ) -> np.ndarray:
+        """The (y1 - y0, x1 - x0) uint8 grey patch of an eye's image over a rectified-px
+        rectangle: a crop here, where rectified and image coordinates are one."""
+        return _grey(image[y0:y1, x0:x1])
+
+    def rectified_support(
+        self, left: bool, bbox: np.ndarray, support: np.ndarray
+    ) -> tuple[tuple[int, int, int, int], np.ndarray]:
+        """A blob's box (x, y, w, h) and (h, w) support mask in rectified px: as they are."""
+        x, y, w, h = (int(v) for v in bbox)
+        return (x, y, w, h), support
+
     def triangulate(
         self, left_px: np.ndarray, right_px: np.ndarray, sigma_px: float = 0.5
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -98,6 +113,11 @@ class CanonicalRig:
             cy_px=self.cy_px,
             sigma_px=sigma_px,
         )
+
+
+def _grey(patch: np.ndarray) -> np.ndarray:
+    """A uint8 patch as one channel (BT.601 luma of a BGR patch)."""
+    return cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY) if patch.ndim == 3 else patch
 
 
 def triangulate_rectified(
@@ -166,13 +186,17 @@ def match_blobs(
     right_px: np.ndarray,
     right_area: np.ndarray,
     params: MatchParams,
+    slack_px: float = 0.0,
 ) -> np.ndarray:
     """Match blobs by row, disparity range and size; return (m, 2) int index pairs (left, right).
 
-    Candidates must lie on the same row within the tolerance, at a positive disparity in range,
-    with similar areas. Each blob is used once: pairs are taken greedily by increasing cost
-    (row difference in tolerances plus log area ratio), which is optimal for the few, well
-    separated blobs a scene has and needs no solver.
+    Candidates must lie on the same row within the tolerance, at a disparity in range, with
+    similar areas. ``slack_px`` widens the disparity range both ways by how far an object may
+    move in the image between the two eyes' capture instants (skew): a fast object seen by a
+    late right eye can even show a negative disparity. Each blob is used once: pairs are taken
+    greedily by increasing cost (row difference in tolerances, log area ratio, and how far out
+    of the range without slack the disparity is, in slacks), which is optimal for the few,
+    well separated blobs a scene has and needs no solver.
     """
     nl, nr = len(left_px), len(right_px)
     if nl == 0 or nr == 0:
@@ -184,11 +208,17 @@ def match_blobs(
     )
     ok = (
         (dy <= params.row_tolerance_px)
-        & (disp >= params.min_disparity_px)
-        & (disp <= params.max_disparity_px)
+        & (disp >= params.min_disparity_px - slack_px)
+        & (disp <= params.max_disparity_px + slack_px)
         & (ratio <= math.log(params.max_area_ratio))
     )
-    cost = np.where(ok, dy / params.row_tolerance_px + ratio, np.inf)
+    outside = np.maximum(params.min_disparity_px - disp, 0.0) + np.maximum(
+        disp - params.max_disparity_px, 0.0
+    )
+    cost = dy / params.row_tolerance_px + ratio
+    if slack_px > 0:
+        cost = cost + outside / slack_px
+    cost = np.where(ok, cost, np.inf)
     order = np.argsort(cost, axis=None)
     used_l = np.zeros(nl, bool)
     used_r = np.zeros(nr, bool)
@@ -202,6 +232,10 @@ def match_blobs(
     return np.array(out, dtype=np.intp).reshape(-1, 2)
 
 
-def matched_blobs(left: Blobs, right: Blobs, params: MatchParams) -> np.ndarray:
+def matched_blobs(
+    left: Blobs, right: Blobs, params: MatchParams, slack_px: float = 0.0
+) -> np.ndarray:
     """:func:`match_blobs` on two :class:`~stereod.detect.Blobs`."""
-    return match_blobs(left.centroid_px, left.area_px, right.centroid_px, right.area_px, params)
+    return match_blobs(
+        left.centroid_px, left.area_px, right.centroid_px, right.area_px, params, slack_px
+    )

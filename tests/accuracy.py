@@ -1,0 +1,324 @@
+"""Accuracy cases from two renderers written apart, and their scoring against the truth.
+
+A case is one scene from one renderer through one rig: the project's own renderer
+(``stereod_fakes.synth``, discs through the canonical rig) or the independent ray-caster
+(``stereod_fakes.world``: shaded solids, a textured wall and floor, free-running clocks whose
+skew wanders between -1/2 and +1/2 frame, per-eye gain, drift, noise). Both give each object's
+true 3D centre and velocity at any instant. The scoring matches every published track state to
+the object it follows and reports, per object:
+
+- heading and speed error: the median over valid estimates in the middle 60 % of the object's
+  time in view of (estimate - truth at that instant);
+- position error as a share of eq. 12's one-pixel depth error at the true depth (median, same
+  window);
+- how many confirmed track ids followed it (one is right; two is an id switch), how many
+  confirmed tracks followed nothing (ghosts);
+- in which of its frames in view it was first tracked, and first had a valid velocity.
+
+Used by ``benchmarks/accuracy.py`` (every combination) and by the accuracy tests (a subset).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stereod import CanonicalRig, Eye, Frame, PairResult, Pipeline, PipelineParams
+from stereod.motion import angle_diff_deg
+from stereod.tracking import TrackLifecycle
+from stereod_fakes import world
+from stereod_fakes.scenarios import TABLE_I, table_one_scene
+from stereod_fakes.synth import Renderer, Scene
+
+
+@dataclass(frozen=True)
+class RigMode:
+    """An image size, frame rate and field of view (the Minoru streams both eyes at 320x240
+    and 30 Hz, or 640x480 and 15 Hz; its field angle is about 42 deg by one public measure)."""
+
+    width_px: int
+    height_px: int
+    fps: float
+    hfov_deg: float
+
+    @property
+    def name(self) -> str:
+        return f"{self.width_px}x{self.height_px}@{self.fps:g} {self.hfov_deg:g}deg"
+
+    @property
+    def rig(self) -> CanonicalRig:
+        return CanonicalRig(0.060, self.hfov_deg, self.width_px, self.height_px)
+
+
+MODES = (
+    RigMode(320, 240, 30.0, 42.0),
+    RigMode(320, 240, 30.0, 60.0),
+    RigMode(640, 480, 15.0, 42.0),
+    RigMode(640, 480, 15.0, 60.0),
+)
+
+Truth = Callable[[int], dict[str, tuple[np.ndarray, np.ndarray]]]
+"""t_ns -> {object name: (centre (3,) m, velocity (3,) m/s)} for the objects present."""
+
+
+@dataclass
+class Case:
+    """One scene of one renderer through one rig mode."""
+
+    renderer: str
+    mode: RigMode
+    name: str
+    seed: int
+    frames: Callable[[], Iterator[Frame]]
+    truth: Truth
+    in_view: Callable[[str, int], bool]
+    """Whether an object's centre is in both eyes' images (and it is not wholly hidden)."""
+    objects: list[str]
+    fast: bool = False
+
+    @property
+    def label(self) -> str:
+        return f"{self.renderer} {self.mode.name} {self.name} seed {self.seed}"
+
+
+def _world_case(scene: world.Scene, mode: RigMode, name: str, seed: int, fast: bool) -> Case:
+    def frames() -> Iterator[Frame]:
+        for f in scene.frames():
+            yield Frame(Eye(f.eye), f.image, f.t_ns, f.seq)
+
+    rig = mode.rig
+
+    def in_view(obj: str, t_ns: int) -> bool:
+        got = scene.truth(t_ns).get(obj)
+        if got is None or got[0][2] <= 0.1:
+            return False
+        if not (scene.visible(obj, "left", t_ns) and scene.visible(obj, "right", t_ns)):
+            return False
+        left, right = rig.project(got[0][None, :])
+        return all(
+            0 <= p[0, 0] <= rig.width_px - 1 and 0 <= p[0, 1] <= rig.height_px - 1
+            for p in (left, right)
+        )
+
+    return Case(
+        "world",
+        mode,
+        name,
+        seed,
+        frames,
+        scene.truth,
+        in_view,
+        [o.name for o in scene.objects],
+        fast,
+    )
+
+
+def world_robot(heading_deg: float, speed_mps: float, mode: RigMode, seed: int) -> Case:
+    """A ball rolling on the floor at a Table I heading and speed (independent renderer)."""
+    scene = world.robot_ball(
+        heading_deg,
+        speed_mps,
+        mode=(mode.width_px, mode.height_px, mode.fps),
+        hfov_deg=mode.hfov_deg,
+        seed=seed,
+        skew="wander",
+    )
+    return _world_case(scene, mode, f"ball {heading_deg:g} deg {speed_mps:g} m/s", seed, False)
+
+
+def world_preset(preset: str, mode: RigMode, seed: int, **kw: object) -> Case:
+    """One of the independent renderer's hard cases: ``crossing``, ``robot_cylinder``,
+    ``robot_box``, ``fast_ball`` (with ``direction`` and ``speed_mps``)."""
+    fn = getattr(world, preset)
+    scene = fn(
+        mode=(mode.width_px, mode.height_px, mode.fps),
+        hfov_deg=mode.hfov_deg,
+        seed=seed,
+        skew="wander",
+        **kw,
+    )
+    label = preset + "".join(f" {v}" for v in kw.values())
+    return _world_case(scene, mode, label, seed, preset == "fast_ball")
+
+
+def synth_robot(heading_deg: float, speed_mps: float, mode: RigMode, seed: int) -> Case:
+    """A Table I motion from the project's own renderer, the right eye half a frame late."""
+    base = table_one_scene(heading_deg, speed_mps, fps=mode.fps, seed=seed)
+    scene: Scene = base.model_copy(
+        update={
+            "width_px": mode.width_px,
+            "height_px": mode.height_px,
+            "hfov_deg": mode.hfov_deg,
+        }
+    )
+    rig = scene.rig
+
+    def frames() -> Iterator[Frame]:
+        for left, right in Renderer(scene).frames():
+            yield left
+            yield right
+
+    def truth(t_ns: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        t = (t_ns - scene.t0_ns) / 1e9
+        return {
+            f"ball{i}": (b.position_m(t), b.velocity_at(t))
+            for i, b in enumerate(scene.balls)
+            if b.visible(t)
+        }
+
+    def in_view(obj: str, t_ns: int) -> bool:
+        got = truth(t_ns).get(obj)
+        if got is None:
+            return False
+        left, right = rig.project(got[0][None, :])
+        return all(
+            0 <= p[0, 0] < rig.width_px and 0 <= p[0, 1] < rig.height_px for p in (left, right)
+        )
+
+    return Case(
+        "synth",
+        mode,
+        f"ball {heading_deg:g} deg {speed_mps:g} m/s",
+        seed,
+        frames,
+        truth,
+        in_view,
+        [f"ball{i}" for i in range(len(scene.balls))],
+    )
+
+
+def table_one_cases(renderer: str, mode: RigMode, seed: int) -> list[Case]:
+    """The paper's eight Table I motions through one renderer."""
+    make = world_robot if renderer == "world" else synth_robot
+    return [make(row.heading_deg, row.speed_mps, mode, seed) for row in TABLE_I]
+
+
+def hard_cases(mode: RigMode, seed: int) -> list[Case]:
+    """The independent renderer's crossing pair and non-spherical robots."""
+    return [
+        world_preset("crossing", mode, seed),
+        world_preset("robot_cylinder", mode, seed),
+        world_preset("robot_box", mode, seed),
+    ]
+
+
+def fast_cases(mode: RigMode, seed: int) -> list[Case]:
+    """Thrown balls at 10 and 20 m/s, across the view and towards the rig."""
+    return [
+        world_preset("fast_ball", mode, seed, direction=d, speed_mps=v)
+        for d in ("lateral", "radial")
+        for v in (10.0, 20.0)
+    ]
+
+
+def run_case(case: Case, params: PipelineParams | None = None) -> list[PairResult]:
+    """Every pair's result for a case (default parameters: what the daemon would use)."""
+    p = params or PipelineParams(case.mode.rig)
+    with Pipeline(p) as pipe:
+        return list(pipe.run(case.frames(), int(0.75e9 / case.mode.fps)))
+
+
+@dataclass
+class ObjectScore:
+    """How one object was measured (NaN where there was nothing to measure)."""
+
+    name: str
+    heading_err_deg: float = math.nan
+    speed_err: float = math.nan
+    """Relative: (estimate - truth) / truth."""
+    position_ratio: float = math.nan
+    """Median position error over eq. 12's one-pixel depth error at that depth."""
+    position_err_m: float = math.nan
+    track_ids: list[int] = field(default_factory=list)
+    """Confirmed track ids that followed the object."""
+    frames_in_view: int = 0
+    first_tracked: int | None = None
+    """The first of its frames in view (1 = the first) with a track state on it."""
+    first_valid: int | None = None
+    """The first of its frames in view with a valid velocity on it."""
+    valid_estimates: int = 0
+
+
+@dataclass
+class CaseScore:
+    case: Case
+    objects: list[ObjectScore]
+    ghosts: list[int]
+    """Confirmed track ids that followed no object."""
+
+
+def _gate_m(rig: CanonicalRig, depth_m: float) -> float:
+    """Largest distance (m) at which a track state is taken to be on an object."""
+    return max(0.2, 3.0 * float(rig.depth_error_one_px_m(depth_m)))
+
+
+def score(case: Case, results: list[PairResult]) -> CaseScore:
+    """Score a run of ``case`` (see the module docstring)."""
+    rig = case.mode.rig
+    # Which object each (pair, track) state is on, if any.
+    on: dict[int, list[str | None]] = {}
+    in_view_at: dict[str, list[int]] = {name: [] for name in case.objects}
+    rows = []
+    for k, r in enumerate(results):
+        truth = case.truth(r.t_ns)
+        visible = {n: truth[n] for n in truth if case.in_view(n, r.t_ns)}
+        for n in visible:
+            in_view_at[n].append(k)
+        for s in r.tracks:
+            best, best_d = None, math.inf
+            for n, (p, _) in visible.items():
+                d = float(np.linalg.norm(s.position_m - p))
+                if d < best_d and d <= _gate_m(rig, float(p[2])):
+                    best, best_d = n, d
+            on.setdefault(s.track_id, []).append(best)
+            rows.append((k, s, best))
+    # A track follows the object most of its states are on.
+    follows: dict[int, str | None] = {}
+    for tid, names in on.items():
+        named = [n for n in names if n is not None]
+        follows[tid] = max(set(named), key=named.count) if named else None
+    confirmed = {s.track_id for _, s, _ in rows if s.lifecycle is TrackLifecycle.CONFIRMED}
+    ghosts = sorted(t for t in confirmed if follows[t] is None)
+    scores = []
+    for name in case.objects:
+        o = ObjectScore(name)
+        frames = in_view_at[name]
+        o.frames_in_view = len(frames)
+        o.track_ids = sorted(t for t in confirmed if follows[t] == name)
+        if not frames:
+            scores.append(o)
+            continue
+        order = {k: i + 1 for i, k in enumerate(frames)}
+        lo = frames[0] + 0.2 * (frames[-1] - frames[0])
+        hi = frames[-1] - 0.2 * (frames[-1] - frames[0])
+        dh, ds, dp, ratio = [], [], [], []
+        for k, s, n in rows:
+            if n != name or follows.get(s.track_id) != name:
+                continue
+            if k in order:
+                i = order[k]
+                o.first_tracked = i if o.first_tracked is None else min(o.first_tracked, i)
+                if s.velocity_valid:
+                    o.first_valid = i if o.first_valid is None else min(o.first_valid, i)
+            if not lo <= k <= hi or s.lifecycle is not TrackLifecycle.CONFIRMED:
+                continue
+            p, v = case.truth(s.t_ns)[name]
+            err = float(np.linalg.norm(s.position_m - p))
+            dp.append(err)
+            ratio.append(err / float(rig.depth_error_one_px_m(float(p[2]))))
+            if s.velocity_valid:
+                speed = float(np.linalg.norm(v))
+                dh.append(angle_diff_deg(s.heading_deg, math.degrees(math.atan2(v[0], v[2]))))
+                ds.append((s.speed_mps - speed) / speed)
+        o.valid_estimates = len(dh)
+        if dh:
+            o.heading_err_deg = float(np.median(dh))
+            o.speed_err = float(np.median(ds))
+        if dp:
+            o.position_err_m = float(np.median(dp))
+            o.position_ratio = float(np.median(ratio))
+        scores.append(o)
+    return CaseScore(case, scores, ghosts)
