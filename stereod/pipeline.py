@@ -226,7 +226,6 @@ class Pipeline:
         assignment, may_start = self.tracker.associate(detections, eye_times)
         window = int(p.skew_window_s * 1e9)
         observations: list[Observation | None] = []
-        first_again: dict[int, Observation] = {}
         for k, tid in enumerate(assignment):
             if tid is None and not may_start[k]:
                 observations.append(None)
@@ -240,15 +239,8 @@ class Pipeline:
             observations.append(
                 self._observe(lb, rb, idx[k], lpx[k], rpx[k], lc, rc, exact, clipped)
             )
-            track = self.tracker.track(tid) if tid is not None else None
-            if compensate and track is not None and track.first is not None and not clipped:
-                first_again[track.track_id] = self._first_again(
-                    track.track_id, lpx[k], rpx[k], eye_times
-                )
         t2 = time.perf_counter_ns()
-        states, ended = self.tracker.update(
-            t_ns, observations, assignment, eye_times, detections, first_again
-        )
+        states, ended = self.tracker.update(t_ns, observations, assignment, eye_times, detections)
         self._learn(states, pair.left.image.shape[:2])
         t3 = time.perf_counter_ns()
         timings = Timings(
@@ -356,29 +348,6 @@ class Pipeline:
             size_m=float(width_px * points[0, 2] / p.rig.focal_px),
             exact=exact,
             clipped=clipped,
-        )
-
-    def _first_again(
-        self, track_id: int, lpx: np.ndarray, rpx: np.ndarray, eye_times: tuple[int, int]
-    ) -> Observation:
-        """A track's first observation brought to one instant, now that its second gives each
-        eye an image velocity (the first could not be compensated when it was made)."""
-        tr = self.tracker.track(track_id)
-        assert tr.first is not None
-        t0, ob0 = tr.first
-        (tl0, l0), (tr0, r0) = tr.left_history[0], tr.right_history[0]
-        vl = (lpx - l0) / max((eye_times[0] - tl0) * 1e-9, 1e-9)
-        vr = (rpx - r0) / max((eye_times[1] - tr0) * 1e-9, 1e-9)
-        l_at = skew.shift_to(l0, tl0, vl, t0)
-        r_at = skew.shift_to(r0, tr0, vr, t0)
-        p = self.params
-        points, cov = p.rig.triangulate(l_at[None, :], r_at[None, :], p.centroid_sigma_px)
-        return replace(
-            ob0,
-            position_m=points[0],
-            cov_m2=cov[0],
-            disparity_px=float(l_at[0] - r_at[0]),
-            exact=True,
         )
 
     def _learn(self, states: list[TrackState], shape: tuple[int, ...]) -> None:

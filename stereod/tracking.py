@@ -184,13 +184,19 @@ class Track:
     updates: int = 0
     """Filter updates so far (the noise scale learns fast at first, then settles)."""
     noise_scale: float = 1.0
+    recent: collections.deque[tuple[int, np.ndarray, np.ndarray]] = field(
+        default_factory=lambda: collections.deque(maxlen=3)
+    )
+    """The last three whole observations: instant (ns), position (m), covariance (m^2)."""
     """How much larger (or smaller) this object's measurement noise is than its triangulation
     covariance says, learned from the filter's innovations (1: as said)."""
+    whole: bool = False
+    """Whether the latest observation was whole (not clipped by the image's edge)."""
     started: bool = False
     """Whether the filter runs (from the second whole observation on)."""
     first: tuple[int, Observation] | None = None
-    """The first whole (not clipped) observation and its instant, kept until the second
-    starts the filter."""
+    """The first exact whole observation and its instant, kept until the next starts the
+    filter."""
     positions: collections.deque[tuple[int, np.ndarray]] = field(
         default_factory=lambda: collections.deque(maxlen=256)
     )
@@ -358,14 +364,11 @@ class Tracker:
         assignment: list[int | None],
         eye_times_ns: tuple[int, int],
         detections: list[Detection],
-        first_again: dict[int, Observation] | None = None,
     ) -> tuple[list[TrackState], list[int]]:
         """Fold in one pair's observations at ``t_ns`` (``None`` in ``observations`` is a
         detection that neither joins nor starts a track); ``eye_times_ns`` are the left and
-        right capture instants of the centroids. ``first_again`` gives, for tracks at their
-        second observation, their first observation brought to one instant now that the
-        eyes' image velocities are known. Returns the state of every live track (observed or
-        coasting) and the ids of the tracks that ended."""
+        right capture instants of the centroids. Returns the state of every live track
+        (observed or coasting) and the ids of the tracks that ended."""
         p = self.params
         seen: set[int] = set()
         states: list[TrackState] = []
@@ -390,7 +393,7 @@ class Tracker:
             else:
                 tr = self._tracks[tid]
                 if not tr.started:
-                    self._begin(tr, t_ns, ob, None if first_again is None else first_again.get(tid))
+                    self._begin(tr, t_ns, ob)
                 elif not ob.clipped:
                     self._filter(tr, t_ns, ob)
                 tr.hits += 1
@@ -425,45 +428,66 @@ class Tracker:
 
     def _filter(self, tr: Track, t_ns: int, ob: Observation) -> None:
         """One predict/update of the filter. The measurement covariance is the
-        triangulation's scaled by the track's noise scale, which follows the normalised
-        innovation squared (expected 3 for 3 dof): a detector that does better than the
-        assumed centroid error earns a tighter filter, one that does worse a looser one. An
-        innovation beyond ``manoeuvre_chi2`` is a manoeuvre: the velocity is re-opened
-        instead, and the scale is left alone."""
+        triangulation's times the track's noise scale (:meth:`_learn_noise`). An innovation
+        beyond ``manoeuvre_chi2`` is a manoeuvre, or a prediction too sure of itself: the
+        prediction's covariance is widened by as much as it takes to bring the innovation back
+        to that bound (a fading memory), so the update leans on the measurement as much as
+        the surprise calls for, and no more."""
         p = self.params
+        self._learn_noise(tr, t_ns, ob)
         r = ob.cov_m2 * tr.noise_scale
         pred = kalman.predict(tr.kf, t_ns, p.accel_noise)
-        nis = kalman.mahalanobis2(pred, ob.position_m, r)
-        if nis > p.manoeuvre_chi2:
-            opened = kalman.inflate_velocity(tr.kf, p.manoeuvre_sigma_mps)
-            pred = kalman.predict(opened, t_ns, p.accel_noise)
-        else:
-            lo, hi = self.NOISE_BOUNDS
-            rate = max(self.NOISE_RATE, 1.0 / (tr.updates + 2))
-            scale = tr.noise_scale * (1.0 + rate * (nis / 3.0 - 1.0))
-            tr.noise_scale = min(max(scale, lo), hi)
-            tr.updates += 1
+        for _ in range(3):
+            nis = kalman.mahalanobis2(pred, ob.position_m, r)
+            if nis <= p.manoeuvre_chi2:
+                break
+            pred = kalman.KalmanState(pred.x, pred.P * (nis / p.manoeuvre_chi2), pred.t_ns)
         tr.kf = kalman.update(pred, ob.position_m, r)
 
-    def _begin(
-        self, tr: Track, t_ns: int, ob: Observation, first_again: Observation | None = None
-    ) -> None:
-        """A track before its filter runs: a clipped observation only places it; the first
-        whole one is kept (and the eyes' 2D histories start from it, so its successor can be
-        brought to one instant with a clean image velocity); the second starts the filter from
-        the two (the first compensated again, ``first_again``, now the velocities are known)."""
+    def _learn_noise(self, tr: Track, t_ns: int, ob: Observation) -> None:
+        """Follow how noisy this object's positions really are. The middle of three
+        consecutive positions is compared with the straight line through the other two: for
+        an object that moves steadily between frames, that residual is pure measurement noise,
+        so its squared Mahalanobis distance under the scaled covariances has mean 3 (3 dof),
+        whatever the filter believes. The scale moves towards that, quickly at first, then at
+        ``NOISE_RATE`` per observation, within ``NOISE_BOUNDS``."""
+        tr.recent.append((t_ns, ob.position_m, ob.cov_m2))
+        if len(tr.recent) < 3:
+            return
+        (t0, p0, r0), (t1, p1, r1), (t2, p2, r2) = tr.recent
+        a = (t2 - t1) / (t2 - t0)
+        b = (t1 - t0) / (t2 - t0)
+        residual = p1 - (a * p0 + b * p2)
+        cov = (r1 + a * a * r0 + b * b * r2) * tr.noise_scale
+        d2 = float(residual @ np.linalg.solve(cov, residual))
+        lo, hi = self.NOISE_BOUNDS
+        rate = max(self.NOISE_RATE, 1.0 / (tr.updates + 2))
+        scale = tr.noise_scale * (1.0 + rate * (min(d2, 30.0) / 3.0 - 1.0))
+        tr.noise_scale = min(max(scale, lo), hi)
+        tr.updates += 1
+
+    def _begin(self, tr: Track, t_ns: int, ob: Observation) -> None:
+        """A track before its filter runs. A clipped observation only places it. The first
+        whole one after that starts the eyes' 2D histories afresh (so what follows is brought
+        to one instant with clean image motion) and places it too. The first exact whole one
+        (both eyes at one instant) is kept, and the next exact one starts the filter from the
+        two: eq. 21 over one frame. Without skew the first two whole observations do; with
+        skew the first cannot be brought to one instant, and the filter starts one frame
+        later rather than from a guessed position."""
         p = self.params
-        if ob.clipped or tr.first is None:
-            tr.kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
-            if not ob.clipped:
-                tr.first = (t_ns, ob)
+        if ob.clipped or not tr.whole:
+            tr.whole = not ob.clipped
+            tr.first = None
+            if tr.whole:
                 tr.left_history.clear()
                 tr.right_history.clear()
                 tr.positions.clear()
+        if ob.clipped or not ob.exact or tr.first is None:
+            tr.kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
+            if not ob.clipped and ob.exact:
+                tr.first = (t_ns, ob)
             return
         t0, ob0 = tr.first
-        if first_again is not None:
-            ob0 = first_again
         tr.kf = kalman.initiate_two(ob0.position_m, ob0.cov_m2, t0, ob.position_m, ob.cov_m2, t_ns)
         tr.first = None
         tr.started = True
