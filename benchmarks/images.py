@@ -28,13 +28,18 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import zenoh
 
+from stereod import overlay
 from stereod.config import ZenohConfig, load_config
 from stereod.daemon import Daemon
 from stereod.drivers import load_driver
+from stereod.frames import StereoPair
+from stereod.overlay import Annotations, PairImages
+from stereod.pipeline import Pipeline, PipelineParams
 from stereod.publish import session_config
-from stereod_fakes.synth import Ball, Scene, write_scene
+from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
 
 
 def free_endpoint() -> str:
@@ -57,6 +62,39 @@ def run_once(rec: Path, endpoint: str, rate_hz: float | None) -> tuple[float, fl
     return summary.pairs / elapsed, cpu / summary.pairs * 1e3, daemon
 
 
+def encode_costs(scene: Scene, repeat: int = 50) -> dict[str, float]:
+    """Median ms to make each image of one pair with a confirmed track, on this thread."""
+    pipe = Pipeline(PipelineParams(scene.rig))
+    result, images = None, None
+    for k, (left, right) in enumerate(Renderer(scene).frames()):
+        result = pipe.process(StereoPair(k, left, right))
+        if any(s.velocity_valid for s in result.tracks):
+            images = PairImages(
+                left.image, right.image, pipe.left.mask, pipe.right.mask, pipe.params.rig
+            )
+            break
+    pipe.close()
+    assert result is not None and images is not None, "the scene never gave a track"
+    ann = Annotations(
+        result.seq, result.t_ns, result.skew_ns, result.left, result.right, result.tracks
+    )
+    makers = {
+        "left": lambda: overlay.jpeg(images.left),
+        "right": lambda: overlay.jpeg(images.right),
+        "overlay": lambda: overlay.jpeg(overlay.overlay(images, ann)),
+        "mask": lambda: overlay.jpeg(overlay.masks(images)),
+    }
+    out = {}
+    for name, make in makers.items():
+        times = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            make()
+            times.append(time.perf_counter() - t0)
+        out[name] = float(np.median(times)) * 1e3
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--pairs", type=int, default=300, help="pairs in the scene (default 300)")
@@ -68,6 +106,12 @@ def main() -> None:
     n = a.pairs
     ball = Ball(heading_deg=60, speed_mps=0.3, t_on_s=1.0, t_off_s=1e9, t_mid_s=n / fps / 2)
     scene = Scene(width_px=w, height_px=h, fps=fps, duration_s=(n + 0.5) / fps, balls=[ball])
+    costs = encode_costs(scene)
+    print(
+        f"drawing and JPEG-encoding one {w}x{h} pair (median, ms): "
+        + ", ".join(f"{k} {v:.1f}" for k, v in costs.items())
+        + f"; all four {sum(costs.values()):.1f}"
+    )
     with tempfile.TemporaryDirectory(prefix="stereod-bench-") as tmp:
         rec = write_scene(scene, Path(tmp) / "rec")
         endpoint = free_endpoint()

@@ -31,6 +31,7 @@ keys (under --prefix, default 'stereod', and the rig name, default 'minoru'):
   stereod/<rig>/status              health, 1 Hz and on change
   stereod/<rig>/alive               liveliness token
   stereod/<rig>/{config,calibration,stats}  queryables
+  stereod/<rig>/image/{left,right,overlay,mask}  JPEG, only while subscribed
 """
 
 
