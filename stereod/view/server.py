@@ -260,7 +260,11 @@ class ViewServer:
                 ) from err
             raise err
         hub = self.hub
-        session = self._session = open_session(self.zenoh_cfg)
+        try:
+            session = self._session = open_session(self.zenoh_cfg)
+        except BaseException:
+            self.stop()
+            raise
         hub.session = session
         rig, prefix = hub.rig, hub.prefix
         self._subs = [
