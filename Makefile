@@ -27,6 +27,7 @@ lint: $(VENV)/.installed
 
 bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/throughput.py
+	$(BIN)/python benchmarks/images.py
 
 accuracy: $(VENV)/.installed
 	$(BIN)/python benchmarks/accuracy.py

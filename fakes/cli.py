@@ -13,6 +13,7 @@ from pydantic import ValidationError
 
 from stereod.cli.common import number, path_arg, size_arg
 from stereod.errors import ConfigError, describe_validation_error
+from stereod.progress import Progress
 from stereod.recording import Codec
 
 from .synth import Scene, write_scene
@@ -172,7 +173,8 @@ def scene_from_args(a: argparse.Namespace) -> Scene:
 
 def run(a: argparse.Namespace) -> int:
     scene = scene_from_args(a)
-    write_scene(scene, a.out, Codec(a.codec))
+    with Progress("render", total=scene.n_frames, unit="pair") as bar:
+        write_scene(scene, a.out, Codec(a.codec), on_pair=lambda k: bar.update(1))
     print(
         f"wrote {scene.n_frames} stereo frames ({scene.width_px}x{scene.height_px} at "
         f"{scene.fps:g} Hz) and truth.json to {a.out}"

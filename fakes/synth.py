@@ -14,7 +14,7 @@ import json
 import math
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -251,8 +251,14 @@ class Renderer:
             yield pair[0], pair[1]
 
 
-def write_scene(scene: Scene, out: Path, codec: Codec = Codec.FFV1) -> Path:
-    """Render ``scene`` into recording directory ``out`` with its ``truth.json``; return ``out``."""
+def write_scene(
+    scene: Scene,
+    out: Path,
+    codec: Codec = Codec.FFV1,
+    on_pair: Callable[[int], None] | None = None,
+) -> Path:
+    """Render ``scene`` into recording directory ``out`` with its ``truth.json``; return ``out``.
+    ``on_pair(k)`` is called after stereo frame ``k`` is written (progress)."""
     with RecordingWriter(
         out,
         scene.width_px,
@@ -262,9 +268,11 @@ def write_scene(scene: Scene, out: Path, codec: Codec = Codec.FFV1) -> Path:
         color=scene.color,
         settings={"synthetic": True},
     ) as writer:
-        for left, right in Renderer(scene).frames():
+        for k, (left, right) in enumerate(Renderer(scene).frames()):
             writer.write(left)
             writer.write(right)
+            if on_pair is not None:
+                on_pair(k)
     (out / TRUTH).write_text(json.dumps(scene.model_dump(mode="json"), indent=2) + "\n")
     return out
 

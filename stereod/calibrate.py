@@ -170,18 +170,17 @@ def pairs_from_list(path: Path) -> list[tuple[Path, Path]]:
 def detect_pairs(
     images: Iterable[tuple[str, np.ndarray, np.ndarray]],
     board: Board,
-    progress: Callable[[int, str], None] | None = None,
+    progress: Callable[[int, str, bool], None] | None = None,
     window: int | None = None,
 ) -> tuple[list[tuple[str, np.ndarray, np.ndarray]], list[PairReport], tuple[int, int]]:
     """Find the board in both eyes of every pair; returns the usable pairs' corners, a report
     per rejected pair, and the image size (w, h). Mixed sizes are an error naming the pair.
-    ``window``: see :func:`find_corners`."""
+    ``progress(k, name, found)`` is called after each pair; ``window``: see
+    :func:`find_corners`."""
     found: list[tuple[str, np.ndarray, np.ndarray]] = []
     rejected: list[PairReport] = []
     size: tuple[int, int] | None = None
     for k, (name, left, right) in enumerate(images, 1):
-        if progress is not None:
-            progress(k, name)
         gl, gr = _gray(left), _gray(right)
         for g, eye in ((gl, "left"), (gr, "right")):
             s = (g.shape[1], g.shape[0])
@@ -197,8 +196,10 @@ def detect_pairs(
         if cl is None or cr is None:
             eyes = " and ".join(e for e, c in (("left", cl), ("right", cr)) if c is None)
             rejected.append(PairReport(name, False, f"board not found in the {eyes} image"))
-            continue
-        found.append((name, cl, cr))
+        else:
+            found.append((name, cl, cr))
+        if progress is not None:
+            progress(k, name, cl is not None and cr is not None)
     if size is None:
         raise InputError("no calibration images were given")
     return found, rejected, size
@@ -306,7 +307,7 @@ def calibrate_files(
     pairs: Sequence[tuple[Path, Path]],
     board: Board,
     limits: Limits = Limits(),
-    progress: Callable[[int, str], None] | None = None,
+    progress: Callable[[int, str, bool], None] | None = None,
     window: int | None = None,
 ) -> Report:
     """Calibrate from image files (``pairs_in_directory`` or ``pairs_from_list``)."""

@@ -48,11 +48,20 @@ from pydantic import ValidationError
 
 from . import keys
 from .calibration import Calibration
-from .messages import CanonicalGeometry, ObjectsMessage, ObjectState, StatsMessage, StatusMessage
+from .messages import (
+    CanonicalGeometry,
+    ImageInfo,
+    ObjectsMessage,
+    ObjectState,
+    StatsMessage,
+    StatusMessage,
+)
 
 __all__ = [
     "DaemonAlive",
     "Event",
+    "Image",
+    "ImageInfo",
     "ObjectState",
     "ObjectsMessage",
     "QueryError",
@@ -66,6 +75,7 @@ __all__ = [
     "query_calibration",
     "query_config",
     "query_stats",
+    "subscribe_images",
     "subscribe_objects",
     "subscribe_status",
     "wait_alive",
@@ -224,6 +234,43 @@ def subscribe_status(
         callback(msg)
 
     sub._entities.append(session.declare_subscriber(keys.status(rig, prefix=prefix), on_status))
+    return sub
+
+
+@dataclass(frozen=True)
+class Image:
+    """One image from ``<prefix>/<rig>/image/<name>``: the JPEG bytes and what pair they show
+    (``info.seq`` and ``info.t_ns`` are those of the pair's ``objects`` message)."""
+
+    info: ImageInfo
+    jpeg: bytes
+
+
+def subscribe_images(
+    session: zenoh.Session,
+    callback: Callable[[Image], None],
+    *,
+    name: str = "overlay",
+    rig: str = keys.DEFAULT_RIG,
+    prefix: str = keys.DEFAULT_PREFIX,
+) -> Subscription:
+    """Call ``callback`` with every image ``name`` (``left``, ``right``, ``overlay``, ``mask``,
+    or ``*``) of ``rig``. The daemon encodes an image only while someone subscribes to its key,
+    at most ``daemon.image_rate_hz`` times a second."""
+    sub = Subscription()
+
+    def on_image(sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        try:
+            if sample.attachment is None:
+                raise ValueError("no attachment (an image carries its pair's seq and t_ns there)")
+            info = ImageInfo.model_validate_json(sample.attachment.to_bytes())
+        except (ValidationError, ValueError) as exc:
+            sub._rejected(key, exc)
+            return
+        callback(Image(info, sample.payload.to_bytes()))
+
+    sub._entities.append(session.declare_subscriber(keys.image(name, rig, prefix=prefix), on_image))
     return sub
 
 

@@ -229,6 +229,10 @@ class DaemonConfig(_Section):
     publish_queue_size: int = Field(16, ge=1, le=10000, description="Messages waiting to go out")
     status_period_s: float = Field(1.0, gt=0.0, le=60.0, description="Status interval, s")
     detect_workers: int = Field(2, ge=1, le=2, description="Threads detecting the two eyes")
+    image_rate_hz: float = Field(
+        5.0, ge=0.0, le=100.0, description="Images per second while subscribed; 0 never"
+    )
+    image_quality: int = Field(80, ge=1, le=100, description="JPEG quality of images, 1-100")
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
 
 

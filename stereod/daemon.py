@@ -7,6 +7,7 @@ status loop (status key, systemd notifications, reloads) until the input ends or
       (capture.py)                           (processing.py)                         (output.py)
                                                                                  Zenoh, JSONL
     status loop (this module): status key, sd_notify, SIGHUP reloads, fatal errors
+    image thread (images.py): draws and encodes pictures, only while someone subscribes
 
 A live source gets drop-oldest queues (a camera cannot wait); a file source gets blocking
 queues (nothing is lost). Every thread's failure reaches the run's result: a capture or output
@@ -28,6 +29,7 @@ from .config import StereodConfig
 from .errors import InternalError, StereodError
 from .frames import Driver, StereoSource
 from .geometry.rectified import CalibratedRig
+from .images import ImagePublishers, ImageWorker
 from .messages import CanonicalGeometry, DaemonState, StatusMessage, dump
 from .output import Output
 from .output_file import AtomicOutput, check_not_input
@@ -60,6 +62,19 @@ class RunSummary:
     errors: dict[str, int] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
     error: StereodError | None = None
+
+
+def _both(
+    first: Callable[[Outgoing], None], second: Callable[[Outgoing], None] | None
+) -> Callable[[Outgoing], None]:
+    if second is None:
+        return first
+
+    def call(item: Outgoing) -> None:
+        first(item)
+        second(item)
+
+    return call
 
 
 class Daemon:
@@ -102,6 +117,8 @@ class Daemon:
         self.pairer = Pairer(int(cfg.pairing.tolerance_ms * 1e6), cfg.pairing.max_pending)
         self.health = Health(cfg.rig.name, driver.name, self.pairer, self._status_now.set)
         self.summary = RunSummary()
+        self.images: ImageWorker | None = None
+        """The image worker of the last run (its counters), None when images were off."""
 
     # -- control (any thread, signal handlers included) --------------------------------------
 
@@ -223,23 +240,42 @@ class Daemon:
             self._wait_for_subscriber(pub)
             if not self._stop.is_set():
                 h.state = DaemonState.RUNNING
-            output = Output(
-                out, pub, h, jsonl=jsonl, on_fatal=self.fail, on_message=self._on_message
-            )
+            images = self._image_worker(pub)
+            on_message = self._on_message
+            if images is not None:
+                worker.want_images = images.wanted
+                on_message = _both(images.offer, self._on_message)
+            output = Output(out, pub, h, jsonl=jsonl, on_fatal=self.fail, on_message=on_message)
             threads = [self._thread(loop, name) for name, loop in capture.loops()]
             threads.append(self._thread(worker.loop, "pipeline"))
             sender = self._thread(output.loop, "output")
             threads.append(sender)
-            for t in threads:
+            painter = self._thread(images.loop, "images") if images is not None else None
+            for t in [*threads, *([painter] if painter else [])]:
                 t.start()
             self._status_loop(pub, sender, info.width, info.height)
             for t in threads:
                 t.join()
+            if images is not None and painter is not None:
+                images.close()
+                painter.join()
+                images.publishers.close()
+                self.images = images
             for p in source.problems():
                 h.problem(p)
             h.state = DaemonState.FINISHED
             pub.status(dump(h.status(1.0)))
             self.summary.objects = worker.objects
+
+    def _image_worker(self, pub: Publisher) -> ImageWorker | None:
+        """The image thread's worker, or None when images are off (``image_rate_hz = 0``)."""
+        d = self.cfg.daemon
+        if d.image_rate_hz <= 0:
+            return None
+        publishers = ImagePublishers(pub.session, self.cfg.rig.name, prefix=self.cfg.zenoh.prefix)
+        return ImageWorker(
+            publishers, self.health, rate_hz=d.image_rate_hz, quality=d.image_quality
+        )
 
     def _status_loop(
         self, pub: Publisher, sender: threading.Thread, width: int, height: int

@@ -6,10 +6,14 @@ loopback Zenoh endpoint, receives the ``objects`` messages with :mod:`stereod.cl
 second session, prints them, and compares the measured heading, speed and position with the
 truth. The truth is the ball's straight line, known in closed form from the demo's own
 parameters.
+
+With ``view`` it also serves ``stereod view``'s page, prints its address, and plays the scene
+once a page is open; the page stays up after the numbers until Ctrl-C.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import socket
 import tempfile
@@ -31,13 +35,21 @@ from .subscribe import format_object
 
 T0_NS = 1_000_000_000
 """Monotonic time of the scene's first frame (ns)."""
+DEMO_PORT = 7447
+"""The demo listens on tcp/127.0.0.1 at this port when it is free (where ``stereod view``
+looks by default), else on any free port."""
 
 
-def free_tcp_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+def free_tcp_port(preferred: int = 0) -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago: ``preferred`` if it is."""
+    for port in (preferred, 0) if preferred else (0,):
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return int(s.getsockname()[1])
+    raise OSError("no free TCP port on 127.0.0.1")
 
 
 @dataclass(frozen=True)
@@ -94,8 +106,12 @@ def run_demo(
     keep: Path | None = None,
     heading_deg: float = 60.0,
     speed_mps: float = 0.7,
+    view: bool = False,
+    view_port: int = 8765,
 ) -> int:
-    """Run the demo; return 0 when heading and speed came out within the paper's own errors."""
+    """Run the demo; return 0 when heading and speed came out within the paper's own errors.
+    ``view`` also serves the view page on ``view_port`` (0: any free port) and plays once a
+    page is open."""
     ball = DemoBall(heading_deg, speed_mps)
     with tempfile.TemporaryDirectory(prefix="stereod-demo-") as tmp:
         out = keep if keep is not None else Path(tmp) / "scene"
@@ -105,7 +121,7 @@ def run_demo(
             f"ball at heading {heading_deg:g} deg, {speed_mps:g} m/s, around "
             f"({', '.join(f'{c:g}' for c in ball.centre_m)}) m"
         )
-        endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+        endpoint = f"tcp/127.0.0.1:{free_tcp_port(DEMO_PORT)}"
         cfg = load_config(overrides={"zenoh": {"listen": [endpoint]}})
         received: list[ObjectsMessage] = []
         lock = threading.Lock()
@@ -121,15 +137,34 @@ def run_demo(
         daemon = Daemon(
             cfg, load_driver("replay", {"path": out}), rate=rate, wait_subscriber_s=10.0
         )
-        with (
-            open_session(ZenohConfig(connect=[endpoint])) as session,
-            subscribe_objects(session, on_event, rig=cfg.rig.name, prefix=cfg.zenoh.prefix),
-        ):
+        with contextlib.ExitStack() as stack:
+            if view:
+                from .view.server import ViewServer  # aiohttp only when asked for
+
+                page = stack.enter_context(
+                    ViewServer(ZenohConfig(connect=[endpoint]), rig=cfg.rig.name, port=view_port)
+                )
+                print(
+                    f"view: open {page.url} in a browser; the scene plays once it is open "
+                    "(Ctrl-C to stop)",
+                    flush=True,
+                )
+                while not page.connected.wait(0.5):
+                    pass
+            session = stack.enter_context(open_session(ZenohConfig(connect=[endpoint])))
+            stack.enter_context(
+                subscribe_objects(session, on_event, rig=cfg.rig.name, prefix=cfg.zenoh.prefix)
+            )
             summary = daemon.run()
-    if summary.error is not None:
-        raise summary.error
-    rig = CanonicalRig(cfg.rig.baseline_m, cfg.rig.hfov_deg, 640, 480)
-    return report(ball, rig, received)
+            if summary.error is not None:
+                raise summary.error
+            rig = CanonicalRig(cfg.rig.baseline_m, cfg.rig.hfov_deg, 640, 480)
+            code = report(ball, rig, received)
+            if view:
+                print(f"view: the page stays at {page.url} until Ctrl-C", flush=True)
+                with contextlib.suppress(KeyboardInterrupt):
+                    threading.Event().wait()
+    return code
 
 
 def report(ball: DemoBall, rig: CanonicalRig, received: list[ObjectsMessage]) -> int:

@@ -10,6 +10,7 @@
     ├── CalibrationError          a calibration file is missing, ill-shaped or does not fit
     ├── DeviceError               a camera device failed (open, ioctl)
     │   └── DeviceLost            a camera went away while in use (the source retries)
+    ├── NotInstalledError         an optional dependency is missing; names the install (exit 69)
     └── InternalError             a bug: an unexpected exception, logged in full (exit 70)
 
 Foreign errors (OSError, cv2.error, pydantic.ValidationError) are translated into these at the
@@ -85,6 +86,13 @@ class DeviceError(StereodError):
 class DeviceLost(DeviceError):
     """A camera went away while in use (unplugged, reset); its source retries by itself, the
     daemon reports the eye down and keeps running."""
+
+
+class NotInstalledError(StereodError):
+    """An optional dependency (an extra such as ``stereod[plot]``) is not installed; the message
+    says how to install it."""
+
+    exit_code = EX_UNAVAILABLE
 
 
 class InternalError(StereodError):

@@ -30,6 +30,10 @@ OBJECTS_SCHEMA: Final = "stereod.objects/1"
 OBJECT_SCHEMA: Final = "stereod.object/1"
 STATUS_SCHEMA: Final = "stereod.status/1"
 STATS_SCHEMA: Final = "stereod.stats/1"
+IMAGE_SCHEMA: Final = "stereod.image/1"
+IMAGE_ENCODING: Final = "image/jpeg"
+"""The encoding of an image sample's payload; its metadata is :class:`ImageInfo`, as JSON in
+the sample's attachment."""
 
 Vec3 = tuple[float, float, float]
 Vec2 = tuple[float, float]
@@ -222,11 +226,27 @@ class CanonicalGeometry(_Model):
     cy_px: float
 
 
+class ImageInfo(_Model):
+    """The attachment of an image on ``<prefix>/<rig>/image/<name>`` (the payload is the JPEG):
+    which pair it shows, so a client can join it to that pair's ``objects`` message by ``seq``
+    or ``t_ns``."""
+
+    schema_: Literal["stereod.image/1"] = Field(IMAGE_SCHEMA, alias="schema")
+    rig: str
+    name: str = Field(description="left, right, overlay or mask")
+    seq: int = Field(description="The pair's sequence number, as in its objects message")
+    t_ns: int = Field(description="The pair's t_ns, as in its objects message, ns")
+    stamp_utc_ns: int = Field(description="The same instant on the UTC wall clock, ns")
+    width: int = Field(description="Image width, px")
+    height: int = Field(description="Image height, px")
+
+
 ALL_MESSAGES: dict[str, type[BaseModel]] = {
     OBJECTS_SCHEMA: ObjectsMessage,
     OBJECT_SCHEMA: ObjectState,
     STATUS_SCHEMA: StatusMessage,
     STATS_SCHEMA: StatsMessage,
+    IMAGE_SCHEMA: ImageInfo,
 }
 
 

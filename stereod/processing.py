@@ -17,9 +17,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from .capture import QueuedPair
+from .frames import StereoPair
 from .geometry.rectified import CalibratedRig
 from .geometry.stereo import CanonicalRig
 from .messages import ObjectsMessage, dump, objects_message
+from .overlay import PairImages
 from .pipeline import PairResult, Pipeline, PipelineParams
 from .queues import BoundedQueue, Closed
 from .status import Health
@@ -35,7 +37,8 @@ class Outgoing:
     """What the output thread sends for one pair (``message`` is None for a bare end of tracks).
 
     ``payload`` the ``objects`` JSON; ``tracks`` (track id, state JSON) per live track;
-    ``ended`` the ids of tracks that ended (a DELETE each).
+    ``ended`` the ids of tracks that ended (a DELETE each); ``images`` references to the
+    pair's frames and masks, kept only while some image is subscribed (:mod:`stereod.images`).
     """
 
     message: ObjectsMessage | None
@@ -43,6 +46,7 @@ class Outgoing:
     tracks: list[tuple[int, bytes]] = field(default_factory=list)
     ended: list[int] = field(default_factory=list)
     result: PairResult | None = None
+    images: PairImages | None = None
 
 
 class PipelineWorker:
@@ -69,6 +73,8 @@ class PipelineWorker:
         self._pending: PipelineParams | None = None
         self._lock = threading.Lock()
         self._saturated: dict[str, int] = {}
+        self.want_images: Callable[[], bool] | None = None
+        """Asked once per pair: whether to keep references to its frames and masks."""
         self.objects = 0
         """Object states produced so far."""
 
@@ -123,6 +129,8 @@ class PipelineWorker:
                     result.timings.pipeline_ms, pair.skew_ns * 1e-6, result.row_residuals_px
                 )
                 self.objects += len(result.tracks)
+                if self.want_images is not None and self.want_images():
+                    outgoing.images = self._images(pair)
                 self.out.put(outgoing, self._stop)
             self._swap()
             ended = self.pipeline.finish()
@@ -131,6 +139,15 @@ class PipelineWorker:
         finally:
             self.pipeline.close()
             self.out.close()
+
+    def _images(self, pair: StereoPair) -> PairImages:
+        """References (no copies) to what the pipeline used for ``pair``: its frames, which
+        no one writes to, and the detectors' masks, which each frame replaces rather than
+        overwrites (see :attr:`stereod.detect.Detector.mask`)."""
+        p = self.pipeline
+        return PairImages(
+            pair.left.image, pair.right.image, p.left.mask, p.right.mask, p.params.rig
+        )
 
     def _count_saturated(self) -> None:
         """Report frames the detectors found saturated (all foreground) since the last pair."""

@@ -103,6 +103,13 @@ class Publisher:
         log.info("zenoh session open, publishing under %s/", self.base)
         return self
 
+    @property
+    def session(self) -> zenoh.Session:
+        """The open session (for entities declared elsewhere, e.g. the image publishers)."""
+        if self._session is None:
+            raise RuntimeError("the publisher is not open")
+        return self._session
+
     def _matching(self, status: zenoh.MatchingStatus) -> None:
         if status.matching and self._on_status_subscriber is not None:
             self._on_status_subscriber()

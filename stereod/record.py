@@ -10,10 +10,11 @@ from __future__ import annotations
 import json
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from .errors import DeviceLost, StereodError
-from .frames import Driver, EyeSource, merged
+from .frames import Driver, EyeSource, Frame, merged
 from .recording import Codec, RecordingWriter
 
 
@@ -25,9 +26,10 @@ def record(
     codec: str = "ffv1",
     calibration: Path | None = None,
     stop: threading.Event | None = None,
+    on_frame: Callable[[Frame], None] | None = None,
 ) -> dict[str, int]:
     """Record until ``seconds`` of stream time, the end of input or ``stop``; return the frame
-    counts per eye."""
+    counts per eye. ``on_frame`` sees every frame written (progress), one call at a time."""
     stop = stop or threading.Event()
     cal = json.loads(calibration.read_text()) if calibration is not None else None
     counts = {"left": 0, "right": 0}
@@ -74,6 +76,8 @@ def record(
                                 return
                             writer.write(frame)
                             counts[frame.eye.value] += 1
+                            if on_frame is not None:
+                                on_frame(frame)
 
                 threads = [
                     threading.Thread(target=eye_loop, args=(e,))
@@ -95,4 +99,6 @@ def record(
                         break
                     writer.write(frame)
                     counts[frame.eye.value] += 1
+                    if on_frame is not None:
+                        on_frame(frame)
     return counts

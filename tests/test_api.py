@@ -38,6 +38,8 @@ def test_client_exports_are_pinned() -> None:
     assert sorted(stereod.client.__all__) == [
         "DaemonAlive",
         "Event",
+        "Image",
+        "ImageInfo",
         "ObjectState",
         "ObjectsMessage",
         "QueryError",
@@ -51,6 +53,7 @@ def test_client_exports_are_pinned() -> None:
         "query_calibration",
         "query_config",
         "query_stats",
+        "subscribe_images",
         "subscribe_objects",
         "subscribe_status",
         "wait_alive",

@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+import asyncio
+import json
+import re
+import signal
+import urllib.request
+
+import aiohttp
 import pytest
 
 from stereod.demo import run_demo
 from stereod.motion import angle_diff_deg
+from tests.processes import start_stereod
 
 
 def test_angle_difference_wraps() -> None:
@@ -22,3 +30,43 @@ def test_demo_measures_heading_and_speed(capsys: pytest.CaptureFixture[str]) -> 
     error_line = next(line for line in out.splitlines() if line.startswith("error"))
     dh, ds = (float(v) for v in error_line.split()[1:])
     assert abs(dh) < 1.0 and abs(ds) < 0.02, error_line
+
+
+@pytest.mark.slow
+def test_demo_with_view_plays_once_a_page_is_open_and_serves_it_after() -> None:
+    """``stereod demo --view``: the scene waits for a page; the page (a WebSocket client here)
+    gets the ball's track with its true heading; the numbers are printed; the page stays up
+    until Ctrl-C, which ends the demo with the numbers' verdict."""
+    proc = start_stereod("demo", "--view", "--view-port", "0", "--rate", "2", "--heading", "120")
+    assert proc.stdout is not None
+    try:
+        lines = [proc.stdout.readline() for _ in range(2)]
+        url = re.search(r"view: open (http://127\.0\.0\.1:\d+/) ", lines[1])
+        assert url, lines
+        headings = asyncio.run(_page_headings(url.group(1)))
+        rest = []
+        for line in proc.stdout:
+            rest.append(line)
+            if line.startswith("view: the page stays"):
+                break
+        # The page is still served after the numbers.
+        with urllib.request.urlopen(url.group(1), timeout=10) as r:
+            assert r.status == 200
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert any("within the paper's errors" in line for line in rest), rest
+    assert headings and all(abs(angle_diff_deg(h, 120.0)) < 5.0 for h in headings[-5:]), headings
+
+
+async def _page_headings(url: str) -> list[float]:
+    """Valid headings of the messages a page receives until the daemon goes away."""
+    headings: list[float] = []
+    async with aiohttp.ClientSession() as http, http.ws_connect(url + "ws") as ws:
+        while True:
+            msg = json.loads((await ws.receive(timeout=60)).data)
+            if msg["type"] == "objects":
+                headings += [o["heading"] for o in msg["objects"] if o["valid"]]
+            elif msg["type"] == "alive" and not msg["alive"]:
+                return headings

@@ -11,6 +11,7 @@ from ..calibration import Board, save
 from ..config import load_config
 from ..drivers import load_driver
 from ..frames import merged
+from ..progress import Progress
 from .common import add_config, add_driver, number, path_arg, size_arg
 
 
@@ -112,21 +113,18 @@ def run(a: argparse.Namespace) -> int:
     cols, rows = a.board
     board = Board(cols=cols, rows=rows, square=a.square)
     limits = cb.Limits(min_pairs=a.min_pairs, max_rms_px=a.max_rms)
-    tty = sys.stderr.isatty()
-
-    def progress(k: int, name: str, total: int) -> None:
-        end = "\r" if tty else "\n"
-        print(f"looking for the board: {k}/{total} {name}", end=end, file=sys.stderr, flush=True)
-
     if a.live:
         report = _live(a, board, limits)
     else:
         pairs = cb.pairs_in_directory(a.pairs) if a.pairs else cb.pairs_from_list(a.list)
-        report = cb.calibrate_files(
-            pairs, board, limits, lambda k, n: progress(k, n, len(pairs)), a.corner_window
-        )
-        if tty:
-            print(file=sys.stderr)
+        seen = {True: 0, False: 0}
+        with Progress("looking for the board", total=len(pairs), unit="pair") as bar:
+
+            def progress(k: int, name: str, found: bool) -> None:
+                seen[found] += 1
+                bar.update(1, found=seen[True], rejected=seen[False], last=name)
+
+            report = cb.calibrate_files(pairs, board, limits, progress, a.corner_window)
     print(cb.format_report(report))
     if report.problems:
         for problem in report.problems:
@@ -151,17 +149,18 @@ def _live(a: argparse.Namespace, board: Board, limits: cb.Limits) -> cb.Report:
     collector = cb.LiveCollector(board)
     driver = load_driver(cfg.driver.name, cfg.driver.options, origin=a.config)
 
-    def progress(n: int, wanted: int) -> None:
-        print(f"pairs kept: {n}/{wanted}", file=sys.stderr, flush=True)
-
-    with driver.open() as source:
+    with (
+        driver.open() as source,
+        Progress("pairs kept", total=a.wanted, unit="pair") as bar,
+    ):
         cb.collect_live(
             merged(source.left, source.right),
             collector,
             a.wanted,
             int(cfg.pairing.tolerance_ms * 1e6),
-            progress=progress,
+            progress=lambda n, wanted: bar.set(n, seen=collector.seen),
         )
+    print(f"pairs kept: {len(collector.kept)}/{a.wanted}", file=sys.stderr, flush=True)
     if len(collector.kept) < a.wanted:
         print(f"the stream ended with {len(collector.kept)} of {a.wanted} pairs", file=sys.stderr)
     if collector.size is None or not collector.kept:

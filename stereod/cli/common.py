@@ -31,6 +31,7 @@ keys (under --prefix, default 'stereod', and the rig name, default 'minoru'):
   stereod/<rig>/status              health, 1 Hz and on change
   stereod/<rig>/alive               liveliness token
   stereod/<rig>/{config,calibration,stats}  queryables
+  stereod/<rig>/image/{left,right,overlay,mask}  JPEG, only while subscribed
 """
 
 
@@ -208,10 +209,13 @@ def setup_logging(level: str) -> None:
     logging.basicConfig(level=level, format=fmt, force=True)
 
 
-def run_daemon(daemon: Any, *, quiet: bool = False, problems_fail: bool = True) -> int:
+def run_daemon(
+    daemon: Any, *, quiet: bool = False, problems_fail: bool = True, progress: Any = None
+) -> int:
     """Run until the input ends or a signal; SIGHUP reloads. With ``problems_fail`` (replay)
     a run that hit input problems exits 65 after printing them; a daemon exits 0 on a clean
-    stop, its problems having gone to the log and the status key."""
+    stop, its problems having gone to the log and the status key. ``progress`` (a
+    :class:`~stereod.progress.Progress`) is closed before the summary is printed."""
 
     def on_signal(signum: int, _frame: Any) -> None:
         log.info("signal %d: stopping", signum)
@@ -224,7 +228,11 @@ def run_daemon(daemon: Any, *, quiet: bool = False, problems_fail: bool = True) 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGHUP, on_hup)
     t0 = time.monotonic()
-    summary = daemon.run()
+    try:
+        summary = daemon.run()
+    finally:
+        if progress is not None:
+            progress.close()
     if not quiet:
         drops = ", ".join(f"{k} {v}" for k, v in summary.drops.items()) or "none"
         print(

@@ -27,9 +27,29 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--speed", type=number(0.05, 3.0, unit="m/s"), default=0.7, help="true speed, m/s (0.7)"
     )
+    p.add_argument(
+        "--view",
+        action="store_true",
+        help="also serve the live page of `stereod view`, print its address, and play once "
+        "it is open in a browser",
+    )
+    p.add_argument(
+        "--view-port",
+        type=number(0, 65535, integer=True),
+        default=8765,
+        metavar="N",
+        help="TCP port of the page on 127.0.0.1 (default 8765; 0: any free port)",
+    )
     p.set_defaults(func=run)
 
 
 def run(a: argparse.Namespace) -> int:
     setup_logging("WARNING")
-    return run_demo(rate=a.rate, keep=a.keep, heading_deg=a.heading % 360.0, speed_mps=a.speed)
+    return run_demo(
+        rate=a.rate,
+        keep=a.keep,
+        heading_deg=a.heading % 360.0,
+        speed_mps=a.speed,
+        view=a.view,
+        view_port=a.view_port,
+    )

@@ -8,6 +8,8 @@ import threading
 
 from ..config import load_config
 from ..drivers import load_driver
+from ..frames import Eye, Frame
+from ..progress import Progress
 from ..record import record
 from .common import add_config, add_driver, number, path_arg, setup_logging
 
@@ -46,8 +48,38 @@ def run(a: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    counts = record(
-        driver, a.out, seconds=a.seconds, codec=a.codec, calibration=cfg.rig.calibration, stop=stop
-    )
+    with Progress("record", total=a.seconds, unit="s") as bar:
+        counts = record(
+            driver,
+            a.out,
+            seconds=a.seconds,
+            codec=a.codec,
+            calibration=cfg.rig.calibration,
+            stop=stop,
+            on_frame=_RecordProgress(bar) if bar.shown else None,
+        )
     print(f"recorded {counts['left']} left and {counts['right']} right frames to {a.out}")
     return 0
+
+
+class _RecordProgress:
+    """Stream seconds, frames and dropped frames (gaps in each eye's sequence numbers)."""
+
+    def __init__(self, bar: Progress) -> None:
+        self.bar = bar
+        self.first_ns: int | None = None
+        self.frames = 0
+        self.drops = 0
+        self.last_seq: dict[Eye, int] = {}
+
+    def __call__(self, frame: Frame) -> None:
+        if self.first_ns is None:
+            self.first_ns = frame.t_ns
+        last = self.last_seq.get(frame.eye)
+        if last is not None and frame.seq > last + 1:
+            self.drops += frame.seq - last - 1
+        self.last_seq[frame.eye] = frame.seq
+        self.frames += 1
+        self.bar.set(
+            round((frame.t_ns - self.first_ns) * 1e-9, 1), frames=self.frames, drops=self.drops
+        )

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 from typing import Any
 
 from ..config import load_config
 from ..daemon import Daemon
 from ..drivers import load_driver
-from ..errors import ConfigError
+from ..errors import ConfigError, StereodError
+from ..progress import Progress
+from ..recording import read_manifest
 from .common import (
     EPILOG_KEYS,
     add_pipeline,
@@ -111,4 +114,16 @@ def run(a: argparse.Namespace) -> int:
         wait_subscriber_s=a.wait_subscriber,
         reload_config=lambda: load_config(a.config, ov),
     )
-    return run_daemon(daemon, quiet=a.quiet)
+    total = None
+    if a.recording is not None and not a.loop:
+        with contextlib.suppress(StereodError):
+            m = read_manifest(a.recording)
+            total = min(m.left.frames, m.right.frames)
+    st = daemon.pairer.stats
+    bar = Progress(
+        "replay",
+        total=total,
+        unit="pair",
+        poll=lambda: (st.pairs, {"frames": sum(st.frames.values())}),
+    )
+    return run_daemon(daemon, quiet=a.quiet, progress=bar)

@@ -1,0 +1,41 @@
+"""``stereod plot``: draw a run's trajectories, speed and heading against the truth."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..plot import plot_run, read_run, read_truth, summary
+from .common import path_arg
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "plot",
+        help="draw a run's trajectories, speed and heading (needs the plot extra)",
+        description="Draws the objects messages of a run (written by `stereod replay "
+        "--jsonl`): the top view of every track (X-Z, m) beside the true trajectories, and "
+        "speed (m/s) and heading (deg) against time with the filter's 1-sigma band beside "
+        "the paper's eq. 21 estimate. Needs matplotlib: pip install 'stereod[plot]'.",
+    )
+    p.add_argument("run", type=path_arg, metavar="RUN.jsonl", help="objects messages, one per line")
+    p.add_argument(
+        "--truth",
+        type=path_arg,
+        metavar="FILE",
+        help="true trajectories: a CSV with header object,t_ns,x_m,y_m,z_m (the world "
+        "renderer's truth.csv) or a synthetic recording's truth.json",
+    )
+    p.add_argument(
+        "-o", "--out", type=path_arg, required=True, metavar="FIG.png", help="figure to write"
+    )
+    p.add_argument("--title", default="", help="a title above the figure")
+    p.set_defaults(func=run)
+
+
+def run(a: argparse.Namespace) -> int:
+    data = read_run(a.run)
+    truth = read_truth(a.truth, data.t0_ns) if a.truth is not None else []
+    plot_run(data, truth, a.out, title=a.title)
+    print(summary(data))
+    print(f"wrote {a.out}")
+    return 0

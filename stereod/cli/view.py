@@ -1,0 +1,73 @@
+"""``stereod view``: a local web page showing one rig live (images, room map, plots, status)."""
+
+from __future__ import annotations
+
+import argparse
+import re
+import signal
+import threading
+
+from pydantic import ValidationError
+
+from ..config import ZenohConfig
+from ..errors import ConfigError, describe_validation_error
+from ..keys import DEFAULT_RIG, RIG_PATTERN
+from .common import add_zenoh, number, setup_logging, zenoh_overrides
+
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+"""Where the view looks for a daemon when given no endpoint (``stereod demo`` listens there)."""
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "view",
+        help="a live web page of one rig: images, room map, speed and heading, status",
+        description="Subscribes to one rig over Zenoh and serves a web page (no internet "
+        "needed) that shows the annotated overlay image, a top view of the room with each "
+        "track's trail and velocity, speed and heading of the selected track, and the "
+        "daemon's health. The daemon encodes images only while a view (or any subscriber) "
+        f"listens. Without --connect or --listen it connects to {DEFAULT_CONNECT}.",
+    )
+    p.add_argument("--rig", default=DEFAULT_RIG, help=f"rig name (default: {DEFAULT_RIG})")
+    p.add_argument(
+        "--port",
+        type=number(0, 65535, integer=True),
+        default=8765,
+        metavar="N",
+        help="TCP port of the page (default 8765; 0: any free port)",
+    )
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        metavar="ADDR",
+        help="address to serve on (default 127.0.0.1: this machine only)",
+    )
+    add_zenoh(p)
+    p.set_defaults(func=run)
+
+
+def run(a: argparse.Namespace) -> int:
+    setup_logging("WARNING")
+    ov = {k: v for k, v in zenoh_overrides(a).items() if v is not None}
+    if not ov.get("connect") and not ov.get("listen"):
+        ov["connect"] = [DEFAULT_CONNECT]
+    try:
+        zcfg = ZenohConfig(**ov)
+    except ValidationError as exc:
+        raise ConfigError(f"zenoh flags: {describe_validation_error(exc)}") from exc
+    if not re.match(RIG_PATTERN, a.rig):
+        raise ConfigError(f"--rig {a.rig!r}: use letters, digits, '_' and '-' only")
+    from ..view.server import ViewServer
+
+    done = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    with ViewServer(zcfg, rig=a.rig, host=a.host, port=a.port) as server:
+        where = ", ".join(zcfg.connect or zcfg.listen)
+        print(
+            f"stereod view: open {server.url} (rig {a.rig}, Zenoh {zcfg.mode} at {where}); "
+            "Ctrl-C to stop",
+            flush=True,
+        )
+        done.wait()
+    return 0

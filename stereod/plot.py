@@ -1,0 +1,313 @@
+"""``stereod plot``: a figure of one run against the truth, from the ``objects`` messages a run
+wrote with ``--jsonl``.
+
+Three panels: the top view (X-Z, m) of every track's measured trajectory beside the true one;
+speed (m/s) and heading (deg) against time (s from the run's first message) with the filter's
+1-sigma band; and the paper's eq. 21 estimate (the two-point difference over the time base)
+beside the filter's. The data preparation here is plain numpy and tested on its own;
+matplotlib is needed only to draw (the ``plot`` extra: ``pip install 'stereod[plot]'``).
+
+Truth comes as a CSV with the header ``object,t_ns,x_m,y_m,z_m`` (extra columns are ignored,
+except ``vx_mps,vy_mps,vz_mps``, which give the true velocity when present), as the independent
+renderer's ``truth.csv`` has it, or as a synthetic recording's ``truth.json`` (its balls are
+sampled at the scene's frame times while in view).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import ValidationError
+
+from .errors import InputError, MissingInputError, NotInstalledError, OutputError
+from .messages import ObjectsMessage, ObjectState
+
+FIGSIZE_IN = (12.0, 6.0)
+DPI = 100
+"""The figure is FIGSIZE_IN x DPI pixels (1200 x 600)."""
+
+
+@dataclass(frozen=True)
+class TrackSeries:
+    """One track's states over a run, (n,) arrays in time order; NaN where the message said
+    null. ``t_s`` from the run's first message; the rest as on the wire (m, m/s, deg)."""
+
+    track_id: int
+    t_s: np.ndarray
+    position_m: np.ndarray
+    valid: np.ndarray
+    speed_mps: np.ndarray
+    speed_sigma_mps: np.ndarray
+    heading_deg: np.ndarray
+    heading_sigma_deg: np.ndarray
+    raw_velocity_mps: np.ndarray
+    """(n, 3) the paper's eq. 21 velocity, NaN rows until the track spans the time base."""
+
+
+@dataclass(frozen=True)
+class TruthSeries:
+    """One true object: (n,) times (s, the run's clock), (n, 3) positions (m) and velocities
+    (m/s)."""
+
+    name: str
+    t_s: np.ndarray
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+
+
+@dataclass(frozen=True)
+class Run:
+    """A run's tracks and the instant its time axis starts (``t0_ns``, the frames' clock)."""
+
+    t0_ns: int
+    tracks: list[TrackSeries]
+
+
+def _num(x: float | None) -> float:
+    return float("nan") if x is None else float(x)
+
+
+def read_run(path: Path) -> Run:
+    """The tracks of a JSONL file of ``objects`` messages (``stereod replay --jsonl``)."""
+    rows: dict[int, list[tuple[int, ObjectState]]] = {}
+    t0: int | None = None
+    try:
+        lines = path.read_text().splitlines()
+    except FileNotFoundError as exc:
+        raise MissingInputError(f"{path}: no such run file (write one with --jsonl)") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the run file: {exc}") from exc
+    for n, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            msg = ObjectsMessage.model_validate_json(line)
+        except ValidationError as exc:
+            raise InputError(
+                f"{path}:{n}: not an objects message ({exc.errors()[0]['msg']}); "
+                "give the file written by --jsonl"
+            ) from exc
+        t0 = msg.t_ns if t0 is None else min(t0, msg.t_ns)
+        for o in msg.objects:
+            rows.setdefault(o.track_id, []).append((o.t_ns, o))
+    if t0 is None:
+        raise InputError(f"{path}: no objects messages in the file")
+    tracks = []
+    for tid, states in sorted(rows.items()):
+        states.sort(key=lambda r: r[0])
+        obs = [o for _, o in states]
+        tracks.append(
+            TrackSeries(
+                track_id=tid,
+                t_s=np.array([(t - t0) * 1e-9 for t, _ in states]),
+                position_m=np.array([o.position_m for o in obs], dtype=float),
+                valid=np.array([o.velocity_valid for o in obs], dtype=bool),
+                speed_mps=np.array([o.speed_mps for o in obs], dtype=float),
+                speed_sigma_mps=np.array([_num(o.speed_sigma_mps) for o in obs]),
+                heading_deg=np.array([o.heading_deg for o in obs], dtype=float),
+                heading_sigma_deg=np.array([_num(o.heading_sigma_deg) for o in obs]),
+                raw_velocity_mps=np.array(
+                    [o.raw_velocity_mps or (math.nan,) * 3 for o in obs],
+                    dtype=float,
+                ),
+            )
+        )
+    return Run(t0, tracks)
+
+
+def read_truth(path: Path, t0_ns: int) -> list[TruthSeries]:
+    """True trajectories from a ``truth.csv`` or a synthetic ``truth.json``, on the run's
+    time axis (s after ``t0_ns``)."""
+    if not path.exists():
+        raise MissingInputError(f"{path}: no such truth file")
+    if path.suffix == ".json":
+        return truth_from_scene(path, t0_ns)
+    columns = ("object", "t_ns", "x_m", "y_m", "z_m")
+    per: dict[str, list[list[float]]] = {}
+    try:
+        with path.open(newline="") as fh:
+            reader = csv.DictReader(fh)
+            missing = [c for c in columns if c not in (reader.fieldnames or [])]
+            if missing:
+                raise InputError(
+                    f"{path}: truth CSV lacks column(s) {', '.join(missing)} "
+                    f"(header must have {','.join(columns)})"
+                )
+            has_v = all(c in (reader.fieldnames or []) for c in ("vx_mps", "vy_mps", "vz_mps"))
+            for n, row in enumerate(reader, 2):
+                try:
+                    vals = [float(row[c]) for c in columns[1:]]
+                    vel = [float(row[c]) for c in ("vx_mps", "vy_mps", "vz_mps")] if has_v else []
+                except (TypeError, ValueError) as exc:
+                    raise InputError(f"{path}:{n}: not a number: {exc}") from exc
+                per.setdefault(row["object"], []).append(vals + vel)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the truth file: {exc}") from exc
+    out = []
+    for name, rows in sorted(per.items()):
+        a = np.array(sorted(rows, key=lambda r: r[0]))
+        t_s = (a[:, 0] - t0_ns) * 1e-9
+        pos = a[:, 1:4]
+        velocity = a[:, 4:7] if a.shape[1] >= 7 else finite_difference(t_s, pos)
+        out.append(TruthSeries(name, t_s, pos, velocity))
+    return out
+
+
+def truth_from_scene(path: Path, t0_ns: int) -> list[TruthSeries]:
+    """Every ball of a synthetic recording's ``truth.json``, at the left eye's frame times
+    while it is in view."""
+    from stereod_fakes.synth import Scene  # the synthetic scene's own model and motion
+
+    try:
+        scene = Scene.model_validate_json(path.read_bytes())
+    except ValidationError as exc:
+        raise InputError(
+            f"{path}: not a synthetic scene's truth.json: {exc.errors()[0]['msg']}"
+        ) from exc
+    frames = np.arange(scene.n_frames) / scene.fps
+    out = []
+    for i, ball in enumerate(scene.balls, 1):
+        t = np.array([s for s in frames if ball.visible(float(s))])
+        if len(t) == 0:
+            continue
+        pos = ball.position_m(t)
+        vel = np.array([ball.velocity_at(float(s)) for s in t])
+        t_ns = scene.t0_ns + np.round(t * 1e9)
+        out.append(TruthSeries(f"ball {i}", (t_ns - t0_ns) * 1e-9, pos, vel))
+    return out
+
+
+def finite_difference(t_s: np.ndarray, position_m: np.ndarray) -> np.ndarray:
+    """(n, 3) velocity (m/s) of sampled positions by central differences (one-sided at the
+    ends); zeros for a single sample."""
+    if len(t_s) < 2:
+        return np.zeros_like(position_m)
+    return np.gradient(position_m, t_s, axis=0)
+
+
+def speed_heading(velocity_mps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Speed |v| (eq. 22, m/s) and heading atan2(vx, vz) (eq. 23, deg in [0, 360)) of (n, 3)
+    velocities; NaN rows stay NaN."""
+    v = np.atleast_2d(velocity_mps)
+    speed = np.linalg.norm(v, axis=1)
+    heading = np.degrees(np.arctan2(v[:, 0], v[:, 2])) % 360.0
+    return speed, heading
+
+
+def eq21(track: TrackSeries) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The paper's eq. 21 series of a track: (t_s, speed m/s, heading deg) where it exists."""
+    ok = np.all(np.isfinite(track.raw_velocity_mps), axis=1)
+    speed, heading = speed_heading(track.raw_velocity_mps[ok])
+    return track.t_s[ok], speed, heading
+
+
+def band(value: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 1-sigma band (value - sigma, value + sigma); NaN where sigma is unknown."""
+    return value - sigma, value + sigma
+
+
+def unwrap_deg(heading_deg: np.ndarray, near_deg: float | None = None) -> np.ndarray:
+    """Headings without 360-degree jumps; shifted by whole turns so that their first value is
+    within 180 deg of ``near_deg`` when given (to draw them beside the truth)."""
+    h = np.asarray(heading_deg, dtype=float)
+    if len(h) == 0:
+        return h
+    out = np.degrees(np.unwrap(np.radians(h)))
+    if near_deg is not None:
+        out -= 360.0 * np.round((out[0] - near_deg) / 360.0)
+    return out
+
+
+def display_deg(heading_deg: np.ndarray) -> np.ndarray:
+    """Headings to draw: unwrapped, then shifted by whole turns so that their circular mean
+    lies in [0, 360) (a track heading 250 deg is drawn at 250, one crossing 0 stays whole)."""
+    h = np.asarray(heading_deg, dtype=float)
+    if len(h) == 0:
+        return h
+    mean = math.degrees(math.atan2(np.mean(np.sin(np.radians(h))), np.mean(np.cos(np.radians(h)))))
+    out = unwrap_deg(h)
+    return out - 360.0 * np.round((np.mean(out) - mean % 360.0) / 360.0)
+
+
+def plot_run(run: Run, truth: list[TruthSeries], out: Path, *, title: str = "") -> None:
+    """Draw the figure (FIGSIZE_IN at DPI) to ``out`` (PNG, or any format by its suffix)."""
+    try:
+        from matplotlib.figure import Figure
+    except ImportError as exc:
+        raise NotInstalledError(
+            "stereod plot needs matplotlib: pip install 'stereod[plot]'"
+        ) from exc
+    fig = Figure(figsize=FIGSIZE_IN, dpi=DPI, layout="constrained")
+    grid = fig.add_gridspec(2, 2, width_ratios=(1.0, 1.4))
+    top = fig.add_subplot(grid[:, 0])
+    spd = fig.add_subplot(grid[0, 1])
+    hdg = fig.add_subplot(grid[1, 1], sharex=spd)
+    cycle = [f"C{i}" for i in range(10)]
+    true: dict[str, Any] = {"color": "k", "lw": 1.0, "zorder": 5}
+    for k, ts in enumerate(truth):
+        lbl = "true" if k == 0 else None
+        top.plot(ts.position_m[:, 0], ts.position_m[:, 2], "--", label=lbl, **true)
+        s, h = speed_heading(ts.velocity_mps)
+        spd.plot(ts.t_s, s, "--", label=lbl, **true)
+        hdg.plot(ts.t_s, display_deg(h), "--", label=lbl, **true)
+    for k, tr in enumerate(run.tracks):
+        c = cycle[k % len(cycle)]
+        name = f"#{tr.track_id}"
+        top.plot(tr.position_m[:, 0], tr.position_m[:, 2], ".-", color=c, ms=3, lw=0.8, label=name)
+        v = tr.valid
+        if not v.any():
+            continue
+        t = tr.t_s[v]
+        lo, hi = band(tr.speed_mps[v], tr.speed_sigma_mps[v])
+        spd.fill_between(t, lo, hi, color=c, alpha=0.2, lw=0)
+        spd.plot(t, tr.speed_mps[v], "-", color=c, label=f"{name} filter")
+        h = display_deg(tr.heading_deg[v])
+        lo, hi = band(h, tr.heading_sigma_deg[v])
+        hdg.fill_between(t, lo, hi, color=c, alpha=0.2, lw=0)
+        hdg.plot(t, h, "-", color=c, label=f"{name} filter")
+        rt, rs, rh = eq21(tr)
+        if len(rt):
+            spd.plot(rt, rs, "x", color=c, ms=4, label=f"{name} eq. 21")
+            hdg.plot(rt, unwrap_deg(rh, h[0]), "x", color=c, ms=4, label=f"{name} eq. 21")
+    top.plot([0.0], [0.0], "k^", ms=8)
+    top.set_xlabel("X (m), right")
+    top.set_ylabel("Z (m), away from the camera")
+    top.set_title("top view")
+    top.set_aspect("equal", adjustable="datalim")
+    top.grid(alpha=0.3)
+    spd.set_ylabel("speed (m/s)")
+    spd.set_title("speed and heading (filter with 1-sigma band; x: the paper's eq. 21)")
+    hdg.set_ylabel("heading (deg)")
+    hdg.set_xlabel("time (s)")
+    for ax in (top, spd, hdg):
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="best")
+    if title:
+        fig.suptitle(title)
+    try:
+        fig.savefig(out, dpi=DPI)
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot write the figure: {exc.strerror or exc}") from exc
+
+
+def summary(run: Run) -> str:
+    """One line per track: its span and median valid speed and heading."""
+    lines = []
+    for tr in run.tracks:
+        v = tr.valid
+        if v.any():
+            s = float(np.median(tr.speed_mps[v]))
+            h = float(np.degrees(np.angle(np.mean(np.exp(1j * np.radians(tr.heading_deg[v]))))))
+            lines.append(
+                f"track {tr.track_id}: {tr.t_s[0]:.2f}-{tr.t_s[-1]:.2f} s, {int(v.sum())} valid "
+                f"states, speed {s:.3f} m/s, heading {h % 360.0:.1f} deg"
+            )
+        else:
+            lines.append(f"track {tr.track_id}: {len(tr.t_s)} states, no valid velocity")
+    return "\n".join(lines)

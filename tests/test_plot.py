@@ -1,0 +1,167 @@
+"""``stereod plot``: the data it draws against closed forms, and a real run drawn to a PNG."""
+
+from __future__ import annotations
+
+import math
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stereod.plot import (
+    DPI,
+    FIGSIZE_IN,
+    TrackSeries,
+    band,
+    display_deg,
+    eq21,
+    read_truth,
+    speed_heading,
+    truth_from_scene,
+    unwrap_deg,
+)
+from stereod_fakes.synth import Ball, Scene
+from tests.conftest import ROOT, stereod
+
+
+def _track(raw: np.ndarray, speed: np.ndarray, sigma: np.ndarray) -> TrackSeries:
+    n = len(speed)
+    return TrackSeries(
+        track_id=1,
+        t_s=np.arange(n) * 0.1,
+        position_m=np.zeros((n, 3)),
+        valid=np.ones(n, bool),
+        speed_mps=speed,
+        speed_sigma_mps=sigma,
+        heading_deg=np.zeros(n),
+        heading_sigma_deg=sigma,
+        raw_velocity_mps=raw,
+    )
+
+
+def test_eq21_series_is_speed_and_heading_of_the_raw_velocity() -> None:
+    """Eq. 21's velocity v = s (sin a, 0, cos a) gives back speed s (eq. 22) and heading a
+    (eq. 23); the states before the track spans the time base have none."""
+    speeds = np.array([0.5, 0.7, 1.2, 0.3])
+    headings = np.array([0.0, 60.0, 181.5, 300.0])
+    raw = np.stack(
+        [
+            speeds * np.sin(np.radians(headings)),
+            speeds * 0.0,
+            speeds * np.cos(np.radians(headings)),
+        ],
+        axis=1,
+    )
+    raw = np.vstack([np.full((2, 3), np.nan), raw])
+    t, s, h = eq21(_track(raw, np.ones(6), np.ones(6)))
+    assert np.allclose(t, np.arange(2, 6) * 0.1)
+    assert np.allclose(s, speeds)
+    assert np.allclose(h, headings)
+    # vy counts in the speed (3D), not in the heading.
+    s3, h3 = speed_heading(np.array([[3.0, 4.0, 0.0]]))
+    assert s3[0] == pytest.approx(5.0) and h3[0] == pytest.approx(90.0)
+
+
+def test_sigma_band_is_value_plus_minus_sigma() -> None:
+    value = np.array([0.7, 0.71, 0.69])
+    sigma = np.array([0.05, 0.02, np.nan])
+    lo, hi = band(value, sigma)
+    assert np.allclose(lo[:2], [0.65, 0.69]) and np.allclose(hi[:2], [0.75, 0.73])
+    assert math.isnan(lo[2]) and math.isnan(hi[2])
+
+
+def test_headings_unwrap_near_the_truth() -> None:
+    h = np.array([350.0, 355.0, 2.0, 8.0])
+    assert np.allclose(unwrap_deg(h), [350, 355, 362, 368])
+    assert np.allclose(unwrap_deg(h, near_deg=0.0), [-10, -5, 2, 8])
+    # Drawn around their circular mean in [0, 360): a track heading 250 stays at 250.
+    assert np.allclose(display_deg(np.array([-110.0, -108.0])), [250, 252])
+    assert np.allclose(display_deg(np.array([2.0, 8.0, 350.0])), [2, 8, -10])
+
+
+def test_truth_csv_straight_line(tmp_path: Path) -> None:
+    """A straight line at 0.8 m/s, heading 210 deg: the truth's speed and heading come out
+    exactly, from its positions alone or from its velocity columns."""
+    t0 = 5_000_000_000
+    a = math.radians(210.0)
+    v = 0.8 * np.array([math.sin(a), 0.0, math.cos(a)])
+    rows = ["object,t_ns,x_m,y_m,z_m,extra"]
+    rows_v = ["object,t_ns,x_m,y_m,z_m,vx_mps,vy_mps,vz_mps"]
+    for k in range(20):
+        t_s = 1.0 + k / 15
+        p = np.array([0.5, 0.1, 2.5]) + v * t_s
+        rows.append(f"ball,{t0 + round(t_s * 1e9)},{p[0]},{p[1]},{p[2]},zzz")
+        rows_v.append(f"ball,{t0 + round(t_s * 1e9)},{p[0]},{p[1]},{p[2]},{v[0]},{v[1]},{v[2]}")
+    for name, lines in (("truth.csv", rows), ("truth_v.csv", rows_v)):
+        (tmp_path / name).write_text("\n".join(lines) + "\n")
+        (truth,) = read_truth(tmp_path / name, t0)
+        assert truth.name == "ball"
+        assert truth.t_s[0] == pytest.approx(1.0) and len(truth.t_s) == 20
+        s, h = speed_heading(truth.velocity_mps)
+        assert np.allclose(s, 0.8, atol=1e-6) and np.allclose(h, 210.0, atol=1e-4)
+    (tmp_path / "bad.csv").write_text("object,t_ns,x_m\nball,1,2\n")
+    with pytest.raises(Exception, match=r"lacks column\(s\) y_m, z_m"):
+        read_truth(tmp_path / "bad.csv", t0)
+
+
+def test_truth_json_is_the_scene_balls_at_frame_times(tmp_path: Path) -> None:
+    ball = Ball(heading_deg=100.0, speed_mps=0.5, t_on_s=1.0, t_off_s=2.0, t_mid_s=1.5)
+    scene = Scene(duration_s=3.0, fps=10.0, balls=[ball], t0_ns=7_000_000_000)
+    path = tmp_path / "truth.json"
+    path.write_text(scene.model_dump_json())
+    (truth,) = truth_from_scene(path, t0_ns=scene.t0_ns)
+    assert np.allclose(truth.t_s, np.arange(10, 21) / 10.0)
+    assert np.allclose(truth.position_m, ball.position_m(truth.t_s))
+    s, h = speed_heading(truth.velocity_mps)
+    assert np.allclose(s, 0.5) and np.allclose(h, 100.0)
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR", "not a PNG"
+    w, h = struct.unpack(">II", data[16:24])
+    return w, h
+
+
+@pytest.mark.slow
+def test_plot_of_a_real_run(tmp_path: Path) -> None:
+    """synth -> replay --jsonl -> plot: a PNG of the figure's size, and the run's track at the
+    scene's heading and speed in the summary."""
+    rec = tmp_path / "rec"
+    r = stereod("synth", str(rec), "--ball", "heading=60,speed=0.7,z=1.8", "--size", "320x240")
+    assert r.returncode == 0, r.stderr
+    run = tmp_path / "run.jsonl"
+    r = stereod("replay", str(rec), "--rate", "0", "--jsonl", str(run), "-q")
+    assert r.returncode == 0, r.stderr
+    fig = tmp_path / "fig.png"
+    r = stereod("plot", str(run), "--truth", str(rec / "truth.json"), "-o", str(fig))
+    assert r.returncode == 0, r.stderr
+    assert _png_size(fig) == (int(FIGSIZE_IN[0] * DPI), int(FIGSIZE_IN[1] * DPI))
+    line = next(x for x in r.stdout.splitlines() if "valid states" in x)
+    speed = float(line.split("speed ")[1].split()[0])
+    heading = float(line.split("heading ")[1].split()[0])
+    assert abs(speed - 0.7) < 0.05 and abs(heading - 60.0) < 3.0, line
+
+
+def test_plot_without_matplotlib_says_how_to_install_it(tmp_path: Path) -> None:
+    run = tmp_path / "run.jsonl"
+    run.write_text(
+        (ROOT / "tests" / "golden" / "objects_example.json").read_text().replace("\n", "")
+    )
+    code = (
+        "import sys; sys.modules['matplotlib'] = None; sys.modules['matplotlib.figure'] = None; "
+        "from stereod.cli import main; sys.exit(main(sys.argv[1:]))"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code, "plot", str(run), "-o", str(tmp_path / "f.png")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+    assert r.returncode == 69
+    assert r.stderr == "stereod: stereod plot needs matplotlib: pip install 'stereod[plot]'\n"
+    assert not (tmp_path / "f.png").exists()
