@@ -422,9 +422,10 @@ class Tracker:
     NOISE_RATE = 0.05
     """How fast a track's measurement noise scale follows its innovations once settled (per
     update; at first it follows the running mean)."""
-    NOISE_BOUNDS = (0.25, 20.0)
-    """A track's noise scale stays within these: at most twice as precise as the triangulation
-    covariance says (a tighter filter would follow the noise), at most 4.5 times less."""
+    NOISE_BOUNDS = (0.5, 20.0)
+    """A track's noise scale stays within these: its positions at most 1.4 times as precise as
+    the triangulation covariance says (a tighter filter follows the noise: headings jitter),
+    at most 4.5 times less."""
 
     def _filter(self, tr: Track, t_ns: int, ob: Observation) -> None:
         """One predict/update of the filter. The measurement covariance is the
