@@ -35,6 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from . import keys
 from .detect import Centroid, DetectorParams, Luminance, Warmup
 from .errors import ConfigError, describe_error
+from .geometry.refine import RefineParams
 from .geometry.stereo import MatchParams
 from .pairing import DEFAULT_TOLERANCE_NS
 from .pipeline import PipelineParams
@@ -56,6 +57,7 @@ class _Section(BaseModel):
 _DETECT = DetectorParams()
 _MATCH = MatchParams()
 _TRACK = TrackerParams()
+_REFINE = RefineParams()
 
 
 def _pipe(name: str) -> Any:
@@ -115,6 +117,10 @@ class DetectorConfig(_Section):
         _DETECT.absorb_s, gt=0.0, le=3600.0, description="Foreground still this long is learned, s"
     )
     fill_holes: bool = Field(_DETECT.fill_holes, description="An object's support is filled")
+    convex: bool = Field(_DETECT.convex, description="An object's support is convex")
+    merge_gap: float = Field(
+        _DETECT.merge_gap, ge=0.0, le=10.0, description="Pieces this close are one object"
+    )
     max_foreground: float = Field(
         _DETECT.max_foreground,
         gt=0.0,
@@ -180,7 +186,10 @@ class TrackingConfig(_Section):
         _TRACK.manoeuvre_chi2, gt=0.0, description="Mahalanobis bound of a manoeuvre, 3 dof"
     )
     manoeuvre_sigma_mps: float = Field(
-        _TRACK.manoeuvre_sigma_mps, gt=0.0, le=1000.0, description="Velocity sigma after one, m/s"
+        _TRACK.manoeuvre_sigma_mps,
+        gt=0.0,
+        le=1000.0,
+        description="Velocity sigma of a track before its filter starts, m/s",
     )
     accel_noise: float = Field(
         _TRACK.accel_noise, gt=0.0, le=1e6, description="White acceleration density, m^2/s^3"
@@ -210,6 +219,25 @@ class TrackingConfig(_Section):
 
     def params(self) -> TrackerParams:
         return TrackerParams(**self.model_dump(exclude={"freeze_background"}))
+
+
+class RefineConfig(_Section):
+    """Disparity by appearance matching (see :class:`stereod.geometry.refine.RefineParams`)."""
+
+    enabled: bool = Field(_REFINE.enabled, description="Match the left patch along the right row")
+    margin_px: int = Field(_REFINE.margin_px, ge=0, le=50, description="Template margin, px")
+    search_px: float = Field(_REFINE.search_px, gt=0.0, le=200.0, description="Search reach, px")
+    search_rel: float = Field(
+        _REFINE.search_rel, ge=0.0, le=5.0, description="Or this share of the blob's width"
+    )
+    rows_px: int = Field(_REFINE.rows_px, ge=0, le=20, description="Rows searched either way")
+    erode_px: int = Field(_REFINE.erode_px, ge=0, le=20, description="Template mask shrink, px")
+    min_score: float = Field(
+        _REFINE.min_score, ge=-1.0, le=1.0, description="Weaker matches keep the centroids"
+    )
+
+    def params(self) -> RefineParams:
+        return RefineParams(**self.model_dump())
 
 
 class ZenohConfig(_Section):
@@ -247,6 +275,7 @@ class StereodConfig(BaseModel):
     pairing: PairingConfig = Field(default_factory=PairingConfig)
     matching: MatchingConfig = Field(default_factory=MatchingConfig)
     tracking: TrackingConfig = Field(default_factory=TrackingConfig)
+    refine: RefineConfig = Field(default_factory=RefineConfig)
     zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
     daemon: DaemonConfig = Field(default_factory=DaemonConfig)
 

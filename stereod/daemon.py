@@ -40,7 +40,7 @@ from .processing import Outgoing, PipelineWorker
 from .publish import Publisher
 from .queues import BoundedQueue
 from .sdnotify import Notifier
-from .status import Health
+from .status import Health, geometry_note
 
 log = logging.getLogger(__name__)
 
@@ -202,6 +202,9 @@ class Daemon:
         h.source_description = info.description
         h.geometry = pipeline.params.rig.geometry
         h.calibration_id = pipeline.params.rig.calibration_id
+        h.geometry_note = geometry_note(pipeline.params.rig)
+        if h.geometry_note:
+            log.warning("%s", h.geometry_note)
         h.watch(source.left, source.right)
         pairs: BoundedQueue[QueuedPair] = BoundedQueue(cfg.daemon.queue_size, drop_oldest=info.live)
         out: BoundedQueue[Outgoing] = BoundedQueue(

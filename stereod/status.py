@@ -50,6 +50,19 @@ class EyeHealth:
         return n / period_s if period_s > 0 else 0.0
 
 
+def geometry_note(rig: object) -> str:
+    """What an uncalibrated run's depths rest on, said plainly; empty when calibrated."""
+    hfov = getattr(rig, "hfov_deg", None)
+    if getattr(rig, "calibration_id", None) is not None or hfov is None:
+        return ""
+    return (
+        f"no calibration: every depth assumes a {hfov:g} deg horizontal field of view and a "
+        f"{getattr(rig, 'baseline_m', 0.06):g} m baseline; a Minoru has been measured at about "
+        "42 deg, and each depth scales with that figure (42 for 60 makes depths 1.5x too "
+        "large): run stereod calibrate"
+    )
+
+
 class Health:
     """Shared, lock-protected health of one daemon run."""
 
@@ -64,6 +77,7 @@ class Health:
         self.source_description = ""
         self.geometry = Geometry.CANONICAL
         self.calibration_id: str | None = None
+        self.geometry_note = ""
         self.started_s = time.monotonic()
         self.last_frame_s = 0.0
         self.published = 0
@@ -117,6 +131,10 @@ class Health:
             self._pipeline_ms.append(pipeline_ms)
             self._skews_ms.append(abs(skew_ms))
             self._residuals.extend(residuals_px.tolist())
+
+    def notes(self) -> list[str]:
+        """Standing conditions of the run (see :func:`geometry_note`)."""
+        return [n for n in (self.geometry_note,) if n]
 
     def problems(self) -> list[str]:
         """Every problem so far (at most 1000), oldest first."""
@@ -199,6 +217,7 @@ class Health:
             calibration_id=self.calibration_id,
             epipolar_residual_px=round(float(np.median(resid)), 4) if resid else None,
             problems=problems,
+            notes=self.notes(),
         )
 
     def stats(self) -> StatsMessage:

@@ -109,8 +109,9 @@ class TrackerParams:
     moved in the image since it was last seen. ``max_speed_mps``: the fastest object to
     follow (m/s); it sets the gate of a track with one observation. ``manoeuvre_chi2``: an
     observation whose squared Mahalanobis distance from the filter's prediction exceeds this
-    (3 dof; 16.3 is 99.9 %) re-opens the velocity uncertainty to ``manoeuvre_sigma_mps``.
+    (3 dof; 16.3 is 99.9 %) widens the prediction until it does not (a fading memory).
     ``accel_noise``: spectral density q of the white acceleration (m^2/s^3).
+    ``manoeuvre_sigma_mps``: the velocity sigma of a track before its filter starts.
     ``time_base_s``: tau of eq. 21 (s). ``max_coast_s``: how long (s) a confirmed track lives
     unseen. ``confirm_hits``: observations to confirm. ``valid_speed_sigma_mps``,
     ``valid_speed_sigma_rel``: a velocity is valid once the speed's sigma is below the larger
