@@ -24,7 +24,14 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from .errors import CalibrationError, MissingInputError, OutputError, describe_validation_error
+from .errors import (
+    CalibrationError,
+    InputError,
+    MissingInputError,
+    OutputError,
+    StereodError,
+    describe_validation_error,
+)
 
 FORMAT: Final = "stereod.calibration/1"
 
@@ -106,7 +113,13 @@ class Calibration(BaseModel):
             raise ValueError(f"must be {want[0]}x{want[1]}, got shape {a.shape}")
         if not np.all(np.isfinite(a)):
             raise ValueError("contains a non-finite number (NaN or infinity)")
-        out: Matrix = a.reshape(want).tolist()  # type: ignore[assignment]
+        a = a.reshape(want)
+        problem = _matrix_problem(info.field_name, a)
+        if problem is not None:
+            raise ValueError(
+                f"{problem}; the file is damaged or not from a calibration: recalibrate"
+            )
+        out: Matrix = a.tolist()  # type: ignore[assignment]
         return out
 
     def array(self, name: str) -> np.ndarray:
@@ -123,6 +136,26 @@ class Calibration(BaseModel):
         numbers = {k: self.array(k).round(12).tolist() for k in _SHAPES}
         blob = json.dumps({"size": list(self.image_size), **numbers}, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def _matrix_problem(name: str, a: np.ndarray) -> str | None:
+    """Why matrix ``name`` cannot be what its name says (a singular camera matrix, a rotation
+    that is not one, a zero baseline), or None."""
+    if name in ("K1", "K2"):
+        if not (a[0, 0] > 0 and a[1, 1] > 0):
+            fx, fy = a[0, 0], a[1, 1]
+            return f"not a camera matrix: focal lengths fx = {fx:g}, fy = {fy:g} px must be > 0"
+        if np.abs(a[2] - (0.0, 0.0, 1.0)).max() > 1e-6 or abs(a[1, 0]) > 1e-6:
+            return "not a camera matrix: its bottom row must be 0 0 1, and K[1][0] 0"
+    elif name in ("R", "R1", "R2"):
+        if np.abs(a @ a.T - np.eye(3)).max() > 1e-5 or np.linalg.det(a) < 0:
+            return "not a rotation matrix (R R^T must be the identity, det R = +1)"
+    elif name == "T":
+        if not np.linalg.norm(a) > 0:
+            return "the baseline |T| is zero: the two cameras cannot be at one place"
+    elif name in ("P1", "P2") and not (a[0, 0] > 0 and a[1, 1] > 0):
+        return f"not a projection matrix: focal lengths {a[0, 0]:g}, {a[1, 1]:g} px must be > 0"
+    return None
 
 
 def from_arrays(
@@ -266,6 +299,59 @@ def export_ros(cal: Calibration, directory: Path) -> list[Path]:
     return out
 
 
+def read_opencv_storage(path: Path, what: str, error: type[StereodError]) -> cv2.FileStorage:
+    """Open an OpenCV FileStorage file (YAML, XML or JSON) for reading. It must be UTF-8 text;
+    OpenCV parses it from memory, so no file name reaches it, and a parse failure becomes
+    ``error`` naming the file. The caller releases the storage."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError as exc:
+        raise MissingInputError(f"{path}: no such file") from exc
+    except OSError as exc:
+        raise MissingInputError(f"{path}: cannot read it: {exc.strerror}") from exc
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise error(
+            f"{path}: not an OpenCV FileStorage text file (byte {exc.start} is not UTF-8); "
+            f"expected {what} in YAML or XML"
+        ) from exc
+    head = text.lstrip("\ufeff \t\r\n")[:5]
+    if "\x00" in text or not head.startswith(("%YAML", "<?xml", "{")):
+        raise error(
+            f"{path}: not an OpenCV FileStorage file: it must begin with %YAML, <?xml or {{ "
+            f"(expected {what} as OpenCV writes it)"
+        )
+    try:
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    except (cv2.error, SystemError) as exc:
+        raise error(
+            f"{path}: not a valid OpenCV FileStorage file (malformed or cut short; OpenCV "
+            f"says {_cv_reason(exc)!r})"
+        ) from exc
+    if not fs.isOpened():
+        raise error(f"{path}: not a valid OpenCV FileStorage file")
+    return fs
+
+
+def _cv_reason(exc: BaseException) -> str:
+    """The message of an OpenCV error, without OpenCV's source paths and line numbers."""
+    cause: BaseException = exc.__cause__ or exc.__context__ or exc
+    text = getattr(cause, "err", None) or str(cause)
+    return " ".join(str(text).split())[:160] or type(exc).__name__
+
+
+def _node_matrix(node: cv2.FileNode, path: Path, key: str) -> np.ndarray:
+    """A matrix node as a float64 array; anything else is an error naming the field."""
+    try:
+        m = node.mat() if node.isMap() else None
+    except (cv2.error, SystemError) as exc:
+        raise InputError(f"{path}: field {key} is not a matrix: {_cv_reason(exc)}") from exc
+    if m is None or not isinstance(m, np.ndarray) or m.size == 0:
+        raise InputError(f"{path}: field {key} is not an OpenCV matrix (rows, cols, data)")
+    return np.asarray(m, dtype=np.float64)
+
+
 def import_opencv(
     intrinsics: Path, extrinsics: Path | None, image_size: tuple[int, int]
 ) -> Calibration:
@@ -280,17 +366,21 @@ def import_opencv(
     for path, wanted in ((intrinsics, names), (extrinsics, {"R": "R", "T": "T"})):
         if not path.is_file():
             raise MissingInputError(f"{path}: no such OpenCV calibration file")
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        if not fs.isOpened():
-            raise CalibrationError(f"{path}: not an OpenCV FileStorage file (YAML or XML)")
+        fs = read_opencv_storage(path, "an OpenCV calibration file", InputError)
         try:
             for key, ours in wanted.items():
                 node = fs.getNode(key)
                 if node.empty():
-                    raise CalibrationError(f"{path}: field {key} is missing")
-                arrays[ours] = node.mat()
+                    raise InputError(f"{path}: field {key} is missing")
+                arrays[ours] = _node_matrix(node, path, key)
         finally:
             fs.release()
+    for key, ours, size in (("M1", "K1", 9), ("M2", "K2", 9), ("R", "R", 9), ("T", "T", 3)):
+        if arrays[ours].size != size:
+            where = intrinsics if key.startswith("M") else extrinsics
+            raise InputError(
+                f"{where}: field {key} has {arrays[ours].size} numbers, a {key} has {size}"
+            )
     for d in ("D1", "D2"):
         v = arrays[d].ravel()
         if v.size < 5:
@@ -303,7 +393,14 @@ def import_opencv(
                 )
             v = v[:5]
         arrays[d] = v.reshape(1, 5)
-    return from_arrays(image_size, arrays, source=f"imported from {intrinsics}")
+    if not all(np.all(np.isfinite(a)) for a in arrays.values()):
+        raise InputError(f"{intrinsics}: a matrix holds a non-finite number (NaN or infinity)")
+    try:
+        return from_arrays(image_size, arrays, source=f"imported from {intrinsics.name}")
+    except CalibrationError as exc:
+        raise CalibrationError(f"{intrinsics}: {str(exc).removeprefix('calibration: ')}") from exc
+    except cv2.error as exc:
+        raise InputError(f"{intrinsics}: cannot rectify these matrices: {_cv_reason(exc)}") from exc
 
 
 def rotation_angle_deg(r: np.ndarray) -> float:

@@ -37,6 +37,7 @@ from .detect import Centroid, DetectorParams, Luminance
 from .errors import ConfigError, describe_error
 from .geometry.stereo import MatchParams
 from .pairing import DEFAULT_TOLERANCE_NS
+from .paths import TextPath
 from .pipeline import PipelineParams
 from .tracking import TrackerParams
 
@@ -69,7 +70,7 @@ class RigConfig(_Section):
     name: str = Field(keys.DEFAULT_RIG, pattern=keys.RIG_PATTERN, description="Rig name in keys")
     baseline_m: float = Field(0.060, gt=0.0, le=10.0, description="Camera distance B, m")
     hfov_deg: float = Field(60.0, gt=0.0, lt=180.0, description="Horizontal field of view, deg")
-    calibration: Path | None = Field(
+    calibration: TextPath | None = Field(
         None, description="Calibration file (stereod calibrate); without it, the canonical rig"
     )
 

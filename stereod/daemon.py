@@ -19,7 +19,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -68,7 +68,8 @@ class Daemon:
     ``rate`` paces file sources (1 real time, 0 as fast as possible); ``jsonl`` also writes
     every ``objects`` message to that file (committed at the end of the run);
     ``wait_subscriber_s`` waits that long for a subscriber before capture starts;
-    ``reload_config`` re-reads the configuration on :meth:`reload`.
+    ``reload_config`` re-reads the configuration on :meth:`reload`; ``inputs`` are files the
+    run reads besides the source's own (the config file), which ``jsonl`` must not be.
     """
 
     def __init__(
@@ -82,6 +83,7 @@ class Daemon:
         reload_config: Callable[[], StereodConfig] | None = None,
         notifier: Notifier | None = None,
         on_message: Callable[[Outgoing], None] | None = None,
+        inputs: Sequence[Path] = (),
     ) -> None:
         self.cfg = cfg
         self.driver = driver
@@ -91,6 +93,7 @@ class Daemon:
         self._reload_config = reload_config
         self._notifier = notifier if notifier is not None else Notifier()
         self._on_message = on_message
+        self._inputs = [*inputs, *([cfg.rig.calibration] if cfg.rig.calibration else [])]
         self._stop = threading.Event()
         self._status_now = threading.Event()
         self._reload_requested = threading.Event()
@@ -134,7 +137,9 @@ class Daemon:
         with self._fatal_lock:
             if self._fatal is None:
                 self._fatal = err
-        self.health.problem(str(err))
+        # The run's error is said once, by whoever reports the run's end; here only the
+        # status key learns of it.
+        self.health.problem(str(err), logged=False)
         self.stop()
 
     def _ready(self) -> None:
@@ -152,7 +157,7 @@ class Daemon:
             self._source = source
             info = source.info
             if self.jsonl is not None:
-                check_not_input(self.jsonl, info.inputs, "--jsonl")
+                check_not_input(self.jsonl, [*info.inputs, *self._inputs], "--jsonl")
             params = pipeline_params(self.cfg, info.width, info.height)
             jsonl = AtomicOutput(self.jsonl) if self.jsonl is not None else None
             try:

@@ -14,17 +14,19 @@ from __future__ import annotations
 
 import csv
 import enum
+import io
 import json
 import time
-from pathlib import Path
-from typing import Any, Final, Literal
+from pathlib import Path, PurePosixPath
+from typing import Annotated, Any, Final, Literal
 
 import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
 from .errors import InputError, MissingInputError, OutputError, describe_validation_error
 from .frames import Eye, Frame
+from .paths import path_problem, text_path
 
 MANIFEST = "recording.json"
 FORMAT: Final = "stereod.recording/1"
@@ -43,27 +45,44 @@ _FOURCC = {Codec.FFV1: "FFV1", Codec.MJPG: "MJPG"}
 _EXT = {Codec.FFV1: ".mkv", Codec.MJPG: ".avi"}
 
 
+INT64_MAX = 2**63 - 1
+"""The largest time or sequence number a recording may hold (they are int64 in memory)."""
+MAX_SIDE_PX = 16384
+"""The largest image width or height a recording may declare, px."""
+
+
+def _inside(name: str) -> str:
+    """A file name in a manifest: relative, inside the recording directory, printable."""
+    problem = path_problem(name)
+    if problem is not None:
+        raise ValueError(f"the name {problem}")
+    p = PurePosixPath(name)
+    if not name or p.is_absolute() or ".." in p.parts:
+        raise ValueError("must name a file inside the recording directory (e.g. left.mkv)")
+    return name
+
+
 class EyeFiles(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    video: str
-    timestamps: str
-    frames: int = Field(ge=0)
+    video: Annotated[str, AfterValidator(_inside)]
+    timestamps: Annotated[str, AfterValidator(_inside)]
+    frames: int = Field(ge=0, le=10**9)
 
 
 class Manifest(BaseModel):
     """``recording.json``: how to read a recording back."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     format: Literal["stereod.recording/1"] = FORMAT
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
-    fps: float | None = Field(default=None, gt=0)
+    width: int = Field(gt=0, le=MAX_SIDE_PX)
+    height: int = Field(gt=0, le=MAX_SIDE_PX)
+    fps: float | None = Field(default=None, gt=0, le=10000)
     codec: Codec = Codec.FFV1
     color: bool = False
     left: EyeFiles
     right: EyeFiles
-    utc_offset_ns: int | None = None
+    utc_offset_ns: int | None = Field(None, ge=-INT64_MAX, le=INT64_MAX)
     created_utc: str = ""
     settings: dict[str, Any] = Field(default_factory=dict)
     calibration: dict[str, Any] | None = None
@@ -83,6 +102,8 @@ def read_manifest(directory: Path) -> Manifest:
         return Manifest.model_validate_json(path.read_bytes())
     except ValidationError as exc:
         raise InputError(f"{path}: {describe_validation_error(exc)}") from exc
+    except OSError as exc:
+        raise MissingInputError(f"{path}: cannot read the manifest: {exc.strerror}") from exc
 
 
 def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -92,25 +113,46 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
     Times must strictly increase; the error names the file and row.
     """
     try:
-        fh = path.open(newline="")
+        data = path.read_bytes()
     except FileNotFoundError as exc:
         raise MissingInputError(f"{path}: no such timestamp file") from exc
     except OSError as exc:
         raise MissingInputError(f"{path}: cannot read timestamp file: {exc.strerror}") from exc
-    with fh:
-        rows = list(csv.reader(fh))
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            f"{path}: not a text file (byte {exc.start} is not UTF-8); a timestamp file is a "
+            "CSV with the header t_ns"
+        ) from exc
+    try:
+        rows = list(csv.reader(io.StringIO(text, newline="")))
+    except csv.Error as exc:
+        raise InputError(f"{path}: not a valid CSV file: {exc}") from exc
     if not rows or [c.strip() for c in rows[0][:1]] != ["t_ns"]:
         raise InputError(f"{path}: first line must be the header 't_ns' (or 't_ns,seq')")
     has_seq = len(rows[0]) > 1 and rows[0][1].strip() == "seq"
     t = np.empty(len(rows) - 1, np.int64)
     seq = np.arange(len(rows) - 1, dtype=np.int64)
     for i, row in enumerate(rows[1:]):
+        cells = row[:2] if has_seq else row[:1]
         try:
-            t[i] = int(row[0])
-            if has_seq:
-                seq[i] = int(row[1])
-        except (ValueError, IndexError) as exc:
-            raise InputError(f"{path} line {i + 2}: expected an integer, got {row!r}") from exc
+            values = [int(c) for c in cells]
+        except ValueError:
+            values = []
+        if len(values) != len(cells) or len(cells) != (2 if has_seq else 1):
+            raise InputError(
+                f"{path} line {i + 2}: expected {'two integers' if has_seq else 'an integer'}, "
+                f"got {_shown_row(row)}"
+            )
+        if not all(0 <= v <= INT64_MAX for v in values):
+            raise InputError(
+                f"{path} line {i + 2}: {_shown_row(row)} is out of range (0 to 2^63 - 1: "
+                "nanoseconds on the monotonic clock, sequence numbers from 0)"
+            )
+        t[i] = values[0]
+        if has_seq:
+            seq[i] = values[1]
     bad = np.flatnonzero(np.diff(t) <= 0)
     if bad.size:
         j = int(bad[0]) + 1
@@ -119,6 +161,11 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
             "(timestamps must strictly increase)"
         )
     return t, seq
+
+
+def _shown_row(row: list[str], limit: int = 60) -> str:
+    text = ",".join(row)
+    return repr(text if len(text) <= limit else text[: limit - 3] + "...")
 
 
 class RecordingWriter:
@@ -159,7 +206,13 @@ class RecordingWriter:
         fourcc = cv2.VideoWriter.fourcc(*_FOURCC[codec])
         for eye in Eye:
             video = directory / f"{eye.value}{_EXT[codec]}"
-            w = cv2.VideoWriter(str(video), fourcc, fps or 30.0, (width, height), isColor=color)
+            w = cv2.VideoWriter(
+                text_path(video, "video", OutputError),
+                fourcc,
+                fps or 30.0,
+                (width, height),
+                isColor=color,
+            )
             if not w.isOpened():
                 raise OutputError(f"{video}: cannot open for writing with codec {codec.value}")
             self._writers[eye] = w

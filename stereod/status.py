@@ -69,6 +69,8 @@ class Health:
         self.published = 0
         self.publish_errors = 0
         self.queue_depth: Callable[[], int] = lambda: 0
+        self.log_problems = True
+        """Log each problem as a warning when it happens (off when the command prints them)."""
         self._sources: list[EyeSource] = []
         self._queues: dict[str, BoundedQueue[Any]] = {}
         self._drops: collections.Counter[str] = collections.Counter()
@@ -92,15 +94,19 @@ class Health:
 
     # -- reporting ---------------------------------------------------------------------------
 
-    def problem(self, text: str, kind: str | None = None) -> None:
-        """Record a non-fatal problem for the status key and the run summary."""
+    def problem(self, text: str, kind: str | None = None, *, logged: bool = True) -> None:
+        """Record a problem for the status key and the run summary. It is logged as a warning
+        unless ``logged`` is false or :attr:`log_problems` is off (a command that prints its
+        problems at the end says each once)."""
         key = kind or text
         with self.lock:
             n = self._problem_counts[key] = self._problem_counts.get(key, 0) + 1
             self._problems.append(text)
             if len(self._all_problems) < 1000:
                 self._all_problems.append(text)
-        if n == 1 or (kind is not None and math.log10(n).is_integer()):
+        if not (logged and self.log_problems):
+            log.debug("problem: %s", text)
+        elif n == 1 or (kind is not None and math.log10(n).is_integer()):
             log.warning("%s%s", text, f" ({n} times)" if n > 1 else "")
         self._on_change()
 

@@ -13,6 +13,7 @@ from .common import (
     EPILOG_KEYS,
     add_pipeline,
     add_rate,
+    command_log_level,
     number,
     path_arg,
     pipeline_overrides,
@@ -102,7 +103,7 @@ def run(a: argparse.Namespace) -> int:
     ov = pipeline_overrides(a)
     ov["driver"] = {"name": "replay", "options": options}
     cfg = load_config(a.config, ov)
-    setup_logging(cfg.daemon.log_level)
+    setup_logging(command_log_level(cfg))
     daemon = Daemon(
         cfg,
         load_driver("replay", options),
@@ -110,5 +111,6 @@ def run(a: argparse.Namespace) -> int:
         jsonl=a.jsonl,
         wait_subscriber_s=a.wait_subscriber,
         reload_config=lambda: load_config(a.config, ov),
+        inputs=[a.config] if a.config is not None else [],
     )
     return run_daemon(daemon, quiet=a.quiet)
