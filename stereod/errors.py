@@ -3,6 +3,7 @@
 ::
 
     StereodError                  anything stereod reports to a user (one line, names the thing)
+    ├── UsageError                a command line is invalid (exit 64)
     ├── ConfigError               a configuration file, field or flag is invalid (exit 78)
     ├── InputError                an input file or stream is missing, unreadable or inconsistent
     │   └── TruncatedInputError   a video ended before its header said it would
@@ -22,6 +23,8 @@ from typing import Any
 
 from pydantic import ValidationError
 
+EX_USAGE = 64
+"""Exit code for a bad command line (sysexits.h EX_USAGE)."""
 EX_DATAERR = 65
 """Exit code for bad input data (sysexits.h EX_DATAERR)."""
 EX_NOINPUT = 66
@@ -40,6 +43,13 @@ class StereodError(Exception):
     """Base of every error stereod reports; ``str()`` is one line meant for a user."""
 
     exit_code: int = 1
+
+
+class UsageError(StereodError):
+    """A command line is invalid in a way its parser cannot see (flags that contradict each
+    other, a value only the command can check); the message names the flag."""
+
+    exit_code = EX_USAGE
 
 
 class ConfigError(StereodError):

@@ -7,11 +7,11 @@ reproduces them exactly (bit for bit with the lossless FFV1 codec).
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 from pathlib import Path
 
+from .calibration import load as load_calibration
 from .errors import DeviceLost, StereodError
 from .frames import Driver, EyeSource, merged
 from .recording import Codec, RecordingWriter
@@ -27,9 +27,10 @@ def record(
     stop: threading.Event | None = None,
 ) -> dict[str, int]:
     """Record until ``seconds`` of stream time, the end of input or ``stop``; return the frame
-    counts per eye."""
+    counts per eye. ``out`` must be new (or empty); it appears only when the recording closes.
+    ``calibration`` is checked as a run would check it, and stored in the manifest."""
     stop = stop or threading.Event()
-    cal = json.loads(calibration.read_text()) if calibration is not None else None
+    cal = load_calibration(calibration).model_dump(mode="json") if calibration else None
     counts = {"left": 0, "right": 0}
     lock = threading.Lock()
     with driver.open() as source:

@@ -12,10 +12,14 @@ Replay reproduces the frames (bit-exact with FFV1) and the timestamps and sequen
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import enum
 import io
 import json
+import os
+import shutil
+import tempfile
 import time
 from pathlib import Path, PurePosixPath
 from typing import Annotated, Any, Final, Literal
@@ -24,7 +28,13 @@ import cv2
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
-from .errors import InputError, MissingInputError, OutputError, describe_validation_error
+from .errors import (
+    InputError,
+    MissingInputError,
+    OutputError,
+    StereodError,
+    describe_validation_error,
+)
 from .frames import Eye, Frame
 from .paths import path_problem, text_path
 
@@ -168,8 +178,21 @@ def _shown_row(row: list[str], limit: int = 60) -> str:
     return repr(text if len(text) <= limit else text[: limit - 3] + "...")
 
 
+MIN_FREE_BYTES = 16 * 2**20
+"""A recording stops with an error (exit 73) once its file system has less free space than
+this plus a few frames: OpenCV's video writer does not report a full disk."""
+
+
 class RecordingWriter:
-    """Write frames of both eyes into a recording directory; use as a context manager."""
+    """Write frames of both eyes into a new recording directory; use as a context manager.
+
+    Everything is written into a hidden temporary directory beside ``directory`` and moved into
+    place when the writer closes, so a recording that fails before its first frame leaves
+    nothing behind, and an existing directory is never written into: ``directory`` must not
+    exist or be empty. A failure after frames were written still moves them into place (the
+    manifest counts what was written), so what was recorded is kept. A file system running out
+    of space stops the recording with :class:`~stereod.errors.OutputError`.
+    """
 
     def __init__(
         self,
@@ -185,10 +208,22 @@ class RecordingWriter:
         calibration: dict[str, Any] | None = None,
     ) -> None:
         self.directory = directory
+        text_path(directory, "recording directory", OutputError)
+        if directory.exists() and (not directory.is_dir() or any(directory.iterdir())):
+            raise OutputError(
+                f"{directory}: already exists and is not an empty directory; a recording goes "
+                "into a new one (nothing was written)"
+            )
         try:
-            directory.mkdir(parents=True, exist_ok=True)
+            directory.parent.mkdir(parents=True, exist_ok=True)
+            self._tmp = Path(
+                tempfile.mkdtemp(prefix=f".{directory.name}.", suffix=".part", dir=directory.parent)
+            )
+            self._tmp.chmod(0o777 & ~_umask())
         except OSError as exc:
-            raise OutputError(f"{directory}: cannot create recording directory: {exc}") from exc
+            raise OutputError(
+                f"{directory}: cannot create the recording directory: {exc.strerror}"
+            ) from exc
         self._manifest = dict(
             width=width,
             height=height,
@@ -202,26 +237,38 @@ class RecordingWriter:
         )
         self._writers: dict[Eye, cv2.VideoWriter] = {}
         self._ts: dict[Eye, Any] = {}
+        self._extra: dict[str, str] = {}
         self._counts = {Eye.LEFT: 0, Eye.RIGHT: 0}
-        fourcc = cv2.VideoWriter.fourcc(*_FOURCC[codec])
-        for eye in Eye:
-            video = directory / f"{eye.value}{_EXT[codec]}"
-            w = cv2.VideoWriter(
-                text_path(video, "video", OutputError),
-                fourcc,
-                fps or 30.0,
-                (width, height),
-                isColor=color,
-            )
-            if not w.isOpened():
-                raise OutputError(f"{video}: cannot open for writing with codec {codec.value}")
-            self._writers[eye] = w
-            try:
-                fh = (directory / f"{eye.value}.csv").open("w", newline="")
-            except OSError as exc:
-                raise OutputError(f"{directory}: cannot write timestamps: {exc}") from exc
-            fh.write("t_ns,seq\n")
-            self._ts[eye] = fh
+        self._frame_bytes = width * height * (3 if color else 1)
+        self._writes = 0
+        try:
+            fourcc = cv2.VideoWriter.fourcc(*_FOURCC[codec])
+            for eye in Eye:
+                video = self._tmp / f"{eye.value}{_EXT[codec]}"
+                w = cv2.VideoWriter(
+                    text_path(video, "video", OutputError),
+                    fourcc,
+                    fps or 30.0,
+                    (width, height),
+                    isColor=color,
+                )
+                if not w.isOpened():
+                    raise OutputError(
+                        f"{directory / video.name}: cannot open for writing with codec "
+                        f"{codec.value}"
+                    )
+                self._writers[eye] = w
+                try:
+                    fh = (self._tmp / f"{eye.value}.csv").open("w", newline="")
+                    fh.write("t_ns,seq\n")
+                except OSError as exc:
+                    raise OutputError(
+                        f"{directory}: cannot write timestamps: {exc.strerror}"
+                    ) from exc
+                self._ts[eye] = fh
+        except BaseException:
+            self.discard()
+            raise
         self._size = (height, width)
 
     def write(self, frame: Frame) -> None:
@@ -232,38 +279,94 @@ class RecordingWriter:
                 f"{frame.eye.value} frame is {img.shape[1]}x{img.shape[0]}, recording is "
                 f"{self._size[1]}x{self._size[0]}"
             )
+        if self._writes % 8 == 0:
+            self._check_space()
+        self._writes += 1
         color = bool(self._manifest["color"])
         if color and img.ndim == 2:
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
         elif not color and img.ndim == 3:
             img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
         self._writers[frame.eye].write(img)
-        self._ts[frame.eye].write(f"{frame.t_ns},{frame.seq}\n")
+        try:
+            self._ts[frame.eye].write(f"{frame.t_ns},{frame.seq}\n")
+        except OSError as exc:
+            raise OutputError(f"{self.directory}: writing failed: {exc.strerror}") from exc
         self._counts[frame.eye] += 1
 
+    def _check_space(self) -> None:
+        try:
+            st = os.statvfs(self._tmp)
+        except OSError:
+            return
+        free = st.f_bavail * st.f_frsize
+        if free < MIN_FREE_BYTES + 16 * self._frame_bytes:
+            kept = "the frames recorded so far were kept" if self.frames else "nothing written"
+            raise OutputError(
+                f"{self.directory}: the disk is full ({free // 2**20} MiB free); recording "
+                f"stopped, {kept}"
+            )
+
+    def write_text(self, name: str, text: str) -> None:
+        """Add a small text file (``truth.json``) to the recording, moved into place with it."""
+        self._extra[name] = text
+
+    @property
+    def frames(self) -> int:
+        """Frames written so far, both eyes together."""
+        return sum(self._counts.values())
+
     def close(self) -> None:
-        """Finish the videos and write the manifest last (a recording without one is incomplete)."""
+        """Finish the videos, write the manifest last and move the recording into place."""
         if not self._writers:
             return
         for w in self._writers.values():
             w.release()
-        for fh in self._ts.values():
-            fh.close()
-        ext = _EXT[Codec(self._manifest["codec"])]
-        man = Manifest(
-            left=EyeFiles(video=f"left{ext}", timestamps="left.csv", frames=self._counts[Eye.LEFT]),
-            right=EyeFiles(
-                video=f"right{ext}", timestamps="right.csv", frames=self._counts[Eye.RIGHT]
-            ),
-            **self._manifest,
-        )
-        (self.directory / MANIFEST).write_text(
-            json.dumps(man.model_dump(mode="json"), indent=2) + "\n"
-        )
         self._writers.clear()
+        try:
+            for fh in self._ts.values():
+                fh.close()
+            ext = _EXT[Codec(self._manifest["codec"])]
+            man = Manifest(
+                left=EyeFiles(
+                    video=f"left{ext}", timestamps="left.csv", frames=self._counts[Eye.LEFT]
+                ),
+                right=EyeFiles(
+                    video=f"right{ext}", timestamps="right.csv", frames=self._counts[Eye.RIGHT]
+                ),
+                **self._manifest,
+            )
+            for name, text in self._extra.items():
+                (self._tmp / name).write_text(text)
+            (self._tmp / MANIFEST).write_text(
+                json.dumps(man.model_dump(mode="json"), indent=2) + "\n"
+            )
+            os.replace(self._tmp, self.directory)
+        except OSError as exc:
+            self.discard()
+            raise OutputError(f"{self.directory}: writing failed: {exc.strerror}") from exc
+
+    def discard(self) -> None:
+        """Drop everything written; ``directory`` stays as it was."""
+        for w in self._writers.values():
+            w.release()
+        self._writers.clear()
+        for fh in self._ts.values():
+            with contextlib.suppress(OSError):
+                fh.close()
+        shutil.rmtree(self._tmp, ignore_errors=True)
 
     def __enter__(self) -> RecordingWriter:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None or (self.frames and issubclass(exc_type, StereodError)):
+            self.close()
+        else:
+            self.discard()
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask

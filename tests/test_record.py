@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stereod.calibration import canonical, save
 from stereod.frames import merged
 from stereod.record import record
 from stereod_fakes.replay import ReplayDriver
@@ -19,7 +20,7 @@ from .conftest import stereod
 def test_replay_reproduces_recorded_frames_and_timestamps(tmp_path: Path) -> None:
     scene = {"duration_s": 1.0, "fps": 10, "skew_s": 0.013, "width_px": 160, "height_px": 120}
     cal = tmp_path / "cal.json"
-    cal.write_text('{"format": "stereod.calibration/1"}')
+    save(canonical(0.06, 60.0, 160, 120), cal)
     counts = record(SyntheticDriver(scene), tmp_path / "rec", calibration=cal)
     assert counts == {"left": 10, "right": 10}
     truth = [f for pair in Renderer(Scene(**scene)).frames() for f in pair]
@@ -31,7 +32,7 @@ def test_replay_reproduces_recorded_frames_and_timestamps(tmp_path: Path) -> Non
         assert g.t_ns == want.t_ns
         assert np.array_equal(g.image, want.image), f"{g.eye} frame {g.seq} differs"
     man = json.loads((tmp_path / "rec" / "recording.json").read_text())
-    assert man["calibration"] == {"format": "stereod.calibration/1"}
+    assert man["calibration"] == json.loads(cal.read_text())
 
 
 def test_live_record_stops_after_seconds(tmp_path: Path) -> None:

@@ -24,12 +24,10 @@ from pathlib import Path
 from typing import NoReturn
 
 from .. import __version__
-from ..errors import EX_SOFTWARE, StereodError
+from ..errors import EX_SOFTWARE, EX_USAGE, StereodError
 from .common import EPILOG_KEYS, quiet_third_party
 
 GROUP = "stereod.commands"
-EX_USAGE = 64
-"""Exit code for a bad command line (sysexits.h EX_USAGE)."""
 
 ORDER = (
     "run",

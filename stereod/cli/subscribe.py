@@ -11,7 +11,7 @@ import zenoh
 from pydantic import ValidationError
 
 from ..config import ZenohConfig
-from ..errors import ConfigError, describe_validation_error
+from ..errors import ConfigError, UsageError, describe_validation_error
 from ..publish import open_session
 from ..subscribe import format_sample
 from .common import add_zenoh, number, zenoh_overrides
@@ -48,7 +48,7 @@ def run(a: argparse.Namespace) -> int:
     try:
         key = zenoh.KeyExpr(a.keyexpr)
     except zenoh.ZError as exc:
-        raise ConfigError(
+        raise UsageError(
             f"key expression {a.keyexpr!r} is not valid (no empty chunks, e.g. 'stereod/**')"
         ) from exc
     done = threading.Event()
