@@ -28,13 +28,13 @@ import sys
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
 from . import keys
 from .detect import Centroid, DetectorParams, Luminance
-from .errors import ConfigError, describe_error
+from .errors import ConfigError, UsageError, describe_error
 from .geometry.stereo import MatchParams
 from .pairing import DEFAULT_TOLERANCE_NS
 from .paths import TextPath
@@ -185,14 +185,40 @@ class TrackingConfig(_Section):
         return TrackerParams(**self.model_dump(exclude={"freeze_background"}))
 
 
+_IP_LINKS = ("tcp", "udp", "tls", "quic", "ws")
+
+
+def _endpoint(value: str) -> str:
+    """A Zenoh endpoint ``<protocol>/<address>``; for IP links the address ends in a port."""
+    proto, sep, rest = value.partition("/")
+    address = rest.split("?", 1)[0].split("#", 1)[0]
+    if not (sep and proto and address) or any(c.isspace() for c in value):
+        raise ValueError("an endpoint is <protocol>/<address>, e.g. tcp/127.0.0.1:7447")
+    if proto in _IP_LINKS:
+        _, colon, port = address.rpartition(":")
+        if not (colon and port.isdigit() and int(port) <= 65535):
+            raise ValueError(
+                f"{proto} endpoints end in a port 0-65535, e.g. {proto}/127.0.0.1:7447"
+            )
+    return value
+
+
+Endpoint = Annotated[str, AfterValidator(_endpoint)]
+
+
 class ZenohConfig(_Section):
     """The Zenoh session: key prefix, mode and endpoints (``tcp/127.0.0.1:7447``)."""
 
     prefix: str = Field(keys.DEFAULT_PREFIX, pattern=keys.PREFIX_PATTERN)
     mode: Literal["peer", "client", "router"] = "peer"
-    connect: list[str] = Field(default_factory=list, description="Endpoints to connect to")
-    listen: list[str] = Field(default_factory=list, description="Endpoints to listen on")
+    connect: list[Endpoint] = Field(default_factory=list, description="Endpoints to connect to")
+    listen: list[Endpoint] = Field(default_factory=list, description="Endpoints to listen on")
     multicast_scouting: bool = Field(False, description="Find peers by multicast")
+    config_file: TextPath | None = Field(
+        None,
+        description="A Zenoh config file (JSON5: TLS, mTLS, access control); the settings "
+        "above that are given go on top of it",
+    )
 
 
 class DaemonConfig(_Section):
@@ -289,7 +315,12 @@ def _origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) 
     """Where the value at ``loc`` came from: a flag, the environment, the file, or defaults."""
     node: Any = overrides
     for part in loc:
-        node = node.get(part) if isinstance(node, dict) else None
+        if isinstance(node, dict):
+            node = node.get(part)
+        elif isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
+            node = node[part]
+        else:
+            node = None
     if node is not None:
         return "command line"
     env = ENV_PREFIX + "__".join(str(p) for p in loc[:2]).upper()
@@ -310,10 +341,10 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
     try:
         return StereodConfig.model_validate(_merge(_merge(data, environment()), flags))
     except ValidationError as exc:
-        parts = [
-            f"{_origin(tuple(e['loc']), path, flags)}: invalid config: {describe_error(e)}"
-            for e in exc.errors(include_url=False)
-        ]
+        errors = [(_origin(tuple(e["loc"]), path, flags), e) for e in exc.errors(include_url=False)]
+        parts = [f"{origin}: invalid config: {describe_error(e)}" for origin, e in errors]
+        if all(origin == "command line" for origin, _ in errors):
+            raise UsageError("; ".join(parts)) from exc  # a bad flag, exit 64
         raise ConfigError("; ".join(parts)) from exc
 
 

@@ -11,6 +11,7 @@
     ├── CalibrationError          a calibration file is missing, ill-shaped or does not fit
     ├── DeviceError               a camera device failed (open, ioctl)
     │   └── DeviceLost            a camera went away while in use (the source retries)
+    ├── UnavailableError          a service cannot be reached (no Zenoh router; exit 69)
     └── InternalError             a bug: an unexpected exception, logged in full (exit 70)
 
 Foreign errors (OSError, cv2.error, pydantic.ValidationError) are translated into these at the
@@ -95,6 +96,13 @@ class DeviceError(StereodError):
 class DeviceLost(DeviceError):
     """A camera went away while in use (unplugged, reset); its source retries by itself, the
     daemon reports the eye down and keeps running."""
+
+
+class UnavailableError(StereodError):
+    """A service the run needs cannot be reached now (a Zenoh router in client mode); unlike
+    a bad configuration, trying again later may work."""
+
+    exit_code = EX_UNAVAILABLE
 
 
 class InternalError(StereodError):
