@@ -16,6 +16,7 @@ internal error (exit 70) naming the log.
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
@@ -37,6 +38,7 @@ from .pipeline import Pipeline
 from .processing import Outgoing, PipelineWorker
 from .publish import Publisher
 from .queues import BoundedQueue
+from .redact import public_config, public_text
 from .sdnotify import Notifier
 from .status import Health
 
@@ -219,7 +221,7 @@ class Daemon:
         )
         self._worker = worker
         queryables = {
-            "config": lambda: self.cfg.model_dump_json().encode(),
+            "config": lambda: json.dumps(public_config(self.cfg)).encode(),
             "calibration": self._calibration_json,
             "stats": self.stats,
         }
@@ -341,7 +343,12 @@ class Daemon:
         assert self._worker is not None
         r = self._worker.rig
         if isinstance(r, CalibratedRig):
-            return r.calibration.model_dump_json().encode()
+            cal = r.calibration
+            return (
+                cal.model_copy(update={"source": public_text(cal.source)})
+                .model_dump_json()
+                .encode()
+            )
         return dump(
             CanonicalGeometry(
                 baseline_m=r.baseline_m,

@@ -5,7 +5,8 @@ its timings and errors, the output thread its write failures); the status loop r
 second and on change. Counters are kept apart by kind: ``drops`` (data lost: frames or pairs),
 ``errors`` (data that arrived unusable, or processing that failed) and ``reconnects``.
 Problems are one line each; a repeated kind is logged the 1st, 10th, 100th... time only, so a
-stream of bad frames cannot flood the journal.
+stream of bad frames cannot flood the journal. What goes on the bus has its paths reduced to
+file names (:mod:`stereod.redact`); the log keeps them whole.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from .geometry import Geometry
 from .messages import DaemonState, EyeState, EyeStatus, StatsMessage, StatusMessage
 from .pairing import Pairer
 from .queues import BoundedQueue
+from .redact import public_text
 
 log = logging.getLogger(__name__)
 
@@ -167,7 +169,7 @@ class Health:
             fps=round(h.fps(period_s), 3),
             frames=h.frames,
             errors=h.errors,
-            last_error=h.last_error,
+            last_error=public_text(h.last_error) if h.last_error is not None else None,
         )
 
     def status(self, period_s: float) -> StatusMessage:
@@ -189,7 +191,7 @@ class Health:
             stamp_utc_ns=time.time_ns(),
             uptime_s=round(time.monotonic() - self.started_s, 3),
             driver=self.driver,
-            source=self.source_description,
+            source=public_text(self.source_description),
             left=self._eye_status(Eye.LEFT, period_s),
             right=self._eye_status(Eye.RIGHT, period_s),
             pairs=self.pairer.stats.pairs,
@@ -204,7 +206,7 @@ class Health:
             geometry=self.geometry,
             calibration_id=self.calibration_id,
             epipolar_residual_px=round(float(np.median(resid)), 4) if resid else None,
-            problems=problems,
+            problems=[public_text(p) for p in problems],
         )
 
     def stats(self) -> StatsMessage:
