@@ -65,7 +65,11 @@ def test_capture_both_eyes_with_kernel_timestamps(vivid: list[str]) -> None:
         for f in sorted(frames[Eye.LEFT] + frames[Eye.RIGHT], key=lambda f: f.t_ns):
             pairs += pairer.push(f)
         assert len(pairs) >= 15
-        assert max(abs(p.skew_ns) for p in pairs) <= 0.5e9 / FPS + 2e6
+        # Two free-running eyes are at most half a frame apart; a frame the kernel dropped (a
+        # sequence gap, counted below) leaves its partner up to one frame from the next one.
+        skews = np.array([abs(p.skew_ns) for p in pairs])
+        assert np.mean(skews <= 0.5e9 / FPS + 2e6) >= 0.9, skews
+        assert skews.max() <= 1e9 / FPS, skews
         gaps = source.left.counters().drops.get(
             "sequence_gap", 0
         ) + source.right.counters().drops.get("sequence_gap", 0)
