@@ -21,7 +21,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .calibration import Board, Calibration, Quality, from_arrays, read_opencv_storage, rectify
+from .calibration import (
+    Board,
+    Calibration,
+    OpenCVProblem,
+    Quality,
+    from_arrays,
+    read_opencv_storage,
+    rectify,
+)
 from .errors import CalibrationError, InputError, MissingInputError
 from .frames import Frame
 from .pairing import Pairer
@@ -141,6 +149,20 @@ def pairs_in_directory(directory: Path) -> list[tuple[Path, Path]]:
     return pairs
 
 
+def _image_list(fs: cv2.FileStorage) -> list[str] | OpenCVProblem:
+    """The names in a FileStorage's ``imagelist`` sequence."""
+    node = fs.getNode("imagelist")
+    if node.empty() or not node.isSeq():
+        return OpenCVProblem("no 'imagelist' sequence in this OpenCV file")
+    names = []
+    for i in range(node.size()):
+        item = node.at(i)
+        if not item.isString():
+            return OpenCVProblem("'imagelist' must hold file names only")
+        names.append(item.string())
+    return names
+
+
 def pairs_from_list(path: Path) -> list[tuple[Path, Path]]:
     """Pairs from a list file: an OpenCV ``imagelist`` (XML/YAML, left and right alternating,
     as OpenCV's stereo_calib.xml) or text with one ``LEFT RIGHT`` per line; relative names are
@@ -149,19 +171,7 @@ def pairs_from_list(path: Path) -> list[tuple[Path, Path]]:
         raise MissingInputError(f"{path}: no such list file")
     names: list[str] = []
     if path.suffix.lower() in (".xml", ".yml", ".yaml", ".json"):
-        fs = read_opencv_storage(path, "an image list", InputError)
-        try:
-            node = fs.getNode("imagelist")
-            if node.empty() or not node.isSeq():
-                raise InputError(f"{path}: no 'imagelist' sequence in this OpenCV file")
-            items = [node.at(i) for i in range(node.size())]
-            if not all(item.isString() for item in items):
-                raise InputError(f"{path}: 'imagelist' must hold file names only")
-            names = [item.string() for item in items]
-        except (cv2.error, SystemError, UnicodeError) as exc:
-            raise InputError(f"{path}: cannot read the 'imagelist' sequence") from exc
-        finally:
-            fs.release()
+        names = read_opencv_storage(path, "an image list", InputError, _image_list)
     else:
         try:
             text = path.read_bytes().decode("utf-8")

@@ -17,8 +17,9 @@ import datetime
 import hashlib
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Final, Literal
+from typing import Any, Final, Literal, TypeVar
 
 import cv2
 import numpy as np
@@ -35,6 +36,8 @@ from .errors import (
 
 FORMAT: Final = "stereod.calibration/1"
 
+T = TypeVar("T")
+
 Matrix = list[list[float]]
 
 _SHAPES: dict[str, tuple[int, int]] = {
@@ -50,6 +53,11 @@ _SHAPES: dict[str, tuple[int, int]] = {
     "P2": (3, 4),
     "Q": (4, 4),
 }
+
+
+MAX_ENTRY = 1e9
+"""The largest magnitude of any matrix entry (px, or lengths in the board's unit): larger
+numbers are damage, and would overflow the geometry's arithmetic."""
 
 
 class Board(BaseModel):
@@ -113,6 +121,10 @@ class Calibration(BaseModel):
             raise ValueError(f"must be {want[0]}x{want[1]}, got shape {a.shape}")
         if not np.all(np.isfinite(a)):
             raise ValueError("contains a non-finite number (NaN or infinity)")
+        if a.size and np.abs(a).max() > MAX_ENTRY:
+            raise ValueError(
+                f"holds {np.abs(a).max():g}, beyond any calibration (|x| <= {MAX_ENTRY:g})"
+            )
         a = a.reshape(want)
         problem = _matrix_problem(info.field_name, a)
         if problem is not None:
@@ -148,10 +160,12 @@ def _matrix_problem(name: str, a: np.ndarray) -> str | None:
         if np.abs(a[2] - (0.0, 0.0, 1.0)).max() > 1e-6 or abs(a[1, 0]) > 1e-6:
             return "not a camera matrix: its bottom row must be 0 0 1, and K[1][0] 0"
     elif name in ("R", "R1", "R2"):
-        if np.abs(a @ a.T - np.eye(3)).max() > 1e-5 or np.linalg.det(a) < 0:
+        if np.abs(a).max() > 1.0 + 1e-5 or np.abs(a @ a.T - np.eye(3)).max() > 1e-5:
+            return "not a rotation matrix (R R^T must be the identity, det R = +1)"
+        if np.linalg.det(a) < 0:
             return "not a rotation matrix (R R^T must be the identity, det R = +1)"
     elif name == "T":
-        if not np.linalg.norm(a) > 0:
+        if not np.abs(a).max() > 0:
             return "the baseline |T| is zero: the two cameras cannot be at one place"
     elif name in ("P1", "P2") and not (a[0, 0] > 0 and a[1, 1] > 0):
         return f"not a projection matrix: focal lengths {a[0, 0]:g}, {a[1, 1]:g} px must be > 0"
@@ -299,10 +313,15 @@ def export_ros(cal: Calibration, directory: Path) -> list[Path]:
     return out
 
 
-def read_opencv_storage(path: Path, what: str, error: type[StereodError]) -> cv2.FileStorage:
-    """Open an OpenCV FileStorage file (YAML, XML or JSON) for reading. It must be UTF-8 text;
-    OpenCV parses it from memory, so no file name reaches it, and a parse failure becomes
-    ``error`` naming the file. The caller releases the storage."""
+def read_opencv_storage(
+    path: Path, what: str, error: type[StereodError], read: Callable[[cv2.FileStorage], T]
+) -> T:
+    """Parse an OpenCV FileStorage file (YAML, XML or JSON) and return what ``read`` takes
+    from it. The file must be UTF-8 text; OpenCV parses it from memory, so no file name
+    reaches it, and a parse failure becomes ``error`` naming the file. ``read`` must return
+    plain data (arrays, strings), never a ``cv2.FileNode``: a node that outlives its storage
+    crashes the interpreter when it is collected. It reports a problem by returning an
+    :class:`OpenCVProblem`, which is raised as ``error`` once the storage is gone."""
     try:
         data = path.read_bytes()
     except FileNotFoundError as exc:
@@ -322,16 +341,36 @@ def read_opencv_storage(path: Path, what: str, error: type[StereodError]) -> cv2
             f"{path}: not an OpenCV FileStorage file: it must begin with %YAML, <?xml or {{ "
             f"(expected {what} as OpenCV writes it)"
         )
+    result = _parse_storage(text, read)
+    if isinstance(result, OpenCVProblem):
+        raise error(f"{path}: {result.text}")
+    return result
+
+
+class OpenCVProblem:
+    """What was wrong in a FileStorage file, as :func:`read_opencv_storage`'s reader says it."""
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+
+def _parse_storage(text: str, read: Callable[[cv2.FileStorage], T]) -> T | OpenCVProblem:
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except (cv2.error, SystemError) as exc:
-        raise error(
-            f"{path}: not a valid OpenCV FileStorage file (malformed or cut short; OpenCV "
-            f"says {_cv_reason(exc)!r})"
-        ) from exc
-    if not fs.isOpened():
-        raise error(f"{path}: not a valid OpenCV FileStorage file")
-    return fs
+        return OpenCVProblem(
+            "not a valid OpenCV FileStorage file (malformed or cut short; OpenCV says "
+            f"{_cv_reason(exc)!r})"
+        )
+    try:
+        if not fs.isOpened():
+            return OpenCVProblem("not a valid OpenCV FileStorage file")
+        try:
+            return read(fs)
+        except (cv2.error, SystemError, UnicodeError) as exc:
+            return OpenCVProblem(f"cannot read it: {_cv_reason(exc)}")
+    finally:
+        fs.release()
 
 
 def _cv_reason(exc: BaseException) -> str:
@@ -341,15 +380,53 @@ def _cv_reason(exc: BaseException) -> str:
     return " ".join(str(text).split())[:160] or type(exc).__name__
 
 
-def _node_matrix(node: cv2.FileNode, path: Path, key: str) -> np.ndarray:
-    """A matrix node as a float64 array; anything else is an error naming the field."""
-    try:
-        m = node.mat() if node.isMap() else None
-    except (cv2.error, SystemError) as exc:
-        raise InputError(f"{path}: field {key} is not a matrix: {_cv_reason(exc)}") from exc
-    if m is None or not isinstance(m, np.ndarray) or m.size == 0:
-        raise InputError(f"{path}: field {key} is not an OpenCV matrix (rows, cols, data)")
-    return np.asarray(m, dtype=np.float64)
+def _matrices(
+    keys: list[str],
+) -> Callable[[cv2.FileStorage], dict[str, np.ndarray] | OpenCVProblem]:
+    """A FileStorage reader of the matrices ``keys`` as float64 arrays."""
+
+    def read(fs: cv2.FileStorage) -> dict[str, np.ndarray] | OpenCVProblem:
+        out = {}
+        for key in keys:
+            node = fs.getNode(key)
+            if node.empty():
+                return OpenCVProblem(f"field {key} is missing")
+            m = _matrix_node(node)
+            if isinstance(m, str):
+                return OpenCVProblem(f"field {key} is not an OpenCV matrix: {m}")
+            out[key] = m
+        return out
+
+    return read
+
+
+_MATRIX_TYPES = set("ucwsifd")
+"""OpenCV's one-letter element types (uchar, char, ushort, short, int, float, double)."""
+
+
+def _matrix_node(node: cv2.FileNode) -> np.ndarray | str:
+    """An ``opencv-matrix`` node read number by number, as float64 (rows, cols); what is
+    wrong with it otherwise. ``FileNode.mat()`` is not used: OpenCV corrupts its heap on a
+    matrix with negative columns."""
+    if not node.isMap():
+        return "expected rows, cols, dt and data"
+    rows, cols, dt, data = (node.getNode(k) for k in ("rows", "cols", "dt", "data"))
+    if not (rows.isInt() and cols.isInt() and dt.isString() and data.isSeq()):
+        return "expected rows, cols, dt and data"
+    r, c, kind = int(rows.real()), int(cols.real()), dt.string()
+    if not (1 <= r <= 16 and 1 <= c <= 16):
+        return f"{r}x{c} is not the size of a calibration matrix"
+    if kind not in _MATRIX_TYPES:
+        return f"dt {kind!r} is not a one-channel number type"
+    if data.size() != r * c:
+        return f"{data.size()} numbers for a {r}x{c} matrix"
+    values = []
+    for i in range(r * c):
+        item = data.at(i)
+        if not (item.isReal() or item.isInt()):
+            return f"entry {i} is not a number"
+        values.append(item.real())
+    return np.array(values, dtype=np.float64).reshape(r, c)
 
 
 def import_opencv(
@@ -366,15 +443,10 @@ def import_opencv(
     for path, wanted in ((intrinsics, names), (extrinsics, {"R": "R", "T": "T"})):
         if not path.is_file():
             raise MissingInputError(f"{path}: no such OpenCV calibration file")
-        fs = read_opencv_storage(path, "an OpenCV calibration file", InputError)
-        try:
-            for key, ours in wanted.items():
-                node = fs.getNode(key)
-                if node.empty():
-                    raise InputError(f"{path}: field {key} is missing")
-                arrays[ours] = _node_matrix(node, path, key)
-        finally:
-            fs.release()
+        found = read_opencv_storage(
+            path, "an OpenCV calibration file", InputError, _matrices(list(wanted))
+        )
+        arrays.update({ours: found[key] for key, ours in wanted.items()})
     for key, ours, size in (("M1", "K1", 9), ("M2", "K2", 9), ("R", "R", 9), ("T", "T", 3)):
         if arrays[ours].size != size:
             where = intrinsics if key.startswith("M") else extrinsics

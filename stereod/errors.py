@@ -118,11 +118,17 @@ def describe_validation_error(exc: ValidationError, prefix: str = "") -> str:
     return "; ".join(describe_error(e, prefix) for e in exc.errors(include_url=False))
 
 
+def one_line(text: str) -> str:
+    """``text`` with every character that is not printable (a newline, NUL) escaped, so that
+    a message quoting a file's content stays one line."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def describe_error(e: Any, prefix: str = "") -> str:
     """One of a ValidationError's ``errors()`` as ``field = value: what is wrong``."""
     loc = ".".join(str(p) for p in (prefix.split(".") if prefix else []) + list(e["loc"]))
-    loc = loc or "(top level)"
-    msg = str(e["msg"]).removeprefix("Value error, ")
+    loc = one_line(loc or "(top level)")
+    msg = one_line(str(e["msg"]).removeprefix("Value error, "))
     if e["type"] == "json_invalid":
         return f"not valid JSON ({msg.removeprefix('Invalid JSON: ')})"
     if e["type"] == "extra_forbidden":
@@ -135,5 +141,5 @@ def describe_error(e: Any, prefix: str = "") -> str:
 
 
 def _shown(value: object, limit: int = 60) -> str:
-    text = repr(value)
+    text = one_line(repr(value))
     return text if len(text) <= limit else text[: limit - 3] + "..."

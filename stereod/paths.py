@@ -15,7 +15,7 @@ from typing import Annotated
 
 from pydantic import AfterValidator
 
-from .errors import InputError, StereodError
+from .errors import InputError, StereodError, one_line
 
 
 def path_problem(text: str) -> str | None:
@@ -30,8 +30,9 @@ def path_problem(text: str) -> str | None:
 
 
 def shown(text: str | os.PathLike[str]) -> str:
-    """A path as it can be printed: bytes that are not UTF-8 as ``\\udcff`` escapes."""
-    return os.fspath(text).encode("utf-8", "backslashreplace").decode("utf-8")
+    """A path as it can be printed on one line: bytes that are not UTF-8 as ``\\udcff``
+    escapes, control characters (a newline in a name) escaped too."""
+    return one_line(os.fspath(text).encode("utf-8", "backslashreplace").decode("utf-8"))
 
 
 def text_path(
@@ -42,7 +43,7 @@ def text_path(
     text = os.fspath(path)
     problem = path_problem(text)
     if problem is not None:
-        raise error(f"{shown(text)!r}: the name of this {what} {problem}")
+        raise error(f"'{shown(text)}': the name of this {what} {problem}")
     return text
 
 

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..errors import EX_DATAERR, ConfigError
+from ..errors import EX_DATAERR, ConfigError, one_line
 
 log = logging.getLogger("stereod")
 
@@ -186,6 +186,24 @@ def pipeline_overrides(a: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def load_checked(path: Path | None, overrides: dict[str, Any]) -> tuple[Any, Any]:
+    """The configuration and its driver, with everything a run reads checked now: the
+    config itself, the driver's options, the Zenoh config file and the calibration file. Used
+    alike at start, by ``run --check`` and on every reload, so that a file that passes one
+    passes all three."""
+    from ..calibration import load as load_calibration
+    from ..config import load_config
+    from ..drivers import load_driver
+    from ..publish import session_config
+
+    cfg = load_config(path, overrides)
+    driver = load_driver(cfg.driver.name, cfg.driver.options, origin=path)
+    session_config(cfg.zenoh)
+    if cfg.rig.calibration is not None:
+        load_calibration(cfg.rig.calibration)
+    return cfg, driver
+
+
 def quiet_third_party() -> None:
     """Silence OpenCV's and FFmpeg's own messages on stderr: every problem they report (a
     file that does not open, a truncated video) reaches the user once, in our words."""
@@ -239,7 +257,7 @@ def run_daemon(daemon: Any, *, quiet: bool = False, problems_fail: bool = True) 
     if summary.error is not None:
         raise summary.error
     if summary.problems and problems_fail:
-        print(f"stereod: {one_line(summary.problems)}", file=sys.stderr)
+        print(f"stereod: {one_line(summarise(summary.problems))}", file=sys.stderr)
         return EX_DATAERR
     return 0
 
@@ -254,7 +272,7 @@ def say(text: str) -> None:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
-def one_line(problems: list[str], shown: int = 3) -> str:
+def summarise(problems: list[str], shown: int = 3) -> str:
     """Several problems as one line: the first ``shown`` distinct ones and how many more."""
     distinct = list(dict.fromkeys(problems))
     text = "; ".join(distinct[:shown])

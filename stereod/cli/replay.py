@@ -14,6 +14,7 @@ from .common import (
     add_pipeline,
     add_rate,
     command_log_level,
+    load_checked,
     number,
     path_arg,
     pipeline_overrides,
@@ -110,7 +111,7 @@ def run(a: argparse.Namespace) -> int:
         rate=a.rate,
         jsonl=a.jsonl,
         wait_subscriber_s=a.wait_subscriber,
-        reload_config=lambda: load_config(a.config, ov),
+        reload_config=lambda: load_checked(a.config, ov)[0],
         inputs=[a.config] if a.config is not None else [],
     )
     return run_daemon(daemon, quiet=a.quiet)

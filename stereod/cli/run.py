@@ -4,16 +4,14 @@ from __future__ import annotations
 
 import argparse
 
-from ..calibration import load as load_calibration
-from ..config import DEFAULT_CONFIG_PATH, load_config
+from ..config import DEFAULT_CONFIG_PATH
 from ..daemon import Daemon
-from ..drivers import load_driver
-from ..publish import session_config
 from .common import (
     EPILOG_KEYS,
     add_driver,
     add_pipeline,
     add_rate,
+    load_checked,
     pipeline_overrides,
     run_daemon,
     setup_logging,
@@ -48,15 +46,10 @@ def run(a: argparse.Namespace) -> int:
     path = a.config
     if path is None and DEFAULT_CONFIG_PATH.exists():
         path = DEFAULT_CONFIG_PATH
-    cfg = load_config(path, ov)
-    driver = load_driver(cfg.driver.name, cfg.driver.options, origin=path)
+    cfg, driver = load_checked(path, ov)
     setup_logging(cfg.daemon.log_level)
     if a.check:
-        # What a run reads besides the config itself: the Zenoh file and the calibration.
-        session_config(cfg.zenoh)
-        if cfg.rig.calibration is not None:
-            load_calibration(cfg.rig.calibration)
         print(cfg.model_dump_json(indent=2))
         return 0
-    daemon = Daemon(cfg, driver, rate=a.rate, reload_config=lambda: load_config(path, ov))
+    daemon = Daemon(cfg, driver, rate=a.rate, reload_config=lambda: load_checked(path, ov)[0])
     return run_daemon(daemon, quiet=True, problems_fail=False)
