@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from stereod.calibration import canonical
+from stereod.cli import main
 from stereod.recording import Codec
 from stereod_fakes.synth import Ball, Scene, write_scene
 
@@ -410,3 +411,23 @@ def test_truncated_recording_is_said_once_with_loop(tmp_path: Path) -> None:
     assert proc.returncode == 65, err
     assert len(err.splitlines()) == 1 and err.count("truncated:") == 1, err
     assert json.loads(jsonl.read_text().splitlines()[-1])["seq"] >= 3 * 9 - 1
+
+
+def test_an_unexpected_exception_is_one_line_naming_its_log(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The last guard: a bug anywhere in a command is one line, exit 70, the traceback in a
+    file the line names."""
+    import stereod.cli.schema
+
+    def bug(_args: object) -> int:
+        return {}["missing"]  # a KeyError, as a bug would raise
+
+    monkeypatch.setenv("STEREOD_CRASH_DIR", str(tmp_path))
+    monkeypatch.setattr(stereod.cli.schema, "run", bug)
+    assert main(["schema"]) == 70
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("stereod: internal error: KeyError"), lines
+    log = re.search(r"details in (\S+);", lines[0])
+    assert log and Path(log.group(1)).parent == tmp_path
+    assert "Traceback" in Path(log.group(1)).read_text()
