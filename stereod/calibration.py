@@ -314,7 +314,10 @@ def export_ros(cal: Calibration, directory: Path) -> list[Path]:
 
 
 def read_opencv_storage(
-    path: Path, what: str, error: type[StereodError], read: Callable[[cv2.FileStorage], T]
+    path: Path,
+    what: str,
+    error: type[StereodError],
+    read: Callable[[cv2.FileStorage], T | OpenCVProblem],
 ) -> T:
     """Parse an OpenCV FileStorage file (YAML, XML or JSON) and return what ``read`` takes
     from it. The file must be UTF-8 text; OpenCV parses it from memory, so no file name
@@ -354,7 +357,9 @@ class OpenCVProblem:
         self.text = text
 
 
-def _parse_storage(text: str, read: Callable[[cv2.FileStorage], T]) -> T | OpenCVProblem:
+def _parse_storage(
+    text: str, read: Callable[[cv2.FileStorage], T | OpenCVProblem]
+) -> T | OpenCVProblem:
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except (cv2.error, SystemError) as exc:
