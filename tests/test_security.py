@@ -10,6 +10,7 @@ from __future__ import annotations
 import datetime
 import ipaddress
 import json
+import re
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -250,3 +251,14 @@ def test_the_bus_learns_no_paths_and_nothing_from_the_zenoh_file(
         assert secret not in text, f"{secret!r} on the bus"
     assert cfg["zenoh"]["config_file"] == "zenoh.json5"
     assert cfg["rig"]["calibration"] == "minoru-cal.json"
+
+
+def test_the_readme_zenoh_file_is_one_zenoh_accepts() -> None:
+    """The README's example of a secured Zenoh file parses with the installed Zenoh, and its
+    ACL has the shape the tests above run (read and serve for listed certificate names)."""
+    text = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    block = re.search(r"```json5\n(.*?)```", text, re.S)
+    assert block, "no json5 block in the README"
+    zenoh.Config.from_json5(block.group(1))
+    for word in ('default_permission: "deny"', "enable_mtls: true", "cert_common_names"):
+        assert word in block.group(1)
