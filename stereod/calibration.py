@@ -33,6 +33,7 @@ from .errors import (
     StereodError,
     describe_validation_error,
 )
+from .output_file import AtomicOutput
 
 FORMAT: Final = "stereod.calibration/1"
 
@@ -271,12 +272,17 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
 
 
 def save(cal: Calibration, path: Path) -> None:
-    """Write a calibration file (JSON)."""
+    """Write a calibration file (JSON) atomically: a write that fails leaves what was there."""
+    _write_atomic(path, cal.model_dump_json(indent=2) + "\n")
+
+
+def _write_atomic(path: Path, text: str) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(cal.model_dump_json(indent=2) + "\n")
     except OSError as exc:
-        raise OutputError(f"{path}: cannot write calibration: {exc.strerror}") from exc
+        raise OutputError(f"{path.parent}: cannot create the folder: {exc.strerror}") from exc
+    with AtomicOutput(path) as out:
+        out.write(text.encode())
 
 
 def _yaml_matrix(name: str, a: np.ndarray) -> str:
@@ -302,14 +308,10 @@ def ros_camera_info(cal: Calibration, eye: Literal["left", "right"]) -> str:
 def export_ros(cal: Calibration, directory: Path) -> list[Path]:
     """Write ``left.yaml`` and ``right.yaml`` into ``directory``; return their paths."""
     out = []
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        for eye in ("left", "right"):
-            path = directory / f"{eye}.yaml"
-            path.write_text(ros_camera_info(cal, eye))  # type: ignore[arg-type]
-            out.append(path)
-    except OSError as exc:
-        raise OutputError(f"{directory}: cannot write ROS camera_info: {exc.strerror}") from exc
+    for eye in ("left", "right"):
+        path = directory / f"{eye}.yaml"
+        _write_atomic(path, ros_camera_info(cal, eye))  # type: ignore[arg-type]
+        out.append(path)
     return out
 
 

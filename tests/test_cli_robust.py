@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stereod.calibration import canonical
+from stereod.calibration import canonical, save
 from stereod.cli import main
 from stereod.recording import Codec
 from stereod_fakes.synth import Ball, Scene, write_scene
@@ -80,6 +80,16 @@ def singular_calibration(d: Path) -> None:
     cal["K1"] = [[0, 0, 0], [0, 0, 0], [0, 0, 1]]
     cal["id"] = ""
     (d / "cal.json").write_text(json.dumps(cal))
+
+
+def opencv_files(d: Path) -> None:
+    """intrinsics.yml and extrinsics.yml as OpenCV's stereo_calib writes them."""
+    cal = canonical(0.06, 60.0, W, H)
+    for name, keys in (("intrinsics", ("M1", "D1", "M2", "D2")), ("extrinsics", ("R", "T"))):
+        fs = cv2.FileStorage(str(d / f"{name}.yml"), cv2.FILE_STORAGE_WRITE)
+        for key in keys:
+            fs.write(key, cal.array({"M1": "K1", "M2": "K2"}.get(key, key)))
+        fs.release()
 
 
 def truncated(d: Path, codec: Codec = Codec.MJPG) -> None:
@@ -354,6 +364,38 @@ ROWS = [
             (d / "c.toml").write_text(f'[zenoh]\nconfig_file = "{d}/z.json5"\n'),
         ),
     ),
+    Row(
+        "calibration import over its own input",
+        [
+            "calibration",
+            "import",
+            "{d}/intrinsics.yml",
+            "--size",
+            "64x48",
+            "--out",
+            "{d}/intrinsics.yml",
+        ],
+        73,
+        "--out .*intrinsics.yml: that is an input of this run",
+        lambda d: opencv_files(d),
+    ),
+    Row(
+        "calibration export over the calibration",
+        ["calibration", "export", "{d}/left.yaml", "--ros", "{d}"],
+        73,
+        "--ros .*left.yaml: that is an input of this run",
+        lambda d: save(canonical(0.06, 60.0, W, H), d / "left.yaml"),
+    ),
+    Row(
+        "record into an existing recording",
+        ["record", "{d}/rec", "--driver", "replay", "--config", "{d}/c.toml"],
+        73,
+        r"rec: already exists and is not an empty directory",
+        lambda d: (
+            recording(d),
+            (d / "c.toml").write_text(f'[driver.options]\npath = "{d}/rec"\n'),
+        ),
+    ),
 ]
 
 
@@ -431,3 +473,19 @@ def test_an_unexpected_exception_is_one_line_naming_its_log(
     log = re.search(r"details in (\S+);", lines[0])
     assert log and Path(log.group(1)).parent == tmp_path
     assert "Traceback" in Path(log.group(1)).read_text()
+
+
+def test_a_full_disk_on_stdout_stops_subscribe_with_73(tmp_path: Path, endpoint: str) -> None:
+    recording(tmp_path)
+    with open("/dev/full", "w") as full:
+        sub = start_stereod(
+            "subscribe", "--listen", endpoint, "--duration", "60", stdout=full, cwd=tmp_path
+        )
+        time.sleep(1.0)  # its session listens
+        pub = run_stereod(
+            "replay", str(tmp_path / "rec"), "--rate", "0", "-q", "--connect", endpoint
+        )
+        assert pub.returncode == 0, pub.stderr
+        _, err = sub.communicate(timeout=60)
+    assert sub.returncode == 73, err
+    assert err.splitlines() == ["stereod: stdout: writing failed: No space left on device"]
