@@ -54,7 +54,7 @@ def run(a: argparse.Namespace) -> int:
     done = threading.Event()
     count = 0
     lock = threading.Lock()
-    failed: list[BaseException] = []
+    failed: list[OSError] = []
 
     def on_sample(s: zenoh.Sample) -> None:
         nonlocal count
