@@ -299,6 +299,16 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
         node = out
         for part in parts[:-1]:
             node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(
+                    f"environment variable {name}: another variable sets "
+                    f"{'.'.join(parts[:-1])} as a whole; set the table or its fields, not both"
+                )
+        if isinstance(node.get(parts[-1]), dict):
+            raise ConfigError(
+                f"environment variable {name}: other variables set fields of "
+                f"{'.'.join(parts)}; set the table or its fields, not both"
+            )
         node[parts[-1]] = parsed
     return out
 

@@ -41,9 +41,13 @@ EX_CONFIG = 78
 
 
 class StereodError(Exception):
-    """Base of every error stereod reports; ``str()`` is one line meant for a user."""
+    """Base of every error stereod reports; ``str()`` is one line meant for a user (a newline
+    or other control character quoted from a file or a name is escaped)."""
 
     exit_code: int = 1
+
+    def __str__(self) -> str:
+        return one_line(super().__str__())
 
 
 class UsageError(StereodError):

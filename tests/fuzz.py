@@ -11,11 +11,12 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
-from hypothesis import HealthCheck, settings
+from hypothesis import HealthCheck, event, settings
 from hypothesis import strategies as st
 
 from stereod.errors import StereodError
@@ -23,8 +24,11 @@ from stereod.errors import StereodError
 SYSEXITS = {64, 65, 66, 69, 70, 73, 78}
 """The exit codes a refusal may carry (70 only for a bug, which the fuzz tests would report)."""
 
+EXAMPLES = int(os.environ.get("FUZZ_EXAMPLES", "60"))
+"""Examples per fuzz test; ``FUZZ_EXAMPLES=2000 make test`` searches deeper."""
+
 FUZZ = settings(
-    max_examples=60,
+    max_examples=EXAMPLES,
     deadline=2000,  # ms per example: a parser that takes this long is a finding
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
 )
@@ -38,12 +42,15 @@ def accepted_or_refused(fn: Callable[..., T], *args: Any, **kw: Any) -> T | Ster
     that it is one line with a sysexits code other than 70. Anything else propagates and
     fails the test with its traceback, which is the finding."""
     try:
-        return fn(*args, **kw)
+        result = fn(*args, **kw)
     except StereodError as exc:
         text = str(exc)
         assert text.strip() and "\n" not in text, f"not one line: {text!r}"
         assert exc.exit_code in SYSEXITS - {70}, (exc.exit_code, text)
+        event(f"{getattr(fn, '__name__', 'call')}: refused, exit {exc.exit_code}")
         return exc
+    event(f"{getattr(fn, '__name__', 'call')}: accepted")
+    return result
 
 
 def digest(path: Path) -> str:

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from stereod.cli import build_parser
 from stereod_fakes.synth import Ball, Scene, write_scene
 
-from .fuzz import FUZZ, SYSEXITS, digest
+from .fuzz import EXAMPLES, FUZZ, SYSEXITS, digest
 from .processes import run_stereod
 
 PARSER = build_parser()
@@ -67,7 +67,7 @@ def command_lines(draw: st.DrawFn) -> list[str]:
     return argv
 
 
-@settings(FUZZ, max_examples=300)
+@settings(FUZZ, max_examples=EXAMPLES * 5)
 @given(argv=command_lines())
 @example(argv=["replay", "--rate", "nan"])
 @example(argv=["synth", "out", "--ball", "heading=nan"])

@@ -88,14 +88,15 @@ def test_any_bytes_as_toml(tmp_path_factory, data: bytes) -> None:
 
 
 names = st.one_of(
-    st.tuples(
-        st.sampled_from(sorted(SECTIONS)), st.sampled_from(sorted(set().union(*SECTIONS.values())))
-    ).map(lambda sf: f"STEREOD_{sf[0]}__{sf[1]}".upper()),
+    st.sampled_from(sorted(SECTIONS)).flatmap(
+        lambda sec: st.sampled_from(SECTIONS[sec]).map(lambda f: f"STEREOD_{sec}__{f}".upper())
+    ),
     st.sampled_from(DRIVER_OPTIONS).map(lambda o: f"STEREOD_DRIVER__OPTIONS__{o.upper()}"),
     st.text(
         st.sampled_from("ABCDEFGHIJKLMNOPQRSTUVWXYZabcxyz0123456789_"), min_size=1, max_size=12
     ).map(lambda t: f"STEREOD_{t}"),
 )
+"""Variable names: a config field's, a driver option's, or anything after the prefix."""
 env_values = st.text(
     st.characters(blacklist_characters="\x00", blacklist_categories=["Cs"]), max_size=30
 ) | st.sampled_from(["nan", "1e400", "-1", "[]", '["tcp/127.0.0.1:1"]', "foo", "LOUD", "r\udcff"])
