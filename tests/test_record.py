@@ -91,11 +91,8 @@ def test_a_full_disk_stops_the_recording_and_keeps_what_was_recorded(
     out = small_disk / "rec"
     res = stereod("record", str(out), "--config", str(cfg))
     assert res.returncode == 73, res.stderr
-    assert (
-        res.stderr.splitlines()
-        == [line for line in res.stderr.splitlines() if "the disk is full" in line]
-        and len(res.stderr.splitlines()) == 1
-    ), res.stderr
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1 and "the disk is full" in lines[0], res.stderr
     man = json.loads((out / "recording.json").read_text())
     rows = (out / "left.csv").read_text().splitlines()[1:]
     assert 0 < man["left"]["frames"] == len(rows) < 900
