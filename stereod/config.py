@@ -28,16 +28,17 @@ import sys
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
 from . import keys
 from .detect import Centroid, DetectorParams, Luminance, Warmup
-from .errors import ConfigError, describe_error
+from .errors import ConfigError, UsageError, describe_error
 from .geometry.refine import RefineParams
 from .geometry.stereo import MatchParams
 from .pairing import DEFAULT_TOLERANCE_NS
+from .paths import TextPath
 from .pipeline import PipelineParams
 from .tracking import TrackerParams
 
@@ -71,7 +72,7 @@ class RigConfig(_Section):
     name: str = Field(keys.DEFAULT_RIG, pattern=keys.RIG_PATTERN, description="Rig name in keys")
     baseline_m: float = Field(0.060, gt=0.0, le=10.0, description="Camera distance B, m")
     hfov_deg: float = Field(60.0, gt=0.0, lt=180.0, description="Horizontal field of view, deg")
-    calibration: Path | None = Field(
+    calibration: TextPath | None = Field(
         None, description="Calibration file (stereod calibrate); without it, the canonical rig"
     )
 
@@ -240,14 +241,40 @@ class RefineConfig(_Section):
         return RefineParams(**self.model_dump())
 
 
+_IP_LINKS = ("tcp", "udp", "tls", "quic", "ws")
+
+
+def _endpoint(value: str) -> str:
+    """A Zenoh endpoint ``<protocol>/<address>``; for IP links the address ends in a port."""
+    proto, sep, rest = value.partition("/")
+    address = rest.split("?", 1)[0].split("#", 1)[0]
+    if not (sep and proto and address) or any(c.isspace() for c in value):
+        raise ValueError("an endpoint is <protocol>/<address>, e.g. tcp/127.0.0.1:7447")
+    if proto in _IP_LINKS:
+        _, colon, port = address.rpartition(":")
+        if not (colon and port.isdigit() and int(port) <= 65535):
+            raise ValueError(
+                f"{proto} endpoints end in a port 0-65535, e.g. {proto}/127.0.0.1:7447"
+            )
+    return value
+
+
+Endpoint = Annotated[str, AfterValidator(_endpoint)]
+
+
 class ZenohConfig(_Section):
     """The Zenoh session: key prefix, mode and endpoints (``tcp/127.0.0.1:7447``)."""
 
     prefix: str = Field(keys.DEFAULT_PREFIX, pattern=keys.PREFIX_PATTERN)
     mode: Literal["peer", "client", "router"] = "peer"
-    connect: list[str] = Field(default_factory=list, description="Endpoints to connect to")
-    listen: list[str] = Field(default_factory=list, description="Endpoints to listen on")
+    connect: list[Endpoint] = Field(default_factory=list, description="Endpoints to connect to")
+    listen: list[Endpoint] = Field(default_factory=list, description="Endpoints to listen on")
     multicast_scouting: bool = Field(False, description="Find peers by multicast")
+    config_file: TextPath | None = Field(
+        None,
+        description="A Zenoh config file (JSON5: TLS, mTLS, access control); the settings "
+        "above that are given go on top of it",
+    )
 
 
 class DaemonConfig(_Section):
@@ -333,6 +360,16 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
         node = out
         for part in parts[:-1]:
             node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(
+                    f"environment variable {name}: another variable sets "
+                    f"{'.'.join(parts[:-1])} as a whole; set the table or its fields, not both"
+                )
+        if isinstance(node.get(parts[-1]), dict):
+            raise ConfigError(
+                f"environment variable {name}: other variables set fields of "
+                f"{'.'.join(parts)}; set the table or its fields, not both"
+            )
         node[parts[-1]] = parsed
     return out
 
@@ -349,7 +386,12 @@ def _origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) 
     """Where the value at ``loc`` came from: a flag, the environment, the file, or defaults."""
     node: Any = overrides
     for part in loc:
-        node = node.get(part) if isinstance(node, dict) else None
+        if isinstance(node, dict):
+            node = node.get(part)
+        elif isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
+            node = node[part]
+        else:
+            node = None
     if node is not None:
         return "command line"
     env = ENV_PREFIX + "__".join(str(p) for p in loc[:2]).upper()
@@ -370,10 +412,10 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
     try:
         return StereodConfig.model_validate(_merge(_merge(data, environment()), flags))
     except ValidationError as exc:
-        parts = [
-            f"{_origin(tuple(e['loc']), path, flags)}: invalid config: {describe_error(e)}"
-            for e in exc.errors(include_url=False)
-        ]
+        errors = [(_origin(tuple(e["loc"]), path, flags), e) for e in exc.errors(include_url=False)]
+        parts = [f"{origin}: invalid config: {describe_error(e)}" for origin, e in errors]
+        if all(origin == "command line" for origin, _ in errors):
+            raise UsageError("; ".join(parts)) from exc  # a bad flag, exit 64
         raise ConfigError("; ".join(parts)) from exc
 
 

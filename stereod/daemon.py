@@ -17,10 +17,11 @@ internal error (exit 70) naming the log.
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,6 +40,7 @@ from .pipeline import Pipeline
 from .processing import Outgoing, PipelineWorker
 from .publish import Publisher
 from .queues import BoundedQueue
+from .redact import public_config, public_text
 from .sdnotify import Notifier
 from .status import Health, geometry_note
 
@@ -83,7 +85,8 @@ class Daemon:
     ``rate`` paces file sources (1 real time, 0 as fast as possible); ``jsonl`` also writes
     every ``objects`` message to that file (committed at the end of the run);
     ``wait_subscriber_s`` waits that long for a subscriber before capture starts;
-    ``reload_config`` re-reads the configuration on :meth:`reload`.
+    ``reload_config`` re-reads the configuration on :meth:`reload`; ``inputs`` are files the
+    run reads besides the source's own (the config file), which ``jsonl`` must not be.
     """
 
     def __init__(
@@ -97,6 +100,7 @@ class Daemon:
         reload_config: Callable[[], StereodConfig] | None = None,
         notifier: Notifier | None = None,
         on_message: Callable[[Outgoing], None] | None = None,
+        inputs: Sequence[Path] = (),
     ) -> None:
         self.cfg = cfg
         self.driver = driver
@@ -106,6 +110,7 @@ class Daemon:
         self._reload_config = reload_config
         self._notifier = notifier if notifier is not None else Notifier()
         self._on_message = on_message
+        self._inputs = [*inputs, *([cfg.rig.calibration] if cfg.rig.calibration else [])]
         self._stop = threading.Event()
         self._status_now = threading.Event()
         self._reload_requested = threading.Event()
@@ -151,7 +156,9 @@ class Daemon:
         with self._fatal_lock:
             if self._fatal is None:
                 self._fatal = err
-        self.health.problem(str(err))
+        # The run's error is said once, by whoever reports the run's end; here only the
+        # status key learns of it.
+        self.health.problem(str(err), logged=False)
         self.stop()
 
     def _ready(self) -> None:
@@ -169,7 +176,7 @@ class Daemon:
             self._source = source
             info = source.info
             if self.jsonl is not None:
-                check_not_input(self.jsonl, info.inputs, "--jsonl")
+                check_not_input(self.jsonl, [*info.inputs, *self._inputs], "--jsonl")
             params = pipeline_params(self.cfg, info.width, info.height)
             jsonl = AtomicOutput(self.jsonl) if self.jsonl is not None else None
             try:
@@ -204,7 +211,7 @@ class Daemon:
         h.calibration_id = pipeline.params.rig.calibration_id
         h.geometry_note = geometry_note(pipeline.params.rig)
         if h.geometry_note:
-            log.warning("%s", h.geometry_note)
+            log.info("%s", h.geometry_note)
         h.watch(source.left, source.right)
         pairs: BoundedQueue[QueuedPair] = BoundedQueue(cfg.daemon.queue_size, drop_oldest=info.live)
         out: BoundedQueue[Outgoing] = BoundedQueue(
@@ -234,7 +241,7 @@ class Daemon:
         )
         self._worker = worker
         queryables = {
-            "config": lambda: self.cfg.model_dump_json().encode(),
+            "config": lambda: json.dumps(public_config(self.cfg)).encode(),
             "calibration": self._calibration_json,
             "stats": self.stats,
         }
@@ -375,7 +382,12 @@ class Daemon:
         assert self._worker is not None
         r = self._worker.rig
         if isinstance(r, CalibratedRig):
-            return r.calibration.model_dump_json().encode()
+            cal = r.calibration
+            return (
+                cal.model_copy(update={"source": public_text(cal.source)})
+                .model_dump_json()
+                .encode()
+            )
         return dump(
             CanonicalGeometry(
                 baseline_m=r.baseline_m,
