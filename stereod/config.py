@@ -131,6 +131,7 @@ class DetectorConfig(_Section):
     max_blobs: int = Field(
         _DETECT.max_blobs, ge=1, le=100000, description="More blobs than this: saturated"
     )
+    gain: bool = Field(_DETECT.gain, description="Follow a global change of brightness at once")
 
     def params(self) -> DetectorParams:
         return DetectorParams(**self.model_dump())

@@ -18,6 +18,11 @@ Beyond the paper, each one chosen by measurement on two renderers (README, Accur
 - **Warm-up by the median.** The initial background the paper asks for is the per-pixel
   median of the first ``warmup_frames`` frames, so what passes by during warm-up leaves no
   ghost (``warmup = "mean"``: the running mean).
+- **Global gain.** Light that drifts, or a camera's auto-exposure, scales the whole frame; a
+  bright wall 10 % brighter differs from its background by more than ``t``. Each frame, the
+  median ratio of frame to background over a sparse grid of background pixels is that gain,
+  and the background is scaled by it before the difference, so eq. 3 only has to learn what
+  changed locally (``gain = false``: eq. 4 against T as learned).
 - **Colour.** With colour frames and ``color = true`` the difference of eq. 4 is the mean of
   the three channels' absolute differences, so an object as bright as what is behind it but
   of another colour is still found.
@@ -70,6 +75,14 @@ class Warmup(str, enum.Enum):
     """Running mean: the average of the frames."""
 
 
+_GAIN_STEP = 8
+"""Pixel step of the grid the global gain is measured on (1/64 of the pixels)."""
+_GAIN_MIN_LEVEL = 20.0
+"""Background darker than this (grey levels) is left out of the gain: its ratio is noise."""
+_GAIN_RESCALE = 0.01
+"""A gain further than this from 1 scales the stored background itself."""
+
+
 @dataclass(frozen=True, slots=True)
 class DetectorParams:
     """Parameters of sec. II and of what is added to it (module docstring).
@@ -88,6 +101,7 @@ class DetectorParams:
     as bright and coloured as the floor behind it leaves a notch, not a hole).
     ``merge_gap``: pieces closer than this share of the smaller one's size are one object.
     ``max_foreground``, ``max_blobs``: beyond these a frame is saturated.
+    ``gain``: follow a global change of brightness (lighting drift, auto-exposure) at once.
     """
 
     beta: float = 0.02
@@ -108,6 +122,7 @@ class DetectorParams:
     merge_gap: float = 0.3
     max_foreground: float = 0.5
     max_blobs: int = 200
+    gain: bool = True
 
 
 PAPER = DetectorParams(
@@ -119,6 +134,7 @@ PAPER = DetectorParams(
     fill_holes=False,
     convex=False,
     merge_gap=0.0,
+    gain=False,
 )
 """The paper's sec. II as written (eq. 2-5 with eq. 3 everywhere), plus only the opening."""
 
@@ -254,7 +270,11 @@ class Detector:
             bg = None
         if bg is None or self.warming_up:
             return Blobs.empty()
-        self._bg8 = cv2.convertScaleAbs(bg, dst=self._bg8)
+        g = self._gain(frame, bg) if self.params.gain else 1.0
+        if abs(g - 1.0) > _GAIN_RESCALE:
+            cv2.multiply(bg, g, dst=bg)  # rare: the light changed; learn at the new gain
+            g = 1.0
+        self._bg8 = cv2.convertScaleAbs(bg, dst=self._bg8, alpha=g)
         diff = cv2.absdiff(frame, self._bg8)
         if diff.ndim == 3:
             diff = cv2.transform(diff, _MEAN_RGB)
@@ -272,6 +292,21 @@ class Detector:
             return self._saturated()
         self._saturated_run = 0
         return self._blobs(contours, mask, diff)
+
+    def _gain(self, frame: np.ndarray, bg: np.ndarray) -> float:
+        """Median of frame / background over every ``_GAIN_STEP``-th pixel each way that was
+        background in the last frame and is not dark: the global gain, 1.0 when unknown."""
+        f = frame[::_GAIN_STEP, ::_GAIN_STEP].astype(np.float32)
+        b = bg[::_GAIN_STEP, ::_GAIN_STEP]
+        if f.ndim == 3:
+            f, b = f.sum(axis=2), b.sum(axis=2) / 3.0
+            f /= 3.0
+        use = b > _GAIN_MIN_LEVEL
+        if self.mask is not None and self.mask.shape == frame.shape[:2]:
+            use &= self.mask[::_GAIN_STEP, ::_GAIN_STEP] == 0
+        if np.count_nonzero(use) < 32:
+            return 1.0
+        return float(np.median(f[use] / b[use]))
 
     def _saturated(self) -> Blobs:
         self.saturated += 1

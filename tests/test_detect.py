@@ -199,22 +199,50 @@ def test_coverage_centroid_beats_binary_on_subpixel_discs() -> None:
     assert coverage < 0.8 * binary, f"coverage {coverage:.3f} px vs binary {binary:.3f} px"
 
 
-def test_a_lighting_jump_saturates_then_the_background_is_learned_again() -> None:
-    """The lights go up by 60 grey levels: every pixel is foreground. Such frames report no
-    blobs and are counted; after warmup_frames of them the background is learned afresh, and
-    an object that then appears is found alone (no ghost of the old scene)."""
+def test_a_camera_knocked_saturates_then_the_background_is_learned_again() -> None:
+    """The camera is knocked and sees another scene: most pixels are foreground and no global
+    gain explains it. Such frames report no blobs and are counted; after warmup_frames of them
+    the background is learned afresh, and an object that then appears is found alone (no ghost
+    of the old scene)."""
     p = DetectorParams(warmup_frames=5, beta=0.02)
     det = Detector(p)
-    dark = np.full((60, 80), 80, np.uint8)
+    before = textured(60, 80, seed=0)
     for _ in range(5):
-        det.detect(dark)
-    bright = dark + 60
-    seen = [len(det.detect(bright)) for _ in range(6)]
+        det.detect(before)
+    after = 255 - before
+    seen = [len(det.detect(after)) for _ in range(6)]
     assert seen == [0] * 6 and det.saturated == 6
     for _ in range(5):  # the warm-up of the new background
-        assert len(det.detect(bright)) == 0
-    obj = bright.copy()
+        assert len(det.detect(after)) == 0
+    obj = after.copy()
     obj[20:30, 30:40] = 250
     blobs = det.detect(obj)
     assert len(blobs) == 1 and tuple(blobs.bbox_px[0]) == (30, 20, 10, 10)
     assert det.saturated == 6
+
+
+@pytest.mark.parametrize("color", [False, True])
+def test_a_global_gain_is_followed_at_once(color: bool) -> None:
+    """The light drifts by +-25 % over 60 frames (a 140-level patch moves by 35 > t = 25): with
+    the gain followed, nothing but the square is ever found, and the square's box is exact;
+    eq. 4 against the learned background alone (``gain = false``) finds the wall."""
+    bg = textured(120, 160, seed=3)
+    if color:
+        bg = cv2.merge([bg, cv2.flip(bg, 1), cv2.flip(bg, 0)])
+    found = {}
+    for gain in (True, False):
+        det = Detector(DetectorParams(warmup_frames=3, gain=gain, color=color))
+        warm(det, bg, 3)
+        extra = []
+        for k in range(60):
+            g = 1.0 + 0.25 * np.sin(2 * np.pi * k / 60)
+            frame = np.clip(bg.astype(np.float32) * g, 0, 255).astype(np.uint8)
+            frame[40:56, 60 + k : 76 + k] = 250
+            blobs = det.detect(frame)
+            boxes = [tuple(int(v) for v in b) for b in blobs.bbox_px]
+            extra.append([b for b in boxes if b != (60 + k, 40, 16, 16)])
+            if gain:
+                assert (60 + k, 40, 16, 16) in boxes, (k, boxes)
+        found[gain] = sum(1 for e in extra if e)
+    assert found[True] == 0
+    assert found[False] > 10
