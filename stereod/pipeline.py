@@ -42,7 +42,8 @@ class PipelineParams:
     ``centroid_sigma_px``: assumed centroid error per axis (px), the source of every covariance.
     ``detect_workers``: 2 detects the two eyes on two threads (OpenCV releases the GIL).
     ``skew_compensation``: move both eyes' centroids to one instant before triangulating.
-    ``skew_window_s``: how much of an eye's 2D track (s) its image velocity is fitted over.
+    ``skew_window_s``: how much of an eye's 2D track (s) its image velocity is fitted over, and
+    how old its oldest of three frames may be for the projective interpolation.
     ``freeze_background``: do not learn the background under tracked objects.
     ``refine``: how the disparity is refined by matching appearance between the eyes.
     ``max_image_speed_wps``: the fastest image motion to expect, in image widths per second
@@ -58,7 +59,7 @@ class PipelineParams:
     centroid_sigma_px: float = 0.25
     detect_workers: int = 1
     skew_compensation: bool = True
-    skew_window_s: float = 0.15
+    skew_window_s: float = 0.2
     freeze_background: bool = True
     max_image_speed_wps: float = 10.0
     refine: RefineParams = field(default_factory=RefineParams)

@@ -6,10 +6,17 @@ that becomes a 28 % depth error at typical range. The later eye's centroid is br
 the earlier eye's capture instant, which becomes the measurement's time: that eye saw the
 object one frame before, and that earlier frame and this one bracket the instant, so the
 centroid there is interpolated between two measurements, not extrapolated from a fitted
-velocity (interpolation errs by a T^2 / 8 of the image acceleration a, extrapolation by far
-more, and on a receding or approaching object the image motion does accelerate). Without the
-earlier frame (it was dropped), the eye's image velocity over its 2D track moves it. Only past
-frames are used, so compensation adds no latency.
+velocity. Only past frames are used, so compensation adds no latency.
+
+Interpolation follows the projection, not a straight line. An object moving at a constant
+velocity has X, Y and Z linear in time, so each image coordinate ``f X / Z + c`` is a
+fractional-linear (Moebius) function of time, which three samples determine; a straight line
+through two samples misses it wherever Z changes fast (a ball thrown at the camera at 10 m/s
+seen at 15 Hz: 0.3 to 2 px of disparity, 4 to 14 % of its speed). With three frames of the
+eye whose samples move monotonically, the coordinate is the Moebius function through them
+(its cross-ratio with time is preserved), which then lies between the two bracketing samples;
+otherwise the straight line. Without the earlier frame (it was dropped), the eye's image
+velocity over its 2D track moves it.
 
 This is the one stage every detection passes through, once, after it was associated with a
 track in the images (:meth:`stereod.tracking.Tracker.associate`, which needs no compensation
@@ -59,9 +66,33 @@ def at_instant(
     if history:
         t0, c0 = history[-1]
         if t0 <= target_ns < t_ns:
+            if len(history) >= 2 and t_ns - history[-2][0] <= window_ns:
+                ta, ca = history[-2]
+                return moebius((ta, t0, t_ns), (ca, c0, centroid_px), target_ns)
             return c0 + (centroid_px - c0) * ((target_ns - t0) / (t_ns - t0))
     v = image_velocity([*history, (t_ns, centroid_px)], window_ns)
     return None if v is None else shift_to(centroid_px, t_ns, v, target_ns)
+
+
+def moebius(
+    times_ns: tuple[int, int, int], centroids_px: tuple[np.ndarray, ...], target_ns: int
+) -> np.ndarray:
+    """Each coordinate of three centroids (2,) px taken at increasing ``times_ns``, evaluated
+    at ``target_ns`` in [t1, t2] on the fractional-linear curve through them (exact for an
+    object at constant 3D velocity); a coordinate whose samples do not move monotonically
+    (noise on a slow object) is interpolated linearly between the last two."""
+    ta, tb, tc = times_ns
+    w = (target_ns - tb) / (tc - tb)
+    a, b, c = (np.asarray(x, dtype=np.float64) for x in centroids_px)
+    out = b + (c - b) * w
+    # cross-ratio of the times: (t - ta)(tb - tc) / ((t - tc)(tb - ta)), finite since t < tc
+    k = ((target_ns - ta) * (tb - tc)) / ((target_ns - tc) * (tb - ta))
+    rise, run = b - a, c - b
+    curved = rise * run > 0.0
+    den = run + k * rise
+    ok = curved & (np.abs(den) > 1e-12)
+    out[ok] = ((a * run + k * c * rise) / np.where(ok, den, 1.0))[ok]
+    return out
 
 
 def shift_to(

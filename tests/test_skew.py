@@ -23,6 +23,41 @@ def test_image_velocity_and_shift() -> None:
     assert skew.common_instant(5, 9) == 5
 
 
+def _projected(t_s: float) -> np.ndarray:
+    """Pixel (2,) of a point at constant 3D velocity, thrown at a 500 px camera from 3 m at
+    10 m/s with a sideways drift: x = f X / Z + c, closed form."""
+    x, y, z = 0.1 + 1.0 * t_s, -0.2 + 0.5 * t_s, 3.0 - 10.0 * t_s
+    return np.array([500.0 * x / z + 320.0, 500.0 * y / z + 240.0])
+
+
+def test_moebius_is_exact_for_constant_velocity_where_a_line_is_not() -> None:
+    """Three frames 66.7 ms apart (15 Hz) and an instant 16 ms before the newest: the
+    fractional-linear curve through them is the projection itself; a straight line through
+    the newest two errs by over a pixel."""
+    times = (0, 66_666_667, 133_333_333)
+    target = 117_000_000
+    cs = tuple(_projected(t * 1e-9) for t in times)
+    truth = _projected(target * 1e-9)
+    got = skew.moebius(times, cs, target)
+    np.testing.assert_allclose(got, truth, atol=1e-9)
+    w = (target - times[1]) / (times[2] - times[1])
+    line = cs[1] + (cs[2] - cs[1]) * w
+    assert np.abs(line - truth).max() > 1.0
+    # at_instant uses it once the eye has two earlier frames within the window
+    hist = [(times[0], cs[0]), (times[1], cs[1])]
+    np.testing.assert_allclose(skew.at_instant(hist, times[2], cs[2], target, 10**9), truth)
+
+
+def test_moebius_stays_between_the_bracketing_samples() -> None:
+    """A coordinate whose samples go back and forth (noise on a still object) is interpolated
+    linearly; a monotone one lands between the two samples that bracket the instant."""
+    a, b, c = np.array([10.0, 5.0]), np.array([10.4, 5.2]), np.array([10.2, 9.0])
+    got = skew.moebius((0, 10, 20), (a, b, c), 15)
+    assert got[0] == pytest.approx(10.3)  # x went up then down: the line
+    assert 5.2 < got[1] < 9.0  # y rose ever faster: between the last two, nearer the start
+    assert got[1] < 7.1
+
+
 def depth_errors(compensate: bool, skew_s: float) -> np.ndarray:
     scene = Scene(
         skew_s=skew_s,
@@ -64,13 +99,17 @@ def test_compensation_is_harmless_without_skew() -> None:
 
 
 def test_the_later_eye_is_interpolated_between_its_two_frames() -> None:
-    """The later eye's previous frame and this one bracket the earlier eye's instant: the
-    centroid there is interpolated, exact for any motion that is linear between frames, and
-    free of the lag a velocity fitted over older frames has when the image motion speeds up."""
+    """The later eye's previous frame and this one bracket the earlier eye's instant: with no
+    older frame the centroid there is on the line between them, exact for any motion linear
+    between frames, and free of the lag a velocity fitted over older frames has when the
+    image motion speeds up."""
     hist = [(0, np.array([100.0, 50.0])), (33_000_000, np.array([110.0, 50.0]))]
     now = np.array([130.0, 50.0])  # accelerating: 10 px, then 20 px per frame
-    got = skew.at_instant(hist, 66_000_000, now, 50_000_000, 150_000_000)
+    got = skew.at_instant(hist[1:], 66_000_000, now, 50_000_000, 150_000_000)
     assert got is not None
+    np.testing.assert_allclose(got, [110.0 + 20.0 * 17 / 33, 50.0])
+    # the first frame is outside the window: still the line
+    got = skew.at_instant(hist, 66_000_000, now, 50_000_000, 40_000_000)
     np.testing.assert_allclose(got, [110.0 + 20.0 * 17 / 33, 50.0])
     # Nothing before the target: the image velocity moves it instead; nothing at all: None.
     moved = skew.at_instant(hist[1:], 66_000_000, now, 20_000_000, 10**9)
