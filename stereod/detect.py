@@ -106,7 +106,7 @@ class DetectorParams:
 
     beta: float = 0.02
     threshold: float = 25.0
-    min_area_px: int = 30
+    min_area_px: int = 12
     warmup_frames: int = 10
     warmup: Warmup = Warmup.MEDIAN
     open_px: int = 3
@@ -272,7 +272,7 @@ class Detector:
             return Blobs.empty()
         g = self._gain(frame, bg) if self.params.gain else 1.0
         if abs(g - 1.0) > _GAIN_RESCALE:
-            cv2.multiply(bg, g, dst=bg)  # rare: the light changed; learn at the new gain
+            np.multiply(bg, np.float32(g), out=bg)  # rare: the light changed; learn at the new gain
             g = 1.0
         self._bg8 = cv2.convertScaleAbs(bg, dst=self._bg8, alpha=g)
         diff = cv2.absdiff(frame, self._bg8)

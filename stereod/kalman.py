@@ -1,7 +1,8 @@
 """Constant-velocity Kalman filter in 3D, for one track.
 
 State x = [px, py, pz, vx, vy, vz] (m, m/s, rig frame), covariance P (6, 6). The motion model is
-constant velocity driven by white acceleration noise of spectral density ``q`` (m^2/s^3); the
+constant velocity driven by white acceleration noise of spectral density ``q`` (m^2/s^3),
+optionally plus a known constant acceleration (gravity, for an object in free fall); the
 measurement is a position with its own covariance R (3, 3), from triangulation, so far points
 (depth sigma growing as Z^2, eq. 12) pull the estimate less than near ones. ``dt`` is seconds
 between capture timestamps, never a frame count.
@@ -9,6 +10,7 @@ between capture timestamps, never a frame count.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,13 +66,20 @@ def initiate(
     return KalmanState(x, p, t_ns)
 
 
-def predict(s: KalmanState, t_ns: int, q: float) -> KalmanState:
-    """The state at ``t_ns``: x = F x, P = F P F' + Q."""
+def predict(
+    s: KalmanState, t_ns: int, q: float, accel_mps2: np.ndarray | None = None
+) -> KalmanState:
+    """The state at ``t_ns``: x = F x (+ the known acceleration's a dt^2 / 2 and a dt),
+    P = F P F' + Q."""
     dt = (t_ns - s.t_ns) * 1e-9
     if dt == 0:
         return s
     f = transition(dt)
-    return KalmanState(f @ s.x, f @ s.P @ f.T + process_noise(abs(dt), q), t_ns)
+    x = f @ s.x
+    if accel_mps2 is not None:
+        x[:3] += 0.5 * dt * dt * accel_mps2
+        x[3:] += dt * accel_mps2
+    return KalmanState(x, f @ s.P @ f.T + process_noise(abs(dt), q), t_ns)
 
 
 def inflate_velocity(s: KalmanState, sigma_mps: float) -> KalmanState:
@@ -95,6 +104,16 @@ def mahalanobis2(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:
     return float(y @ np.linalg.solve(cov, y))
 
 
+def log_likelihood(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:
+    """Log of the Gaussian density of measurement ``z_m`` under the state's prediction:
+    -(y' S^-1 y + log det S + 3 log 2 pi) / 2; comparing two models' sums picks the likelier."""
+    y, cov = innovation(s, z_m, r_m2)
+    sign, logdet = np.linalg.slogdet(cov)
+    if sign <= 0:
+        return -math.inf
+    return -0.5 * (float(y @ np.linalg.solve(cov, y)) + logdet + 3.0 * math.log(2.0 * math.pi))
+
+
 def update(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> KalmanState:
     """Fold in a position: K = P H' S^-1, x = x + K y, P = (I - K H) P (I - K H)' + K R K'."""
     y, cov = innovation(s, z_m, r_m2)
@@ -106,16 +125,26 @@ def update(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> KalmanState:
 
 
 def initiate_two(
-    z1_m: np.ndarray, r1_m2: np.ndarray, t1_ns: int, z2_m: np.ndarray, r2_m2: np.ndarray, t2_ns: int
+    z1_m: np.ndarray,
+    r1_m2: np.ndarray,
+    t1_ns: int,
+    z2_m: np.ndarray,
+    r2_m2: np.ndarray,
+    t2_ns: int,
+    accel_mps2: np.ndarray | None = None,
 ) -> KalmanState:
     """A state at ``t2_ns`` from two position measurements: the position is the second, the
-    velocity their difference over the time between them (eq. 21 over one step), with the
+    velocity their difference over the time between them (eq. 21 over one step; under a
+    known acceleration that is the velocity half-way, plus a dt / 2 at the second), with the
     covariance that follows: P_pp = R2, P_pv = R2 / dt, P_vv = (R1 + R2) / dt^2."""
     dt = (t2_ns - t1_ns) * 1e-9
     if not dt > 0:
         raise ValueError(f"the second measurement must be later than the first, got dt={dt} s")
     z2 = np.asarray(z2_m, float)
-    x = np.concatenate([z2, (z2 - np.asarray(z1_m, float)) / dt])
+    v = (z2 - np.asarray(z1_m, float)) / dt
+    if accel_mps2 is not None:
+        v = v + 0.5 * dt * accel_mps2
+    x = np.concatenate([z2, v])
     p = np.zeros((6, 6))
     p[:3, :3] = r2_m2
     p[:3, 3:] = p[3:, :3] = r2_m2 / dt

@@ -138,7 +138,7 @@ class Pipeline:
         self.params = params
         self.left = Detector(params.detector)
         self.right = Detector(params.detector)
-        self.tracker = Tracker(params.tracker)
+        self.tracker = Tracker(params.tracker, params.rig.project_rectified)
         self._pool = (
             ThreadPoolExecutor(2, thread_name_prefix="detect")
             if params.detect_workers > 1

@@ -19,7 +19,8 @@ the paper's eq. 21 finite difference over ``time_base_s`` is kept beside them as
 velocity. A velocity is valid once the track is confirmed and the speed's own sigma is small
 (``valid_speed_sigma_mps`` or ``valid_speed_sigma_rel`` of the speed, whichever is larger).
 
-Lifecycle: ``tentative`` until ``confirm_hits`` observations, then ``confirmed``; a confirmed
+Lifecycle: ``tentative`` until ``confirm_hits`` observations and a running filter (two
+observations no faster than ``max_speed_mps`` apart), then ``confirmed``; a confirmed
 track not seen in a pair is ``coasting`` (predicted) until ``max_coast_s`` has passed, then it
 ends (a tentative track ends at its first miss). Ids are never reused. All times are seconds
 computed from timestamps, never frame counts.
@@ -30,6 +31,7 @@ from __future__ import annotations
 import collections
 import enum
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -46,7 +48,8 @@ class TrackLifecycle(str, enum.Enum):
     """Where a track is in its life."""
 
     TENTATIVE = "tentative"
-    """Seen fewer than ``confirm_hits`` times: may be noise."""
+    """Seen fewer than ``confirm_hits`` times, or never twice at a believable speed: may be
+    noise or a mismatch."""
     CONFIRMED = "confirmed"
     """Seen often enough to be a real object, and seen in the latest pair."""
     COASTING = "coasting"
@@ -117,7 +120,10 @@ class TrackerParams:
     ``valid_speed_sigma_rel``: a velocity is valid once the speed's sigma is below the larger
     of these (m/s; share of the speed). ``freeze_s``: how long (s) after it was last seen
     moving an object keeps the background frozen under it. ``stationary_mps``: below this
-    speed an object is not moving.
+    speed an object is not moving. ``gravity_mps2``: gravity in the rig frame (m/s^2; Y points
+    down in a level rig); every moving track is filtered both as moving straight and as
+    falling freely, and follows the likelier (a thrown ball falls 5 mm in one frame at 30 Hz,
+    and a straight-line filter bends its depth to explain that); (0, 0, 0) turns this off.
     """
 
     gate_px: float = 6.0
@@ -133,6 +139,7 @@ class TrackerParams:
     valid_speed_sigma_rel: float = 0.1
     freeze_s: float = 10.0
     stationary_mps: float = 0.05
+    gravity_mps2: tuple[float, float, float] = (0.0, 9.81, 0.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -170,6 +177,7 @@ class Track:
     track_id: int
     first_t_ns: int
     kf: kalman.KalmanState
+    """The filter of the likelier motion model (see ``falling``); what the track reports."""
     last: Observation
     image_speed_pxps: float
     area_px: float
@@ -203,6 +211,17 @@ class Track:
     )
     left_history: EyeHistory = field(default_factory=lambda: collections.deque(maxlen=8))
     right_history: EyeHistory = field(default_factory=lambda: collections.deque(maxlen=8))
+    other: kalman.KalmanState | None = None
+    """The filter of the other motion model (straight line or free fall), run alongside."""
+    falling: bool = False
+    """Whether ``kf`` is the free-fall filter (the object moves as if thrown)."""
+    fall_evidence: float = 0.0
+    """Log-likelihood of free fall over a straight line, summed over recent updates with a
+    fading memory."""
+
+
+Projector = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""Rig-frame points (n, 3) m to rectified px (n, 2) of the left and the right eye."""
 
 
 def predict_px(history: EyeHistory, t_ns: int, window_ns: int) -> tuple[np.ndarray, float]:
@@ -267,8 +286,15 @@ class Tracker:
     WINDOW_NS = 150_000_000
     """How much of an eye's 2D track its image velocity is fitted over (ns)."""
 
-    def __init__(self, params: TrackerParams) -> None:
+    def __init__(self, params: TrackerParams, project: Projector | None = None) -> None:
+        """``project`` maps rig-frame points (n, 3) m to rectified px (n, 2) per eye; with it,
+        a track whose filter runs is looked for where its 3D prediction projects (which
+        follows perspective: an object coming at the camera speeds up in the image), else
+        where its image velocity leads."""
         self.params = params
+        self._project = project
+        g = np.asarray(params.gravity_mps2, dtype=np.float64)
+        self._gravity: np.ndarray | None = g if np.any(g != 0.0) else None
         self._tracks: dict[int, Track] = {}
         self._next_id = 1
 
@@ -297,8 +323,7 @@ class Tracker:
         inside = np.zeros((2, n, len(tracks)), bool)
         boxes = []
         for j, tr in enumerate(tracks):
-            pl, ml = predict_px(tr.left_history, t_left, self.WINDOW_NS)
-            pr, mr = predict_px(tr.right_history, t_right, self.WINDOW_NS)
+            pl, ml, pr, mr = self._predict_px(tr, t_left, t_right)
             boxes.append(
                 (
                     _moved(tr.last.left_bbox_px, pl - tr.left_history[-1][1]),
@@ -318,7 +343,7 @@ class Tracker:
                     cost[i, j] = dist / gate
                 inside[0, i, j] = _inside(pl, d.left_bbox_px, 0.0)
                 inside[1, i, j] = _inside(pr, d.right_bbox_px, 0.0)
-        confirmed = np.array([tr.hits >= p.confirm_hits for tr in tracks])
+        confirmed = np.array([self._confirmed(tr) for tr in tracks])
         for i, d in enumerate(detections):
             in_left, in_right = inside[0, i] & confirmed, inside[1, i] & confirmed
             if in_left.sum() < 2 and in_right.sum() < 2:
@@ -350,6 +375,25 @@ class Tracker:
             if out[i] is None and may_start[i]:
                 may_start[i] = not _piece(d, detections, out, tracks)
         return out, may_start
+
+    def _predict_px(
+        self, tr: Track, t_left: int, t_right: int
+    ) -> tuple[np.ndarray, float, np.ndarray, float]:
+        """Where each eye should see a track at its capture instant (px), and how far that is
+        from where it last saw it (px)."""
+        if self._project is not None and tr.started:
+            accel = self._accel(tr.falling)
+            at_left = kalman.predict(tr.kf, t_left, 0.0, accel).position_m
+            at_right = kalman.predict(tr.kf, t_right, 0.0, accel).position_m
+            if at_left[2] > 0 and at_right[2] > 0:
+                pl = self._project(at_left[None, :])[0][0]
+                pr = self._project(at_right[None, :])[1][0]
+                ml = float(np.linalg.norm(pl - tr.left_history[-1][1]))
+                mr = float(np.linalg.norm(pr - tr.right_history[-1][1]))
+                return pl, ml, pr, mr
+        pl, ml = predict_px(tr.left_history, t_left, self.WINDOW_NS)
+        pr, mr = predict_px(tr.right_history, t_right, self.WINDOW_NS)
+        return pl, ml, pr, mr
 
     def histories(self, track_id: int | None) -> tuple[EyeHistory, EyeHistory] | None:
         """A track's two eye histories (for skew compensation), None for no track."""
@@ -396,7 +440,7 @@ class Tracker:
                 if not tr.started:
                     self._begin(tr, t_ns, ob)
                 elif ob.clipped:  # part of it out of view: its position is predicted
-                    tr.kf = kalman.predict(tr.kf, t_ns, self._q(tr))
+                    self._predict(tr, t_ns)
                 else:
                     self._filter(tr, t_ns, ob)
                 tr.hits += 1
@@ -416,11 +460,11 @@ class Tracker:
         for tid, tr in list(self._tracks.items()):
             if tid in seen:
                 continue
-            if tr.hits < p.confirm_hits or t_ns - tr.last_seen_ns > coast_ns:
+            if not self._confirmed(tr) or t_ns - tr.last_seen_ns > coast_ns:
                 ended.append(tid)
                 del self._tracks[tid]
             else:
-                tr.kf = kalman.predict(tr.kf, t_ns, self._q(tr))
+                self._predict(tr, t_ns)
                 if tr.started or tr.whole:
                     states.append(self._state(tr, t_ns, observed=False))
         return states, ended
@@ -433,23 +477,66 @@ class Tracker:
     the triangulation covariance says (a tighter filter follows the noise: headings jitter),
     at most 4.5 times less."""
 
+    FALL_MEMORY = 0.8
+    """Per update, the share of the free-fall evidence kept (a memory of about five frames)."""
+    FALL_SWITCH = 2.0
+    """Evidence (log-likelihood) beyond which a track changes model: odds of e^2, about 7:1."""
+
     def _filter(self, tr: Track, t_ns: int, ob: Observation) -> None:
-        """One predict/update of the filter. The measurement covariance is the
-        triangulation's times the track's noise scale (:meth:`_learn_noise`). An innovation
-        beyond ``manoeuvre_chi2`` is a manoeuvre, or a prediction too sure of itself: the
-        prediction's covariance is widened by as much as it takes to bring the innovation back
-        to that bound (a fading memory), so the update leans on the measurement as much as
-        the surprise calls for, and no more."""
-        p = self.params
+        """One predict/update of the filter, and of the other motion model's alongside; the
+        track follows whichever has explained its recent positions better. The measurement
+        covariance is the triangulation's times the track's noise scale (:meth:`_learn_noise`).
+        An innovation beyond ``manoeuvre_chi2`` is a manoeuvre, or a prediction too sure of
+        itself: the prediction's covariance is widened by as much as it takes to bring the
+        innovation back to that bound (a fading memory), so the update leans on the
+        measurement as much as the surprise calls for, and no more."""
         self._learn_noise(tr, t_ns, ob)
         r = ob.cov_m2 * tr.noise_scale
-        pred = kalman.predict(tr.kf, t_ns, self._q(tr))
+        q = self._q(tr)
+        tr.kf, ll = self._step(tr.kf, t_ns, ob, r, q, self._accel(tr.falling))
+        if tr.other is None:
+            return
+        tr.other, ll_other = self._step(tr.other, t_ns, ob, r, q, self._accel(not tr.falling))
+        gain = (ll - ll_other) if tr.falling else (ll_other - ll)  # evidence for free fall
+        if not math.isfinite(gain):
+            return
+        tr.fall_evidence = self.FALL_MEMORY * tr.fall_evidence + gain
+        if tr.falling != (tr.fall_evidence > 0.0) and abs(tr.fall_evidence) > self.FALL_SWITCH:
+            tr.kf, tr.other = tr.other, tr.kf
+            tr.falling = not tr.falling
+
+    def _step(
+        self,
+        kf: kalman.KalmanState,
+        t_ns: int,
+        ob: Observation,
+        r: np.ndarray,
+        q: float,
+        accel: np.ndarray | None,
+    ) -> tuple[kalman.KalmanState, float]:
+        """One filter's predict and update, and the measurement's log-likelihood under the
+        prediction (before any widening)."""
+        pred = kalman.predict(kf, t_ns, q, accel)
+        ll = kalman.log_likelihood(pred, ob.position_m, r)
         for _ in range(3):
             nis = kalman.mahalanobis2(pred, ob.position_m, r)
-            if nis <= p.manoeuvre_chi2:
+            if nis <= self.params.manoeuvre_chi2:
                 break
-            pred = kalman.KalmanState(pred.x, pred.P * (nis / p.manoeuvre_chi2), pred.t_ns)
-        tr.kf = kalman.update(pred, ob.position_m, r)
+            pred = kalman.KalmanState(
+                pred.x, pred.P * (nis / self.params.manoeuvre_chi2), pred.t_ns
+            )
+        return kalman.update(pred, ob.position_m, r), ll
+
+    def _accel(self, falling: bool) -> np.ndarray | None:
+        """The known acceleration of a motion model: gravity when falling, else none."""
+        return self._gravity if falling else None
+
+    def _predict(self, tr: Track, t_ns: int) -> None:
+        """Both of a track's filters moved to ``t_ns`` without a measurement."""
+        q = self._q(tr)
+        tr.kf = kalman.predict(tr.kf, t_ns, q, self._accel(tr.falling))
+        if tr.other is not None:
+            tr.other = kalman.predict(tr.other, t_ns, q, self._accel(not tr.falling))
 
     def _q(self, tr: Track) -> float:
         """The track's process noise density (m^2/s^3): ``accel_noise`` for an object at walking
@@ -472,6 +559,10 @@ class Tracker:
         a = (t2 - t1) / (t2 - t0)
         b = (t1 - t0) / (t2 - t0)
         residual = p1 - (a * p0 + b * p2)
+        if (
+            tr.falling and self._gravity is not None
+        ):  # a free fall's positions bend by g (t1 - t0)(t2 - t1) / 2 off the line
+            residual = residual + 0.5 * (t1 - t0) * (t2 - t1) * 1e-18 * self._gravity
         cov = (r1 + a * a * r0 + b * b * r2) * tr.noise_scale
         d2 = float(residual @ np.linalg.solve(cov, residual))
         lo, hi = self.NOISE_BOUNDS
@@ -487,7 +578,8 @@ class Tracker:
         (both eyes at one instant) is kept, and the next exact one starts the filter from the
         two: eq. 21 over one frame. Without skew the first two whole observations do; with
         skew the first cannot be brought to one instant, and the filter starts one frame
-        later rather than from a guessed position."""
+        later rather than from a guessed position. Two observations further apart than
+        ``max_speed_mps`` allows are not one object moving: the newer one is kept instead."""
         p = self.params
         if ob.clipped or not tr.whole:
             tr.whole = not ob.clipped
@@ -502,11 +594,25 @@ class Tracker:
                 tr.first = (t_ns, ob)
             return
         t0, ob0 = tr.first
+        step = float(np.linalg.norm(ob.position_m - ob0.position_m))
+        if step > p.max_speed_mps * (t_ns - t0) * 1e-9:  # one of the two is a mismatch
+            tr.kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
+            tr.first = (t_ns, ob)
+            return
         tr.kf = kalman.initiate_two(ob0.position_m, ob0.cov_m2, t0, ob.position_m, ob.cov_m2, t_ns)
+        tr.falling, tr.fall_evidence, tr.other = False, 0.0, None
+        if self._gravity is not None:
+            tr.other = kalman.initiate_two(
+                ob0.position_m, ob0.cov_m2, t0, ob.position_m, ob.cov_m2, t_ns, self._gravity
+            )
         tr.first = None
         tr.started = True
         tr.positions.clear()
         tr.positions.append((t0, ob0.position_m))
+
+    def _confirmed(self, tr: Track) -> bool:
+        """Seen ``confirm_hits`` times, and its filter runs."""
+        return tr.started and tr.hits >= self.params.confirm_hits
 
     def continue_after(self, other: Tracker) -> None:
         """Number new tracks after ``other``'s, so ids are never reused while running."""
@@ -540,7 +646,7 @@ class Tracker:
             if spd > 0
             else math.sqrt(float(np.trace(vcov)))
         )
-        confirmed = tr.hits >= p.confirm_hits
+        confirmed = self._confirmed(tr)
         precise = spd_sigma <= max(p.valid_speed_sigma_mps, p.valid_speed_sigma_rel * spd)
         valid = started and confirmed and precise
         if valid and spd > max(p.stationary_mps, 3.0 * spd_sigma):

@@ -56,3 +56,34 @@ def test_mahalanobis_distance() -> None:
     # S = P_pos + R = 2 R here.
     d2 = kalman.mahalanobis2(s, np.array([0.1, 0.2, 0.3]), np.diag([0.01, 0.04, 0.09]))
     assert d2 == pytest.approx(1.5)
+
+
+def test_a_known_acceleration_predicts_a_free_fall_exactly() -> None:
+    """p = p0 + v0 t + a t^2 / 2 and v = v0 + a t; two positions of the fall give the
+    velocity at the second (the chord's velocity is that of the midpoint)."""
+    g = np.array([0.0, 9.81, 0.0])
+    p0, v0 = np.array([0.1, -0.2, 5.0]), np.array([1.0, -3.0, -10.0])
+    s = kalman.initiate(p0, np.eye(3) * 1e-4, 0, 1.0)
+    s.x[3:] = v0
+    t = 0.1
+    out = kalman.predict(s, int(t * 1e9), 0.0, g)
+    np.testing.assert_allclose(out.position_m, p0 + v0 * t + 0.5 * g * t * t, atol=1e-12)
+    np.testing.assert_allclose(out.velocity_mps, v0 + g * t, atol=1e-12)
+
+    def at(t_s: float) -> np.ndarray:
+        return p0 + v0 * t_s + 0.5 * g * t_s * t_s
+
+    r = np.eye(3) * 1e-6
+    two = kalman.initiate_two(at(0.0), r, 0, at(0.05), r, 50_000_000, g)
+    np.testing.assert_allclose(two.velocity_mps, v0 + g * 0.05, atol=1e-9)
+    line = kalman.initiate_two(at(0.0), r, 0, at(0.05), r, 50_000_000)
+    np.testing.assert_allclose(line.velocity_mps, v0 + g * 0.025, atol=1e-9)
+
+
+def test_log_likelihood_is_the_gaussian_density() -> None:
+    s = kalman.initiate(np.zeros(3), np.diag([0.01, 0.04, 0.09]), 0, 1.0)
+    r = np.diag([0.01, 0.0, 0.01])
+    z = np.array([0.1, -0.2, 0.3])
+    var = np.array([0.02, 0.04, 0.10])
+    expected = float(np.sum(-0.5 * (z * z / var + np.log(2 * np.pi * var))))
+    assert kalman.log_likelihood(s, z, r) == pytest.approx(expected, rel=1e-12)

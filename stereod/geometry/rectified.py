@@ -16,7 +16,7 @@ import numpy as np
 
 from ..calibration import Calibration
 from . import Geometry
-from .stereo import _grey, triangulate_rectified
+from .stereo import _grey, project_rectified, triangulate_rectified
 
 
 class CalibratedRig:
@@ -121,6 +121,18 @@ class CalibratedRig:
             cx_right_px=self.cx_right_px,
             cy_px=self.cy_px,
             sigma_px=sigma_px,
+        )
+
+    def project_rectified(self, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rig-frame points (n, 3) m to rectified left and right px (n, 2), where the pipeline
+        measures centroids (not the raw images: see :func:`stereod.overlay.project`)."""
+        return project_rectified(
+            points_m,
+            focal_px=self.focal_px,
+            baseline_m=self.baseline_m,
+            cx_left_px=self.cx_left_px,
+            cx_right_px=self.cx_right_px,
+            cy_px=self.cy_px,
         )
 
     def depth_error_one_px_m(self, depth_m: np.ndarray | float) -> np.ndarray | float:

@@ -62,13 +62,18 @@ class CanonicalRig:
 
     def project(self, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pinhole projection of (n, 3) rig-frame points (m) into left and right (n, 2) px."""
-        p = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
-        f, half = self.focal_px, self.baseline_m / 2.0
-        z = p[:, 2]
-        y = f * p[:, 1] / z + self.cy_px
-        xl = f * (p[:, 0] + half) / z + self.cx_px
-        xr = f * (p[:, 0] - half) / z + self.cx_px
-        return np.stack([xl, y], axis=1), np.stack([xr, y], axis=1)
+        return project_rectified(
+            points_m,
+            focal_px=self.focal_px,
+            baseline_m=self.baseline_m,
+            cx_left_px=self.cx_px,
+            cx_right_px=self.cx_px,
+            cy_px=self.cy_px,
+        )
+
+    def project_rectified(self, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rig-frame points (n, 3) m to rectified px (n, 2) per eye: :meth:`project` here."""
+        return self.project(points_m)
 
     @property
     def calibration_id(self) -> str | None:
@@ -118,6 +123,26 @@ class CanonicalRig:
 def _grey(patch: np.ndarray) -> np.ndarray:
     """A uint8 patch as one channel (BT.601 luma of a BGR patch)."""
     return cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY) if patch.ndim == 3 else patch
+
+
+def project_rectified(
+    points_m: np.ndarray,
+    *,
+    focal_px: float,
+    baseline_m: float,
+    cx_left_px: float,
+    cx_right_px: float,
+    cy_px: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 3) rig-frame points (m) to rectified left and right (n, 2) px: the inverse of
+    :func:`triangulate_rectified` (each eye half the baseline from the origin)."""
+    p = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
+    f, half = focal_px, baseline_m / 2.0
+    z = p[:, 2]
+    y = f * p[:, 1] / z + cy_px
+    xl = f * (p[:, 0] + half) / z + cx_left_px
+    xr = f * (p[:, 0] - half) / z + cx_right_px
+    return np.stack([xl, y], axis=1), np.stack([xr, y], axis=1)
 
 
 def triangulate_rectified(
