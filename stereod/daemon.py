@@ -83,7 +83,9 @@ class Daemon:
     ``rate`` paces file sources (1 real time, 0 as fast as possible); ``jsonl`` also writes
     every ``objects`` message to that file (committed at the end of the run);
     ``wait_subscriber_s`` waits that long for a subscriber before capture starts;
-    ``reload_config`` re-reads the configuration on :meth:`reload`.
+    ``reload_config`` re-reads the configuration on :meth:`reload`; ``on_message`` sees every
+    published pair on the output thread, with the pair's frames in ``Outgoing.pair`` when
+    ``keep_frames`` is set.
     """
 
     def __init__(
@@ -97,6 +99,7 @@ class Daemon:
         reload_config: Callable[[], StereodConfig] | None = None,
         notifier: Notifier | None = None,
         on_message: Callable[[Outgoing], None] | None = None,
+        keep_frames: bool = False,
     ) -> None:
         self.cfg = cfg
         self.driver = driver
@@ -106,6 +109,7 @@ class Daemon:
         self._reload_config = reload_config
         self._notifier = notifier if notifier is not None else Notifier()
         self._on_message = on_message
+        self._keep_frames = keep_frames
         self._stop = threading.Event()
         self._status_now = threading.Event()
         self._reload_requested = threading.Event()
@@ -229,6 +233,7 @@ class Daemon:
             utc_offset_ns=lambda: capture.utc_offset_ns,
             stop=self._stop,
         )
+        worker.keep_pairs = self._keep_frames
         self._worker = worker
         queryables = {
             "config": lambda: self.cfg.model_dump_json().encode(),
