@@ -32,7 +32,11 @@ def main() -> None:
         s.bind(("127.0.0.1", 0))
         endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
     ball = Ball(
-        heading_deg=60.0, speed_mps=0.4, centre_m=(0.0, 0.1, 2.4), t_on_s=1.0, t_mid_s=3.7,
+        heading_deg=60.0,
+        speed_mps=0.4,
+        centre_m=(0.0, 0.1, 2.4),
+        t_on_s=1.0,
+        t_mid_s=3.7,
         t_off_s=6.4,
     )
     scene = Scene(duration_s=7.0, fps=15.0, balls=[ball], drift=0.02)
@@ -41,9 +45,16 @@ def main() -> None:
     opts.binary_location = "/usr/bin/chromium"
     with tempfile.TemporaryDirectory() as profile:
         for flag in (
-            "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-            "--no-first-run", "--disable-background-networking", "--disable-component-update",
-            "--disable-sync", f"--user-data-dir={profile}", "--window-size=1280,1000",
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-dev-shm-usage",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            f"--user-data-dir={profile}",
+            "--window-size=1280,1000",
         ):
             opts.add_argument(flag)
         browser = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=opts)

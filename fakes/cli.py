@@ -12,7 +12,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from stereod.cli.common import number, path_arg, size_arg
-from stereod.errors import ConfigError, describe_validation_error
+from stereod.errors import UsageError, describe_validation_error
 from stereod.progress import Progress
 from stereod.recording import Codec
 
@@ -38,6 +38,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--ball",
         action="append",
+        type=parse_ball,
         metavar="SPEC",
         help="a sphere as comma-separated key=value: heading (deg), speed (m/s), "
         "x, y, z (m, position at mid-time), radius (m), vy (m/s), brightness (grey); e.g. "
@@ -116,26 +117,26 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def parse_ball(spec: str) -> dict[str, Any]:
-    """One ``--ball`` spec as :class:`~.synth.Ball` fields."""
+    """One ``--ball`` spec as :class:`~.synth.Ball` fields (an argparse type: a bad spec is
+    one line and exit 64)."""
     out: dict[str, Any] = {}
     centre = [0.0, 0.1, 1.8]
     for part in filter(None, spec.split(",")):
         k, sep, v = part.partition("=")
         k = k.strip()
         if not sep:
-            raise ConfigError(f"--ball {spec!r}: expected key=value, got {part!r}")
+            raise argparse.ArgumentTypeError(f"{spec!r}: expected key=value, got {part!r}")
         try:
-            val = number()(v)
+            val = number(-1e6, 1e6)(v)
         except argparse.ArgumentTypeError as exc:
-            raise ConfigError(f"--ball {spec!r}: {k} = {v!r}: {exc}") from exc
+            raise argparse.ArgumentTypeError(f"{spec!r}: {k} = {v!r}: {exc}") from exc
         if k in ("x", "y", "z"):
             centre["xyz".index(k)] = val
         elif k in BALL_KEYS:
             out[BALL_KEYS[k]] = val
         else:
-            raise ConfigError(
-                f"--ball {spec!r}: unknown key {k!r} (heading, speed, x, y, z, "
-                "radius, vy, brightness)"
+            raise argparse.ArgumentTypeError(
+                f"{spec!r}: unknown key {k!r} (heading, speed, x, y, z, radius, vy, brightness)"
             )
     out["centre_m"] = tuple(centre)
     return out
@@ -145,11 +146,11 @@ def scene_from_args(a: argparse.Namespace) -> Scene:
     """The :class:`~.synth.Scene` described by ``stereod synth`` flags."""
     w, h = a.size
     if not a.lead_in + a.travel <= a.duration:
-        raise ConfigError(
+        raise UsageError(
             f"--lead-in {a.lead_in} s + --travel {a.travel} s must fit in --duration {a.duration} s"
         )
     t_on, t_off = a.lead_in, a.lead_in + a.travel
-    balls = [parse_ball(s) for s in (a.ball or [""])]
+    balls = [dict(b) for b in (a.ball or [parse_ball("")])]
     for b in balls:
         b.update(t_on_s=t_on, t_off_s=t_off, t_mid_s=(t_on + t_off) / 2)
     try:
@@ -168,7 +169,7 @@ def scene_from_args(a: argparse.Namespace) -> Scene:
             balls=balls,
         )
     except ValidationError as exc:
-        raise ConfigError(f"synth: {describe_validation_error(exc)}") from exc
+        raise UsageError(f"synth: {describe_validation_error(exc)}") from exc
 
 
 def run(a: argparse.Namespace) -> int:

@@ -19,7 +19,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from stereod.errors import ConfigError, InputError, MissingInputError, describe_validation_error
 from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
-from stereod.recording import read_manifest, read_timestamps
+from stereod.paths import TextPath, text_path
+from stereod.recording import MANIFEST, read_manifest, read_timestamps
 
 log = logging.getLogger(__name__)
 
@@ -27,14 +28,16 @@ log = logging.getLogger(__name__)
 class ReplayOptions(BaseModel):
     """Options of the replay driver (the ``[driver.options]`` table)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    path: Path | None = Field(None, description="Recording directory")
-    left_video: Path | None = None
-    right_video: Path | None = None
-    fps: float | None = Field(None, gt=0, description="Frame rate of plain videos, Hz")
-    left_ts: Path | None = Field(None, description="Left timestamps CSV (t_ns)")
-    right_ts: Path | None = Field(None, description="Right timestamps CSV (t_ns)")
+    path: TextPath | None = Field(None, description="Recording directory")
+    left_video: TextPath | None = None
+    right_video: TextPath | None = None
+    fps: float | None = Field(
+        None, ge=0.01, le=10000.0, description="Frame rate of plain videos, Hz"
+    )
+    left_ts: TextPath | None = Field(None, description="Left timestamps CSV (t_ns)")
+    right_ts: TextPath | None = Field(None, description="Right timestamps CSV (t_ns)")
     loop: bool = Field(False, description="Start again at the end, timestamps continuing")
 
     @model_validator(mode="after")
@@ -54,11 +57,12 @@ class ReplayOptions(BaseModel):
 
 
 def _open_capture(path: Path, gray: bool) -> cv2.VideoCapture:
+    name = text_path(path, "video")
     if not path.exists():
         raise MissingInputError(f"{path}: no such video file")
     if not path.is_file():
         raise MissingInputError(f"{path}: not a file")
-    cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    cap = cv2.VideoCapture(name, cv2.CAP_FFMPEG)
     if not cap.isOpened():
         raise InputError(f"{path}: cannot open as a video (not a video file, or unsupported codec)")
     if gray:
@@ -211,6 +215,7 @@ class ReplayDriver(Driver):
     def _open_recording(self, directory: Path) -> ReplaySource:
         man = read_manifest(directory)
         eyes = []
+        inputs = [directory / MANIFEST]
         for eye, files in ((Eye.LEFT, man.left), (Eye.RIGHT, man.right)):
             t, seq = read_timestamps(directory / files.timestamps)
             if len(t) != files.frames:
@@ -218,6 +223,16 @@ class ReplayDriver(Driver):
                     f"{directory / files.timestamps}: {len(t)} timestamps, manifest says "
                     f"{files.frames} frames"
                 )
+            video = directory / files.video
+            inputs += [video, directory / files.timestamps]
+            if files.frames:
+                w, h, _ = probe_video(video)
+                if (w, h) != (man.width, man.height):
+                    raise InputError(
+                        f"{video}: frames are {w}x{h} but {directory / MANIFEST} says "
+                        f"{man.width}x{man.height}: the recording is inconsistent; fix width "
+                        "and height in the manifest or record again"
+                    )
             eyes.append(
                 VideoEye(
                     eye,
@@ -239,6 +254,7 @@ class ReplayDriver(Driver):
             description=f"recording {directory}",
             settings=dict(man.settings),
             utc_offset_ns=man.utc_offset_ns,
+            inputs=inputs,
         )
         return ReplaySource(eyes[0], eyes[1], info)
 
@@ -299,5 +315,6 @@ class ReplayDriver(Driver):
             fps=o.fps,
             live=False,
             description=f"videos {left} + {right}",
+            inputs=[p for p in (left, right, o.left_ts, o.right_ts) if p is not None],
         )
         return ReplaySource(eyes[0], eyes[1], info)

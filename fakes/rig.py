@@ -25,7 +25,7 @@ from stereod.frames import Eye
 class CameraSpec(BaseModel):
     """One camera's intrinsics (px) and distortion (k1, k2, p1, p2, k3)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     fx: float = Field(gt=0)
     fy: float = Field(gt=0)
     cx: float
@@ -45,7 +45,7 @@ class RigSpec(BaseModel):
     """Two cameras; the right one ``baseline_m`` along the left one's +x, rotated by
     ``rotation_deg`` (a rotation vector, deg) relative to it."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     left: CameraSpec
     right: CameraSpec
     baseline_m: float = Field(0.060, gt=0)

@@ -30,6 +30,8 @@ from stereod.recording import Codec, RecordingWriter
 from .rig import RayCaster, RigSpec
 
 TRUTH = "truth.json"
+MAX_SIDE_PX = 4096
+"""The largest synthetic image width or height, px."""
 
 
 class Ball(BaseModel):
@@ -37,7 +39,7 @@ class Ball(BaseModel):
     moves at ``speed_mps`` along ``heading_deg`` (eq. 23's convention) in the XZ plane, plus
     ``vy_mps`` vertically. It is visible between ``t_on_s`` and ``t_off_s``."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     centre_m: tuple[float, float, float] = (0.0, 0.1, 1.8)
     heading_deg: float = 60.0
@@ -72,25 +74,34 @@ class Ball(BaseModel):
 
 
 class Scene(BaseModel):
-    """Everything needed to render a stereo sequence; units in the field names."""
+    """Everything needed to render a stereo sequence; units in the field names. The bounds
+    keep a scene renderable: at most 4096 px a side, 1000 Hz, an hour."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    width_px: int = Field(640, gt=0)
-    height_px: int = Field(480, gt=0)
-    hfov_deg: float = Field(60.0, gt=0.0, lt=180.0)
-    baseline_m: float = Field(0.060, gt=0.0)
-    fps: float = Field(15.0, gt=0.0)
-    duration_s: float = Field(4.0, gt=0.0)
-    skew_s: float = Field(0.0, description="Right eye's capture delay after the left eye, s")
-    noise_sigma: float = Field(1.5, ge=0.0, description="Sensor noise, grey levels (1 sigma)")
+    width_px: int = Field(640, gt=0, le=MAX_SIDE_PX)
+    height_px: int = Field(480, gt=0, le=MAX_SIDE_PX)
+    hfov_deg: float = Field(60.0, ge=1.0, le=179.0)
+    baseline_m: float = Field(0.060, gt=0.0, le=10.0)
+    fps: float = Field(15.0, ge=0.1, le=1000.0)
+    duration_s: float = Field(4.0, gt=0.0, le=3600.0)
+    skew_s: float = Field(
+        0.0, ge=-1.0, le=1.0, description="Right eye's capture delay after the left eye, s"
+    )
+    noise_sigma: float = Field(
+        1.5, ge=0.0, le=100.0, description="Sensor noise, grey levels (1 sigma)"
+    )
     drift: float = Field(0.0, ge=0.0, lt=1.0, description="Lighting gain amplitude (fraction)")
-    drift_period_s: float = Field(20.0, gt=0.0)
-    wall_m: float = Field(4.0, gt=0.0, description="Distance of the textured background wall, m")
+    drift_period_s: float = Field(20.0, ge=0.01, le=1e6)
+    wall_m: float = Field(
+        4.0, ge=0.01, le=1000.0, description="Distance of the textured background wall, m"
+    )
     color: bool = False
-    seed: int = 0
-    t0_ns: int = Field(1_000_000_000, ge=0, description="Monotonic time of the first frame, ns")
-    balls: list[Ball] = Field(default_factory=lambda: [Ball()])
+    seed: int = Field(0, ge=0, le=2**32 - 1)
+    t0_ns: int = Field(
+        1_000_000_000, ge=0, le=2**62, description="Monotonic time of the first frame, ns"
+    )
+    balls: list[Ball] = Field(default_factory=lambda: [Ball()], max_length=100)
     rig_spec: RigSpec | None = Field(
         None,
         description="A non-canonical rig (own intrinsics, distortion, rotation); "
@@ -273,7 +284,7 @@ def write_scene(
             writer.write(right)
             if on_pair is not None:
                 on_pair(k)
-    (out / TRUTH).write_text(json.dumps(scene.model_dump(mode="json"), indent=2) + "\n")
+        writer.write_text(TRUTH, json.dumps(scene.model_dump(mode="json"), indent=2) + "\n")
     return out
 
 

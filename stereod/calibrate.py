@@ -21,10 +21,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .calibration import Board, Calibration, Quality, from_arrays, rectify
+from .calibration import (
+    Board,
+    Calibration,
+    OpenCVProblem,
+    Quality,
+    from_arrays,
+    read_opencv_storage,
+    rectify,
+)
 from .errors import CalibrationError, InputError, MissingInputError
 from .frames import Frame
 from .pairing import Pairer
+from .paths import text_path
 
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 30, 0.01)
 STEREO_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-5)
@@ -108,9 +117,10 @@ def _gray(image: np.ndarray) -> np.ndarray:
 
 def read_image(path: Path) -> np.ndarray:
     """A grey image from a file; errors name the file."""
+    name = text_path(path, "calibration image")
     if not path.is_file():
         raise MissingInputError(f"{path}: no such image file")
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    img = cv2.imread(name, cv2.IMREAD_GRAYSCALE)
     if img is None:
         raise InputError(f"{path}: not a readable image")
     return img
@@ -139,6 +149,20 @@ def pairs_in_directory(directory: Path) -> list[tuple[Path, Path]]:
     return pairs
 
 
+def _image_list(fs: cv2.FileStorage) -> list[str] | OpenCVProblem:
+    """The names in a FileStorage's ``imagelist`` sequence."""
+    node = fs.getNode("imagelist")
+    if node.empty() or not node.isSeq():
+        return OpenCVProblem("no 'imagelist' sequence in this OpenCV file")
+    names = []
+    for i in range(node.size()):
+        item = node.at(i)
+        if not item.isString():
+            return OpenCVProblem("'imagelist' must hold file names only")
+        names.append(item.string())
+    return names
+
+
 def pairs_from_list(path: Path) -> list[tuple[Path, Path]]:
     """Pairs from a list file: an OpenCV ``imagelist`` (XML/YAML, left and right alternating,
     as OpenCV's stereo_calib.xml) or text with one ``LEFT RIGHT`` per line; relative names are
@@ -146,15 +170,17 @@ def pairs_from_list(path: Path) -> list[tuple[Path, Path]]:
     if not path.is_file():
         raise MissingInputError(f"{path}: no such list file")
     names: list[str] = []
-    if path.suffix.lower() in (".xml", ".yml", ".yaml"):
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        node = fs.getNode("imagelist") if fs.isOpened() else None
-        if node is None or node.empty():
-            raise InputError(f"{path}: no 'imagelist' sequence in this OpenCV file")
-        names = [node.at(i).string() for i in range(node.size())]
-        fs.release()
+    if path.suffix.lower() in (".xml", ".yml", ".yaml", ".json"):
+        names = read_opencv_storage(path, "an image list", InputError, _image_list)
     else:
-        for n, line in enumerate(path.read_text().splitlines(), 1):
+        try:
+            text = path.read_bytes().decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise InputError(
+                f"{path}: not a text file (byte {exc.start} is not UTF-8); an image list has "
+                "'LEFT RIGHT' per line"
+            ) from exc
+        for n, line in enumerate(text.splitlines(), 1):
             parts = line.split()
             if not parts or parts[0].startswith("#"):
                 continue
@@ -163,6 +189,8 @@ def pairs_from_list(path: Path) -> list[tuple[Path, Path]]:
             names += parts
     if len(names) % 2:
         raise InputError(f"{path}: odd number of images ({len(names)}): pairs are left, right")
+    for s in names:
+        text_path(s, f"image named in {path}")
     paths = [Path(s) if Path(s).is_absolute() else path.parent / s for s in names]
     return list(zip(paths[0::2], paths[1::2], strict=True))
 

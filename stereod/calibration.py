@@ -17,16 +17,27 @@ import datetime
 import hashlib
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Final, Literal
+from typing import Any, Final, Literal, TypeVar
 
 import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from .errors import CalibrationError, MissingInputError, OutputError, describe_validation_error
+from .errors import (
+    CalibrationError,
+    InputError,
+    MissingInputError,
+    OutputError,
+    StereodError,
+    describe_validation_error,
+)
+from .output_file import AtomicOutput
 
 FORMAT: Final = "stereod.calibration/1"
+
+T = TypeVar("T")
 
 Matrix = list[list[float]]
 
@@ -43,6 +54,11 @@ _SHAPES: dict[str, tuple[int, int]] = {
     "P2": (3, 4),
     "Q": (4, 4),
 }
+
+
+MAX_ENTRY = 1e9
+"""The largest magnitude of any matrix entry (px, or lengths in the board's unit): larger
+numbers are damage, and would overflow the geometry's arithmetic."""
 
 
 class Board(BaseModel):
@@ -106,7 +122,17 @@ class Calibration(BaseModel):
             raise ValueError(f"must be {want[0]}x{want[1]}, got shape {a.shape}")
         if not np.all(np.isfinite(a)):
             raise ValueError("contains a non-finite number (NaN or infinity)")
-        out: Matrix = a.reshape(want).tolist()  # type: ignore[assignment]
+        if a.size and np.abs(a).max() > MAX_ENTRY:
+            raise ValueError(
+                f"holds {np.abs(a).max():g}, beyond any calibration (|x| <= {MAX_ENTRY:g})"
+            )
+        a = a.reshape(want)
+        problem = _matrix_problem(info.field_name, a)
+        if problem is not None:
+            raise ValueError(
+                f"{problem}; the file is damaged or not from a calibration: recalibrate"
+            )
+        out: Matrix = a.tolist()  # type: ignore[assignment]
         return out
 
     def array(self, name: str) -> np.ndarray:
@@ -123,6 +149,28 @@ class Calibration(BaseModel):
         numbers = {k: self.array(k).round(12).tolist() for k in _SHAPES}
         blob = json.dumps({"size": list(self.image_size), **numbers}, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def _matrix_problem(name: str, a: np.ndarray) -> str | None:
+    """Why matrix ``name`` cannot be what its name says (a singular camera matrix, a rotation
+    that is not one, a zero baseline), or None."""
+    if name in ("K1", "K2"):
+        if not (a[0, 0] > 0 and a[1, 1] > 0):
+            fx, fy = a[0, 0], a[1, 1]
+            return f"not a camera matrix: focal lengths fx = {fx:g}, fy = {fy:g} px must be > 0"
+        if np.abs(a[2] - (0.0, 0.0, 1.0)).max() > 1e-6 or abs(a[1, 0]) > 1e-6:
+            return "not a camera matrix: its bottom row must be 0 0 1, and K[1][0] 0"
+    elif name in ("R", "R1", "R2"):
+        if np.abs(a).max() > 1.0 + 1e-5 or np.abs(a @ a.T - np.eye(3)).max() > 1e-5:
+            return "not a rotation matrix (R R^T must be the identity, det R = +1)"
+        if np.linalg.det(a) < 0:
+            return "not a rotation matrix (R R^T must be the identity, det R = +1)"
+    elif name == "T":
+        if not np.abs(a).max() > 0:
+            return "the baseline |T| is zero: the two cameras cannot be at one place"
+    elif name in ("P1", "P2") and not (a[0, 0] > 0 and a[1, 1] > 0):
+        return f"not a projection matrix: focal lengths {a[0, 0]:g}, {a[1, 1]:g} px must be > 0"
+    return None
 
 
 def from_arrays(
@@ -224,12 +272,17 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
 
 
 def save(cal: Calibration, path: Path) -> None:
-    """Write a calibration file (JSON)."""
+    """Write a calibration file (JSON) atomically: a write that fails leaves what was there."""
+    _write_atomic(path, cal.model_dump_json(indent=2) + "\n")
+
+
+def _write_atomic(path: Path, text: str) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(cal.model_dump_json(indent=2) + "\n")
     except OSError as exc:
-        raise OutputError(f"{path}: cannot write calibration: {exc.strerror}") from exc
+        raise OutputError(f"{path.parent}: cannot create the folder: {exc.strerror}") from exc
+    with AtomicOutput(path) as out:
+        out.write(text.encode())
 
 
 def _yaml_matrix(name: str, a: np.ndarray) -> str:
@@ -255,15 +308,132 @@ def ros_camera_info(cal: Calibration, eye: Literal["left", "right"]) -> str:
 def export_ros(cal: Calibration, directory: Path) -> list[Path]:
     """Write ``left.yaml`` and ``right.yaml`` into ``directory``; return their paths."""
     out = []
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        for eye in ("left", "right"):
-            path = directory / f"{eye}.yaml"
-            path.write_text(ros_camera_info(cal, eye))  # type: ignore[arg-type]
-            out.append(path)
-    except OSError as exc:
-        raise OutputError(f"{directory}: cannot write ROS camera_info: {exc.strerror}") from exc
+    for eye in ("left", "right"):
+        path = directory / f"{eye}.yaml"
+        _write_atomic(path, ros_camera_info(cal, eye))  # type: ignore[arg-type]
+        out.append(path)
     return out
+
+
+def read_opencv_storage(
+    path: Path,
+    what: str,
+    error: type[StereodError],
+    read: Callable[[cv2.FileStorage], T | OpenCVProblem],
+) -> T:
+    """Parse an OpenCV FileStorage file (YAML, XML or JSON) and return what ``read`` takes
+    from it. The file must be UTF-8 text; OpenCV parses it from memory, so no file name
+    reaches it, and a parse failure becomes ``error`` naming the file. ``read`` must return
+    plain data (arrays, strings), never a ``cv2.FileNode``: a node that outlives its storage
+    crashes the interpreter when it is collected. It reports a problem by returning an
+    :class:`OpenCVProblem`, which is raised as ``error`` once the storage is gone."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError as exc:
+        raise MissingInputError(f"{path}: no such file") from exc
+    except OSError as exc:
+        raise MissingInputError(f"{path}: cannot read it: {exc.strerror}") from exc
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise error(
+            f"{path}: not an OpenCV FileStorage text file (byte {exc.start} is not UTF-8); "
+            f"expected {what} in YAML or XML"
+        ) from exc
+    head = text.lstrip("\ufeff \t\r\n")[:5]
+    if "\x00" in text or not head.startswith(("%YAML", "<?xml", "{")):
+        raise error(
+            f"{path}: not an OpenCV FileStorage file: it must begin with %YAML, <?xml or {{ "
+            f"(expected {what} as OpenCV writes it)"
+        )
+    result = _parse_storage(text, read)
+    if isinstance(result, OpenCVProblem):
+        raise error(f"{path}: {result.text}")
+    return result
+
+
+class OpenCVProblem:
+    """What was wrong in a FileStorage file, as :func:`read_opencv_storage`'s reader says it."""
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+
+def _parse_storage(
+    text: str, read: Callable[[cv2.FileStorage], T | OpenCVProblem]
+) -> T | OpenCVProblem:
+    try:
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    except (cv2.error, SystemError) as exc:
+        return OpenCVProblem(
+            "not a valid OpenCV FileStorage file (malformed or cut short; OpenCV says "
+            f"{_cv_reason(exc)!r})"
+        )
+    try:
+        if not fs.isOpened():
+            return OpenCVProblem("not a valid OpenCV FileStorage file")
+        try:
+            return read(fs)
+        except (cv2.error, SystemError, UnicodeError) as exc:
+            return OpenCVProblem(f"cannot read it: {_cv_reason(exc)}")
+    finally:
+        fs.release()
+
+
+def _cv_reason(exc: BaseException) -> str:
+    """The message of an OpenCV error, without OpenCV's source paths and line numbers."""
+    cause: BaseException = exc.__cause__ or exc.__context__ or exc
+    text = getattr(cause, "err", None) or str(cause)
+    return " ".join(str(text).split())[:160] or type(exc).__name__
+
+
+def _matrices(
+    keys: list[str],
+) -> Callable[[cv2.FileStorage], dict[str, np.ndarray] | OpenCVProblem]:
+    """A FileStorage reader of the matrices ``keys`` as float64 arrays."""
+
+    def read(fs: cv2.FileStorage) -> dict[str, np.ndarray] | OpenCVProblem:
+        out = {}
+        for key in keys:
+            node = fs.getNode(key)
+            if node.empty():
+                return OpenCVProblem(f"field {key} is missing")
+            m = _matrix_node(node)
+            if isinstance(m, str):
+                return OpenCVProblem(f"field {key} is not an OpenCV matrix: {m}")
+            out[key] = m
+        return out
+
+    return read
+
+
+_MATRIX_TYPES = set("ucwsifd")
+"""OpenCV's one-letter element types (uchar, char, ushort, short, int, float, double)."""
+
+
+def _matrix_node(node: cv2.FileNode) -> np.ndarray | str:
+    """An ``opencv-matrix`` node read number by number, as float64 (rows, cols); what is
+    wrong with it otherwise. ``FileNode.mat()`` is not used: OpenCV corrupts its heap on a
+    matrix with negative columns."""
+    if not node.isMap():
+        return "expected rows, cols, dt and data"
+    rows, cols, dt, data = (node.getNode(k) for k in ("rows", "cols", "dt", "data"))
+    if not (rows.isInt() and cols.isInt() and dt.isString() and data.isSeq()):
+        return "expected rows, cols, dt and data"
+    r, c, kind = int(rows.real()), int(cols.real()), dt.string()
+    if not (1 <= r <= 16 and 1 <= c <= 16):
+        return f"{r}x{c} is not the size of a calibration matrix"
+    if kind not in _MATRIX_TYPES:
+        return f"dt {kind!r} is not a one-channel number type"
+    if data.size() != r * c:
+        return f"{data.size()} numbers for a {r}x{c} matrix"
+    values = []
+    for i in range(r * c):
+        item = data.at(i)
+        if not (item.isReal() or item.isInt()):
+            return f"entry {i} is not a number"
+        values.append(item.real())
+    return np.array(values, dtype=np.float64).reshape(r, c)
 
 
 def import_opencv(
@@ -280,17 +450,16 @@ def import_opencv(
     for path, wanted in ((intrinsics, names), (extrinsics, {"R": "R", "T": "T"})):
         if not path.is_file():
             raise MissingInputError(f"{path}: no such OpenCV calibration file")
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        if not fs.isOpened():
-            raise CalibrationError(f"{path}: not an OpenCV FileStorage file (YAML or XML)")
-        try:
-            for key, ours in wanted.items():
-                node = fs.getNode(key)
-                if node.empty():
-                    raise CalibrationError(f"{path}: field {key} is missing")
-                arrays[ours] = node.mat()
-        finally:
-            fs.release()
+        found = read_opencv_storage(
+            path, "an OpenCV calibration file", InputError, _matrices(list(wanted))
+        )
+        arrays.update({ours: found[key] for key, ours in wanted.items()})
+    for key, ours, size in (("M1", "K1", 9), ("M2", "K2", 9), ("R", "R", 9), ("T", "T", 3)):
+        if arrays[ours].size != size:
+            where = intrinsics if key.startswith("M") else extrinsics
+            raise InputError(
+                f"{where}: field {key} has {arrays[ours].size} numbers, a {key} has {size}"
+            )
     for d in ("D1", "D2"):
         v = arrays[d].ravel()
         if v.size < 5:
@@ -303,7 +472,14 @@ def import_opencv(
                 )
             v = v[:5]
         arrays[d] = v.reshape(1, 5)
-    return from_arrays(image_size, arrays, source=f"imported from {intrinsics}")
+    if not all(np.all(np.isfinite(a)) for a in arrays.values()):
+        raise InputError(f"{intrinsics}: a matrix holds a non-finite number (NaN or infinity)")
+    try:
+        return from_arrays(image_size, arrays, source=f"imported from {intrinsics.name}")
+    except CalibrationError as exc:
+        raise CalibrationError(f"{intrinsics}: {str(exc).removeprefix('calibration: ')}") from exc
+    except cv2.error as exc:
+        raise InputError(f"{intrinsics}: cannot rectify these matrices: {_cv_reason(exc)}") from exc
 
 
 def rotation_angle_deg(r: np.ndarray) -> float:

@@ -28,15 +28,17 @@ import sys
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
 from . import keys
 from .detect import Centroid, DetectorParams, Luminance, Warmup
-from .errors import ConfigError, describe_error
+from .errors import ConfigError, UsageError, describe_error
+from .geometry.refine import RefineParams
 from .geometry.stereo import MatchParams
 from .pairing import DEFAULT_TOLERANCE_NS
+from .paths import TextPath
 from .pipeline import PipelineParams
 from .tracking import TrackerParams
 
@@ -56,6 +58,7 @@ class _Section(BaseModel):
 _DETECT = DetectorParams()
 _MATCH = MatchParams()
 _TRACK = TrackerParams()
+_REFINE = RefineParams()
 
 
 def _pipe(name: str) -> Any:
@@ -69,7 +72,7 @@ class RigConfig(_Section):
     name: str = Field(keys.DEFAULT_RIG, pattern=keys.RIG_PATTERN, description="Rig name in keys")
     baseline_m: float = Field(0.060, gt=0.0, le=10.0, description="Camera distance B, m")
     hfov_deg: float = Field(60.0, gt=0.0, lt=180.0, description="Horizontal field of view, deg")
-    calibration: Path | None = Field(
+    calibration: TextPath | None = Field(
         None, description="Calibration file (stereod calibrate); without it, the canonical rig"
     )
 
@@ -115,6 +118,10 @@ class DetectorConfig(_Section):
         _DETECT.absorb_s, gt=0.0, le=3600.0, description="Foreground still this long is learned, s"
     )
     fill_holes: bool = Field(_DETECT.fill_holes, description="An object's support is filled")
+    convex: bool = Field(_DETECT.convex, description="An object's support is convex")
+    merge_gap: float = Field(
+        _DETECT.merge_gap, ge=0.0, le=10.0, description="Pieces this close are one object"
+    )
     max_foreground: float = Field(
         _DETECT.max_foreground,
         gt=0.0,
@@ -180,7 +187,10 @@ class TrackingConfig(_Section):
         _TRACK.manoeuvre_chi2, gt=0.0, description="Mahalanobis bound of a manoeuvre, 3 dof"
     )
     manoeuvre_sigma_mps: float = Field(
-        _TRACK.manoeuvre_sigma_mps, gt=0.0, le=1000.0, description="Velocity sigma after one, m/s"
+        _TRACK.manoeuvre_sigma_mps,
+        gt=0.0,
+        le=1000.0,
+        description="Velocity sigma of a track before its filter starts, m/s",
     )
     accel_noise: float = Field(
         _TRACK.accel_noise, gt=0.0, le=1e6, description="White acceleration density, m^2/s^3"
@@ -212,14 +222,59 @@ class TrackingConfig(_Section):
         return TrackerParams(**self.model_dump(exclude={"freeze_background"}))
 
 
+class RefineConfig(_Section):
+    """Disparity by appearance matching (see :class:`stereod.geometry.refine.RefineParams`)."""
+
+    enabled: bool = Field(_REFINE.enabled, description="Match the left patch along the right row")
+    margin_px: int = Field(_REFINE.margin_px, ge=0, le=50, description="Template margin, px")
+    search_px: float = Field(_REFINE.search_px, gt=0.0, le=200.0, description="Search reach, px")
+    search_rel: float = Field(
+        _REFINE.search_rel, ge=0.0, le=5.0, description="Or this share of the blob's width"
+    )
+    rows_px: int = Field(_REFINE.rows_px, ge=0, le=20, description="Rows searched either way")
+    erode_px: int = Field(_REFINE.erode_px, ge=0, le=20, description="Template mask shrink, px")
+    min_score: float = Field(
+        _REFINE.min_score, ge=-1.0, le=1.0, description="Weaker matches keep the centroids"
+    )
+
+    def params(self) -> RefineParams:
+        return RefineParams(**self.model_dump())
+
+
+_IP_LINKS = ("tcp", "udp", "tls", "quic", "ws")
+
+
+def _endpoint(value: str) -> str:
+    """A Zenoh endpoint ``<protocol>/<address>``; for IP links the address ends in a port."""
+    proto, sep, rest = value.partition("/")
+    address = rest.split("?", 1)[0].split("#", 1)[0]
+    if not (sep and proto and address) or any(c.isspace() for c in value):
+        raise ValueError("an endpoint is <protocol>/<address>, e.g. tcp/127.0.0.1:7447")
+    if proto in _IP_LINKS:
+        _, colon, port = address.rpartition(":")
+        if not (colon and port.isdigit() and int(port) <= 65535):
+            raise ValueError(
+                f"{proto} endpoints end in a port 0-65535, e.g. {proto}/127.0.0.1:7447"
+            )
+    return value
+
+
+Endpoint = Annotated[str, AfterValidator(_endpoint)]
+
+
 class ZenohConfig(_Section):
     """The Zenoh session: key prefix, mode and endpoints (``tcp/127.0.0.1:7447``)."""
 
     prefix: str = Field(keys.DEFAULT_PREFIX, pattern=keys.PREFIX_PATTERN)
     mode: Literal["peer", "client", "router"] = "peer"
-    connect: list[str] = Field(default_factory=list, description="Endpoints to connect to")
-    listen: list[str] = Field(default_factory=list, description="Endpoints to listen on")
+    connect: list[Endpoint] = Field(default_factory=list, description="Endpoints to connect to")
+    listen: list[Endpoint] = Field(default_factory=list, description="Endpoints to listen on")
     multicast_scouting: bool = Field(False, description="Find peers by multicast")
+    config_file: TextPath | None = Field(
+        None,
+        description="A Zenoh config file (JSON5: TLS, mTLS, access control); the settings "
+        "above that are given go on top of it",
+    )
 
 
 class DaemonConfig(_Section):
@@ -247,6 +302,7 @@ class StereodConfig(BaseModel):
     pairing: PairingConfig = Field(default_factory=PairingConfig)
     matching: MatchingConfig = Field(default_factory=MatchingConfig)
     tracking: TrackingConfig = Field(default_factory=TrackingConfig)
+    refine: RefineConfig = Field(default_factory=RefineConfig)
     zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
     daemon: DaemonConfig = Field(default_factory=DaemonConfig)
 
@@ -304,6 +360,16 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
         node = out
         for part in parts[:-1]:
             node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(
+                    f"environment variable {name}: another variable sets "
+                    f"{'.'.join(parts[:-1])} as a whole; set the table or its fields, not both"
+                )
+        if isinstance(node.get(parts[-1]), dict):
+            raise ConfigError(
+                f"environment variable {name}: other variables set fields of "
+                f"{'.'.join(parts)}; set the table or its fields, not both"
+            )
         node[parts[-1]] = parsed
     return out
 
@@ -320,7 +386,12 @@ def _origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) 
     """Where the value at ``loc`` came from: a flag, the environment, the file, or defaults."""
     node: Any = overrides
     for part in loc:
-        node = node.get(part) if isinstance(node, dict) else None
+        if isinstance(node, dict):
+            node = node.get(part)
+        elif isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
+            node = node[part]
+        else:
+            node = None
     if node is not None:
         return "command line"
     env = ENV_PREFIX + "__".join(str(p) for p in loc[:2]).upper()
@@ -341,10 +412,10 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
     try:
         return StereodConfig.model_validate(_merge(_merge(data, environment()), flags))
     except ValidationError as exc:
-        parts = [
-            f"{_origin(tuple(e['loc']), path, flags)}: invalid config: {describe_error(e)}"
-            for e in exc.errors(include_url=False)
-        ]
+        errors = [(_origin(tuple(e["loc"]), path, flags), e) for e in exc.errors(include_url=False)]
+        parts = [f"{origin}: invalid config: {describe_error(e)}" for origin, e in errors]
+        if all(origin == "command line" for origin, _ in errors):
+            raise UsageError("; ".join(parts)) from exc  # a bad flag, exit 64
         raise ConfigError("; ".join(parts)) from exc
 
 

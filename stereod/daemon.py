@@ -17,10 +17,11 @@ internal error (exit 70) naming the log.
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,8 +40,9 @@ from .pipeline import Pipeline
 from .processing import Outgoing, PipelineWorker
 from .publish import Publisher
 from .queues import BoundedQueue
+from .redact import public_config, public_text
 from .sdnotify import Notifier
-from .status import Health
+from .status import Health, geometry_note
 
 log = logging.getLogger(__name__)
 
@@ -83,9 +85,10 @@ class Daemon:
     ``rate`` paces file sources (1 real time, 0 as fast as possible); ``jsonl`` also writes
     every ``objects`` message to that file (committed at the end of the run);
     ``wait_subscriber_s`` waits that long for a subscriber before capture starts;
-    ``reload_config`` re-reads the configuration on :meth:`reload`; ``on_message`` sees every
-    published pair on the output thread, with the pair's frames in ``Outgoing.pair`` when
-    ``keep_frames`` is set.
+    ``reload_config`` re-reads the configuration on :meth:`reload`; ``inputs`` are files the
+    run reads besides the source's own (the config file), which ``jsonl`` must not be;
+    ``on_message`` sees every published pair on the output thread, with the pair's frames in
+    ``Outgoing.pair`` when ``keep_frames`` is set.
     """
 
     def __init__(
@@ -100,6 +103,7 @@ class Daemon:
         notifier: Notifier | None = None,
         on_message: Callable[[Outgoing], None] | None = None,
         keep_frames: bool = False,
+        inputs: Sequence[Path] = (),
     ) -> None:
         self.cfg = cfg
         self.driver = driver
@@ -110,6 +114,7 @@ class Daemon:
         self._notifier = notifier if notifier is not None else Notifier()
         self._on_message = on_message
         self._keep_frames = keep_frames
+        self._inputs = [*inputs, *([cfg.rig.calibration] if cfg.rig.calibration else [])]
         self._stop = threading.Event()
         self._status_now = threading.Event()
         self._reload_requested = threading.Event()
@@ -155,7 +160,9 @@ class Daemon:
         with self._fatal_lock:
             if self._fatal is None:
                 self._fatal = err
-        self.health.problem(str(err))
+        # The run's error is said once, by whoever reports the run's end; here only the
+        # status key learns of it.
+        self.health.problem(str(err), logged=False)
         self.stop()
 
     def _ready(self) -> None:
@@ -173,7 +180,7 @@ class Daemon:
             self._source = source
             info = source.info
             if self.jsonl is not None:
-                check_not_input(self.jsonl, info.inputs, "--jsonl")
+                check_not_input(self.jsonl, [*info.inputs, *self._inputs], "--jsonl")
             params = pipeline_params(self.cfg, info.width, info.height)
             jsonl = AtomicOutput(self.jsonl) if self.jsonl is not None else None
             try:
@@ -206,6 +213,9 @@ class Daemon:
         h.source_description = info.description
         h.geometry = pipeline.params.rig.geometry
         h.calibration_id = pipeline.params.rig.calibration_id
+        h.geometry_note = geometry_note(pipeline.params.rig)
+        if h.geometry_note:
+            log.info("%s", h.geometry_note)
         h.watch(source.left, source.right)
         pairs: BoundedQueue[QueuedPair] = BoundedQueue(cfg.daemon.queue_size, drop_oldest=info.live)
         out: BoundedQueue[Outgoing] = BoundedQueue(
@@ -236,7 +246,7 @@ class Daemon:
         worker.keep_pairs = self._keep_frames
         self._worker = worker
         queryables = {
-            "config": lambda: self.cfg.model_dump_json().encode(),
+            "config": lambda: json.dumps(public_config(self.cfg)).encode(),
             "calibration": self._calibration_json,
             "stats": self.stats,
         }
@@ -377,7 +387,12 @@ class Daemon:
         assert self._worker is not None
         r = self._worker.rig
         if isinstance(r, CalibratedRig):
-            return r.calibration.model_dump_json().encode()
+            cal = r.calibration
+            return (
+                cal.model_copy(update={"source": public_text(cal.source)})
+                .model_dump_json()
+                .encode()
+            )
         return dump(
             CanonicalGeometry(
                 baseline_m=r.baseline_m,

@@ -3,6 +3,7 @@
 ::
 
     StereodError                  anything stereod reports to a user (one line, names the thing)
+    ├── UsageError                a command line is invalid (exit 64)
     ├── ConfigError               a configuration file, field or flag is invalid (exit 78)
     ├── InputError                an input file or stream is missing, unreadable or inconsistent
     │   └── TruncatedInputError   a video ended before its header said it would
@@ -11,6 +12,7 @@
     ├── DeviceError               a camera device failed (open, ioctl)
     │   └── DeviceLost            a camera went away while in use (the source retries)
     ├── NotInstalledError         an optional dependency is missing; names the install (exit 69)
+    ├── UnavailableError          a service cannot be reached (no Zenoh router; exit 69)
     └── InternalError             a bug: an unexpected exception, logged in full (exit 70)
 
 Foreign errors (OSError, cv2.error, pydantic.ValidationError) are translated into these at the
@@ -23,6 +25,8 @@ from typing import Any
 
 from pydantic import ValidationError
 
+EX_USAGE = 64
+"""Exit code for a bad command line (sysexits.h EX_USAGE)."""
 EX_DATAERR = 65
 """Exit code for bad input data (sysexits.h EX_DATAERR)."""
 EX_NOINPUT = 66
@@ -38,9 +42,20 @@ EX_CONFIG = 78
 
 
 class StereodError(Exception):
-    """Base of every error stereod reports; ``str()`` is one line meant for a user."""
+    """Base of every error stereod reports; ``str()`` is one line meant for a user (a newline
+    or other control character quoted from a file or a name is escaped)."""
 
     exit_code: int = 1
+
+    def __str__(self) -> str:
+        return one_line(super().__str__())
+
+
+class UsageError(StereodError):
+    """A command line is invalid in a way its parser cannot see (flags that contradict each
+    other, a value only the command can check); the message names the flag."""
+
+    exit_code = EX_USAGE
 
 
 class ConfigError(StereodError):
@@ -95,6 +110,13 @@ class NotInstalledError(StereodError):
     exit_code = EX_UNAVAILABLE
 
 
+class UnavailableError(StereodError):
+    """A service the run needs cannot be reached now (a Zenoh router in client mode); unlike
+    a bad configuration, trying again later may work."""
+
+    exit_code = EX_UNAVAILABLE
+
+
 class InternalError(StereodError):
     """Something unexpected failed (a bug); the full traceback is in the log."""
 
@@ -108,11 +130,17 @@ def describe_validation_error(exc: ValidationError, prefix: str = "") -> str:
     return "; ".join(describe_error(e, prefix) for e in exc.errors(include_url=False))
 
 
+def one_line(text: str) -> str:
+    """``text`` with every character that is not printable (a newline, NUL) escaped, so that
+    a message quoting a file's content stays one line."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def describe_error(e: Any, prefix: str = "") -> str:
     """One of a ValidationError's ``errors()`` as ``field = value: what is wrong``."""
     loc = ".".join(str(p) for p in (prefix.split(".") if prefix else []) + list(e["loc"]))
-    loc = loc or "(top level)"
-    msg = str(e["msg"]).removeprefix("Value error, ")
+    loc = one_line(loc or "(top level)")
+    msg = one_line(str(e["msg"]).removeprefix("Value error, "))
     if e["type"] == "json_invalid":
         return f"not valid JSON ({msg.removeprefix('Invalid JSON: ')})"
     if e["type"] == "extra_forbidden":
@@ -125,5 +153,5 @@ def describe_error(e: Any, prefix: str = "") -> str:
 
 
 def _shown(value: object, limit: int = 60) -> str:
-    text = repr(value)
+    text = one_line(repr(value))
     return text if len(text) <= limit else text[: limit - 3] + "..."

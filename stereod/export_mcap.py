@@ -112,6 +112,7 @@ from .calibration import Calibration, canonical
 from .errors import InputError, MissingInputError, OutputError, StereodError
 from .frames import Eye, Frame
 from .messages import ObjectsMessage, ObjectState, dump
+from .paths import text_path
 from .recording import Manifest, read_manifest, read_timestamps
 
 __all__ = [
@@ -1020,7 +1021,7 @@ def _read_recording(directory: Path) -> tuple[Manifest, dict[Eye, _Eye]]:
 
 
 def _decode(rec: _Eye, gray: bool, problems: list[str]) -> Iterator[Frame]:
-    cap = cv2.VideoCapture(str(rec.video), cv2.CAP_FFMPEG)
+    cap = cv2.VideoCapture(text_path(rec.video, "video"), cv2.CAP_FFMPEG)
     if not cap.isOpened():
         raise InputError(f"{rec.video}: cannot open as a video (corrupt or unsupported codec)")
     if gray:

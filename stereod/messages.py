@@ -193,6 +193,11 @@ class StatusMessage(_Model):
         description="Median |y_left - y_right| of matched blobs over the last period, px"
     )
     problems: list[str] = Field(description="Recent problems, newest last, one line each")
+    notes: list[str] = Field(
+        default_factory=list,
+        description="Standing conditions that limit what the numbers mean (for example: no "
+        "calibration, so depths rest on an assumed field of view)",
+    )
 
 
 class StatsMessage(_Model):

@@ -37,4 +37,5 @@ def pipeline_params(cfg: StereodConfig, width: int, height: int) -> PipelinePara
         detect_workers=cfg.daemon.detect_workers,
         skew_compensation=cfg.pairing.skew_compensation,
         freeze_background=cfg.tracking.freeze_background,
+        refine=cfg.refine.params(),
     )

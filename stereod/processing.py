@@ -24,7 +24,7 @@ from .messages import ObjectsMessage, dump, objects_message
 from .overlay import PairImages
 from .pipeline import PairResult, Pipeline, PipelineParams
 from .queues import BoundedQueue, Closed
-from .status import Health
+from .status import Health, geometry_note
 
 log = logging.getLogger(__name__)
 
@@ -104,6 +104,7 @@ class PipelineWorker:
         rig = params.rig
         self.health.geometry = rig.geometry
         self.health.calibration_id = rig.calibration_id
+        self.health.geometry_note = geometry_note(rig)
         if ended:
             self.out.put(Outgoing(None, ended=ended), self._stop)
 

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import threading
+import time
 from collections.abc import Callable
 from types import TracebackType
 from typing import Any
@@ -20,38 +22,99 @@ import zenoh
 
 from . import keys
 from .config import ZenohConfig
-from .errors import ConfigError
+from .errors import ConfigError, UnavailableError
 from .messages import OBJECT_SCHEMA, OBJECTS_SCHEMA, STATUS_SCHEMA, encoding_for
+from .paths import text_path
 
 log = logging.getLogger(__name__)
 
 
+def zenoh_reason(exc: BaseException, limit: int = 160) -> str:
+    """The first meaningful sentence of a Zenoh error: without the build paths of the Rust
+    sources (``at /root/.cargo/...rs:62.``), the serde wrapping and the parser's ASCII art."""
+    text = str(exc)
+    inner = re.search(r'msg: "((?:[^"\\]|\\.)*)"', text)
+    if inner:
+        text = inner.group(1).replace('\\"', '"')
+    text = re.sub(r"\s+at /\S+\.rs:\d+\.?", "", text)
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    where = next((ln[4:] for ln in lines if ln.startswith("--> ")), None)
+    note = next((ln[2:] for ln in lines if ln.startswith("= ")), None)
+    if note is not None:
+        text = f"{note} (line:column {where})" if where else note
+    text = " ".join(text.split()).rstrip(".")
+    if len(text) > limit:
+        text = text[: limit - 3] + "..."
+    return text or type(exc).__name__
+
+
 def session_config(cfg: ZenohConfig) -> zenoh.Config:
-    """A Zenoh config from ours: mode, endpoints, and no multicast scouting unless asked."""
-    zc = zenoh.Config()
-    try:
-        zc.insert_json5("mode", json.dumps(cfg.mode))
-        zc.insert_json5(
-            "scouting",
-            json.dumps({"delay": 0, "multicast": {"enabled": cfg.multicast_scouting}}),
+    """A Zenoh config from ours. Without ``config_file``: mode, endpoints, and no multicast
+    scouting unless asked. With it, the file (Zenoh's own JSON5: TLS, access control, ...) is
+    the base and only the settings given in stereod's config, environment or flags go on top."""
+    given = cfg.model_fields_set if cfg.config_file is not None else set(ZenohConfig.model_fields)
+    if cfg.config_file is not None:
+        try:
+            zc = zenoh.Config.from_file(text_path(cfg.config_file, "Zenoh config", ConfigError))
+        except zenoh.ZError as exc:
+            raise ConfigError(
+                f"{cfg.config_file}: invalid Zenoh config file: {zenoh_reason(exc)} "
+                "(zenoh.config_file)"
+            ) from exc
+    else:
+        zc = zenoh.Config()
+    settings: list[tuple[str, str, object]] = []
+    if "mode" in given:
+        settings.append(("mode", "mode", cfg.mode))
+    if "multicast_scouting" in given:
+        settings.append(
+            ("multicast_scouting", "scouting/multicast/enabled", cfg.multicast_scouting)
         )
-        if cfg.connect:
-            zc.insert_json5("connect/endpoints", json.dumps(cfg.connect))
-        if cfg.listen:
-            zc.insert_json5("listen/endpoints", json.dumps(cfg.listen))
-    except zenoh.ZError as exc:
-        raise ConfigError(f"zenoh: invalid setting: {exc}") from exc
+    if cfg.config_file is None:
+        settings.append(("multicast_scouting", "scouting/delay", 0))
+    if cfg.connect:
+        settings.append(("connect", "connect/endpoints", cfg.connect))
+    if cfg.listen:
+        settings.append(("listen", "listen/endpoints", cfg.listen))
+    for field, key, value in settings:
+        try:
+            zc.insert_json5(key, json.dumps(value))
+        except zenoh.ZError as exc:
+            raise ConfigError(
+                f"zenoh.{field} = {json.dumps(value)[:80]}: {zenoh_reason(exc)}"
+            ) from exc
     return zc
 
 
 def open_session(cfg: ZenohConfig) -> zenoh.Session:
-    """Open a session; a bad endpoint becomes a :class:`ConfigError` naming it."""
+    """Open a session; a bad endpoint becomes a :class:`ConfigError` naming it, a router that
+    cannot be reached (client mode) an :class:`UnavailableError`."""
+    zc = session_config(cfg)
     try:
-        return zenoh.open(session_config(cfg))
+        return zenoh.open(zc)
     except zenoh.ZError as exc:
-        raise ConfigError(
-            f"zenoh: cannot open a session (listen={cfg.listen}, connect={cfg.connect}): {exc}"
-        ) from exc
+        ends = ", ".join(
+            f"{k}={v}" for k, v in (("listen", cfg.listen), ("connect", cfg.connect)) if v
+        )
+        reason = zenoh_reason(exc)
+        text = f"zenoh: cannot open a session{f' ({ends})' if ends else ''}: {reason}"
+        if "Unable to connect" in reason:  # a router that is down now may be up later
+            raise UnavailableError(f"{text}; is the router running?") from exc
+        raise ConfigError(text) from exc
+
+
+def reachable(session: zenoh.Session, timeout_s: float = 1.0) -> bool:
+    """Whether the session has a Zenoh peer or router to talk to, waiting up to ``timeout_s``
+    seconds for one to answer (connecting takes milliseconds on a LAN)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if any(True for _ in session.info.peers_zid()) or any(
+            True for _ in session.info.routers_zid()
+        ):
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.02)
 
 
 class Publisher:
@@ -80,6 +143,12 @@ class Publisher:
     def open(self) -> Publisher:
         s = open_session(self._cfg)
         self._session = s
+        if self._cfg.connect and not reachable(s):
+            log.warning(
+                "no Zenoh peer or router reachable at %s; publishing anyway, and connecting "
+                "when one answers",
+                ", ".join(self._cfg.connect),
+            )
         self._objects = s.declare_publisher(
             keys.objects(self.rig, prefix=self.prefix),
             encoding=zenoh.Encoding(encoding_for(OBJECTS_SCHEMA)),

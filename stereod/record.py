@@ -7,12 +7,12 @@ reproduces them exactly (bit for bit with the lossless FFV1 codec).
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+from .calibration import load as load_calibration
 from .errors import DeviceLost, StereodError
 from .frames import Driver, EyeSource, Frame, SourceInfo, merged
 from .recording import Codec, RecordingWriter
@@ -30,11 +30,13 @@ def record(
     on_start: Callable[[SourceInfo, int | None], None] | None = None,
 ) -> dict[str, int]:
     """Record until ``seconds`` of stream time, the end of input or ``stop``; return the frame
-    counts per eye. ``on_frame`` sees every frame written (progress), one call at a time;
-    ``on_start`` sees the opened source and the recording's UTC offset (ns, wall clock minus
-    the frames' clock; None when unknown) before the first frame."""
+    counts per eye. ``out`` must be new (or empty); it appears only when the recording closes.
+    ``calibration`` is checked as a run would check it, and stored in the manifest.
+    ``on_frame`` sees every frame written (progress), one call at a time; ``on_start`` sees
+    the opened source and the recording's UTC offset (ns, wall clock minus the frames' clock;
+    None when unknown) before the first frame."""
     stop = stop or threading.Event()
-    cal = json.loads(calibration.read_text()) if calibration is not None else None
+    cal = load_calibration(calibration).model_dump(mode="json") if calibration else None
     counts = {"left": 0, "right": 0}
     lock = threading.Lock()
     with driver.open() as source:

@@ -12,19 +12,31 @@ Replay reproduces the frames (bit-exact with FFV1) and the timestamps and sequen
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import enum
+import io
 import json
+import os
+import shutil
+import tempfile
 import time
-from pathlib import Path
-from typing import Any, Final, Literal
+from pathlib import Path, PurePosixPath
+from typing import Annotated, Any, Final, Literal
 
 import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
-from .errors import InputError, MissingInputError, OutputError, describe_validation_error
+from .errors import (
+    InputError,
+    MissingInputError,
+    OutputError,
+    StereodError,
+    describe_validation_error,
+)
 from .frames import Eye, Frame
+from .paths import path_problem, text_path
 
 MANIFEST = "recording.json"
 FORMAT: Final = "stereod.recording/1"
@@ -43,27 +55,44 @@ _FOURCC = {Codec.FFV1: "FFV1", Codec.MJPG: "MJPG"}
 _EXT = {Codec.FFV1: ".mkv", Codec.MJPG: ".avi"}
 
 
+INT64_MAX = 2**63 - 1
+"""The largest time or sequence number a recording may hold (they are int64 in memory)."""
+MAX_SIDE_PX = 16384
+"""The largest image width or height a recording may declare, px."""
+
+
+def _inside(name: str) -> str:
+    """A file name in a manifest: relative, inside the recording directory, printable."""
+    problem = path_problem(name)
+    if problem is not None:
+        raise ValueError(f"the name {problem}")
+    p = PurePosixPath(name)
+    if not name or p.is_absolute() or ".." in p.parts:
+        raise ValueError("must name a file inside the recording directory (e.g. left.mkv)")
+    return name
+
+
 class EyeFiles(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    video: str
-    timestamps: str
-    frames: int = Field(ge=0)
+    video: Annotated[str, AfterValidator(_inside)]
+    timestamps: Annotated[str, AfterValidator(_inside)]
+    frames: int = Field(ge=0, le=10**9)
 
 
 class Manifest(BaseModel):
     """``recording.json``: how to read a recording back."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     format: Literal["stereod.recording/1"] = FORMAT
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
-    fps: float | None = Field(default=None, gt=0)
+    width: int = Field(gt=0, le=MAX_SIDE_PX)
+    height: int = Field(gt=0, le=MAX_SIDE_PX)
+    fps: float | None = Field(default=None, gt=0, le=10000)
     codec: Codec = Codec.FFV1
     color: bool = False
     left: EyeFiles
     right: EyeFiles
-    utc_offset_ns: int | None = None
+    utc_offset_ns: int | None = Field(None, ge=-INT64_MAX, le=INT64_MAX)
     created_utc: str = ""
     settings: dict[str, Any] = Field(default_factory=dict)
     calibration: dict[str, Any] | None = None
@@ -83,6 +112,8 @@ def read_manifest(directory: Path) -> Manifest:
         return Manifest.model_validate_json(path.read_bytes())
     except ValidationError as exc:
         raise InputError(f"{path}: {describe_validation_error(exc)}") from exc
+    except OSError as exc:
+        raise MissingInputError(f"{path}: cannot read the manifest: {exc.strerror}") from exc
 
 
 def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -92,25 +123,46 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
     Times must strictly increase; the error names the file and row.
     """
     try:
-        fh = path.open(newline="")
+        data = path.read_bytes()
     except FileNotFoundError as exc:
         raise MissingInputError(f"{path}: no such timestamp file") from exc
     except OSError as exc:
         raise MissingInputError(f"{path}: cannot read timestamp file: {exc.strerror}") from exc
-    with fh:
-        rows = list(csv.reader(fh))
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            f"{path}: not a text file (byte {exc.start} is not UTF-8); a timestamp file is a "
+            "CSV with the header t_ns"
+        ) from exc
+    try:
+        rows = list(csv.reader(io.StringIO(text, newline="")))
+    except csv.Error as exc:
+        raise InputError(f"{path}: not a valid CSV file: {exc}") from exc
     if not rows or [c.strip() for c in rows[0][:1]] != ["t_ns"]:
         raise InputError(f"{path}: first line must be the header 't_ns' (or 't_ns,seq')")
     has_seq = len(rows[0]) > 1 and rows[0][1].strip() == "seq"
     t = np.empty(len(rows) - 1, np.int64)
     seq = np.arange(len(rows) - 1, dtype=np.int64)
     for i, row in enumerate(rows[1:]):
+        cells = row[:2] if has_seq else row[:1]
         try:
-            t[i] = int(row[0])
-            if has_seq:
-                seq[i] = int(row[1])
-        except (ValueError, IndexError) as exc:
-            raise InputError(f"{path} line {i + 2}: expected an integer, got {row!r}") from exc
+            values = [int(c) for c in cells]
+        except ValueError:
+            values = []
+        if len(values) != len(cells) or len(cells) != (2 if has_seq else 1):
+            raise InputError(
+                f"{path} line {i + 2}: expected {'two integers' if has_seq else 'an integer'}, "
+                f"got {_shown_row(row)}"
+            )
+        if not all(0 <= v <= INT64_MAX for v in values):
+            raise InputError(
+                f"{path} line {i + 2}: {_shown_row(row)} is out of range (0 to 2^63 - 1: "
+                "nanoseconds on the monotonic clock, sequence numbers from 0)"
+            )
+        t[i] = values[0]
+        if has_seq:
+            seq[i] = values[1]
     bad = np.flatnonzero(np.diff(t) <= 0)
     if bad.size:
         j = int(bad[0]) + 1
@@ -121,8 +173,26 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return t, seq
 
 
+def _shown_row(row: list[str], limit: int = 60) -> str:
+    text = ",".join(row)
+    return repr(text if len(text) <= limit else text[: limit - 3] + "...")
+
+
+MIN_FREE_BYTES = 16 * 2**20
+"""A recording stops with an error (exit 73) once its file system has less free space than
+this plus a few frames: OpenCV's video writer does not report a full disk."""
+
+
 class RecordingWriter:
-    """Write frames of both eyes into a recording directory; use as a context manager."""
+    """Write frames of both eyes into a new recording directory; use as a context manager.
+
+    Everything is written into a hidden temporary directory beside ``directory`` and moved into
+    place when the writer closes, so a recording that fails before its first frame leaves
+    nothing behind, and an existing directory is never written into: ``directory`` must not
+    exist or be empty. A failure after frames were written still moves them into place (the
+    manifest counts what was written), so what was recorded is kept. A file system running out
+    of space stops the recording with :class:`~stereod.errors.OutputError`.
+    """
 
     def __init__(
         self,
@@ -138,10 +208,22 @@ class RecordingWriter:
         calibration: dict[str, Any] | None = None,
     ) -> None:
         self.directory = directory
+        text_path(directory, "recording directory", OutputError)
+        if directory.exists() and (not directory.is_dir() or any(directory.iterdir())):
+            raise OutputError(
+                f"{directory}: already exists and is not an empty directory; a recording goes "
+                "into a new one (nothing was written)"
+            )
         try:
-            directory.mkdir(parents=True, exist_ok=True)
+            directory.parent.mkdir(parents=True, exist_ok=True)
+            self._tmp = Path(
+                tempfile.mkdtemp(prefix=f".{directory.name}.", suffix=".part", dir=directory.parent)
+            )
+            self._tmp.chmod(0o777 & ~_umask())
         except OSError as exc:
-            raise OutputError(f"{directory}: cannot create recording directory: {exc}") from exc
+            raise OutputError(
+                f"{directory}: cannot create the recording directory: {exc.strerror}"
+            ) from exc
         self._manifest = dict(
             width=width,
             height=height,
@@ -155,20 +237,38 @@ class RecordingWriter:
         )
         self._writers: dict[Eye, cv2.VideoWriter] = {}
         self._ts: dict[Eye, Any] = {}
+        self._extra: dict[str, str] = {}
         self._counts = {Eye.LEFT: 0, Eye.RIGHT: 0}
-        fourcc = cv2.VideoWriter.fourcc(*_FOURCC[codec])
-        for eye in Eye:
-            video = directory / f"{eye.value}{_EXT[codec]}"
-            w = cv2.VideoWriter(str(video), fourcc, fps or 30.0, (width, height), isColor=color)
-            if not w.isOpened():
-                raise OutputError(f"{video}: cannot open for writing with codec {codec.value}")
-            self._writers[eye] = w
-            try:
-                fh = (directory / f"{eye.value}.csv").open("w", newline="")
-            except OSError as exc:
-                raise OutputError(f"{directory}: cannot write timestamps: {exc}") from exc
-            fh.write("t_ns,seq\n")
-            self._ts[eye] = fh
+        self._frame_bytes = width * height * (3 if color else 1)
+        self._writes = 0
+        try:
+            fourcc = cv2.VideoWriter.fourcc(*_FOURCC[codec])
+            for eye in Eye:
+                video = self._tmp / f"{eye.value}{_EXT[codec]}"
+                w = cv2.VideoWriter(
+                    text_path(video, "video", OutputError),
+                    fourcc,
+                    fps or 30.0,
+                    (width, height),
+                    isColor=color,
+                )
+                if not w.isOpened():
+                    raise OutputError(
+                        f"{directory / video.name}: cannot open for writing with codec "
+                        f"{codec.value}"
+                    )
+                self._writers[eye] = w
+                try:
+                    fh = (self._tmp / f"{eye.value}.csv").open("w", newline="")
+                    fh.write("t_ns,seq\n")
+                except OSError as exc:
+                    raise OutputError(
+                        f"{directory}: cannot write timestamps: {exc.strerror}"
+                    ) from exc
+                self._ts[eye] = fh
+        except BaseException:
+            self.discard()
+            raise
         self._size = (height, width)
 
     def write(self, frame: Frame) -> None:
@@ -179,38 +279,94 @@ class RecordingWriter:
                 f"{frame.eye.value} frame is {img.shape[1]}x{img.shape[0]}, recording is "
                 f"{self._size[1]}x{self._size[0]}"
             )
+        if self._writes % 8 == 0:
+            self._check_space()
+        self._writes += 1
         color = bool(self._manifest["color"])
         if color and img.ndim == 2:
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
         elif not color and img.ndim == 3:
             img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
         self._writers[frame.eye].write(img)
-        self._ts[frame.eye].write(f"{frame.t_ns},{frame.seq}\n")
+        try:
+            self._ts[frame.eye].write(f"{frame.t_ns},{frame.seq}\n")
+        except OSError as exc:
+            raise OutputError(f"{self.directory}: writing failed: {exc.strerror}") from exc
         self._counts[frame.eye] += 1
 
+    def _check_space(self) -> None:
+        try:
+            st = os.statvfs(self._tmp)
+        except OSError:
+            return
+        free = st.f_bavail * st.f_frsize
+        if free < MIN_FREE_BYTES + 16 * self._frame_bytes:
+            kept = "the frames recorded so far were kept" if self.frames else "nothing written"
+            raise OutputError(
+                f"{self.directory}: the disk is full ({free // 2**20} MiB free); recording "
+                f"stopped, {kept}"
+            )
+
+    def write_text(self, name: str, text: str) -> None:
+        """Add a small text file (``truth.json``) to the recording, moved into place with it."""
+        self._extra[name] = text
+
+    @property
+    def frames(self) -> int:
+        """Frames written so far, both eyes together."""
+        return sum(self._counts.values())
+
     def close(self) -> None:
-        """Finish the videos and write the manifest last (a recording without one is incomplete)."""
+        """Finish the videos, write the manifest last and move the recording into place."""
         if not self._writers:
             return
         for w in self._writers.values():
             w.release()
-        for fh in self._ts.values():
-            fh.close()
-        ext = _EXT[Codec(self._manifest["codec"])]
-        man = Manifest(
-            left=EyeFiles(video=f"left{ext}", timestamps="left.csv", frames=self._counts[Eye.LEFT]),
-            right=EyeFiles(
-                video=f"right{ext}", timestamps="right.csv", frames=self._counts[Eye.RIGHT]
-            ),
-            **self._manifest,
-        )
-        (self.directory / MANIFEST).write_text(
-            json.dumps(man.model_dump(mode="json"), indent=2) + "\n"
-        )
         self._writers.clear()
+        try:
+            for fh in self._ts.values():
+                fh.close()
+            ext = _EXT[Codec(self._manifest["codec"])]
+            man = Manifest(
+                left=EyeFiles(
+                    video=f"left{ext}", timestamps="left.csv", frames=self._counts[Eye.LEFT]
+                ),
+                right=EyeFiles(
+                    video=f"right{ext}", timestamps="right.csv", frames=self._counts[Eye.RIGHT]
+                ),
+                **self._manifest,
+            )
+            for name, text in self._extra.items():
+                (self._tmp / name).write_text(text)
+            (self._tmp / MANIFEST).write_text(
+                json.dumps(man.model_dump(mode="json"), indent=2) + "\n"
+            )
+            os.replace(self._tmp, self.directory)
+        except OSError as exc:
+            self.discard()
+            raise OutputError(f"{self.directory}: writing failed: {exc.strerror}") from exc
+
+    def discard(self) -> None:
+        """Drop everything written; ``directory`` stays as it was."""
+        for w in self._writers.values():
+            w.release()
+        self._writers.clear()
+        for fh in self._ts.values():
+            with contextlib.suppress(OSError):
+                fh.close()
+        shutil.rmtree(self._tmp, ignore_errors=True)
 
     def __enter__(self) -> RecordingWriter:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None or (self.frames and issubclass(exc_type, StereodError)):
+            self.close()
+        else:
+            self.discard()
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask

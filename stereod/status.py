@@ -5,7 +5,8 @@ its timings and errors, the output thread its write failures); the status loop r
 second and on change. Counters are kept apart by kind: ``drops`` (data lost: frames or pairs),
 ``errors`` (data that arrived unusable, or processing that failed) and ``reconnects``.
 Problems are one line each; a repeated kind is logged the 1st, 10th, 100th... time only, so a
-stream of bad frames cannot flood the journal.
+stream of bad frames cannot flood the journal. What goes on the bus has its paths reduced to
+file names (:mod:`stereod.redact`); the log keeps them whole.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from .geometry import Geometry
 from .messages import DaemonState, EyeState, EyeStatus, StatsMessage, StatusMessage
 from .pairing import Pairer
 from .queues import BoundedQueue
+from .redact import public_text
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +52,19 @@ class EyeHealth:
         return n / period_s if period_s > 0 else 0.0
 
 
+def geometry_note(rig: object) -> str:
+    """What an uncalibrated run's depths rest on, said plainly; empty when calibrated."""
+    hfov = getattr(rig, "hfov_deg", None)
+    if getattr(rig, "calibration_id", None) is not None or hfov is None:
+        return ""
+    return (
+        f"no calibration: every depth assumes a {hfov:g} deg horizontal field of view and a "
+        f"{getattr(rig, 'baseline_m', 0.06):g} m baseline; a Minoru has been measured at about "
+        "42 deg, and each depth scales with that figure (42 for 60 makes depths 1.5x too "
+        "large): run stereod calibrate"
+    )
+
+
 class Health:
     """Shared, lock-protected health of one daemon run."""
 
@@ -64,11 +79,14 @@ class Health:
         self.source_description = ""
         self.geometry = Geometry.CANONICAL
         self.calibration_id: str | None = None
+        self.geometry_note = ""
         self.started_s = time.monotonic()
         self.last_frame_s = 0.0
         self.published = 0
         self.publish_errors = 0
         self.queue_depth: Callable[[], int] = lambda: 0
+        self.log_problems = True
+        """Log each problem as a warning when it happens (off when the command prints them)."""
         self._sources: list[EyeSource] = []
         self._queues: dict[str, BoundedQueue[Any]] = {}
         self._drops: collections.Counter[str] = collections.Counter()
@@ -92,15 +110,19 @@ class Health:
 
     # -- reporting ---------------------------------------------------------------------------
 
-    def problem(self, text: str, kind: str | None = None) -> None:
-        """Record a non-fatal problem for the status key and the run summary."""
+    def problem(self, text: str, kind: str | None = None, *, logged: bool = True) -> None:
+        """Record a problem for the status key and the run summary. It is logged as a warning
+        unless ``logged`` is false or :attr:`log_problems` is off (a command that prints its
+        problems at the end says each once)."""
         key = kind or text
         with self.lock:
             n = self._problem_counts[key] = self._problem_counts.get(key, 0) + 1
             self._problems.append(text)
             if len(self._all_problems) < 1000:
                 self._all_problems.append(text)
-        if n == 1 or (kind is not None and math.log10(n).is_integer()):
+        if not (logged and self.log_problems):
+            log.debug("problem: %s", text)
+        elif n == 1 or (kind is not None and math.log10(n).is_integer()):
             log.warning("%s%s", text, f" ({n} times)" if n > 1 else "")
         self._on_change()
 
@@ -117,6 +139,10 @@ class Health:
             self._pipeline_ms.append(pipeline_ms)
             self._skews_ms.append(abs(skew_ms))
             self._residuals.extend(residuals_px.tolist())
+
+    def notes(self) -> list[str]:
+        """Standing conditions of the run (see :func:`geometry_note`)."""
+        return [n for n in (self.geometry_note,) if n]
 
     def problems(self) -> list[str]:
         """Every problem so far (at most 1000), oldest first."""
@@ -161,7 +187,7 @@ class Health:
             fps=round(h.fps(period_s), 3),
             frames=h.frames,
             errors=h.errors,
-            last_error=h.last_error,
+            last_error=public_text(h.last_error) if h.last_error is not None else None,
         )
 
     def status(self, period_s: float) -> StatusMessage:
@@ -183,7 +209,7 @@ class Health:
             stamp_utc_ns=time.time_ns(),
             uptime_s=round(time.monotonic() - self.started_s, 3),
             driver=self.driver,
-            source=self.source_description,
+            source=public_text(self.source_description),
             left=self._eye_status(Eye.LEFT, period_s),
             right=self._eye_status(Eye.RIGHT, period_s),
             pairs=self.pairer.stats.pairs,
@@ -198,7 +224,8 @@ class Health:
             geometry=self.geometry,
             calibration_id=self.calibration_id,
             epipolar_residual_px=round(float(np.median(resid)), 4) if resid else None,
-            problems=problems,
+            problems=[public_text(p) for p in problems],
+            notes=self.notes(),
         )
 
     def stats(self) -> StatsMessage:

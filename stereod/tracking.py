@@ -109,8 +109,9 @@ class TrackerParams:
     moved in the image since it was last seen. ``max_speed_mps``: the fastest object to
     follow (m/s); it sets the gate of a track with one observation. ``manoeuvre_chi2``: an
     observation whose squared Mahalanobis distance from the filter's prediction exceeds this
-    (3 dof; 16.3 is 99.9 %) re-opens the velocity uncertainty to ``manoeuvre_sigma_mps``.
+    (3 dof; 16.3 is 99.9 %) widens the prediction until it does not (a fading memory).
     ``accel_noise``: spectral density q of the white acceleration (m^2/s^3).
+    ``manoeuvre_sigma_mps``: the velocity sigma of a track before its filter starts.
     ``time_base_s``: tau of eq. 21 (s). ``max_coast_s``: how long (s) a confirmed track lives
     unseen. ``confirm_hits``: observations to confirm. ``valid_speed_sigma_mps``,
     ``valid_speed_sigma_rel``: a velocity is valid once the speed's sigma is below the larger
@@ -124,7 +125,7 @@ class TrackerParams:
     max_speed_mps: float = 30.0
     manoeuvre_chi2: float = 16.3
     manoeuvre_sigma_mps: float = 2.0
-    accel_noise: float = 0.05
+    accel_noise: float = 0.02
     time_base_s: float = 0.5
     max_coast_s: float = 0.5
     confirm_hits: int = 3
@@ -394,18 +395,22 @@ class Tracker:
                 tr = self._tracks[tid]
                 if not tr.started:
                     self._begin(tr, t_ns, ob)
-                elif not ob.clipped:
+                elif ob.clipped:  # part of it out of view: its position is predicted
+                    tr.kf = kalman.predict(tr.kf, t_ns, self._q(tr))
+                else:
                     self._filter(tr, t_ns, ob)
                 tr.hits += 1
                 tr.last = ob
                 tr.last_seen_ns = t_ns
                 tr.image_speed_pxps = det.image_speed_pxps
                 tr.area_px = 0.8 * tr.area_px + 0.2 * det.area_px
-            tr.positions.append((t_ns, ob.position_m))
+            if not ob.clipped:
+                tr.positions.append((t_ns, ob.position_m))
             tr.left_history.append((t_left, ob.left_px))
             tr.right_history.append((t_right, ob.right_px))
             seen.add(tr.track_id)
-            states.append(self._state(tr, t_ns, observed=True))
+            if tr.started or tr.whole:  # a track seen only cut by the image's edge is kept quiet
+                states.append(self._state(tr, t_ns, observed=True))
         ended = []
         coast_ns = int(p.max_coast_s * 1e9)
         for tid, tr in list(self._tracks.items()):
@@ -415,14 +420,15 @@ class Tracker:
                 ended.append(tid)
                 del self._tracks[tid]
             else:
-                tr.kf = kalman.predict(tr.kf, t_ns, p.accel_noise)
-                states.append(self._state(tr, t_ns, observed=False))
+                tr.kf = kalman.predict(tr.kf, t_ns, self._q(tr))
+                if tr.started or tr.whole:
+                    states.append(self._state(tr, t_ns, observed=False))
         return states, ended
 
     NOISE_RATE = 0.05
     """How fast a track's measurement noise scale follows its innovations once settled (per
     update; at first it follows the running mean)."""
-    NOISE_BOUNDS = (0.5, 20.0)
+    NOISE_BOUNDS = (0.25, 20.0)
     """A track's noise scale stays within these: its positions at most 1.4 times as precise as
     the triangulation covariance says (a tighter filter follows the noise: headings jitter),
     at most 4.5 times less."""
@@ -437,13 +443,20 @@ class Tracker:
         p = self.params
         self._learn_noise(tr, t_ns, ob)
         r = ob.cov_m2 * tr.noise_scale
-        pred = kalman.predict(tr.kf, t_ns, p.accel_noise)
+        pred = kalman.predict(tr.kf, t_ns, self._q(tr))
         for _ in range(3):
             nis = kalman.mahalanobis2(pred, ob.position_m, r)
             if nis <= p.manoeuvre_chi2:
                 break
             pred = kalman.KalmanState(pred.x, pred.P * (nis / p.manoeuvre_chi2), pred.t_ns)
         tr.kf = kalman.update(pred, ob.position_m, r)
+
+    def _q(self, tr: Track) -> float:
+        """The track's process noise density (m^2/s^3): ``accel_noise`` for an object at walking
+        pace, growing with the square of its speed above 1 m/s, since a fast object (a thrown
+        ball falls at 9.8 m/s^2) leaves a straight line faster."""
+        v = motion.speed(tr.kf.velocity_mps) if tr.started else 0.0
+        return self.params.accel_noise * max(1.0, v * v)
 
     def _learn_noise(self, tr: Track, t_ns: int, ob: Observation) -> None:
         """Follow how noisy this object's positions really are. The middle of three
@@ -507,6 +520,8 @@ class Tracker:
 
     def _raw_velocity(self, tr: Track) -> np.ndarray | None:
         """Eq. 21 between the newest position and the newest one at least tau older."""
+        if not tr.positions:
+            return None
         base_ns = int(self.params.time_base_s * 1e9)
         t_now, p_now = tr.positions[-1]
         for t, pos in reversed(tr.positions):

@@ -22,21 +22,24 @@ def start_stereod(*args: str, env: dict[str, str] | None = None, **popen: Any) -
     popen.setdefault("stdout", subprocess.PIPE)
     popen.setdefault("stderr", subprocess.PIPE)
     popen.setdefault("text", True)
-    return subprocess.Popen(
-        stereod_command(*args), cwd=ROOT, env={**os.environ, **(env or {})}, **popen
-    )
+    popen.setdefault("cwd", ROOT)
+    return subprocess.Popen(stereod_command(*args), env={**os.environ, **(env or {})}, **popen)
 
 
 def run_stereod(
-    *args: str, timeout: float = 120, env: dict[str, str] | None = None, **kw: Any
+    *args: str,
+    timeout: float = 120,
+    env: dict[str, str] | None = None,
+    cwd: Path = ROOT,
+    **kw: Any,
 ) -> subprocess.CompletedProcess[str]:
-    """Run ``stereod ARGS`` to the end, capturing text output."""
+    """Run ``stereod ARGS`` to the end (in ``cwd``), capturing text output."""
     return subprocess.run(
         stereod_command(*args),
         capture_output=True,
         text=True,
         timeout=timeout,
         env={**os.environ, **(env or {})},
-        cwd=ROOT,
+        cwd=cwd,
         **kw,
     )

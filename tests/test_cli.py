@@ -339,7 +339,7 @@ def test_synth_command_writes_recording_and_truth(tmp_path: Path) -> None:
     assert truth["balls"][0]["heading_deg"] == 200 and truth["width_px"] == 320
     assert math.isclose(truth["skew_s"], 0.01)
     bad = stereod("synth", str(tmp_path / "t"), "--ball", "heading=x")
-    one_line_error(bad, 78, "heading = 'x': 'x' is not a number")
+    one_line_error(bad, 64, "heading = 'x': 'x' is not a number")
 
 
 def test_replay_with_calibration_file(scene_dir: tuple[Scene, Path], tmp_path: Path) -> None:

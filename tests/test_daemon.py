@@ -303,3 +303,19 @@ def test_fifty_reloads_while_pairs_flow(endpoint: str, listener: zenoh.Session) 
     seen = set(appearances)
     assert seen and seen <= deleted, f"tracks without a DELETE: {seen - deleted}"
     assert len(deleted) >= 20, f"only {len(deleted)} tracks ended: did the reloads apply?"
+
+
+def test_status_says_uncalibrated_depths_rest_on_the_field_of_view(endpoint: str) -> None:
+    """Without a calibration the status says plainly what every depth assumes."""
+    daemon = Daemon(config(endpoint), SyntheticDriver({"duration_s": 1.0, "fps": 15}), rate=0)
+    daemon.run()
+    notes = daemon.health.status(1.0).notes
+    assert len(notes) == 1 and "60 deg" in notes[0] and "stereod calibrate" in notes[0]
+
+
+def test_a_calibrated_rig_has_no_such_note() -> None:
+    from stereod.calibration import canonical
+    from stereod.geometry.rectified import CalibratedRig
+    from stereod.status import geometry_note
+
+    assert geometry_note(CalibratedRig(canonical(0.06, 60.0, 640, 480))) == ""

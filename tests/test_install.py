@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import ipaddress
+import json
 import re
 import shutil
 import subprocess
@@ -43,10 +45,15 @@ def test_install_dry_run_and_uninstall(tmp_path: Path) -> None:
     assert not (units / "stereod.service").exists() and cfg.exists()
 
 
-def test_default_config_is_valid(tmp_path: Path) -> None:
+def test_default_config_is_valid_and_listens_on_loopback_only(tmp_path: Path) -> None:
     installed(tmp_path)
     res = stereod("run", "--config", str(tmp_path / "etc/stereod/stereod.toml"), "--check")
     assert res.returncode == 0, res.stderr
+    zenoh = json.loads(res.stdout)["zenoh"]
+    assert zenoh["listen"] and zenoh["connect"] == [] and not zenoh["multicast_scouting"]
+    for endpoint in zenoh["listen"]:
+        host = endpoint.split("/", 1)[1].rsplit(":", 1)[0].strip("[]")
+        assert ipaddress.ip_address(host).is_loopback, f"{endpoint} is reachable from the LAN"
 
 
 def test_no_reload_under_a_prefix(tmp_path: Path) -> None:

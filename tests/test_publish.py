@@ -7,6 +7,7 @@ import time
 
 import zenoh
 
+from stereod.client import wait_alive
 from stereod.config import ZenohConfig
 from stereod.publish import Publisher, session_config
 
@@ -37,6 +38,9 @@ def test_objects_tracks_deletes_and_failing_queryable(
         assert seen_status_sub.wait(5), "matching listener did not fire for the status key"
         pub.objects(b'{"n": 1}', [(7, b'{"t": 7}')], [])
         pub.objects(b'{"n": 2}', [], [7])
+        # get() does not wait for a queryable: the liveliness token, declared last, says
+        # the queryables are known.
+        assert wait_alive(listener, rig="r", timeout_s=10)
         replies = list(listener.get("stereod/r/stats", timeout=5))
         assert replies and replies[0].err is not None
         assert "no stats yet" in replies[0].err.payload.to_bytes().decode()

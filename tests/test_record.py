@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import itertools
 import json
+import subprocess
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+import pytest
 
+from stereod.calibration import canonical, save
 from stereod.frames import merged
 from stereod.record import record
 from stereod_fakes.replay import ReplayDriver
@@ -19,7 +23,7 @@ from .conftest import stereod
 def test_replay_reproduces_recorded_frames_and_timestamps(tmp_path: Path) -> None:
     scene = {"duration_s": 1.0, "fps": 10, "skew_s": 0.013, "width_px": 160, "height_px": 120}
     cal = tmp_path / "cal.json"
-    cal.write_text('{"format": "stereod.calibration/1"}')
+    save(canonical(0.06, 60.0, 160, 120), cal)
     counts = record(SyntheticDriver(scene), tmp_path / "rec", calibration=cal)
     assert counts == {"left": 10, "right": 10}
     truth = [f for pair in Renderer(Scene(**scene)).frames() for f in pair]
@@ -31,7 +35,7 @@ def test_replay_reproduces_recorded_frames_and_timestamps(tmp_path: Path) -> Non
         assert g.t_ns == want.t_ns
         assert np.array_equal(g.image, want.image), f"{g.eye} frame {g.seq} differs"
     man = json.loads((tmp_path / "rec" / "recording.json").read_text())
-    assert man["calibration"] == {"format": "stereod.calibration/1"}
+    assert man["calibration"] == json.loads(cal.read_text())
 
 
 def test_live_record_stops_after_seconds(tmp_path: Path) -> None:
@@ -56,3 +60,41 @@ def test_record_and_devices_commands(tmp_path: Path) -> None:
     assert "recorded 5 left and 5 right frames" in res.stdout
     res = stereod("devices", "--brief")
     assert res.returncode == 0 and res.stdout.strip(), res.stderr
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Iterator[Path]:
+    """A real 24 MiB file system (tmpfs); skipped where mounting is not allowed."""
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    res = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=24m", "tmpfs", str(mnt)],
+        capture_output=True,
+        text=True,
+    )
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here: {res.stderr.strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", str(mnt)], check=True)
+
+
+def test_a_full_disk_stops_the_recording_and_keeps_what_was_recorded(
+    tmp_path: Path, small_disk: Path
+) -> None:
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(  # noisy frames do not compress: about 100 KB each in FFV1
+        '[driver]\nname = "synthetic"\n[driver.options]\nduration_s = 60\nfps = 15\n'
+        "width_px = 320\nheight_px = 240\nnoise_sigma = 30\n"
+    )
+    out = small_disk / "rec"
+    res = stereod("record", str(out), "--config", str(cfg))
+    assert res.returncode == 73, res.stderr
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1 and "the disk is full" in lines[0], res.stderr
+    man = json.loads((out / "recording.json").read_text())
+    rows = (out / "left.csv").read_text().splitlines()[1:]
+    assert 0 < man["left"]["frames"] == len(rows) < 900
+    replay = stereod("replay", str(out), "--rate", "0", "-q", "--listen", "tcp/127.0.0.1:0")
+    assert replay.returncode == 0, replay.stderr

@@ -38,6 +38,9 @@ from .ioctl import IO
 
 log = logging.getLogger(__name__)
 
+NODE_POLL_S = 0.1
+"""How often an eye whose node has gone looks for it again, s (a stat of a path or two)."""
+
 
 class MinoruOptions(BaseModel):
     """The ``[driver.options]`` of ``v4l2_minoru``."""
@@ -126,6 +129,23 @@ class CameraEye(EyeSource):
             self.fps,
         )
 
+    def _node_present(self) -> bool:
+        return Path(self._locate()).exists()
+
+    def _pause(self, delay_s: float) -> bool:
+        """Wait ``delay_s`` seconds before the next reopen; True when the eye's node, absent
+        when the pause began, appeared meanwhile (a re-plug: udev made its name again). The
+        node is looked for every ``NODE_POLL_S``, so a re-plugged eye streams again within a
+        fraction of a second however long it was away."""
+        absent = not self._node_present()
+        deadline = time.monotonic() + delay_s
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or self._interrupted.wait(min(NODE_POLL_S, left) if absent else left):
+                return False
+            if absent and self._node_present():
+                return True
+
     def _apply_controls(self, dev: V4L2Device) -> None:
         wanted: list[tuple[str, int, int]] = []
         if self.opts.manual_exposure:
@@ -151,8 +171,10 @@ class CameraEye(EyeSource):
                     self._delay = self.opts.retry_s
                 except DeviceError as exc:
                     log.debug("%s eye: reopen failed: %s", self.eye.value, exc)
-                    self._interrupted.wait(self._delay)
-                    self._delay = min(self._delay * 2, self.opts.retry_max_s)
+                    if self._pause(self._delay):
+                        self._delay = self.opts.retry_s  # a node appeared: try it at once
+                    else:
+                        self._delay = min(self._delay * 2, self.opts.retry_max_s)
                     continue
             assert self.device is not None
             try:

@@ -24,12 +24,10 @@ from pathlib import Path
 from typing import NoReturn
 
 from .. import __version__
-from ..errors import EX_SOFTWARE, StereodError
+from ..errors import EX_SOFTWARE, EX_USAGE, StereodError, one_line
 from .common import EPILOG_KEYS, quiet_third_party
 
 GROUP = "stereod.commands"
-EX_USAGE = 64
-"""Exit code for a bad command line (sysexits.h EX_USAGE)."""
 
 ORDER = (
     "run",
@@ -53,7 +51,7 @@ class Parser(argparse.ArgumentParser):
     """argparse with a one-line error and exit 64."""
 
     def error(self, message: str) -> NoReturn:
-        print(f"{self.prog}: {message} (see {self.prog} --help)", file=sys.stderr)
+        print(f"{self.prog}: {one_line(message)} (see {self.prog} --help)", file=sys.stderr)
         raise SystemExit(EX_USAGE)
 
 
@@ -103,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         code: int = args.func(args)
         return code
     except StereodError as exc:
-        print(f"stereod: {exc}", file=sys.stderr)
+        print(f"stereod: {one_line(str(exc))}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         return 130
@@ -115,7 +113,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         path = crash_log(exc)
         where = f"details in {path}" if path else "and the details could not be written"
         print(
-            f"stereod: internal error: {type(exc).__name__}: {exc} ({where}; please report it)",
+            f"stereod: internal error: {type(exc).__name__}: {one_line(str(exc))[:200]} "
+            f"({where}; please report it)",
             file=sys.stderr,
         )
         return EX_SOFTWARE

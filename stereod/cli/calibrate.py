@@ -11,6 +11,7 @@ from ..calibration import Board, save
 from ..config import load_config
 from ..drivers import load_driver
 from ..frames import merged
+from ..output_file import check_not_input
 from ..progress import Progress
 from .common import add_config, add_driver, number, path_arg, size_arg
 
@@ -127,13 +128,15 @@ def run(a: argparse.Namespace) -> int:
             report = cb.calibrate_files(pairs, board, limits, progress, a.corner_window)
     print(cb.format_report(report))
     if report.problems:
-        for problem in report.problems:
-            print(f"stereod: calibration is clearly bad: {problem}", file=sys.stderr)
+        bad = f"calibration is clearly bad: {'; '.join(report.problems)}"
         if not a.force:
             print(
-                f"stereod: not written to {a.out} (use --force to write it anyway)", file=sys.stderr
+                f"stereod: {bad}; not written to {a.out} (use --force to write it anyway)",
+                file=sys.stderr,
             )
             return cb.CalibrationRejected.exit_code
+        print(f"stereod: {bad}; written anyway (--force)", file=sys.stderr)
+    check_not_input(a.out, [a.list] if a.list else [], "--out")
     save(report.calibration, a.out)
     print(f"wrote {a.out} (calibration id {report.calibration.id})")
     return 0

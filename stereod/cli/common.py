@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..errors import EX_DATAERR, ConfigError
+from ..errors import EX_DATAERR, ConfigError, one_line
 
 log = logging.getLogger("stereod")
 
@@ -187,6 +187,24 @@ def pipeline_overrides(a: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def load_checked(path: Path | None, overrides: dict[str, Any]) -> tuple[Any, Any]:
+    """The configuration and its driver, with everything a run reads checked now: the
+    config itself, the driver's options, the Zenoh config file and the calibration file. Used
+    alike at start, by ``run --check`` and on every reload, so that a file that passes one
+    passes all three."""
+    from ..calibration import load as load_calibration
+    from ..config import load_config
+    from ..drivers import load_driver
+    from ..publish import session_config
+
+    cfg = load_config(path, overrides)
+    driver = load_driver(cfg.driver.name, cfg.driver.options, origin=path)
+    session_config(cfg.zenoh)
+    if cfg.rig.calibration is not None:
+        load_calibration(cfg.rig.calibration)
+    return cfg, driver
+
+
 def quiet_third_party() -> None:
     """Silence OpenCV's and FFmpeg's own messages on stderr: every problem they report (a
     file that does not open, a truncated video) reaches the user once, in our words."""
@@ -213,9 +231,12 @@ def run_daemon(
     daemon: Any, *, quiet: bool = False, problems_fail: bool = True, progress: Any = None
 ) -> int:
     """Run until the input ends or a signal; SIGHUP reloads. With ``problems_fail`` (replay)
-    a run that hit input problems exits 65 after printing them; a daemon exits 0 on a clean
-    stop, its problems having gone to the log and the status key. ``progress`` (a
+    a run that hit input problems exits 65 after saying them in one line; a daemon exits 0 on
+    a clean stop, its problems having gone to the log and the status key. A fatal error is
+    raised after the summary (its one line is the caller's to print). ``progress`` (a
     :class:`~stereod.progress.Progress`) is closed before the summary is printed."""
+    if problems_fail:
+        daemon.health.log_problems = False
 
     def on_signal(signum: int, _frame: Any) -> None:
         log.info("signal %d: stopping", signum)
@@ -235,20 +256,45 @@ def run_daemon(
             progress.close()
     if not quiet:
         drops = ", ".join(f"{k} {v}" for k, v in summary.drops.items()) or "none"
-        print(
+        say(
             f"{summary.pairs} pairs from {summary.frames.get('left', 0)} left and "
             f"{summary.frames.get('right', 0)} right frames, {summary.published} messages "
             f"published, {summary.objects} object observations in "
-            f"{time.monotonic() - t0:.1f} s; drops: {drops}",
-            flush=True,
+            f"{time.monotonic() - t0:.1f} s; drops: {drops}"
         )
     if summary.error is not None:
         raise summary.error
     if summary.problems and problems_fail:
-        for p in summary.problems:
-            print(f"stereod: {p}", file=sys.stderr)
+        print(f"stereod: {one_line(summarise(summary.problems))}", file=sys.stderr)
         return EX_DATAERR
     return 0
+
+
+def say(text: str) -> None:
+    """Print a line on stdout; a reader that went away (``| head``) is not an error of ours,
+    and the exit code stays that of the run."""
+    try:
+        print(text, flush=True)
+    except BrokenPipeError:
+        # Later flushes (at exit) would fail again: point stdout at nothing.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
+def summarise(problems: list[str], shown: int = 3) -> str:
+    """Several problems as one line: the first ``shown`` distinct ones and how many more."""
+    distinct = list(dict.fromkeys(problems))
+    text = "; ".join(distinct[:shown])
+    if len(distinct) > shown:
+        text += f"; and {len(distinct) - shown} more"
+    return text
+
+
+def command_log_level(cfg: Any) -> str:
+    """The log level of a command that is not the daemon (replay, record, calibrate): the
+    configured one when the file or environment sets it, else WARNING, so that the command's
+    own output is not buried under the daemon's INFO lines."""
+    level: str = cfg.daemon.log_level
+    return level if "log_level" in cfg.daemon.model_fields_set else "WARNING"
 
 
 def size_arg(text: str) -> tuple[int, int]:

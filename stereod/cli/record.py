@@ -13,7 +13,14 @@ from ..frames import Eye, Frame, SourceInfo
 from ..mcap_run import RunMcap, config_geometry
 from ..progress import Progress
 from ..record import record
-from .common import add_config, add_driver, number, path_arg, setup_logging
+from .common import (
+    add_config,
+    add_driver,
+    command_log_level,
+    number,
+    path_arg,
+    setup_logging,
+)
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -52,7 +59,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def run(a: argparse.Namespace) -> int:
     ov = {"driver": {"name": a.driver}} if a.driver else {}
     cfg = load_config(a.config, ov)
-    setup_logging(cfg.daemon.log_level)
+    setup_logging(command_log_level(cfg))
     driver = load_driver(cfg.driver.name, cfg.driver.options, origin=a.config)
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())

@@ -19,6 +19,8 @@ from .common import (
     EPILOG_KEYS,
     add_pipeline,
     add_rate,
+    command_log_level,
+    load_checked,
     number,
     path_arg,
     pipeline_overrides,
@@ -116,7 +118,7 @@ def run(a: argparse.Namespace) -> int:
     ov = pipeline_overrides(a)
     ov["driver"] = {"name": "replay", "options": options}
     cfg = load_config(a.config, ov)
-    setup_logging(cfg.daemon.log_level)
+    setup_logging(command_log_level(cfg))
     mcap = _mcap(a, cfg, options)
     daemon = Daemon(
         cfg,
@@ -124,7 +126,8 @@ def run(a: argparse.Namespace) -> int:
         rate=a.rate,
         jsonl=a.jsonl,
         wait_subscriber_s=a.wait_subscriber,
-        reload_config=lambda: load_config(a.config, ov),
+        reload_config=lambda: load_checked(a.config, ov)[0],
+        inputs=[a.config] if a.config is not None else [],
         on_message=mcap.outgoing if mcap is not None else None,
         keep_frames=mcap is not None,
     )

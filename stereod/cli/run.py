@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import argparse
 
-from ..config import DEFAULT_CONFIG_PATH, load_config
+from ..config import DEFAULT_CONFIG_PATH
 from ..daemon import Daemon
-from ..drivers import load_driver
 from .common import (
     EPILOG_KEYS,
     add_driver,
     add_pipeline,
     add_rate,
+    load_checked,
     pipeline_overrides,
     run_daemon,
     setup_logging,
@@ -46,11 +46,10 @@ def run(a: argparse.Namespace) -> int:
     path = a.config
     if path is None and DEFAULT_CONFIG_PATH.exists():
         path = DEFAULT_CONFIG_PATH
-    cfg = load_config(path, ov)
-    driver = load_driver(cfg.driver.name, cfg.driver.options, origin=path)
+    cfg, driver = load_checked(path, ov)
     setup_logging(cfg.daemon.log_level)
     if a.check:
         print(cfg.model_dump_json(indent=2))
         return 0
-    daemon = Daemon(cfg, driver, rate=a.rate, reload_config=lambda: load_config(path, ov))
+    daemon = Daemon(cfg, driver, rate=a.rate, reload_config=lambda: load_checked(path, ov)[0])
     return run_daemon(daemon, quiet=True, problems_fail=False)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from ..errors import ConfigError
+from ..errors import UsageError
 from ..messages import ALL_MESSAGES
 
 
@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def run(a: argparse.Namespace) -> int:
     if a.name is not None:
         if a.name not in ALL_MESSAGES:
-            raise ConfigError(f"schema {a.name!r}: unknown; known: {', '.join(ALL_MESSAGES)}")
+            raise UsageError(f"schema {a.name!r}: unknown; known: {', '.join(ALL_MESSAGES)}")
         models = {a.name: ALL_MESSAGES[a.name]}
     else:
         models = ALL_MESSAGES

@@ -11,7 +11,7 @@ import zenoh
 from pydantic import ValidationError
 
 from ..config import ZenohConfig
-from ..errors import ConfigError, describe_validation_error
+from ..errors import OutputError, UsageError, describe_validation_error
 from ..publish import open_session
 from ..subscribe import format_sample
 from .common import add_zenoh, number, zenoh_overrides
@@ -44,16 +44,17 @@ def run(a: argparse.Namespace) -> int:
     try:
         zcfg = ZenohConfig(**{k: v for k, v in zenoh_overrides(a).items() if v is not None})
     except ValidationError as exc:
-        raise ConfigError(f"zenoh flags: {describe_validation_error(exc)}") from exc
+        raise UsageError(f"zenoh flags: {describe_validation_error(exc)}") from exc
     try:
         key = zenoh.KeyExpr(a.keyexpr)
     except zenoh.ZError as exc:
-        raise ConfigError(
+        raise UsageError(
             f"key expression {a.keyexpr!r} is not valid (no empty chunks, e.g. 'stereod/**')"
         ) from exc
     done = threading.Event()
     count = 0
     lock = threading.Lock()
+    failed: list[OSError] = []
 
     def on_sample(s: zenoh.Sample) -> None:
         nonlocal count
@@ -71,7 +72,12 @@ def run(a: argparse.Namespace) -> int:
         with lock:
             if done.is_set():
                 return
-            print(line, flush=True)
+            try:
+                print(line, flush=True)
+            except OSError as exc:  # a full disk, a reader gone: stop, and say so at the end
+                failed.append(exc)
+                done.set()
+                return
             count += 1
             if a.count is not None and count >= a.count:
                 done.set()
@@ -82,4 +88,8 @@ def run(a: argparse.Namespace) -> int:
         sub = session.declare_subscriber(key, on_sample)
         done.wait(a.duration)
         sub.undeclare()
+    if failed:
+        if isinstance(failed[0], BrokenPipeError):
+            raise failed[0]  # `stereod subscribe | head`: the reader had enough (exit 0)
+        raise OutputError(f"stdout: writing failed: {failed[0].strerror}")
     return 0

@@ -11,9 +11,13 @@ from pathlib import Path
 
 import pytest
 
-IN_VM = os.environ.get("STEREOD_VM") == "1"
-KERNEL = os.environ.get("STEREOD_VM_KERNEL", "")
-VIVID = ["vivid", "n_devs=2", "node_types=0x1,0x1", "input_types=0x0,0x0"]
+IN_VM = os.environ.get("VIVID_GUEST") == "1"
+KERNEL = os.environ.get("VIVID_KERNEL", "")
+VIVID = ["vivid", "n_devs=3", "node_types=0x1,0x1,0x1", "input_types=0x0,0x0,0x0"]
+"""Three webcam-like instances: a left eye, a right eye, and a spare that plays the left eye
+re-plugged. vivid has one platform device for all its instances (``vivid.0``), so unbinding it
+takes every eye down at once; one eye alone is unplugged with its instance's Disconnect
+control instead, which makes its node fail with ENODEV as a USB unplug does."""
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -41,18 +45,19 @@ def wait_nodes(n: int, timeout: float = 20.0) -> list[str]:
 
 @pytest.fixture
 def vivid() -> Iterator[list[str]]:
-    """Two webcam-like vivid capture nodes; the module is unloaded afterwards."""
+    """Three webcam-like vivid capture nodes; the module is unloaded afterwards."""
     modprobe(*VIVID)
     try:
-        yield wait_nodes(2)[:2]
+        yield wait_nodes(3)[:3]
     finally:
         subprocess.run(["modprobe", "-d", KERNEL, "-r", "vivid"], timeout=60)
 
 
-def unbind(device: str = "vivid.0") -> None:
-    """Unplug one vivid instance while it may be streaming (its node disappears)."""
-    Path("/sys/bus/platform/drivers/vivid/unbind").write_text(device)
+def disconnect(node: str) -> None:
+    """Unplug one vivid instance: press its Disconnect control. Its node stays in /dev but
+    every open and ioctl on it fails with ENODEV from then on (until the module reloads)."""
+    from stereod_v4l2_minoru.device import V4L2Device
 
-
-def bind(device: str = "vivid.0") -> None:
-    Path("/sys/bus/platform/drivers/vivid/bind").write_text(device)
+    with V4L2Device(node) as dev:
+        button = next(c for c in dev.controls() if c.name == "Disconnect")
+        dev.set_control(button.id, 1)

@@ -90,7 +90,7 @@ OUT=$(mktemp -d)
 trap 'rm -rf "$OUT"' EXIT
 cat > "$OUT/cmd" <<CMD
 export PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin
-export HOME=/mnt TMPDIR=/mnt PYTHONDONTWRITEBYTECODE=1 STEREOD_VM=1 STEREOD_VM_KERNEL="$KROOT"
+export HOME=/mnt TMPDIR=/mnt PYTHONDONTWRITEBYTECODE=1 VIVID_GUEST=1 VIVID_KERNEL="$KROOT"
 cd "$ROOT"
 "$PY" -m pytest -q -p no:cacheprovider tests/vm $*
 CMD

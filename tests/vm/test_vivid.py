@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 import zenoh
 
 from stereod.frames import Eye
@@ -21,7 +22,7 @@ from stereod_v4l2_minoru.driver import MinoruDriver
 
 from ..conftest import ROOT, free_endpoint, zenoh_config
 from ..processes import stereod_command
-from .conftest import bind, unbind
+from .conftest import disconnect
 
 W, H, FPS = 320, 180, 25.0
 
@@ -64,10 +65,14 @@ def test_capture_both_eyes_with_kernel_timestamps(vivid: list[str]) -> None:
         for f in sorted(frames[Eye.LEFT] + frames[Eye.RIGHT], key=lambda f: f.t_ns):
             pairs += pairer.push(f)
         assert len(pairs) >= 15
-        assert max(abs(p.skew_ns) for p in pairs) <= 0.5e9 / FPS + 2e6
-        gaps = source.left.stats().get("sequence_gap", 0) + source.right.stats().get(
+        # Two free-running eyes are at most half a frame apart; a frame the kernel dropped (a
+        # sequence gap, counted below) leaves its partner up to one frame from the next one.
+        skews = np.array([abs(p.skew_ns) for p in pairs])
+        assert np.mean(skews <= 0.5e9 / FPS + 2e6) >= 0.9, skews
+        assert skews.max() <= 1e9 / FPS, skews
+        gaps = source.left.counters().drops.get(
             "sequence_gap", 0
-        )
+        ) + source.right.counters().drops.get("sequence_gap", 0)
         assert gaps == sum(int(np.sum(np.diff([f.seq for f in fs]) - 1)) for fs in frames.values())
     finally:
         source.close()
@@ -82,10 +87,20 @@ def write_config(path: Path, nodes: list[str], endpoint: str) -> None:
     )
 
 
-def test_daemon_survives_unplug_and_resumes(vivid: list[str], tmp_path: Path) -> None:
+def test_one_eye_unplugged_and_replugged_while_the_other_streams(
+    vivid: list[str], tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
+    """The left eye's camera is unplugged while streaming (its node fails with ENODEV and its
+    udev name goes away), then plugged in again (the name comes back, here on another node):
+    the status key says the left eye is down while the right one streams on, and the left eye
+    streams again within 2 s of its name reappearing."""
     endpoint = free_endpoint()
+    eyes = tmp_path / "minoru"
+    eyes.mkdir()
+    left = eyes / "left"  # what udev's /dev/minoru/left is: a name for whichever node
+    left.symlink_to(vivid[0])
     cfg = tmp_path / "vivid.toml"
-    write_config(cfg, vivid, endpoint)
+    write_config(cfg, [str(left), vivid[1]], endpoint)
     log = (tmp_path / "daemon.log").open("w")
     proc = subprocess.Popen(
         stereod_command("run", "--config", str(cfg)),
@@ -96,42 +111,75 @@ def test_daemon_survives_unplug_and_resumes(vivid: list[str], tmp_path: Path) ->
         env={**os.environ, "STEREOD_LOG_LEVEL": "INFO"},
     )
     objects: list[dict] = []
-    statuses: list[dict] = []
+    statuses: list[tuple[float, dict]] = []  # (time.monotonic() at arrival, message)
+
+    def wait(pred, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if pred():
+                return True
+            time.sleep(0.02)
+        return False
+
+    def since(t: float) -> list[dict]:
+        return [st for at, st in list(statuses) if at >= t]
+
     try:
         with zenoh.open(zenoh_config(connect=[endpoint])) as s:
             s.declare_subscriber(
                 "stereod/vivid/objects", lambda m: objects.append(json.loads(m.payload.to_bytes()))
             )
             s.declare_subscriber(
-                "stereod/vivid/status", lambda m: statuses.append(json.loads(m.payload.to_bytes()))
+                "stereod/vivid/status",
+                lambda m: statuses.append((time.monotonic(), json.loads(m.payload.to_bytes()))),
             )
-
-            def wait(pred, timeout: float) -> bool:
-                deadline = time.monotonic() + timeout
-                while time.monotonic() < deadline:
-                    if pred():
-                        return True
-                    time.sleep(0.1)
-                return False
-
             assert wait(lambda: len(objects) >= 20, 120), (
                 f"no objects from the vivid streams ({len(statuses)} statuses): "
                 + (tmp_path / "daemon.log").read_text()[-3000:]
             )
-            assert wait(lambda: any(st["left"]["state"] == "streaming" for st in statuses), 30)
-            unbind("vivid.0")
-            assert wait(lambda: any(st["left"]["state"] == "down" for st in statuses), 60), (
-                "the status key never said the left eye was down"
-            )
-            assert proc.poll() is None, "the daemon must survive the unplug"
-            down_at = len(objects)
-            bind("vivid.0")
             assert wait(
-                lambda: (
-                    statuses[-1]["left"]["state"] == "streaming" and len(objects) > down_at + 10
+                lambda: any(
+                    st["left"]["state"] == st["right"]["state"] == "streaming" for st in since(0)
                 ),
-                120,
-            ), "streaming did not resume"
+                30,
+            )
+            unplugged = time.monotonic()
+            left.unlink()
+            disconnect(vivid[0])
+            assert wait(
+                lambda: any(st["left"]["state"] == "down" for st in since(unplugged)), 60
+            ), "the status key never said the left eye was down"
+            down = time.monotonic()
+            # Two status periods with the left eye down: the right eye's frames keep coming.
+            assert wait(
+                lambda: len([1 for st in since(down) if st["left"]["state"] == "down"]) >= 3, 30
+            )
+            during = [st for st in since(down) if st["left"]["state"] == "down"]
+            assert all(st["right"]["state"] == "streaming" for st in during), during[-1]
+            assert during[-1]["right"]["frames"] > during[0]["right"]["frames"], (
+                "the right eye stopped while only the left one was unplugged"
+            )
+            assert during[-1]["state"] == "degraded"
+            assert proc.poll() is None, "the daemon must survive the unplug"
+            objects_before = len(objects)
+            left.symlink_to(vivid[2])  # re-plugged: udev names the eye again
+            plugged = time.monotonic()
+            assert wait(
+                lambda: any(st["left"]["state"] == "streaming" for st in since(plugged)), 30
+            ), "the left eye did not stream again"
+            back = next(
+                at
+                for at, st in list(statuses)
+                if at >= plugged and st["left"]["state"] == "streaming"
+            )
+            recovery_s = back - plugged
+            reporter = request.config.pluginmanager.get_plugin("terminalreporter")
+            if reporter is not None:  # the measurement, in the run's output
+                reporter.write_line(f"left eye: re-plug to streaming {recovery_s:.3f} s")
+            assert recovery_s < 2.0, f"re-plug to streaming took {recovery_s:.2f} s (bound 2 s)"
+            assert wait(lambda: len(objects) > objects_before + 10, 60), "pairs did not resume"
+            assert wait(lambda: since(plugged)[-1]["reconnects"].get("left") == 1, 10)
+            assert "right" not in since(plugged)[-1]["reconnects"]
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=60)

@@ -1,0 +1,48 @@
+"""Accuracy guards on scenes from the independent renderer (fakes/world.py: ray-cast shaded
+solids over a textured floor and wall, free-running clocks whose skew wanders from -1/2 to +1/2
+frame, per-eye gain, drift and noise), in the Minoru's 320x240 at 30 Hz mode at its measured
+42 deg field of view. ``make accuracy`` runs every combination; these are the quick subset CI
+runs. Targets: heading within 1 deg, speed within 3 %, median position error at most 1/4 of
+eq. 12's one-pixel depth error, one track per object and no ghosts, a thrown ball tracked from
+its second frame in view."""
+
+from __future__ import annotations
+
+import pytest
+
+from tests import accuracy as acc
+
+pytestmark = pytest.mark.slow
+
+MODE = acc.MODES[0]
+
+
+def check(score: acc.CaseScore) -> None:
+    assert score.ghosts == [], f"{score.case.label}: ghost tracks {score.ghosts}"
+    for o in score.objects:
+        where = f"{score.case.label}, {o.name}"
+        assert len(o.track_ids) == 1, f"{where}: tracks {o.track_ids}"
+        assert o.valid_estimates > 0, f"{where}: no valid velocity in the middle of its path"
+        assert abs(o.heading_err_deg) <= 1.0, f"{where}: heading error {o.heading_err_deg:.2f}"
+        assert abs(o.speed_err) <= 0.03, f"{where}: speed error {o.speed_err:+.1%}"
+        assert o.position_ratio <= 0.25, f"{where}: position error {o.position_ratio:.2f} px"
+
+
+@pytest.mark.parametrize(("heading", "speed"), [(30.0, 0.7), (180.0, 0.9), (270.0, 0.4)])
+def test_a_rolling_ball(heading: float, speed: float) -> None:
+    case = acc.world_robot(heading, speed, MODE, seed=0)
+    check(acc.score(case, acc.run_case(case)))
+
+
+def test_two_balls_crossing_keep_their_ids() -> None:
+    case = acc.world_preset("crossing", MODE, seed=0)
+    check(acc.score(case, acc.run_case(case)))
+
+
+def test_a_ball_thrown_across_at_20_mps_is_tracked_from_its_second_frame() -> None:
+    case = acc.world_preset("fast_ball", MODE, seed=0, direction="lateral", speed_mps=20.0)
+    score = acc.score(case, acc.run_case(case))
+    (ball,) = score.objects
+    assert score.ghosts == [] and len(ball.track_ids) == 1
+    assert ball.first_tracked is not None and ball.first_tracked <= 2, ball.first_tracked
+    assert ball.first_valid is not None and ball.first_valid <= ball.frames_in_view

@@ -1,0 +1,491 @@
+"""Issue #11's table, row by row: what a new user typed or a file held, run as ``stereod`` in
+a subprocess. Every row ends with exactly one line on stderr, the right sysexits code, no
+traceback, and every input file as it was."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from stereod.calibration import canonical, save
+from stereod.cli import main
+from stereod.recording import Codec
+from stereod_fakes.synth import Ball, Scene, write_scene
+
+from .fuzz import digest
+from .processes import run_stereod, start_stereod
+
+pytestmark = pytest.mark.slow
+
+W, H = 64, 48
+
+
+@dataclass
+class Row:
+    """One row of the table: ``argv`` (``{d}`` is the row's folder), files to make first,
+    the exit code and a pattern the one stderr line must match."""
+
+    what: str
+    argv: list[str]
+    code: int
+    pattern: str
+    setup: Callable[[Path], None] = lambda d: None
+    env: dict[str, str] = field(default_factory=dict)
+
+
+def recording(d: Path, name: str = "rec", codec: Codec = Codec.FFV1) -> Path:
+    scene = Scene(width_px=W, height_px=H, fps=15, duration_s=1.2, balls=[Ball()])
+    return write_scene(scene, d / name, codec)
+
+
+def non_utf8_recording(d: Path) -> None:
+    src = recording(d)
+    out = Path(os.fsdecode(bytes(d) + b"/r\xff"))
+    out.mkdir()
+    for p in src.iterdir():
+        (out / p.name).write_bytes(p.read_bytes())
+
+
+def edit(path: Path, old: str, new: str) -> None:
+    path.write_text(path.read_text().replace(old, new, 1))
+
+
+def csv_row(d: Path, row: bytes) -> None:
+    rec = recording(d)
+    lines = (rec / "left.csv").read_bytes().splitlines(keepends=True)
+    (rec / "left.csv").write_bytes(b"".join([*lines[:3], row, *lines[4:]]))
+
+
+def calibration_pairs_with_non_utf8_names(d: Path) -> None:
+    (d / "pairs").mkdir()
+    img = np.zeros((H, W), np.uint8)
+    for eye in (b"left", b"right"):
+        _, png = cv2.imencode(".png", img)
+        Path(os.fsdecode(bytes(d) + b"/pairs/" + eye + b"\xff01.png")).write_bytes(png.tobytes())
+
+
+def singular_calibration(d: Path) -> None:
+    recording(d)
+    cal = json.loads(canonical(0.06, 60.0, W, H).model_dump_json())
+    cal["K1"] = [[0, 0, 0], [0, 0, 0], [0, 0, 1]]
+    cal["id"] = ""
+    (d / "cal.json").write_text(json.dumps(cal))
+
+
+def opencv_files(d: Path) -> None:
+    """intrinsics.yml and extrinsics.yml as OpenCV's stereo_calib writes them."""
+    cal = canonical(0.06, 60.0, W, H)
+    for name, keys in (("intrinsics", ("M1", "D1", "M2", "D2")), ("extrinsics", ("R", "T"))):
+        fs = cv2.FileStorage(str(d / f"{name}.yml"), cv2.FILE_STORAGE_WRITE)
+        for key in keys:
+            fs.write(key, cal.array({"M1": "K1", "M2": "K2"}.get(key, key)))
+        fs.release()
+
+
+def truncated(d: Path, codec: Codec = Codec.MJPG) -> None:
+    rec = recording(d, "rec", codec)
+    video = next(rec.glob("left.*"))
+    data = video.read_bytes()
+    video.write_bytes(data[: len(data) // 2])
+
+
+ROWS = [
+    Row(
+        "non-UTF-8 recording dir",
+        ["replay", "{d}/r\udcff", "--rate", "0"],
+        64,
+        "not valid UTF-8",
+        non_utf8_recording,
+    ),
+    Row(
+        "non-UTF-8 --left-video",
+        [
+            "replay",
+            "--left-video",
+            "{d}/r\udcff/left.mkv",
+            "--right-video",
+            "{d}/rec/right.mkv",
+            "--fps",
+            "15",
+        ],
+        64,
+        "not valid UTF-8",
+        non_utf8_recording,
+    ),
+    Row(
+        "non-UTF-8 synth output",
+        [
+            "synth",
+            "{d}/out\udcff",
+            "--duration",
+            "0.5",
+            "--size",
+            "32x24",
+            "--lead-in",
+            "0.1",
+            "--travel",
+            "0.2",
+        ],
+        64,
+        "not valid UTF-8",
+    ),
+    Row(
+        "non-UTF-8 calibration image names",
+        ["calibrate", "--pairs", "{d}/pairs", "--board", "9x6", "--square", "0.025"],
+        65,
+        r"left\\udcff01\.png.*not valid UTF-8",
+        calibration_pairs_with_non_utf8_names,
+    ),
+    Row(
+        "non-UTF-8 config at start",
+        ["run", "--config", "{d}/c.toml"],
+        78,
+        "not a text file",
+        lambda d: (d / "c.toml").write_bytes(b"\xff\xfe[x"),
+    ),
+    Row(
+        "--jsonl /dev/full",
+        ["replay", "{d}/rec", "--rate", "0", "--jsonl", "/dev/full"],
+        73,
+        "/dev/full: writing failed: No space left",
+        recording,
+    ),
+    Row(
+        "--fps 1e-300",
+        [
+            "replay",
+            "--left-video",
+            "{d}/rec/left.mkv",
+            "--right-video",
+            "{d}/rec/right.mkv",
+            "--fps",
+            "1e-300",
+        ],
+        64,
+        "--fps: 1e-300: must be >= 0.01 Hz",
+        recording,
+    ),
+    Row(
+        "--jsonl kept when the input is missing",
+        ["replay", "{d}/nosuch", "--jsonl", "{d}/k.jsonl"],
+        66,
+        "no such recording directory",
+        lambda d: (d / "k.jsonl").write_text("x\n"),
+    ),
+    Row(
+        "--jsonl is an input",
+        ["replay", "{d}/rec", "--rate", "0", "--jsonl", "{d}/rec/left.csv"],
+        73,
+        "that is an input of this run",
+        recording,
+    ),
+    Row(
+        "timestamp above 2^63",
+        ["replay", "{d}/rec", "--rate", "0"],
+        65,
+        r"left\.csv line 4: .* out of range",
+        lambda d: csv_row(d, b"99999999999999999999,2\n"),
+    ),
+    Row(
+        "timestamp CSV not UTF-8",
+        ["replay", "{d}/rec", "--rate", "0"],
+        65,
+        r"left\.csv: not a text file",
+        lambda d: csv_row(d, b"\xff\xfe,2\n"),
+    ),
+    Row(
+        "config TOML not UTF-8",
+        ["run", "--check", "--config", "{d}/c.toml"],
+        78,
+        "not a text file",
+        lambda d: (d / "c.toml").write_bytes(b'[rig]\nname = "\xff"\n'),
+    ),
+    Row(
+        "calibration import of a non-OpenCV file",
+        ["calibration", "import", "{d}/in.yml", "--size", "640x480", "--out", "{d}/out.json"],
+        65,
+        "not an OpenCV FileStorage file",
+        lambda d: (d / "in.yml").write_text("hello"),
+    ),
+    Row(
+        "calibrate --list of truncated XML",
+        ["calibrate", "--list", "{d}/l.xml", "--board", "9x6", "--square", "0.025"],
+        65,
+        "not a valid OpenCV FileStorage file",
+        lambda d: (d / "l.xml").write_text(
+            '<?xml version="1.0"?>\n<opencv_storage>\n<imagelist>\n'
+        ),
+    ),
+    Row(
+        "calibrate --list of a binary file",
+        ["calibrate", "--list", "{d}/l.xml", "--board", "9x6", "--square", "0.025"],
+        65,
+        "not UTF-8",
+        lambda d: (d / "l.xml").write_bytes(bytes(range(256))),
+    ),
+    Row("subscribe 'a//b'", ["subscribe", "a//b"], 64, "key expression 'a//b' is not valid"),
+    Row(
+        "STEREOD_ZENOH__CONNECT=foo",
+        ["run", "--check", "--driver", "synthetic"],
+        78,
+        "STEREOD_ZENOH__CONNECT='foo'",
+        env={"STEREOD_ZENOH__CONNECT": "foo"},
+    ),
+    Row(
+        "STEREOD_LOG_LEVEL=LOUD",
+        ["run", "--check", "--driver", "synthetic"],
+        78,
+        "STEREOD_LOG_LEVEL='LOUD'",
+        env={"STEREOD_LOG_LEVEL": "LOUD"},
+    ),
+    Row(
+        "synth --ball heading=nan",
+        ["synth", "{d}/s", "--ball", "heading=nan"],
+        64,
+        "must be a finite number",
+    ),
+    Row("demo --heading nan", ["demo", "--heading", "nan"], 64, "must be a finite number"),
+    Row(
+        "synth --size 100000x100",
+        ["synth", "{d}/s", "--size", "100000x100"],
+        64,
+        "width_px = 100000",
+    ),
+    Row(
+        "synthetic width_px = 100000",
+        ["run", "--config", "{d}/c.toml", "--rate", "0"],
+        78,
+        r"c\.toml: driver\.options\.width_px = 100000",
+        lambda d: (d / "c.toml").write_text(
+            '[driver]\nname = "synthetic"\n[driver.options]\nwidth_px = 100000\n'
+        ),
+    ),
+    Row(
+        "singular camera matrix",
+        ["replay", "{d}/rec", "--rate", "0", "--calibration", "{d}/cal.json"],
+        78,
+        r"cal\.json: K1: not a camera matrix",
+        singular_calibration,
+    ),
+    Row(
+        "run --check with driver fps = -15",
+        ["run", "--check", "--config", "{d}/c.toml"],
+        78,
+        r"c\.toml: driver\.options\.fps = -15",
+        lambda d: (d / "c.toml").write_text(
+            '[driver]\nname = "v4l2_minoru"\n[driver.options]\nfps = -15\n'
+        ),
+    ),
+    Row(
+        "record --seconds -1",
+        ["record", "{d}/r", "--seconds", "-1", "--driver", "synthetic"],
+        64,
+        "--seconds: -1: must be > 0",
+    ),
+    Row(
+        "--connect to nothing in peer mode",
+        ["replay", "{d}/rec", "--rate", "0", "-q", "--connect", "tcp/127.0.0.1:1"],
+        0,
+        "no Zenoh peer or router reachable at tcp/127.0.0.1:1",
+        recording,
+    ),
+    Row(
+        "devices --reset with no camera",
+        ["devices", "--reset", "left"],
+        69,
+        "no Minoru left eye found",
+    ),
+    Row("--rate nan", ["replay", "{d}/rec", "--rate", "nan"], 64, "'nan' must be a finite number"),
+    Row(
+        "--wait-subscriber -1",
+        ["replay", "{d}/rec", "--wait-subscriber", "-1"],
+        64,
+        "must be >= 0 s",
+    ),
+    Row("subscribe --count -1", ["subscribe", "--count", "-1"], 64, "--count: -1: must be >= 1"),
+    Row(
+        "unknown STEREOD_BOGUS__X",
+        ["run", "--check", "--driver", "synthetic"],
+        78,
+        "STEREOD_BOGUS__X: names no configuration field",
+        env={"STEREOD_BOGUS__X": "1"},
+    ),
+    Row(
+        "run --rate -1",
+        ["run", "--rate", "-1", "--driver", "synthetic"],
+        64,
+        "--rate: -1: must be >= 0",
+    ),
+    Row(
+        "manifest width disagrees with the video",
+        ["replay", "{d}/rec", "--rate", "0"],
+        65,
+        r"left\.mkv: frames are 64x48 but .* says 128x48",
+        lambda d: edit(recording(d) / "recording.json", f'"width": {W}', '"width": 128'),
+    ),
+    Row(
+        "truncated mjpg recording",
+        ["replay", "{d}/rec", "--rate", "0", "-q"],
+        65,
+        r"left\.avi: truncated: the manifest says 18 frames, only \d+ decoded",
+        truncated,
+    ),
+    Row(
+        "bad Zenoh endpoint",
+        ["replay", "{d}/rec", "--rate", "0", "--listen", "tcp/nonsense:99999"],
+        64,
+        r"zenoh\.listen\.0 = 'tcp/nonsense:99999': tcp endpoints end in a port",
+        recording,
+    ),
+    Row(
+        "bad Zenoh endpoint in the config",
+        ["replay", "{d}/rec", "--rate", "0", "--config", "{d}/c.toml"],
+        78,
+        r"zenoh\.connect\.0 = 'foo': an endpoint is",
+        lambda d: (recording(d), (d / "c.toml").write_text('[zenoh]\nconnect = ["foo"]\n')),
+    ),
+    Row(
+        "a Zenoh config file that is not one",
+        ["run", "--check", "--driver", "synthetic", "--config", "{d}/c.toml"],
+        78,
+        r"z\.json5: invalid Zenoh config file: unknown field `bogus`",
+        lambda d: (
+            (d / "z.json5").write_text("{ bogus: 1 }"),
+            (d / "c.toml").write_text(f'[zenoh]\nconfig_file = "{d}/z.json5"\n'),
+        ),
+    ),
+    Row(
+        "calibration import over its own input",
+        [
+            "calibration",
+            "import",
+            "{d}/intrinsics.yml",
+            "--size",
+            "64x48",
+            "--out",
+            "{d}/intrinsics.yml",
+        ],
+        73,
+        "--out .*intrinsics.yml: that is an input of this run",
+        lambda d: opencv_files(d),
+    ),
+    Row(
+        "calibration export over the calibration",
+        ["calibration", "export", "{d}/left.yaml", "--ros", "{d}"],
+        73,
+        "--ros .*left.yaml: that is an input of this run",
+        lambda d: save(canonical(0.06, 60.0, W, H), d / "left.yaml"),
+    ),
+    Row(
+        "record into an existing recording",
+        ["record", "{d}/rec", "--driver", "replay", "--config", "{d}/c.toml"],
+        73,
+        r"rec: already exists and is not an empty directory",
+        lambda d: (
+            recording(d),
+            (d / "c.toml").write_text(f'[driver.options]\npath = "{d}/rec"\n'),
+        ),
+    ),
+]
+
+
+def files_in(d: Path) -> dict[Path, str]:
+    return {p: digest(p) for p in d.rglob("*") if p.is_file()}
+
+
+@pytest.mark.parametrize("row", ROWS, ids=[r.what for r in ROWS])
+def test_row(row: Row, tmp_path: Path) -> None:
+    row.setup(tmp_path)
+    inputs = files_in(tmp_path)
+    argv = [a.replace("{d}", str(tmp_path)) for a in row.argv]
+    res = run_stereod(*argv, timeout=120, env=row.env, cwd=tmp_path)
+    lines = res.stderr.splitlines()
+    assert res.returncode == row.code, (res.returncode, res.stderr)
+    assert "Traceback" not in res.stderr, res.stderr
+    assert len(lines) == 1, f"{len(lines)} lines on stderr:\n{res.stderr}"
+    assert re.search(row.pattern, lines[0]), lines[0]
+    assert len(lines[0]) < 300, f"{len(lines[0])} characters"
+    assert ".rs:" not in lines[0] and "/root/.cargo" not in lines[0]
+    assert {p: h for p, h in files_in(tmp_path).items() if p in inputs} == inputs, (
+        "an input changed"
+    )
+
+
+def test_intact_mjpg_recording_plays_without_a_word(tmp_path: Path) -> None:
+    rec = recording(tmp_path, "rec", Codec.MJPG)
+    res = run_stereod("replay", str(rec), "--rate", "0", "-q", cwd=tmp_path)
+    assert res.returncode == 0 and res.stderr == "", res.stderr
+
+
+def test_truncated_recording_is_said_once_with_loop(tmp_path: Path) -> None:
+    truncated(tmp_path)
+    jsonl = tmp_path / "out.jsonl"
+    proc = start_stereod(
+        "replay",
+        str(tmp_path / "rec"),
+        "--rate",
+        "0",
+        "-q",
+        "--loop",
+        "--jsonl",
+        str(jsonl),
+        cwd=tmp_path,
+    )
+    deadline = time.monotonic() + 60
+    # The messages of the run so far are in the JSONL's temporary file; three laps, then stop.
+    while time.monotonic() < deadline:
+        part = list(tmp_path.glob(".out.jsonl.*.part"))
+        if part and part[0].read_bytes().count(b"\n") >= 3 * 9:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 65, err
+    assert len(err.splitlines()) == 1 and err.count("truncated:") == 1, err
+    assert json.loads(jsonl.read_text().splitlines()[-1])["seq"] >= 3 * 9 - 1
+
+
+def test_an_unexpected_exception_is_one_line_naming_its_log(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The last guard: a bug anywhere in a command is one line, exit 70, the traceback in a
+    file the line names."""
+    import stereod.cli.schema
+
+    def bug(_args: object) -> int:
+        return {}["missing"]  # a KeyError, as a bug would raise
+
+    monkeypatch.setenv("STEREOD_CRASH_DIR", str(tmp_path))
+    monkeypatch.setattr(stereod.cli.schema, "run", bug)
+    assert main(["schema"]) == 70
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("stereod: internal error: KeyError"), lines
+    log = re.search(r"details in (\S+);", lines[0])
+    assert log and Path(log.group(1)).parent == tmp_path
+    assert "Traceback" in Path(log.group(1)).read_text()
+
+
+def test_a_full_disk_on_stdout_stops_subscribe_with_73(tmp_path: Path, endpoint: str) -> None:
+    recording(tmp_path)
+    with open("/dev/full", "w") as full:
+        sub = start_stereod(
+            "subscribe", "--listen", endpoint, "--duration", "60", stdout=full, cwd=tmp_path
+        )
+        time.sleep(1.0)  # its session listens
+        pub = run_stereod(
+            "replay", str(tmp_path / "rec"), "--rate", "0", "-q", "--connect", endpoint
+        )
+        assert pub.returncode == 0, pub.stderr
+        _, err = sub.communicate(timeout=60)
+    assert sub.returncode == 73, err
+    assert err.splitlines() == ["stereod: stdout: writing failed: No space left on device"]
