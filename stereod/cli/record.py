@@ -11,6 +11,7 @@ from ..config import load_config
 from ..drivers import load_driver
 from ..frames import Eye, Frame, SourceInfo
 from ..mcap_run import RunMcap, config_geometry
+from ..output_file import check_not_input
 from ..progress import Progress
 from ..record import record
 from .common import (
@@ -66,6 +67,8 @@ def run(a: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     mcap = None
     if a.mcap is not None:
+        inputs = [p for p in (a.config, cfg.rig.calibration) if p is not None]
+        check_not_input(a.mcap, inputs, "--mcap")
         mcap = RunMcap(a.mcap, rig=cfg.rig.name, geometry=config_geometry(cfg))
     with Progress("record", total=a.seconds, unit="s") as bar:
         progress = _RecordProgress(bar) if bar.shown else None

@@ -163,6 +163,7 @@ def _mcap(a: argparse.Namespace, cfg: StereodConfig, options: dict[str, Any]) ->
     if a.jsonl is not None and a.mcap.resolve() == a.jsonl.resolve():
         raise ConfigError(f"--mcap {a.mcap} and --jsonl are the same file; give two names")
     inputs = [Path(p) for k, p in options.items() if k != "loop" and k != "fps"]
+    inputs += [p for p in (a.config, cfg.rig.calibration) if p is not None]
     if a.recording is not None and a.recording.is_dir():
         inputs += sorted(a.recording.iterdir())
     check_not_input(a.mcap, inputs, "--mcap")
