@@ -86,7 +86,9 @@ class Daemon:
     every ``objects`` message to that file (committed at the end of the run);
     ``wait_subscriber_s`` waits that long for a subscriber before capture starts;
     ``reload_config`` re-reads the configuration on :meth:`reload`; ``inputs`` are files the
-    run reads besides the source's own (the config file), which ``jsonl`` must not be.
+    run reads besides the source's own (the config file), which ``jsonl`` must not be;
+    ``on_message`` sees every published pair on the output thread, with the pair's frames in
+    ``Outgoing.pair`` when ``keep_frames`` is set.
     """
 
     def __init__(
@@ -100,6 +102,7 @@ class Daemon:
         reload_config: Callable[[], StereodConfig] | None = None,
         notifier: Notifier | None = None,
         on_message: Callable[[Outgoing], None] | None = None,
+        keep_frames: bool = False,
         inputs: Sequence[Path] = (),
     ) -> None:
         self.cfg = cfg
@@ -110,6 +113,7 @@ class Daemon:
         self._reload_config = reload_config
         self._notifier = notifier if notifier is not None else Notifier()
         self._on_message = on_message
+        self._keep_frames = keep_frames
         self._inputs = [*inputs, *([cfg.rig.calibration] if cfg.rig.calibration else [])]
         self._stop = threading.Event()
         self._status_now = threading.Event()
@@ -239,6 +243,7 @@ class Daemon:
             utc_offset_ns=lambda: capture.utc_offset_ns,
             stop=self._stop,
         )
+        worker.keep_pairs = self._keep_frames
         self._worker = worker
         queryables = {
             "config": lambda: json.dumps(public_config(self.cfg)).encode(),

@@ -98,7 +98,7 @@ import os
 import re
 import secrets
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -120,10 +120,14 @@ __all__ = [
     "ROS_DISTRO",
     "ExportSummary",
     "McapRunWriter",
+    "RosMessage",
+    "RosMessages",
     "RosNames",
+    "cdr_encoder",
     "export_run",
     "heading_quaternion",
     "matrix_quaternion",
+    "ros2_msgdef",
 ]
 
 ROS_DISTRO: Final = "humble"
@@ -174,6 +178,27 @@ def _msgdef(typename: str) -> str:
     return text
 
 
+def ros2_msgdef(typename: str) -> str:
+    """The ``ros2msg`` schema text of a standard type (``pkg/msg/Type``), as the MCAP file and
+    the live Foxglove server advertise it: ROS 2 Humble's definition, from rosbags' store."""
+    return _msgdef(typename)
+
+
+@functools.cache
+def cdr_encoder(typename: str) -> Callable[[dict[str, Any]], bytes]:
+    """A function that CDR-encodes a message body (a dict in the shape of the Humble type) of
+    ``typename``: the encoder the MCAP writer uses (mcap-ros2-support's), for the live server."""
+    from mcap_ros2._dynamic import serialize_dynamic
+
+    encoders = serialize_dynamic(typename, _msgdef(typename))
+    encode = encoders[typename]
+
+    def run(body: dict[str, Any]) -> bytes:
+        return bytes(encode(body))
+
+    return run
+
+
 def _ros_name(rig: str) -> str:
     name = re.sub(r"[^A-Za-z0-9_]", "_", rig) or "rig"
     return f"rig_{name}" if name[0].isdigit() else name
@@ -215,6 +240,11 @@ class RosNames:
     def camera_info_topic(self, eye: Eye) -> str:
         """``/stereod/<rig>/<eye>/camera_info``."""
         return f"/stereod/{self.rig}/{eye.value}/camera_info"
+
+    @property
+    def overlay_topic(self) -> str:
+        """``/stereod/<rig>/overlay/image/compressed``: the annotated overlay (live only)."""
+        return f"/stereod/{self.rig}/overlay/image/compressed"
 
     @property
     def odom_topic(self) -> str:
@@ -348,6 +378,270 @@ def _rectified_baseline_m(cal: Calibration) -> float:
     return float(-p2[0, 3] / p2[0, 0])
 
 
+@dataclass(frozen=True)
+class RosMessage:
+    """One ROS 2 message of a run: ``topic``, ``typename`` (``pkg/msg/Type``), ``body`` (a dict
+    in the shape of the ROS 2 Humble type) and ``stamp_ns`` (its header stamp, UTC, ns)."""
+
+    topic: str
+    typename: str
+    body: dict[str, Any]
+    stamp_ns: int
+
+
+class RosMessages:
+    """The ROS 2 messages of one rig's run, mapped as the module docstring says; the MCAP writer
+    and the live Foxglove server (:mod:`stereod.view.foxglove`) both publish what this builds.
+
+    It remembers which tracks the markers show (a track that disappears gets a DELETE), so feed
+    it one run's ``objects`` messages in order, one call at a time. ``calibration`` gives
+    camera_info and the cameras' frames (:func:`stereod.calibration.canonical` for the canonical
+    rig); without one, ``baseline_m`` (m) places the cameras and there is no camera_info; with
+    neither (a live view that has not heard the daemon's geometry yet) there is no tf either.
+    """
+
+    def __init__(
+        self,
+        rig: str = "minoru",
+        *,
+        calibration: Calibration | None = None,
+        baseline_m: float | None = None,
+    ) -> None:
+        self.rig = rig
+        self.names = RosNames.for_rig(rig)
+        self.calibration: Calibration | None = None
+        self.baseline_m: float | None = None
+        self._camera_info: dict[Eye, dict[str, Any]] = {}
+        self._tracks: set[int] = set()
+        self._arrows: set[int] = set()
+        self.set_geometry(calibration, baseline_m)
+
+    def set_geometry(
+        self, calibration: Calibration | None, baseline_m: float | None = None
+    ) -> None:
+        """Use ``calibration`` (or only ``baseline_m``, m) from now on; raises
+        :class:`~stereod.errors.InputError` when its rectified baseline is not positive."""
+        if calibration is not None:
+            b = _rectified_baseline_m(calibration)
+            if not b > 0:
+                raise InputError(
+                    f"calibration {calibration.id}: rectified baseline {b:.4g} is not positive "
+                    "(left and right swapped?): recalibrate"
+                )
+            self.baseline_m = b
+            self._camera_info = {eye: _camera_info_body(calibration, eye) for eye in Eye}
+        else:
+            self.baseline_m = float(baseline_m) if baseline_m is not None else None
+            self._camera_info = {}
+        self.calibration = calibration
+
+    def forget_tracks(self) -> None:
+        """Start the markers afresh (a new daemon: its track ids start again)."""
+        self._tracks.clear()
+        self._arrows.clear()
+
+    def tf_static(self, stamp_ns: int) -> RosMessage | None:
+        """``/tf_static``: body frame, rig (optical) frame, the two cameras; None while the
+        geometry is unknown."""
+        if self.baseline_m is None:
+            return None
+        names = self.names
+        half = self.baseline_m / 2.0
+        rot = {Eye.LEFT: np.eye(3), Eye.RIGHT: np.eye(3)}
+        if self.calibration is not None:
+            rot = {Eye.LEFT: self.calibration.array("R1"), Eye.RIGHT: self.calibration.array("R2")}
+
+        def tf(parent: str, child: str, xyz: Iterable[float], q: Iterable[float]) -> dict[str, Any]:
+            return {
+                "header": _header(stamp_ns, parent),
+                "child_frame_id": child,
+                "transform": {"translation": _vec(xyz), "rotation": _quat(q)},
+            }
+
+        transforms = [
+            tf(names.body_frame, names.optical_frame, (0.0, 0.0, 0.0), BODY_TO_OPTICAL),
+            *(
+                tf(
+                    names.optical_frame,
+                    names.eye_frame(eye),
+                    (-half if eye is Eye.LEFT else half, 0.0, 0.0),
+                    matrix_quaternion(rot[eye]),
+                )
+                for eye in Eye
+            ),
+        ]
+        return RosMessage(names.tf_static_topic, _T_TF, {"transforms": transforms}, stamp_ns)
+
+    def camera_info(self, eye: Eye, stamp_ns: int) -> RosMessage | None:
+        """camera_info of ``eye`` at ``stamp_ns`` (UTC, ns); None without a calibration."""
+        body = self._camera_info.get(eye)
+        if body is None:
+            return None
+        return RosMessage(
+            self.names.camera_info_topic(eye),
+            _T_INFO,
+            {"header": _header(stamp_ns, self.names.eye_frame(eye)), **body},
+            stamp_ns,
+        )
+
+    def compressed_image(
+        self, topic: str, frame_id: str, image_format: str, data: bytes, stamp_ns: int
+    ) -> RosMessage:
+        """A ``sensor_msgs/msg/CompressedImage`` (``image_format`` ``jpeg`` or ``png``)."""
+        body = {"header": _header(stamp_ns, frame_id), "format": image_format, "data": data}
+        return RosMessage(topic, _T_IMAGE, body, stamp_ns)
+
+    def objects(self, msg: ObjectsMessage, *, raw_json: str | None = None) -> list[RosMessage]:
+        """One ``stereod.objects/1`` message: Odometry per track state, speed/heading per valid
+        state, the MarkerArray and the JSON (``raw_json`` if given, else re-serialised)."""
+        if msg.rig != self.rig:
+            raise InputError(
+                f"message seq {msg.seq} is from rig {msg.rig!r}, this file is for rig "
+                f"{self.rig!r}: export each rig into its own file"
+            )
+        stamp = msg.stamp_utc_ns
+        text = raw_json.rstrip("\r\n") if raw_json is not None else dump(msg).decode()
+        names = self.names
+        out: list[RosMessage] = []
+        for obj in msg.objects:
+            out.append(RosMessage(names.odom_topic, _T_ODOM, self._odometry(obj), obj.stamp_utc_ns))
+            if obj.velocity_valid:
+                body = {
+                    "header": _header(obj.stamp_utc_ns, names.optical_frame),
+                    "vector": {
+                        "x": float(obj.speed_mps),
+                        "y": float(obj.heading_deg),
+                        "z": -float(obj.velocity_mps[1]),
+                    },
+                }
+                topic = names.speed_heading_topic(obj.track_id)
+                out.append(RosMessage(topic, _T_VEC, body, obj.stamp_utc_ns))
+        out.append(RosMessage(names.markers_topic, _T_MARKERS, self._markers(msg), stamp))
+        out.append(RosMessage(names.objects_topic, _T_STRING, {"data": text}, stamp))
+        return out
+
+    def _odometry(self, obj: ObjectState) -> dict[str, Any]:
+        names = self.names
+        pose_cov = [0.0] * 36
+        for i, s in enumerate(obj.position_sigma_m):
+            pose_cov[7 * i] = float(s) ** 2
+        pose_cov[7 * 4] = (
+            math.radians(obj.heading_sigma_deg) ** 2
+            if obj.heading_sigma_deg is not None
+            else math.pi**2
+        )
+        twist_cov = [0.0] * 36
+        if obj.velocity_sigma_mps is None:
+            twist_cov[0] = -1.0
+        else:
+            for i, s in enumerate(obj.velocity_sigma_mps):
+                twist_cov[7 * i] = float(s) ** 2
+        return {
+            "header": _header(obj.stamp_utc_ns, names.optical_frame),
+            "child_frame_id": names.track_frame(obj.track_id),
+            "pose": {
+                "pose": {
+                    "position": _vec(obj.position_m),
+                    "orientation": _quat(heading_quaternion(obj.heading_deg)),
+                },
+                "covariance": pose_cov,
+            },
+            "twist": {
+                "twist": {"linear": _vec(obj.velocity_mps), "angular": _vec((0.0, 0.0, 0.0))},
+                "covariance": twist_cov,
+            },
+        }
+
+    def _marker(
+        self, stamp_ns: int, ns: str, track_id: int, kind: int, action: int
+    ) -> dict[str, Any]:
+        return {
+            "header": _header(stamp_ns, self.names.optical_frame),
+            "ns": ns,
+            "id": int(track_id),
+            "type": kind,
+            "action": action,
+            "pose": {"position": _vec((0.0, 0.0, 0.0)), "orientation": _quat((0, 0, 0, 1))},
+            "scale": _vec((1.0, 1.0, 1.0)),
+            "color": {"r": 1.0, "g": 1.0, "b": 1.0, "a": 1.0},
+            "lifetime": {"sec": 0, "nanosec": 0},
+            "frame_locked": False,
+            "points": [],
+            "colors": [],
+            "texture_resource": "",
+            "texture": {
+                "header": _header(0, ""),
+                "format": "",
+                "data": b"",
+            },
+            "uv_coordinates": [],
+            "text": "",
+            "mesh_resource": "",
+            "mesh_file": {"filename": "", "data": b""},
+            "mesh_use_embedded_materials": False,
+        }
+
+    def _markers(self, msg: ObjectsMessage) -> dict[str, Any]:
+        stamp = msg.stamp_utc_ns
+        markers: list[dict[str, Any]] = []
+        now = {o.track_id for o in msg.objects}
+        for gone in sorted(self._tracks - now):
+            kinds = zip(_MARKER_NS, (_SPHERE, _ARROW, _TEXT), strict=True)
+            for ns, kind in kinds:
+                if ns != "velocity" or gone in self._arrows:
+                    markers.append(self._marker(stamp, ns, gone, kind, _DELETE))
+            self._arrows.discard(gone)
+        self._tracks = now
+        for o in msg.objects:
+            r, g, b, a = _STATE_RGBA.get(_value(o.state), (1.0, 1.0, 1.0, 0.8))
+            color = {"r": r, "g": g, "b": b, "a": a}
+            size = o.size_m if math.isfinite(o.size_m) and o.size_m > 0.01 else 0.01
+            sphere = self._marker(stamp, "tracks", o.track_id, _SPHERE, _ADD)
+            sphere["pose"]["position"] = _vec(o.position_m)
+            sphere["scale"] = _vec((size, size, size))
+            sphere["color"] = color
+            markers.append(sphere)
+            if o.velocity_valid:
+                arrow = self._marker(stamp, "velocity", o.track_id, _ARROW, _ADD)
+                tip = [p + v for p, v in zip(o.position_m, o.velocity_mps, strict=True)]
+                arrow["points"] = [_vec(o.position_m), _vec(tip)]
+                arrow["scale"] = _vec((0.02, 0.04, 0.06))
+                arrow["color"] = color
+                markers.append(arrow)
+                self._arrows.add(o.track_id)
+            elif o.track_id in self._arrows:
+                markers.append(self._marker(stamp, "velocity", o.track_id, _ARROW, _DELETE))
+                self._arrows.discard(o.track_id)
+            label = self._marker(stamp, "labels", o.track_id, _TEXT, _ADD)
+            x, y, z = o.position_m
+            label["pose"]["position"] = _vec((x, y - size / 2.0 - 0.05, z))
+            label["scale"] = _vec((0.0, 0.0, 0.05))
+            label["text"] = (
+                f"{o.track_id} {o.speed_mps:.2f} m/s {o.heading_deg:.0f} deg"
+                if o.velocity_valid
+                else f"{o.track_id} {_value(o.state)}"
+            )
+            markers.append(label)
+        return {"markers": markers}
+
+
+def _camera_info_body(cal: Calibration, eye: Eye) -> dict[str, Any]:
+    k, d, r, p = ("K1", "D1", "R1", "P1") if eye is Eye.LEFT else ("K2", "D2", "R2", "P2")
+    w, h = cal.image_size
+    return {
+        "height": int(h),
+        "width": int(w),
+        "distortion_model": "plumb_bob",
+        "d": [float(v) for v in cal.array(d).ravel()],
+        "k": [float(v) for v in cal.array(k).ravel()],
+        "r": [float(v) for v in cal.array(r).ravel()],
+        "p": [float(v) for v in cal.array(p).ravel()],
+        "binning_x": 0,
+        "binning_y": 0,
+        "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False},
+    }
+
+
 class McapRunWriter:
     """Write one run into an MCAP file, message by message, while it is in progress or offline.
 
@@ -381,17 +675,9 @@ class McapRunWriter:
             raise ValueError(f"image_format must be 'jpeg' or 'png', got {image_format!r}")
         self.out = Path(out)
         self.rig = rig
-        self.names = RosNames.for_rig(rig)
+        self.ros = RosMessages(rig, calibration=calibration, baseline_m=baseline_m)
+        self.names = self.ros.names
         self.calibration = calibration
-        if calibration is not None:
-            self.baseline_m = _rectified_baseline_m(calibration)
-            if not self.baseline_m > 0:
-                raise InputError(
-                    f"calibration {calibration.id}: rectified baseline {self.baseline_m:.4g} is "
-                    "not positive (left and right swapped?): recalibrate"
-                )
-        elif baseline_m is not None:
-            self.baseline_m = float(baseline_m)
         self.image_format = image_format
         self._encode_params = (
             [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)] if image_format == "jpeg" else []
@@ -408,15 +694,15 @@ class McapRunWriter:
         self._counts: dict[str, int] = {}
         self._seq: dict[str, int] = {}
         self._static_done = False
-        self._tracks: set[int] = set()
-        self._arrows: set[int] = set()
         self._start: int | None = None
         self._end: int | None = None
         self._closed = False
-        self._camera_info: dict[Eye, dict[str, Any]] = {}
-        if calibration is not None:
-            for eye in Eye:
-                self._camera_info[eye] = self._camera_info_body(calibration, eye)
+
+    @property
+    def baseline_m(self) -> float:
+        """Distance between the cameras' frames in ``/tf_static``, m."""
+        assert self.ros.baseline_m is not None
+        return self.ros.baseline_m
 
     # -- public API ---------------------------------------------------------------------------
 
@@ -439,15 +725,14 @@ class McapRunWriter:
                 self._check_size(frame)
                 self._camera_info_locked(frame.eye, stamp_utc_ns)
             if image:
-                self._put(
-                    self.names.image_topic(frame.eye),
-                    _T_IMAGE,
-                    {
-                        "header": _header(stamp_utc_ns, self.names.eye_frame(frame.eye)),
-                        "format": self.image_format,
-                        "data": data,
-                    },
-                    stamp_utc_ns,
+                self._write(
+                    self.ros.compressed_image(
+                        self.names.image_topic(frame.eye),
+                        self.names.eye_frame(frame.eye),
+                        self.image_format,
+                        data,
+                        stamp_utc_ns,
+                    )
                 )
 
     def write_camera_info(self, eye: Eye, stamp_utc_ns: int) -> None:
@@ -462,35 +747,12 @@ class McapRunWriter:
     def write_objects(self, msg: ObjectsMessage, *, raw_json: str | None = None) -> None:
         """Write one ``stereod.objects/1`` message: Odometry per track state, speed/heading per
         valid state, the MarkerArray and the JSON (``raw_json`` if given, else re-serialised)."""
-        if msg.rig != self.rig:
-            raise InputError(
-                f"message seq {msg.seq} is from rig {msg.rig!r}, this file is for rig "
-                f"{self.rig!r}: export each rig into its own file"
-            )
-        stamp = msg.stamp_utc_ns
-        text = raw_json.rstrip("\r\n") if raw_json is not None else dump(msg).decode()
         with self._lock:
             self._check_open()
-            self._static(stamp)
-            names = self.names
-            for obj in msg.objects:
-                self._put(names.odom_topic, _T_ODOM, self._odometry(obj), obj.stamp_utc_ns)
-                if obj.velocity_valid:
-                    self._put(
-                        names.speed_heading_topic(obj.track_id),
-                        _T_VEC,
-                        {
-                            "header": _header(obj.stamp_utc_ns, names.optical_frame),
-                            "vector": {
-                                "x": float(obj.speed_mps),
-                                "y": float(obj.heading_deg),
-                                "z": -float(obj.velocity_mps[1]),
-                            },
-                        },
-                        obj.stamp_utc_ns,
-                    )
-            self._put(names.markers_topic, _T_MARKERS, self._markers(msg), stamp)
-            self._put(names.objects_topic, _T_STRING, {"data": text}, stamp)
+            messages = self.ros.objects(msg, raw_json=raw_json)
+            self._static(msg.stamp_utc_ns)
+            for m in messages:
+                self._write(m)
 
     def close(self) -> ExportSummary:
         """Finish the MCAP (summary, indexes), sync it and rename it over ``out``."""
@@ -603,62 +865,22 @@ class McapRunWriter:
         self._start = stamp_ns if self._start is None else min(self._start, stamp_ns)
         self._end = stamp_ns if self._end is None else max(self._end, stamp_ns)
 
+    def _write(self, m: RosMessage) -> None:
+        self._put(m.topic, m.typename, m.body, m.stamp_ns)
+
     def _static(self, stamp_ns: int) -> None:
         if self._static_done:
             return
         self._static_done = True
-        names = self.names
-        half = self.baseline_m / 2.0
-        rot = {Eye.LEFT: np.eye(3), Eye.RIGHT: np.eye(3)}
-        if self.calibration is not None:
-            rot = {Eye.LEFT: self.calibration.array("R1"), Eye.RIGHT: self.calibration.array("R2")}
-
-        def tf(parent: str, child: str, xyz: Iterable[float], q: Iterable[float]) -> dict[str, Any]:
-            return {
-                "header": _header(stamp_ns, parent),
-                "child_frame_id": child,
-                "transform": {"translation": _vec(xyz), "rotation": _quat(q)},
-            }
-
-        transforms = [
-            tf(names.body_frame, names.optical_frame, (0.0, 0.0, 0.0), BODY_TO_OPTICAL),
-            *(
-                tf(
-                    names.optical_frame,
-                    names.eye_frame(eye),
-                    (-half if eye is Eye.LEFT else half, 0.0, 0.0),
-                    matrix_quaternion(rot[eye]),
-                )
-                for eye in Eye
-            ),
-        ]
-        self._register_latched(names.tf_static_topic, _T_TF)
-        self._put(names.tf_static_topic, _T_TF, {"transforms": transforms}, stamp_ns)
-
-    def _camera_info_body(self, cal: Calibration, eye: Eye) -> dict[str, Any]:
-        k, d, r, p = ("K1", "D1", "R1", "P1") if eye is Eye.LEFT else ("K2", "D2", "R2", "P2")
-        w, h = cal.image_size
-        return {
-            "height": int(h),
-            "width": int(w),
-            "distortion_model": "plumb_bob",
-            "d": [float(v) for v in cal.array(d).ravel()],
-            "k": [float(v) for v in cal.array(k).ravel()],
-            "r": [float(v) for v in cal.array(r).ravel()],
-            "p": [float(v) for v in cal.array(p).ravel()],
-            "binning_x": 0,
-            "binning_y": 0,
-            "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False},
-        }
+        static = self.ros.tf_static(stamp_ns)
+        assert static is not None  # the writer always has a calibration or a baseline
+        self._register_latched(static.topic, static.typename)
+        self._write(static)
 
     def _camera_info_locked(self, eye: Eye, stamp_ns: int) -> None:
-        body = self._camera_info[eye]
-        self._put(
-            self.names.camera_info_topic(eye),
-            _T_INFO,
-            {"header": _header(stamp_ns, self.names.eye_frame(eye)), **body},
-            stamp_ns,
-        )
+        info = self.ros.camera_info(eye, stamp_ns)
+        if info is not None:
+            self._write(info)
 
     def _encode(self, frame: Frame) -> bytes:
         ext = ".jpg" if self.image_format == "jpeg" else ".png"
@@ -672,110 +894,6 @@ class McapRunWriter:
         if not ok:
             raise InputError(f"{frame.eye.value} frame {frame.seq}: cannot encode as {ext}")
         return buf.tobytes()
-
-    def _odometry(self, obj: ObjectState) -> dict[str, Any]:
-        names = self.names
-        pose_cov = [0.0] * 36
-        for i, s in enumerate(obj.position_sigma_m):
-            pose_cov[7 * i] = float(s) ** 2
-        pose_cov[7 * 4] = (
-            math.radians(obj.heading_sigma_deg) ** 2
-            if obj.heading_sigma_deg is not None
-            else math.pi**2
-        )
-        twist_cov = [0.0] * 36
-        if obj.velocity_sigma_mps is None:
-            twist_cov[0] = -1.0
-        else:
-            for i, s in enumerate(obj.velocity_sigma_mps):
-                twist_cov[7 * i] = float(s) ** 2
-        return {
-            "header": _header(obj.stamp_utc_ns, names.optical_frame),
-            "child_frame_id": names.track_frame(obj.track_id),
-            "pose": {
-                "pose": {
-                    "position": _vec(obj.position_m),
-                    "orientation": _quat(heading_quaternion(obj.heading_deg)),
-                },
-                "covariance": pose_cov,
-            },
-            "twist": {
-                "twist": {"linear": _vec(obj.velocity_mps), "angular": _vec((0.0, 0.0, 0.0))},
-                "covariance": twist_cov,
-            },
-        }
-
-    def _marker(
-        self, stamp_ns: int, ns: str, track_id: int, kind: int, action: int
-    ) -> dict[str, Any]:
-        return {
-            "header": _header(stamp_ns, self.names.optical_frame),
-            "ns": ns,
-            "id": int(track_id),
-            "type": kind,
-            "action": action,
-            "pose": {"position": _vec((0.0, 0.0, 0.0)), "orientation": _quat((0, 0, 0, 1))},
-            "scale": _vec((1.0, 1.0, 1.0)),
-            "color": {"r": 1.0, "g": 1.0, "b": 1.0, "a": 1.0},
-            "lifetime": {"sec": 0, "nanosec": 0},
-            "frame_locked": False,
-            "points": [],
-            "colors": [],
-            "texture_resource": "",
-            "texture": {
-                "header": _header(0, ""),
-                "format": "",
-                "data": b"",
-            },
-            "uv_coordinates": [],
-            "text": "",
-            "mesh_resource": "",
-            "mesh_file": {"filename": "", "data": b""},
-            "mesh_use_embedded_materials": False,
-        }
-
-    def _markers(self, msg: ObjectsMessage) -> dict[str, Any]:
-        stamp = msg.stamp_utc_ns
-        markers: list[dict[str, Any]] = []
-        now = {o.track_id for o in msg.objects}
-        for gone in sorted(self._tracks - now):
-            kinds = zip(_MARKER_NS, (_SPHERE, _ARROW, _TEXT), strict=True)
-            for ns, kind in kinds:
-                if ns != "velocity" or gone in self._arrows:
-                    markers.append(self._marker(stamp, ns, gone, kind, _DELETE))
-            self._arrows.discard(gone)
-        self._tracks = now
-        for o in msg.objects:
-            r, g, b, a = _STATE_RGBA.get(_value(o.state), (1.0, 1.0, 1.0, 0.8))
-            color = {"r": r, "g": g, "b": b, "a": a}
-            size = o.size_m if math.isfinite(o.size_m) and o.size_m > 0.01 else 0.01
-            sphere = self._marker(stamp, "tracks", o.track_id, _SPHERE, _ADD)
-            sphere["pose"]["position"] = _vec(o.position_m)
-            sphere["scale"] = _vec((size, size, size))
-            sphere["color"] = color
-            markers.append(sphere)
-            if o.velocity_valid:
-                arrow = self._marker(stamp, "velocity", o.track_id, _ARROW, _ADD)
-                tip = [p + v for p, v in zip(o.position_m, o.velocity_mps, strict=True)]
-                arrow["points"] = [_vec(o.position_m), _vec(tip)]
-                arrow["scale"] = _vec((0.02, 0.04, 0.06))
-                arrow["color"] = color
-                markers.append(arrow)
-                self._arrows.add(o.track_id)
-            elif o.track_id in self._arrows:
-                markers.append(self._marker(stamp, "velocity", o.track_id, _ARROW, _DELETE))
-                self._arrows.discard(o.track_id)
-            label = self._marker(stamp, "labels", o.track_id, _TEXT, _ADD)
-            x, y, z = o.position_m
-            label["pose"]["position"] = _vec((x, y - size / 2.0 - 0.05, z))
-            label["scale"] = _vec((0.0, 0.0, 0.05))
-            label["text"] = (
-                f"{o.track_id} {o.speed_mps:.2f} m/s {o.heading_deg:.0f} deg"
-                if o.velocity_valid
-                else f"{o.track_id} {_value(o.state)}"
-            )
-            markers.append(label)
-        return {"markers": markers}
 
 
 def _open_temp(out: Path) -> tuple[Path, IO[bytes]]:

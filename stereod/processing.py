@@ -38,7 +38,9 @@ class Outgoing:
 
     ``payload`` the ``objects`` JSON; ``tracks`` (track id, state JSON) per live track;
     ``ended`` the ids of tracks that ended (a DELETE each); ``images`` references to the
-    pair's frames and masks, kept only while some image is subscribed (:mod:`stereod.images`).
+    pair's frames and masks, kept only while some image is subscribed (:mod:`stereod.images`);
+    ``pair`` the pair itself (its two frames), kept only when the daemon was asked to
+    (``keep_frames``, for an MCAP file written during a replay).
     """
 
     message: ObjectsMessage | None
@@ -47,6 +49,7 @@ class Outgoing:
     ended: list[int] = field(default_factory=list)
     result: PairResult | None = None
     images: PairImages | None = None
+    pair: StereoPair | None = None
 
 
 class PipelineWorker:
@@ -73,6 +76,8 @@ class PipelineWorker:
         self._pending: PipelineParams | None = None
         self._lock = threading.Lock()
         self._saturated: dict[str, int] = {}
+        self.keep_pairs = False
+        """Whether each Outgoing keeps a reference to its pair (its frames)."""
         self.want_images: Callable[[], bool] | None = None
         """Asked once per pair: whether to keep references to its frames and masks."""
         self.objects = 0
@@ -132,6 +137,8 @@ class PipelineWorker:
                 self.objects += len(result.tracks)
                 if self.want_images is not None and self.want_images():
                     outgoing.images = self._images(pair)
+                if self.keep_pairs:
+                    outgoing.pair = pair
                 self.out.put(outgoing, self._stop)
             self._swap()
             ended = self.pipeline.finish()

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from .calibration import load as load_calibration
 from .errors import DeviceLost, StereodError
-from .frames import Driver, EyeSource, Frame, merged
+from .frames import Driver, EyeSource, Frame, SourceInfo, merged
 from .recording import Codec, RecordingWriter
 
 
@@ -27,11 +27,14 @@ def record(
     calibration: Path | None = None,
     stop: threading.Event | None = None,
     on_frame: Callable[[Frame], None] | None = None,
+    on_start: Callable[[SourceInfo, int | None], None] | None = None,
 ) -> dict[str, int]:
     """Record until ``seconds`` of stream time, the end of input or ``stop``; return the frame
     counts per eye. ``out`` must be new (or empty); it appears only when the recording closes.
     ``calibration`` is checked as a run would check it, and stored in the manifest.
-    ``on_frame`` sees every frame written (progress), one call at a time."""
+    ``on_frame`` sees every frame written (progress), one call at a time; ``on_start`` sees
+    the opened source and the recording's UTC offset (ns, wall clock minus the frames' clock;
+    None when unknown) before the first frame."""
     stop = stop or threading.Event()
     cal = load_calibration(calibration).model_dump(mode="json") if calibration else None
     counts = {"left": 0, "right": 0}
@@ -39,6 +42,8 @@ def record(
     with driver.open() as source:
         info = source.info
         offset = time.time_ns() - time.monotonic_ns() if info.live else info.utc_offset_ns
+        if on_start is not None:
+            on_start(info, offset)
         first: list[int] = []
         with RecordingWriter(
             out,

@@ -88,47 +88,88 @@ def quat(q: Any) -> Rotation:
 
 
 @dataclass
-class Run:
+class Recorded:
+    """A synthetic run: its recording, its JSONL, and the MCAP its replay wrote (--mcap)."""
+
     rec: Path
     jsonl: Path
     lines: list[str]
     messages: list[dict[str, Any]]
-    mcap: Path
-    summary: ExportSummary
-    bag: Bag
+    replay_mcap: Path
 
     @property
     def offset_ns(self) -> int:
         return self.messages[0]["stamp_utc_ns"] - self.messages[0]["t_ns"]
 
     def frame_times(self, eye: str) -> tuple[np.ndarray, np.ndarray]:
-        rows = np.loadtxt(self.rec / f"{eye}.csv", delimiter=",", skiprows=1, dtype=np.int64)
-        return rows[:, 0], rows[:, 1]
+        return frame_times(self.rec, eye)
 
 
-def run_ok(*args: str) -> None:
+def frame_times(rec: Path, eye: str) -> tuple[np.ndarray, np.ndarray]:
+    """(t_ns, seq) of every frame of one eye of a recording, from its timestamp file."""
+    rows = np.loadtxt(rec / f"{eye}.csv", delimiter=",", skiprows=1, dtype=np.int64)
+    return rows[:, 0], rows[:, 1]
+
+
+@dataclass
+class Run(Recorded):
+    """One MCAP file of the run, read back; ``summary`` is there when it came from the API."""
+
+    mcap: Path
+    summary: ExportSummary | None
+    bag: Bag
+
+
+def run_ok(*args: str) -> str:
     res = stereod(*args)
     assert res.returncode == 0, res.stderr
+    return res.stdout
+
+
+GEOMETRY = ["--baseline", str(BASELINE_M), "--hfov", str(HFOV_DEG)]
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> Recorded:
     base = tmp_path_factory.mktemp("mcap")
     rec = base / "rec"
-    geometry = ["--baseline", str(BASELINE_M), "--hfov", str(HFOV_DEG)]
     run_ok(
         "synth", str(rec), "--size", f"{W}x{H}", "--fps", "15", "--duration", "4",
-        "--lead-in", "1", "--travel", "1.2", "--skew-ms", "10", *geometry,
+        "--lead-in", "1", "--travel", "1.2", "--skew-ms", "10", *GEOMETRY,
         "--ball", "heading=60,speed=0.7,z=1.8", "--ball", "heading=270,speed=0.4,y=-0.2,z=2.5",
     )  # fmt: skip
     jsonl = base / "run.jsonl"
-    run_ok("replay", str(rec), "--rate", "0", "--jsonl", str(jsonl), *geometry)
+    replay_mcap = base / "replay.mcap"
+    out = run_ok(
+        "replay", str(rec), "--rate", "0", "--jsonl", str(jsonl), "--mcap", str(replay_mcap),
+        *GEOMETRY,
+    )  # fmt: skip
+    assert f"wrote {replay_mcap}:" in out
     lines = jsonl.read_text().splitlines()
-    out = base / "run.mcap"
-    summary = export_run(
-        out, jsonl=jsonl, recording=rec, calibration=None, baseline_m=BASELINE_M, hfov_deg=HFOV_DEG
-    )
-    return Run(rec, jsonl, lines, [json.loads(x) for x in lines], out, summary, read_bag(out))
+    return Recorded(rec, jsonl, lines, [json.loads(x) for x in lines], replay_mcap)
+
+
+HOW = ("export_run", "stereod export", "stereod replay --mcap")
+
+
+@pytest.fixture(scope="module", params=HOW)
+def run(request: pytest.FixtureRequest, recorded: Recorded) -> Run:
+    """The run's MCAP three ways: the API, the export command, written during the replay."""
+    r = recorded
+    out = r.rec.parent / f"{HOW.index(request.param)}.mcap"
+    summary = None
+    if request.param == "export_run":
+        summary = export_run(
+            out, jsonl=r.jsonl, recording=r.rec, baseline_m=BASELINE_M, hfov_deg=HFOV_DEG
+        )
+    elif request.param == "stereod export":
+        printed = run_ok(
+            "export", str(r.rec), "--jsonl", str(r.jsonl), "--mcap", str(out), *GEOMETRY
+        )
+        assert printed.startswith(f"wrote {out}:") and "clock from jsonl" in printed
+    else:
+        out = r.replay_mcap
+    return Run(r.rec, r.jsonl, r.lines, r.messages, r.replay_mcap, out, summary, read_bag(out))
 
 
 def test_topics_types_and_counts_match_the_run(run: Run) -> None:
@@ -157,9 +198,10 @@ def test_topics_types_and_counts_match_the_run(run: Run) -> None:
             n,
         )
     assert {t: (bag.types[t], n) for t, n in bag.counts().items()} == expected
-    assert run.summary.messages == bag.counts()
-    assert run.summary.clock == "jsonl"
-    assert run.summary.problems == []
+    if run.summary is not None:
+        assert run.summary.messages == bag.counts()
+        assert run.summary.clock == "jsonl"
+        assert run.summary.problems == []
 
 
 def test_tracks_equal_the_jsonl(run: Run) -> None:
@@ -240,7 +282,9 @@ def test_stamps_are_capture_instants(run: Run) -> None:
         assert m["stamp_utc_ns"] - m["t_ns"] == run.offset_ns
     # Written in stamp order, /tf_static first.
     first = min(t for items in bag.topics.values() for t, _ in items)
-    assert bag.topics["/tf_static"][0][0] == first == run.summary.start_ns
+    assert bag.topics["/tf_static"][0][0] == first
+    if run.summary is not None:
+        assert first == run.summary.start_ns
 
 
 def test_images_are_the_recorded_frames(run: Run) -> None:
@@ -355,21 +399,21 @@ def test_second_reader_mcap_ros2(run: Run) -> None:
     assert sorted(positions) == sorted(expected)
 
 
-def test_recording_only_without_images(run: Run, tmp_path: Path) -> None:
+def test_recording_only_without_images(recorded: Recorded, tmp_path: Path) -> None:
     out = tmp_path / "cam.mcap"
-    summary = export_run(out, jsonl=None, recording=run.rec, include_images=False)
+    summary = export_run(out, jsonl=None, recording=recorded.rec, include_images=False)
     bag = read_bag(out)
-    n_left = len(run.frame_times("left")[0])
+    n_left = len(recorded.frame_times("left")[0])
     assert bag.counts() == {
         "/tf_static": 1,
         f"{RIG}/left/camera_info": n_left,
-        f"{RIG}/right/camera_info": len(run.frame_times("right")[0]),
+        f"{RIG}/right/camera_info": len(recorded.frame_times("right")[0]),
     }
     # No JSONL, no offset in the manifest: estimated from the manifest's creation time.
-    manifest = json.loads((run.rec / "recording.json").read_text())
+    manifest = json.loads((recorded.rec / "recording.json").read_text())
     assert manifest["utc_offset_ns"] is None
     assert summary.clock == "created_utc"
-    t, _ = run.frame_times("left")
+    t, _ = recorded.frame_times("left")
     got = [stamp_ns(m.header) for m in bag.msgs(f"{RIG}/left/camera_info")]
     assert np.all(np.diff(got) == np.diff(t))
     assert summary.utc_offset_ns is not None and got[0] == t[0] + summary.utc_offset_ns
@@ -399,38 +443,40 @@ def previous(tmp_path: Path) -> tuple[Path, bytes]:
     return out, before
 
 
-def test_missing_jsonl_leaves_output_untouched(run: Run, previous: tuple[Path, bytes]) -> None:
+def test_missing_jsonl_leaves_output_untouched(
+    recorded: Recorded, previous: tuple[Path, bytes]
+) -> None:
     out, before = previous
     missing = out.parent / "nope.jsonl"
     with pytest.raises(MissingInputError) as exc:
-        export_run(out, jsonl=missing, recording=run.rec)
+        export_run(out, jsonl=missing, recording=recorded.rec)
     one_line(exc, str(missing), "--jsonl")
     assert_untouched(out, before)
 
 
 def test_corrupt_line_leaves_output_untouched(
-    run: Run, previous: tuple[Path, bytes], tmp_path: Path
+    recorded: Recorded, previous: tuple[Path, bytes], tmp_path: Path
 ) -> None:
     out, before = previous
     bad = tmp_path / "bad.jsonl"
-    lines = list(run.lines)
+    lines = list(recorded.lines)
     lines[4] = lines[4][: len(lines[4]) // 2]
     bad.write_text("\n".join(lines) + "\n")
     with pytest.raises(InputError) as exc:
-        export_run(out, jsonl=bad, recording=run.rec)
+        export_run(out, jsonl=bad, recording=recorded.rec)
     one_line(exc, f"{bad} line 5")
     assert_untouched(out, before)
 
 
 def test_failure_while_writing_removes_the_temporary(
-    run: Run, previous: tuple[Path, bytes], tmp_path: Path
+    recorded: Recorded, previous: tuple[Path, bytes], tmp_path: Path
 ) -> None:
     out, before = previous
     rec = tmp_path / "broken"
-    shutil.copytree(run.rec, rec)
+    shutil.copytree(recorded.rec, rec)
     (rec / "right.mkv").write_bytes(b"not a video at all" * 100)
     with pytest.raises(InputError) as exc:
-        export_run(out, jsonl=run.jsonl, recording=rec)
+        export_run(out, jsonl=recorded.jsonl, recording=rec)
     one_line(exc, str(rec / "right.mkv"))
     assert_untouched(out, before)
 
@@ -443,21 +489,21 @@ def test_writer_aborts_on_exception(previous: tuple[Path, bytes]) -> None:
     assert_untouched(out, before)
 
 
-def test_output_folder_must_exist(run: Run, tmp_path: Path) -> None:
-    out = tmp_path / "missing" / "run.mcap"
+def test_output_folder_must_exist(recorded: Recorded, tmp_path: Path) -> None:
+    out = tmp_path / "missing" / "recorded.mcap"
     with pytest.raises(OutputError) as exc:
-        export_run(out, jsonl=run.jsonl, recording=None)
+        export_run(out, jsonl=recorded.jsonl, recording=None)
     one_line(exc, str(tmp_path / "missing"))
     assert not out.parent.exists()
 
 
-def test_jsonl_of_another_run_is_refused(run: Run, tmp_path: Path) -> None:
+def test_jsonl_of_another_run_is_refused(recorded: Recorded, tmp_path: Path) -> None:
     other = tmp_path / "other.jsonl"
-    msg = json.loads(run.lines[0])
+    msg = json.loads(recorded.lines[0])
     msg["t_ns"] += 10**12
     other.write_text(json.dumps(msg) + "\n")
     with pytest.raises(InputError) as exc:
-        export_run(tmp_path / "x.mcap", jsonl=other, recording=run.rec)
+        export_run(tmp_path / "x.mcap", jsonl=other, recording=recorded.rec)
     one_line(exc, str(other), "another run")
     assert list(tmp_path.iterdir()) == [other]
 
@@ -586,3 +632,83 @@ def test_foxglove_layout_refers_to_exported_topics(run: Run) -> None:
         referenced |= {p["value"].split(".")[0] for p in cfg.get("paths", [])}
     assert referenced <= set(run.bag.topics), referenced - set(run.bag.topics)
     assert panels["3D!stereod-scene"]["followTf"] == "stereod_minoru"
+
+
+# -- written during a run: replay --mcap against export, record --mcap ------------------------
+
+
+def test_replay_mcap_equals_the_export_of_the_same_run(recorded: Recorded, tmp_path: Path) -> None:
+    exported = tmp_path / "exported.mcap"
+    export_run(exported, jsonl=recorded.jsonl, recording=recorded.rec, baseline_m=BASELINE_M)
+    a, b = read_bag(recorded.replay_mcap), read_bag(exported)
+    assert a.counts() == b.counts()
+    n_left = len(recorded.frame_times("left")[0])
+    assert a.counts()[f"{RIG}/left/image/compressed"] == n_left  # every frame made a pair
+    for topic in a.topics:
+        assert [t for t, _ in a.topics[topic]] == [t for t, _ in b.topics[topic]], topic
+    for x, y in zip(a.msgs(f"{RIG}/tracks/odom"), b.msgs(f"{RIG}/tracks/odom"), strict=True):
+        assert x.child_frame_id == y.child_frame_id
+        assert xyz(x.pose.pose.position) == xyz(y.pose.pose.position)
+        assert xyz(x.twist.twist.linear) == xyz(y.twist.twist.linear)
+        assert list(x.pose.covariance) == list(y.pose.covariance)
+    for topic in a.topics:
+        if topic.endswith("speed_heading"):
+            assert [xyz(m.vector) for m in a.msgs(topic)] == [xyz(m.vector) for m in b.msgs(topic)]
+    assert [m.data for m in a.msgs(f"{RIG}/objects")] == recorded.lines
+
+
+def test_record_mcap_has_every_frame_of_the_recording(recorded: Recorded, tmp_path: Path) -> None:
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(
+        f"[rig]\nbaseline_m = {BASELINE_M}\nhfov_deg = {HFOV_DEG}\n"
+        f'[driver]\nname = "replay"\n[driver.options]\npath = "{recorded.rec}"\n'
+    )
+    out, mcap = tmp_path / "again", tmp_path / "rec.mcap"
+    printed = run_ok("record", str(out), "--config", str(cfg), "--mcap", str(mcap))
+    assert f"wrote {mcap}:" in printed
+    bag = read_bag(mcap)
+    n = {}
+    for eye in ("left", "right"):
+        t, _ = frame_times(out, eye)
+        n[eye] = len(t)
+        infos = bag.msgs(f"{RIG}/{eye}/camera_info")
+        assert len(bag.msgs(f"{RIG}/{eye}/image/compressed")) == len(infos) == len(t)
+        stamps = np.array([stamp_ns(m.header) for m in infos])
+        assert np.array_equal(np.diff(stamps), np.diff(t)), "stamps are not the capture clock"
+        assert infos[0].k[0] == pytest.approx(W / (2 * math.tan(math.radians(HFOV_DEG) / 2)))
+    assert n["left"] == len(recorded.frame_times("left")[0])
+    assert set(bag.topics) == {
+        "/tf_static",
+        *(f"{RIG}/{e}/{k}" for e in ("left", "right") for k in ("image/compressed", "camera_info")),
+    }
+
+
+def test_replay_mcap_into_a_missing_folder_fails_the_run(
+    recorded: Recorded, tmp_path: Path
+) -> None:
+    """The writer fails on the output thread: the run ends with exit 73 and one line, and the
+    JSONL of the failed run does not replace the previous one."""
+    jsonl = tmp_path / "run.jsonl"
+    before = b"previous run, must survive\n"
+    jsonl.write_bytes(before)
+    bad = tmp_path / "missing" / "run.mcap"
+    res = stereod("replay", str(recorded.rec), "--rate", "0", "--jsonl", str(jsonl),
+                  "--mcap", str(bad), *GEOMETRY)  # fmt: skip
+    assert res.returncode == 73, res.stderr
+    (line,) = res.stderr.strip().splitlines()[-1:]
+    assert str(tmp_path / "missing") in line and line.startswith("stereod: ")
+    assert_untouched(jsonl, before)
+    assert not bad.parent.exists()
+
+
+def test_output_that_is_an_input_is_refused(recorded: Recorded) -> None:
+    video = recorded.rec / "left.mkv"
+    before = video.read_bytes()
+    for cmd in (
+        ["export", str(recorded.rec), "--jsonl", str(recorded.jsonl), "--mcap", str(video)],
+        ["replay", str(recorded.rec), "--rate", "0", "--mcap", str(video)],
+    ):
+        res = stereod(*cmd)
+        assert res.returncode == 73, res.stderr
+        assert "--mcap" in res.stderr and "input" in res.stderr
+    assert video.read_bytes() == before

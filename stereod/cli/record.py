@@ -5,10 +5,13 @@ from __future__ import annotations
 import argparse
 import signal
 import threading
+from collections.abc import Callable
 
 from ..config import load_config
 from ..drivers import load_driver
-from ..frames import Eye, Frame
+from ..frames import Eye, Frame, SourceInfo
+from ..mcap_run import RunMcap, config_geometry
+from ..output_file import check_not_input
 from ..progress import Progress
 from ..record import record
 from .common import (
@@ -42,6 +45,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         default="ffv1",
         help="ffv1 lossless (default) or mjpg lossy",
     )
+    p.add_argument(
+        "--mcap",
+        type=path_arg,
+        metavar="OUT",
+        help="also write an MCAP file with ROS 2 messages: each eye's frames, camera_info and "
+        "tf (the geometry of the config's [rig]); replaced only when the recording succeeds",
+    )
     add_config(p, " with the driver")
     add_driver(p)
     p.set_defaults(func=run)
@@ -55,18 +65,51 @@ def run(a: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    mcap = None
+    if a.mcap is not None:
+        inputs = [p for p in (a.config, cfg.rig.calibration) if p is not None]
+        check_not_input(a.mcap, inputs, "--mcap")
+        mcap = RunMcap(a.mcap, rig=cfg.rig.name, geometry=config_geometry(cfg))
     with Progress("record", total=a.seconds, unit="s") as bar:
-        counts = record(
-            driver,
-            a.out,
-            seconds=a.seconds,
-            codec=a.codec,
-            calibration=cfg.rig.calibration,
-            stop=stop,
-            on_frame=_RecordProgress(bar) if bar.shown else None,
-        )
+        progress = _RecordProgress(bar) if bar.shown else None
+        on_frame: Callable[[Frame], None] | None = progress
+        on_start: Callable[[SourceInfo, int | None], None] | None = None
+        if mcap is not None:
+            on_frame = _both(mcap.frame, progress)
+            on_start = mcap.start_source
+        try:
+            counts = record(
+                driver,
+                a.out,
+                seconds=a.seconds,
+                codec=a.codec,
+                calibration=cfg.rig.calibration,
+                stop=stop,
+                on_frame=on_frame,
+                on_start=on_start,
+            )
+        except BaseException:
+            if mcap is not None:
+                mcap.abort()
+            raise
     print(f"recorded {counts['left']} left and {counts['right']} right frames to {a.out}")
+    if mcap is not None:
+        summary = mcap.commit()
+        print(summary.line() if summary else f"no frame recorded: {a.mcap} not written")
     return 0
+
+
+def _both(
+    first: Callable[[Frame], None], second: Callable[[Frame], None] | None
+) -> Callable[[Frame], None]:
+    if second is None:
+        return first
+
+    def call(frame: Frame) -> None:
+        first(frame)
+        second(frame)
+
+    return call
 
 
 class _RecordProgress:

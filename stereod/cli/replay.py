@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+from pathlib import Path
 from typing import Any
 
-from ..config import load_config
+from ..config import StereodConfig, load_config
 from ..daemon import Daemon
 from ..drivers import load_driver
 from ..errors import ConfigError, StereodError
+from ..mcap_run import RunMcap, config_geometry
+from ..output_file import check_not_input
 from ..progress import Progress
 from ..recording import read_manifest
 from .common import (
@@ -65,6 +68,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "is replaced only when the run succeeds)",
     )
     p.add_argument(
+        "--mcap",
+        type=path_arg,
+        metavar="OUT",
+        help="also write the run as MCAP with ROS 2 messages: the frames of every pair, "
+        "camera_info, tf and the tracks, as `stereod export` does (replaced only when the run "
+        "succeeds)",
+    )
+    p.add_argument(
         "--wait-subscriber",
         type=number(0.0, 3600.0, unit="s"),
         default=0.0,
@@ -108,6 +119,7 @@ def run(a: argparse.Namespace) -> int:
     ov["driver"] = {"name": "replay", "options": options}
     cfg = load_config(a.config, ov)
     setup_logging(command_log_level(cfg))
+    mcap = _mcap(a, cfg, options)
     daemon = Daemon(
         cfg,
         load_driver("replay", options),
@@ -116,6 +128,8 @@ def run(a: argparse.Namespace) -> int:
         wait_subscriber_s=a.wait_subscriber,
         reload_config=lambda: load_checked(a.config, ov)[0],
         inputs=[a.config] if a.config is not None else [],
+        on_message=mcap.outgoing if mcap is not None else None,
+        keep_frames=mcap is not None,
     )
     total = None
     if a.recording is not None and not a.loop:
@@ -129,4 +143,28 @@ def run(a: argparse.Namespace) -> int:
         unit="pair",
         poll=lambda: (st.pairs, {"frames": sum(st.frames.values())}),
     )
-    return run_daemon(daemon, quiet=a.quiet, progress=bar)
+    if mcap is None:
+        return run_daemon(daemon, quiet=a.quiet, progress=bar)
+    try:
+        code = run_daemon(daemon, quiet=a.quiet, progress=bar)
+    except BaseException:
+        mcap.abort()
+        raise
+    summary = mcap.commit()
+    if not a.quiet:
+        print(summary.line() if summary else f"no pair was processed: {a.mcap} not written")
+    return code
+
+
+def _mcap(a: argparse.Namespace, cfg: StereodConfig, options: dict[str, Any]) -> RunMcap | None:
+    """The MCAP file of ``--mcap``, refused when it is one of the inputs or the JSONL."""
+    if a.mcap is None:
+        return None
+    if a.jsonl is not None and a.mcap.resolve() == a.jsonl.resolve():
+        raise ConfigError(f"--mcap {a.mcap} and --jsonl are the same file; give two names")
+    inputs = [Path(p) for k, p in options.items() if k != "loop" and k != "fps"]
+    inputs += [p for p in (a.config, cfg.rig.calibration) if p is not None]
+    if a.recording is not None and a.recording.is_dir():
+        inputs += sorted(a.recording.iterdir())
+    check_not_input(a.mcap, inputs, "--mcap")
+    return RunMcap(a.mcap, rig=cfg.rig.name, geometry=config_geometry(cfg))

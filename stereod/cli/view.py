@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import re
 import signal
 import threading
@@ -42,6 +43,25 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="ADDR",
         help="address to serve on (default 127.0.0.1: this machine only)",
     )
+    g = p.add_argument_group("Foxglove (the same topics and ROS 2 types as `stereod export`)")
+    g.add_argument(
+        "--foxglove",
+        action="store_true",
+        help="also serve the rig to the Foxglove app over its WebSocket protocol",
+    )
+    g.add_argument(
+        "--foxglove-port",
+        type=number(0, 65535, integer=True),
+        default=8766,
+        metavar="N",
+        help="TCP port of the Foxglove WebSocket (default 8766; 0: any free port)",
+    )
+    g.add_argument(
+        "--foxglove-host",
+        default="127.0.0.1",
+        metavar="ADDR",
+        help="address of the Foxglove WebSocket (default 127.0.0.1: this machine only)",
+    )
     add_zenoh(p)
     p.set_defaults(func=run)
 
@@ -62,11 +82,26 @@ def run(a: argparse.Namespace) -> int:
     done = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: done.set())
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    with ViewServer(zcfg, rig=a.rig, host=a.host, port=a.port) as server:
+    with contextlib.ExitStack() as stack:
+        server = stack.enter_context(ViewServer(zcfg, rig=a.rig, host=a.host, port=a.port))
         where = ", ".join(zcfg.connect or zcfg.listen)
+        also = ""
+        if a.foxglove:
+            from ..view.foxglove import FoxgloveBridge
+
+            assert server.session is not None
+            bridge = FoxgloveBridge(
+                server.session,
+                rig=a.rig,
+                prefix=zcfg.prefix,
+                host=a.foxglove_host,
+                port=a.foxglove_port,
+            )
+            stack.enter_context(bridge)
+            also = f", Foxglove at {bridge.url}"
         print(
-            f"stereod view: open {server.url} (rig {a.rig}, Zenoh {zcfg.mode} at {where}); "
-            "Ctrl-C to stop",
+            f"stereod view: open {server.url}{also} (rig {a.rig}, Zenoh {zcfg.mode} at "
+            f"{where}); Ctrl-C to stop",
             flush=True,
         )
         done.wait()

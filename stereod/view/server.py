@@ -242,6 +242,11 @@ class ViewServer:
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"http://{host}:{self.port}/"
 
+    @property
+    def session(self) -> zenoh.Session | None:
+        """The view's Zenoh session while it runs (for :mod:`stereod.view.foxglove`)."""
+        return self._session
+
     # -- life ----------------------------------------------------------------------------------
 
     def start(self) -> ViewServer:

@@ -1,0 +1,111 @@
+"""``stereod export``: a finished run (recording and/or JSONL) to an MCAP file of standard ROS 2
+messages, for ``ros2 bag play``, Foxglove and PlotJuggler."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..calibration import load
+from ..errors import ConfigError
+from ..export_mcap import export_run
+from ..output_file import check_not_input
+from .common import number, path_arg
+
+TOPICS = """\
+topics (<rig> from the messages, e.g. minoru):
+  /tf_static                                     tf2_msgs/msg/TFMessage (body -> rig -> cameras)
+  /stereod/<rig>/{left,right}/image/compressed   sensor_msgs/msg/CompressedImage, per frame
+  /stereod/<rig>/{left,right}/camera_info        sensor_msgs/msg/CameraInfo, per frame
+  /stereod/<rig>/tracks/odom                     nav_msgs/msg/Odometry, per track state
+  /stereod/<rig>/tracks/markers                  visualization_msgs/msg/MarkerArray, per pair
+  /stereod/<rig>/tracks/track_<id>/speed_heading geometry_msgs/msg/Vector3Stamped (m/s, deg)
+  /stereod/<rig>/objects                         std_msgs/msg/String, the JSON messages
+"""
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "export",
+        help="export a run to MCAP with standard ROS 2 messages (ros2 bag, Foxglove)",
+        description="Write a run (its recording directory and the JSONL of its messages, from "
+        "`stereod replay REC --jsonl RUN.jsonl`) into one MCAP file of standard ROS 2 Humble "
+        "messages: images, camera_info, tf, and the tracks as Odometry, markers and speed/"
+        "heading. `ros2 bag play`, Foxglove and PlotJuggler open it without stereod. The file "
+        "is replaced only when the export succeeds.",
+        epilog=TOPICS,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "recording",
+        nargs="?",
+        type=path_arg,
+        help="the run's recording directory (images and per-frame camera_info)",
+    )
+    p.add_argument(
+        "--jsonl",
+        type=path_arg,
+        metavar="FILE",
+        help="the run's objects messages, one JSON per line (`stereod replay --jsonl`)",
+    )
+    p.add_argument("--mcap", type=path_arg, metavar="OUT", required=True, help="MCAP file to write")
+    p.add_argument(
+        "--calibration",
+        type=path_arg,
+        metavar="FILE",
+        help="the calibration the run used (default: the recording's own, or the canonical rig)",
+    )
+    p.add_argument(
+        "--baseline",
+        type=number(0.0, 10.0, lo_open=True, unit="m"),
+        default=0.060,
+        metavar="M",
+        help="canonical rig: distance between the cameras the run used, m (default 0.060)",
+    )
+    p.add_argument(
+        "--hfov",
+        type=number(0.0, 179.0, lo_open=True, unit="deg"),
+        default=60.0,
+        metavar="DEG",
+        help="canonical rig: horizontal field of view the run used, deg (default 60)",
+    )
+    p.add_argument(
+        "--no-images",
+        action="store_true",
+        help="leave the images out (camera_info, tf and tracks only; nothing is decoded)",
+    )
+    p.add_argument("--png", action="store_true", help="images as PNG (lossless) instead of JPEG")
+    p.add_argument(
+        "--jpeg-quality",
+        type=number(1, 100, integer=True),
+        default=90,
+        metavar="Q",
+        help="JPEG quality of the images, 1-100 (default 90)",
+    )
+    p.add_argument("-q", "--quiet", action="store_true", help="no summary on stdout")
+    p.set_defaults(func=run)
+
+
+def run(a: argparse.Namespace) -> int:
+    if a.recording is None and a.jsonl is None:
+        raise ConfigError(
+            "nothing to export: give the run's recording directory and/or --jsonl RUN.jsonl"
+        )
+    inputs = [p for p in (a.jsonl, a.calibration) if p is not None]
+    if a.recording is not None and a.recording.is_dir():
+        inputs += sorted(a.recording.iterdir())
+    check_not_input(a.mcap, inputs, "--mcap")
+    cal = load(a.calibration) if a.calibration is not None else None
+    summary = export_run(
+        a.mcap,
+        jsonl=a.jsonl,
+        recording=a.recording,
+        calibration=cal,
+        baseline_m=a.baseline,
+        hfov_deg=a.hfov,
+        include_images=not a.no_images,
+        image_format="png" if a.png else "jpeg",
+        jpeg_quality=a.jpeg_quality,
+    )
+    if not a.quiet:
+        print(summary.line(), flush=True)
+    return 0

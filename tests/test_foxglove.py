@@ -1,0 +1,301 @@
+"""``stereod view --foxglove``: a real daemon plays a synthetic scene over Zenoh on loopback; a
+client that speaks the Foxglove WebSocket protocol itself (the ``websockets`` library, not
+foxglove-sdk) subscribes to every channel, and one message per channel is decoded with rosbags'
+own ROS 2 Humble definitions and checked against the scene's truth: the track's position near
+the ball, its heading and speed, tf's rotation, camera_info's K, the images."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import re
+import signal
+import struct
+import threading
+from collections import defaultdict
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+import websockets
+import zenoh
+from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
+
+from stereod.config import load_config
+from stereod.daemon import Daemon
+from stereod.errors import ConfigError
+from stereod.overlay import HEADER_PX
+from stereod.view.foxglove import FoxgloveBridge
+from stereod_fakes.synth import Ball, Scene, SyntheticDriver
+
+from .conftest import ROOT, free_endpoint, zenoh_config
+from .processes import run_stereod, start_stereod
+
+TYPESTORE = get_typestore(Stores.ROS2_HUMBLE)
+W, H, HFOV_DEG, BASELINE_M = 640, 480, 60.0, 0.060
+BALL = Ball(
+    heading_deg=60.0,
+    speed_mps=0.4,
+    centre_m=(0.0, 0.1, 2.4),
+    t_on_s=1.0,
+    t_mid_s=3.7,
+    t_off_s=6.4,
+)
+SCENE = Scene(duration_s=7.0, fps=15.0, balls=[BALL])
+VALID_WANTED = 15
+RIG = "/stereod/minoru"
+# foxglove-sdk 0.30 names the protocol foxglove.sdk.v1; older servers foxglove.websocket.v1.
+SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+
+
+def wanted_topics() -> set[str]:
+    return {
+        "/tf_static",
+        f"{RIG}/left/camera_info",
+        f"{RIG}/right/camera_info",
+        f"{RIG}/left/image/compressed",
+        f"{RIG}/overlay/image/compressed",
+        f"{RIG}/tracks/odom",
+        f"{RIG}/tracks/markers",
+        f"{RIG}/objects",
+        f"{RIG}/tracks/track_1/speed_heading",
+    }
+
+
+class Client:
+    """The client side of the Foxglove WebSocket protocol, as much as the test needs."""
+
+    def __init__(self, ws: Any) -> None:
+        self.ws = ws
+        self.channels: dict[int, dict[str, Any]] = {}
+        self.subscriptions: dict[int, int] = {}  # subscription id -> channel id
+        self.messages: dict[str, list[tuple[int, bytes]]] = defaultdict(list)
+
+    async def subscribe(self, channels: list[dict[str, Any]]) -> None:
+        subs = []
+        for ch in channels:
+            self.channels[ch["id"]] = ch
+            sub_id = len(self.subscriptions) + 1
+            self.subscriptions[sub_id] = ch["id"]
+            subs.append({"id": sub_id, "channelId": ch["id"]})
+        await self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+
+    async def receive(self, timeout_s: float) -> None:
+        """One frame: text control messages (advertise: subscribe at once), binary data."""
+        frame = await asyncio.wait_for(self.ws.recv(), timeout_s)
+        if isinstance(frame, str):
+            msg = json.loads(frame)
+            if msg["op"] == "advertise":
+                await self.subscribe(msg["channels"])
+            return
+        opcode = frame[0]
+        assert opcode == 1, f"unexpected binary opcode {opcode}"
+        sub_id, log_time = struct.unpack_from("<IQ", frame, 1)
+        channel = self.channels[self.subscriptions[sub_id]]
+        self.messages[channel["topic"]].append((log_time, bytes(frame[13:])))
+
+    def decoded(self, topic: str) -> list[tuple[int, Any]]:
+        ch = next(c for c in self.channels.values() if c["topic"] == topic)
+        return [
+            (t, TYPESTORE.deserialize_cdr(raw, ch["schemaName"])) for t, raw in self.messages[topic]
+        ]
+
+    def done(self) -> bool:
+        if not wanted_topics() <= set(self.messages):
+            return False
+        # enough track states with a valid velocity for a median (about 1 s)
+        return len(self.messages[f"{RIG}/tracks/track_1/speed_heading"]) >= VALID_WANTED
+
+
+def stamp_ns(header: Any) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def xyz(v: Any) -> np.ndarray:
+    return np.array([v.x, v.y, v.z])
+
+
+async def play(bridge: FoxgloveBridge, endpoint: str) -> Client:
+    cfg = load_config(overrides={"zenoh": {"connect": [endpoint]}})
+    daemon = Daemon(cfg, SyntheticDriver(SCENE.model_dump(mode="json")), rate=1.0)
+    url = f"ws://127.0.0.1:{bridge.port}"
+    async with websockets.connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+        client = Client(ws)
+        info = json.loads(await asyncio.wait_for(ws.recv(), 10))
+        assert info["op"] == "serverInfo" and info["name"] == "stereod minoru"
+        await client.receive(10)  # the advertisement of the channels there are from the start
+        advertised = {c["topic"] for c in client.channels.values()}
+        assert wanted_topics() - advertised == {f"{RIG}/tracks/track_1/speed_heading"}
+        thread = threading.Thread(target=daemon.run, name="daemon")
+        thread.start()
+        try:
+            while not client.done():
+                await client.receive(30)
+        finally:
+            daemon.stop()
+            await asyncio.get_running_loop().run_in_executor(None, thread.join)
+    return client
+
+
+@pytest.fixture(scope="module")
+def session_client() -> Any:
+    endpoint = free_endpoint()
+    with (
+        zenoh.open(zenoh_config(listen=[endpoint])) as session,
+        FoxgloveBridge(session, port=0) as bridge,
+    ):
+        client = asyncio.run(play(bridge, endpoint))
+        yield client, bridge
+
+
+def test_channels_carry_humble_schemas(session_client: Any) -> None:
+    client, _ = session_client
+    for ch in client.channels.values():
+        assert ch["encoding"] == "cdr" and ch["schemaEncoding"] == "ros2msg", ch["topic"]
+        official, _ = TYPESTORE.generate_msgdef(ch["schemaName"], ros_version=2)
+        assert ch["schema"] == official, f"{ch['topic']}: not the Humble definition"
+
+
+def test_tracks_follow_the_ball(session_client: Any) -> None:
+    client, _ = session_client
+    objects = {t: json.loads(m.data) for t, m in client.decoded(f"{RIG}/objects")}
+    odom = client.decoded(f"{RIG}/tracks/odom")
+    valid = []
+    for log_time, o in odom:
+        msg = objects.get(stamp_ns(o.header))
+        assert stamp_ns(o.header) == log_time
+        assert o.header.frame_id == "stereod_minoru_optical"
+        if msg is None:  # its objects message was sent before the test subscribed
+            continue
+        state = next(s for s in msg["objects"] if o.child_frame_id.endswith(f"_{s['track_id']}"))
+        t_s = (msg["t_ns"] - SCENE.t0_ns) * 1e-9
+        truth = BALL.position_m(t_s)
+        err = np.linalg.norm(xyz(o.pose.pose.position) - truth)
+        assert err < 0.05, f"track at {xyz(o.pose.pose.position)}, ball at {truth} (t {t_s:.2f} s)"
+        if state["velocity_valid"]:
+            valid.append(o)
+    assert len(valid) >= VALID_WANTED, "Odometry with a valid velocity went missing"
+    speeds, headings = [], []
+    for o in valid:
+        v = xyz(o.twist.twist.linear)
+        speeds.append(np.linalg.norm(v))
+        heading = math.degrees(math.atan2(v[0], v[2])) % 360
+        headings.append(heading)
+        # the orientation's +X is the direction of motion
+        along = Rotation.from_quat([getattr(o.pose.pose.orientation, k) for k in "xyzw"]).apply(
+            [1, 0, 0]
+        )
+        assert math.degrees(math.atan2(along[0], along[2])) % 360 == pytest.approx(
+            heading, abs=1e-6
+        )
+    assert float(np.median(speeds)) == pytest.approx(BALL.speed_mps, abs=0.02)
+    assert float(np.median(headings)) == pytest.approx(BALL.heading_deg, abs=3.0)
+    sh = [m.vector for _, m in client.decoded(f"{RIG}/tracks/track_1/speed_heading")]
+    assert float(np.median([v.x for v in sh])) == pytest.approx(BALL.speed_mps, abs=0.02)
+    assert float(np.median([v.y for v in sh])) == pytest.approx(BALL.heading_deg, abs=3.0)
+    arrays = [a for _, a in client.decoded(f"{RIG}/tracks/markers") if a.markers]
+    assert arrays, "no marker array with a track"
+    spheres = [k for a in arrays for k in a.markers if k.ns == "tracks" and k.action == 0]
+    assert spheres and all(k.id == 1 for k in spheres)
+
+
+def test_tf_static_rotates_the_rig_frame_into_the_body_frame(session_client: Any) -> None:
+    client, _ = session_client
+    _, tf = client.decoded("/tf_static")[-1]
+    by_child = {t.child_frame_id: t for t in tf.transforms}
+    body = by_child["stereod_minoru_optical"]
+    assert body.header.frame_id == "stereod_minoru"
+    rot = Rotation.from_quat([getattr(body.transform.rotation, k) for k in "xyzw"])
+    np.testing.assert_allclose(rot.apply([0, 0, 1]), [1, 0, 0], atol=1e-12)  # forward
+    np.testing.assert_allclose(rot.apply([1, 0, 0]), [0, -1, 0], atol=1e-12)  # right
+    np.testing.assert_allclose(rot.apply([0, 1, 0]), [0, 0, -1], atol=1e-12)  # down
+    for eye, x in (("left", -BASELINE_M / 2), ("right", BASELINE_M / 2)):
+        t = by_child[f"stereod_minoru_{eye}_optical"]
+        np.testing.assert_allclose(xyz(t.transform.translation), [x, 0, 0], atol=1e-12)
+
+
+def test_camera_info_is_the_canonical_rig(session_client: Any) -> None:
+    client, _ = session_client
+    f = W / (2 * math.tan(math.radians(HFOV_DEG) / 2))
+    k = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1]])
+    for eye in ("left", "right"):
+        _, info = client.decoded(f"{RIG}/{eye}/camera_info")[-1]
+        assert (info.width, info.height) == (W, H)
+        assert info.header.frame_id == f"stereod_minoru_{eye}_optical"
+        np.testing.assert_allclose(np.reshape(info.k, (3, 3)), k, atol=1e-9)
+        p = np.reshape(info.p, (3, 4))
+        assert p[0, 3] == pytest.approx(0.0 if eye == "left" else -f * BASELINE_M)
+
+
+def test_images_are_the_daemons_jpegs(session_client: Any) -> None:
+    client, _ = session_client
+    pair_stamps = {t for t, _ in client.messages[f"{RIG}/objects"]}
+    for topic, shape in (
+        (f"{RIG}/left/image/compressed", (H, W)),
+        (f"{RIG}/overlay/image/compressed", (HEADER_PX + H, 2 * W, 3)),
+    ):
+        log_time, img = client.decoded(topic)[0]
+        assert img.format == "jpeg"
+        assert stamp_ns(img.header) == log_time
+        assert log_time in pair_stamps  # the pair's objects message came first
+        pic = cv2.imdecode(np.frombuffer(bytes(img.data), np.uint8), cv2.IMREAD_UNCHANGED)
+        assert pic is not None and pic.shape == shape, topic
+
+
+def test_layout_names_the_live_topics(session_client: Any) -> None:
+    client, _ = session_client
+    layout = json.loads((ROOT / "foxglove" / "stereod-layout.json").read_text())
+    referenced = set()
+    for cfg in layout["configById"].values():
+        referenced |= set(cfg.get("topics", {}))
+        referenced |= {v for k, v in cfg.get("imageMode", {}).items() if k.endswith("Topic")}
+        referenced |= {p["value"].split(".")[0] for p in cfg.get("paths", [])}
+    advertised = {c["topic"] for c in client.channels.values()}
+    # track 2's plot line waits for a second track, which this scene has not
+    assert referenced - advertised == {f"{RIG}/tracks/track_2/speed_heading"}
+
+
+def test_port_in_use_is_one_line(session_client: Any) -> None:
+    _, bridge = session_client
+    with (
+        zenoh.open(zenoh_config()) as session,
+        pytest.raises(ConfigError, match=f"127.0.0.1:{bridge.port}.*--foxglove-port") as exc,
+    ):
+        FoxgloveBridge(session, port=bridge.port).start()
+    assert "\n" not in str(exc.value)
+
+
+def test_view_command_serves_foxglove(endpoint: str, listener: zenoh.Session) -> None:
+    """``stereod view --foxglove`` prints the WebSocket address; a Foxglove client is told the
+    channels there; the same port again is one line and exit 78; Ctrl-C stops it with 0."""
+    proc = start_stereod(
+        "view", "--port", "0", "--foxglove", "--foxglove-port", "0", "--connect", endpoint
+    )
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        found = re.search(r"Foxglove at ws://127\.0\.0\.1:(\d+)", line)
+        assert found, line
+        port = found.group(1)
+
+        async def hello() -> set[str]:
+            url = f"ws://127.0.0.1:{port}"
+            async with websockets.connect(url, subprotocols=SUBPROTOCOLS) as ws:
+                assert json.loads(await asyncio.wait_for(ws.recv(), 10))["op"] == "serverInfo"
+                adv = json.loads(await asyncio.wait_for(ws.recv(), 10))
+                return {c["topic"] for c in adv["channels"]}
+
+        assert wanted_topics() - asyncio.run(hello()) == {f"{RIG}/tracks/track_1/speed_heading"}
+        busy = run_stereod(
+            "view", "--port", "0", "--foxglove", "--foxglove-port", port, "--connect", endpoint,
+            timeout=60,
+        )  # fmt: skip
+        assert busy.returncode == 78, busy.stderr
+        assert busy.stderr.count("\n") == 1 and f"127.0.0.1:{port}" in busy.stderr
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
