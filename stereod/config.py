@@ -132,6 +132,13 @@ class DetectorConfig(_Section):
         _DETECT.max_blobs, ge=1, le=100000, description="More blobs than this: saturated"
     )
     gain: bool = Field(_DETECT.gain, description="Follow a global change of brightness at once")
+    hysteresis: float = Field(
+        _DETECT.hysteresis,
+        ge=0.0,
+        le=1.0,
+        description="Differences down to this share of the threshold join foreground they touch",
+    )
+    grow_px: int = Field(_DETECT.grow_px, ge=0, le=50, description="Hysteresis reach per step, px")
 
     def params(self) -> DetectorParams:
         return DetectorParams(**self.model_dump())

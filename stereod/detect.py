@@ -23,6 +23,10 @@ Beyond the paper, each one chosen by measurement on two renderers (README, Accur
   median ratio of frame to background over a sparse grid of background pixels is that gain,
   and the background is scaled by it before the difference, so eq. 3 only has to learn what
   changed locally (``gain = false``: eq. 4 against T as learned).
+- **Hysteresis.** A pixel whose difference is only above ``hysteresis`` times ``t`` is foreground
+  when it lies next to one above ``t`` (grown by ``grow_px`` three times), as in an edge
+  detector: the part of an object that nearly matches the background behind it stays in its
+  support instead of being cut differently in each eye.
 - **Colour.** With colour frames and ``color = true`` the difference of eq. 4 is the mean of
   the three channels' absolute differences, so an object as bright as what is behind it but
   of another colour is still found.
@@ -75,8 +79,8 @@ class Warmup(str, enum.Enum):
     """Running mean: the average of the frames."""
 
 
-_GAIN_STEP = 8
-"""Pixel step of the grid the global gain is measured on (1/64 of the pixels)."""
+_GAIN_STEP = 12
+"""Pixel step of the grid the global gain is measured on (1/144 of the pixels)."""
 _GAIN_MIN_LEVEL = 20.0
 """Background darker than this (grey levels) is left out of the gain: its ratio is noise."""
 _GAIN_RESCALE = 0.01
@@ -102,6 +106,9 @@ class DetectorParams:
     ``merge_gap``: pieces closer than this share of the smaller one's size are one object.
     ``max_foreground``, ``max_blobs``: beyond these a frame is saturated.
     ``gain``: follow a global change of brightness (lighting drift, auto-exposure) at once.
+    ``hysteresis``, ``grow_px``: pixels whose difference reaches ``hysteresis`` times ``t``
+    join the foreground within ``grow_px`` of it (three steps), so the part of an object
+    nearly the colour of the wall behind it is kept; 0 turns this off.
     """
 
     beta: float = 0.02
@@ -123,6 +130,8 @@ class DetectorParams:
     max_foreground: float = 0.5
     max_blobs: int = 200
     gain: bool = True
+    hysteresis: float = 0.65
+    grow_px: int = 4
 
 
 PAPER = DetectorParams(
@@ -135,6 +144,7 @@ PAPER = DetectorParams(
     convex=False,
     merge_gap=0.0,
     gain=False,
+    hysteresis=0.0,
 )
 """The paper's sec. II as written (eq. 2-5 with eq. 3 everywhere), plus only the opening."""
 
@@ -192,10 +202,20 @@ class Detector:
         self._t_s = 0.0
         self._t0_ns: int | None = None
         self._since: np.ndarray | None = None
-        self._now: np.ndarray | None = None
+        """When each pixel was last background (s), kept up to date inside ``_held_roi``."""
+        self._allowed: np.ndarray | None = None
+        self._held_roi: tuple[int, int, int, int] | None = None
+        self._roi: tuple[int, int, int, int] | None = None
+        """The rectangle (x0, y0, x1, y1) around this frame's foreground, grown by what the
+        morphology and the hold can reach; ``None`` when nothing is foreground."""
+        m = 3 * params.grow_px + params.open_px + params.close_px + 2 * params.hold_margin_px
+        self._margin = m + 2
         self._open = _kernel(params.open_px)
         self._close = _kernel(params.close_px)
         self._hold = _kernel(2 * params.hold_margin_px + 1)
+        low = params.hysteresis * params.threshold
+        self._grow = _kernel(2 * params.grow_px + 1) if 0 < low < params.threshold else None
+        self._low_u8 = float(math.ceil(low) - 1)
         self._thresh_u8 = float(math.ceil(params.threshold) - 1)
         """d >= t on integer grey levels is d > ceil(t) - 1 (THRESH_BINARY is strict)."""
         self.mask: np.ndarray | None = None
@@ -226,9 +246,10 @@ class Detector:
                 self._background = other._background.copy()
             self._seen = self.params.warmup_frames
             self._t0_ns = other._t0_ns
-            if other._since is not None:
+            if other._since is not None and other._allowed is not None:
                 self._since = other._since.copy()
-                self._now = np.empty_like(other._since)
+                self._allowed = other._allowed.copy()
+                self._held_roi = other._held_roi
 
     def reset(self) -> None:
         """Forget the background (after a lighting jump or a camera re-plug); the next frames
@@ -237,6 +258,7 @@ class Detector:
         self._warm = []
         self._seen = 0
         self._since = None
+        self._roi = None
         self._saturated_run = 0
 
     def detect(
@@ -279,15 +301,29 @@ class Detector:
         if diff.ndim == 3:
             diff = cv2.transform(diff, _MEAN_RGB)
         self.diff = diff
-        _, mask = cv2.threshold(diff, self._thresh_u8, 255, cv2.THRESH_BINARY)
-        if self._open is not None:
-            mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, self._open)
-        if self._close is not None:
-            mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, self._close)
+        _, raw = cv2.threshold(diff, self._thresh_u8, 255, cv2.THRESH_BINARY)
+        mask = np.zeros_like(raw)
         self.mask = mask
-        if cv2.countNonZero(mask) > self.params.max_foreground * mask.size:
+        self._roi = roi = _grown_rect(cv2.boundingRect(raw), self._margin, raw.shape)
+        if roi is None:  # nothing moved: no morphology, no contours
+            self._saturated_run = 0
+            return Blobs.empty()
+        x0, y0, x1, y1 = roi
+        part = raw[y0:y1, x0:x1]
+        if self._grow is not None:
+            _, weak = cv2.threshold(diff[y0:y1, x0:x1], self._low_u8, 255, cv2.THRESH_BINARY)
+            for _ in range(3):
+                part = cv2.bitwise_or(part, cv2.bitwise_and(weak, cv2.dilate(part, self._grow)))
+        if self._open is not None:
+            part = cv2.morphologyEx(part, cv2.MORPH_OPEN, self._open)
+        if self._close is not None:
+            part = cv2.morphologyEx(part, cv2.MORPH_CLOSE, self._close)
+        mask[y0:y1, x0:x1] = part
+        if cv2.countNonZero(part) > self.params.max_foreground * mask.size:
             return self._saturated()
-        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        contours, _ = cv2.findContours(
+            part, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x0, y0)
+        )
         if len(contours) > self.params.max_blobs:
             return self._saturated()
         self._saturated_run = 0
@@ -304,9 +340,11 @@ class Detector:
         use = b > _GAIN_MIN_LEVEL
         if self.mask is not None and self.mask.shape == frame.shape[:2]:
             use &= self.mask[::_GAIN_STEP, ::_GAIN_STEP] == 0
-        if np.count_nonzero(use) < 32:
+        ratio = f[use] / b[use]
+        if ratio.size < 32:
             return 1.0
-        return float(np.median(f[use] / b[use]))
+        k = ratio.size // 2
+        return float(np.partition(ratio, k)[k])
 
     def _saturated(self) -> Blobs:
         self.saturated += 1
@@ -345,7 +383,14 @@ class Detector:
         if p.warmup is Warmup.MEDIAN:
             self._warm.append(frame)
             if not self.warming_up:
-                self._background = np.median(np.stack(self._warm), axis=0).astype(np.float32)
+                stack = np.stack(self._warm)  # uint8: partitioned in place, no float copy
+                n = len(self._warm)
+                k = n // 2
+                stack.partition((k - 1, k) if n % 2 == 0 and n > 1 else k, axis=0)
+                median = stack[k].astype(np.float32)
+                if n % 2 == 0 and n > 1:
+                    median = (median + stack[k - 1]) * np.float32(0.5)
+                self._background = median
                 self._warm = []
         elif self._background is None:
             self._background = frame.astype(np.float32)
@@ -354,19 +399,43 @@ class Detector:
 
     def _held(self) -> np.ndarray:
         """Where eq. 3 may learn (uint8 255): outside the grown foreground, and where the
-        foreground has stayed ``absorb_s`` seconds (it is still: make it background)."""
+        foreground has stayed ``absorb_s`` seconds (it is still: make it background). Only the
+        rectangle around this frame's foreground is computed; everything else is free."""
         mask = self.mask
         assert mask is not None
-        grown = cv2.dilate(mask, self._hold) if self._hold is not None else mask
-        free = cv2.bitwise_not(grown)
         if self._since is None or self._since.shape != mask.shape:
             self._since = np.full(mask.shape, self._t_s, np.float32)
-            self._now = np.empty(mask.shape, np.float32)
-        assert self._now is not None
-        self._now.fill(self._t_s)
-        cv2.copyTo(self._now, free, self._since)  # foreground since: now, where not foreground
-        stale = cv2.compare(self._since, np.float64(self._t_s - self.params.absorb_s), cv2.CMP_LT)
-        return cv2.bitwise_or(free, stale)
+            self._allowed = np.full(mask.shape, 255, np.uint8)
+            self._held_roi = None
+        assert self._allowed is not None
+        allowed, prev = self._allowed, self._held_roi
+        if prev is not None:
+            px0, py0, px1, py1 = prev
+            allowed[py0:py1, px0:px1] = 255
+        roi = self._roi
+        self._held_roi = roi
+        if roi is None:
+            return allowed
+        x0, y0, x1, y1 = roi
+        sub = mask[y0:y1, x0:x1]
+        grown = cv2.dilate(sub, self._hold) if self._hold is not None else sub
+        since = self._since[y0:y1, x0:x1]
+        now = np.float32(self._t_s)
+        # What lay outside the last rectangle was background in the last frame.
+        if prev is None:
+            since.fill(now)
+        else:
+            kept = np.zeros(sub.shape, np.uint8)
+            kx0, ky0 = max(px0 - x0, 0), max(py0 - y0, 0)
+            kx1, ky1 = min(px1 - x0, x1 - x0), min(py1 - y0, y1 - y0)
+            if kx1 > kx0 and ky1 > ky0:
+                kept[ky0:ky1, kx0:kx1] = 255
+            since[kept == 0] = now
+        free = cv2.bitwise_not(grown)
+        since[free > 0] = now  # foreground since: now, where not foreground
+        stale = cv2.compare(since, np.float64(self._t_s - self.params.absorb_s), cv2.CMP_LT)
+        allowed[y0:y1, x0:x1] = cv2.bitwise_or(free, stale)
+        return allowed
 
     def _blobs(self, contours: Sequence[np.ndarray], mask: np.ndarray, diff: np.ndarray) -> Blobs:
         p = self.params
@@ -401,6 +470,22 @@ class Detector:
             area_px=np.asarray(areas, np.int32),
             support=tuple(supports),
         )
+
+
+def _grown_rect(
+    rect: Sequence[int], margin: int, shape: tuple[int, ...]
+) -> tuple[int, int, int, int] | None:
+    """A rectangle (x, y, w, h) grown by ``margin`` px and clipped to the image, as (x0, y0,
+    x1, y1); ``None`` for an empty one."""
+    x, y, w, h = rect
+    if w == 0 or h == 0:
+        return None
+    return (
+        max(x - margin, 0),
+        max(y - margin, 0),
+        min(x + w + margin, shape[1]),
+        min(y + h + margin, shape[0]),
+    )
 
 
 def _groups(contours: Sequence[np.ndarray], gap: float) -> list[list[np.ndarray]]:

@@ -26,11 +26,16 @@ def transition(dt_s: float) -> np.ndarray:
     return f
 
 
+_PP = np.kron(np.array([[1.0, 0.0], [0.0, 0.0]]), np.eye(3))
+_PV = np.kron(np.array([[0.0, 1.0], [1.0, 0.0]]), np.eye(3))
+_VV = np.kron(np.array([[0.0, 0.0], [0.0, 1.0]]), np.eye(3))
+
+
 def process_noise(dt_s: float, q: float) -> np.ndarray:
-    """Q (6, 6) of a white-noise acceleration of spectral density ``q`` (m^2/s^3) over ``dt_s``."""
-    dt2, dt3 = dt_s * dt_s, dt_s * dt_s * dt_s
-    block = np.array([[dt3 / 3.0, dt2 / 2.0], [dt2 / 2.0, dt_s]]) * q
-    return np.kron(block, np.eye(3))
+    """Q (6, 6) of a white-noise acceleration of spectral density ``q`` (m^2/s^3) over ``dt_s``:
+    q dt^3 / 3 on positions, q dt^2 / 2 between position and velocity, q dt on velocities."""
+    dt2 = dt_s * dt_s
+    return _PP * (q * dt2 * dt_s / 3.0) + _PV * (q * dt2 / 2.0) + _VV * (q * dt_s)
 
 
 @dataclass
@@ -80,6 +85,13 @@ def predict(
         x[:3] += 0.5 * dt * dt * accel_mps2
         x[3:] += dt * accel_mps2
     return KalmanState(x, f @ s.P @ f.T + process_noise(abs(dt), q), t_ns)
+
+
+def position_at(s: KalmanState, t_ns: int, accel_mps2: np.ndarray | None = None) -> np.ndarray:
+    """The predicted position (3,) m at ``t_ns``, without the covariance (cheap)."""
+    dt = (t_ns - s.t_ns) * 1e-9
+    p = s.x[:3] + s.x[3:] * dt
+    return p if accel_mps2 is None else p + 0.5 * dt * dt * accel_mps2
 
 
 def inflate_velocity(s: KalmanState, sigma_mps: float) -> KalmanState:

@@ -99,6 +99,10 @@ class PairResult:
     row_residuals_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
+Learning = tuple[tuple[np.ndarray | None, np.ndarray | None], ...]
+"""Per eye, the (update_mask, release_mask) of :meth:`stereod.detect.Detector.learn`."""
+
+
 def _boxes_mask(boxes: list[np.ndarray], shape: tuple[int, ...], inside: int) -> np.ndarray:
     """A uint8 (h, w) mask that is ``inside`` in the boxes (x, y, w, h px, grown by
     ``FREEZE_MARGIN_PX``) and the other of 0 and 255 elsewhere."""
@@ -139,6 +143,8 @@ class Pipeline:
         self.left = Detector(params.detector)
         self.right = Detector(params.detector)
         self.tracker = Tracker(params.tracker, params.rig.project_rectified)
+        self._pending: Learning | None = None
+        """Each eye's eq. 3 masks (update, release) from the last pair, applied at the next."""
         self._pool = (
             ThreadPoolExecutor(2, thread_name_prefix="detect")
             if params.detect_workers > 1
@@ -164,6 +170,7 @@ class Pipeline:
         otherwise end, new ids continuing after theirs. This pipeline is closed. Call it
         from the thread that calls :meth:`process`, between pairs."""
         new = Pipeline(params)
+        self._flush()
         new.left.adopt(self.left)
         new.right.adopt(self.right)
         same_geometry = type(params.rig) is type(self.params.rig) and (
@@ -200,13 +207,14 @@ class Pipeline:
         """Run one pair through eq. 2-5, 9, 12 and 21-23."""
         p = self.params
         t0 = time.perf_counter_ns()
+        pending, self._pending = self._pending, None
         if self._pool is not None:
-            fut = self._pool.submit(self.right.find, pair.right.image, pair.right.t_ns)
-            lb = self.left.find(pair.left.image, pair.left.t_ns)
+            fut = self._pool.submit(self._eye, 1, pending, pair.right.image, pair.right.t_ns)
+            lb = self._eye(0, pending, pair.left.image, pair.left.t_ns)
             rb = fut.result()
         else:
-            lb = self.left.find(pair.left.image, pair.left.t_ns)
-            rb = self.right.find(pair.right.image, pair.right.t_ns)
+            lb = self._eye(0, pending, pair.left.image, pair.left.t_ns)
+            rb = self._eye(1, pending, pair.right.image, pair.right.t_ns)
         t1 = time.perf_counter_ns()
         t_left, t_right = pair.left.t_ns, pair.right.t_ns
         eye_times = (t_left, t_right)
@@ -352,7 +360,8 @@ class Pipeline:
         )
 
     def _learn(self, states: list[TrackState], shape: tuple[int, ...]) -> None:
-        """Eq. 3 on both eyes: not under objects seen moving (so one that stops stays seen,
+        """Eq. 3's masks for both eyes, applied when the next pair is detected: not under
+        objects seen moving (so one that stops stays seen,
         for ``freeze_s``), and at once under one that has been still longer than that (the
         detector would otherwise hold it as foreground for its own ``absorb_s``)."""
         frozen: list[list[np.ndarray]] = [[], []]
@@ -364,7 +373,26 @@ class Pipeline:
                     into = frozen if s.freeze_background else released
                     into[0].append(ob.left_bbox_px)
                     into[1].append(ob.right_bbox_px)
-        for e, det in enumerate((self.left, self.right)):
-            freeze = _boxes_mask(frozen[e], shape, 0) if frozen[e] else None
-            release = _boxes_mask(released[e], shape, 255) if released[e] else None
-            det.learn(freeze, release)
+        self._pending = tuple(
+            (
+                _boxes_mask(frozen[e], shape, 0) if frozen[e] else None,
+                _boxes_mask(released[e], shape, 255) if released[e] else None,
+            )
+            for e in range(2)
+        )
+
+    def _eye(self, e: int, pending: Learning | None, image: np.ndarray, t_ns: int) -> Blobs:
+        """One eye's detector: first eq. 3 with the last frame (deferred from the last pair so
+        that it runs in the eye's worker, in the same order as if done at once), then this
+        frame's blobs."""
+        det = self.right if e else self.left
+        if pending is not None:
+            det.learn(*pending[e])
+        return det.find(image, t_ns)
+
+    def _flush(self) -> None:
+        """Apply the deferred eq. 3 now (before the backgrounds are handed over)."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            for e, det in enumerate((self.left, self.right)):
+                det.learn(*pending[e])

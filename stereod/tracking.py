@@ -235,6 +235,32 @@ def predict_px(history: EyeHistory, t_ns: int, window_ns: int) -> tuple[np.ndarr
     return moved, float(np.linalg.norm(moved - last))
 
 
+@dataclass(frozen=True, slots=True)
+class Prediction:
+    """Where a track should be seen in each eye (px): at ``left`` or anywhere on the segment
+    to ``left_far`` (likewise right), and how far that is from where each eye last saw it."""
+
+    left: np.ndarray
+    left_far: np.ndarray
+    right: np.ndarray
+    right_far: np.ndarray
+    left_motion: float
+    right_motion: float
+
+
+def _motion(a: np.ndarray, b: np.ndarray, last: np.ndarray) -> float:
+    """The larger distance (px) of two predictions from the last centroid."""
+    return max(float(np.linalg.norm(a - last)), float(np.linalg.norm(b - last)))
+
+
+def _to_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """Distance (px) from a point to the segment a-b (a point when a == b)."""
+    ab = b - a
+    n2 = float(ab @ ab)
+    t = 0.0 if n2 == 0.0 else min(1.0, max(0.0, float((point - a) @ ab) / n2))
+    return float(np.linalg.norm(point - (a + t * ab)))
+
+
 def _inside(point: np.ndarray, bbox: np.ndarray, grow: float) -> bool:
     x, y, w, h = (float(v) for v in bbox)
     mx, my = grow * w, grow * h
@@ -323,7 +349,8 @@ class Tracker:
         inside = np.zeros((2, n, len(tracks)), bool)
         boxes = []
         for j, tr in enumerate(tracks):
-            pl, ml, pr, mr = self._predict_px(tr, t_left, t_right)
+            pred = self._predict_px(tr, t_left, t_right)
+            pl, pr, ml, mr = pred.left, pred.right, pred.left_motion, pred.right_motion
             boxes.append(
                 (
                     _moved(tr.last.left_bbox_px, pl - tr.left_history[-1][1]),
@@ -337,7 +364,8 @@ class Tracker:
                 gate = p.gate_px + tr.image_speed_pxps * dt * 1e-9
             for i, d in enumerate(detections):
                 dist = max(
-                    float(np.linalg.norm(d.left_px - pl)), float(np.linalg.norm(d.right_px - pr))
+                    _to_segment(d.left_px, pl, pred.left_far),
+                    _to_segment(d.right_px, pr, pred.right_far),
                 )
                 if dist <= gate:
                     cost[i, j] = dist / gate
@@ -376,24 +404,33 @@ class Tracker:
                 may_start[i] = not _piece(d, detections, out, tracks)
         return out, may_start
 
-    def _predict_px(
-        self, tr: Track, t_left: int, t_right: int
-    ) -> tuple[np.ndarray, float, np.ndarray, float]:
+    def _predict_px(self, tr: Track, t_left: int, t_right: int) -> Prediction:
         """Where each eye should see a track at its capture instant (px), and how far that is
-        from where it last saw it (px)."""
+        from where it last saw it (px). A track whose filter runs: the filter's prediction
+        projected. Before that: its image velocity's lead, and with two positions, also the
+        line through them projected (a fast object's image motion speeds up, but its first
+        position may be off by the eyes' skew): it may be anywhere between the two."""
+        last_l, last_r = tr.left_history[-1][1], tr.right_history[-1][1]
         if self._project is not None and tr.started:
             accel = self._accel(tr.falling)
-            at_left = kalman.predict(tr.kf, t_left, 0.0, accel).position_m
-            at_right = kalman.predict(tr.kf, t_right, 0.0, accel).position_m
-            if at_left[2] > 0 and at_right[2] > 0:
-                pl = self._project(at_left[None, :])[0][0]
-                pr = self._project(at_right[None, :])[1][0]
-                ml = float(np.linalg.norm(pl - tr.left_history[-1][1]))
-                mr = float(np.linalg.norm(pr - tr.right_history[-1][1]))
-                return pl, ml, pr, mr
+            at = [kalman.position_at(tr.kf, t, accel) for t in (t_left, t_right)]
+            if at[0][2] > 0 and at[1][2] > 0:
+                pl = self._project(at[0][None, :])[0][0]
+                pr = self._project(at[1][None, :])[1][0]
+                return Prediction(pl, pl, pr, pr, _motion(pl, pl, last_l), _motion(pr, pr, last_r))
         pl, ml = predict_px(tr.left_history, t_left, self.WINDOW_NS)
         pr, mr = predict_px(tr.right_history, t_right, self.WINDOW_NS)
-        return pl, ml, pr, mr
+        pl2, pr2 = pl, pr
+        if self._project is not None and len(tr.positions) >= 2:
+            (t0, p0), (t1, p1) = tr.positions[-2], tr.positions[-1]
+            v = (p1 - p0) / ((t1 - t0) * 1e-9)
+            at_l, at_r = (p1 + v * ((t - t1) * 1e-9) for t in (t_left, t_right))
+            if at_l[2] > 0 and at_r[2] > 0:
+                pl2 = self._project(at_l[None, :])[0][0]
+                pr2 = self._project(at_r[None, :])[1][0]
+        return Prediction(
+            pl, pl2, pr, pr2, max(ml, _motion(pl2, pl2, last_l)), max(mr, _motion(pr2, pr2, last_r))
+        )
 
     def histories(self, track_id: int | None) -> tuple[EyeHistory, EyeHistory] | None:
         """A track's two eye histories (for skew compensation), None for no track."""

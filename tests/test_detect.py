@@ -246,3 +246,23 @@ def test_a_global_gain_is_followed_at_once(color: bool) -> None:
         found[gain] = sum(1 for e in extra if e)
     assert found[True] == 0
     assert found[False] > 10
+
+
+def test_hysteresis_keeps_the_weak_part_of_an_object_and_nothing_alone() -> None:
+    """A 20x20 square differs by 40 grey levels on its left half and by 15 on its right half
+    (nearly the wall's colour there); a separate 10x10 patch differs by 15 too. With the
+    hysteresis the whole square is one blob with its exact box, and the lone weak patch is
+    not an object; without it only the strong half is found."""
+    bg = np.full((80, 120), 100, np.uint8)
+    frame = bg.copy()
+    frame[30:50, 20:30] = 140
+    frame[30:50, 30:40] = 115
+    frame[30:40, 80:90] = 115
+    found = {}
+    for low in (0.5, 0.0):  # 12.5 of t = 25
+        det = Detector(DetectorParams(warmup_frames=1, hysteresis=low, color=False))
+        warm(det, bg, 1)
+        blobs = det.detect(frame)
+        found[low] = [tuple(int(v) for v in b) for b in blobs.bbox_px]
+    assert found[0.5] == [(20, 30, 20, 20)]
+    assert found[0.0] == [(20, 30, 10, 20)]
