@@ -23,6 +23,7 @@ Example::
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import typing
@@ -30,7 +31,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from . import keys
 from .detect import Centroid, DetectorParams, Luminance, Warmup
@@ -222,9 +223,20 @@ class TrackingConfig(_Section):
     stationary_mps: float = Field(
         _TRACK.stationary_mps, ge=0.0, description="Below this an object is stopped"
     )
+    gravity_mps2: tuple[float, float, float] = Field(
+        _TRACK.gravity_mps2,
+        description="Gravity in the rig frame (Y down in a level rig), m/s^2; [0, 0, 0]: off",
+    )
     freeze_background: bool = Field(
         _pipe("freeze_background"), description="Do not learn background under tracks"
     )
+
+    @field_validator("gravity_mps2")
+    @classmethod
+    def _gravity_finite(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        if not all(math.isfinite(c) and abs(c) <= 100.0 for c in v):
+            raise ValueError("each component must be finite and at most 100 m/s^2")
+        return v
 
     def params(self) -> TrackerParams:
         return TrackerParams(**self.model_dump(exclude={"freeze_background"}))

@@ -22,7 +22,8 @@ Beyond the paper, each one chosen by measurement on two renderers (README, Accur
   bright wall 10 % brighter differs from its background by more than ``t``. Each frame, the
   median ratio of frame to background over a sparse grid of background pixels is that gain,
   and the background is scaled by it before the difference, so eq. 3 only has to learn what
-  changed locally (``gain = false``: eq. 4 against T as learned).
+  changed locally (``gain = false``: eq. 4 against T as learned). A change that a gain does
+  not explain (what it leaves is more than noise) is left to the saturation rule below.
 - **Hysteresis.** A pixel whose difference is only above ``hysteresis`` times ``t`` is foreground
   when it lies next to one above ``t`` (grown by ``grow_px`` three times), as in an edge
   detector: the part of an object that nearly matches the background behind it stays in its
@@ -83,6 +84,9 @@ _GAIN_STEP = 12
 """Pixel step of the grid the global gain is measured on (1/144 of the pixels)."""
 _GAIN_MIN_LEVEL = 20.0
 """Background darker than this (grey levels) is left out of the gain: its ratio is noise."""
+_GAIN_MAX_MISFIT = 0.25
+"""A gain is taken only if the median |frame - gain * background| it leaves is at most this
+share of the threshold (sensor noise of a few grey levels passes; an offset of 40 does not)."""
 _GAIN_RESCALE = 0.01
 """A gain further than this from 1 scales the stored background itself."""
 
@@ -259,6 +263,7 @@ class Detector:
         self._seen = 0
         self._since = None
         self._roi = None
+        self.mask = None
         self._saturated_run = 0
 
     def detect(
@@ -340,11 +345,18 @@ class Detector:
         use = b > _GAIN_MIN_LEVEL
         if self.mask is not None and self.mask.shape == frame.shape[:2]:
             use &= self.mask[::_GAIN_STEP, ::_GAIN_STEP] == 0
-        ratio = f[use] / b[use]
-        if ratio.size < 32:
+        fs, bs = f[use], b[use]
+        if fs.size < 32:
             return 1.0
-        k = ratio.size // 2
-        return float(np.partition(ratio, k)[k])
+        k = fs.size // 2
+        g = float(np.partition(fs / bs, k)[k])
+        # A gain must explain the change: what is left must look like sensor noise. A light
+        # switched on unevenly, or a scene that changed, is not a gain: left alone, it
+        # saturates the frame and the background is learned afresh.
+        misfit = np.abs(fs - g * bs)
+        if float(np.partition(misfit, k)[k]) > _GAIN_MAX_MISFIT * self.params.threshold:
+            return 1.0
+        return g
 
     def _saturated(self) -> Blobs:
         self.saturated += 1

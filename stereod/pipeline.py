@@ -3,7 +3,7 @@
 detect both eyes (eq. 2-5) -> match blobs by row, disparity and size -> triangulate (eq. 9) ->
 associate with tracks -> skew compensation (each eye's centroid moved to one instant along its
 2D track) and triangulate again -> Kalman update -> background learning (eq. 3), frozen under
-tracked objects.
+tracked objects, which runs with the next pair's detection, in each eye's worker.
 
 The pipeline is pure computation on arrays: no threads of its own beyond an optional two-worker
 pool that detects both eyes at once (OpenCV releases the GIL), no Zenoh, no devices, no wire
@@ -67,7 +67,8 @@ class PipelineParams:
 
 @dataclass(frozen=True, slots=True)
 class Timings:
-    """Where the time of one pair went inside the pipeline (ms, wall clock)."""
+    """Where the time of one pair went inside the pipeline (ms, wall clock). ``detect_ms``
+    includes eq. 3 with the previous pair's frames (deferred to run in the eyes' workers)."""
 
     detect_ms: float
     geometry_ms: float
@@ -210,8 +211,10 @@ class Pipeline:
         pending, self._pending = self._pending, None
         if self._pool is not None:
             fut = self._pool.submit(self._eye, 1, pending, pair.right.image, pair.right.t_ns)
-            lb = self._eye(0, pending, pair.left.image, pair.left.t_ns)
-            rb = fut.result()
+            try:
+                lb = self._eye(0, pending, pair.left.image, pair.left.t_ns)
+            finally:  # never leave the right eye's detector running into the next pair
+                rb = fut.result()
         else:
             lb = self._eye(0, pending, pair.left.image, pair.left.t_ns)
             rb = self._eye(1, pending, pair.right.image, pair.right.t_ns)

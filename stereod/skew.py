@@ -15,7 +15,8 @@ through two samples misses it wherever Z changes fast (a ball thrown at the came
 seen at 15 Hz: 0.3 to 2 px of disparity, 4 to 14 % of its speed). With three frames of the
 eye whose samples move monotonically, the coordinate is the Moebius function through them
 (its cross-ratio with time is preserved), which then lies between the two bracketing samples;
-otherwise the straight line. Without the earlier frame (it was dropped), the eye's image
+otherwise, or when its motion per frame barely changed (the curve would only add the third
+sample's noise), the straight line. Without the earlier frame (it was dropped), the eye's image
 velocity over its 2D track moves it.
 
 This is the one stage every detection passes through, once, after it was associated with a
@@ -74,13 +75,19 @@ def at_instant(
     return None if v is None else shift_to(centroid_px, t_ns, v, target_ns)
 
 
+MOEBIUS_MIN_CHANGE_PX = 1.0
+"""How much a coordinate's motion per frame must change between the last two intervals (px)
+before the fractional-linear curve is used instead of the line: well above centroid noise."""
+
+
 def moebius(
     times_ns: tuple[int, int, int], centroids_px: tuple[np.ndarray, ...], target_ns: int
 ) -> np.ndarray:
     """Each coordinate of three centroids (2,) px taken at increasing ``times_ns``, evaluated
     at ``target_ns`` in [t1, t2] on the fractional-linear curve through them (exact for an
     object at constant 3D velocity); a coordinate whose samples do not move monotonically
-    (noise on a slow object) is interpolated linearly between the last two."""
+    (noise on a slow object), or whose motion per frame changed by at most
+    ``MOEBIUS_MIN_CHANGE_PX``, is interpolated linearly between the last two."""
     ta, tb, tc = times_ns
     w = (target_ns - tb) / (tc - tb)
     a, b, c = (np.asarray(x, dtype=np.float64) for x in centroids_px)
@@ -88,7 +95,10 @@ def moebius(
     # cross-ratio of the times: (t - ta)(tb - tc) / ((t - tc)(tb - ta)), finite since t < tc
     k = ((target_ns - ta) * (tb - tc)) / ((target_ns - tc) * (tb - ta))
     rise, run = b - a, c - b
-    curved = rise * run > 0.0
+    # The curve only where the image motion clearly changed between the two intervals (a
+    # third sample otherwise adds its noise and nothing else).
+    change = np.abs(run - rise * ((tc - tb) / (tb - ta)))
+    curved = (rise * run > 0.0) & (change > MOEBIUS_MIN_CHANGE_PX)
     den = run + k * rise
     ok = curved & (np.abs(den) > 1e-12)
     out[ok] = ((a * run + k * c * rise) / np.where(ok, den, 1.0))[ok]

@@ -1,9 +1,11 @@
-"""3D tracks with stable ids, a lifecycle and a constant-velocity Kalman filter.
+"""3D tracks with stable ids, a lifecycle and Kalman filters (moving straight, or falling).
 
 Association is done in the images, where skew cannot bias it: each track predicts where its
-object is in each eye at that eye's own capture instant (its last centroid moved along that
-eye's image velocity), and each stereo detection is assigned to the track it is nearest to in
-both eyes at once, globally (Hungarian algorithm), within a gate. A track with one observation
+object is in each eye at that eye's own capture instant (its filter's prediction projected
+into that eye; before the filter runs, its last centroid moved along that eye's image
+velocity, or the line through its first two positions projected), and each stereo detection
+is assigned to the track it is nearest to in both eyes at once, globally (Hungarian
+algorithm), within a gate. A track with one observation
 has no velocity yet; its gate is how far an object at ``max_speed_mps`` can move in the image at
 its depth (its disparity gives the pixels per metre), so an object as fast as a thrown ball is
 followed from its second frame. A detection that a live object's prediction explains in both
@@ -13,11 +15,14 @@ crossing, one hiding the other) updates neither: both coast until they part.
 The filter's measurement is each observation's triangulated position with its covariance, so
 depth noise growing as Z^2 (eq. 12) is weighted correctly. It starts at a track's second
 observation from the two positions, whose difference is its first velocity (eq. 21 over one
-frame); an observation far outside the filter's prediction re-opens its velocity uncertainty
-(a manoeuvre). Velocity, speed and heading come from the filter (eq. 22, 23 on its velocity);
-the paper's eq. 21 finite difference over ``time_base_s`` is kept beside them as the raw
-velocity. A velocity is valid once the track is confirmed and the speed's own sigma is small
-(``valid_speed_sigma_mps`` or ``valid_speed_sigma_rel`` of the speed, whichever is larger).
+frame); an observation far outside the filter's prediction widens the prediction until it
+is not (a fading memory). Beside the constant-velocity filter a free-fall one runs (gravity
+``gravity_mps2``), and the track reports whichever has explained its recent positions better:
+a thrown ball is followed along its arc. Velocity, speed and heading come from the filter
+(eq. 22, 23 on its velocity); the paper's eq. 21 finite difference over ``time_base_s`` is kept
+beside them as the raw velocity. A velocity is valid once the track is confirmed and the
+speed's own sigma is small (``valid_speed_sigma_mps`` or ``valid_speed_sigma_rel`` of the
+speed, whichever is larger).
 
 Lifecycle: ``tentative`` until ``confirm_hits`` observations and a running filter (two
 observations no faster than ``max_speed_mps`` apart), then ``confirmed``; a confirmed
@@ -409,28 +414,39 @@ class Tracker:
         from where it last saw it (px). A track whose filter runs: the filter's prediction
         projected. Before that: its image velocity's lead, and with two positions, also the
         line through them projected (a fast object's image motion speeds up, but its first
-        position may be off by the eyes' skew): it may be anywhere between the two."""
+        position may be off by the eyes' skew): it may be anywhere between the two. A track
+        last seen cut by the image's edge (its filter only predicted, its centroid moving with
+        the cut) may be anywhere between its filter's projection and its image velocity's
+        lead."""
         last_l, last_r = tr.left_history[-1][1], tr.right_history[-1][1]
+        far: tuple[np.ndarray, np.ndarray] | None = None
         if self._project is not None and tr.started:
             accel = self._accel(tr.falling)
             at = [kalman.position_at(tr.kf, t, accel) for t in (t_left, t_right)]
-            if at[0][2] > 0 and at[1][2] > 0:
-                pl = self._project(at[0][None, :])[0][0]
-                pr = self._project(at[1][None, :])[1][0]
+            far = self._projected(at[0], at[1])
+            if far is not None and not tr.last.clipped:
+                pl, pr = far
                 return Prediction(pl, pl, pr, pr, _motion(pl, pl, last_l), _motion(pr, pr, last_r))
-        pl, ml = predict_px(tr.left_history, t_left, self.WINDOW_NS)
-        pr, mr = predict_px(tr.right_history, t_right, self.WINDOW_NS)
-        pl2, pr2 = pl, pr
-        if self._project is not None and len(tr.positions) >= 2:
+        elif self._project is not None and len(tr.positions) >= 2:
             (t0, p0), (t1, p1) = tr.positions[-2], tr.positions[-1]
             v = (p1 - p0) / ((t1 - t0) * 1e-9)
             at_l, at_r = (p1 + v * ((t - t1) * 1e-9) for t in (t_left, t_right))
-            if at_l[2] > 0 and at_r[2] > 0:
-                pl2 = self._project(at_l[None, :])[0][0]
-                pr2 = self._project(at_r[None, :])[1][0]
+            far = self._projected(at_l, at_r)
+        pl, ml = predict_px(tr.left_history, t_left, self.WINDOW_NS)
+        pr, mr = predict_px(tr.right_history, t_right, self.WINDOW_NS)
+        pl2, pr2 = far if far is not None else (pl, pr)
         return Prediction(
             pl, pl2, pr, pr2, max(ml, _motion(pl2, pl2, last_l)), max(mr, _motion(pr2, pr2, last_r))
         )
+
+    def _projected(
+        self, at_left: np.ndarray, at_right: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Rig-frame positions (3,) m at each eye's instant projected into that eye (px);
+        ``None`` behind the cameras."""
+        if self._project is None or at_left[2] <= 0 or at_right[2] <= 0:
+            return None
+        return self._project(at_left[None, :])[0][0], self._project(at_right[None, :])[1][0]
 
     def histories(self, track_id: int | None) -> tuple[EyeHistory, EyeHistory] | None:
         """A track's two eye histories (for skew compensation), None for no track."""
@@ -616,7 +632,8 @@ class Tracker:
         two: eq. 21 over one frame. Without skew the first two whole observations do; with
         skew the first cannot be brought to one instant, and the filter starts one frame
         later rather than from a guessed position. Two observations further apart than
-        ``max_speed_mps`` allows are not one object moving: the newer one is kept instead."""
+        ``max_speed_mps`` allows (beyond three sigmas of their noise along the step) are not
+        one object moving: the newer one is kept instead."""
         p = self.params
         if ob.clipped or not tr.whole:
             tr.whole = not ob.clipped
@@ -631,10 +648,14 @@ class Tracker:
                 tr.first = (t_ns, ob)
             return
         t0, ob0 = tr.first
-        step = float(np.linalg.norm(ob.position_m - ob0.position_m))
-        if step > p.max_speed_mps * (t_ns - t0) * 1e-9:  # one of the two is a mismatch
+        delta = ob.position_m - ob0.position_m
+        step = float(np.linalg.norm(delta))
+        unit = delta / step if step > 0 else delta
+        noise = math.sqrt(max(float(unit @ (ob.cov_m2 + ob0.cov_m2) @ unit), 0.0))
+        if step > p.max_speed_mps * (t_ns - t0) * 1e-9 + 3.0 * noise:  # a mismatch
             tr.kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
             tr.first = (t_ns, ob)
+            tr.positions.clear()
             return
         tr.kf = kalman.initiate_two(ob0.position_m, ob0.cov_m2, t0, ob.position_m, ob.cov_m2, t_ns)
         tr.falling, tr.fall_evidence, tr.other = False, 0.0, None

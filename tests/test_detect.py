@@ -199,6 +199,27 @@ def test_coverage_centroid_beats_binary_on_subpixel_discs() -> None:
     assert coverage < 0.8 * binary, f"coverage {coverage:.3f} px vs binary {binary:.3f} px"
 
 
+def test_lights_up_by_an_offset_saturate_then_the_background_is_learned_again() -> None:
+    """The lights go up by 40 grey levels on a wall textured from 20 to 230: no gain explains
+    that (what the best gain leaves is 9 levels, well above sensor noise), so the frames are
+    saturated, counted, and after warmup_frames of them the background is learned afresh; an
+    object then is found alone."""
+    det = Detector(DetectorParams(warmup_frames=5))
+    flat = textured(60, 80, seed=2).astype(np.float32)
+    dark = ((flat - flat.min()) * (210.0 / np.ptp(flat)) + 20.0).astype(np.uint8)
+    for _ in range(5):
+        det.detect(dark)
+    bright = (dark.astype(np.int16) + 40).clip(0, 255).astype(np.uint8)
+    seen = [len(det.detect(bright)) for _ in range(6)]
+    assert seen == [0] * 6 and det.saturated == 6
+    for _ in range(5):
+        assert len(det.detect(bright)) == 0
+    obj = bright.copy()
+    obj[20:30, 30:40] = 255
+    blobs = det.detect(obj)
+    assert len(blobs) == 1 and tuple(blobs.bbox_px[0]) == (30, 20, 10, 10)
+
+
 def test_a_camera_knocked_saturates_then_the_background_is_learned_again() -> None:
     """The camera is knocked and sees another scene: most pixels are foreground and no global
     gain explains it. Such frames report no blobs and are counted; after warmup_frames of them

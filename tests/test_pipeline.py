@@ -181,3 +181,27 @@ def test_non_canonical_rig_with_recovered_calibration(
     assert abs(err) <= 1.0, f"heading {got:.2f} deg, truth {true_heading:.2f} deg"
     spd = float(np.median([o.speed_mps for o in valid]))
     assert spd == pytest.approx(speed, rel=0.03), f"speed {spd:.3f} m/s, truth {speed}"
+
+
+def test_a_reconfigured_pipeline_keeps_the_pending_background_update() -> None:
+    """Eq. 3 with a pair's frames runs when the next pair is detected; a reconfiguration in
+    between applies it before handing the backgrounds over, so the new pipeline's background
+    is the one an unbroken run has (to the last bit)."""
+    from stereod.frames import StereoPair
+    from stereod.pipeline import Pipeline
+    from stereod_fakes.synth import Renderer
+
+    scene = Scene(duration_s=1.2, balls=[Ball(heading_deg=90.0, speed_mps=0.5)])
+    pairs = [StereoPair(k, left, right) for k, (left, right) in enumerate(Renderer(scene).frames())]
+    params = PipelineParams(scene.rig)
+    whole = Pipeline(params)
+    for pair in pairs:
+        whole.process(pair)
+    split = Pipeline(params)
+    for pair in pairs[:-1]:
+        split.process(pair)
+    split, _ = split.reconfigured(dataclasses.replace(params, skew_window_s=0.3))
+    split.process(pairs[-1])
+    for a, b in ((whole.left, split.left), (whole.right, split.right)):
+        assert a.background is not None and b.background is not None
+        np.testing.assert_array_equal(a.background, b.background)

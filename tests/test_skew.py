@@ -56,6 +56,9 @@ def test_moebius_stays_between_the_bracketing_samples() -> None:
     assert got[0] == pytest.approx(10.3)  # x went up then down: the line
     assert 5.2 < got[1] < 9.0  # y rose ever faster: between the last two, nearer the start
     assert got[1] < 7.1
+    # motion that barely changes (0.5 then 0.9 px per frame): the line, not the curve
+    a, b, c = np.array([10.0, 0.0]), np.array([10.5, 0.0]), np.array([11.4, 0.0])
+    assert skew.moebius((0, 10, 20), (a, b, c), 15)[0] == pytest.approx(10.95)
 
 
 def depth_errors(compensate: bool, skew_s: float) -> np.ndarray:

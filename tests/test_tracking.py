@@ -348,3 +348,46 @@ def test_positions_too_far_apart_for_one_object_confirm_nothing() -> None:
         z = 1.5 if k % 2 == 0 else 6.5
         states, _ = step(tracker, k * DT_NS, [np.array([0.0, 0.0, z])])
         assert all(s.lifecycle is not TrackLifecycle.CONFIRMED for s in states), k
+
+
+def seen_cut(centre_m: np.ndarray, width_m: float = 0.5):
+    """An object ``width_m`` wide as the eyes see it when the image's left edge may cut it:
+    each eye's blob is the visible part (its centroid moves inward with the cut)."""
+    c = np.asarray(centre_m, float)
+    half = width_m / 2
+    edges = [RIG.project(np.array([[c[0] + s, c[1], c[2]]])) for s in (-half, half)]
+    eyes = []
+    for e in range(2):
+        x0, x1 = edges[0][e][0, 0], edges[1][e][0, 0]
+        y = edges[0][e][0, 1]
+        v0, v1 = max(x0, 0.0), min(x1, RIG.width_px - 1.0)
+        eyes.append((np.array([(v0 + v1) / 2, y]), np.array([v0, y - 20, v1 - v0, 40.0]), x0 < 0))
+    (lpx, lbox, lcut), (rpx, rbox, rcut) = eyes
+    clipped = lcut or rcut
+    pos, cov = RIG.triangulate(lpx[None, :], rpx[None, :], 0.3)
+    d = float(lpx[0] - rpx[0])
+    det = Detection(lpx, rpx, lbox, rbox, int(lbox[2] * 40), 30.0 * d / RIG.baseline_m, clipped)
+    ob = Observation(
+        position_m=pos[0], cov_m2=cov[0], left_px=lpx, right_px=rpx, left_image_px=lpx,
+        right_image_px=rpx, left_bbox_px=lbox, right_bbox_px=rbox, left_area_px=det.area_px,
+        right_area_px=det.area_px, disparity_px=d, size_m=width_m, clipped=clipped,
+    )  # fmt: skip
+    return det, ob
+
+
+def test_an_object_cut_by_the_image_edge_keeps_its_id() -> None:
+    """A robot 0.5 m wide, 2 m away, walks at 0.5 m/s until the left edge cuts it, stands
+    half out of view, and walks back: one track all along (its cut centroid drifts away from
+    the filter's prediction, which is only predicted while it is cut)."""
+    tracker = Tracker(TrackerParams(), RIG.project)
+    ids = set()
+    x = -0.2
+    for k in range(150):
+        v = -0.5 if k < 60 else (0.0 if k < 75 else 0.5)
+        x += v * DT_NS * 1e-9
+        det, ob = seen_cut(np.array([x, 0.2, 2.0]))
+        assignment, may_start = tracker.associate([det], (k * DT_NS, k * DT_NS))
+        obs = [ob if (assignment[0] is not None or may_start[0]) else None]
+        states, _ = tracker.update(k * DT_NS, obs, assignment, (k * DT_NS, k * DT_NS), [det])
+        ids |= {s.track_id for s in states if s.lifecycle is TrackLifecycle.CONFIRMED}
+    assert ids == {1}, ids
