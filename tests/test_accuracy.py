@@ -39,6 +39,20 @@ def test_two_balls_crossing_keep_their_ids() -> None:
     check(acc.score(case, acc.run_case(case)))
 
 
+def test_a_cylinder_robot_partly_the_colour_of_the_wall() -> None:
+    case = acc.world_preset("robot_cylinder", MODE, seed=0)
+    check(acc.score(case, acc.run_case(case)))
+
+
+def test_a_ball_thrown_at_the_rig_at_10_mps() -> None:
+    """Coming at the rig, the ball speeds up in the images and falls 5 mm a frame: the later
+    eye is interpolated along the projection and the track follows the free-fall model."""
+    case = acc.world_preset("fast_ball", MODE, seed=0, direction="radial", speed_mps=10.0)
+    score = acc.score(case, acc.run_case(case))
+    check(score)
+    assert score.objects[0].first_tracked is not None and score.objects[0].first_tracked <= 2
+
+
 def test_a_ball_thrown_across_at_20_mps_is_tracked_from_its_second_frame() -> None:
     case = acc.world_preset("fast_ball", MODE, seed=0, direction="lateral", speed_mps=20.0)
     score = acc.score(case, acc.run_case(case))
