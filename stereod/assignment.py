@@ -27,6 +27,10 @@ def min_cost_assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n, m = c.shape
     if n == 0 or m == 0:
         return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    if n == 1:  # one object or one track, the usual case: the cheapest partner
+        return np.zeros(1, np.intp), np.array([int(np.argmin(c[0]))], np.intp)
+    if m == 1:
+        return np.array([int(np.argmin(c[:, 0]))], np.intp), np.zeros(1, np.intp)
     if n > m:
         cols, rows = min_cost_assignment(c.T)
         order = np.argsort(rows)

@@ -45,6 +45,7 @@ and after ``warmup_frames`` such frames in a row the background is learned afres
 from __future__ import annotations
 
 import enum
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -79,6 +80,9 @@ class Warmup(str, enum.Enum):
     MEAN = "mean"
     """Running mean: the average of the frames."""
 
+
+Rect = tuple[int, int, int, int]
+"""A rectangle of an image (x0, y0, x1, y1) px, the end exclusive."""
 
 _GAIN_STEP = 12
 """Pixel step of the grid the global gain is measured on (1/144 of the pixels)."""
@@ -207,11 +211,16 @@ class Detector:
         self._t0_ns: int | None = None
         self._since: np.ndarray | None = None
         """When each pixel was last background (s), kept up to date inside ``_held_roi``."""
-        self._allowed: np.ndarray | None = None
-        self._held_roi: tuple[int, int, int, int] | None = None
-        self._roi: tuple[int, int, int, int] | None = None
-        """The rectangle (x0, y0, x1, y1) around this frame's foreground, grown by what the
-        morphology and the hold can reach; ``None`` when nothing is foreground."""
+        self._held_roi: Rect | None = None
+        self._roi: Rect | None = None
+        """The rectangle around this frame's foreground, grown by what the morphology and the
+        hold can reach; ``None`` when nothing is foreground."""
+        self._part: np.ndarray | None = None
+        """This frame's foreground bitmap inside ``_roi`` (uint8, 0 or 255): everything of M
+        that is not zero, so no whole-frame bitmap is made unless :attr:`mask` is asked for."""
+        self._shape: tuple[int, int] | None = None
+        """(h, w) px of the frame M belongs to; ``None`` before M exists."""
+        self._mask: np.ndarray | None = None
         m = 3 * params.grow_px + params.open_px + params.close_px + 2 * params.hold_margin_px
         self._margin = m + 2
         self._open = _kernel(params.open_px)
@@ -222,9 +231,6 @@ class Detector:
         self._low_u8 = float(math.ceil(low) - 1)
         self._thresh_u8 = float(math.ceil(params.threshold) - 1)
         """d >= t on integer grey levels is d > ceil(t) - 1 (THRESH_BINARY is strict)."""
-        self.mask: np.ndarray | None = None
-        """The last foreground bitmap M of eq. 4 (uint8, 0 or 255), after opening and closing;
-        a new array each frame, never modified afterwards (overlays may hold it)."""
         self.diff: np.ndarray | None = None
         """The last difference image R of eq. 4 (uint8), a new array each frame."""
         self.saturated = 0
@@ -234,6 +240,20 @@ class Detector:
     @property
     def warming_up(self) -> bool:
         return self._seen < self.params.warmup_frames
+
+    @property
+    def mask(self) -> np.ndarray | None:
+        """The last foreground bitmap M of eq. 4 (uint8 (h, w), 0 or 255), after opening and
+        closing; ``None`` before the first detection. Made on demand (the detector itself
+        works on the rectangle around the foreground), a new array each frame, never
+        modified afterwards (overlays may hold it)."""
+        if self._mask is None and self._shape is not None:
+            mask = np.zeros(self._shape, np.uint8)
+            if self._roi is not None and self._part is not None:
+                x0, y0, x1, y1 = self._roi
+                mask[y0:y1, x0:x1] = self._part
+            self._mask = mask
+        return self._mask
 
     @property
     def background(self) -> np.ndarray | None:
@@ -250,9 +270,8 @@ class Detector:
                 self._background = other._background.copy()
             self._seen = self.params.warmup_frames
             self._t0_ns = other._t0_ns
-            if other._since is not None and other._allowed is not None:
+            if other._since is not None:
                 self._since = other._since.copy()
-                self._allowed = other._allowed.copy()
                 self._held_roi = other._held_roi
 
     def reset(self) -> None:
@@ -262,19 +281,17 @@ class Detector:
         self._warm = []
         self._seen = 0
         self._since = None
-        self._roi = None
-        self.mask = None
+        self._held_roi = None
+        self._set_foreground(None, None, None)
         self._saturated_run = 0
 
-    def detect(
-        self, image: np.ndarray, update_mask: np.ndarray | None = None, t_ns: int = 0
-    ) -> Blobs:
+    def detect(self, image: np.ndarray, frozen: Sequence[Rect] = (), t_ns: int = 0) -> Blobs:
         """Find moving blobs in one frame, then update the background (eq. 2-5).
 
-        ``update_mask`` (h, w) uint8, non-zero where eq. 3 may update T; ``None`` updates all.
+        ``frozen``: rectangles (x0, y0, x1, y1 px, end exclusive) where eq. 3 must not update T.
         """
         blobs = self.find(image, t_ns)
-        self.learn(update_mask)
+        self.learn(frozen)
         return blobs
 
     def _prepare(self, image: np.ndarray) -> np.ndarray:
@@ -282,6 +299,11 @@ class Detector:
         if self.params.color and image.ndim == 3:
             return image
         return luminance(image, self.params.luminance)
+
+    def _set_foreground(
+        self, shape: tuple[int, int] | None, roi: Rect | None, part: np.ndarray | None
+    ) -> None:
+        self._shape, self._roi, self._part, self._mask = shape, roi, part, None
 
     def find(self, image: np.ndarray, t_ns: int = 0) -> Blobs:
         """Eq. 2, 4 and 5 against the current background at capture instant ``t_ns`` (ns);
@@ -297,24 +319,25 @@ class Detector:
             bg = None
         if bg is None or self.warming_up:
             return Blobs.empty()
-        g = self._gain(frame, bg) if self.params.gain else 1.0
-        if abs(g - 1.0) > _GAIN_RESCALE:
-            np.multiply(bg, np.float32(g), out=bg)  # rare: the light changed; learn at the new gain
-            g = 1.0
-        self._bg8 = cv2.convertScaleAbs(bg, dst=self._bg8, alpha=g)
-        diff = cv2.absdiff(frame, self._bg8)
+        bg8 = self._bg8 = cv2.convertScaleAbs(bg, dst=self._bg8)
+        diff = cv2.absdiff(frame, bg8)
+        g = self._gain(frame, bg8) if self.params.gain else 1.0
+        if abs(g - 1.0) * 255.0 >= 0.5:  # a gain that moves a grey level by half: against g T
+            if abs(g - 1.0) > _GAIN_RESCALE:  # the light changed: learn at the new gain
+                np.multiply(bg, np.float32(g), out=bg)
+                g = 1.0
+            diff = cv2.absdiff(frame, cv2.convertScaleAbs(bg, dst=bg8, alpha=g))
         if diff.ndim == 3:
             diff = cv2.transform(diff, _MEAN_RGB)
         self.diff = diff
-        _, raw = cv2.threshold(diff, self._thresh_u8, 255, cv2.THRESH_BINARY)
-        mask = np.zeros_like(raw)
-        self.mask = mask
-        self._roi = roi = _grown_rect(cv2.boundingRect(raw), self._margin, raw.shape)
-        if roi is None:  # nothing moved: no morphology, no contours
+        shape = (diff.shape[0], diff.shape[1])
+        self._roi = roi = _grown_rect(_above(diff, self._thresh_u8), self._margin, shape)
+        if roi is None:  # nothing moved: no bitmap, no morphology, no contours
+            self._set_foreground(shape, None, None)
             self._saturated_run = 0
             return Blobs.empty()
         x0, y0, x1, y1 = roi
-        part = raw[y0:y1, x0:x1]
+        _, part = cv2.threshold(diff[y0:y1, x0:x1], self._thresh_u8, 255, cv2.THRESH_BINARY)
         if self._grow is not None:
             _, weak = cv2.threshold(diff[y0:y1, x0:x1], self._low_u8, 255, cv2.THRESH_BINARY)
             for _ in range(3):
@@ -323,8 +346,8 @@ class Detector:
             part = cv2.morphologyEx(part, cv2.MORPH_OPEN, self._open)
         if self._close is not None:
             part = cv2.morphologyEx(part, cv2.MORPH_CLOSE, self._close)
-        mask[y0:y1, x0:x1] = part
-        if cv2.countNonZero(part) > self.params.max_foreground * mask.size:
+        self._set_foreground(shape, roi, part)
+        if cv2.countNonZero(part) > self.params.max_foreground * shape[0] * shape[1]:
             return self._saturated()
         contours, _ = cv2.findContours(
             part, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x0, y0)
@@ -332,29 +355,37 @@ class Detector:
         if len(contours) > self.params.max_blobs:
             return self._saturated()
         self._saturated_run = 0
-        return self._blobs(contours, mask, diff)
+        return self._blobs(contours, part, (x0, y0), diff)
 
-    def _gain(self, frame: np.ndarray, bg: np.ndarray) -> float:
+    def _gain(self, frame: np.ndarray, bg8: np.ndarray) -> float:
         """Median of frame / background over every ``_GAIN_STEP``-th pixel each way that was
-        background in the last frame and is not dark: the global gain, 1.0 when unknown."""
-        f = frame[::_GAIN_STEP, ::_GAIN_STEP].astype(np.float32)
-        b = bg[::_GAIN_STEP, ::_GAIN_STEP]
+        background in the last frame and is not dark: the global gain, 1.0 when unknown. The
+        background is ``bg8``, T rounded to grey levels as eq. 4 has just used it (still in the
+        cache, where the float32 T no longer is; rounding moves a ratio by at most 2.5 % at the
+        darkest level counted, 0.5 % at mid-grey, and evenly both ways)."""
+        s = _GAIN_STEP
+        f = frame[::s, ::s].astype(np.float32)
+        b = bg8[::s, ::s].astype(np.float32)
         if f.ndim == 3:
             f, b = f.sum(axis=2), b.sum(axis=2) / 3.0
             f /= 3.0
         use = b > _GAIN_MIN_LEVEL
-        if self.mask is not None and self.mask.shape == frame.shape[:2]:
-            use &= self.mask[::_GAIN_STEP, ::_GAIN_STEP] == 0
+        if self._roi is not None and self._part is not None and self._shape == frame.shape[:2]:
+            # the grid points inside the last foreground's rectangle that were foreground
+            x0, y0, x1, y1 = self._roi
+            gx, gy = -(-x0 // s), -(-y0 // s)
+            fg = self._part[gy * s - y0 :: s, gx * s - x0 :: s] > 0
+            use[gy : gy + fg.shape[0], gx : gx + fg.shape[1]] &= ~fg
         fs, bs = f[use], b[use]
         if fs.size < 32:
             return 1.0
-        k = fs.size // 2
-        g = float(np.partition(fs / bs, k)[k])
+        k = fs.size // 2  # numpy's vectorised sort beats its partition on these few points
+        g = float(np.sort(fs / bs)[k])
         # A gain must explain the change: what is left must look like sensor noise. A light
         # switched on unevenly, or a scene that changed, is not a gain: left alone, it
         # saturates the frame and the background is learned afresh.
         misfit = np.abs(fs - g * bs)
-        if float(np.partition(misfit, k)[k]) > _GAIN_MAX_MISFIT * self.params.threshold:
+        if float(np.sort(misfit)[k]) > _GAIN_MAX_MISFIT * self.params.threshold:
             return 1.0
         return g
 
@@ -365,14 +396,13 @@ class Detector:
             self.reset()  # the scene changed for good: learn it again
         return Blobs.empty()
 
-    def learn(
-        self, update_mask: np.ndarray | None = None, release_mask: np.ndarray | None = None
-    ) -> None:
+    def learn(self, frozen: Sequence[Rect] = (), released: Sequence[Rect] = ()) -> None:
         """Eq. 3 with the frame last given to :meth:`find`: during warm-up the frames are kept
-        for the initial background, then T = T (1 - beta) + L beta where allowed: where
-        ``update_mask`` allows (not under objects the tracker freezes), and not on held
-        foreground unless ``release_mask`` says so (an object the tracker knows has stopped
-        for good)."""
+        for the initial background, then T = T (1 - beta) + L beta where allowed: not in the
+        ``frozen`` rectangles (objects the tracker freezes), and not on held foreground unless
+        in a ``released`` one (an object the tracker knows has stopped for good). Rectangles
+        are (x0, y0, x1, y1) px, end exclusive. Eq. 3 runs on the whole frame at once and what
+        it must not have changed is put back, rectangle by rectangle."""
         frame = self._frame
         if frame is None:
             return
@@ -381,13 +411,32 @@ class Detector:
         if self.warming_up:
             self._warmup(frame)
             return
-        assert self._background is not None
-        allowed = self._held() if p.hold_foreground else None
-        if allowed is not None and release_mask is not None:
-            allowed = cv2.bitwise_or(allowed, release_mask)
-        if update_mask is not None:
-            allowed = update_mask if allowed is None else cv2.bitwise_and(allowed, update_mask)
-        cv2.accumulateWeighted(frame, self._background, p.beta, mask=allowed)
+        bg = self._background
+        assert bg is not None
+        h, w = bg.shape[:2]
+        held = self._held() if p.hold_foreground else None
+        boxes = [r for r in (_clipped(b, w, h) for b in frozen) if r is not None]
+        if held is None and not boxes:
+            cv2.accumulateWeighted(frame, bg, p.beta)
+            return
+        rects = boxes + ([held[0]] if held is not None else [])
+        ux0, uy0 = min(r[0] for r in rects), min(r[1] for r in rects)
+        ux1, uy1 = max(r[2] for r in rects), max(r[3] for r in rects)
+        keep = np.zeros((uy1 - uy0, ux1 - ux0), np.uint8)
+        """255 where T must stay as it is."""
+        if held is not None:
+            (x0, y0, x1, y1), allowed = held
+            for r in released:
+                c = _clipped(r, x1, y1, x0, y0)
+                if c is not None:
+                    allowed[c[1] - y0 : c[3] - y0, c[0] - x0 : c[2] - x0] = 255
+            keep[y0 - uy0 : y1 - uy0, x0 - ux0 : x1 - ux0] = cv2.bitwise_not(allowed)
+        for x0, y0, x1, y1 in boxes:
+            keep[y0 - uy0 : y1 - uy0, x0 - ux0 : x1 - ux0] = 255
+        region = bg[uy0:uy1, ux0:ux1]
+        before = region.copy()
+        cv2.accumulateWeighted(frame, bg, p.beta)
+        cv2.copyTo(before, keep, region)  # in place: ``region`` is a view of T
 
     def _warmup(self, frame: np.ndarray) -> None:
         p = self.params
@@ -409,47 +458,51 @@ class Detector:
         else:
             cv2.accumulateWeighted(frame, self._background, 1.0 / self._seen)
 
-    def _held(self) -> np.ndarray:
-        """Where eq. 3 may learn (uint8 255): outside the grown foreground, and where the
-        foreground has stayed ``absorb_s`` seconds (it is still: make it background). Only the
-        rectangle around this frame's foreground is computed; everything else is free."""
-        mask = self.mask
-        assert mask is not None
-        if self._since is None or self._since.shape != mask.shape:
-            self._since = np.full(mask.shape, self._t_s, np.float32)
-            self._allowed = np.full(mask.shape, 255, np.uint8)
+    def _held(self) -> tuple[Rect, np.ndarray] | None:
+        """Inside the rectangle around this frame's foreground, where eq. 3 may learn (uint8
+        255): outside the grown foreground, and where the foreground has stayed ``absorb_s``
+        seconds (it is still: make it background). Outside it everything may; ``None`` when
+        nothing is foreground."""
+        shape = self._shape
+        assert shape is not None
+        if self._since is None or self._since.shape != shape:
+            self._since = np.full(shape, self._t_s, np.float32)
             self._held_roi = None
-        assert self._allowed is not None
-        allowed, prev = self._allowed, self._held_roi
-        if prev is not None:
-            px0, py0, px1, py1 = prev
-            allowed[py0:py1, px0:px1] = 255
-        roi = self._roi
+        prev, roi = self._held_roi, self._roi
         self._held_roi = roi
-        if roi is None:
-            return allowed
+        if roi is None or self._part is None:
+            return None
         x0, y0, x1, y1 = roi
-        sub = mask[y0:y1, x0:x1]
+        sub = self._part
         grown = cv2.dilate(sub, self._hold) if self._hold is not None else sub
         since = self._since[y0:y1, x0:x1]
         now = np.float32(self._t_s)
+        stamp = np.full(sub.shape, now, np.float32)
         # What lay outside the last rectangle was background in the last frame.
         if prev is None:
             since.fill(now)
         else:
-            kept = np.zeros(sub.shape, np.uint8)
+            px0, py0, px1, py1 = prev
+            fresh = np.full(sub.shape, 255, np.uint8)
             kx0, ky0 = max(px0 - x0, 0), max(py0 - y0, 0)
             kx1, ky1 = min(px1 - x0, x1 - x0), min(py1 - y0, y1 - y0)
             if kx1 > kx0 and ky1 > ky0:
-                kept[ky0:ky1, kx0:kx1] = 255
-            since[kept == 0] = now
+                fresh[ky0:ky1, kx0:kx1] = 0
+            cv2.copyTo(stamp, fresh, since)  # in place: ``since`` is a view of the whole
         free = cv2.bitwise_not(grown)
-        since[free > 0] = now  # foreground since: now, where not foreground
+        cv2.copyTo(stamp, free, since)  # foreground since: now, where not foreground
         stale = cv2.compare(since, np.float64(self._t_s - self.params.absorb_s), cv2.CMP_LT)
-        allowed[y0:y1, x0:x1] = cv2.bitwise_or(free, stale)
-        return allowed
+        return roi, cv2.bitwise_or(free, stale)
 
-    def _blobs(self, contours: Sequence[np.ndarray], mask: np.ndarray, diff: np.ndarray) -> Blobs:
+    def _blobs(
+        self,
+        contours: Sequence[np.ndarray],
+        part: np.ndarray,
+        origin: tuple[int, int],
+        diff: np.ndarray,
+    ) -> Blobs:
+        """Each object's support, centre, box and area; ``part`` is M inside the foreground's
+        rectangle, at ``origin`` (x, y px) of the image."""
         p = self.params
         centres, boxes, areas, supports = [], [], [], []
         for group in _groups(contours, p.merge_gap):
@@ -461,7 +514,8 @@ class Detector:
             outlines = [cv2.convexHull(points)] if p.convex else list(group)
             cv2.drawContours(own, outlines, -1, 255, -1, offset=(-x, -y))
             if not p.fill_holes:
-                own = cv2.bitwise_and(own, mask[y : y + bh, x : x + bw])
+                px, py = x - origin[0], y - origin[1]
+                own = cv2.bitwise_and(own, part[py : py + bh, px : px + bw])
             area = cv2.countNonZero(own)
             if area < p.min_area_px:
                 continue
@@ -484,9 +538,29 @@ class Detector:
         )
 
 
-def _grown_rect(
-    rect: Sequence[int], margin: int, shape: tuple[int, ...]
-) -> tuple[int, int, int, int] | None:
+def _above(diff: np.ndarray, level: float) -> tuple[int, int, int, int]:
+    """The bounding box (x, y, w, h px) of the pixels of ``diff`` above ``level``, (0, 0, 0, 0)
+    when there are none: the columns' maxima give its sides, and the bitmap of only the
+    columns between them its top and bottom (no whole-frame bitmap)."""
+    cols = diff.max(axis=0) > level
+    x0 = int(cols.argmax())
+    if not cols[x0]:
+        return (0, 0, 0, 0)
+    x1 = cols.size - int(cols[::-1].argmax())
+    _, slab = cv2.threshold(diff[:, x0:x1], level, 255, cv2.THRESH_BINARY)
+    _, y, _, h = cv2.boundingRect(slab)
+    return (x0, y, x1 - x0, h)
+
+
+def _clipped(rect: Sequence[int], x1: int, y1: int, x0: int = 0, y0: int = 0) -> Rect | None:
+    """A rectangle (x0, y0, x1, y1 px) cut to the window [x0, x1) x [y0, y1); ``None`` if
+    nothing is left."""
+    cx0, cy0 = max(int(rect[0]), x0), max(int(rect[1]), y0)
+    cx1, cy1 = min(int(rect[2]), x1), min(int(rect[3]), y1)
+    return (cx0, cy0, cx1, cy1) if cx1 > cx0 and cy1 > cy0 else None
+
+
+def _grown_rect(rect: Sequence[int], margin: int, shape: tuple[int, ...]) -> Rect | None:
     """A rectangle (x, y, w, h) grown by ``margin`` px and clipped to the image, as (x0, y0,
     x1, y1); ``None`` for an empty one."""
     x, y, w, h = rect
@@ -537,6 +611,14 @@ def _groups(contours: Sequence[np.ndarray], gap: float) -> list[list[np.ndarray]
 _RING = np.ones((3, 3), np.uint8)
 
 
+@functools.lru_cache(maxsize=8)
+def _ramp(threshold: float) -> np.ndarray:
+    """The edge weight of each difference d = 0..255 (float32): (d - t/2) / t clipped to
+    [0, 1], so 0 below t/2 and 1 from 3t/2."""
+    d = np.arange(256, dtype=np.float32)
+    return np.clip((d - 0.5 * threshold) * (1.0 / threshold), 0.0, 1.0).astype(np.float32)
+
+
 def coverage_centroid(
     support: np.ndarray, diff: np.ndarray, origin: tuple[int, int], threshold: float
 ) -> tuple[float, float]:
@@ -555,9 +637,8 @@ def coverage_centroid(
     own[y - y0 : y - y0 + bh, x - x0 : x - x0 + bw] = support
     inner = cv2.erode(own, _RING)
     band = cv2.dilate(own, _RING)
-    d = diff[y0:y1, x0:x1].astype(np.float32)
-    soft = np.clip((d - 0.5 * threshold) * (1.0 / threshold), 0.0, 1.0)
-    weight = np.where(inner > 0, 1.0, np.where(band > 0, soft, 0.0)).astype(np.float32)
+    weight = cv2.LUT(cv2.bitwise_and(diff[y0:y1, x0:x1], band), _ramp(threshold))
+    cv2.copyTo(np.ones(weight.shape, np.float32), inner, weight)
     m = cv2.moments(weight)
     if m["m00"] <= 0:
         return (x + (bw - 1) / 2.0, y + (bh - 1) / 2.0)

@@ -19,23 +19,34 @@ H = np.hstack([np.eye(3), np.zeros((3, 3))])
 """Measurement matrix: the position part of the state, (3, 6)."""
 
 
+_EYE6 = np.eye(6)
+_POS_VEL = (np.arange(3), np.arange(3, 6))
+"""Indices of F's position-from-velocity entries."""
+
+
 def transition(dt_s: float) -> np.ndarray:
     """F (6, 6): p' = p + v dt, v' = v."""
-    f = np.eye(6)
-    f[0:3, 3:6] = dt_s * np.eye(3)
+    f = _EYE6.copy()
+    f[_POS_VEL] = dt_s
     return f
 
 
-_PP = np.kron(np.array([[1.0, 0.0], [0.0, 0.0]]), np.eye(3))
-_PV = np.kron(np.array([[0.0, 1.0], [1.0, 0.0]]), np.eye(3))
-_VV = np.kron(np.array([[0.0, 0.0], [0.0, 1.0]]), np.eye(3))
+_NOISE_BASIS = np.stack(
+    [
+        np.kron(np.array([[1.0, 0.0], [0.0, 0.0]]), np.eye(3)),
+        np.kron(np.array([[0.0, 1.0], [1.0, 0.0]]), np.eye(3)),
+        np.kron(np.array([[0.0, 0.0], [0.0, 1.0]]), np.eye(3)),
+    ],
+    axis=-1,
+)
+"""(6, 6, 3): where Q's position, cross and velocity terms go."""
 
 
 def process_noise(dt_s: float, q: float) -> np.ndarray:
     """Q (6, 6) of a white-noise acceleration of spectral density ``q`` (m^2/s^3) over ``dt_s``:
     q dt^3 / 3 on positions, q dt^2 / 2 between position and velocity, q dt on velocities."""
     dt2 = dt_s * dt_s
-    return _PP * (q * dt2 * dt_s / 3.0) + _PV * (q * dt2 / 2.0) + _VV * (q * dt_s)
+    return _NOISE_BASIS @ np.array([q * dt2 * dt_s / 3.0, q * dt2 / 2.0, q * dt_s])
 
 
 @dataclass
@@ -104,6 +115,23 @@ def inflate_velocity(s: KalmanState, sigma_mps: float) -> KalmanState:
     return KalmanState(s.x.copy(), p, s.t_ns)
 
 
+def inverse3(m: np.ndarray) -> tuple[np.ndarray, float]:
+    """The inverse and the determinant of a (3, 3) matrix by cofactors: a covariance's, a few
+    times per track and pair, where a general solver's set-up costs more than the arithmetic.
+    Raises ``np.linalg.LinAlgError`` for a singular matrix."""
+    (a, b, c), (d, e, f), (g, h, i) = m.tolist()
+    c0, c1, c2 = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * c0 + b * c1 + c * c2
+    if det == 0.0 or not math.isfinite(det):
+        raise np.linalg.LinAlgError(f"singular 3x3 matrix (determinant {det})")
+    adj = [
+        [c0, c * h - b * i, b * f - c * e],
+        [c1, a * i - c * g, c * d - a * f],
+        [c2, b * g - a * h, a * e - b * d],
+    ]
+    return np.array(adj) * (1.0 / det), det
+
+
 def innovation(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """y = z - H x (3,) and S = H P H' + R (3, 3)."""
     y = np.asarray(z_m, float) - s.x[:3]
@@ -113,25 +141,28 @@ def innovation(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> tuple[np.nd
 def mahalanobis2(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:
     """Squared Mahalanobis distance y' S^-1 y of a measurement from the state (chi^2, 3 dof)."""
     y, cov = innovation(s, z_m, r_m2)
-    return float(y @ np.linalg.solve(cov, y))
+    return float(y @ inverse3(cov)[0] @ y)
 
 
 def log_likelihood(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:
     """Log of the Gaussian density of measurement ``z_m`` under the state's prediction:
     -(y' S^-1 y + log det S + 3 log 2 pi) / 2; comparing two models' sums picks the likelier."""
     y, cov = innovation(s, z_m, r_m2)
-    sign, logdet = np.linalg.slogdet(cov)
-    if sign <= 0:
+    try:
+        inv, det = inverse3(cov)
+    except np.linalg.LinAlgError:
         return -math.inf
-    return -0.5 * (float(y @ np.linalg.solve(cov, y)) + logdet + 3.0 * math.log(2.0 * math.pi))
+    if det <= 0:
+        return -math.inf
+    return -0.5 * (float(y @ inv @ y) + math.log(det) + 3.0 * math.log(2.0 * math.pi))
 
 
 def update(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> KalmanState:
     """Fold in a position: K = P H' S^-1, x = x + K y, P = (I - K H) P (I - K H)' + K R K'."""
     y, cov = innovation(s, z_m, r_m2)
-    k = np.linalg.solve(cov, s.P[:3, :]).T
+    k = s.P[:, :3] @ inverse3(cov)[0]  # P H' S^-1; P is symmetric
     x = s.x + k @ y
-    ikh = np.eye(6) - k @ H
+    ikh = _EYE6 - k @ H
     p = ikh @ s.P @ ikh.T + k @ r_m2 @ k.T
     return KalmanState(x, 0.5 * (p + p.T), s.t_ns)
 

@@ -17,11 +17,10 @@ from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
-import cv2
 import numpy as np
 
 from . import skew
-from .detect import Blobs, Detector, DetectorParams
+from .detect import Blobs, Detector, DetectorParams, Rect
 from .frames import Frame, StereoPair
 from .geometry.rectified import CalibratedRig
 from .geometry.refine import RefineParams, refine_match
@@ -30,6 +29,12 @@ from .pairing import DEFAULT_TOLERANCE_NS, Pairer
 from .tracking import Detection, Observation, Tracker, TrackerParams, TrackState
 
 FREEZE_MARGIN_PX = 4
+PARALLEL_MIN_PX = 500_000
+"""The smallest frame (px) whose two eyes are worth detecting on two threads. Handing an eye
+to another thread and back costs about 60 us a pair on two cores, and the two threads then
+contend for the interpreter lock between OpenCV calls; measured with
+``benchmarks/throughput.py``, that costs more than the overlap saves at 640x480 (0.31 Mpx) and
+gains 10-15 % at 1280x720 (0.92 Mpx)."""
 """Margin (px) around a tracked blob's box where the background is not learned either."""
 
 
@@ -40,7 +45,9 @@ class PipelineParams:
     ``rig``: the geometry (:class:`CanonicalRig` from a baseline and a field of view, or
     :class:`CalibratedRig` from a calibration file); its image size must be the frames'.
     ``centroid_sigma_px``: assumed centroid error per axis (px), the source of every covariance.
-    ``detect_workers``: 2 detects the two eyes on two threads (OpenCV releases the GIL).
+    ``detect_workers``: 2 detects the two eyes on two threads (OpenCV releases the GIL) when
+    a frame has at least ``PARALLEL_MIN_PX`` pixels; smaller frames are detected on the
+    calling thread alone, which is faster for them.
     ``skew_compensation``: move both eyes' centroids to one instant before triangulating.
     ``skew_window_s``: how much of an eye's 2D track (s) its image velocity is fitted over, and
     how old its oldest of three frames may be for the projective interpolation.
@@ -100,20 +107,15 @@ class PairResult:
     row_residuals_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-Learning = tuple[tuple[np.ndarray | None, np.ndarray | None], ...]
-"""Per eye, the (update_mask, release_mask) of :meth:`stereod.detect.Detector.learn`."""
+Learning = tuple[tuple[list[Rect], list[Rect]], ...]
+"""Per eye, the (frozen, released) rectangles of :meth:`stereod.detect.Detector.learn`."""
 
 
-def _boxes_mask(boxes: list[np.ndarray], shape: tuple[int, ...], inside: int) -> np.ndarray:
-    """A uint8 (h, w) mask that is ``inside`` in the boxes (x, y, w, h px, grown by
-    ``FREEZE_MARGIN_PX``) and the other of 0 and 255 elsewhere."""
-    mask = np.full(shape[:2], 255 - inside, np.uint8)
+def _grown_box(bbox: np.ndarray) -> Rect:
+    """A blob's box (x, y, w, h px) grown by ``FREEZE_MARGIN_PX`` as (x0, y0, x1, y1)."""
+    x, y, w, h = (int(v) for v in bbox)
     m = FREEZE_MARGIN_PX
-    for x, y, bw, bh in boxes:
-        p0 = (int(x) - m, int(y) - m)
-        p1 = (int(x + bw) + m, int(y + bh) + m)
-        cv2.rectangle(mask, p0, p1, inside, -1)
-    return mask
+    return (x - m, y - m, x + w + m + 1, y + h + m + 1)
 
 
 def _touches_border(bbox: np.ndarray, rig: CanonicalRig | CalibratedRig) -> bool:
@@ -146,9 +148,10 @@ class Pipeline:
         self.tracker = Tracker(params.tracker, params.rig.project_rectified)
         self._pending: Learning | None = None
         """Each eye's eq. 3 masks (update, release) from the last pair, applied at the next."""
+        parallel = params.rig.width_px * params.rig.height_px >= PARALLEL_MIN_PX
         self._pool = (
-            ThreadPoolExecutor(2, thread_name_prefix="detect")
-            if params.detect_workers > 1
+            ThreadPoolExecutor(1, thread_name_prefix="detect")
+            if params.detect_workers > 1 and parallel
             else None
         )
 
@@ -253,7 +256,7 @@ class Pipeline:
             )
         t2 = time.perf_counter_ns()
         states, ended = self.tracker.update(t_ns, observations, assignment, eye_times, detections)
-        self._learn(states, pair.left.image.shape[:2])
+        self._learn(states)
         t3 = time.perf_counter_ns()
         timings = Timings(
             detect_ms=(t1 - t0) * 1e-6,
@@ -362,27 +365,21 @@ class Pipeline:
             clipped=clipped,
         )
 
-    def _learn(self, states: list[TrackState], shape: tuple[int, ...]) -> None:
-        """Eq. 3's masks for both eyes, applied when the next pair is detected: not under
-        objects seen moving (so one that stops stays seen,
-        for ``freeze_s``), and at once under one that has been still longer than that (the
-        detector would otherwise hold it as foreground for its own ``absorb_s``)."""
-        frozen: list[list[np.ndarray]] = [[], []]
-        released: list[list[np.ndarray]] = [[], []]
+    def _learn(self, states: list[TrackState]) -> None:
+        """Where eq. 3 may learn in each eye, applied when the next pair is detected: not under
+        objects seen moving (so one that stops stays seen, for ``freeze_s``), and at once under
+        one that has been still longer than that (the detector would otherwise hold it as
+        foreground for its own ``absorb_s``)."""
+        frozen: tuple[list[Rect], list[Rect]] = ([], [])
+        released: tuple[list[Rect], list[Rect]] = ([], [])
         if self.params.freeze_background:
             for s in states:
                 if s.freeze_background or s.release_background:
                     ob = s.observation
                     into = frozen if s.freeze_background else released
-                    into[0].append(ob.left_bbox_px)
-                    into[1].append(ob.right_bbox_px)
-        self._pending = tuple(
-            (
-                _boxes_mask(frozen[e], shape, 0) if frozen[e] else None,
-                _boxes_mask(released[e], shape, 255) if released[e] else None,
-            )
-            for e in range(2)
-        )
+                    into[0].append(_grown_box(ob.left_bbox_px))
+                    into[1].append(_grown_box(ob.right_bbox_px))
+        self._pending = ((frozen[0], released[0]), (frozen[1], released[1]))
 
     def _eye(self, e: int, pending: Learning | None, image: np.ndarray, t_ns: int) -> Blobs:
         """One eye's detector: first eq. 3 with the last frame (deferred from the last pair so

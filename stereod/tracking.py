@@ -446,7 +446,8 @@ class Tracker:
         ``None`` behind the cameras."""
         if self._project is None or at_left[2] <= 0 or at_right[2] <= 0:
             return None
-        return self._project(at_left[None, :])[0][0], self._project(at_right[None, :])[1][0]
+        left, right = self._project(np.stack([at_left, at_right]))
+        return left[0], right[1]
 
     def histories(self, track_id: int | None) -> tuple[EyeHistory, EyeHistory] | None:
         """A track's two eye histories (for skew compensation), None for no track."""
@@ -617,7 +618,7 @@ class Tracker:
         ):  # a free fall's positions bend by g (t1 - t0)(t2 - t1) / 2 off the line
             residual = residual + 0.5 * (t1 - t0) * (t2 - t1) * 1e-18 * self._gravity
         cov = (r1 + a * a * r0 + b * b * r2) * tr.noise_scale
-        d2 = float(residual @ np.linalg.solve(cov, residual))
+        d2 = float(residual @ kalman.inverse3(cov)[0] @ residual)
         lo, hi = self.NOISE_BOUNDS
         rate = max(self.NOISE_RATE, 1.0 / (tr.updates + 2))
         scale = tr.noise_scale * (1.0 + rate * (min(d2, 30.0) / 3.0 - 1.0))

@@ -88,10 +88,8 @@ def test_frozen_update_mask_keeps_background_under_object() -> None:
     bg = np.full((20, 20), 80, np.uint8)
     det = Detector(DetectorParams(beta=0.5, warmup_frames=1, open_px=0, min_area_px=1))
     det.detect(bg)
-    frozen = np.full((20, 20), 255, np.uint8)
-    frozen[5:10, 5:10] = 0
     for _ in range(10):
-        blobs = det.detect(with_square(bg, 5, 5, 5, value=200), update_mask=frozen)
+        blobs = det.detect(with_square(bg, 5, 5, 5, value=200), frozen=[(5, 5, 10, 10)])
     assert len(blobs) == 1 and blobs.area_px[0] == 25
 
 

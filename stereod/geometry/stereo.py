@@ -186,7 +186,7 @@ def triangulate_rectified(
     jac[:, 1, 1] = -v / f * dz_dxl
     jac[:, 1, 2] = 0.5 * z / f
     jac[:, 1, 3] = 0.5 * z / f
-    cov = sigma_px**2 * np.einsum("nik,njk->nij", jac, jac)
+    cov = sigma_px**2 * (jac @ jac.transpose(0, 2, 1))
     return points, cov
 
 
