@@ -372,7 +372,7 @@ class Detector:
         use = b > _GAIN_MIN_LEVEL
         if self._roi is not None and self._part is not None and self._shape == frame.shape[:2]:
             # the grid points inside the last foreground's rectangle that were foreground
-            x0, y0, x1, y1 = self._roi
+            x0, y0 = self._roi[0], self._roi[1]
             gx, gy = -(-x0 // s), -(-y0 // s)
             fg = self._part[gy * s - y0 :: s, gx * s - x0 :: s] > 0
             use[gy : gy + fg.shape[0], gx : gx + fg.shape[1]] &= ~fg
