@@ -220,4 +220,3 @@ def test_two_workers_find_what_one_finds(monkeypatch: pytest.MonkeyPatch) -> Non
         assert a.track_id == b.track_id and a.t_ns == b.t_ns
         assert np.array_equal(a.position_m, b.position_m)
         assert np.array_equal(a.velocity_mps, b.velocity_mps)
-
