@@ -327,18 +327,23 @@ class _SynthSource(StereoSource):
         self.render_lock = threading.Lock()
         self.renderer = Renderer(scene)
         self.backgrounds = {eye: self.renderer.background(eye) for eye in Eye}
-        self.prerendered: dict[Eye, list[np.ndarray]] | None = None
+        self.prerendered: dict[Eye, np.ndarray] | None = None
         if flags.prerender:
-            self.prerendered = {
-                eye: [
-                    self.renderer.render(eye, scene.frame_time_s(eye, k), self.backgrounds[eye])
-                    for k in range(scene.n_frames)
-                ]
-                for eye in Eye
-            }
+            self.prerendered = {eye: self._prerender(eye) for eye in Eye}
         self._start_s: float | None = None
         info = SourceInfo(scene.width_px, scene.height_px, scene.fps, flags.live, "synthetic scene")
         super().__init__(_SynthEye(Eye.LEFT, self), _SynthEye(Eye.RIGHT, self), info)
+
+    def _prerender(self, eye: Eye) -> np.ndarray:
+        """Every frame of one eye, rendered into one array made first (n, h, w[, 3]) uint8, so
+        that the renderer's scratch arrays are freed around it rather than between frames."""
+        sc = self.scene
+        first = self.renderer.render(eye, sc.frame_time_s(eye, 0), self.backgrounds[eye])
+        frames = np.empty((sc.n_frames, *first.shape), first.dtype)
+        frames[0] = first
+        for k in range(1, sc.n_frames):
+            frames[k] = self.renderer.render(eye, sc.frame_time_s(eye, k), self.backgrounds[eye])
+        return frames
 
     def start_s(self) -> float:
         """The host's monotonic time (s) of the scene's start: the first read."""

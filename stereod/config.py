@@ -303,7 +303,12 @@ class DaemonConfig(_Section):
     queue_size: int = Field(4, ge=1, le=1000, description="Pairs waiting for the pipeline")
     publish_queue_size: int = Field(16, ge=1, le=10000, description="Messages waiting to go out")
     status_period_s: float = Field(1.0, gt=0.0, le=60.0, description="Status interval, s")
-    detect_workers: int = Field(2, ge=1, le=2, description="Threads detecting the two eyes")
+    detect_workers: int = Field(
+        2,
+        ge=1,
+        le=2,
+        description="Threads detecting the two eyes (the second from 0.5 Mpx a frame)",
+    )
     image_rate_hz: float = Field(
         5.0, ge=0.0, le=100.0, description="Images per second while subscribed; 0 never"
     )

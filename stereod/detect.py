@@ -422,8 +422,7 @@ class Detector:
         rects = boxes + ([held[0]] if held is not None else [])
         ux0, uy0 = min(r[0] for r in rects), min(r[1] for r in rects)
         ux1, uy1 = max(r[2] for r in rects), max(r[3] for r in rects)
-        keep = np.zeros((uy1 - uy0, ux1 - ux0), np.uint8)
-        """255 where T must stay as it is."""
+        keep = np.zeros((uy1 - uy0, ux1 - ux0), np.uint8)  # 255 where T must stay as it is
         if held is not None:
             (x0, y0, x1, y1), allowed = held
             for r in released:

@@ -115,23 +115,6 @@ def inflate_velocity(s: KalmanState, sigma_mps: float) -> KalmanState:
     return KalmanState(s.x.copy(), p, s.t_ns)
 
 
-def inverse3(m: np.ndarray) -> tuple[np.ndarray, float]:
-    """The inverse and the determinant of a (3, 3) matrix by cofactors: a covariance's, a few
-    times per track and pair, where a general solver's set-up costs more than the arithmetic.
-    Raises ``np.linalg.LinAlgError`` for a singular matrix."""
-    (a, b, c), (d, e, f), (g, h, i) = m.tolist()
-    c0, c1, c2 = e * i - f * h, f * g - d * i, d * h - e * g
-    det = a * c0 + b * c1 + c * c2
-    if det == 0.0 or not math.isfinite(det):
-        raise np.linalg.LinAlgError(f"singular 3x3 matrix (determinant {det})")
-    adj = [
-        [c0, c * h - b * i, b * f - c * e],
-        [c1, a * i - c * g, c * d - a * f],
-        [c2, b * g - a * h, a * e - b * d],
-    ]
-    return np.array(adj) * (1.0 / det), det
-
-
 def innovation(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """y = z - H x (3,) and S = H P H' + R (3, 3)."""
     y = np.asarray(z_m, float) - s.x[:3]
@@ -141,26 +124,23 @@ def innovation(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> tuple[np.nd
 def mahalanobis2(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:
     """Squared Mahalanobis distance y' S^-1 y of a measurement from the state (chi^2, 3 dof)."""
     y, cov = innovation(s, z_m, r_m2)
-    return float(y @ inverse3(cov)[0] @ y)
+    return float(y @ np.linalg.solve(cov, y))
 
 
 def log_likelihood(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:
     """Log of the Gaussian density of measurement ``z_m`` under the state's prediction:
     -(y' S^-1 y + log det S + 3 log 2 pi) / 2; comparing two models' sums picks the likelier."""
     y, cov = innovation(s, z_m, r_m2)
-    try:
-        inv, det = inverse3(cov)
-    except np.linalg.LinAlgError:
+    sign, logdet = np.linalg.slogdet(cov)
+    if sign <= 0:
         return -math.inf
-    if det <= 0:
-        return -math.inf
-    return -0.5 * (float(y @ inv @ y) + math.log(det) + 3.0 * math.log(2.0 * math.pi))
+    return -0.5 * (float(y @ np.linalg.solve(cov, y)) + logdet + 3.0 * math.log(2.0 * math.pi))
 
 
 def update(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> KalmanState:
     """Fold in a position: K = P H' S^-1, x = x + K y, P = (I - K H) P (I - K H)' + K R K'."""
     y, cov = innovation(s, z_m, r_m2)
-    k = s.P[:, :3] @ inverse3(cov)[0]  # P H' S^-1; P is symmetric
+    k = np.linalg.solve(cov, s.P[:3, :]).T
     x = s.x + k @ y
     ikh = _EYE6 - k @ H
     p = ikh @ s.P @ ikh.T + k @ r_m2 @ k.T

@@ -29,13 +29,13 @@ from .pairing import DEFAULT_TOLERANCE_NS, Pairer
 from .tracking import Detection, Observation, Tracker, TrackerParams, TrackState
 
 FREEZE_MARGIN_PX = 4
+"""Margin (px) around a tracked blob's box where the background is not learned either."""
 PARALLEL_MIN_PX = 500_000
 """The smallest frame (px) whose two eyes are worth detecting on two threads. Handing an eye
 to another thread and back costs about 60 us a pair on two cores, and the two threads then
 contend for the interpreter lock between OpenCV calls; measured with
 ``benchmarks/throughput.py``, that costs more than the overlap saves at 640x480 (0.31 Mpx) and
 gains 10-15 % at 1280x720 (0.92 Mpx)."""
-"""Margin (px) around a tracked blob's box where the background is not learned either."""
 
 
 @dataclass(frozen=True)

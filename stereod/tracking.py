@@ -618,7 +618,7 @@ class Tracker:
         ):  # a free fall's positions bend by g (t1 - t0)(t2 - t1) / 2 off the line
             residual = residual + 0.5 * (t1 - t0) * (t2 - t1) * 1e-18 * self._gravity
         cov = (r1 + a * a * r0 + b * b * r2) * tr.noise_scale
-        d2 = float(residual @ kalman.inverse3(cov)[0] @ residual)
+        d2 = float(residual @ np.linalg.solve(cov, residual))
         lo, hi = self.NOISE_BOUNDS
         rate = max(self.NOISE_RATE, 1.0 / (tr.updates + 2))
         scale = tr.noise_scale * (1.0 + rate * (min(d2, 30.0) / 3.0 - 1.0))

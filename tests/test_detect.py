@@ -84,13 +84,60 @@ def test_warmup_averages_the_initial_background() -> None:
     assert not det.warming_up
 
 
-def test_frozen_update_mask_keeps_background_under_object() -> None:
+def test_frozen_rectangles_keep_background_under_object() -> None:
     bg = np.full((20, 20), 80, np.uint8)
-    det = Detector(DetectorParams(beta=0.5, warmup_frames=1, open_px=0, min_area_px=1))
+    params = DetectorParams(beta=0.5, warmup_frames=1, open_px=0, min_area_px=1)
+    det = Detector(dataclasses.replace(params, hold_foreground=False))
     det.detect(bg)
     for _ in range(10):
         blobs = det.detect(with_square(bg, 5, 5, 5, value=200), frozen=[(5, 5, 10, 10)])
     assert len(blobs) == 1 and blobs.area_px[0] == 25
+    assert det.background is not None
+    assert np.all(det.background[5:10, 5:10] == 80.0)
+
+
+HELD = DetectorParams(
+    beta=0.5,
+    warmup_frames=1,
+    open_px=0,
+    close_px=0,
+    min_area_px=1,
+    gain=False,
+    hysteresis=0.0,
+    hold_margin_px=0,
+    absorb_s=1.0,
+)
+"""A detector whose held foreground is exactly the object (no growth, no morphology)."""
+
+
+def test_held_foreground_is_learned_only_after_absorb_s() -> None:
+    """Eq. 3 leaves an object's pixels alone from its first frame, however they are handed
+    over, and learns them at beta once they have been foreground for absorb_s: at 10 Hz, an
+    object there since 0.1 s is learned from 1.2 s on (T = 80 / 2 + 200 / 2 = 140 then)."""
+    bg = np.full((30, 40), 80, np.uint8)
+    det = Detector(HELD)
+    det.detect(bg, t_ns=0)
+    under = []
+    for k in range(1, 14):
+        blobs = det.detect(with_square(bg, 10, 8, 6, value=200), t_ns=k * 100_000_000)
+        assert det.background is not None
+        under.append(float(det.background[8:14, 10:16].max()))
+        assert np.all(det.background[:8] == 80.0)
+    assert len(blobs) == 1
+    assert under[:11] == [80.0] * 11  # 0.1 s to 1.1 s: held
+    assert under[11] == 140.0  # 1.2 s: absorbed, eq. 3 at beta = 0.5
+
+
+def test_a_released_rectangle_is_learned_at_once() -> None:
+    bg = np.full((30, 40), 80, np.uint8)
+    det = Detector(HELD)
+    det.detect(bg, t_ns=0)
+    det.detect(with_square(bg, 10, 8, 6, value=200), t_ns=100_000_000)
+    det.find(with_square(bg, 10, 8, 6, value=200), t_ns=200_000_000)
+    det.learn(released=[(10, 8, 13, 14)])  # the left half of the object
+    assert det.background is not None
+    assert np.all(det.background[8:14, 10:13] == 140.0)
+    assert np.all(det.background[8:14, 13:16] == 80.0)
 
 
 def test_a_speckled_frame_is_saturated_not_a_stall() -> None:
