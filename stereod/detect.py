@@ -322,7 +322,7 @@ class Detector:
         bg8 = self._bg8 = cv2.convertScaleAbs(bg, dst=self._bg8)
         diff = cv2.absdiff(frame, bg8)
         g = self._gain(frame, bg8) if self.params.gain else 1.0
-        if abs(g - 1.0) * 255.0 >= 0.5:  # a gain that moves a grey level by half: against g T
+        if not _negligible(g):  # against g T
             if abs(g - 1.0) > _GAIN_RESCALE:  # the light changed: learn at the new gain
                 np.multiply(bg, np.float32(g), out=bg)
                 g = 1.0
@@ -340,8 +340,12 @@ class Detector:
         _, part = cv2.threshold(diff[y0:y1, x0:x1], self._thresh_u8, 255, cv2.THRESH_BINARY)
         if self._grow is not None:
             _, weak = cv2.threshold(diff[y0:y1, x0:x1], self._low_u8, 255, cv2.THRESH_BINARY)
+            count = cv2.countNonZero(part)
             for _ in range(3):
                 part = cv2.bitwise_or(part, cv2.bitwise_and(weak, cv2.dilate(part, self._grow)))
+                count, before = cv2.countNonZero(part), count
+                if count == before:  # nothing weak left within reach
+                    break
         if self._open is not None:
             part = cv2.morphologyEx(part, cv2.MORPH_OPEN, self._open)
         if self._close is not None:
@@ -381,6 +385,8 @@ class Detector:
             return 1.0
         k = fs.size // 2  # numpy's vectorised sort beats its partition on these few points
         g = float(np.sort(fs / bs)[k])
+        if _negligible(g):
+            return g  # not applied: nothing to check
         # A gain must explain the change: what is left must look like sensor noise. A light
         # switched on unevenly, or a scene that changed, is not a gain: left alone, it
         # saturates the frame and the background is learned afresh.
@@ -535,6 +541,11 @@ class Detector:
             area_px=np.asarray(areas, np.int32),
             support=tuple(supports),
         )
+
+
+def _negligible(gain: float) -> bool:
+    """Whether a gain moves no grey level (0-255) by half a level: T is then used as learned."""
+    return abs(gain - 1.0) * 255.0 < 0.5
 
 
 def _above(diff: np.ndarray, level: float) -> tuple[int, int, int, int]:

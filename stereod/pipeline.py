@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -24,7 +24,7 @@ from .detect import Blobs, Detector, DetectorParams, Rect
 from .frames import Frame, StereoPair
 from .geometry.rectified import CalibratedRig
 from .geometry.refine import RefineParams, refine_match
-from .geometry.stereo import CanonicalRig, MatchParams, matched_blobs
+from .geometry.stereo import CanonicalRig, MatchParams, match_blobs
 from .pairing import DEFAULT_TOLERANCE_NS, Pairer
 from .tracking import Detection, Observation, Tracker, TrackerParams, TrackState
 
@@ -228,13 +228,13 @@ class Pipeline:
         t_ns = skew.common_instant(t_left, t_right) if compensate else pair.t_ns
         # Matching, association, compensation and triangulation work in rectified coordinates
         # (identical to image coordinates for the canonical rig); messages report the image ones.
-        lrect = replace(lb, centroid_px=p.rig.rectify_left(lb.centroid_px))
-        rrect = replace(rb, centroid_px=p.rig.rectify_right(rb.centroid_px))
+        lrect = p.rig.rectify_left(lb.centroid_px)
+        rrect = p.rig.rectify_right(rb.centroid_px)
         image_speed = p.max_image_speed_wps * p.rig.width_px
         slack = abs(t_right - t_left) * 1e-9 * image_speed
-        idx = matched_blobs(lrect, rrect, p.matching, slack)
-        lpx = lrect.centroid_px[idx[:, 0]]
-        rpx = rrect.centroid_px[idx[:, 1]]
+        idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack)
+        lpx = lrect[idx[:, 0]]
+        rpx = rrect[idx[:, 1]]
         if p.refine.enabled:
             self._refine(pair, lb, idx, lpx, rpx)
         detections = self._detections(lb, rb, idx, lpx, rpx)

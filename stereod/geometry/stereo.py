@@ -14,7 +14,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..detect import Blobs
 from . import Geometry
 
 
@@ -255,12 +254,3 @@ def match_blobs(
         used_l[i] = used_r[j] = True
         out.append((i, j))
     return np.array(out, dtype=np.intp).reshape(-1, 2)
-
-
-def matched_blobs(
-    left: Blobs, right: Blobs, params: MatchParams, slack_px: float = 0.0
-) -> np.ndarray:
-    """:func:`match_blobs` on two :class:`~stereod.detect.Blobs`."""
-    return match_blobs(
-        left.centroid_px, left.area_px, right.centroid_px, right.area_px, params, slack_px
-    )
