@@ -35,7 +35,7 @@ PARALLEL_MIN_PX = 500_000
 to another thread and back costs about 60 us a pair on two cores, and the two threads then
 contend for the interpreter lock between OpenCV calls; measured with
 ``benchmarks/throughput.py``, that costs more than the overlap saves at 640x480 (0.31 Mpx) and
-gains 10-15 % at 1280x720 (0.92 Mpx)."""
+gains 14-17 % at 1280x720 (0.92 Mpx)."""
 
 
 @dataclass(frozen=True)
