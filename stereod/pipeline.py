@@ -147,7 +147,7 @@ class Pipeline:
         self.right = Detector(params.detector)
         self.tracker = Tracker(params.tracker, params.rig.project_rectified)
         self._pending: Learning | None = None
-        """Each eye's eq. 3 masks (update, release) from the last pair, applied at the next."""
+        """Each eye's eq. 3 rectangles (frozen, released) from the last pair, for the next."""
         parallel = params.rig.width_px * params.rig.height_px >= PARALLEL_MIN_PX
         self._pool = (
             ThreadPoolExecutor(1, thread_name_prefix="detect")
