@@ -106,8 +106,9 @@ class Client:
     def done(self) -> bool:
         if not wanted_topics() <= set(self.messages):
             return False
-        # enough track states with a valid velocity for a median (about 1 s)
-        return len(self.messages[f"{RIG}/tracks/track_1/speed_heading"]) >= VALID_WANTED
+        # enough track states with a valid velocity for a median (about 1 s), and two pairs
+        # more: a pair's messages on the other channels may still be on their way
+        return len(self.messages[f"{RIG}/tracks/track_1/speed_heading"]) >= VALID_WANTED + 2
 
 
 def stamp_ns(header: Any) -> int:
