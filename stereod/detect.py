@@ -331,7 +331,7 @@ class Detector:
             diff = cv2.transform(diff, _MEAN_RGB)
         self.diff = diff
         shape = (diff.shape[0], diff.shape[1])
-        self._roi = roi = _grown_rect(_above(diff, self._thresh_u8), self._margin, shape)
+        roi = _grown_rect(_above(diff, self._thresh_u8), self._margin, shape)
         if roi is None:  # nothing moved: no bitmap, no morphology, no contours
             self._set_foreground(shape, None, None)
             self._saturated_run = 0
