@@ -11,7 +11,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from stereod.cli.common import number, path_arg, size_arg
+from stereod.cli.common import add_canonical_rig, number, path_arg, size_arg
 from stereod.errors import UsageError, describe_validation_error
 from stereod.progress import Progress
 from stereod.recording import Codec
@@ -50,20 +50,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--fps", type=number(0.1, 1000.0, unit="Hz"), default=15.0, help="frame rate, Hz (15)"
     )
-    p.add_argument(
-        "--hfov",
-        type=number(1.0, 179.0, unit="deg"),
-        default=60.0,
-        metavar="DEG",
-        help="horizontal field of view, deg (default 60)",
-    )
-    p.add_argument(
-        "--baseline",
-        type=number(0.0, 10.0, lo_open=True, unit="m"),
-        default=0.060,
-        metavar="M",
-        help="camera distance, m (default 0.060)",
-    )
+    add_canonical_rig(p, defaults=True, min_hfov_deg=1.0)
     p.add_argument(
         "--duration",
         type=number(0.0, 3600.0, lo_open=True, unit="s"),

@@ -107,23 +107,43 @@ def add_zenoh(p: argparse.ArgumentParser) -> None:
     g.add_argument("--prefix", help="key prefix (default: stereod)")
 
 
+def add_canonical_rig(
+    p: argparse.ArgumentParser | argparse._ArgumentGroup,
+    *,
+    defaults: bool,
+    context: str = "",
+    hfov_help: str = "",
+    min_hfov_deg: float = 0.0,
+) -> None:
+    """``--baseline`` (m) and ``--hfov`` (deg) of a canonical rig. With ``defaults`` they
+    default to the Minoru's 0.060 m and 60 deg; without, to None, so a config file's values
+    stand. ``context`` opens both help texts; ``min_hfov_deg`` above 0 is an inclusive bound
+    (a renderer's), 0 an exclusive one."""
+    p.add_argument(
+        "--baseline",
+        type=number(0.0, 10.0, lo_open=True, unit="m"),
+        default=0.060 if defaults else None,
+        metavar="M",
+        help=f"{context}distance between the cameras, m (default 0.060, the Minoru's)",
+    )
+    p.add_argument(
+        "--hfov",
+        type=number(min_hfov_deg, 179.0, lo_open=min_hfov_deg == 0.0, unit="deg"),
+        default=60.0 if defaults else None,
+        metavar="DEG",
+        help=f"{context}horizontal field of view of one eye, deg (default 60){hfov_help}",
+    )
+
+
 def add_pipeline(p: argparse.ArgumentParser) -> None:
     """The rig, detector and tracker flags that override a config file, and the Zenoh ones."""
     g = p.add_argument_group("rig and detector (override the config file)")
     add_config(g)
     g.add_argument("--rig", help="rig name used in key expressions (default: minoru)")
-    g.add_argument(
-        "--baseline",
-        type=number(0.0, 10.0, lo_open=True, unit="m"),
-        metavar="M",
-        help="distance between the cameras, m (default 0.060, the Minoru's)",
-    )
-    g.add_argument(
-        "--hfov",
-        type=number(0.0, 179.0, lo_open=True, unit="deg"),
-        metavar="DEG",
-        help="horizontal field of view of one eye, deg (default 60); without a calibration, "
-        "depth is only as good as this figure",
+    add_canonical_rig(
+        g,
+        defaults=False,
+        hfov_help="; without a calibration, depth is only as good as this figure",
     )
     g.add_argument(
         "--calibration",

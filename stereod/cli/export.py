@@ -9,7 +9,7 @@ from ..calibration import load
 from ..errors import ConfigError
 from ..export_mcap import export_run
 from ..output_file import check_not_input
-from .common import number, path_arg
+from .common import add_canonical_rig, number, path_arg
 
 TOPICS = """\
 topics (<rig> from the messages, e.g. minoru):
@@ -54,20 +54,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="FILE",
         help="the calibration the run used (default: the recording's own, or the canonical rig)",
     )
-    p.add_argument(
-        "--baseline",
-        type=number(0.0, 10.0, lo_open=True, unit="m"),
-        default=0.060,
-        metavar="M",
-        help="canonical rig: distance between the cameras the run used, m (default 0.060)",
-    )
-    p.add_argument(
-        "--hfov",
-        type=number(0.0, 179.0, lo_open=True, unit="deg"),
-        default=60.0,
-        metavar="DEG",
-        help="canonical rig: horizontal field of view the run used, deg (default 60)",
-    )
+    add_canonical_rig(p, defaults=True, context="canonical rig, as the run used: ")
     p.add_argument(
         "--no-images",
         action="store_true",
