@@ -53,6 +53,8 @@ class FakeKernel:
 
     SIZES = ((64, 48), (320, 240), (640, 480))
     RATES = (15.0, 30.0)
+    U, V = 90, 170
+    """The chroma of every pixel (a reddish orange); the luma changes with the sequence."""
 
     def __init__(self, cameras: dict[str, FakeCamera]) -> None:
         self.cameras = cameras
@@ -171,7 +173,9 @@ class FakeKernel:
         cam.next_seq += 1
         index = cam.queued.pop(0)
         y = np.full((cam.height, cam.width), (seq * 7) % 200 + 20, np.uint8)
-        frame = np.stack([y, np.full_like(y, 128)], axis=-1)
+        uv = np.empty_like(y)
+        uv[:, 0::2], uv[:, 1::2] = self.U, self.V  # YUYV: Y0 U Y1 V
+        frame = np.stack([y, uv], axis=-1)
         cam.buffers[index][:] = frame.tobytes()
         t = cam.t0_ns + round(seq * 1e9 / cam.fps)
         used = len(cam.buffers[index]) // (2 if seq in cam.short_sequences else 1)

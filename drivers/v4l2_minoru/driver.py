@@ -31,7 +31,7 @@ from stereod.frames import (
 )
 
 from . import raw
-from .convert import mjpeg_to_gray, yuyv_to_gray
+from .convert import mjpeg_to_bgr, mjpeg_to_gray, yuyv_to_bgr, yuyv_to_gray
 from .device import V4L2Device
 from .discovery import find_nodes, minoru_eyes
 from .ioctl import IO
@@ -59,6 +59,11 @@ class MinoruOptions(BaseModel):
     height: int = Field(480, gt=0)
     fps: float = Field(15.0, gt=0, description="Frame rate, Hz (640x480 fits USB 2.0 at 15)")
     pixel_format: Literal["YUYV", "MJPG"] = "YUYV"
+    color: bool = Field(
+        True,
+        description="Deliver BGR frames, which colour differencing ([detect] color, the "
+        "default) needs; false delivers the luma only (cheaper, for [detect] color = false)",
+    )
     buffers: int = Field(4, ge=2, le=32)
     manual_exposure: bool = Field(True, description="Lock exposure (exposure_auto = manual)")
     controls: dict[str, int] = Field(
@@ -120,13 +125,14 @@ class CameraEye(EyeSource):
         self.device = dev
         self._last_seq = None
         log.info(
-            "%s eye streaming from %s: %dx%d %s at %.3g fps",
+            "%s eye streaming from %s: %dx%d %s at %.3g fps, delivered as %s",
             self.eye.value,
             dev.path,
             o.width,
             o.height,
             o.pixel_format,
             self.fps,
+            "BGR" if o.color else "grey",
         )
 
     def _node_present(self) -> bool:
@@ -208,9 +214,10 @@ class CameraEye(EyeSource):
                 if len(cap.data) < 2 * o.width * o.height:
                     self._count(self._counters.errors, "short_frame")
                     continue
-                image = yuyv_to_gray(cap.data, o.width, o.height)
+                convert = yuyv_to_bgr if o.color else yuyv_to_gray
+                image = convert(cap.data, o.width, o.height)
             else:
-                decoded = mjpeg_to_gray(cap.data)
+                decoded = (mjpeg_to_bgr if o.color else mjpeg_to_gray)(cap.data)
                 if decoded is None:
                     self._count(self._counters.errors, "frame_error")
                     continue

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 import pytest
 
 from stereod.errors import ConfigError, DeviceError, DeviceLost
@@ -37,9 +38,24 @@ def test_device_queries_and_streams() -> None:
             dev.set_format(100, 100, "YUYV")
 
 
+def test_driver_streams_bgr_by_default() -> None:
+    """YUYV becomes BGR (BT.601 video range), which colour differencing needs."""
+    src = MinoruDriver(OPTS, io=kernel()).open()
+    try:
+        f = src.left.read()
+        assert f is not None and f.image.shape == (48, 64, 3)
+        y, u, v = 20.0, FakeKernel.U - 128.0, FakeKernel.V - 128.0  # the fake's first frame
+        c = 1.164 * (y - 16)
+        want = np.clip([c + 2.018 * u, c - 0.391 * u - 0.813 * v, c + 1.596 * v], 0, 255)
+        assert np.abs(f.image[10, 10].astype(float) - want).max() <= 1.5
+        assert src.info.settings["color"] is True
+    finally:
+        src.close()
+
+
 def test_driver_streams_gray_with_timestamps_and_counts_gaps_and_errors() -> None:
     k = kernel(skip_sequences={3, 4}, error_sequences={6})
-    src = MinoruDriver(OPTS, io=k).open()
+    src = MinoruDriver({**OPTS, "color": False}, io=k).open()
     try:
         left = [src.left.read() for _ in range(6)]
         right = [src.right.read() for _ in range(6)]

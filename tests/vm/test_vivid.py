@@ -57,7 +57,11 @@ def test_capture_both_eyes_with_kernel_timestamps(vivid: list[str]) -> None:
             period = float(np.median(np.diff(t))) / 1e6
             assert abs(period - 1000 / FPS) < 4, f"{eye} period {period:.1f} ms"
             assert np.all(np.diff(seq) >= 1)
-            assert fs[0].image.shape == (H, W)
+            img = fs[0].image
+            assert img.shape == (H, W, 3)
+            # vivid's default pattern is colour bars: YUYV must arrive as colour, not grey.
+            spread = img.max(axis=2).astype(int) - img.min(axis=2)
+            assert np.mean(spread > 60) > 0.3, f"{eye} frame is not in colour"
             # CLOCK_MONOTONIC: the kernel stamps frames on the clock time.monotonic_ns reads.
             assert abs(fs[-1].t_ns - time.monotonic_ns()) < 5e9
         pairer = Pairer(int(1e9 / FPS))
