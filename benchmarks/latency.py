@@ -2,7 +2,8 @@
 
 The daemon runs as its own process (``stereod run``) on the ``synthetic`` driver in live mode:
 each eye delivers its frames at their capture instants on this host's CLOCK_MONOTONIC, as a
-camera does, at 640x480 and 30 Hz with a ball crossing the view again and again. The frames
+camera does, at 640x480 and 30 Hz with a ball crossing the view again and again, in colour
+(BGR, what the V4L2 driver delivers by default; ``--grey`` for ``color = false``). The frames
 are rendered when the source opens, before the clock starts, so rendering costs nothing while
 it plays. This process subscribes to the ``objects`` key over Zenoh (loopback) and, for every
 message, takes the time from the pair's capture instant to its arrival here on the same
@@ -21,7 +22,7 @@ kernel's buffers, of which the daemon maps a few. So the camera's share is measu
 process of its own that imports what the daemon imports and then opens the same source, and
 the memory target applies to the daemon's own: its RSS less that share. Both are reported.
 
-Usage: ``python benchmarks/latency.py [--seconds 30] [--size 640x480] [--fps 30]``.
+Usage: ``python benchmarks/latency.py [--seconds 30] [--size 640x480] [--fps 30] [--grey]``.
 """
 
 from __future__ import annotations
@@ -97,8 +98,9 @@ def camera_mb(cfg: Path) -> float:
     return float(out.stdout.strip())
 
 
-def config(endpoint: str, width: int, height: int, fps: float) -> str:
-    """The daemon's TOML: a live, prerendered, looping synthetic scene of 1.2 s."""
+def config(endpoint: str, width: int, height: int, fps: float, color: bool) -> str:
+    """The daemon's TOML: a live, prerendered, looping synthetic scene of 1.2 s, in colour
+    (BGR, as the V4L2 driver delivers by default) or grey."""
     return f"""
 [rig]
 name = "bench"
@@ -114,6 +116,7 @@ fps = {fps}
 duration_s = 1.2
 skew_s = {0.5 / fps}
 noise_sigma = 2.0
+color = {str(color).lower()}
 [[driver.options.balls]]
 heading_deg = 90.0
 speed_mps = 1.5
@@ -135,6 +138,11 @@ def main() -> int:
     ap.add_argument("--size", default="640x480", help="image size, px (640x480)")
     ap.add_argument("--fps", type=float, default=30.0, help="frame rate per eye, Hz (30)")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "latency.md")
+    ap.add_argument(
+        "--grey",
+        action="store_true",
+        help="grey frames (a camera with [driver.options] color = false) instead of BGR",
+    )
     ap.add_argument("--breakdown", action="store_true", help="also the daemon's own timings")
     a = ap.parse_args()
     width, height = (int(v) for v in a.size.split("x"))
@@ -157,7 +165,7 @@ def main() -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         cfg = Path(tmp) / "latency.toml"
-        cfg.write_text(config(endpoint, width, height, a.fps))
+        cfg.write_text(config(endpoint, width, height, a.fps, not a.grey))
         proc = start_stereod("run", "--config", str(cfg), stdout=None, stderr=None)
         try:
             conf = zenoh.Config()
@@ -191,10 +199,11 @@ def main() -> int:
     ok = p99 <= TARGET_P99_MS and cpu <= TARGET_CPU and own <= TARGET_RSS_MB
     table = "\n".join(
         [
-            "| size | rate | messages | p50 latency | p99 latency | max latency "
+            "| size | rate | frames | messages | p50 latency | p99 latency | max latency "
             "| daemon CPU (one core) | RSS (peak) | synthetic camera | daemon's own RSS |",
-            "|---|---|---|---|---|---|---|---|---|---|",
-            f"| {width}x{height} | {a.fps:g} Hz | {lat.size} of {expected:.0f} | {p50:.2f} ms "
+            "|---|---|---|---|---|---|---|---|---|---|---|",
+            f"| {width}x{height} | {a.fps:g} Hz | {'grey' if a.grey else 'BGR'} "
+            f"| {lat.size} of {expected:.0f} | {p50:.2f} ms "
             f"| {p99:.2f} ms | {worst:.2f} ms | {cpu * 100:.1f} % | {rss:.0f} MB ({hwm:.0f} MB) "
             f"| {camera:.0f} MB | {own:.0f} MB |",
             "",

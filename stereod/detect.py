@@ -92,6 +92,8 @@ _GAIN_MAX_MISFIT = 0.25
 """A gain is taken only if the median |frame - gain * background| it leaves is at most this
 share of the threshold (sensor noise of a few grey levels passes; an offset of 40 does not)."""
 _GAIN_RESCALE = 0.01
+_ROW_STEPS = (1, 2, 3, 4, 6)
+"""Row steps of eq. 4's first pass: divisors of ``_GAIN_STEP``, whose grid it serves too."""
 """A gain further than this from 1 scales the stored background itself."""
 
 
@@ -180,6 +182,7 @@ class Blobs:
 
 
 _MEAN_RGB = np.full((1, 3), 1.0 / 3.0, dtype=np.float32)
+_THIRDS = np.full(3, 1.0 / 3.0, dtype=np.float32)
 
 
 def luminance(image: np.ndarray, mode: Luminance) -> np.ndarray:
@@ -222,7 +225,7 @@ class Detector:
         """(h, w) px of the frame M belongs to; ``None`` before M exists."""
         self._mask: np.ndarray | None = None
         m = 3 * params.grow_px + params.open_px + params.close_px + 2 * params.hold_margin_px
-        self._margin = m + 2
+        self._margin = m + 2 + (max(params.open_px, 1) - 1)
         self._open = _kernel(params.open_px)
         self._close = _kernel(params.close_px)
         self._hold = _kernel(2 * params.hold_margin_px + 1)
@@ -231,8 +234,14 @@ class Detector:
         self._low_u8 = float(math.ceil(low) - 1)
         self._thresh_u8 = float(math.ceil(params.threshold) - 1)
         """d >= t on integer grey levels is d > ceil(t) - 1 (THRESH_BINARY is strict)."""
-        self.diff: np.ndarray | None = None
-        """The last difference image R of eq. 4 (uint8), a new array each frame."""
+        self._find_u8 = self._low_u8 if self._grow is not None else self._thresh_u8
+        self._row_step = max(d for d in _ROW_STEPS if d <= max(params.open_px, 1))
+        """Rows apart that the first pass of eq. 4 looks at. A pixel the opening keeps lies
+        in an ``open_px`` square of pixels each at least the weak level (the threshold
+        without hysteresis), so any ``open_px`` rows in a row hold part of it: the rectangle
+        around what those rows find, grown by ``_margin`` (what the hysteresis and the
+        morphology reach, plus the rows skipped), holds the whole foreground, and the
+        result is that of every row for a third of the whole-frame work (``open_px`` 3)."""
         self.saturated = 0
         """Frames that were saturated (see the module docstring) and reported empty."""
         self._saturated_run = 0
@@ -307,7 +316,10 @@ class Detector:
 
     def find(self, image: np.ndarray, t_ns: int = 0) -> Blobs:
         """Eq. 2, 4 and 5 against the current background at capture instant ``t_ns`` (ns);
-        call :meth:`learn` afterwards."""
+        call :meth:`learn` afterwards.
+
+        Eq. 4 is first taken on every ``_row_step``-th row only, which is enough to find the
+        rectangle around the foreground (see ``_row_step``), then on every pixel inside it."""
         frame = self._prepare(image)
         self._frame = frame
         if self._t0_ns is None:
@@ -319,28 +331,32 @@ class Detector:
             bg = None
         if bg is None or self.warming_up:
             return Blobs.empty()
-        bg8 = self._bg8 = cv2.convertScaleAbs(bg, dst=self._bg8)
-        diff = cv2.absdiff(frame, bg8)
+        step = self._row_step
+        rows = frame[::step]
+        bg8 = self._bg8 = cv2.convertScaleAbs(bg[::step], dst=self._bg8)
+        coarse = cv2.absdiff(rows, bg8)
         g = self._gain(frame, bg8) if self.params.gain else 1.0
-        if not _negligible(g):  # against g T
+        if _negligible(g):
+            g = 1.0
+        else:  # against g T
             if abs(g - 1.0) > _GAIN_RESCALE:  # the light changed: learn at the new gain
                 np.multiply(bg, np.float32(g), out=bg)
                 g = 1.0
-            diff = cv2.absdiff(frame, cv2.convertScaleAbs(bg, dst=bg8, alpha=g))
-        if diff.ndim == 3:
-            diff = cv2.transform(diff, _MEAN_RGB)
-        self.diff = diff
-        shape = (diff.shape[0], diff.shape[1])
-        roi = _grown_rect(_above(diff, self._thresh_u8), self._margin, shape)
+            coarse = cv2.absdiff(rows, cv2.convertScaleAbs(bg[::step], dst=bg8, alpha=g))
+        shape = (frame.shape[0], frame.shape[1])
+        x, y, w, h = _above(_mean_channels(coarse), self._find_u8)
+        roi = _grown_rect((x, y * step, w, (h - 1) * step + 1), self._margin, shape) if h else None
         if roi is None:  # nothing moved: no bitmap, no morphology, no contours
-            self._set_foreground(shape, None, None)
-            self._saturated_run = 0
-            return Blobs.empty()
+            return self._nothing(shape)
         x0, y0, x1, y1 = roi
-        _, part = cv2.threshold(diff[y0:y1, x0:x1], self._thresh_u8, 255, cv2.THRESH_BINARY)
+        b8 = cv2.convertScaleAbs(bg[y0:y1, x0:x1], alpha=g)
+        diff = _mean_channels(cv2.absdiff(frame[y0:y1, x0:x1], b8))
+        _, part = cv2.threshold(diff, self._thresh_u8, 255, cv2.THRESH_BINARY)
         if self._grow is not None:
-            _, weak = cv2.threshold(diff[y0:y1, x0:x1], self._low_u8, 255, cv2.THRESH_BINARY)
+            _, weak = cv2.threshold(diff, self._low_u8, 255, cv2.THRESH_BINARY)
             count = cv2.countNonZero(part)
+            if count == 0:  # no seed: nothing can grow
+                return self._nothing(shape)
             for _ in range(3):
                 part = cv2.bitwise_or(part, cv2.bitwise_and(weak, cv2.dilate(part, self._grow)))
                 count, before = cv2.countNonZero(part), count
@@ -350,8 +366,11 @@ class Detector:
             part = cv2.morphologyEx(part, cv2.MORPH_OPEN, self._open)
         if self._close is not None:
             part = cv2.morphologyEx(part, cv2.MORPH_CLOSE, self._close)
+        count = cv2.countNonZero(part)
+        if count == 0:
+            return self._nothing(shape)
         self._set_foreground(shape, roi, part)
-        if cv2.countNonZero(part) > self.params.max_foreground * shape[0] * shape[1]:
+        if count > self.params.max_foreground * shape[0] * shape[1]:
             return self._saturated()
         contours, _ = cv2.findContours(
             part, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x0, y0)
@@ -361,18 +380,24 @@ class Detector:
         self._saturated_run = 0
         return self._blobs(contours, part, (x0, y0), diff)
 
-    def _gain(self, frame: np.ndarray, bg8: np.ndarray) -> float:
+    def _nothing(self, shape: tuple[int, int]) -> Blobs:
+        """No foreground in this frame (of ``shape`` (h, w) px)."""
+        self._set_foreground(shape, None, None)
+        self._saturated_run = 0
+        return Blobs.empty()
+
+    def _gain(self, frame: np.ndarray, rows8: np.ndarray) -> float:
         """Median of frame / background over every ``_GAIN_STEP``-th pixel each way that was
         background in the last frame and is not dark: the global gain, 1.0 when unknown. The
-        background is ``bg8``, T rounded to grey levels as eq. 4 has just used it (still in the
-        cache, where the float32 T no longer is; rounding moves a ratio by at most 2.5 % at the
-        darkest level counted, 0.5 % at mid-grey, and evenly both ways)."""
+        background is ``rows8``, every ``_row_step``-th row of T rounded to grey levels as eq.
+        4 has just used it (still in the cache, where the float32 T no longer is; rounding
+        moves a ratio by at most 2.5 % at the darkest level counted, 0.5 % at mid-grey, and
+        evenly both ways)."""
         s = _GAIN_STEP
         f = frame[::s, ::s].astype(np.float32)
-        b = bg8[::s, ::s].astype(np.float32)
-        if f.ndim == 3:
-            f, b = f.sum(axis=2), b.sum(axis=2) / 3.0
-            f /= 3.0
+        b = rows8[:: s // self._row_step, ::s].astype(np.float32)
+        if f.ndim == 3:  # the mean of the channels (a matrix product: numpy sums a short
+            f, b = f @ _THIRDS, b @ _THIRDS  # last axis slowly)
         use = b > _GAIN_MIN_LEVEL
         if self._roi is not None and self._part is not None and self._shape == frame.shape[:2]:
             # the grid points inside the last foreground's rectangle that were foreground
@@ -506,8 +531,8 @@ class Detector:
         origin: tuple[int, int],
         diff: np.ndarray,
     ) -> Blobs:
-        """Each object's support, centre, box and area; ``part`` is M inside the foreground's
-        rectangle, at ``origin`` (x, y px) of the image."""
+        """Each object's support, centre, box and area; ``part`` is M and ``diff`` R (eq. 4)
+        inside the foreground's rectangle, at ``origin`` (x, y px) of the image."""
         p = self.params
         centres, boxes, areas, supports = [], [], [], []
         for group in _groups(contours, p.merge_gap):
@@ -525,7 +550,8 @@ class Detector:
             if area < p.min_area_px:
                 continue
             if p.centroid is Centroid.COVERAGE:
-                centre = coverage_centroid(own, diff, (x, y), p.threshold)
+                cx, cy = coverage_centroid(own, diff, (x - origin[0], y - origin[1]), p.threshold)
+                centre = (cx + origin[0], cy + origin[1])
             else:
                 m = cv2.moments(own, binaryImage=True)
                 centre = (x + m["m10"] / m["m00"], y + m["m01"] / m["m00"])
@@ -541,6 +567,12 @@ class Detector:
             area_px=np.asarray(areas, np.int32),
             support=tuple(supports),
         )
+
+
+def _mean_channels(diff: np.ndarray) -> np.ndarray:
+    """The colour difference of eq. 4: the mean of the three channels' absolute differences
+    (uint8); a one-channel difference as it is."""
+    return cv2.transform(diff, _MEAN_RGB) if diff.ndim == 3 else diff
 
 
 def _negligible(gain: float) -> bool:

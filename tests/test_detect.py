@@ -332,3 +332,42 @@ def test_hysteresis_keeps_the_weak_part_of_an_object_and_nothing_alone() -> None
         found[low] = [tuple(int(v) for v in b) for b in blobs.bbox_px]
     assert found[0.5] == [(20, 30, 20, 20)]
     assert found[0.0] == [(20, 30, 10, 20)]
+
+
+@pytest.mark.parametrize("color", [True, False])
+def test_the_first_pass_on_every_third_row_finds_what_every_row_finds(color: bool) -> None:
+    """Eq. 4 is first taken on every third row (``open_px`` 3) to find the foreground's
+    rectangle. The blobs, their centres and the mask must be exactly those of a first pass
+    on every row, for objects of every size the opening keeps, at every row phase, and for
+    the hard case: a weak object (hysteresis) whose only pixel above t lies on a row the
+    first pass skips."""
+    rng = np.random.default_rng(3)
+    h, w = 120, 160
+    base = cv2.merge([textured(h, w, s) for s in (4, 5, 6)]) if color else textured(h, w, 4)
+    params = dataclasses.replace(DetectorParams(), warmup_frames=3, color=color)
+    sparse, dense = Detector(params), Detector(params)
+    assert sparse._row_step == 3
+    dense._row_step = 1
+    for k in range(40):
+        img = base.copy()
+        if k >= 3:
+            for _ in range(4):
+                size, x, y = (
+                    int(rng.integers(3, 7)),
+                    int(rng.integers(5, 150)),
+                    int(rng.integers(5, 110)),
+                )
+                strong = rng.random() < 0.5
+                img[y : y + size, x : x + size] = np.clip(
+                    base[y : y + size, x : x + size].astype(int) + (40 if strong else 20), 0, 255
+                )
+                if not strong:  # one pixel above t, on a row the first pass skips
+                    yy = y + int(np.argmax([(y + i) % 3 != 0 for i in range(size)]))
+                    img[yy, x + size // 2] = np.clip(
+                        base[yy, x + size // 2].astype(int) + 60, 0, 255
+                    )
+        a, b = sparse.detect(img), dense.detect(img)
+        np.testing.assert_array_equal(a.bbox_px, b.bbox_px, err_msg=f"frame {k}")
+        np.testing.assert_array_equal(a.centroid_px, b.centroid_px, err_msg=f"frame {k}")
+        np.testing.assert_array_equal(sparse.mask, dense.mask, err_msg=f"frame {k}")
+    assert sparse.saturated == 0
