@@ -28,6 +28,7 @@ from .config import ZenohConfig, load_config
 from .daemon import Daemon
 from .drivers import load_driver
 from .geometry.stereo import CanonicalRig
+from .interrupt import wait_until
 from .motion import angle_diff_deg, circular_median_deg
 from .publish import open_session
 from .record import record
@@ -163,7 +164,7 @@ def run_demo(
             if view:
                 print(f"view: the page stays at {page.url} until Ctrl-C", flush=True)
                 with contextlib.suppress(KeyboardInterrupt):
-                    threading.Event().wait()
+                    wait_until(threading.Event())
     return code
 
 

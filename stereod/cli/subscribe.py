@@ -12,6 +12,7 @@ from pydantic import ValidationError
 
 from ..config import ZenohConfig
 from ..errors import OutputError, UsageError, describe_validation_error
+from ..interrupt import wait_until
 from ..publish import open_session
 from ..subscribe import format_sample
 from .common import add_zenoh, number, zenoh_overrides
@@ -86,7 +87,7 @@ def run(a: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     with open_session(zcfg) as session:
         sub = session.declare_subscriber(key, on_sample)
-        done.wait(a.duration)
+        wait_until(done, a.duration)
         sub.undeclare()
     if failed:
         if isinstance(failed[0], BrokenPipeError):

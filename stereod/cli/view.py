@@ -12,6 +12,7 @@ from pydantic import ValidationError
 
 from ..config import ZenohConfig
 from ..errors import ConfigError, describe_validation_error
+from ..interrupt import wait_until
 from ..keys import DEFAULT_RIG, RIG_PATTERN
 from .common import add_zenoh, number, setup_logging, zenoh_overrides
 
@@ -104,5 +105,5 @@ def run(a: argparse.Namespace) -> int:
             f"{where}); Ctrl-C to stop",
             flush=True,
         )
-        done.wait()
+        wait_until(done)
     return 0
