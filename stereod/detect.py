@@ -92,9 +92,9 @@ _GAIN_MAX_MISFIT = 0.25
 """A gain is taken only if the median |frame - gain * background| it leaves is at most this
 share of the threshold (sensor noise of a few grey levels passes; an offset of 40 does not)."""
 _GAIN_RESCALE = 0.01
+"""A gain further than this from 1 scales the stored background itself."""
 _ROW_STEPS = (1, 2, 3, 4, 6)
 """Row steps of eq. 4's first pass: divisors of ``_GAIN_STEP``, whose grid it serves too."""
-"""A gain further than this from 1 scales the stored background itself."""
 
 
 @dataclass(frozen=True, slots=True)
