@@ -247,7 +247,10 @@ class Pipeline:
                 continue
             histories = self.tracker.histories(tid)
             if compensate:
-                lc, rc, exact = skew.compensate(histories, lpx[k], rpx[k], eye_times, t_ns, window)
+                ratios = self._depth_ratios(tid, lb.area_px[idx[k, 0]], rb.area_px[idx[k, 1]])
+                lc, rc, exact = skew.compensate(
+                    histories, lpx[k], rpx[k], eye_times, t_ns, window, ratios
+                )
             else:
                 lc, rc, exact = lpx[k], rpx[k], True
             clipped = detections[k].clipped
@@ -276,6 +279,22 @@ class Pipeline:
             right=rb,
             timings=timings,
             row_residuals_px=np.abs(lpx[:, 1] - rpx[:, 1]),
+        )
+
+    def _depth_ratios(
+        self, tid: int | None, left_area_px: int, right_area_px: int
+    ) -> tuple[float | None, float | None]:
+        """How much a track's depth changed since each eye last saw it (Z now over Z then),
+        from its blob's areas in that eye (:func:`stereod.skew.size_depth_ratio`); unknown
+        for a new track, or when either blob is cut by the image's edge."""
+        if tid is None:
+            return None, None
+        last = self.tracker.track(tid).last
+        if last.clipped:
+            return None, None
+        return (
+            skew.size_depth_ratio(last.left_area_px, left_area_px),
+            skew.size_depth_ratio(last.right_area_px, right_area_px),
         )
 
     def _refine(

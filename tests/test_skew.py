@@ -48,6 +48,41 @@ def test_moebius_is_exact_for_constant_velocity_where_a_line_is_not() -> None:
     np.testing.assert_allclose(skew.at_instant(hist, times[2], cs[2], target, 10**9), truth)
 
 
+def test_two_frames_and_the_depth_change_follow_the_projection() -> None:
+    """With only the eye's previous frame, the centroid at an instant between the two is the
+    samples' mix weighted by their depths (homogeneous coordinates): given how much the depth
+    changed, exact for the ball thrown at the camera, where the line errs by a pixel. The
+    depth change comes from the blob's areas (a disc of radius 0.1 m seen by the 500 px
+    camera), which scale as 1 / Z^2."""
+    t0, t1, target = 0, 66_666_667, 50_000_000
+    c0, c1 = _projected(t0 * 1e-9), _projected(t1 * 1e-9)
+    truth = _projected(target * 1e-9)
+    z0, z1 = 3.0 - 10.0 * t0 * 1e-9, 3.0 - 10.0 * t1 * 1e-9
+    area0, area1 = (np.pi * (500.0 * 0.1 / z) ** 2 for z in (z0, z1))
+    ratio = skew.size_depth_ratio(area0, area1)
+    assert ratio == pytest.approx(z1 / z0)
+    got = skew.at_instant([(t0, c0)], t1, c1, target, 10**9, ratio)
+    assert got is not None
+    np.testing.assert_allclose(got, truth, atol=1e-9)
+    line = skew.at_instant([(t0, c0)], t1, c1, target, 10**9)
+    assert line is not None and np.abs(line - truth).max() > 0.9
+    # through compensate, per eye
+    histories = ([(t0 - t1 + target, c0)], [(t0, c0)])
+    lc, rc, exact = skew.compensate(
+        histories, truth, c1, (target, t1), target, 10**9, (None, ratio)
+    )
+    assert exact
+    np.testing.assert_allclose(rc, truth, atol=1e-9)
+    np.testing.assert_array_equal(lc, truth)
+    # A depth that changed by less than a blob's size wobbles, or is unknown, keeps the line:
+    # 56 px against 62 px is 5 % in size, within a 56 px blob's noise (0.75 / sqrt(56) = 10 %).
+    assert skew.size_depth_ratio(56.0, 62.0) is None
+    assert skew.size_depth_ratio(151.0, 273.0) == pytest.approx((151.0 / 273.0) ** 0.5)
+    assert skew.size_depth_ratio(0.0, 10.0) is None
+    assert skew.projective_weight(0.75, None) == 0.75
+    assert skew.projective_weight(0.5, 2.0) == pytest.approx(2.0 / 3.0)
+
+
 def test_moebius_stays_between_the_bracketing_samples() -> None:
     """A coordinate whose samples go back and forth (noise on a still object) is interpolated
     linearly; a monotone one lands between the two samples that bracket the instant."""
