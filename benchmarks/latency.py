@@ -99,9 +99,12 @@ def camera_mb(cfg: Path) -> float:
     return float(out.stdout.strip())
 
 
-def config(endpoint: str, width: int, height: int, fps: float, color: bool) -> str:
+def config(
+    endpoint: str, width: int, height: int, fps: float, color: bool, skew: float = 0.5
+) -> str:
     """The daemon's TOML: a live, prerendered, looping synthetic scene of 1.2 s, in colour
-    (BGR, as the V4L2 driver delivers by default) or grey."""
+    (BGR, as the V4L2 driver delivers by default) or grey, the right eye ``skew`` frames
+    late."""
     return f"""
 [rig]
 name = "bench"
@@ -115,7 +118,7 @@ width_px = {width}
 height_px = {height}
 fps = {fps}
 duration_s = 1.2
-skew_s = {0.5 / fps}
+skew_s = {skew / fps}
 noise_sigma = 2.0
 color = {str(color).lower()}
 [[driver.options.balls]]
@@ -138,6 +141,13 @@ def main() -> int:
     ap.add_argument("--warmup", type=float, default=3.0, help="ignored first seconds (3)")
     ap.add_argument("--size", default="640x480", help="image size, px (640x480)")
     ap.add_argument("--fps", type=float, default=30.0, help="frame rate per eye, Hz (30)")
+    ap.add_argument(
+        "--skew",
+        type=float,
+        default=0.5,
+        help="how late the right eye is, in frames (0.5: the most two free-running eyes are "
+        "apart; the earlier eye is detected while the later is awaited)",
+    )
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "latency.md")
     ap.add_argument(
         "--grey",
@@ -166,7 +176,7 @@ def main() -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         cfg = Path(tmp) / "latency.toml"
-        cfg.write_text(config(endpoint, width, height, a.fps, not a.grey))
+        cfg.write_text(config(endpoint, width, height, a.fps, not a.grey, a.skew))
         proc = start_stereod("run", "--config", str(cfg), stdout=None, stderr=None)
         try:
             conf = zenoh.Config()

@@ -3,7 +3,9 @@
 A live source gets one thread per eye, each blocking on its device; a file source gets one
 thread that merges the two eyes by timestamp and paces them at ``rate`` times real time (0 = as
 fast as possible). Every frame goes through :meth:`Capture.push`: its size is checked, the eye's
-health updated, and the pairer fed under one lock; the pairs go to the pipeline's queue.
+health updated, and the pairer fed under one lock; the pairs go to the pipeline's queue, and
+a frame still waiting for its partner goes there too when the queue is empty, so the idle
+pipeline detects that eye meanwhile.
 
 An eye thread survives anything its source raises: a :class:`~stereod.errors.DeviceLost` or
 any other exception marks the eye down, is counted and reported, and the eye starts over as
@@ -32,8 +34,10 @@ RETRY_FIRST_S = 0.1
 """Pause after an eye's first unexpected failure (s); doubles per repeat, up to RETRY_MAX_S."""
 RETRY_MAX_S = 5.0
 
-QueuedPair = tuple[StereoPair, int]
-"""A pair and the ``time.perf_counter_ns()`` at which it was queued."""
+Queued = tuple[StereoPair | Frame, int]
+"""A pair, or one eye's frame that is waiting for its partner (for the pipeline to detect
+meanwhile, :meth:`~stereod.pipeline.Pipeline.detect_ahead`), and the
+``time.perf_counter_ns()`` at which it was queued."""
 
 
 class Capture:
@@ -43,7 +47,7 @@ class Capture:
         self,
         source: StereoSource,
         pairer: Pairer,
-        pairs: BoundedQueue[QueuedPair],
+        pairs: BoundedQueue[Queued],
         health: Health,
         stop: threading.Event,
         *,
@@ -106,6 +110,9 @@ class Capture:
         if ready:
             self._on_ready()
         now = time.perf_counter_ns()
+        if not pairs:  # its partner is still to come: an idle pipeline may detect it now
+            self.pairs.put_if_empty((frame, now))
+            return True
         return all(self.pairs.put((p, now), self.stop) for p in pairs)
 
     def _eye_loop(self, eye: EyeSource) -> None:

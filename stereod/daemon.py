@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .capture import Capture, QueuedPair
+from .capture import Capture, Queued
 from .config import StereodConfig
 from .errors import InternalError, StereodError
 from .frames import Driver, StereoSource
@@ -217,7 +217,7 @@ class Daemon:
         if h.geometry_note:
             log.info("%s", h.geometry_note)
         h.watch(source.left, source.right)
-        pairs: BoundedQueue[QueuedPair] = BoundedQueue(cfg.daemon.queue_size, drop_oldest=info.live)
+        pairs: BoundedQueue[Queued] = BoundedQueue(cfg.daemon.queue_size, drop_oldest=info.live)
         out: BoundedQueue[Outgoing] = BoundedQueue(
             cfg.daemon.publish_queue_size, drop_oldest=info.live
         )

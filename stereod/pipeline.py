@@ -21,7 +21,7 @@ import numpy as np
 
 from . import skew
 from .detect import Blobs, Detector, DetectorParams, Rect
-from .frames import Frame, StereoPair
+from .frames import Eye, Frame, StereoPair
 from .geometry.rectified import CalibratedRig
 from .geometry.refine import RefineParams, refine_match
 from .geometry.stereo import CanonicalRig, MatchParams, match_blobs
@@ -75,7 +75,8 @@ class PipelineParams:
 @dataclass(frozen=True, slots=True)
 class Timings:
     """Where the time of one pair went inside the pipeline (ms, wall clock). ``detect_ms``
-    includes eq. 3 with the previous pair's frames (deferred to run in the eyes' workers)."""
+    includes eq. 3 with the previous pair's frames (deferred to run in the eyes' workers); an
+    eye detected ahead (:meth:`Pipeline.detect_ahead`) adds nothing to it."""
 
     detect_ms: float
     geometry_ms: float
@@ -107,8 +108,8 @@ class PairResult:
     row_residuals_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-Learning = tuple[tuple[list[Rect], list[Rect]], ...]
-"""Per eye, the (frozen, released) rectangles of :meth:`stereod.detect.Detector.learn`."""
+Learning = tuple[list[Rect], list[Rect]]
+"""One eye's (frozen, released) rectangles of :meth:`stereod.detect.Detector.learn`."""
 
 
 def _grown_box(bbox: np.ndarray) -> Rect:
@@ -146,8 +147,16 @@ class Pipeline:
         self.left = Detector(params.detector)
         self.right = Detector(params.detector)
         self.tracker = Tracker(params.tracker, params.rig.project_rectified)
-        self._pending: Learning | None = None
-        """Each eye's eq. 3 rectangles (frozen, released) from the last pair, for the next."""
+        self._pending: list[Learning | None] = [None, None]
+        """Each eye's eq. 3 rectangles (frozen, released) from the last pair, for the next;
+        ``None`` once that eye has learned (or before the first pair)."""
+        self._ahead: list[tuple[int, int, Blobs] | None] = [None, None]
+        """Per eye, (seq, t_ns, blobs) of a frame detected before its pair was formed."""
+        self._last_seq: list[int | None] = [None, None]
+        """Per eye, the seq of its frame in the last pair processed."""
+        self.detected_ahead = 0
+        """Frames whose detection was done before their pair formed (:meth:`detect_ahead`)
+        and then used."""
         parallel = params.rig.width_px * params.rig.height_px >= PARALLEL_MIN_PX
         self._pool = (
             ThreadPoolExecutor(1, thread_name_prefix="detect")
@@ -199,28 +208,58 @@ class Pipeline:
     ) -> Iterator[PairResult]:
         """Pair ``frames`` (both eyes, each eye in capture order, interleaved in any way) by
         nearest capture time within ``tolerance_ns`` and yield each pair's result as soon as
-        the pair is formed. Tracks still live at the end stay live: :meth:`finish` ends them."""
+        the pair is formed (a frame that waits for its partner is detected meanwhile, as the
+        daemon does: :meth:`detect_ahead`). Tracks still live at the end stay live:
+        :meth:`finish` ends them."""
         pairer = Pairer(tolerance_ns)
         for frame in frames:
-            for pair in pairer.push(frame):
+            pairs = pairer.push(frame)
+            if not pairs:
+                self.detect_ahead(frame)
+            for pair in pairs:
                 yield self.process(pair)
         for pair in pairer.flush():
             yield self.process(pair)
+
+    def detect_ahead(self, frame: Frame) -> bool:
+        """Detect one eye's frame before its pair is formed (eq. 2-5, after eq. 3 with that
+        eye's last frame), so that when the pair comes only the other eye is left to detect:
+        the eyes free-run up to half a frame apart, and the earlier one's detection is done
+        in that wait instead of after it. Only the frame that follows the eye's frame in the
+        last pair processed is taken (the detectors see each eye's frames in order), once;
+        returns whether it was. Call it from the thread that calls :meth:`process`."""
+        e = 0 if frame.eye is Eye.LEFT else 1
+        last = self._last_seq[e]
+        if self._ahead[e] is not None or last is None or frame.seq != last + 1:
+            return False
+        self._ahead[e] = (frame.seq, frame.t_ns, self._eye(e, frame.image, frame.t_ns))
+        return True
+
+    def _detected(self, e: int, frame: Frame) -> Blobs | None:
+        """This eye's blobs for ``frame`` if it was detected ahead, else ``None`` (a frame
+        detected ahead that did not make it into this pair is dropped)."""
+        ahead, self._ahead[e] = self._ahead[e], None
+        if ahead is None or ahead[0] != frame.seq or ahead[1] != frame.t_ns:
+            return None
+        self.detected_ahead += 1
+        return ahead[2]
 
     def process(self, pair: StereoPair) -> PairResult:
         """Run one pair through eq. 2-5, 9, 12 and 21-23."""
         p = self.params
         t0 = time.perf_counter_ns()
-        pending, self._pending = self._pending, None
-        if self._pool is not None:
-            fut = self._pool.submit(self._eye, 1, pending, pair.right.image, pair.right.t_ns)
+        lb, rb = self._detected(0, pair.left), self._detected(1, pair.right)
+        if lb is None and rb is None and self._pool is not None:
+            fut = self._pool.submit(self._eye, 1, pair.right.image, pair.right.t_ns)
             try:
-                lb = self._eye(0, pending, pair.left.image, pair.left.t_ns)
+                lb = self._eye(0, pair.left.image, pair.left.t_ns)
             finally:  # never leave the right eye's detector running into the next pair
                 rb = fut.result()
-        else:
-            lb = self._eye(0, pending, pair.left.image, pair.left.t_ns)
-            rb = self._eye(1, pending, pair.right.image, pair.right.t_ns)
+        if lb is None:
+            lb = self._eye(0, pair.left.image, pair.left.t_ns)
+        if rb is None:
+            rb = self._eye(1, pair.right.image, pair.right.t_ns)
+        self._last_seq = [pair.left.seq, pair.right.seq]
         t1 = time.perf_counter_ns()
         t_left, t_right = pair.left.t_ns, pair.right.t_ns
         eye_times = (t_left, t_right)
@@ -398,20 +437,21 @@ class Pipeline:
                     into = frozen if s.freeze_background else released
                     into[0].append(_grown_box(ob.left_bbox_px))
                     into[1].append(_grown_box(ob.right_bbox_px))
-        self._pending = ((frozen[0], released[0]), (frozen[1], released[1]))
+        self._pending = [(frozen[0], released[0]), (frozen[1], released[1])]
 
-    def _eye(self, e: int, pending: Learning | None, image: np.ndarray, t_ns: int) -> Blobs:
-        """One eye's detector: first eq. 3 with the last frame (deferred from the last pair so
-        that it runs in the eye's worker, in the same order as if done at once), then this
-        frame's blobs."""
+    def _eye(self, e: int, image: np.ndarray, t_ns: int) -> Blobs:
+        """One eye's detector: first eq. 3 with its last frame (deferred from the last pair so
+        that it runs in the eye's worker, or ahead, in the same order as if done at once),
+        then this frame's blobs."""
         det = self.right if e else self.left
+        pending, self._pending[e] = self._pending[e], None
         if pending is not None:
-            det.learn(*pending[e])
+            det.learn(*pending)
         return det.find(image, t_ns)
 
     def _flush(self) -> None:
         """Apply the deferred eq. 3 now (before the backgrounds are handed over)."""
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            for e, det in enumerate((self.left, self.right)):
-                det.learn(*pending[e])
+        for e, det in enumerate((self.left, self.right)):
+            pending, self._pending[e] = self._pending[e], None
+            if pending is not None:
+                det.learn(*pending)

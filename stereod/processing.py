@@ -1,6 +1,7 @@
 """The pipeline thread: the only thread that ever touches a :class:`~stereod.pipeline.Pipeline`.
 
-It takes pairs from the capture queue, runs them through the pipeline, turns each result into
+It takes pairs from the capture queue, runs them through the pipeline (and a lone frame that
+waits for its partner through its eye's detector, ahead of the pair), turns each result into
 its wire payloads (the ``objects`` message and one state per live track) and queues them for
 the output thread. A reload hands new parameters over with :meth:`PipelineWorker.reconfigure`
 from any thread; the swap happens here, between two pairs, so no pair is processed half by one
@@ -16,8 +17,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from .capture import QueuedPair
-from .frames import StereoPair
+from .capture import Queued
+from .frames import Frame, StereoPair
 from .geometry.rectified import CalibratedRig
 from .geometry.stereo import CanonicalRig
 from .messages import ObjectsMessage, dump, objects_message
@@ -58,7 +59,7 @@ class PipelineWorker:
     def __init__(
         self,
         pipeline: Pipeline,
-        pairs: BoundedQueue[QueuedPair],
+        pairs: BoundedQueue[Queued],
         out: BoundedQueue[Outgoing],
         health: Health,
         *,
@@ -119,6 +120,9 @@ class PipelineWorker:
                 if item is None:
                     continue
                 pair, queued_at = item
+                if isinstance(pair, Frame):
+                    self._ahead(pair)
+                    continue
                 queued_ms = (time.perf_counter_ns() - queued_at) * 1e-6
                 try:
                     result = self.pipeline.process(pair)
@@ -147,6 +151,17 @@ class PipelineWorker:
         finally:
             self.pipeline.close()
             self.out.close()
+
+    def _ahead(self, frame: Frame) -> None:
+        """Detect a frame whose partner is still to come (its pair is then quicker)."""
+        try:
+            self.pipeline.detect_ahead(frame)
+        except Exception as exc:  # the same error as the pair's would be: counted, skipped
+            self.health.error(ERROR_PIPELINE)
+            self.health.problem(
+                f"{frame.eye.value} frame {frame.seq}: detection failed: {exc}", ERROR_PIPELINE
+            )
+            log.debug("%s frame %d failed", frame.eye.value, frame.seq, exc_info=True)
 
     def _images(self, pair: StereoPair) -> PairImages:
         """References (no copies) to what the pipeline used for ``pair``: its frames, which

@@ -27,6 +27,8 @@ class BoundedQueue(Generic[T]):
         self.maxsize = maxsize
         self.drop_oldest = drop_oldest
         self._items: collections.deque[T] = collections.deque()
+        self._expendable = False
+        """Whether the oldest item was put with :meth:`put_if_empty` (its loss is no drop)."""
         self._cond = threading.Condition()
         self._closed = False
         self.dropped = 0
@@ -46,9 +48,24 @@ class BoundedQueue(Generic[T]):
                 return False
             if len(self._items) >= self.maxsize:
                 self._items.popleft()
-                self.dropped += 1
+                if not self._expendable:
+                    self.dropped += 1
+                self._expendable = False
             self._items.append(item)
             self.high_water = max(self.high_water, len(self._items))
+            self._cond.notify_all()
+            return True
+
+    def put_if_empty(self, item: T) -> bool:
+        """Add ``item`` only if nothing is waiting (something worth having only when the
+        consumer is idle, which never displaces or waits behind what is queued, and which a
+        full queue drops first without counting it); return whether it was added."""
+        with self._cond:
+            if self._closed or self._items:
+                return False
+            self._expendable = True
+            self._items.append(item)
+            self.high_water = max(self.high_water, 1)
             self._cond.notify_all()
             return True
 
@@ -59,6 +76,7 @@ class BoundedQueue(Generic[T]):
                 self._cond.wait(timeout)
             if self._items:
                 item = self._items.popleft()
+                self._expendable = False
                 self._cond.notify_all()
                 return item
             if self._closed:

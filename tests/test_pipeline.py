@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from stereod import PipelineParams, pipeline
+from stereod import PipelineParams, pairing, pipeline
 from stereod.detect import DetectorParams
 from stereod.motion import circular_median_deg
 from stereod.tracking import TrackerParams
@@ -220,3 +220,43 @@ def test_two_workers_find_what_one_finds(monkeypatch: pytest.MonkeyPatch) -> Non
         assert a.track_id == b.track_id and a.t_ns == b.t_ns
         assert np.array_equal(a.position_m, b.position_m)
         assert np.array_equal(a.velocity_mps, b.velocity_mps)
+
+
+def test_detecting_the_earlier_eye_ahead_finds_what_the_pair_finds() -> None:
+    """With the right eye half a frame late, the left frame waits for its partner: detecting
+    it meanwhile (what the daemon does while idle) gives the same tracks, to the bit, as
+    detecting both eyes once the pair is formed. Every pair after the first two uses it (the
+    pairer knows the frame period from the second frame of an eye on)."""
+    from stereod.frames import Eye, StereoPair
+    from stereod.pipeline import Pipeline
+    from stereod_fakes.synth import Renderer
+
+    scene = Scene(duration_s=2.0, skew_s=1 / 60, balls=[Ball(heading_deg=60, speed_mps=0.7)])
+    params = PipelineParams(scene.rig)
+    frames = [f for pair in Renderer(scene).frames() for f in pair]
+    tolerance = int(0.75e9 / scene.fps)
+    with Pipeline(params) as pipe:
+        ahead = list(pipe.run(frames, tolerance))
+        assert pipe.detected_ahead == len(ahead) - 2
+    pairer = pairing.Pairer(tolerance)
+    with Pipeline(params) as pipe:
+        at_once = [pipe.process(p) for f in frames for p in pairer.push(f)]
+        assert pipe.detected_ahead == 0
+    a, b = states(ahead), states(at_once)
+    assert len(a) == len(b) > 10
+    for x, y in zip(a, b, strict=True):
+        assert x.track_id == y.track_id and x.t_ns == y.t_ns
+        assert np.array_equal(x.position_m, y.position_m)
+        assert np.array_equal(x.velocity_mps, y.velocity_mps)
+    # Only an eye's next frame, once: not one that skips a frame, not the same one twice.
+    left = [f for f in frames if f.eye is Eye.LEFT]
+    right = [f for f in frames if f.eye is Eye.RIGHT]
+    with Pipeline(params) as pipe:
+        assert not pipe.detect_ahead(left[0])  # no pair yet: nothing to follow
+        pipe.process(StereoPair(0, left[0], right[0]))
+        assert not pipe.detect_ahead(left[2])
+        assert pipe.detect_ahead(left[1])
+        assert not pipe.detect_ahead(left[1])
+        # a frame detected ahead that its pair does not hold is dropped
+        pipe.process(StereoPair(1, left[2], right[2]))
+        assert pipe.detected_ahead == 0

@@ -57,3 +57,18 @@ def test_closed_queue_drains_then_raises() -> None:
         q.get(0)
     with pytest.raises(ValueError):
         BoundedQueue(0, drop_oldest=True)
+
+
+def test_put_if_empty_never_displaces_or_waits() -> None:
+    """What is worth having only while the consumer is idle goes in only when nothing waits."""
+    q: BoundedQueue[int] = BoundedQueue(1, drop_oldest=True)
+    assert q.put_if_empty(1)
+    assert not q.put_if_empty(2)
+    assert q.get(0) == 1 and q.dropped == 0
+    assert q.put_if_empty(4)
+    assert q.put(5)  # full: the expendable item goes, uncounted
+    assert q.dropped == 0
+    assert q.put(6)  # full of a real item: dropped and counted
+    assert q.dropped == 1 and q.get(0) == 6
+    q.close()
+    assert not q.put_if_empty(3)
