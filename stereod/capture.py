@@ -4,8 +4,8 @@ A live source gets one thread per eye, each blocking on its device; a file sourc
 thread that merges the two eyes by timestamp and paces them at ``rate`` times real time (0 = as
 fast as possible). Every frame goes through :meth:`Capture.push`: its size is checked, the eye's
 health updated, and the pairer fed under one lock; the pairs go to the pipeline's queue, and
-a frame still waiting for its partner goes there too when the queue is empty, so the idle
-pipeline detects that eye meanwhile.
+a live frame still waiting for its partner goes there too when the queue is empty, so the
+idle pipeline detects that eye meanwhile.
 
 An eye thread survives anything its source raises: a :class:`~stereod.errors.DeviceLost` or
 any other exception marks the eye down, is counted and reported, and the eye starts over as
@@ -111,7 +111,8 @@ class Capture:
             self._on_ready()
         now = time.perf_counter_ns()
         if not pairs:  # its partner is still to come: an idle pipeline may detect it now
-            self.pairs.put_if_empty((frame, now))
+            if self.info.live:  # (a file's run stays the same whatever the timing)
+                self.pairs.put_if_empty((frame, now))
             return True
         return all(self.pairs.put((p, now), self.stop) for p in pairs)
 

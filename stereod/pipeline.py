@@ -12,6 +12,7 @@ format (:func:`stereod.messages.objects_message` turns a result into the wire me
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -88,7 +89,7 @@ class Timings:
 class PairResult:
     """What one stereo pair produced.
 
-    ``t_ns`` is the instant the measurements refer to (the later eye's capture when skew is
+    ``t_ns`` is the instant the measurements refer to (the earlier eye's capture when skew is
     compensated, else the pair's midpoint), on the frames' clock; ``tracks`` the state of every
     live track at that instant (seen in this pair, or coasting); ``ended`` the ids of the tracks
     that ended with this pair; ``left``/``right`` each eye's blobs (image px);
@@ -117,6 +118,12 @@ def _grown_box(bbox: np.ndarray) -> Rect:
     x, y, w, h = (int(v) for v in bbox)
     m = FREEZE_MARGIN_PX
     return (x - m, y - m, x + w + m + 1, y + h + m + 1)
+
+
+def _cos_off_axis(point_px: np.ndarray, centre_px: tuple[float, float], focal_px: float) -> float:
+    """Cosine of the angle between an eye's optical axis and the ray through a point (px)."""
+    dx, dy = float(point_px[0]) - centre_px[0], float(point_px[1]) - centre_px[1]
+    return focal_px / math.sqrt(focal_px * focal_px + dx * dx + dy * dy)
 
 
 def _touches_border(bbox: np.ndarray, rig: CanonicalRig | CalibratedRig) -> bool:
@@ -152,8 +159,8 @@ class Pipeline:
         ``None`` once that eye has learned (or before the first pair)."""
         self._ahead: list[tuple[int, int, Blobs] | None] = [None, None]
         """Per eye, (seq, t_ns, blobs) of a frame detected before its pair was formed."""
-        self._last_seq: list[int | None] = [None, None]
-        """Per eye, the seq of its frame in the last pair processed."""
+        self._last: list[tuple[int, int] | None] = [None, None]
+        """Per eye, (seq, t_ns) of its frame in the last pair processed."""
         self.detected_ahead = 0
         """Frames whose detection was done before their pair formed (:meth:`detect_ahead`)
         and then used."""
@@ -226,11 +233,19 @@ class Pipeline:
         eye's last frame), so that when the pair comes only the other eye is left to detect:
         the eyes free-run up to half a frame apart, and the earlier one's detection is done
         in that wait instead of after it. Only the frame that follows the eye's frame in the
-        last pair processed is taken (the detectors see each eye's frames in order), once;
-        returns whether it was. Call it from the thread that calls :meth:`process`."""
+        last pair processed, in number and in time, is taken (the detectors see each eye's
+        frames in order), once; returns whether it was. Call it from the thread that calls
+        :meth:`process`. The result is the same, to the bit, as detecting the frame with its
+        pair, unless its pair never comes (the pairer dropped the frame): its detection then
+        still leaves what it saw of the light (the gain) and of the foreground to the next."""
         e = 0 if frame.eye is Eye.LEFT else 1
-        last = self._last_seq[e]
-        if self._ahead[e] is not None or last is None or frame.seq != last + 1:
+        last = self._last[e]
+        if (
+            self._ahead[e] is not None
+            or last is None
+            or frame.seq != last[0] + 1
+            or frame.t_ns <= last[1]
+        ):
             return False
         self._ahead[e] = (frame.seq, frame.t_ns, self._eye(e, frame.image, frame.t_ns))
         return True
@@ -259,7 +274,7 @@ class Pipeline:
             lb = self._eye(0, pair.left.image, pair.left.t_ns)
         if rb is None:
             rb = self._eye(1, pair.right.image, pair.right.t_ns)
-        self._last_seq = [pair.left.seq, pair.right.seq]
+        self._last = [(pair.left.seq, pair.left.t_ns), (pair.right.seq, pair.right.t_ns)]
         t1 = time.perf_counter_ns()
         t_left, t_right = pair.left.t_ns, pair.right.t_ns
         eye_times = (t_left, t_right)
@@ -286,7 +301,8 @@ class Pipeline:
                 continue
             histories = self.tracker.histories(tid)
             if compensate:
-                ratios = self._depth_ratios(tid, lb.area_px[idx[k, 0]], rb.area_px[idx[k, 1]])
+                areas = (int(lb.area_px[idx[k, 0]]), int(rb.area_px[idx[k, 1]]))
+                ratios = self._depth_ratios(tid, detections[k], eye_times, areas)
                 lc, rc, exact = skew.compensate(
                     histories, lpx[k], rpx[k], eye_times, t_ns, window, ratios
                 )
@@ -321,20 +337,43 @@ class Pipeline:
         )
 
     def _depth_ratios(
-        self, tid: int | None, left_area_px: int, right_area_px: int
+        self,
+        tid: int | None,
+        det: Detection,
+        eye_times_ns: tuple[int, int],
+        areas_px: tuple[int, int],
     ) -> tuple[float | None, float | None]:
         """How much a track's depth changed since each eye last saw it (Z now over Z then),
-        from its blob's areas in that eye (:func:`stereod.skew.size_depth_ratio`); unknown
-        for a new track, or when either blob is cut by the image's edge."""
+        from its blob's areas in that eye (``areas_px`` now, left and right), each seen at
+        its angle off that eye's axis, and no faster than ``max_speed_mps`` from its last
+        depth (:func:`stereod.skew.size_depth_ratio`); unknown for a new track, or when
+        either blob is cut by the image's edge, now or then."""
         if tid is None:
             return None, None
-        last = self.tracker.track(tid).last
-        if last.clipped:
+        tr = self.tracker.track(tid)
+        last = tr.last
+        if last.clipped or det.clipped:
             return None, None
-        return (
-            skew.size_depth_ratio(last.left_area_px, left_area_px),
-            skew.size_depth_ratio(last.right_area_px, right_area_px),
-        )
+        rig, max_speed = self.params.rig, self.params.tracker.max_speed_mps
+        z_then = float(last.position_m[2])
+        out: list[float | None] = []
+        for e, (then_px, now_px, area_then) in enumerate(
+            ((last.left_px, det.left_px, last.left_area_px),
+             (last.right_px, det.right_px, last.right_area_px))
+        ):  # fmt: skip
+            history = tr.right_history if e else tr.left_history
+            dt_s = (eye_times_ns[e] - history[-1][0]) * 1e-9
+            centre = rig.principal_point_px(e == 0)
+            out.append(
+                skew.size_depth_ratio(
+                    area_then,
+                    areas_px[e],
+                    _cos_off_axis(then_px, centre, rig.focal_px),
+                    _cos_off_axis(now_px, centre, rig.focal_px),
+                    max_speed * dt_s / z_then if z_then > 0 else math.inf,
+                )
+            )
+        return out[0], out[1]
 
     def _refine(
         self, pair: StereoPair, lb: Blobs, idx: np.ndarray, lpx: np.ndarray, rpx: np.ndarray

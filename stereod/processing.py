@@ -119,10 +119,11 @@ class PipelineWorker:
                 self._swap()
                 if item is None:
                     continue
-                pair, queued_at = item
-                if isinstance(pair, Frame):
-                    self._ahead(pair)
+                what, queued_at = item
+                if isinstance(what, Frame):
+                    self._ahead(what)
                     continue
+                pair = what
                 queued_ms = (time.perf_counter_ns() - queued_at) * 1e-6
                 try:
                     result = self.pipeline.process(pair)
@@ -153,15 +154,15 @@ class PipelineWorker:
             self.out.close()
 
     def _ahead(self, frame: Frame) -> None:
-        """Detect a frame whose partner is still to come (its pair is then quicker)."""
+        """Detect a frame whose partner is still to come (its pair is then quicker), unless a
+        pair is already waiting (with two detect workers the pair would detect both eyes at
+        once). A failure is left for the pair to report: it detects the frame again."""
+        if len(self.pairs):
+            return
         try:
             self.pipeline.detect_ahead(frame)
-        except Exception as exc:  # the same error as the pair's would be: counted, skipped
-            self.health.error(ERROR_PIPELINE)
-            self.health.problem(
-                f"{frame.eye.value} frame {frame.seq}: detection failed: {exc}", ERROR_PIPELINE
-            )
-            log.debug("%s frame %d failed", frame.eye.value, frame.seq, exc_info=True)
+        except Exception:
+            log.debug("%s frame %d failed ahead", frame.eye.value, frame.seq, exc_info=True)
 
     def _images(self, pair: StereoPair) -> PairImages:
         """References (no copies) to what the pipeline used for ``pair``: its frames, which

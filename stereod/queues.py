@@ -32,7 +32,8 @@ class BoundedQueue(Generic[T]):
         self._cond = threading.Condition()
         self._closed = False
         self.dropped = 0
-        """Items dropped because the queue was full (drop_oldest only)."""
+        """Items dropped because the queue was full (drop_oldest only), not counting one put
+        with :meth:`put_if_empty`."""
         self.high_water = 0
         """Largest depth seen."""
 
@@ -65,7 +66,6 @@ class BoundedQueue(Generic[T]):
                 return False
             self._expendable = True
             self._items.append(item)
-            self.high_water = max(self.high_water, 1)
             self._cond.notify_all()
             return True
 

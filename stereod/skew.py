@@ -19,7 +19,8 @@ otherwise, or when its motion per frame barely changed (the curve would only add
 sample's noise), the straight line. With only the two bracketing frames (a track's second
 sight), the curve is the two samples mixed in homogeneous coordinates, weighted by the
 object's depth at each, whose ratio the blob's size in that eye gives where it changed beyond
-its noise (:func:`projective_weight`); a ball thrown across or at the rig at 20 m/s and seen
+its noise, once its angle off the axis is taken out (:func:`size_depth_ratio`,
+:func:`projective_weight`); a ball thrown across or at the rig at 20 m/s and seen
 at 15 Hz is then placed within a few cm at its second frame, not 0.3 to 1.5 m off, and is
 tracked from there. Without the earlier frame (it was dropped), the eye's image
 velocity over its 2D track moves it.
@@ -95,22 +96,33 @@ radius moves the log of a ratio of two sizes by 0.375 / sqrt(A). A depth change 
 sizes only beyond twice that, ``SIZE_NOISE / sqrt(A)`` (0.1 for a 56 px blob)."""
 
 
-def size_depth_ratio(area_then_px: float, area_now_px: float) -> float | None:
-    """Z now over Z then of one object from its blob's areas in one eye at two instants (its
-    image size goes as 1 / Z); ``None`` when the sizes do not differ beyond their noise
-    (``SIZE_NOISE``), or without two areas."""
+def size_depth_ratio(
+    area_then_px: float,
+    area_now_px: float,
+    cos_then: float = 1.0,
+    cos_now: float = 1.0,
+    max_change: float = math.inf,
+) -> float | None:
+    """Z now over Z then of one object from its blob's areas in one eye at two instants, seen
+    at angles whose cosines from the optical axis are ``cos_then`` and ``cos_now``: a ball's
+    image area goes as 1 / (Z^2 cos), its image stretched along the ray off the axis. ``None``
+    when the sizes do not differ beyond their noise (``SIZE_NOISE``), when the ratio is
+    further from 1 than ``max_change`` (faster in depth than any object followed: a blob that
+    merged, split or was partly hidden), or without two areas."""
     if area_then_px <= 0 or area_now_px <= 0:
         return None
-    log_ratio = 0.5 * math.log(area_then_px / area_now_px)
+    log_ratio = 0.5 * math.log((area_then_px * cos_then) / (area_now_px * cos_now))
     if abs(log_ratio) <= SIZE_NOISE / math.sqrt(min(area_then_px, area_now_px)):
         return None
-    return math.exp(log_ratio)
+    ratio = math.exp(log_ratio)
+    return ratio if abs(ratio - 1.0) <= max_change else None
 
 
 def projective_weight(w: float, depth_ratio: float | None) -> float:
     """The share ``w`` of the time from one sample to the next, as a share of the image
-    motion between them. An object moving straight at a constant velocity has X Z^-1 and
-    Z linear in time, so in homogeneous coordinates the image point is the samples' mix
+    motion between them. An object moving straight at a constant velocity has X and Z, so
+    also Z x (x = f X / Z + c), linear in time: in homogeneous coordinates the image point is
+    the samples' mix
     weighted by their depths: ``w r / ((1 - w) + w r)`` with ``r`` = Z at the second over Z at
     the first (a ball thrown at the camera, 20 m/s at 15 Hz: 1.1 px of disparity against 0.1).
     An unknown depth change leaves ``w`` as it is."""

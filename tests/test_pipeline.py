@@ -225,8 +225,9 @@ def test_two_workers_find_what_one_finds(monkeypatch: pytest.MonkeyPatch) -> Non
 def test_detecting_the_earlier_eye_ahead_finds_what_the_pair_finds() -> None:
     """With the right eye half a frame late, the left frame waits for its partner: detecting
     it meanwhile (what the daemon does while idle) gives the same tracks, to the bit, as
-    detecting both eyes once the pair is formed. Every pair after the first two uses it (the
-    pairer knows the frame period from the second frame of an eye on)."""
+    detecting both eyes once the pair is formed (the pairer drops nothing here). Every pair
+    after the first two uses it (the pairer knows the frame period from an eye's second
+    frame on)."""
     from stereod.frames import Eye, StereoPair
     from stereod.pipeline import Pipeline
     from stereod_fakes.synth import Renderer
@@ -255,6 +256,7 @@ def test_detecting_the_earlier_eye_ahead_finds_what_the_pair_finds() -> None:
         assert not pipe.detect_ahead(left[0])  # no pair yet: nothing to follow
         pipe.process(StereoPair(0, left[0], right[0]))
         assert not pipe.detect_ahead(left[2])
+        assert not pipe.detect_ahead(dataclasses.replace(left[1], t_ns=left[0].t_ns))  # not later
         assert pipe.detect_ahead(left[1])
         assert not pipe.detect_ahead(left[1])
         # a frame detected ahead that its pair does not hold is dropped

@@ -65,10 +65,13 @@ def test_put_if_empty_never_displaces_or_waits() -> None:
     assert q.put_if_empty(1)
     assert not q.put_if_empty(2)
     assert q.get(0) == 1 and q.dropped == 0
+    assert q.put_if_empty(7) and q.get(0) == 7  # taken: what comes next is no longer expendable
+    assert q.put(8) and q.put(9)
+    assert q.dropped == 1 and q.get(0) == 9
     assert q.put_if_empty(4)
     assert q.put(5)  # full: the expendable item goes, uncounted
-    assert q.dropped == 0
+    assert q.dropped == 1
     assert q.put(6)  # full of a real item: dropped and counted
-    assert q.dropped == 1 and q.get(0) == 6
+    assert q.dropped == 2 and q.get(0) == 6
     q.close()
     assert not q.put_if_empty(3)

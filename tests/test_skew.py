@@ -83,6 +83,35 @@ def test_two_frames_and_the_depth_change_follow_the_projection() -> None:
     assert skew.projective_weight(0.5, 2.0) == pytest.approx(2.0 / 3.0)
 
 
+def _ball_area_px(centre_m: np.ndarray, radius_m: float, f_px: float = 500.0) -> tuple[int, float]:
+    """Pixels of a 640x480, ``f_px`` camera whose ray passes within ``radius_m`` of a ball's
+    centre (its silhouette, ray-cast), and the cosine of the centre's angle off the axis."""
+    u, v = np.meshgrid(np.arange(640) - 319.5, np.arange(480) - 239.5)
+    rays = np.stack([u, v, np.full(u.shape, f_px)], axis=-1)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    along = rays @ centre_m
+    miss2 = centre_m @ centre_m - along**2
+    area = int(np.count_nonzero((miss2 <= radius_m**2) & (along > 0)))
+    return area, float(centre_m[2] / np.linalg.norm(centre_m))
+
+
+def test_a_ball_crossing_off_the_axis_keeps_its_depth() -> None:
+    """A ball's image grows as it moves off the axis at one depth (it stretches along the
+    ray): 28 deg off at 2.5 m it covers 13 % more pixels. Corrected for the angle, the
+    areas say the depth did not change, so the line is kept; towards the camera they still
+    give the ratio."""
+    a0, c0 = _ball_area_px(np.array([0.0, 0.0, 2.5]), 0.035)
+    a1, c1 = _ball_area_px(np.array([2.5 * np.tan(np.radians(28.0)), 0.0, 2.5]), 0.035)
+    assert a1 > 1.1 * a0
+    assert skew.size_depth_ratio(a0, a1) is not None  # taken for a 6 % approach
+    assert skew.size_depth_ratio(a0, a1, c0, c1) is None
+    a2, c2 = _ball_area_px(np.array([0.3, 0.0, 1.8]), 0.035)
+    ratio = skew.size_depth_ratio(a0, a2, c0, c2)
+    assert ratio == pytest.approx(1.8 / 2.5, rel=0.02)
+    # no faster in depth than allowed: 0.7 m in 1/30 s is beyond 10 m/s from 2.5 m
+    assert skew.size_depth_ratio(a0, a2, c0, c2, max_change=10.0 / 30 / 2.5) is None
+
+
 def test_moebius_stays_between_the_bracketing_samples() -> None:
     """A coordinate whose samples go back and forth (noise on a still object) is interpolated
     linearly; a monotone one lands between the two samples that bracket the instant."""

@@ -123,6 +123,10 @@ class CalibratedRig:
             sigma_px=sigma_px,
         )
 
+    def principal_point_px(self, left: bool) -> tuple[float, float]:
+        """(cx, cy) of one eye in rectified coordinates (px)."""
+        return (self.cx_left_px if left else self.cx_right_px), self.cy_px
+
     def project_rectified(self, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rig-frame points (n, 3) m to rectified left and right px (n, 2), where the pipeline
         measures centroids (not the raw images: see :func:`stereod.overlay.project`)."""

@@ -50,6 +50,10 @@ class CanonicalRig:
     def cy_px(self) -> float:
         return (self.height_px - 1) / 2.0
 
+    def principal_point_px(self, left: bool) -> tuple[float, float]:
+        """(cx, cy) of one eye (px; both eyes share it)."""
+        return self.cx_px, self.cy_px
+
     @property
     def pixel_angle_rad(self) -> float:
         """Eq. 10: the angle of view of one pixel, delta phi = phi_0 / x_0 (rad)."""
