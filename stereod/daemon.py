@@ -266,16 +266,24 @@ class Daemon:
             sender = self._thread(output.loop, "output")
             threads.append(sender)
             painter = self._thread(images.loop, "images") if images is not None else None
-            for t in [*threads, *([painter] if painter else [])]:
-                t.start()
-            self._status_loop(pub, sender, info.width, info.height)
-            for t in threads:
-                t.join()
-            if images is not None and painter is not None:
-                images.close()
-                painter.join()
-                images.publishers.close()
-                self.images = images
+            try:
+                for t in [*threads, *([painter] if painter else [])]:
+                    t.start()
+                self._status_loop(pub, sender, info.width, info.height)
+                for t in threads:
+                    t.join()
+            finally:  # also on Ctrl-C in this thread: no thread outlives the run
+                if any(t.is_alive() for t in threads):
+                    self.stop()
+                    for t in threads:
+                        if t.ident is not None:
+                            t.join()
+                if images is not None and painter is not None:
+                    images.close()
+                    if painter.ident is not None:
+                        painter.join()
+                    images.publishers.close()
+                    self.images = images
             for p in source.problems():
                 h.problem(p)
             h.state = DaemonState.FINISHED

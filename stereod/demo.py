@@ -15,9 +15,11 @@ from __future__ import annotations
 
 import contextlib
 import math
+import signal
 import socket
 import tempfile
 import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -126,14 +128,21 @@ def run_demo(
         cfg = load_config(overrides={"zenoh": {"listen": [endpoint]}})
         received: list[ObjectsMessage] = []
         lock = threading.Lock()
+        closed: list[BrokenPipeError] = []
 
         def on_event(event: Event) -> None:
             if not isinstance(event, ObjectsMessage):
                 return
             with lock:
                 received.append(event)
-                for o in event.objects:
-                    print(f"t {event.t_ns / 1e9:6.3f} s" + format_object(o), flush=True)
+                if closed:
+                    return
+                try:
+                    for o in event.objects:
+                        print(f"t {event.t_ns / 1e9:6.3f} s" + format_object(o), flush=True)
+                except BrokenPipeError as exc:  # `stereod demo | head`: the reader had enough
+                    closed.append(exc)
+                    daemon.stop()
 
         daemon = Daemon(
             cfg, load_driver("replay", {"path": out}), rate=rate, wait_subscriber_s=10.0
@@ -156,7 +165,13 @@ def run_demo(
             stack.enter_context(
                 subscribe_objects(session, on_event, rig=cfg.rig.name, prefix=cfg.zenoh.prefix)
             )
-            summary = daemon.run()
+            interrupted = threading.Event()
+            with _stopping_on_signals(daemon, interrupted):
+                summary = daemon.run()
+            if interrupted.is_set():
+                raise KeyboardInterrupt  # stopped cleanly; the caller exits 130
+            if closed:
+                raise closed[0]
             if summary.error is not None:
                 raise summary.error
             rig = CanonicalRig(cfg.rig.baseline_m, cfg.rig.hfov_deg, 640, 480)
@@ -166,6 +181,27 @@ def run_demo(
                 with contextlib.suppress(KeyboardInterrupt):
                     wait_until(threading.Event())
     return code
+
+
+@contextlib.contextmanager
+def _stopping_on_signals(daemon: Daemon, interrupted: threading.Event) -> Iterator[None]:
+    """While the daemon runs, Ctrl-C or SIGTERM stops it as ``stereod run`` does (its threads
+    drain and end, the scene's folder is removed) and sets ``interrupted``; off the main
+    thread (where no handler can be set) nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def on_signal(_signum: int, _frame: object) -> None:
+        interrupted.set()
+        daemon.stop()
+
+    before = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler)
 
 
 def report(ball: DemoBall, rig: CanonicalRig, received: list[ObjectsMessage]) -> int:

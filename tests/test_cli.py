@@ -193,6 +193,36 @@ def test_subscribe_prints_readably(
     assert any("pos (" in line and " m" in line for line in lines)
 
 
+def test_subscribe_without_an_endpoint_connects_where_the_demo_listens() -> None:
+    """Bare ``stereod subscribe`` looks for a daemon on tcp/127.0.0.1:7447, as ``view``
+    does (a peer with no endpoint and no scouting would hear nothing)."""
+    from stereod.config import ZenohConfig
+    from stereod.publish import open_session
+
+    try:
+        session = open_session(ZenohConfig(listen=["tcp/127.0.0.1:7447"]))
+    except Exception:
+        pytest.skip("tcp/127.0.0.1:7447 is in use on this machine")
+    with session:
+        pub = session.declare_publisher("stereod/minoru/status")
+        sub = subprocess.Popen(
+            stereod_command("subscribe", "--json", "--count", "1", "--duration", "20"),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+        )
+        try:
+            while sub.poll() is None:
+                pub.put(b'{"probe": 1}')
+                time.sleep(0.1)
+            out, err = sub.communicate(timeout=10)
+        finally:
+            sub.kill()
+    assert sub.returncode == 0, err
+    assert json.loads(out.splitlines()[0]) == {"probe": 1}
+
+
 def test_run_with_config_file_and_synthetic_driver(
     tmp_path: Path, endpoint: str, listener: zenoh.Session
 ) -> None:

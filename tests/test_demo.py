@@ -6,7 +6,9 @@ import asyncio
 import json
 import re
 import signal
+import subprocess
 import urllib.request
+from pathlib import Path
 
 import aiohttp
 import pytest
@@ -58,6 +60,40 @@ def test_demo_with_view_plays_once_a_page_is_open_and_serves_it_after() -> None:
     assert proc.returncode == 0, err
     assert any("within the paper's errors" in line for line in rest), rest
     assert headings and all(abs(angle_diff_deg(h, 120.0)) < 5.0 for h in headings[-5:]), headings
+
+
+@pytest.mark.slow
+def test_ctrl_c_while_the_demo_plays_stops_it_cleanly(tmp_path: Path) -> None:
+    """Ctrl-C mid-scene: every thread of the daemon ends (the images thread too), the scene's
+    folder is removed, and the exit is 130 with no traceback."""
+    proc = start_stereod("demo", "--rate", "1", env={"TMPDIR": str(tmp_path)})
+    assert proc.stdout is not None
+    try:
+        line = ""
+        while not line.startswith("t "):  # a track: the scene is playing
+            line = proc.stdout.readline()
+            assert line, "the demo ended before any track"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert not list(tmp_path.glob("stereod-demo-*"))
+
+
+def test_a_reader_that_stops_reading_ends_the_demo_quietly() -> None:
+    """``stereod demo | head -2``: the demo stops its daemon and exits 0, saying nothing."""
+    proc = start_stereod("demo", "--rate", "0", stdout=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stderr is not None
+    first = [proc.stdout.readline() for _ in range(2)]
+    proc.stdout.close()  # the reader is gone
+    with proc.stderr:
+        err = proc.stderr.read()
+    assert proc.wait(timeout=60) == 0, err
+    assert first[1].startswith("t ") and err == ""
 
 
 async def _page_headings(url: str) -> list[float]:

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from ..detect import DetectorParams
 from ..errors import EX_DATAERR, ConfigError, one_line
 
 log = logging.getLogger("stereod")
@@ -86,6 +87,11 @@ def add_config(p: argparse.ArgumentParser | argparse._ArgumentGroup, what: str =
 
 def add_driver(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
     p.add_argument("--driver", help="driver name (replay, synthetic, v4l2_minoru, ...)")
+
+
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+"""Where ``view`` and ``subscribe`` look for a daemon when given no endpoint (``stereod demo``
+listens there)."""
 
 
 def add_zenoh(p: argparse.ArgumentParser) -> None:
@@ -166,13 +172,14 @@ def add_pipeline(p: argparse.ArgumentParser) -> None:
         "--min-area",
         type=number(1, 10**7, integer=True),
         metavar="PX",
-        help="smallest blob, px (default 30)",
+        help=f"smallest blob, px (default {DetectorParams().min_area_px})",
     )
     g.add_argument(
         "--warmup",
         type=number(1, 10000, integer=True),
         metavar="FRAMES",
-        help="frames averaged into the initial background (default 10)",
+        help="frames that make the initial background (their median unless the config says "
+        f"mean; default {DetectorParams().warmup_frames})",
     )
     g.add_argument(
         "--time-base",

@@ -15,14 +15,16 @@ from ..errors import OutputError, UsageError, describe_validation_error
 from ..interrupt import wait_until
 from ..publish import open_session
 from ..subscribe import format_sample
-from .common import add_zenoh, number, zenoh_overrides
+from .common import DEFAULT_CONNECT, add_zenoh, number, zenoh_overrides
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "subscribe",
         help="print what arrives on the bus",
-        description="Subscribe to stereod keys and print each sample readably (or --json).",
+        description="Subscribe to stereod keys and print each sample readably (or --json). "
+        f"Without --connect or --listen it connects to {DEFAULT_CONNECT} (where `stereod "
+        "demo` listens; give a daemon `[zenoh] listen` or `--listen` to reach it there).",
     )
     p.add_argument(
         "keyexpr", nargs="?", default="stereod/**", help="key expression (default: stereod/**)"
@@ -42,8 +44,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
+    ov = {k: v for k, v in zenoh_overrides(a).items() if v is not None}
+    if not ov.get("connect") and not ov.get("listen"):
+        ov["connect"] = [DEFAULT_CONNECT]
     try:
-        zcfg = ZenohConfig(**{k: v for k, v in zenoh_overrides(a).items() if v is not None})
+        zcfg = ZenohConfig(**ov)
     except ValidationError as exc:
         raise UsageError(f"zenoh flags: {describe_validation_error(exc)}") from exc
     try:

@@ -14,10 +14,7 @@ from ..config import ZenohConfig
 from ..errors import ConfigError, describe_validation_error
 from ..interrupt import wait_until
 from ..keys import DEFAULT_RIG, RIG_PATTERN
-from .common import add_zenoh, number, setup_logging, zenoh_overrides
-
-DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
-"""Where the view looks for a daemon when given no endpoint (``stereod demo`` listens there)."""
+from .common import DEFAULT_CONNECT, add_zenoh, number, setup_logging, zenoh_overrides
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
