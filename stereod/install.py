@@ -15,7 +15,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import OutputError
+from .errors import OutputError, UsageError
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +51,25 @@ def stereod_executable() -> str:
     return str(Path(sys.executable).with_name("stereod"))
 
 
+HIDDEN_FROM_SERVICE = {
+    "/home": "ProtectHome=yes",
+    "/root": "ProtectHome=yes",
+    "/run/user": "ProtectHome=yes",
+    "/tmp": "PrivateTmp=yes",
+    "/var/tmp": "PrivateTmp=yes",
+}
+"""Folders the units' sandbox hides from the service, and the setting that hides each."""
+
+
+def hidden_from_service(executable: str) -> str | None:
+    """Why the service could not run ``executable`` (a path the sandbox hides), or None."""
+    path = Path(executable)
+    for folder, setting in HIDDEN_FROM_SERVICE.items():
+        if path.is_relative_to(folder):
+            return f"{executable} is under {folder}, which the service cannot see ({setting})"
+    return None
+
+
 def _resource(package: str, name: str) -> str:
     return importlib.resources.files(package).joinpath(name).read_text()
 
@@ -62,6 +81,13 @@ def plan(prefix: Path, *, uninstall: bool = False, executable: str | None = None
     rules_dir = prefix / "etc/udev/rules.d"
     config = prefix / "etc/stereod" / CONFIG
     system = prefix == Path("/")
+    hidden = hidden_from_service(exe) if system and not uninstall else None
+    if hidden is not None:
+        raise UsageError(
+            f"install-service: {hidden}: install stereod where a service can run it, e.g. "
+            "`sudo python3 -m venv /opt/stereod && sudo /opt/stereod/bin/pip install .`, "
+            "then run `sudo /opt/stereod/bin/stereod install-service`"
+        )
     actions: list[Action] = []
     if uninstall:
         for path in [*(unit_dir / u for u in UNITS), rules_dir / RULES]:

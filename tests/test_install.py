@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from stereod.install import plan
+from stereod.errors import UsageError
+from stereod.install import hidden_from_service, plan
 
 from .conftest import stereod
 
@@ -54,6 +55,22 @@ def test_default_config_is_valid_and_listens_on_loopback_only(tmp_path: Path) ->
     for endpoint in zenoh["listen"]:
         host = endpoint.split("/", 1)[1].rsplit(":", 1)[0].strip("[]")
         assert ipaddress.ip_address(host).is_loopback, f"{endpoint} is reachable from the LAN"
+
+
+@pytest.mark.parametrize(
+    ("executable", "setting"),
+    [("/home/ann/stereod/.venv/bin/stereod", "ProtectHome"), ("/tmp/x/bin/stereod", "PrivateTmp")],
+)
+def test_a_system_install_refuses_a_stereod_the_service_cannot_see(
+    executable: str, setting: str
+) -> None:
+    """The units hide /home, /root and /tmp from the service: a unit that runs a stereod from
+    there could never start, so the install says so and where to put stereod instead."""
+    with pytest.raises(UsageError, match=f"{re.escape(executable)} is under .*{setting}.*/opt"):
+        plan(Path("/"), executable=executable)
+    assert plan(Path("/"), executable=executable, uninstall=True) is not None  # may remove
+    assert hidden_from_service("/opt/stereod/bin/stereod") is None
+    assert hidden_from_service("/usr/local/bin/stereod") is None
 
 
 def test_no_reload_under_a_prefix(tmp_path: Path) -> None:
