@@ -430,12 +430,22 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
     later ones winning, and validate it once.
 
     ``overrides`` is a nested dict like ``{"detector": {"beta": 0.05}}``; ``None`` values are
-    ignored so unset flags do not mask the file.
+    ignored so unset flags do not mask the file. A flag that names another driver than the
+    file does leaves the file's driver options out (they are that other driver's).
     """
     data = read_toml(path) if path is not None else {}
     flags = _prune(overrides or {})
+    below = _merge(data, environment())
+    named = flags.get("driver", {}).get("name") if isinstance(flags.get("driver"), dict) else None
+    under = below.get("driver")
+    if (
+        isinstance(under, dict)
+        and named is not None
+        and under.get("name", DriverConfig().name) != named
+    ):
+        below = {**below, "driver": {k: v for k, v in under.items() if k != "options"}}
     try:
-        return StereodConfig.model_validate(_merge(_merge(data, environment()), flags))
+        return StereodConfig.model_validate(_merge(below, flags))
     except ValidationError as exc:
         errors = [(_origin(tuple(e["loc"]), path, flags), e) for e in exc.errors(include_url=False)]
         parts = [f"{origin}: invalid config: {describe_error(e)}" for origin, e in errors]

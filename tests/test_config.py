@@ -26,6 +26,19 @@ def test_precedence(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     assert cfg.rig.name == "bench"
 
 
+def test_a_flag_naming_another_driver_leaves_the_files_driver_options_out(tmp_path: Path) -> None:
+    """``run --config X --driver synthetic`` with X written for replay: replay's ``path`` is
+    not the synthetic driver's; the same driver keeps its options."""
+    f = tmp_path / "c.toml"
+    f.write_text('[driver]\nname = "replay"\n[driver.options]\npath = "/data/run1"\n')
+    other = load_config(f, {"driver": {"name": "synthetic"}})
+    assert (other.driver.name, other.driver.options) == ("synthetic", {})
+    same = load_config(f, {"driver": {"name": "replay"}})
+    assert same.driver.options == {"path": "/data/run1"}
+    given = load_config(f, {"driver": {"name": "synthetic", "options": {"fps": 15}}})
+    assert given.driver.options == {"fps": 15}
+
+
 @pytest.mark.parametrize(
     ("toml", "pattern"),
     [
