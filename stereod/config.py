@@ -431,18 +431,15 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
 
     ``overrides`` is a nested dict like ``{"detector": {"beta": 0.05}}``; ``None`` values are
     ignored so unset flags do not mask the file. A flag that names another driver than the
-    file does leaves the file's driver options out (they are that other driver's).
+    file names leaves the file's driver options out (they are that other driver's); a file
+    that names none gives its options to whichever driver runs.
     """
     data = read_toml(path) if path is not None else {}
     flags = _prune(overrides or {})
     below = _merge(data, environment())
     named = flags.get("driver", {}).get("name") if isinstance(flags.get("driver"), dict) else None
     under = below.get("driver")
-    if (
-        isinstance(under, dict)
-        and named is not None
-        and under.get("name", DriverConfig().name) != named
-    ):
+    if isinstance(under, dict) and named is not None and under.get("name", named) != named:
         below = {**below, "driver": {k: v for k, v in under.items() if k != "options"}}
     try:
         return StereodConfig.model_validate(_merge(below, flags))

@@ -37,6 +37,8 @@ def test_a_flag_naming_another_driver_leaves_the_files_driver_options_out(tmp_pa
     assert same.driver.options == {"path": "/data/run1"}
     given = load_config(f, {"driver": {"name": "synthetic", "options": {"fps": 15}}})
     assert given.driver.options == {"fps": 15}
+    f.write_text('[driver.options]\npath = "/data/run1"\n')  # no name: for whichever runs
+    assert load_config(f, {"driver": {"name": "replay"}}).driver.options == {"path": "/data/run1"}
 
 
 @pytest.mark.parametrize(
