@@ -140,6 +140,12 @@ class DetectorConfig(_Section):
         description="Differences down to this share of the threshold join foreground they touch",
     )
     grow_px: int = Field(_DETECT.grow_px, ge=0, le=50, description="Hysteresis reach per step, px")
+    learn_stride: int = Field(
+        _DETECT.learn_stride,
+        ge=1,
+        le=16,
+        description="Eq. 3 updates every n-th row each frame, in turn, at the same time constant",
+    )
 
     def params(self) -> DetectorParams:
         return DetectorParams(**self.model_dump())

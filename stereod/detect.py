@@ -37,6 +37,13 @@ Beyond the paper, each one chosen by measurement on two renderers (README, Accur
   by how much of them the object covers (``centroid = "coverage"``, sub-pixel), or eq. 5
   exactly (``"binary"``).
 
+- **Eq. 3 on every ``learn_stride``-th row, in turn.** Each frame updates one row in
+  ``learn_stride`` with ``1 - (1 - beta) ** learn_stride``, so every row follows the same time
+  constant as eq. 3 at ``beta`` and holds exactly what eq. 3 gives after each of its updates,
+  for a ``learn_stride``-th of the memory traffic (eq. 3 on a colour frame is the detector's
+  largest cost). A row lags by at most ``learn_stride - 1`` frames; ``learn_stride = 1`` is
+  eq. 3 on every frame.
+
 A frame whose foreground covers more than ``max_foreground`` of the image, or holds more than
 ``max_blobs`` objects, is saturated (the lights changed, the camera moved): it reports nothing,
 and after ``warmup_frames`` such frames in a row the background is learned afresh.
@@ -119,6 +126,7 @@ class DetectorParams:
     ``hysteresis``, ``grow_px``: pixels whose difference reaches ``hysteresis`` times ``t``
     join the foreground within ``grow_px`` of it (three steps), so the part of an object
     nearly the colour of the wall behind it is kept; 0 turns this off.
+    ``learn_stride``: eq. 3 updates every ``learn_stride``-th row each frame, in turn (1: all).
     """
 
     beta: float = 0.02
@@ -142,6 +150,7 @@ class DetectorParams:
     gain: bool = True
     hysteresis: float = 0.65
     grow_px: int = 4
+    learn_stride: int = 3
 
 
 PAPER = DetectorParams(
@@ -155,6 +164,7 @@ PAPER = DetectorParams(
     merge_gap=0.0,
     gain=False,
     hysteresis=0.0,
+    learn_stride=1,
 )
 """The paper's sec. II as written (eq. 2-5 with eq. 3 everywhere), plus only the opening."""
 
@@ -204,9 +214,16 @@ class Detector:
     def __init__(self, params: DetectorParams) -> None:
         if not 0.0 <= params.beta < 1.0:
             raise ValueError(f"beta must be in [0, 1), got {params.beta}")
+        if params.learn_stride < 1:
+            raise ValueError(f"learn_stride must be at least 1, got {params.learn_stride}")
         self.params = params
         self._background: np.ndarray | None = None
-        self._bg8: np.ndarray | None = None
+        self._coarse: tuple[np.ndarray, np.ndarray] | None = None
+        """T on the first pass's rows (a float32 view) and the same rounded to grey levels
+        (uint8); ``None`` when T changed there since they were rounded."""
+        self._learned = 0
+        """Frames eq. 3 has learned (after the warm-up): which rows the next one updates."""
+        self._beta = 1.0 - (1.0 - params.beta) ** params.learn_stride
         self._frame: np.ndarray | None = None
         self._warm: list[np.ndarray] = []
         self._seen = 0
@@ -236,6 +253,13 @@ class Detector:
         """d >= t on integer grey levels is d > ceil(t) - 1 (THRESH_BINARY is strict)."""
         self._find_u8 = self._low_u8 if self._grow is not None else self._thresh_u8
         self._row_step = max(d for d in _ROW_STEPS if d <= max(params.open_px, 1))
+        self._columns = (0, 1)
+        """First column and column step of the first pass's grid (see ``_grid_columns``)."""
+        self._columns_of = 0
+        """The image width (px) ``_columns`` was found for."""
+        self._touches_coarse = math.gcd(params.learn_stride, self._row_step)
+        """Eq. 3 changes the first pass's rows on the frames whose phase (``_learned`` modulo
+        ``learn_stride``) is a multiple of this."""
         """Rows apart that the first pass of eq. 4 looks at. A pixel the opening keeps lies
         in an ``open_px`` square of pixels each at least the weak level (the threshold
         without hysteresis), so any ``open_px`` rows in a row hold part of it: the rectangle
@@ -277,6 +301,7 @@ class Detector:
                 self._background = cv2.cvtColor(other._background, cv2.COLOR_BGR2GRAY)
             else:  # a grey background of grey frames serves a colour detector too
                 self._background = other._background.copy()
+            self._coarse = None
             self._seen = self.params.warmup_frames
             self._t0_ns = other._t0_ns
             if other._since is not None:
@@ -287,6 +312,8 @@ class Detector:
         """Forget the background (after a lighting jump or a camera re-plug); the next frames
         are its warm-up again."""
         self._background = None
+        self._coarse = None
+        self._learned = 0
         self._warm = []
         self._seen = 0
         self._since = None
@@ -318,8 +345,9 @@ class Detector:
         """Eq. 2, 4 and 5 against the current background at capture instant ``t_ns`` (ns);
         call :meth:`learn` afterwards.
 
-        Eq. 4 is first taken on every ``_row_step``-th row only, which is enough to find the
-        rectangle around the foreground (see ``_row_step``), then on every pixel inside it."""
+        Eq. 4 is first taken on a grid of every ``_row_step``-th row and column only, which is
+        enough to find the rectangle around the foreground (see ``_row_step``), then on every
+        pixel inside it."""
         frame = self._prepare(image)
         self._frame = frame
         if self._t0_ns is None:
@@ -332,20 +360,26 @@ class Detector:
         if bg is None or self.warming_up:
             return Blobs.empty()
         step = self._row_step
-        rows = frame[::step]
-        bg8 = self._bg8 = cv2.convertScaleAbs(bg[::step], dst=self._bg8)
-        coarse = cv2.absdiff(rows, bg8)
-        g = self._gain(frame, bg8) if self.params.gain else 1.0
+        shape = (frame.shape[0], frame.shape[1])
+        grid_t, bg8 = self._coarse_background(bg)
+        grid = self._grid(frame)
+        coarse = cv2.absdiff(grid, bg8)
+        g = self._gain(grid, bg8, shape) if self.params.gain else 1.0
         if _negligible(g):
             g = 1.0
         else:  # against g T
             if abs(g - 1.0) > _GAIN_RESCALE:  # the light changed: learn at the new gain
                 np.multiply(bg, np.float32(g), out=bg)
+                np.multiply(grid_t, np.float32(g), out=grid_t)  # the same products
                 g = 1.0
-            coarse = cv2.absdiff(rows, cv2.convertScaleAbs(bg[::step], dst=bg8, alpha=g))
-        shape = (frame.shape[0], frame.shape[1])
+                scaled = cv2.convertScaleAbs(grid_t, dst=bg8)  # T changed: round it again
+            else:
+                scaled = cv2.convertScaleAbs(grid_t, alpha=g)
+            coarse = cv2.absdiff(grid, scaled)
         x, y, w, h = _above(_mean_channels(coarse), self._find_u8)
-        roi = _grown_rect((x, y * step, w, (h - 1) * step + 1), self._margin, shape) if h else None
+        ox, sx = self._columns
+        box = (ox + x * sx, y * step, (w - 1) * sx + 1, (h - 1) * step + 1)
+        roi = _grown_rect(box, self._margin, shape) if h else None
         if roi is None:  # nothing moved: no bitmap, no morphology, no contours
             return self._nothing(shape)
         x0, y0, x1, y1 = roi
@@ -380,30 +414,56 @@ class Detector:
         self._saturated_run = 0
         return self._blobs(contours, part, (x0, y0), diff)
 
+    def _coarse_background(self, bg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """T on the first pass's grid (float32, a copy) and the same rounded to grey levels,
+        taken again only after eq. 3 changed those rows (right after, while they are still in
+        the cache)."""
+        if self._coarse is None:
+            if self._columns_of != bg.shape[1]:
+                self._columns = _grid_columns(bg.shape[1], self._row_step)
+                self._columns_of = bg.shape[1]
+            grid_t = self._grid(bg)
+            if grid_t.base is not None:  # a view: the gain scales T and this copy apart
+                grid_t = grid_t.copy()
+            self._coarse = (grid_t, cv2.convertScaleAbs(grid_t))
+        return self._coarse
+
+    def _grid(self, image: np.ndarray) -> np.ndarray:
+        """``image`` on the first pass's grid: every ``_row_step``-th row from the first, and
+        every ``_columns[1]``-th column from ``_columns[0]`` (a nearest-pixel resize at an
+        exact integer ratio is a strided copy)."""
+        rows = image[:: self._row_step]
+        ox, sx = self._columns
+        if sx == 1:
+            return rows
+        return cv2.resize(rows[:, ox:], None, fx=1.0 / sx, fy=1.0, interpolation=cv2.INTER_NEAREST)
+
     def _nothing(self, shape: tuple[int, int]) -> Blobs:
         """No foreground in this frame (of ``shape`` (h, w) px)."""
         self._set_foreground(shape, None, None)
         self._saturated_run = 0
         return Blobs.empty()
 
-    def _gain(self, frame: np.ndarray, rows8: np.ndarray) -> float:
+    def _gain(self, grid: np.ndarray, grid8: np.ndarray, shape: tuple[int, int]) -> float:
         """Median of frame / background over every ``_GAIN_STEP``-th pixel each way that was
-        background in the last frame and is not dark: the global gain, 1.0 when unknown. The
-        background is ``rows8``, every ``_row_step``-th row of T rounded to grey levels as eq.
-        4 has just used it (still in the cache, where the float32 T no longer is; rounding
-        moves a ratio by at most 2.5 % at the darkest level counted, 0.5 % at mid-grey, and
-        evenly both ways)."""
+        background in the last frame and is not dark: the global gain, 1.0 when unknown.
+        ``grid`` is the frame of ``shape`` (h, w) px on the first pass's grid and ``grid8``
+        T there rounded to grey levels, as eq. 4 has just used them (rounding moves a ratio
+        by at most 2.5 % at the darkest level counted, 0.5 % at mid-grey, and evenly both
+        ways)."""
         s = _GAIN_STEP
-        f = frame[::s, ::s].astype(np.float32)
-        b = rows8[:: s // self._row_step, ::s].astype(np.float32)
+        ox, sx = self._columns
+        ky, kx = s // self._row_step, s // sx
+        f = grid[::ky, ::kx].astype(np.float32)  # the pixels (s i, ox + s j)
+        b = grid8[::ky, ::kx].astype(np.float32)
         if f.ndim == 3:  # the mean of the channels (a matrix product: numpy sums a short
             f, b = f @ _THIRDS, b @ _THIRDS  # last axis slowly)
         use = b > _GAIN_MIN_LEVEL
-        if self._roi is not None and self._part is not None and self._shape == frame.shape[:2]:
+        if self._roi is not None and self._part is not None and self._shape == shape:
             # the grid points inside the last foreground's rectangle that were foreground
             x0, y0 = self._roi[0], self._roi[1]
-            gx, gy = -(-x0 // s), -(-y0 // s)
-            fg = self._part[gy * s - y0 :: s, gx * s - x0 :: s] > 0
+            gx, gy = -(-(x0 - ox) // s), -(-y0 // s)
+            fg = self._part[gy * s - y0 :: s, ox + gx * s - x0 :: s] > 0
             use[gy : gy + fg.shape[0], gx : gx + fg.shape[1]] &= ~fg
         fs, bs = f[use], b[use]
         if fs.size < 32:
@@ -447,8 +507,12 @@ class Detector:
         h, w = bg.shape[:2]
         held = self._held() if p.hold_foreground else None
         boxes = [r for r in (_clipped(b, w, h) for b in frozen) if r is not None]
+        phase = self._learned % p.learn_stride
+        self._learned += 1
+        rows = slice(phase, None, p.learn_stride)
         if held is None and not boxes:
-            cv2.accumulateWeighted(frame, bg, p.beta)
+            cv2.accumulateWeighted(frame[rows], bg[rows], self._beta)
+            self._learned_rows(bg, phase)
             return
         rects = boxes + ([held[0]] if held is not None else [])
         ux0, uy0 = min(r[0] for r in rects), min(r[1] for r in rects)
@@ -465,8 +529,16 @@ class Detector:
             keep[y0 - uy0 : y1 - uy0, x0 - ux0 : x1 - ux0] = 255
         region = bg[uy0:uy1, ux0:ux1]
         before = region.copy()
-        cv2.accumulateWeighted(frame, bg, p.beta)
+        cv2.accumulateWeighted(frame[rows], bg[rows], self._beta)
         cv2.copyTo(before, keep, region)  # in place: ``region`` is a view of T
+        self._learned_rows(bg, phase)
+
+    def _learned_rows(self, bg: np.ndarray, phase: int) -> None:
+        """After eq. 3 updated the rows of ``phase``: take the first pass's rows of T again if
+        they were among them."""
+        if phase % self._touches_coarse == 0:
+            self._coarse = None
+            self._coarse_background(bg)
 
     def _warmup(self, frame: np.ndarray) -> None:
         p = self.params
@@ -482,11 +554,13 @@ class Detector:
                 if n % 2 == 0 and n > 1:
                     median = (median + stack[k - 1]) * np.float32(0.5)
                 self._background = median
+                self._coarse = None
                 self._warm = []
         elif self._background is None:
             self._background = frame.astype(np.float32)
         else:
             cv2.accumulateWeighted(frame, self._background, 1.0 / self._seen)
+        self._coarse = None
 
     def _held(self) -> tuple[Rect, np.ndarray] | None:
         """Inside the rectangle around this frame's foreground, where eq. 3 may learn (uint8
@@ -567,6 +641,23 @@ class Detector:
             area_px=np.asarray(areas, np.int32),
             support=tuple(supports),
         )
+
+
+def _grid_columns(width: int, step: int) -> tuple[int, int]:
+    """First column and step (px) of the first pass's grid columns in an image ``width`` px
+    wide: every ``step``-th column from an offset below ``step`` such that the last lies
+    within ``step`` of the right edge (so any ``step`` columns in a row hold one of them, as
+    the rows do), and as many as a resize by 1/``step`` makes; (0, 1), every column, when no
+    offset does."""
+    for offset in range(step if step > 1 else 0):
+        if width - offset < step:
+            break
+        row = np.zeros((1, width - offset), np.uint8)
+        n = cv2.resize(row, None, fx=1.0 / step, fy=1.0, interpolation=cv2.INTER_NEAREST).shape[1]
+        last = offset + step * (n - 1)
+        if width - step <= last <= width - 1:
+            return (offset, step)
+    return (0, 1)
 
 
 def _mean_channels(diff: np.ndarray) -> np.ndarray:

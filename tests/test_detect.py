@@ -8,7 +8,15 @@ import cv2
 import numpy as np
 import pytest
 
-from stereod.detect import PAPER, Centroid, Detector, DetectorParams, Luminance, luminance
+from stereod.detect import (
+    PAPER,
+    Centroid,
+    Detector,
+    DetectorParams,
+    Luminance,
+    _grid_columns,
+    luminance,
+)
 from tests.detect_reference import ReferenceDetector
 
 from .conftest import shared_data
@@ -66,13 +74,34 @@ def test_threshold_is_inclusive_eq4() -> None:
 
 def test_background_update_follows_eq3_closed_form() -> None:
     beta, b0, v, n = 0.05, 100.0, 160.0, 40
-    det = Detector(DetectorParams(beta=beta, warmup_frames=1, threshold=255))
+    det = Detector(DetectorParams(beta=beta, warmup_frames=1, threshold=255, learn_stride=1))
     det.detect(np.full((8, 8), b0, np.uint8))
     for _ in range(n):
         det.detect(np.full((8, 8), v, np.uint8))
     expected = v + (b0 - v) * (1 - beta) ** n
     assert det.background is not None
     assert float(det.background.mean()) == pytest.approx(expected, abs=1e-3)
+
+
+@pytest.mark.parametrize("stride", [2, 3, 5])
+def test_strided_eq3_gives_each_row_eq3s_value_after_its_updates(stride: int) -> None:
+    """Row r is updated on the frames k with k = r (mod stride), at 1 - (1 - beta)^stride: after
+    n frames it holds eq. 3's value after stride times its own count of updates, and at every
+    multiple of the stride the whole background is eq. 3's after n frames."""
+    beta, b0, v, n = 0.05, 100.0, 160.0, 61
+    det = Detector(DetectorParams(beta=beta, warmup_frames=1, threshold=255, learn_stride=stride))
+    det.detect(np.full((12, 8), b0, np.uint8))
+    rows = np.arange(12) % stride
+    for k in range(1, n + 1):
+        det.detect(np.full((12, 8), v, np.uint8))
+        updates = (k - rows + stride - 1) // stride  # frames 0..k-1 whose phase is the row's
+        expected = v + (b0 - v) * (1 - beta) ** (stride * updates)
+        assert det.background is not None
+        np.testing.assert_allclose(det.background[:, 0], expected, atol=1e-3)
+        if k % stride == 0:
+            assert float(det.background.mean()) == pytest.approx(
+                v + (b0 - v) * (1 - beta) ** k, abs=1e-3
+            )
 
 
 def test_warmup_averages_the_initial_background() -> None:
@@ -106,8 +135,10 @@ HELD = DetectorParams(
     hysteresis=0.0,
     hold_margin_px=0,
     absorb_s=1.0,
+    learn_stride=1,
 )
-"""A detector whose held foreground is exactly the object (no growth, no morphology)."""
+"""A detector whose held foreground is exactly the object (no growth, no morphology), and
+that learns every row each frame."""
 
 
 def test_held_foreground_is_learned_only_after_absorb_s() -> None:
@@ -334,15 +365,32 @@ def test_hysteresis_keeps_the_weak_part_of_an_object_and_nothing_alone() -> None
     assert found[0.0] == [(20, 30, 10, 20)]
 
 
-@pytest.mark.parametrize("color", [True, False])
-def test_the_first_pass_on_every_third_row_finds_what_every_row_finds(color: bool) -> None:
-    """Eq. 4 is first taken on every third row (``open_px`` 3) to find the foreground's
-    rectangle. The blobs, their centres and the mask must be exactly those of a first pass
-    on every row, for objects of every size the opening keeps, at every row phase, and for
-    the hard case: a weak object (hysteresis) whose only pixel above t lies on a row the
-    first pass skips."""
+@pytest.mark.parametrize("step", [2, 3, 4, 6])
+def test_the_first_pass_grid_is_every_step_th_column_and_misses_no_run_of_step(step: int) -> None:
+    """The grid's columns are a strided slice (what the resize makes is checked, not assumed),
+    and any ``step`` columns in a row, up to the right edge, hold one of them."""
+    params = DetectorParams(open_px=step, warmup_frames=1)
+    for width in range(step, 200):
+        ox, sx = _grid_columns(width, step)
+        assert sx == step, f"width {width}: no offset found"
+        det = Detector(params)
+        det._row_step, det._columns = step, (ox, sx)
+        image = np.tile(np.arange(width, dtype=np.float32), (2 * step, 1))
+        cols = det._grid(image)[0].astype(int)
+        np.testing.assert_array_equal(cols, np.arange(ox, width, step)[: cols.size])
+        for x in range(width - step + 1):
+            assert np.any((cols >= x) & (cols < x + step)), f"width {width}: {x}..{x + step - 1}"
+
+
+@pytest.mark.parametrize(("color", "width"), [(True, 160), (False, 160), (True, 161)])
+def test_the_first_pass_on_a_grid_finds_what_every_pixel_finds(color: bool, width: int) -> None:
+    """Eq. 4 is first taken on every third row and column (``open_px`` 3) to find the
+    foreground's rectangle. The blobs, their centres and the mask must be exactly those of a
+    first pass on every pixel, for objects of every size the opening keeps, at every phase,
+    up to the image's edges, and for the hard case: a weak object (hysteresis) whose only
+    pixel above t lies on a row and a column the first pass skips."""
     rng = np.random.default_rng(3)
-    h, w = 120, 160
+    h, w = 120, width
     base = cv2.merge([textured(h, w, s) for s in (4, 5, 6)]) if color else textured(h, w, 4)
     params = dataclasses.replace(DetectorParams(), warmup_frames=3, color=color)
     sparse, dense = Detector(params), Detector(params)
@@ -352,20 +400,17 @@ def test_the_first_pass_on_every_third_row_finds_what_every_row_finds(color: boo
         img = base.copy()
         if k >= 3:
             for _ in range(4):
-                size, x, y = (
-                    int(rng.integers(3, 7)),
-                    int(rng.integers(5, 150)),
-                    int(rng.integers(5, 110)),
-                )
+                size = int(rng.integers(3, 7))
+                x, y = int(rng.integers(0, w - size + 1)), int(rng.integers(0, h - size + 1))
                 strong = rng.random() < 0.5
                 img[y : y + size, x : x + size] = np.clip(
                     base[y : y + size, x : x + size].astype(int) + (40 if strong else 20), 0, 255
                 )
-                if not strong:  # one pixel above t, on a row the first pass skips
+                if not strong:  # one pixel above t, off the first pass's grid
+                    ox = _grid_columns(w, 3)[0]
                     yy = y + int(np.argmax([(y + i) % 3 != 0 for i in range(size)]))
-                    img[yy, x + size // 2] = np.clip(
-                        base[yy, x + size // 2].astype(int) + 60, 0, 255
-                    )
+                    xx = x + int(np.argmax([(x + i - ox) % 3 != 0 for i in range(size)]))
+                    img[yy, xx] = np.clip(base[yy, xx].astype(int) + 60, 0, 255)
         a, b = sparse.detect(img), dense.detect(img)
         np.testing.assert_array_equal(a.bbox_px, b.bbox_px, err_msg=f"frame {k}")
         np.testing.assert_array_equal(a.centroid_px, b.centroid_px, err_msg=f"frame {k}")

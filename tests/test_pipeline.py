@@ -122,7 +122,7 @@ def test_stopped_object_stays_tracked_while_background_is_frozen() -> None:
         t_mid_s=1.5,
         t_stop_s=2.0,
     )
-    scene = Scene(duration_s=6.0, balls=[ball])
+    scene = Scene(duration_s=7.0, balls=[ball])
     detector = DetectorParams(beta=0.05)
     frozen = tracks_by_frame(scene, detector=detector)
     paper = dataclasses.replace(detector, hold_foreground=False)
