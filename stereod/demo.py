@@ -44,9 +44,12 @@ looks by default), else on any free port."""
 
 
 def free_tcp_port(preferred: int = 0) -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago: ``preferred`` if it is."""
+    """A TCP port on 127.0.0.1 that was free a moment ago: ``preferred`` if it is. A port
+    whose last connections are still in TIME_WAIT counts as free, as it does for a server
+    (SO_REUSEADDR): only a listener takes it."""
     for port in (preferred, 0) if preferred else (0,):
         with socket.socket() as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             try:
                 s.bind(("127.0.0.1", port))
             except OSError:
@@ -124,7 +127,14 @@ def run_demo(
             f"ball at heading {heading_deg:g} deg, {speed_mps:g} m/s, around "
             f"({', '.join(f'{c:g}' for c in ball.centre_m)}) m"
         )
-        endpoint = f"tcp/127.0.0.1:{free_tcp_port(DEMO_PORT)}"
+        port = free_tcp_port(DEMO_PORT)
+        endpoint = f"tcp/127.0.0.1:{port}"
+        if port != DEMO_PORT:  # say so: `stereod subscribe` and `view` look at 7447 by default
+            print(
+                f"zenoh: port {DEMO_PORT} is taken, listening on {endpoint} "
+                f"(stereod subscribe --connect {endpoint})",
+                flush=True,
+            )
         cfg = load_config(overrides={"zenoh": {"listen": [endpoint]}})
         received: list[ObjectsMessage] = []
         lock = threading.Lock()

@@ -182,6 +182,22 @@ def truth_from_scene(path: Path, t0_ns: int) -> list[TruthSeries]:
     return out
 
 
+def check_overlap(run: Run, truth: list[TruthSeries], path: Path) -> None:
+    """Refuse a truth whose times do not meet the run's (a truth of another run, or of a
+    scene replayed on another clock), which would otherwise be drawn far off to one side."""
+    spans = [(float(ts.t_s[0]), float(ts.t_s[-1])) for ts in truth if len(ts.t_s)]
+    ends = [float(tr.t_s[-1]) for tr in run.tracks if len(tr.t_s)]
+    if not spans or not ends:
+        return
+    a, b = min(lo for lo, _ in spans), max(hi for _, hi in spans)
+    c = max(ends)
+    if b < 0.0 or a > c:
+        raise InputError(
+            f"{path}: its times ({a:.1f} to {b:.1f} s on the run's clock) do not overlap the "
+            f"run's (0 to {c:.1f} s): give the truth of the scene this run replayed"
+        )
+
+
 def finite_difference(t_s: np.ndarray, position_m: np.ndarray) -> np.ndarray:
     """(n, 3) velocity (m/s) of sampled positions by central differences (one-sided at the
     ends); zeros for a single sample."""

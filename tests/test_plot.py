@@ -18,6 +18,7 @@ from stereod.plot import (
     band,
     display_deg,
     eq21,
+    read_run,
     read_truth,
     speed_heading,
     truth_from_scene,
@@ -165,3 +166,27 @@ def test_plot_without_matplotlib_says_how_to_install_it(tmp_path: Path) -> None:
     assert r.returncode == 69
     assert r.stderr == "stereod: stereod plot needs matplotlib: pip install 'stereod[plot]'\n"
     assert not (tmp_path / "f.png").exists()
+
+
+def test_a_truth_that_does_not_meet_the_run_in_time_is_refused(tmp_path: Path) -> None:
+    """A truth from another run lies far off on this run's clock: one line naming the file and
+    both spans, exit 65, and no figure; the same truth moved onto the run's clock is drawn."""
+    run = tmp_path / "run.jsonl"
+    line = (ROOT / "tests" / "golden" / "objects_example.json").read_text().replace("\n", "")
+    run.write_text(line + "\n")
+    t0 = read_run(run).t0_ns
+    fig = tmp_path / "fig.png"
+    for offset_s, code in ((1000.0, 65), (0.0, 0)):
+        truth = tmp_path / f"truth_{int(offset_s)}.csv"
+        rows = ["object,t_ns,x_m,y_m,z_m"]
+        rows += [
+            f"ball,{t0 + round((offset_s + k / 15) * 1e9)},0.1,0.0,{1.5 + k / 30}" for k in range(5)
+        ]
+        truth.write_text("\n".join(rows) + "\n")
+        r = stereod("plot", str(run), "--truth", str(truth), "-o", str(fig))
+        assert r.returncode == code, r.stderr
+        if code:
+            assert r.stderr.count("\n") == 1 and "do not overlap the run's" in r.stderr
+            assert f"{truth}: its times (1000.0 to 1000.3 s" in r.stderr, r.stderr
+            assert not fig.exists()
+    assert fig.exists()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..plot import plot_run, read_run, read_truth, summary
+from ..plot import check_overlap, plot_run, read_run, read_truth, summary
 from .common import path_arg
 
 
@@ -35,6 +35,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def run(a: argparse.Namespace) -> int:
     data = read_run(a.run)
     truth = read_truth(a.truth, data.t0_ns) if a.truth is not None else []
+    if a.truth is not None:
+        check_overlap(data, truth, a.truth)
     plot_run(data, truth, a.out, title=a.title)
     print(summary(data))
     print(f"wrote {a.out}")
