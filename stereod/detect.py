@@ -92,7 +92,12 @@ Rect = tuple[int, int, int, int]
 """A rectangle of an image (x0, y0, x1, y1) px, the end exclusive."""
 
 _GAIN_STEP = 12
-"""Pixel step of the grid the global gain is measured on (1/144 of the pixels)."""
+"""Pixel step of the grid the global gain is measured on, or a multiple of it in a large image
+(see ``_GAIN_POINTS``)."""
+_GAIN_POINTS = 500
+"""The gain grid's step is the multiple of ``_GAIN_STEP`` that leaves at least this many
+points (a median of 500 ratios moves by about 0.05 of one ratio's noise): 12 px up to
+about 320x240, 24 px at 640x480."""
 _GAIN_MIN_LEVEL = 20.0
 """Background darker than this (grey levels) is left out of the gain: its ratio is noise."""
 _GAIN_MAX_MISFIT = 0.25
@@ -255,8 +260,10 @@ class Detector:
         self._row_step = max(d for d in _ROW_STEPS if d <= max(params.open_px, 1))
         self._columns = (0, 1)
         """First column and column step of the first pass's grid (see ``_grid_columns``)."""
-        self._columns_of = 0
-        """The image width (px) ``_columns`` was found for."""
+        self._grid_of: tuple[int, ...] = ()
+        self._gain_step = _GAIN_STEP
+        """Pixel step of the gain's grid in this image (``_GAIN_POINTS``)."""
+        """The image size (h, w px) ``_columns`` and ``_gain_step`` were found for."""
         self._touches_coarse = math.gcd(params.learn_stride, self._row_step)
         """Eq. 3 changes the first pass's rows on the frames whose phase (``_learned`` modulo
         ``learn_stride``) is a multiple of this."""
@@ -419,9 +426,11 @@ class Detector:
         taken again only after eq. 3 changed those rows (right after, while they are still in
         the cache)."""
         if self._coarse is None:
-            if self._columns_of != bg.shape[1]:
+            if self._grid_of != bg.shape[:2]:
                 self._columns = _grid_columns(bg.shape[1], self._row_step)
-                self._columns_of = bg.shape[1]
+                self._grid_of = bg.shape[:2]
+                points = bg.shape[0] * bg.shape[1] / (_GAIN_STEP * _GAIN_STEP * _GAIN_POINTS)
+                self._gain_step = _GAIN_STEP * max(1, int(math.sqrt(points)))
             grid_t = self._grid(bg)
             if grid_t.base is not None:  # a view: the gain scales T and this copy apart
                 grid_t = grid_t.copy()
@@ -445,13 +454,13 @@ class Detector:
         return Blobs.empty()
 
     def _gain(self, grid: np.ndarray, grid8: np.ndarray, shape: tuple[int, int]) -> float:
-        """Median of frame / background over every ``_GAIN_STEP``-th pixel each way that was
+        """Median of frame / background over every ``_gain_step``-th pixel each way that was
         background in the last frame and is not dark: the global gain, 1.0 when unknown.
         ``grid`` is the frame of ``shape`` (h, w) px on the first pass's grid and ``grid8``
         T there rounded to grey levels, as eq. 4 has just used them (rounding moves a ratio
         by at most 2.5 % at the darkest level counted, 0.5 % at mid-grey, and evenly both
         ways)."""
-        s = _GAIN_STEP
+        s = self._gain_step
         ox, sx = self._columns
         ky, kx = s // self._row_step, s // sx
         f = grid[::ky, ::kx].astype(np.float32)  # the pixels (s i, ox + s j)

@@ -318,12 +318,15 @@ def test_a_camera_knocked_saturates_then_the_background_is_learned_again() -> No
     assert det.saturated == 6
 
 
-@pytest.mark.parametrize("color", [False, True])
-def test_a_global_gain_is_followed_at_once(color: bool) -> None:
+@pytest.mark.parametrize(
+    ("color", "h", "w"), [(False, 120, 160), (True, 120, 160), (True, 480, 640)]
+)
+def test_a_global_gain_is_followed_at_once(color: bool, h: int, w: int) -> None:
     """The light drifts by +-25 % over 60 frames (a 140-level patch moves by 35 > t = 25): with
     the gain followed, nothing but the square is ever found, and the square's box is exact;
-    eq. 4 against the learned background alone (``gain = false``) finds the wall."""
-    bg = textured(120, 160, seed=3)
+    eq. 4 against the learned background alone (``gain = false``) finds the wall. At 640x480
+    the gain is measured on every 24th pixel each way, below that on every 12th."""
+    bg = textured(h, w, seed=3)
     if color:
         bg = cv2.merge([bg, cv2.flip(bg, 1), cv2.flip(bg, 0)])
     found = {}
@@ -340,6 +343,7 @@ def test_a_global_gain_is_followed_at_once(color: bool) -> None:
             extra.append([b for b in boxes if b != (60 + k, 40, 16, 16)])
             if gain:
                 assert (60 + k, 40, 16, 16) in boxes, (k, boxes)
+        assert det._gain_step == (24 if w >= 640 else 12)
         found[gain] = sum(1 for e in extra if e)
     assert found[True] == 0
     assert found[False] > 10
