@@ -160,6 +160,10 @@ class Publisher:
             encoding=zenoh.Encoding(encoding_for(STATUS_SCHEMA)),
             congestion_control=zenoh.CongestionControl.DROP,
         )
+        # Never put: there only for its matching status, which a subscriber to the tracks'
+        # keys (``objects/*``) sets and one to the ``objects`` key alone does not.
+        self._track_probe = s.declare_publisher(keys.track(self.rig, 0, prefix=self.prefix))
+        self._entities.append(self._track_probe)
         if self._on_status_subscriber is not None:
             self._entities.append(self._status.declare_matching_listener(self._matching))
         for name, fn in self._queryables.items():
@@ -226,9 +230,12 @@ class Publisher:
                 self._end_track(tid)
 
     def has_objects_subscriber(self) -> bool:
-        """Whether some subscriber matches the ``objects`` key right now."""
+        """Whether some subscriber matches the ``objects`` key or the tracks' keys right now."""
         # The stub says bool; at runtime it is a MatchingStatus whose truth value is not defined.
-        return bool(self._objects.matching_status.matching)  # type: ignore[attr-defined]
+        return any(
+            bool(p.matching_status.matching)  # type: ignore[attr-defined]
+            for p in (self._objects, self._track_probe)
+        )
 
     def _end_track(self, tid: int) -> None:
         pub = self._tracks.pop(tid, None)

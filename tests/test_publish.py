@@ -53,6 +53,29 @@ def test_objects_tracks_deletes_and_failing_queryable(
     assert pub.published == 2 and pub.errors == 0
 
 
+def test_a_subscriber_to_the_tracks_keys_alone_counts_as_one(
+    endpoint: str, listener: zenoh.Session
+) -> None:
+    """``--wait-subscriber`` waits for someone to read the results: a subscriber to the
+    tracks' keys (``objects/*``, which does not match ``objects``) is one; one to another
+    rig's keys, or to the status key, is not."""
+    with Publisher(ZenohConfig(connect=[endpoint]), "r", {}) as pub:
+        others = [
+            listener.declare_subscriber(k, lambda s: None)
+            for k in ("stereod/q/**", "stereod/r/status")
+        ]
+        time.sleep(1.0)
+        assert not pub.has_objects_subscriber()
+        sub = listener.declare_subscriber("stereod/r/objects/*", lambda s: None)
+        deadline = time.monotonic() + 10
+        while not pub.has_objects_subscriber() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert pub.has_objects_subscriber()
+        sub.undeclare()
+        for o in others:
+            o.undeclare()
+
+
 def test_session_config_has_no_multicast_by_default() -> None:
     cfg = session_config(ZenohConfig(listen=["tcp/127.0.0.1:0"]))
     assert '"enabled":false' in cfg.get_json("scouting/multicast").replace(" ", "")

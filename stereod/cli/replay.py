@@ -80,7 +80,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         type=number(0.0, 3600.0, unit="s"),
         default=0.0,
         metavar="S",
-        help="wait up to S seconds for a subscriber on the objects key before playing",
+        help="wait up to S seconds for a subscriber to the objects key or the tracks' keys "
+        "(objects/*) before playing",
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stdout")
     add_pipeline(p)
