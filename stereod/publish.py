@@ -48,6 +48,12 @@ def zenoh_reason(exc: BaseException, limit: int = 160) -> str:
     return text or type(exc).__name__
 
 
+CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 250, "period_increase_factor": 2}
+"""How often an endpoint in ``connect`` that does not answer is tried again (Zenoh's default
+starts at 1 s and grows to 4 s, so a subscriber started before the daemon missed its first
+seconds; a refused TCP connection costs next to nothing)."""
+
+
 def session_config(cfg: ZenohConfig) -> zenoh.Config:
     """A Zenoh config from ours. Without ``config_file``: mode, endpoints, and no multicast
     scouting unless asked. With it, the file (Zenoh's own JSON5: TLS, access control, ...) is
@@ -74,6 +80,8 @@ def session_config(cfg: ZenohConfig) -> zenoh.Config:
         settings.append(("multicast_scouting", "scouting/delay", 0))
     if cfg.connect:
         settings.append(("connect", "connect/endpoints", cfg.connect))
+        if cfg.config_file is None:  # a peer not up yet is tried again soon, not after 1-4 s
+            settings.append(("connect", "connect/retry", CONNECT_RETRY))
     if cfg.listen:
         settings.append(("listen", "listen/endpoints", cfg.listen))
     for field, key, value in settings:

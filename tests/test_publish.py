@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import threading
 import time
+from pathlib import Path
 
 import zenoh
 
@@ -79,3 +81,15 @@ def test_a_subscriber_to_the_tracks_keys_alone_counts_as_one(
 def test_session_config_has_no_multicast_by_default() -> None:
     cfg = session_config(ZenohConfig(listen=["tcp/127.0.0.1:0"]))
     assert '"enabled":false' in cfg.get_json("scouting/multicast").replace(" ", "")
+
+
+def test_an_endpoint_not_up_yet_is_tried_again_within_a_quarter_second(tmp_path: Path) -> None:
+    """A subscriber started before its daemon connects within 0.25 s of the daemon listening
+    (Zenoh's own default waits 1 s, then up to 4 s); a user's own Zenoh file decides itself."""
+    ep = ["tcp/127.0.0.1:7447"]
+    retry = json.loads(session_config(ZenohConfig(connect=ep)).get_json("connect/retry"))
+    assert retry["period_init_ms"] <= 100 and retry["period_max_ms"] <= 250
+    own = tmp_path / "z.json5"
+    own.write_text("{}")
+    zc = session_config(ZenohConfig(connect=ep, config_file=own))
+    assert json.loads(zc.get_json("connect/retry")) is None
