@@ -121,28 +121,95 @@ def innovation(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> tuple[np.nd
     return y, s.P[:3, :3] + r_m2
 
 
+def inverse3(m: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The inverse and determinant of a 3 x 3 matrix by its adjugate, in closed form: a track
+    solves with S several times a pair, and LAPACK's per-call cost dwarfs nine products on
+    a 3 x 3. ``None`` when the determinant is not positive (not a covariance: the caller
+    falls back to LAPACK, which reports it)."""
+    (a, b, c), (d, e, f), (g, h, i) = m.tolist()
+    c11, c12, c13 = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * c11 + b * c12 + c * c13
+    if not det > 0.0 or not math.isfinite(det):
+        return None
+    adj = [
+        [c11, c * h - b * i, b * f - c * e],
+        [c12, a * i - c * g, c * d - a * f],
+        [c13, b * g - a * h, a * e - b * d],
+    ]
+    return np.array(adj) / det, det
+
+
 def mahalanobis2(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:
     """Squared Mahalanobis distance y' S^-1 y of a measurement from the state (chi^2, 3 dof)."""
     y, cov = innovation(s, z_m, r_m2)
-    return float(y @ np.linalg.solve(cov, y))
+    return _mahalanobis2(y, cov, inverse3(cov))
 
 
 def log_likelihood(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:
     """Log of the Gaussian density of measurement ``z_m`` under the state's prediction:
     -(y' S^-1 y + log det S + 3 log 2 pi) / 2; comparing two models' sums picks the likelier."""
     y, cov = innovation(s, z_m, r_m2)
-    sign, logdet = np.linalg.slogdet(cov)
-    if sign <= 0:
-        return -math.inf
-    return -0.5 * (float(y @ np.linalg.solve(cov, y)) + logdet + 3.0 * math.log(2.0 * math.pi))
+    return _log_likelihood(y, cov, inverse3(cov))
 
 
 def update(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> KalmanState:
     """Fold in a position: K = P H' S^-1, x = x + K y, P = (I - K H) P (I - K H)' + K R K'."""
     y, cov = innovation(s, z_m, r_m2)
-    k = np.linalg.solve(cov, s.P[:3, :]).T
+    return _update(s, y, cov, inverse3(cov), r_m2)
+
+
+def correct(
+    pred: KalmanState, z_m: np.ndarray, r_m2: np.ndarray, chi2_max: float, widen: int = 3
+) -> tuple[KalmanState, float]:
+    """:func:`update` of a prediction with a position, and the position's
+    :func:`log_likelihood` under the prediction as it was. A squared Mahalanobis distance
+    beyond ``chi2_max`` (a manoeuvre, or a prediction too sure of itself) first widens the
+    prediction's covariance by that ratio, up to ``widen`` times, so the update leans on the
+    measurement as much as the surprise calls for (a fading memory). S is inverted once per
+    covariance."""
+    y, cov = innovation(pred, z_m, r_m2)
+    inv = inverse3(cov)
+    ll = _log_likelihood(y, cov, inv)
+    for _ in range(widen):
+        nis = _mahalanobis2(y, cov, inv)
+        if nis <= chi2_max:
+            break
+        pred = KalmanState(pred.x, pred.P * (nis / chi2_max), pred.t_ns)
+        cov = pred.P[:3, :3] + r_m2
+        inv = inverse3(cov)
+    return _update(pred, y, cov, inv, r_m2), ll
+
+
+_LOG_2PI_3 = 3.0 * math.log(2.0 * math.pi)
+
+
+def _mahalanobis2(y: np.ndarray, cov: np.ndarray, inv: tuple[np.ndarray, float] | None) -> float:
+    if inv is None:
+        return float(y @ np.linalg.solve(cov, y))
+    return float(y @ inv[0] @ y)
+
+
+def _log_likelihood(y: np.ndarray, cov: np.ndarray, inv: tuple[np.ndarray, float] | None) -> float:
+    if inv is None:
+        sign, logdet = np.linalg.slogdet(cov)
+        if sign <= 0:
+            return -math.inf
+        return -0.5 * (float(y @ np.linalg.solve(cov, y)) + logdet + _LOG_2PI_3)
+    return -0.5 * (float(y @ inv[0] @ y) + math.log(inv[1]) + _LOG_2PI_3)
+
+
+def _update(
+    s: KalmanState,
+    y: np.ndarray,
+    cov: np.ndarray,
+    inv: tuple[np.ndarray, float] | None,
+    r_m2: np.ndarray,
+) -> KalmanState:
+    # K = P H' S^-1 = (S^-1 H P)', P and S being symmetric
+    k = s.P[:, :3] @ inv[0] if inv is not None else np.linalg.solve(cov, s.P[:3, :]).T
     x = s.x + k @ y
-    ikh = _EYE6 - k @ H
+    ikh = _EYE6.copy()
+    ikh[:, :3] -= k
     p = ikh @ s.P @ ikh.T + k @ r_m2 @ k.T
     return KalmanState(x, 0.5 * (p + p.T), s.t_ns)
 

@@ -571,15 +571,7 @@ class Tracker:
         """One filter's predict and update, and the measurement's log-likelihood under the
         prediction (before any widening)."""
         pred = kalman.predict(kf, t_ns, q, accel)
-        ll = kalman.log_likelihood(pred, ob.position_m, r)
-        for _ in range(3):
-            nis = kalman.mahalanobis2(pred, ob.position_m, r)
-            if nis <= self.params.manoeuvre_chi2:
-                break
-            pred = kalman.KalmanState(
-                pred.x, pred.P * (nis / self.params.manoeuvre_chi2), pred.t_ns
-            )
-        return kalman.update(pred, ob.position_m, r), ll
+        return kalman.correct(pred, ob.position_m, r, self.params.manoeuvre_chi2)
 
     def _accel(self, falling: bool) -> np.ndarray | None:
         """The known acceleration of a motion model: gravity when falling, else none."""
@@ -618,7 +610,8 @@ class Tracker:
         ):  # a free fall's positions bend by g (t1 - t0)(t2 - t1) / 2 off the line
             residual = residual + 0.5 * (t1 - t0) * (t2 - t1) * 1e-18 * self._gravity
         cov = (r1 + a * a * r0 + b * b * r2) * tr.noise_scale
-        d2 = float(residual @ np.linalg.solve(cov, residual))
+        inv = kalman.inverse3(cov)
+        d2 = float(residual @ (inv[0] if inv else np.linalg.inv(cov)) @ residual)
         lo, hi = self.NOISE_BOUNDS
         rate = max(self.NOISE_RATE, 1.0 / (tr.updates + 2))
         scale = tr.noise_scale * (1.0 + rate * (min(d2, 30.0) / 3.0 - 1.0))

@@ -87,3 +87,48 @@ def test_log_likelihood_is_the_gaussian_density() -> None:
     var = np.array([0.02, 0.04, 0.10])
     expected = float(np.sum(-0.5 * (z * z / var + np.log(2 * np.pi * var))))
     assert kalman.log_likelihood(s, z, r) == pytest.approx(expected, rel=1e-12)
+
+
+def test_inverse3_matches_lapack_and_refuses_what_is_no_covariance() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        a = rng.normal(size=(3, 3)) * rng.uniform(1e-3, 1.0, size=3)  # sigmas 1 mm to 1 m
+        cov = a @ a.T + np.eye(3) * 1e-9
+        got = kalman.inverse3(cov)
+        assert got is not None
+        inv, det = got
+        np.testing.assert_allclose(inv @ cov, np.eye(3), atol=1e-6)
+        assert det == pytest.approx(np.linalg.det(cov), rel=1e-8)
+    assert kalman.inverse3(np.diag([1.0, 1.0, 0.0])) is None
+    assert kalman.inverse3(np.diag([1.0, -1.0, 1.0])) is None
+    assert kalman.inverse3(np.full((3, 3), np.nan)) is None
+    s = kalman.initiate(np.zeros(3), np.zeros((3, 3)), 0, 1.0)
+    assert kalman.log_likelihood(s, np.ones(3), np.diag([1.0, 0.0, 1.0])) == -np.inf
+
+
+def test_correct_widens_a_surprised_prediction_then_updates() -> None:
+    """One predict-correct equals its closed-form parts: the likelihood under the prediction
+    as it was, a covariance widened by the squared distance over the bound while beyond it
+    (three times at most), and the Kalman update of that, here by LAPACK."""
+    s = kalman.initiate(np.zeros(3), np.diag([0.01, 0.04, 0.09]), 0, 1.0)
+    pred = kalman.predict(s, 33_000_000, 0.5)
+    r = np.diag([0.02, 0.01, 0.3])
+    for z, chi2 in ((np.array([0.05, -0.1, 0.2]), 11.3), (np.array([3.0, -2.0, 9.0]), 11.3)):
+        got, ll = kalman.correct(pred, z, r, chi2)
+        cov = pred.P[:3, :3] + r
+        y = z - pred.x[:3]
+        expected_ll = -0.5 * (
+            y @ np.linalg.solve(cov, y) + np.log(np.linalg.det(cov)) + 3 * np.log(2 * np.pi)
+        )
+        assert ll == pytest.approx(expected_ll, rel=1e-10)
+        p = pred.P
+        for _ in range(3):
+            nis = y @ np.linalg.solve(p[:3, :3] + r, y)
+            if nis <= chi2:
+                break
+            p = p * (nis / chi2)
+        k = np.linalg.solve(p[:3, :3] + r, p[:3, :]).T
+        np.testing.assert_allclose(got.x, pred.x + k @ y, rtol=1e-9, atol=1e-12)
+        ikh = np.eye(6) - k @ kalman.H
+        np.testing.assert_allclose(got.P, ikh @ p @ ikh.T + k @ r @ k.T, rtol=1e-8, atol=1e-14)
+    assert not np.allclose(kalman.correct(pred, z, r, chi2)[0].P, kalman.update(pred, z, r).P)
