@@ -41,10 +41,10 @@ Beyond the paper, each one chosen by measurement on two renderers (README, Accur
   ``learn_stride`` with ``1 - (1 - beta) ** learn_stride``, so every row follows the same time
   constant as eq. 3 at ``beta`` (on a steady scene it holds what eq. 3 gives after each of its
   updates), for a ``learn_stride``-th of the memory traffic (eq. 3 on a colour frame is the
-  detector's largest cost). A row lags by at most ``learn_stride - 1`` frames, and averages
-  fewer frames: its noise is about 1.7 times eq. 3's at ``beta`` 0.02 and stride 3 (0.17 of
-  one frame's noise instead of 0.10), far under the threshold. ``learn_stride = 1`` is eq. 3
-  on every frame.
+  detector's largest cost). A row lags by at most ``learn_stride - 1`` frames (a sixth of a
+  second at 30 Hz and the default 6), and averages fewer frames: its noise is about 2.5
+  times eq. 3's at ``beta`` 0.02 and stride 6 (0.25 of one frame's noise instead of 0.10),
+  far under the threshold. ``learn_stride = 1`` is eq. 3 on every frame.
 
 A frame whose foreground covers more than ``max_foreground`` of the image, or holds more than
 ``max_blobs`` objects, is saturated (the lights changed, the camera moved): it reports nothing,
@@ -157,7 +157,7 @@ class DetectorParams:
     gain: bool = True
     hysteresis: float = 0.65
     grow_px: int = 4
-    learn_stride: int = 3
+    learn_stride: int = 6
 
 
 PAPER = DetectorParams(
@@ -450,9 +450,12 @@ class Detector:
 
     def _grid(self, image: np.ndarray) -> np.ndarray:
         """``image`` on the first pass's grid: every ``_row_step``-th row from the first, and
-        every ``_columns[1]``-th column from ``_columns[0]`` (a nearest-pixel resize at an
-        exact integer ratio is a strided copy)."""
-        rows = image[:: self._row_step]
+        every ``_columns[1]``-th column from ``_columns[0]``."""
+        return self._grid_columns_of(image[:: self._row_step])
+
+    def _grid_columns_of(self, rows: np.ndarray) -> np.ndarray:
+        """The first pass's columns of ``rows`` (a nearest-pixel resize at an exact integer
+        ratio is a strided copy)."""
         ox, sx = self._columns
         if sx == 1:
             return rows
@@ -555,10 +558,18 @@ class Detector:
 
     def _learned_rows(self, bg: np.ndarray, phase: int) -> None:
         """After eq. 3 updated the rows of ``phase``: take the first pass's rows of T again if
-        they were among them."""
-        if phase % self._touches_coarse == 0:
+        they were among them (only those, when every row learned is one of them)."""
+        if phase % self._touches_coarse != 0:
+            return
+        stride, step = self.params.learn_stride, self._row_step
+        if self._coarse is None or stride % step != 0:
             self._coarse = None
             self._coarse_background(bg)
+            return
+        grid_t, bg8 = self._coarse
+        rows = slice(phase // step, None, stride // step)  # rows phase + stride k of T
+        grid_t[rows] = self._grid_columns_of(bg[phase::stride])
+        bg8[rows] = cv2.convertScaleAbs(grid_t[rows])
 
     def _warmup(self, frame: np.ndarray) -> None:
         p = self.params
@@ -790,8 +801,13 @@ def coverage_centroid(
     own[y - y0 : y - y0 + bh, x - x0 : x - x0 + bw] = support
     inner = cv2.erode(own, _RING)
     band = cv2.dilate(own, _RING)
-    weight = cv2.LUT(cv2.bitwise_and(diff[y0:y1, x0:x1], band), _ramp(threshold))
-    cv2.copyTo(np.ones(weight.shape, np.float32), inner, weight)
+    ramp = _ramp(threshold)
+    edge = cv2.bitwise_and(diff[y0:y1, x0:x1], band)
+    if ramp[255] == 1.0:  # t <= 170: a difference of 255 weighs 1, as the interior must
+        weight = cv2.LUT(cv2.bitwise_or(edge, inner), ramp)
+    else:
+        weight = cv2.LUT(edge, ramp)
+        cv2.copyTo(np.ones(weight.shape, np.float32), inner, weight)
     m = cv2.moments(weight)
     if m["m00"] <= 0:
         return (x + (bw - 1) / 2.0, y + (bh - 1) / 2.0)

@@ -15,6 +15,7 @@ from stereod.detect import (
     DetectorParams,
     Luminance,
     _grid_columns,
+    coverage_centroid,
     luminance,
 )
 from tests.detect_reference import ReferenceDetector
@@ -405,18 +406,25 @@ class _EveryPixel(Detector):
             self._columns = columns
 
 
-@pytest.mark.parametrize(("color", "width"), [(True, 160), (False, 160), (True, 161)])
-def test_the_first_pass_on_a_grid_finds_what_every_pixel_finds(color: bool, width: int) -> None:
+@pytest.mark.parametrize(
+    ("color", "width", "stride"), [(True, 160, 3), (False, 160, 3), (True, 161, 6), (False, 161, 4)]
+)
+def test_the_first_pass_on_a_grid_finds_what_every_pixel_finds(
+    color: bool, width: int, stride: int
+) -> None:
     """Eq. 4 is first taken on every third row and column (``open_px`` 3) to find the
     foreground's rectangle. The blobs, their centres and the mask must be those of a first
     pass on every pixel: for objects of every size, strips one and two pixels thin (which the
     opening removes, at the image's edges too), at every phase, up to the image's edges, under
     a changing light, with rectangles the tracker freezes; and for the hard case: a weak object
-    (hysteresis) whose only pixel above t lies on a row and a column the first pass skips."""
+    (hysteresis) whose only pixel above t lies on a row and a column the first pass skips.
+    Whatever rows eq. 3 learns in turn, the grid's cached background is that of T."""
     rng = np.random.default_rng(3)
     h, w = 120, width
     base = cv2.merge([textured(h, w, s) for s in (4, 5, 6)]) if color else textured(h, w, 4)
-    params = dataclasses.replace(DetectorParams(), warmup_frames=3, color=color)
+    params = dataclasses.replace(
+        DetectorParams(), warmup_frames=3, color=color, learn_stride=stride
+    )
     sparse, dense = Detector(params), _EveryPixel(params)
     assert sparse._row_step == 3
     ox = _grid_columns(w, 3)[0]
@@ -453,6 +461,9 @@ def test_the_first_pass_on_a_grid_finds_what_every_pixel_finds(color: bool, widt
         assert sparse.background is not None or k < 3
         if sparse.background is not None:
             np.testing.assert_array_equal(sparse.background, dense.background)
+            grid_t, bg8 = sparse._coarse_background(sparse.background)
+            np.testing.assert_array_equal(grid_t, sparse._grid(sparse.background))
+            np.testing.assert_array_equal(bg8, cv2.convertScaleAbs(grid_t))
     assert sparse.saturated == 0
 
 
@@ -488,3 +499,32 @@ def test_a_frame_of_another_size_during_the_warm_up_starts_it_again() -> None:
         assert len(det.detect(np.full((30, 50), 90, np.uint8))) == 0
     assert det.background is not None and det.background.shape == (30, 50)
     assert float(det.background.mean()) == pytest.approx(90.0)
+
+
+@pytest.mark.parametrize("threshold", [12.0, 25.0, 170.0, 200.0])
+def test_coverage_centroid_weighs_the_interior_one_and_the_edge_by_its_ramp(
+    threshold: float,
+) -> None:
+    """Against the formula written out with scipy: interior (support eroded by one pixel) 1,
+    the rest of the band (support dilated by one pixel) (d - t/2) / t clipped to [0, 1],
+    nothing else; the centre is the weights' centroid."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        diff = rng.integers(0, 256, (40, 50)).astype(np.uint8)
+        support = np.zeros((14, 17), np.uint8)
+        cv2.ellipse(
+            support, (8, 7), (int(rng.integers(3, 8)), int(rng.integers(3, 7))), 0, 0, 360, 255, -1
+        )
+        x, y = int(rng.integers(1, 30)), int(rng.integers(1, 24))
+        own = np.zeros(diff.shape, bool)
+        own[y : y + 14, x : x + 17] = support > 0
+        inner = ndimage.binary_erosion(own, np.ones((3, 3)))
+        band = ndimage.binary_dilation(own, np.ones((3, 3)))
+        w = np.clip((diff - threshold / 2) / threshold, 0.0, 1.0) * band
+        w[inner] = 1.0
+        yy, xx = np.mgrid[: diff.shape[0], : diff.shape[1]]
+        expected = ((w * xx).sum() / w.sum(), (w * yy).sum() / w.sum())
+        got = coverage_centroid(support, diff, (x, y), threshold)
+        np.testing.assert_allclose(got, expected, atol=1e-4)
