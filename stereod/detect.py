@@ -559,8 +559,8 @@ class Detector:
     def _learned_rows(self, bg: np.ndarray, phase: int) -> None:
         """After eq. 3 updated the rows of ``phase``: take the first pass's rows of T again if
         they were among them (only those, when every row learned is one of them)."""
-        if phase % self._touches_coarse != 0:
-            return
+        if phase % self._touches_coarse != 0 or phase >= bg.shape[0]:
+            return  # none of its rows are the first pass's (or there are none)
         stride, step = self.params.learn_stride, self._row_step
         if self._coarse is None or stride % step != 0:
             self._coarse = None
@@ -626,7 +626,10 @@ class Detector:
             cv2.copyTo(stamp, fresh, since)  # in place: ``since`` is a view of the whole
         free = cv2.bitwise_not(grown)
         cv2.copyTo(stamp, free, since)  # foreground since: now, where not foreground
-        stale = cv2.compare(since, np.float64(self._t_s - self.params.absorb_s), cv2.CMP_LT)
+        limit = np.float64(self._t_s - self.params.absorb_s)
+        if since.size == 1:  # OpenCV takes a one-element array for a scalar: give it two arrays
+            limit = np.full(since.shape, limit, np.float32)
+        stale = cv2.compare(since, limit, cv2.CMP_LT)
         return roi, cv2.bitwise_or(free, stale)
 
     def _blobs(

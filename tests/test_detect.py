@@ -528,3 +528,33 @@ def test_coverage_centroid_weighs_the_interior_one_and_the_edge_by_its_ramp(
         expected = ((w * xx).sum() / w.sum(), (w * yy).sum() / w.sum())
         got = coverage_centroid(support, diff, (x, y), threshold)
         np.testing.assert_allclose(got, expected, atol=1e-4)
+
+
+@pytest.mark.parametrize("stride", [1, 3, 6])
+def test_frames_down_to_one_pixel_pass_without_error(stride: int) -> None:
+    """A camera mode as small as 1 x 1 (grey or colour) is still a frame: objects of one
+    pixel come and go, rectangles are frozen, and nothing raises."""
+    params = DetectorParams(
+        warmup_frames=2,
+        learn_stride=stride,
+        max_foreground=1.0,
+        min_area_px=1,
+        open_px=1,
+        close_px=0,
+        grow_px=0,
+    )
+    for h in range(1, 6):
+        for w in range(1, 6):
+            for color in (True, False):
+                det = Detector(params)
+                rng = np.random.default_rng(h * 10 + w)
+                found = 0
+                for k in range(12):
+                    img = np.full((h, w, 3) if color else (h, w), 100, np.uint8)
+                    if k >= 3:
+                        y, x = int(rng.integers(0, h)), int(rng.integers(0, w))
+                        img[y, x] = 220
+                    found += len(det.detect(img, [(0, 0, 1, 1)] if k % 2 else [], k * 33_000_000))
+                    if k >= params.warmup_frames:  # M exists from the first detection
+                        assert det.mask is not None and det.mask.shape == (h, w)
+                assert found > 0, (h, w, color)
