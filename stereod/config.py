@@ -107,7 +107,9 @@ class DetectorConfig(_Section):
         _DETECT.close_px, ge=0, le=31, description="Closing kernel side, px; 0 disables"
     )
     luminance: Luminance = Field(_DETECT.luminance, description="bt601 or mean (eq. 2 exactly)")
-    centroid: Centroid = Field(_DETECT.centroid, description="coverage or binary (eq. 5)")
+    centroid: Centroid = Field(
+        _DETECT.centroid, description="matte, coverage or binary (eq. 5): how edge pixels weigh"
+    )
     color: bool = Field(_DETECT.color, description="Difference colour frames per channel")
     hold_foreground: bool = Field(
         _DETECT.hold_foreground, description="Do not learn the background under foreground"

@@ -33,9 +33,10 @@ Beyond the paper, each one chosen by measurement on two renderers (README, Accur
   of another colour is still found.
 - **Whole objects.** An object's support is its outline filled in, so a part of it that
   matches the background (a hole) still counts; pieces of one object split by a stripe are
-  joined by the closing. Its centre is eq. 5 over that support, with the edge pixels weighted
-  by how much of them the object covers (``centroid = "coverage"``, sub-pixel), or eq. 5
-  exactly (``"binary"``).
+  joined by the closing. Its centre is eq. 5 over that support, with each edge pixel weighted
+  by the share of it the object covers, solved from the pixel, the background behind it and
+  the object's colour just inside (``centroid = "matte"``, :func:`matte_centroid`); or by a
+  ramp of eq. 4's difference (``"coverage"``); or eq. 5 exactly (``"binary"``).
 
 - **Eq. 3 on every ``learn_stride``-th row, in turn.** Each frame updates one row in
   ``learn_stride`` with ``1 - (1 - beta) ** learn_stride``, so every row follows the same time
@@ -69,7 +70,10 @@ class Centroid(str, enum.Enum):
     BINARY = "binary"
     """Eq. 5 exactly: the mean position of the blob's foreground pixels."""
     COVERAGE = "coverage"
-    """Eq. 5 over the filled support, edge pixels weighted by the share the object covers."""
+    """Eq. 5 over the filled support, edge pixels weighted by a ramp of eq. 4's difference."""
+    MATTE = "matte"
+    """Eq. 5 over the filled support, each edge pixel weighted by the share of it the object
+    covers, solved from the pixel, the background behind it and the object's colour nearby."""
 
 
 class Luminance(str, enum.Enum):
@@ -120,7 +124,8 @@ class DetectorParams:
     ``min_area_px``: smallest object kept (px); smaller ones are noise.
     ``warmup_frames``: frames that make the initial background before detecting.
     ``open_px``, ``close_px``: sides of the opening and closing kernels (px), 0 or 1 to skip.
-    ``luminance``: eq. 2 exactly or the camera's luma; ``centroid``: eq. 5 exactly or weighted.
+    ``luminance``: eq. 2 exactly or the camera's luma; ``centroid``: eq. 5 exactly or with
+    the edge pixels weighted (by the share the object covers, or by a ramp).
     ``color``: difference colour frames channel by channel instead of by luminance.
     ``hold_foreground``: do not learn foreground pixels (grown by ``hold_margin_px``) until
     they have stayed foreground ``absorb_s`` seconds.
@@ -144,7 +149,7 @@ class DetectorParams:
     open_px: int = 3
     close_px: int = 5
     luminance: Luminance = Luminance.BT601
-    centroid: Centroid = Centroid.COVERAGE
+    centroid: Centroid = Centroid.MATTE
     color: bool = True
     hold_foreground: bool = True
     hold_margin_px: int = 2
@@ -430,6 +435,8 @@ class Detector:
         if len(contours) > self.params.max_blobs:
             return self._saturated()
         self._saturated_run = 0
+        if self.params.centroid is Centroid.MATTE:
+            return self._blobs(contours, part, (x0, y0), diff, frame[y0:y1, x0:x1], b8)
         return self._blobs(contours, part, (x0, y0), diff)
 
     def _coarse_background(self, bg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -638,9 +645,12 @@ class Detector:
         part: np.ndarray,
         origin: tuple[int, int],
         diff: np.ndarray,
+        frame: np.ndarray | None = None,
+        background: np.ndarray | None = None,
     ) -> Blobs:
         """Each object's support, centre, box and area; ``part`` is M and ``diff`` R (eq. 4)
-        inside the foreground's rectangle, at ``origin`` (x, y px) of the image."""
+        inside the foreground's rectangle, at ``origin`` (x, y px) of the image, and
+        ``frame`` and ``background`` (uint8, at the frame's gain) there when matting."""
         p = self.params
         centres, boxes, areas, supports = [], [], [], []
         for group in _groups(contours, p.merge_gap):
@@ -657,7 +667,11 @@ class Detector:
             area = cv2.countNonZero(own)
             if area < p.min_area_px:
                 continue
-            if p.centroid is Centroid.COVERAGE:
+            if p.centroid is Centroid.MATTE and frame is not None and background is not None:
+                at = (x - origin[0], y - origin[1])
+                cx, cy = matte_centroid(own, frame, background, diff, at, p.threshold)
+                centre = (cx + origin[0], cy + origin[1])
+            elif p.centroid is not Centroid.BINARY:
                 cx, cy = coverage_centroid(own, diff, (x - origin[0], y - origin[1]), p.threshold)
                 centre = (cx + origin[0], cy + origin[1])
             else:
@@ -811,6 +825,83 @@ def coverage_centroid(
     else:
         weight = cv2.LUT(edge, ramp)
         cv2.copyTo(np.ones(weight.shape, np.float32), inner, weight)
+    m = cv2.moments(weight)
+    if m["m00"] <= 0:
+        return (x + (bw - 1) / 2.0, y + (bh - 1) / 2.0)
+    return (x0 + m["m10"] / m["m00"], y0 + m["m01"] / m["m00"])
+
+
+_MATTE_MIN_INTERIOR = 12
+"""Fewest interior pixels (the support eroded by one pixel) a blob needs for matting: in a
+smaller one (about 4 x 4 px or less) the interior pixels are themselves partly background, so
+they do not give the object's colour, and the ramp is used instead."""
+_ONES3 = np.ones((1, 3), np.float32)
+
+
+def matte_centroid(
+    support: np.ndarray,
+    frame: np.ndarray,
+    background: np.ndarray,
+    diff: np.ndarray,
+    origin: tuple[int, int],
+    threshold: float,
+) -> tuple[float, float]:
+    """Sub-pixel centre of one object (px): eq. 5 over its support, interior pixels (the
+    support eroded by one pixel) weighing 1 and each pixel of the edge band (one pixel either
+    side of the outline) the share a of it the object covers. A pixel the object covers in
+    part mixes the object's colour o and the background's b: f = a o + (1 - a) b, so
+    a = (f - b).(o - b) / |o - b|^2 over the channels (least squares; with one channel, the
+    ratio), with b the stored background there and o the mean of the interior pixels within
+    two pixels. Unlike the ramp of :func:`coverage_centroid`, this does not depend on how far
+    the object's colour is from the background's, which differs between the eyes (each sees
+    the object against another patch of background). Where the object is too close to the
+    background (|o - b| under half of eq. 4's threshold per channel) or no interior pixel is
+    near, the ramp is used; a blob with fewer than ``_MATTE_MIN_INTERIOR`` interior pixels is
+    left to :func:`coverage_centroid`. ``support`` is (h, w) uint8 at ``origin`` (x, y) of
+    the (H, W[, 3]) uint8 ``frame``, ``background`` (at the frame's gain) and eq. 4's
+    ``diff``."""
+    x, y = origin
+    bh, bw = support.shape
+    H, W = diff.shape
+    x0, y0 = max(x - 1, 0), max(y - 1, 0)
+    x1, y1 = min(x + bw + 1, W), min(y + bh + 1, H)
+    own = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    own[y - y0 : y - y0 + bh, x - x0 : x - x0 + bw] = support
+    inner = cv2.erode(own, _RING)
+    if cv2.countNonZero(inner) < _MATTE_MIN_INTERIOR:
+        return coverage_centroid(support, diff, origin, threshold)
+    band = cv2.dilate(own, _RING)
+    ramp = _ramp(threshold)
+    weight = cv2.LUT(cv2.bitwise_and(diff[y0:y1, x0:x1], band), ramp)
+    f = frame[y0:y1, x0:x1]
+    b = background[y0:y1, x0:x1].astype(np.float32)
+    # the object's colour near each pixel: the mean of the interior pixels within two pixels
+    near = (5, 5)
+    count = cv2.boxFilter(inner, cv2.CV_32F, near, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    total = cv2.boxFilter(
+        cv2.bitwise_and(f, f, mask=inner),
+        cv2.CV_32F,
+        near,
+        normalize=False,
+        borderType=cv2.BORDER_CONSTANT,
+    )
+    count *= np.float32(1.0 / 255.0)  # interior pixels are 255
+    found = count > 0.5
+    if f.ndim == 3:
+        o = total / np.maximum(count, 1.0)[..., None]
+        ob, fb = o - b, f.astype(np.float32) - b
+        num, den = cv2.transform(fb * ob, _ONES3), cv2.transform(ob * ob, _ONES3)
+        channels = 3
+    else:
+        o = total / np.maximum(count, 1.0)
+        ob, fb = o - b, f.astype(np.float32) - b
+        num, den = fb * ob, ob * ob
+        channels = 1
+    usable = found & (den >= channels * (0.5 * threshold) ** 2) & (band > 0)
+    alpha = num / np.where(usable, den, np.float32(1.0))
+    np.minimum(np.maximum(alpha, 0.0, out=alpha), 1.0, out=alpha)
+    weight = np.where(usable, alpha, weight)
+    weight[inner > 0] = 1.0
     m = cv2.moments(weight)
     if m["m00"] <= 0:
         return (x + (bw - 1) / 2.0, y + (bh - 1) / 2.0)
