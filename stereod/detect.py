@@ -233,6 +233,11 @@ class Detector:
         self._coarse: tuple[np.ndarray, np.ndarray] | None = None
         """T on the first pass's grid (float32, a copy) and the same rounded to grey levels
         (uint8); ``None`` when T changed there since they were taken."""
+        self._coarse_version = 0
+        """Counts the changes to ``_coarse``: what the gain keeps of it is of this version."""
+        self._gain_base: tuple[int, np.ndarray, np.ndarray] | None = None
+        """The version of ``_coarse`` and, on the gain's grid, T's mean over the channels there
+        (float32) and where it is bright enough to count (bool)."""
         self._learned = 0
         """Frames eq. 3 has learned (after the warm-up): which rows the next one updates."""
         self._beta = 1.0 - (1.0 - params.beta) ** params.learn_stride
@@ -391,6 +396,7 @@ class Detector:
                 np.multiply(grid_t, np.float32(g), out=grid_t)  # the same products
                 g = 1.0
                 scaled = cv2.convertScaleAbs(grid_t, dst=bg8)  # T changed: round it again
+                self._coarse_version += 1
             else:
                 scaled = cv2.convertScaleAbs(grid_t, alpha=g)
             coarse = cv2.absdiff(grid, scaled)
@@ -453,6 +459,7 @@ class Detector:
             if grid_t.base is not None:  # a view: the gain scales T and this copy apart
                 grid_t = grid_t.copy()
             self._coarse = (grid_t, cv2.convertScaleAbs(grid_t))
+            self._coarse_version += 1
         return self._coarse
 
     def _grid(self, image: np.ndarray) -> np.ndarray:
@@ -485,10 +492,15 @@ class Detector:
         ox, sx = self._columns
         ky, kx = s // self._row_step, s // sx
         f = grid[::ky, ::kx].astype(np.float32)  # the pixels (s i, ox + s j)
-        b = grid8[::ky, ::kx].astype(np.float32)
         if f.ndim == 3:  # the mean of the channels (a matrix product: numpy sums a short
-            f, b = f @ _THIRDS, b @ _THIRDS  # last axis slowly)
-        use = b > _GAIN_MIN_LEVEL
+            f = f @ _THIRDS  # last axis slowly)
+        if self._gain_base is None or self._gain_base[0] != self._coarse_version:
+            b = grid8[::ky, ::kx].astype(np.float32)  # T there changes on a third of frames
+            if b.ndim == 3:
+                b = b @ _THIRDS
+            self._gain_base = (self._coarse_version, b, b > _GAIN_MIN_LEVEL)
+        _, b, bright = self._gain_base
+        use = bright.copy()
         if self._roi is not None and self._part is not None and self._shape == shape:
             # the grid points inside the last foreground's rectangle that were foreground
             x0, y0 = self._roi[0], self._roi[1]
@@ -577,6 +589,7 @@ class Detector:
         rows = slice(phase // step, None, stride // step)  # rows phase + stride k of T
         grid_t[rows] = self._grid_columns_of(bg[phase::stride])
         bg8[rows] = cv2.convertScaleAbs(grid_t[rows])
+        self._coarse_version += 1
 
     def _warmup(self, frame: np.ndarray) -> None:
         p = self.params
@@ -619,20 +632,22 @@ class Detector:
         grown = cv2.dilate(sub, self._hold) if self._hold is not None else sub
         since = self._since[y0:y1, x0:x1]
         now = np.float32(self._t_s)
-        stamp = np.full(sub.shape, now, np.float32)
-        # What lay outside the last rectangle was background in the last frame.
+        free = cv2.bitwise_not(grown)
+        # Background since now: what is not foreground, and what lay outside the last
+        # rectangle (it was background in the last frame).
         if prev is None:
             since.fill(now)
         else:
             px0, py0, px1, py1 = prev
-            fresh = np.full(sub.shape, 255, np.uint8)
             kx0, ky0 = max(px0 - x0, 0), max(py0 - y0, 0)
             kx1, ky1 = min(px1 - x0, x1 - x0), min(py1 - y0, y1 - y0)
             if kx1 > kx0 and ky1 > ky0:
-                fresh[ky0:ky1, kx0:kx1] = 0
-            cv2.copyTo(stamp, fresh, since)  # in place: ``since`` is a view of the whole
-        free = cv2.bitwise_not(grown)
-        cv2.copyTo(stamp, free, since)  # foreground since: now, where not foreground
+                fresh = np.full(sub.shape, 255, np.uint8)
+                fresh[ky0:ky1, kx0:kx1] = free[ky0:ky1, kx0:kx1]
+                stamp = np.full(sub.shape, now, np.float32)
+                cv2.copyTo(stamp, fresh, since)  # in place: ``since`` is a view of the whole
+            else:
+                since.fill(now)
         limit = np.float64(self._t_s - self.params.absorb_s)
         if since.size == 1:  # OpenCV takes a one-element array for a scalar: give it two arrays
             limit = np.full(since.shape, limit, np.float32)
