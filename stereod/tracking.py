@@ -237,7 +237,7 @@ def predict_px(history: EyeHistory, t_ns: int, window_ns: int) -> tuple[np.ndarr
     if v is None:
         return last, 0.0
     moved = shift_to(last, t_last, v, t_ns)
-    return moved, float(np.linalg.norm(moved - last))
+    return moved, _dist(moved, last)
 
 
 @dataclass(frozen=True, slots=True)
@@ -253,17 +253,24 @@ class Prediction:
     right_motion: float
 
 
+def _dist(a: np.ndarray, b: np.ndarray) -> float:
+    """Distance (px) between two image points (2,) (math on two floats: numpy's per-call
+    cost is most of the work on a pair of coordinates)."""
+    return math.hypot(float(a[0]) - float(b[0]), float(a[1]) - float(b[1]))
+
+
 def _motion(a: np.ndarray, b: np.ndarray, last: np.ndarray) -> float:
     """The larger distance (px) of two predictions from the last centroid."""
-    return max(float(np.linalg.norm(a - last)), float(np.linalg.norm(b - last)))
+    return max(_dist(a, last), _dist(b, last))
 
 
 def _to_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     """Distance (px) from a point to the segment a-b (a point when a == b)."""
-    ab = b - a
-    n2 = float(ab @ ab)
-    t = 0.0 if n2 == 0.0 else min(1.0, max(0.0, float((point - a) @ ab) / n2))
-    return float(np.linalg.norm(point - (a + t * ab)))
+    ax, ay, px, py = float(a[0]), float(a[1]), float(point[0]), float(point[1])
+    dx, dy = float(b[0]) - ax, float(b[1]) - ay
+    n2 = dx * dx + dy * dy
+    t = 0.0 if n2 == 0.0 else min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / n2))
+    return math.hypot(px - (ax + t * dx), py - (ay + t * dy))
 
 
 def _inside(point: np.ndarray, bbox: np.ndarray, grow: float) -> bool:

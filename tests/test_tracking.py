@@ -391,3 +391,18 @@ def test_an_object_cut_by_the_image_edge_keeps_its_id() -> None:
         states, _ = tracker.update(k * DT_NS, obs, assignment, (k * DT_NS, k * DT_NS), [det])
         ids |= {s.track_id for s in states if s.lifecycle is TrackLifecycle.CONFIRMED}
     assert ids == {1}, ids
+
+
+def test_distance_to_a_segment_in_closed_form() -> None:
+    """The perpendicular foot when it falls on the segment, else the nearer end; a
+    segment of no length is its point."""
+    from stereod.tracking import _to_segment
+
+    a, b = np.array([1.0, 1.0]), np.array([5.0, 1.0])
+    assert _to_segment(np.array([3.0, 4.0]), a, b) == pytest.approx(3.0)
+    assert _to_segment(np.array([8.0, 5.0]), a, b) == pytest.approx(5.0)
+    assert _to_segment(np.array([-2.0, -3.0]), a, b) == pytest.approx(5.0)
+    assert _to_segment(np.array([4.0, 5.0]), a, a) == pytest.approx(5.0)
+    assert _to_segment(np.array([0.0, 2.0]), np.array([0.0, 0.0]), np.array([2.0, 2.0])) == (
+        pytest.approx(np.sqrt(2.0))
+    )
