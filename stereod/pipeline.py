@@ -45,7 +45,9 @@ class PipelineParams:
 
     ``rig``: the geometry (:class:`CanonicalRig` from a baseline and a field of view, or
     :class:`CalibratedRig` from a calibration file); its image size must be the frames'.
-    ``centroid_sigma_px``: assumed centroid error per axis (px), the source of every covariance.
+    ``centroid_sigma_px``: assumed centroid error per axis (px), the source of every covariance
+    (0.15: the matte centroid errs by 0.01 to 0.2 px on the independent renderer; each track
+    learns a scale of it from its own positions).
     ``detect_workers``: 2 detects the two eyes on two threads (OpenCV releases the GIL) when
     a frame has at least ``PARALLEL_MIN_PX`` pixels; smaller frames are detected on the
     calling thread alone, which is faster for them.
@@ -64,7 +66,7 @@ class PipelineParams:
     detector: DetectorParams = field(default_factory=DetectorParams)
     matching: MatchParams = field(default_factory=MatchParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
-    centroid_sigma_px: float = 0.25
+    centroid_sigma_px: float = 0.15
     detect_workers: int = 1
     skew_compensation: bool = True
     skew_window_s: float = 0.2
