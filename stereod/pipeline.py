@@ -311,8 +311,9 @@ class Pipeline:
             else:
                 lc, rc, exact = lpx[k], rpx[k], True
             clipped = detections[k].clipped
+            before = self.tracker.track(tid).last if tid is not None else None
             observations.append(
-                self._observe(lb, rb, idx[k], lpx[k], rpx[k], lc, rc, exact, clipped)
+                self._observe(lb, rb, idx[k], lpx[k], rpx[k], lc, rc, exact, clipped, before)
             )
         t2 = time.perf_counter_ns()
         states, ended = self.tracker.update(t_ns, observations, assignment, eye_times, detections)
@@ -440,13 +441,18 @@ class Pipeline:
         tri_right: np.ndarray,
         exact: bool,
         clipped: bool,
+        before: Observation | None = None,
     ) -> Observation:
         """The observation of one matched pair of blobs; ``tri_*`` are the centroids to
-        triangulate (moved to one instant when skew is compensated)."""
+        triangulate (moved to one instant when skew is compensated), ``before`` the track's
+        last observation (see :func:`_segmentation_jump_px`)."""
         p = self.params
         i, j = int(ij[0]), int(ij[1])
-        points, cov = p.rig.triangulate(tri_left[None, :], tri_right[None, :], p.centroid_sigma_px)
         width_px = 0.5 * (lb.bbox_px[i, 2] + rb.bbox_px[j, 2])
+        sigma = p.centroid_sigma_px
+        if before is not None and not clipped and not before.clipped:
+            sigma = math.hypot(sigma, _segmentation_jump_px(lb, rb, i, j, before, width_px))
+        points, cov = p.rig.triangulate(tri_left[None, :], tri_right[None, :], sigma)
         return Observation(
             position_m=points[0],
             cov_m2=cov[0],
@@ -496,3 +502,30 @@ class Pipeline:
             pending, self._pending[e] = self._pending[e], None
             if pending is not None:
                 det.learn(*pending)
+
+
+SEGMENTATION_SLACK = 0.03
+"""How far (as a share) the ratio of an object's two blob areas may change from one
+observation to the next before its centroids are trusted less: noise and the object's own
+turning change it by a few percent."""
+
+
+def _segmentation_jump_px(
+    lb: Blobs, rb: Blobs, i: int, j: int, before: Observation, width_px: float
+) -> float:
+    """How far (px, one sigma) the centroids may have moved because the two eyes segmented
+    the object differently from the last observation to this one. Where part of an object is
+    the colour of what is behind it, each eye loses or regains that part on its own frame
+    (each sees another patch of background), and the eye that lost a share ``s`` of the
+    object's area has its centroid moved by up to ``s`` times half the object's width: the
+    disparity, so the depth, jumps for that frame. The two eyes' area changes tell it apart
+    (logs, since ``before``): they differ by ``s``. An object coming closer or going away
+    grows in both, and differently through the eyes' skew alone, by up to its growth, so
+    what counts is the difference beyond ``SEGMENTATION_SLACK`` and the mean growth; that,
+    times half the blob's width ``width_px``, is added to the centroid error of this
+    observation, so the filter leans on its prediction across the jump instead of following
+    it."""
+    left = math.log(max(int(lb.area_px[i]), 1) / max(before.left_area_px, 1))
+    right = math.log(max(int(rb.area_px[j]), 1) / max(before.right_area_px, 1))
+    grew = abs(left + right) / 2.0
+    return max(abs(left - right) - SEGMENTATION_SLACK - grew, 0.0) * 0.5 * width_px

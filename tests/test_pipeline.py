@@ -262,3 +262,34 @@ def test_detecting_the_earlier_eye_ahead_finds_what_the_pair_finds() -> None:
         # a frame detected ahead that its pair does not hold is dropped
         pipe.process(StereoPair(1, left[2], right[2]))
         assert pipe.detected_ahead == 0
+
+
+def test_a_part_of_an_object_lost_in_one_eye_only_widens_that_observations_error() -> None:
+    """One eye's blob lost a share s of its area since the track's last observation and
+    the other's did not: the centroids may have moved by (s - slack - s / 2) times half the
+    blob's width (s / 2 is the pair's mean growth, which the eyes' skew alone can split)."""
+    from stereod.detect import Blobs
+    from stereod.tracking import Observation
+
+    def blobs(area: int) -> Blobs:
+        return Blobs(
+            centroid_px=np.zeros((1, 2)),
+            bbox_px=np.array([[0, 0, 54, 47]], np.int32),
+            area_px=np.array([area], np.int32),
+            support=(np.zeros((47, 54), np.uint8),),
+        )
+
+    z2 = np.zeros(2)
+    before = Observation(
+        np.zeros(3), np.eye(3), z2, z2, z2, z2, np.zeros(4), np.zeros(4), 2440, 2440, 16.0, 0.1
+    )
+    lost = pipeline._segmentation_jump_px(blobs(2440), blobs(2170), 0, 0, before, 54.0)
+    s = np.log(2440 / 2170)
+    assert lost == pytest.approx((s - pipeline.SEGMENTATION_SLACK - s / 2) * 27.0)
+    assert lost > 0.7
+    # both eyes lost the same share (the object turned, or left the light): no jump
+    assert pipeline._segmentation_jump_px(blobs(2170), blobs(2170), 0, 0, before, 54.0) == 0.0
+    # an object coming closer, one eye a little later than the other: growth, not a jump
+    assert pipeline._segmentation_jump_px(blobs(3200), blobs(2900), 0, 0, before, 54.0) == 0.0
+    # within the slack: noise
+    assert pipeline._segmentation_jump_px(blobs(2440), blobs(2400), 0, 0, before, 54.0) == 0.0
