@@ -569,10 +569,17 @@ class Detector:
             keep[y0 - uy0 : y1 - uy0, x0 - ux0 : x1 - ux0] = cv2.bitwise_not(allowed)
         for x0, y0, x1, y1 in boxes:
             keep[y0 - uy0 : y1 - uy0, x0 - ux0 : x1 - ux0] = 255
-        region = bg[uy0:uy1, ux0:ux1]
+        # Only the rows eq. 3 learns this frame can change: keep and put back those.
+        first = uy0 + (phase - uy0) % p.learn_stride
+        if first >= uy1:
+            cv2.accumulateWeighted(frame[rows], bg[rows], self._beta)
+            self._learned_rows(bg, phase)
+            return
+        mine = slice(first - uy0, None, p.learn_stride)
+        region = bg[uy0:uy1, ux0:ux1][mine]
         before = region.copy()
         cv2.accumulateWeighted(frame[rows], bg[rows], self._beta)
-        cv2.copyTo(before, keep, region)  # in place: ``region`` is a view of T
+        cv2.copyTo(before, keep[mine], region)  # in place: ``region`` is a view of T
         self._learned_rows(bg, phase)
 
     def _learned_rows(self, bg: np.ndarray, phase: int) -> None:
