@@ -312,9 +312,8 @@ class Pipeline:
                 lc, rc, exact = lpx[k], rpx[k], True
             clipped = detections[k].clipped
             before = self.tracker.track(tid).last if tid is not None else None
-            observations.append(
-                self._observe(lb, rb, idx[k], lpx[k], rpx[k], lc, rc, exact, clipped, before)
-            )
+            ob = self._observe(lb, rb, idx[k], lpx[k], rpx[k], lc, rc, exact, clipped, before)
+            observations.append(ob if self._in_range(ob) else None)
         t2 = time.perf_counter_ns()
         states, ended = self.tracker.update(t_ns, observations, assignment, eye_times, detections)
         self._learn(states)
@@ -469,6 +468,23 @@ class Pipeline:
             exact=exact,
             clipped=clipped,
         )
+
+    def _in_range(self, ob: Observation) -> bool:
+        """Whether a triangulated position can be used: finite, and, once both eyes are
+        brought to one instant, in front of the rig and no further than the matcher's
+        smallest disparity allows. Blobs are matched with room for the eyes' skew, so two
+        views of one object at the same image position in both eyes (no parallax: far away,
+        or not a stereo view at all) can be matched, and at one instant their disparity is
+        nil or negative: such a position is at infinity or behind the rig, and would poison a
+        track. (A track's first sight, not brought to one instant, only places it, and a fast
+        object's may well lie behind the rig.)"""
+        p = self.params
+        if not (np.all(np.isfinite(ob.position_m)) and np.all(np.isfinite(ob.cov_m2))):
+            return False
+        if not ob.exact:
+            return True
+        far = p.rig.baseline_m * p.rig.focal_px / max(p.matching.min_disparity_px, 1e-3)
+        return 0.0 < float(ob.position_m[2]) <= far
 
     def _learn(self, states: list[TrackState]) -> None:
         """Where eq. 3 may learn in each eye, applied when the next pair is detected: not under

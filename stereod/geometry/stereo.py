@@ -165,8 +165,26 @@ def triangulate_rectified(
     rays, shifted so the origin is the midpoint of the baseline. Returns the (n, 3) points and
     their (n, 3, 3) covariance (m^2), propagated from an isotropic centroid error of
     ``sigma_px`` per coordinate per eye through the Jacobian. A one-pixel disparity error moves
-    Z by D^2 / (B f), the exact form of eq. 12's D^2 / B tan(delta phi).
+    Z by D^2 / (B f), the exact form of eq. 12's D^2 / B tan(delta phi). A nil disparity
+    gives an infinite point (and a negative one a point behind the rig), without a warning:
+    the caller decides what to do with it.
     """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return _triangulate(
+            left_px, right_px, focal_px, baseline_m, cx_left_px, cx_right_px, cy_px, sigma_px
+        )
+
+
+def _triangulate(
+    left_px: np.ndarray,
+    right_px: np.ndarray,
+    focal_px: float,
+    baseline_m: float,
+    cx_left_px: float,
+    cx_right_px: float,
+    cy_px: float,
+    sigma_px: float,
+) -> tuple[np.ndarray, np.ndarray]:
     left = np.atleast_2d(np.asarray(left_px, dtype=np.float64))
     right = np.atleast_2d(np.asarray(right_px, dtype=np.float64))
     f, b = focal_px, baseline_m
