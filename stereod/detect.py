@@ -822,6 +822,22 @@ def _ramp(threshold: float) -> np.ndarray:
     return np.clip((d - 0.5 * threshold) * (1.0 / threshold), 0.0, 1.0).astype(np.float32)
 
 
+def _padded(
+    support: np.ndarray, origin: tuple[int, int], shape: tuple[int, ...]
+) -> tuple[int, int, int, int, np.ndarray, np.ndarray]:
+    """A blob's support at ``origin`` (x, y) of an image of ``shape``, grown by one pixel
+    each way within it: its rectangle (x0, y0, x1, y1), the support there (uint8) and its
+    interior (the support eroded by one pixel)."""
+    x, y = origin
+    bh, bw = support.shape
+    H, W = shape[0], shape[1]
+    x0, y0 = max(x - 1, 0), max(y - 1, 0)
+    x1, y1 = min(x + bw + 1, W), min(y + bh + 1, H)
+    own = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    own[y - y0 : y - y0 + bh, x - x0 : x - x0 + bw] = support
+    return x0, y0, x1, y1, own, cv2.erode(own, _RING)
+
+
 def coverage_centroid(
     support: np.ndarray, diff: np.ndarray, origin: tuple[int, int], threshold: float
 ) -> tuple[float, float]:
@@ -833,12 +849,7 @@ def coverage_centroid(
     the object covers. ``support`` is (h, w) uint8 at ``origin`` (x, y) of ``diff``."""
     x, y = origin
     bh, bw = support.shape
-    H, W = diff.shape
-    x0, y0 = max(x - 1, 0), max(y - 1, 0)
-    x1, y1 = min(x + bw + 1, W), min(y + bh + 1, H)
-    own = np.zeros((y1 - y0, x1 - x0), np.uint8)
-    own[y - y0 : y - y0 + bh, x - x0 : x - x0 + bw] = support
-    inner = cv2.erode(own, _RING)
+    x0, y0, x1, y1, own, inner = _padded(support, origin, diff.shape)
     band = cv2.dilate(own, _RING)
     ramp = _ramp(threshold)
     edge = cv2.bitwise_and(diff[y0:y1, x0:x1], band)
@@ -884,12 +895,7 @@ def matte_centroid(
     ``diff``."""
     x, y = origin
     bh, bw = support.shape
-    H, W = diff.shape
-    x0, y0 = max(x - 1, 0), max(y - 1, 0)
-    x1, y1 = min(x + bw + 1, W), min(y + bh + 1, H)
-    own = np.zeros((y1 - y0, x1 - x0), np.uint8)
-    own[y - y0 : y - y0 + bh, x - x0 : x - x0 + bw] = support
-    inner = cv2.erode(own, _RING)
+    x0, y0, x1, y1, own, inner = _padded(support, origin, diff.shape)
     if cv2.countNonZero(inner) < _MATTE_MIN_INTERIOR:
         return coverage_centroid(support, diff, origin, threshold)
     band = cv2.dilate(own, _RING)
