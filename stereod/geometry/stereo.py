@@ -170,45 +170,30 @@ def triangulate_rectified(
     the caller decides what to do with it.
     """
     with np.errstate(divide="ignore", invalid="ignore"):
-        return _triangulate(
-            left_px, right_px, focal_px, baseline_m, cx_left_px, cx_right_px, cy_px, sigma_px
-        )
-
-
-def _triangulate(
-    left_px: np.ndarray,
-    right_px: np.ndarray,
-    focal_px: float,
-    baseline_m: float,
-    cx_left_px: float,
-    cx_right_px: float,
-    cy_px: float,
-    sigma_px: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    left = np.atleast_2d(np.asarray(left_px, dtype=np.float64))
-    right = np.atleast_2d(np.asarray(right_px, dtype=np.float64))
-    f, b = focal_px, baseline_m
-    ul = left[:, 0] - cx_left_px
-    ur = right[:, 0] - cx_right_px
-    d = ul - ur
-    z = b * f / d
-    u = 0.5 * (ul + ur)
-    v = 0.5 * (left[:, 1] + right[:, 1]) - cy_px
-    points = np.stack([u * z / f, v * z / f, z], axis=1)
-    # Jacobian of (X, Y, Z) w.r.t. (x_L, x_R, y_L, y_R); dZ/dx_L = -Z/d, dZ/dx_R = Z/d.
-    n = len(d)
-    jac = np.zeros((n, 3, 4))
-    dz_dxl = -z / d
-    jac[:, 2, 0] = dz_dxl
-    jac[:, 2, 1] = -dz_dxl
-    jac[:, 0, 0] = 0.5 * z / f + u / f * dz_dxl
-    jac[:, 0, 1] = 0.5 * z / f - u / f * dz_dxl
-    jac[:, 1, 0] = v / f * dz_dxl
-    jac[:, 1, 1] = -v / f * dz_dxl
-    jac[:, 1, 2] = 0.5 * z / f
-    jac[:, 1, 3] = 0.5 * z / f
-    cov = sigma_px**2 * (jac @ jac.transpose(0, 2, 1))
-    return points, cov
+        left = np.atleast_2d(np.asarray(left_px, dtype=np.float64))
+        right = np.atleast_2d(np.asarray(right_px, dtype=np.float64))
+        f, b = focal_px, baseline_m
+        ul = left[:, 0] - cx_left_px
+        ur = right[:, 0] - cx_right_px
+        d = ul - ur
+        z = b * f / d
+        u = 0.5 * (ul + ur)
+        v = 0.5 * (left[:, 1] + right[:, 1]) - cy_px
+        points = np.stack([u * z / f, v * z / f, z], axis=1)
+        # Jacobian of (X, Y, Z) w.r.t. (x_L, x_R, y_L, y_R); dZ/dx_L = -Z/d, dZ/dx_R = Z/d.
+        n = len(d)
+        jac = np.zeros((n, 3, 4))
+        dz_dxl = -z / d
+        jac[:, 2, 0] = dz_dxl
+        jac[:, 2, 1] = -dz_dxl
+        jac[:, 0, 0] = 0.5 * z / f + u / f * dz_dxl
+        jac[:, 0, 1] = 0.5 * z / f - u / f * dz_dxl
+        jac[:, 1, 0] = v / f * dz_dxl
+        jac[:, 1, 1] = -v / f * dz_dxl
+        jac[:, 1, 2] = 0.5 * z / f
+        jac[:, 1, 3] = 0.5 * z / f
+        cov = sigma_px**2 * (jac @ jac.transpose(0, 2, 1))
+        return points, cov
 
 
 @dataclass(frozen=True, slots=True)
