@@ -552,14 +552,35 @@ class Detector:
         phase = self._learned % p.learn_stride
         self._learned += 1
         rows = slice(phase, None, p.learn_stride)
-        if held is None and not boxes:
-            cv2.accumulateWeighted(frame[rows], bg[rows], self._beta)
-            self._learned_rows(bg, phase)
-            return
+        kept = self._kept(bg, phase, held, boxes, released)
+        cv2.accumulateWeighted(frame[rows], bg[rows], self._beta)
+        if kept is not None:
+            region, before, keep = kept
+            cv2.copyTo(before, keep, region)  # in place: ``region`` is a view of T
+        self._learned_rows(bg, phase)
+
+    def _kept(
+        self,
+        bg: np.ndarray,
+        phase: int,
+        held: tuple[Rect, np.ndarray] | None,
+        boxes: list[Rect],
+        released: Sequence[Rect],
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """What eq. 3 must not change among the rows of ``phase``: the view of T over them
+        around the rectangles, a copy of it, and where to put the copy back (uint8 255: in
+        the ``boxes`` and on held foreground outside the ``released`` rectangles); ``None``
+        when nothing there is to be kept."""
+        stride = self.params.learn_stride
         rects = boxes + ([held[0]] if held is not None else [])
+        if not rects:
+            return None
         ux0, uy0 = min(r[0] for r in rects), min(r[1] for r in rects)
         ux1, uy1 = max(r[2] for r in rects), max(r[3] for r in rects)
-        keep = np.zeros((uy1 - uy0, ux1 - ux0), np.uint8)  # 255 where T must stay as it is
+        first = uy0 + (phase - uy0) % stride  # the first of its rows eq. 3 learns now
+        if first >= uy1:
+            return None
+        keep = np.zeros((uy1 - uy0, ux1 - ux0), np.uint8)
         if held is not None:
             (x0, y0, x1, y1), allowed = held
             for r in released:
@@ -569,18 +590,9 @@ class Detector:
             keep[y0 - uy0 : y1 - uy0, x0 - ux0 : x1 - ux0] = cv2.bitwise_not(allowed)
         for x0, y0, x1, y1 in boxes:
             keep[y0 - uy0 : y1 - uy0, x0 - ux0 : x1 - ux0] = 255
-        # Only the rows eq. 3 learns this frame can change: keep and put back those.
-        first = uy0 + (phase - uy0) % p.learn_stride
-        if first >= uy1:
-            cv2.accumulateWeighted(frame[rows], bg[rows], self._beta)
-            self._learned_rows(bg, phase)
-            return
-        mine = slice(first - uy0, None, p.learn_stride)
+        mine = slice(first - uy0, None, stride)
         region = bg[uy0:uy1, ux0:ux1][mine]
-        before = region.copy()
-        cv2.accumulateWeighted(frame[rows], bg[rows], self._beta)
-        cv2.copyTo(before, keep[mine], region)  # in place: ``region`` is a view of T
-        self._learned_rows(bg, phase)
+        return region, region.copy(), keep[mine]
 
     def _learned_rows(self, bg: np.ndarray, phase: int) -> None:
         """After eq. 3 updated the rows of ``phase``: take the first pass's rows of T again if
