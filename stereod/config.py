@@ -183,9 +183,13 @@ class MatchingConfig(_Section):
     centroid_sigma_px: float = Field(
         _pipe("centroid_sigma_px"), gt=0.0, description="Centroid error per axis, px"
     )
+    silhouette_depth: bool = Field(
+        _pipe("silhouette_depth"),
+        description="Depth at the object's centre, not where its silhouettes triangulate",
+    )
 
     def params(self) -> MatchParams:
-        return MatchParams(**self.model_dump(exclude={"centroid_sigma_px"}))
+        return MatchParams(**self.model_dump(exclude={"centroid_sigma_px", "silhouette_depth"}))
 
 
 class TrackingConfig(_Section):

@@ -34,6 +34,7 @@ def pipeline_params(cfg: StereodConfig, width: int, height: int) -> PipelinePara
         matching=cfg.matching.params(),
         tracker=cfg.tracking.params(),
         centroid_sigma_px=cfg.matching.centroid_sigma_px,
+        silhouette_depth=cfg.matching.silhouette_depth,
         detect_workers=cfg.daemon.detect_workers,
         skew_compensation=cfg.pairing.skew_compensation,
         freeze_background=cfg.tracking.freeze_background,

@@ -51,6 +51,10 @@ class PipelineParams:
     ``detect_workers``: 2 detects the two eyes on two threads (OpenCV releases the GIL) when
     a frame has at least ``PARALLEL_MIN_PX`` pixels; smaller frames are detected on the
     calling thread alone, which is faster for them.
+    ``silhouette_depth``: place each object's depth at its centre, not at the depth its
+    silhouettes' centroids triangulate to, which is r^2 / Z nearer for a sphere (see
+    :func:`stereod.geometry.stereo.silhouette_depth_factor`; other convex objects are taken to
+    be as deep as they are wide).
     ``skew_compensation``: move both eyes' centroids to one instant before triangulating.
     ``skew_window_s``: how much of an eye's 2D track (s) its image velocity is fitted over, and
     how old its oldest of three frames may be for the projective interpolation.
@@ -68,6 +72,7 @@ class PipelineParams:
     tracker: TrackerParams = field(default_factory=TrackerParams)
     centroid_sigma_px: float = 0.15
     detect_workers: int = 1
+    silhouette_depth: bool = True
     skew_compensation: bool = True
     skew_window_s: float = 0.2
     freeze_background: bool = True
@@ -451,7 +456,8 @@ class Pipeline:
         sigma = p.centroid_sigma_px
         if before is not None and not clipped and not before.clipped:
             sigma = math.hypot(sigma, _segmentation_jump_px(lb, rb, i, j, before, width_px))
-        points, cov = p.rig.triangulate(tri_left[None, :], tri_right[None, :], sigma)
+        area = np.array([0.5 * (lb.area_px[i] + rb.area_px[j])]) if p.silhouette_depth else None
+        points, cov = p.rig.triangulate(tri_left[None, :], tri_right[None, :], sigma, area)
         return Observation(
             position_m=points[0],
             cov_m2=cov[0],
@@ -540,7 +546,9 @@ def _segmentation_jump_px(
     what counts is the difference beyond ``SEGMENTATION_SLACK`` and the mean growth; that,
     times half the blob's width ``width_px``, is added to the centroid error of this
     observation, so the filter leans on its prediction across the jump instead of following
-    it."""
+    it. The mean growth holds half of a loss in one eye alone, so such a loss counts from
+    twice the slack (6 %), at half its size: a thrown ball's skewed growth looks the same,
+    and counting it in full cost those balls their valid speeds."""
     left = math.log(max(int(lb.area_px[i]), 1) / max(before.left_area_px, 1))
     right = math.log(max(int(rb.area_px[j]), 1) / max(before.right_area_px, 1))
     grew = abs(left + right) / 2.0

@@ -108,10 +108,15 @@ class CalibratedRig:
         return self._rectify(points_px, self._k2, self._d2, self._r2, self._p2)
 
     def triangulate(
-        self, left_px: np.ndarray, right_px: np.ndarray, sigma_px: float = 0.5
+        self,
+        left_px: np.ndarray,
+        right_px: np.ndarray,
+        sigma_px: float = 0.5,
+        area_px: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """(n, 2) rectified left and right points (px) to (n, 3) rig-frame points and their
-        (n, 3, 3) covariance; depth sigma from the disparity (eq. 12's D^2 / (B f) per px)."""
+        (n, 3, 3) covariance; depth sigma from the disparity (eq. 12's D^2 / (B f) per px);
+        see :func:`stereod.geometry.stereo.triangulate_rectified`."""
         return triangulate_rectified(
             left_px,
             right_px,
@@ -121,6 +126,7 @@ class CalibratedRig:
             cx_right_px=self.cx_right_px,
             cy_px=self.cy_px,
             sigma_px=sigma_px,
+            area_px=area_px,
         )
 
     def principal_point_px(self, left: bool) -> tuple[float, float]:

@@ -68,6 +68,54 @@ def test_covariance_matches_monte_carlo() -> None:
     )
 
 
+def _sphere_silhouette(
+    centre_m: np.ndarray, radius_m: float, f: float, cx: float, cy: float, n: int = 8
+) -> tuple[np.ndarray, float]:
+    """Centroid (px) and area (px) of a sphere's image in a pinhole camera at the origin,
+    ray-cast: an n x n supersampled ray hits the sphere when it passes within r of its centre
+    (pixel (i, j)'s centre is at x = j, y = i)."""
+    z = float(centre_m[2])
+    reach = 2.0 * f * radius_m / math.sqrt(z * z - radius_m**2) + 3.0
+    u0, v0 = f * centre_m[0] / z + cx, f * centre_m[1] / z + cy
+    x0, x1, y0, y1 = int(u0 - reach), int(u0 + reach) + 1, int(v0 - reach), int(v0 + reach) + 1
+    ys, xs = np.mgrid[y0 * n : y1 * n, x0 * n : x1 * n]
+    rays = np.stack(
+        [((xs + 0.5) / n - 0.5 - cx) / f, ((ys + 0.5) / n - 0.5 - cy) / f, np.ones(xs.shape)], -1
+    )
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    along = rays @ centre_m
+    hit = centre_m @ centre_m - along * along < radius_m**2
+    cover = hit.reshape(y1 - y0, n, x1 - x0, n).mean(axis=(1, 3))
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    area = float(cover.sum())
+    return np.array([(cover * xx).sum() / area, (cover * yy).sum() / area]), area
+
+
+@pytest.mark.parametrize(
+    ("centre", "radius"),
+    [((0.0, 0.0, 1.2), 0.15), ((0.3, -0.2, 1.2), 0.15), ((0.5, 0.3, 1.0), 0.1)],
+)
+def test_silhouette_depth_is_corrected_to_a_spheres_centre(
+    centre: tuple[float, float, float], radius: float
+) -> None:
+    # A sphere's silhouette centroids triangulate to Z - r^2 / Z (its near half looks larger);
+    # with their areas the depth is its centre's, to a tenth of a millimetre.
+    c = np.array(centre)
+    half = np.array([RIG.baseline_m / 2, 0.0, 0.0])
+    f, cx, cy = RIG.focal_px, RIG.cx_px, RIG.cy_px
+    left, area_l = _sphere_silhouette(c + half, radius, f, cx, cy)
+    right, area_r = _sphere_silhouette(c - half, radius, f, cx, cy)
+    raw, raw_cov = RIG.triangulate(left[None], right[None])
+    assert raw[0, 2] - c[2] == pytest.approx(-(radius**2) / c[2], abs=3e-4)
+    np.testing.assert_allclose(raw[0, :2], c[:2], atol=1e-4)
+    got, cov = RIG.triangulate(left[None], right[None], area_px=np.array([(area_l + area_r) / 2]))
+    np.testing.assert_allclose(got[0], c, atol=2e-4)
+    # The depth's spread scales with it; X and Y are untouched.
+    k = got[0, 2] / raw[0, 2]
+    assert math.sqrt(cov[0, 2, 2]) == pytest.approx(k * math.sqrt(raw_cov[0, 2, 2]), rel=1e-9)
+    np.testing.assert_allclose(cov[0, :2, :2], raw_cov[0, :2, :2], rtol=1e-12)
+
+
 def test_rig_rejects_nonsense() -> None:
     with pytest.raises(ValueError, match="baseline"):
         CanonicalRig(0.0, 60, 640, 480)
