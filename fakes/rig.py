@@ -90,7 +90,10 @@ class RigSpec(BaseModel):
 
     def project(self, eye: Eye, points_world_m: np.ndarray) -> np.ndarray:
         """(n, 2) image points (px) of (n, 3) world points, distortion included."""
-        pc = self.to_camera(eye, points_world_m)
+        return self.project_camera(eye, self.to_camera(eye, points_world_m))
+
+    def project_camera(self, eye: Eye, pc: np.ndarray) -> np.ndarray:
+        """(n, 2) image points (px) of (n, 3) points in ``eye``'s own coordinates (m)."""
         cam = self.camera(eye)
         img, _ = cv2.projectPoints(pc.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), cam.K, cam.D)
         return img.reshape(-1, 2)

@@ -226,6 +226,30 @@ class Renderer:
         depth = float(spec.to_camera(eye, p_m[None, :])[0, 2])
         return float(uv[0]), float(uv[1]), depth
 
+    def silhouette(self, eye: Eye, p_m: np.ndarray, radius_m: float) -> tuple[float, float, float]:
+        """Centre (px) and radius (px) of the disc standing for a sphere's image in ``eye``.
+
+        A sphere's silhouette is an ellipse centred on the image of its centre brought r^2 / Z
+        nearer along the optical axis (in that camera's coordinates); its semi-minor axis is
+        f r / (Z^2 - r^2)^(1/2). The disc keeps that centre and that radius."""
+        spec = self.scene.rig_spec
+        pc = (
+            np.asarray(p_m, dtype=np.float64)
+            + np.array([(0.5 if eye is Eye.LEFT else -0.5) * self._rig.baseline_m, 0.0, 0.0])
+            if spec is None
+            else spec.to_camera(eye, p_m[None, :])[0]
+        )
+        z = float(pc[2])
+        near = pc * np.array([1.0, 1.0, 1.0 - radius_m**2 / z**2])
+        if spec is None:
+            f = self._rig.focal_px
+            u = f * near[0] / near[2] + self._rig.cx_px
+            v = f * near[1] / near[2] + self._rig.cy_px
+        else:
+            f = spec.camera(eye).fx
+            u, v = spec.project_camera(eye, near[None, :])[0]
+        return float(u), float(v), f * radius_m / math.sqrt(z * z - radius_m**2)
+
     def render(self, eye: Eye, t_s: float, background: np.ndarray | None = None) -> np.ndarray:
         """One uint8 frame of ``eye`` at ``t_s`` seconds: grey (h, w) or BGR (h, w, 3)."""
         sc = self.scene
@@ -236,9 +260,7 @@ class Renderer:
             p = b.position_m(t_s)
             if p[2] <= b.radius_m:
                 continue
-            u, v, depth = self.project(eye, p)
-            fx = self._rig.focal_px if sc.rig_spec is None else sc.rig_spec.camera(eye).fx
-            r_px = fx * b.radius_m / depth
+            u, v, r_px = self.silhouette(eye, p, b.radius_m)
             # A lit sphere: a dimmer disc, a brighter cap offset towards the light (up-left).
             _paint_disc(img, u, v, r_px, b.brightness * 0.9)
             _paint_disc(img, u - r_px / 4, v - r_px / 4, r_px / 2, b.brightness)

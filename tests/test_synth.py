@@ -1,4 +1,4 @@
-"""Synthetic renderer: what it draws is where the canonical rig projects the truth."""
+"""Synthetic renderer: what it draws is where the canonical rig sees the truth."""
 
 from __future__ import annotations
 
@@ -19,20 +19,27 @@ from stereod_fakes.synth import (
 )
 
 
-def test_ball_is_drawn_at_its_projection() -> None:
-    scene = Scene(noise_sigma=0.0, balls=[Ball(centre_m=(0.2, -0.1, 1.5), t_on_s=0.0, t_off_s=9)])
+def test_ball_is_drawn_where_a_spheres_silhouette_is_centred() -> None:
+    # A sphere's silhouette is centred on f X / (Z - r^2 / Z), not on the projection of its
+    # centre f X / Z: for this large, near ball the two are 3 px apart.
+    x, y, z, radius = 0.2, -0.1, 1.0, 0.15
+    scene = Scene(
+        noise_sigma=0.0,
+        balls=[Ball(centre_m=(x, y, z), radius_m=radius, t_on_s=0.0, t_off_s=9)],
+    )
     r = Renderer(scene)
-    for eye in Eye:
+    rig = scene.rig
+    near_z = z - radius**2 / z
+    for eye, x_cam in ((Eye.LEFT, x + rig.baseline_m / 2), (Eye.RIGHT, x - rig.baseline_m / 2)):
         empty = r.background(eye)[..., 0]
         img = r.render(eye, scene.balls[0].t_mid_s).astype(float)
         diff = np.abs(img - empty) > 20
         ys, xs = np.nonzero(diff)
-        left, right = scene.rig.project(np.array([scene.balls[0].centre_m]))
-        uv = (left if eye is Eye.LEFT else right)[0]
-        assert xs.mean() == pytest.approx(uv[0], abs=0.3)
-        assert ys.mean() == pytest.approx(uv[1], abs=0.3)
-        r_px = scene.rig.focal_px * 0.05 / 1.5
-        assert diff.sum() == pytest.approx(np.pi * r_px**2, rel=0.1)
+        assert xs.mean() == pytest.approx(rig.focal_px * x_cam / near_z + rig.cx_px, abs=0.3)
+        assert ys.mean() == pytest.approx(rig.focal_px * y / near_z + rig.cy_px, abs=0.3)
+        assert abs(xs.mean() - (rig.focal_px * x_cam / z + rig.cx_px)) > 2.0
+        r_px = rig.focal_px * radius / np.sqrt(z**2 - radius**2)
+        assert diff.sum() == pytest.approx(np.pi * r_px**2, rel=0.05)
 
 
 def test_wall_has_the_disparity_of_its_distance() -> None:
