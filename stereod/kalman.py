@@ -121,15 +121,26 @@ def innovation(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> tuple[np.nd
     return y, s.P[:3, :3] + r_m2
 
 
+ILL_CONDITIONED = 1e-8
+"""The smallest det / (a e i) :func:`inverse3` inverts in closed form (Hadamard's ratio: 1
+for a diagonal matrix, 0 for a singular one)."""
+
+
 def inverse3(m: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """The inverse and determinant of a 3 x 3 matrix by its adjugate, in closed form: a track
-    solves with S several times a pair, and LAPACK's per-call cost dwarfs nine products on
-    a 3 x 3. ``None`` when the determinant is not positive (not a covariance: the caller
-    falls back to LAPACK, which reports it)."""
+    """The inverse and determinant of a symmetric 3 x 3 matrix by its adjugate, in closed
+    form: a track solves with S several times a pair, and LAPACK's per-call cost dwarfs nine
+    products on a 3 x 3. ``None`` when the matrix is not positive definite (a leading minor
+    not positive), or so ill-conditioned that the adjugate's cancellation would cost more
+    than half the digits (det under ``ILL_CONDITIONED`` of the diagonal's product: a far
+    object, whose depth and lateral errors are almost one); the caller then solves with
+    LAPACK, which is backward-stable (and gives a minus-infinite likelihood for a matrix
+    that is not a covariance)."""
     (a, b, c), (d, e, f), (g, h, i) = m.tolist()
     c11, c12, c13 = e * i - f * h, f * g - d * i, d * h - e * g
     det = a * c11 + b * c12 + c * c13
-    if not det > 0.0 or not math.isfinite(det):
+    if not (a > 0.0 and a * e - b * d > 0.0 and det > ILL_CONDITIONED * a * e * i):
+        return None
+    if not math.isfinite(det):
         return None
     adj = [
         [c11, c * h - b * i, b * f - c * e],
