@@ -232,7 +232,9 @@ class Detector:
         self._background: np.ndarray | None = None
         self._coarse: tuple[np.ndarray, np.ndarray] | None = None
         """T on the first pass's grid (float32, a copy) and the same rounded to grey levels
-        (uint8); ``None`` when T changed there since they were taken."""
+        (uint8), kept in step with T row by row as eq. 3 learns (:meth:`_learned_rows`);
+        ``None`` until first taken, and after T is replaced (a new background, a rescale, a
+        stride whose rows are not the grid's) until taken again."""
         self._coarse_version = 0
         """Counts the changes to ``_coarse``: what the gain keeps of it is of this version."""
         self._gain_base: tuple[int, np.ndarray, np.ndarray] | None = None
@@ -446,9 +448,9 @@ class Detector:
         return self._blobs(contours, part, (x0, y0), diff)
 
     def _coarse_background(self, bg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """T on the first pass's grid (float32, a copy) and the same rounded to grey levels,
-        taken again only after eq. 3 changed those rows (right after, while they are still in
-        the cache)."""
+        """T on the first pass's grid (float32, a copy) and the same rounded to grey levels:
+        the cached pair, or taken from the whole of ``bg`` when there is none. Eq. 3's rows
+        are brought up to date in the cache by :meth:`_learned_rows` as they are learned."""
         if self._coarse is None:
             if self._grid_of != bg.shape[:2]:
                 self._columns = _grid_columns(bg.shape[1], self._row_step)
@@ -534,8 +536,9 @@ class Detector:
         for the initial background, then T = T (1 - beta) + L beta where allowed: not in the
         ``frozen`` rectangles (objects the tracker freezes), and not on held foreground unless
         in a ``released`` one (an object the tracker knows has stopped for good). Rectangles
-        are (x0, y0, x1, y1) px, end exclusive. Eq. 3 runs on the whole frame at once and what
-        it must not have changed is put back, rectangle by rectangle."""
+        are (x0, y0, x1, y1) px, end exclusive. Eq. 3 runs on every ``learn_stride``-th row, in
+        turn, in one call; what it must not have changed there (:meth:`_kept`: the learned rows
+        under the frozen and held rectangles' union) is copied before and put back after."""
         frame = self._frame
         if frame is None:
             return

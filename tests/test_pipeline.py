@@ -295,23 +295,40 @@ def test_a_part_of_an_object_lost_in_one_eye_only_widens_that_observations_error
     assert pipeline._segmentation_jump_px(blobs(2440), blobs(2400), 0, 0, before, 54.0) == 0.0
 
 
-def test_one_view_in_both_eyes_never_makes_a_track_at_infinity() -> None:
+@pytest.mark.parametrize("disparity_px", [0, 6])
+def test_one_view_in_both_eyes_never_makes_a_track_at_infinity(disparity_px: int) -> None:
     """Both eyes see the same image (no parallax, as two copies of one test pattern do) of an
     object moving fast, the right eye 10 ms late: blobs are matched with room for that skew,
     and brought to one instant their disparity is nil. Such a position is at infinity, so no
-    track state is published with a non-finite number, and every pair is processed."""
+    track state is published with a non-finite number, and every pair is processed. The
+    same object with a real disparity is one track at eq. 9's depth B f / d (within 1 %: the
+    flat object is taken to be as deep as wide, 0.5 % here)."""
     from stereod import CanonicalRig, Frame, Pipeline, StereoPair
     from stereod.frames import Eye
 
     rig = CanonicalRig(0.06, 60.0, 320, 180)
     rng = np.random.default_rng(0)
     bg = rng.integers(0, 255, (180, 320, 3)).astype(np.uint8)
+    depths: dict[int, list[float]] = {}
     with Pipeline(PipelineParams(rig)) as pipe:
-        for k in range(60):
-            img = bg.copy()
-            img[60:100, 20 + 4 * k : 50 + 4 * k] = (0, 255, 0)
+        for k in range(70):
+            left, right = bg.copy(), bg.copy()
+            if k >= 10:  # enters after the warm-up
+                x = 20 + 4 * (k - 10)
+                left[60:100, x : x + 30] = (0, 255, 0)
+                if disparity_px:  # a stereo view, and the right eye's 10 ms of motion: 1 px
+                    x += 1 - disparity_px
+                right[60:100, x : x + 30] = (0, 255, 0)
             t = k * 40_000_000
-            pair = StereoPair(k, Frame(Eye.LEFT, img, t, k), Frame(Eye.RIGHT, img, t + 10**7, k))
+            pair = StereoPair(k, Frame(Eye.LEFT, left, t, k), Frame(Eye.RIGHT, right, t + 10**7, k))
             for s in pipe.process(pair).tracks:
                 assert np.all(np.isfinite(s.position_m)) and s.position_m[2] > 0, (k, s)
                 assert np.all(np.isfinite(s.velocity_mps)), (k, s)
+                depths.setdefault(s.track_id, []).append(float(s.position_m[2]))
+    if disparity_px == 0:
+        assert depths == {}
+    else:
+        assert len(depths) == 1
+        (z,) = depths.values()
+        assert len(z) > 50
+        assert np.median(z) == pytest.approx(0.06 * rig.focal_px / disparity_px, rel=0.01)
