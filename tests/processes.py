@@ -4,6 +4,7 @@ benchmarks alike."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -18,12 +19,19 @@ def stereod_command(*args: str) -> list[str]:
 
 
 def start_stereod(*args: str, env: dict[str, str] | None = None, **popen: Any) -> subprocess.Popen:
-    """``stereod ARGS`` in the background, output captured as text unless told otherwise."""
+    """``stereod ARGS`` in the background, output captured as text unless told otherwise.
+    Ctrl-C reaches it as it would from a terminal, even when the tests themselves run as a
+    shell's background job (which ignores SIGINT, and a child inherits that)."""
     popen.setdefault("stdout", subprocess.PIPE)
+    popen.setdefault("preexec_fn", _interruptible)
     popen.setdefault("stderr", subprocess.PIPE)
     popen.setdefault("text", True)
     popen.setdefault("cwd", ROOT)
     return subprocess.Popen(stereod_command(*args), env={**os.environ, **(env or {})}, **popen)
+
+
+def _interruptible() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def run_stereod(
