@@ -483,7 +483,9 @@ class Pipeline:
         or not a stereo view at all) can be matched, and at one instant their disparity is
         nil or negative: such a position is at infinity or behind the rig, and would poison a
         track. (A track's first sight, not brought to one instant, only places it, and a fast
-        object's may well lie behind the rig.)"""
+        object's may well lie behind the rig.) With skew compensation off every observation is
+        taken as at one instant, so a fast object whose skewed disparity falls out of range
+        is dropped for that pair rather than placed far off or behind the rig."""
         p = self.params
         if not (np.all(np.isfinite(ob.position_m)) and np.all(np.isfinite(ob.cov_m2))):
             return False
