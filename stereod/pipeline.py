@@ -457,7 +457,9 @@ class Pipeline:
         if before is not None and not clipped and not before.clipped:
             sigma = math.hypot(sigma, _segmentation_jump_px(lb, rb, i, j, before, width_px))
         area = np.array([0.5 * (lb.area_px[i] + rb.area_px[j])]) if p.silhouette_depth else None
-        points, cov = p.rig.triangulate(tri_left[None, :], tri_right[None, :], sigma, area)
+        points, cov = p.rig.triangulate(
+            tri_left[None, :], tri_right[None, :], sigma, area, np.array([width_px])
+        )
         return Observation(
             position_m=points[0],
             cov_m2=cov[0],

@@ -113,6 +113,7 @@ class CalibratedRig:
         right_px: np.ndarray,
         sigma_px: float = 0.5,
         area_px: np.ndarray | None = None,
+        width_px: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """(n, 2) rectified left and right points (px) to (n, 3) rig-frame points and their
         (n, 3, 3) covariance; depth sigma from the disparity (eq. 12's D^2 / (B f) per px);
@@ -127,6 +128,7 @@ class CalibratedRig:
             cy_px=self.cy_px,
             sigma_px=sigma_px,
             area_px=area_px,
+            width_px=width_px,
         )
 
     def principal_point_px(self, left: bool) -> tuple[float, float]:

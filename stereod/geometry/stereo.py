@@ -112,6 +112,7 @@ class CanonicalRig:
         right_px: np.ndarray,
         sigma_px: float = 0.5,
         area_px: np.ndarray | None = None,
+        width_px: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Eq. 9 and the pinhole model: (n, 2) matched centroids (px) to (n, 3) points (m) and
         their (n, 3, 3) covariance (m^2); see :func:`triangulate_rectified`."""
@@ -125,6 +126,7 @@ class CanonicalRig:
             cy_px=self.cy_px,
             sigma_px=sigma_px,
             area_px=area_px,
+            width_px=width_px,
         )
 
 
@@ -164,6 +166,7 @@ def triangulate_rectified(
     cy_px: float,
     sigma_px: float = 0.5,
     area_px: np.ndarray | None = None,
+    width_px: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Triangulate (n, 2) rectified left and right points (px) into the rig frame (m).
 
@@ -175,9 +178,10 @@ def triangulate_rectified(
     gives an infinite point (and a negative one a point behind the rig), without a warning:
     the caller decides what to do with it.
 
-    When the points are the centroids of silhouettes of ``area_px`` (n,) pixels (the mean of
-    the two eyes'), Z is moved from the silhouettes to the object's centre by
-    :func:`silhouette_depth_factor`; X and Y need no correction.
+    When the points are the centroids of silhouettes of ``area_px`` (n,) pixels and
+    ``width_px`` (n,) pixels wide, if known (the means of the two eyes'), Z is moved from the
+    silhouettes to the object's centre by :func:`silhouette_depth_factor`; X and Y need no
+    correction.
     """
     with np.errstate(divide="ignore", invalid="ignore"):
         left = np.atleast_2d(np.asarray(left_px, dtype=np.float64))
@@ -203,7 +207,9 @@ def triangulate_rectified(
         jac[:, 1, 2] = 0.5 * z / f
         jac[:, 1, 3] = 0.5 * z / f
         if area_px is not None:
-            k = silhouette_depth_factor(np.asarray(area_px, dtype=np.float64), u / f, v / f, f)
+            area = np.asarray(area_px, dtype=np.float64)
+            width = None if width_px is None else np.asarray(width_px, dtype=np.float64)
+            k = silhouette_depth_factor(area, u / f, v / f, f, width)
             points[:, 2] *= k
             jac[:, 2, :] *= k[:, None]
         cov = sigma_px**2 * (jac @ jac.transpose(0, 2, 1))
@@ -211,11 +217,16 @@ def triangulate_rectified(
 
 
 def silhouette_depth_factor(
-    area_px: np.ndarray, x_norm: np.ndarray, y_norm: np.ndarray, focal_px: float
+    area_px: np.ndarray,
+    x_norm: np.ndarray,
+    y_norm: np.ndarray,
+    focal_px: float,
+    width_px: np.ndarray | None = None,
 ) -> np.ndarray:
     """How much deeper a convex object's centre lies than its silhouettes' centroids
-    triangulate: a factor on Z, from the silhouette's area (px) and its direction (x, y)
-    (normalised image coordinates, i.e. tangents off the optical axis).
+    triangulate: a factor on Z, from the silhouette's area (px), its width (px, when known)
+    and its direction (x, y) (normalised image coordinates, i.e. tangents off the optical
+    axis).
 
     A sphere of radius r centred on (X, Y, Z) projects to an ellipse centred on
     (X, Y) / (Z - r^2 / Z), not on (X, Y) / Z: its near half looks the larger. Both eyes see
@@ -225,10 +236,19 @@ def silhouette_depth_factor(
     (Z^2 - r^2)^(1/2) on the axis, and its area pi q / cos(theta) at theta off it, so q =
     area cos(theta) / (pi f^2) and Z = Z' (1 + q) exactly on the axis, to first order in q
     off it.
-    Other convex objects are taken to be as deep as they are wide.
+
+    An upright cylinder of radius r is nearly the same sideways (its rims' near halves add a
+    little), its silhouette w = 2 f r / Z wide: q = (w / 2 f)^2, which its area, taller than
+    wide, would overstate (a 20 cm robot 30 cm tall at 1.5 m: 0.9 mm off by its width, 6 mm
+    by its area, 7.5 mm uncorrected). So q is the smaller
+    of the two (for a sphere the area's: its width is never less than its minor axis), and
+    any other object is taken to be as deep as the smaller of its two cross-sections.
     """
     cos_theta = 1.0 / np.sqrt(1.0 + x_norm * x_norm + y_norm * y_norm)
-    return 1.0 + area_px * cos_theta / (math.pi * focal_px * focal_px)
+    q = area_px * cos_theta / (math.pi * focal_px * focal_px)
+    if width_px is not None:
+        q = np.minimum(q, (0.5 * width_px / focal_px) ** 2)
+    return 1.0 + q
 
 
 @dataclass(frozen=True, slots=True)
