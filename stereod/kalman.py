@@ -138,7 +138,7 @@ def inverse3(m: np.ndarray) -> tuple[np.ndarray, float] | None:
     (a, b, c), (d, e, f), (g, h, i) = m.tolist()
     c11, c12, c13 = e * i - f * h, f * g - d * i, d * h - e * g
     det = a * c11 + b * c12 + c * c13
-    if not (a > 0.0 and a * e - b * d > 0.0 and det > ILL_CONDITIONED * a * e * i):
+    if not (a > 0.0 and a * e - b * d > 0.0 and det > 0.0 and det > ILL_CONDITIONED * a * e * i):
         return None
     if not math.isfinite(det):
         return None

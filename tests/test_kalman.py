@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+from fractions import Fraction
+
 import numpy as np
 import pytest
 
@@ -109,10 +112,36 @@ def test_inverse3_matches_lapack_and_refuses_what_is_no_covariance() -> None:
     assert kalman.inverse3(np.diag([-1.0, -2.0, 3.0])) is None  # det > 0, yet no covariance
 
 
+def _exact_solve(m: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """m^-1 y in exact rational arithmetic (Gauss-Jordan on Fractions of the float inputs)."""
+    rows = [[Fraction(float(v)) for v in row] + [Fraction(float(t))] for row, t in zip(m, y)]
+    for c in range(3):
+        pivot = next(r for r in range(c, 3) if rows[r][c] != 0)
+        rows[c], rows[pivot] = rows[pivot], rows[c]
+        for r in range(3):
+            if r != c:
+                ratio = rows[r][c] / rows[c][c]
+                rows[r] = [x - ratio * z for x, z in zip(rows[r], rows[c])]
+    return np.array([float(rows[r][3] / rows[r][r]) for r in range(3)])
+
+
+def _adjugate_solve(m: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """m^-1 y by the float adjugate with no conditioning guard: the positive control."""
+    (a, b, c), (d, e, f), (g, h, i) = m.tolist()
+    adj = np.array(
+        [
+            [e * i - f * h, c * h - b * i, b * f - c * e],
+            [f * g - d * i, a * i - c * g, c * d - a * f],
+            [d * h - e * g, b * g - a * h, a * e - b * d],
+        ]
+    )
+    return adj @ y / (a * adj[0, 0] + b * adj[1, 0] + c * adj[2, 0])
+
+
 def test_inverse3_leaves_a_far_objects_covariance_to_lapack() -> None:
     """A far object's depth and lateral errors are almost one (X = x Z / f): the adjugate's
-    cancellation would lose most digits, so the closed form declines and the filter's
-    update, through LAPACK, is as exact as LAPACK's own."""
+    cancellation would lose most digits (4e-7 of the Mahalanobis distance at 300 m), so the
+    closed form declines and the distance stays within 1e-8 of the exact (rational) one."""
     f, b, sigma = 800.0, 0.06, 0.15
     for depth_m, closed in ((2.0, True), (300.0, False)):
         d = b * f / depth_m
@@ -129,11 +158,25 @@ def test_inverse3_leaves_a_far_objects_covariance_to_lapack() -> None:
         cov = r[0] + np.eye(3) * 1e-8
         assert (kalman.inverse3(cov) is not None) is closed
         s = kalman.initiate(np.zeros(3), cov, 0, 1.0)
-        got = kalman.update(s, np.array([0.1, 0.0, depth_m * 0.01]), r[0])
-        k = np.linalg.solve(cov + r[0], s.P[:3, :]).T
-        np.testing.assert_allclose(got.x, s.x + k @ (np.array([0.1, 0.0, depth_m * 0.01])))
+        z = np.array([0.1, 0.0, depth_m * 0.01])
+        exact = float(z @ _exact_solve(cov + r[0], z))
+        assert kalman.mahalanobis2(s, z, r[0]) == pytest.approx(exact, rel=1e-8)
+        unguarded = float(z @ _adjugate_solve(cov + r[0], z))
+        assert (unguarded == pytest.approx(exact, rel=1e-8)) is closed
+        got = kalman.update(s, z, r[0])
+        want = s.P[:, :3] @ _exact_solve(cov + r[0], z)
+        np.testing.assert_allclose(got.x, want, rtol=0, atol=1e-8 * np.abs(want).max())
     s = kalman.initiate(np.zeros(3), np.zeros((3, 3)), 0, 1.0)
     assert kalman.log_likelihood(s, np.ones(3), np.diag([1.0, 0.0, 1.0])) == -np.inf
+
+
+def test_inverse3_refuses_a_negative_determinant_behind_a_negative_diagonal() -> None:
+    """Leading minors 1 and 1e-10 are positive, i = -1: det = -1e-10 is over the
+    conditioning floor (which a negative i makes negative), so only det > 0 stops it."""
+    b = math.sqrt(1.0 - 1e-10)
+    m = np.array([[1.0, b, 0.0], [b, 1.0, 0.0], [0.0, 0.0, -1.0]])
+    assert np.linalg.det(m) < 0.0
+    assert kalman.inverse3(m) is None
 
 
 def test_correct_widens_a_surprised_prediction_then_updates() -> None:
