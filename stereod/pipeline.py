@@ -23,9 +23,10 @@ import numpy as np
 from . import skew
 from .detect import Blobs, Detector, DetectorParams, Rect
 from .frames import Eye, Frame, StereoPair
+from .geometry import Geometry
 from .geometry.rectified import CalibratedRig
 from .geometry.refine import RefineParams, refine_match
-from .geometry.stereo import CanonicalRig, MatchParams, match_blobs
+from .geometry.stereo import CanonicalRig, MatchParams, match_blobs, silhouette_depth
 from .pairing import DEFAULT_TOLERANCE_NS, Pairer
 from .tracking import Detection, Observation, Tracker, TrackerParams, TrackState
 
@@ -456,10 +457,24 @@ class Pipeline:
         sigma = p.centroid_sigma_px
         if before is not None and not clipped and not before.clipped:
             sigma = math.hypot(sigma, _segmentation_jump_px(lb, rb, i, j, before, width_px))
-        area = np.array([0.5 * (lb.area_px[i] + rb.area_px[j])]) if p.silhouette_depth else None
-        points, cov = p.rig.triangulate(
-            tri_left[None, :], tri_right[None, :], sigma, area, np.array([width_px])
-        )
+        area = 0.5 * float(lb.area_px[i] + rb.area_px[j])
+        if p.rig.geometry is Geometry.CALIBRATED and lb.support and rb.support:
+            # Outlines in rectified px: a distorted image's blob is stretched and bent.
+            area_l, width_l, shift_l = p.rig.rectified_silhouette(
+                True, lb.bbox_px[i], lb.support[i]
+            )
+            area_r, width_r, shift_r = p.rig.rectified_silhouette(
+                False, rb.bbox_px[j], rb.support[j]
+            )
+            tri_left, tri_right = tri_left + shift_l, tri_right + shift_r
+            area, width_px = 0.5 * (area_l + area_r), 0.5 * (width_l + width_r)
+        points, cov = p.rig.triangulate(tri_left[None, :], tri_right[None, :], sigma)
+        factor = 1.0
+        if p.silhouette_depth:
+            points, cov, k = silhouette_depth(
+                points, cov, np.array([area]), p.rig.focal_px, np.array([width_px])
+            )
+            factor = float(k[0])
         return Observation(
             position_m=points[0],
             cov_m2=cov[0],
@@ -475,6 +490,7 @@ class Pipeline:
             size_m=float(width_px * points[0, 2] / p.rig.focal_px),
             exact=exact,
             clipped=clipped,
+            depth_factor=factor,
         )
 
     def _in_range(self, ob: Observation) -> bool:

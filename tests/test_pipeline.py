@@ -302,7 +302,7 @@ def test_one_view_in_both_eyes_never_makes_a_track_at_infinity(disparity_px: int
     and brought to one instant their disparity is nil. Such a position is at infinity, so no
     track state is published with a non-finite number, and every pair is processed. The
     same object with a real disparity is one track at eq. 9's depth B f / d (within 1 %: the
-    flat object is taken to be as deep as wide, 0.5 % here)."""
+    flat object is taken to be as deep as wide, 0.3 % here)."""
     from stereod import CanonicalRig, Frame, Pipeline, StereoPair
     from stereod.frames import Eye
 

@@ -106,13 +106,19 @@ class CanonicalRig:
         x, y, w, h = (int(v) for v in bbox)
         return (x, y, w, h), support
 
+    def rectified_silhouette(
+        self, left: bool, bbox: np.ndarray, support: np.ndarray
+    ) -> tuple[float, float, np.ndarray]:
+        """A blob's area (px), width (px) and centroid offset (px, (2,)) in rectified px
+        (see :meth:`stereod.geometry.rectified.CalibratedRig.rectified_silhouette`): its own,
+        and none, here."""
+        return float(np.count_nonzero(support)), float(bbox[2]), np.zeros(2)
+
     def triangulate(
         self,
         left_px: np.ndarray,
         right_px: np.ndarray,
         sigma_px: float = 0.5,
-        area_px: np.ndarray | None = None,
-        width_px: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Eq. 9 and the pinhole model: (n, 2) matched centroids (px) to (n, 3) points (m) and
         their (n, 3, 3) covariance (m^2); see :func:`triangulate_rectified`."""
@@ -125,8 +131,6 @@ class CanonicalRig:
             cx_right_px=self.cx_px,
             cy_px=self.cy_px,
             sigma_px=sigma_px,
-            area_px=area_px,
-            width_px=width_px,
         )
 
 
@@ -165,8 +169,6 @@ def triangulate_rectified(
     cx_right_px: float,
     cy_px: float,
     sigma_px: float = 0.5,
-    area_px: np.ndarray | None = None,
-    width_px: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Triangulate (n, 2) rectified left and right points (px) into the rig frame (m).
 
@@ -176,12 +178,8 @@ def triangulate_rectified(
     ``sigma_px`` per coordinate per eye through the Jacobian. A one-pixel disparity error moves
     Z by D^2 / (B f), the exact form of eq. 12's D^2 / B tan(delta phi). A nil disparity
     gives an infinite point (and a negative one a point behind the rig), without a warning:
-    the caller decides what to do with it.
-
-    When the points are the centroids of silhouettes of ``area_px`` (n,) pixels and
-    ``width_px`` (n,) pixels wide, if known (the means of the two eyes'), Z is moved from the
-    silhouettes to the object's centre by :func:`silhouette_depth_factor`; X and Y need no
-    correction.
+    the caller decides what to do with it. Points that are silhouettes' centroids lie
+    nearer than the object's centre: see :func:`silhouette_depth`.
     """
     with np.errstate(divide="ignore", invalid="ignore"):
         left = np.atleast_2d(np.asarray(left_px, dtype=np.float64))
@@ -206,14 +204,14 @@ def triangulate_rectified(
         jac[:, 1, 1] = -v / f * dz_dxl
         jac[:, 1, 2] = 0.5 * z / f
         jac[:, 1, 3] = 0.5 * z / f
-        if area_px is not None:
-            area = np.asarray(area_px, dtype=np.float64)
-            width = None if width_px is None else np.asarray(width_px, dtype=np.float64)
-            k = silhouette_depth_factor(area, u / f, v / f, f, width)
-            points[:, 2] *= k
-            jac[:, 2, :] *= k[:, None]
         cov = sigma_px**2 * (jac @ jac.transpose(0, 2, 1))
         return points, cov
+
+
+SILHOUETTE_Q_MAX = 0.05
+"""The largest depth correction :func:`silhouette_depth_factor` makes, as a share of the
+depth: a sphere of radius r at 4.6 r (a 10 cm ball at 46 cm). A flat object (a door, a
+wall poster) needs none, and a large one seen near would otherwise be moved far."""
 
 
 def silhouette_depth_factor(
@@ -224,9 +222,9 @@ def silhouette_depth_factor(
     width_px: np.ndarray | None = None,
 ) -> np.ndarray:
     """How much deeper a convex object's centre lies than its silhouettes' centroids
-    triangulate: a factor on Z, from the silhouette's area (px), its width (px, when known)
-    and its direction (x, y) (normalised image coordinates, i.e. tangents off the optical
-    axis).
+    triangulate: a factor on Z, from the silhouette's area (rectified px), its width
+    (rectified px, when known) and its direction (x, y) (normalised image coordinates, i.e.
+    tangents off the optical axis).
 
     A sphere of radius r centred on (X, Y, Z) projects to an ellipse centred on
     (X, Y) / (Z - r^2 / Z), not on (X, Y) / Z: its near half looks the larger. Both eyes see
@@ -237,18 +235,51 @@ def silhouette_depth_factor(
     area cos(theta) / (pi f^2) and Z = Z' (1 + q) exactly on the axis, to first order in q
     off it.
 
-    An upright cylinder of radius r is nearly the same sideways (its rims' near halves add a
-    little), its silhouette w = 2 f r / Z wide: q = (w / 2 f)^2, which its area, taller than
-    wide, would overstate (a 20 cm robot 30 cm tall at 1.5 m: 0.9 mm off by its width, 6 mm
-    by its area, 7.5 mm uncorrected). So q is the smaller
-    of the two (for a sphere the area's: its width is never less than its minor axis), and
-    any other object is taken to be as deep as the smaller of its two cross-sections.
+    An upright cylinder of radius r is nearly the same sideways, its silhouette about
+    w = 2 f r (1 + x^2)^(1/2) / Z wide, and its area, taller than wide, would overstate q: so
+    q is the smaller of the area's and (w / 2 f)^2. For a sphere that is the area's (its width
+    is exactly 2 f q^(1/2) (1 + x^2)^(1/2)). The width's q is not divided by the 1 + x^2 its
+    width gains off the axis: a cylinder's rims' near halves bulge too, and ray-cast, the
+    division left 0.8-4.9 mm of a 7-12 mm shift beside the axis where this leaves 0.5-3.8 mm
+    (0.9 mm on the axis: a 20 cm robot 30 cm tall at 1.5 m, 6 mm by its area, 7.5 mm
+    uncorrected; above or below the axis its caps show, and 6 mm of 14 remain at 18 deg).
+    Any other object is taken to be as deep as the smaller of its two
+    cross-sections, up to ``SILHOUETTE_Q_MAX``.
     """
     cos_theta = 1.0 / np.sqrt(1.0 + x_norm * x_norm + y_norm * y_norm)
     q = area_px * cos_theta / (math.pi * focal_px * focal_px)
     if width_px is not None:
         q = np.minimum(q, (0.5 * width_px / focal_px) ** 2)
-    return 1.0 + q
+    return 1.0 + np.minimum(q, SILHOUETTE_Q_MAX)
+
+
+def silhouette_depth(
+    points_m: np.ndarray,
+    cov_m2: np.ndarray,
+    area_px: np.ndarray,
+    focal_px: float,
+    width_px: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Move (n, 3) points triangulated from silhouettes' centroids (m) to their objects'
+    centres: Z times :func:`silhouette_depth_factor`'s k, from the silhouettes' mean area and
+    width (n,) (rectified px); X and Y need no correction. Returns the points, their (n, 3, 3)
+    covariance (m^2) and k (n,). The covariance scales with Z, and the depth's variance gains
+    ((k - 1) Z / 2)^2: whether the object is as deep as it is wide is a guess (right for a
+    ball or a column, a whole (k - 1) Z too far for a flat object), and the filter should
+    weigh it as one."""
+    p = np.array(points_m, dtype=np.float64, copy=True)
+    z = p[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x, y = p[:, 0] / z, p[:, 1] / z
+    area = np.asarray(area_px, dtype=np.float64)
+    width = None if width_px is None else np.asarray(width_px, dtype=np.float64)
+    k = silhouette_depth_factor(area, x, y, focal_px, width)
+    scale = np.ones_like(p)
+    scale[:, 2] = k
+    cov = np.asarray(cov_m2, dtype=np.float64) * scale[:, :, None] * scale[:, None, :]
+    cov[:, 2, 2] += (0.5 * (k - 1.0) * z) ** 2
+    p[:, 2] = z * k
+    return p, cov, k
 
 
 @dataclass(frozen=True, slots=True)

@@ -7,7 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from stereod.geometry.stereo import CanonicalRig, MatchParams, match_blobs
+from stereod.geometry.stereo import (
+    SILHOUETTE_Q_MAX,
+    CanonicalRig,
+    MatchParams,
+    match_blobs,
+    silhouette_depth,
+)
 
 RIG = CanonicalRig(baseline_m=0.06, hfov_deg=60.0, width_px=640, height_px=480)
 
@@ -141,16 +147,18 @@ def test_silhouette_depth_is_corrected_to_a_spheres_centre(
     raw, raw_cov = RIG.triangulate(left[None], right[None])
     assert raw[0, 2] - c[2] == pytest.approx(-(radius**2) / c[2], abs=3e-4)
     np.testing.assert_allclose(raw[0, :2], c[:2], atol=1e-4)
-    got, cov = RIG.triangulate(left[None], right[None], area_px=np.array([(area_l + area_r) / 2]))
+    got, cov, k = silhouette_depth(raw, raw_cov, np.array([(area_l + area_r) / 2]), RIG.focal_px)
     np.testing.assert_allclose(got[0], c, atol=2e-4)
-    # The depth's spread scales with it; X and Y are untouched.
-    k = got[0, 2] / raw[0, 2]
-    assert math.sqrt(cov[0, 2, 2]) == pytest.approx(k * math.sqrt(raw_cov[0, 2, 2]), rel=1e-9)
+    # The depth's spread scales with it, plus half the shift for the shape it assumes;
+    # X and Y are untouched.
+    assert k[0] == pytest.approx(got[0, 2] / raw[0, 2], rel=1e-12)
+    shift = got[0, 2] - raw[0, 2]
+    assert cov[0, 2, 2] == pytest.approx(k[0] ** 2 * raw_cov[0, 2, 2] + (shift / 2) ** 2)
     np.testing.assert_allclose(cov[0, :2, :2], raw_cov[0, :2, :2], rtol=1e-12)
     # Its width (here far larger than its minor axis, as a box would measure it) changes nothing.
     width = np.array([2.0 * math.sqrt(area_l / math.pi) + 1.0])
-    also, _ = RIG.triangulate(left[None], right[None], area_px=np.array([area_l]), width_px=width)
-    again, _ = RIG.triangulate(left[None], right[None], area_px=np.array([area_l]))
+    also, _, _ = silhouette_depth(raw, raw_cov, np.array([area_l]), RIG.focal_px, width)
+    again, _, _ = silhouette_depth(raw, raw_cov, np.array([area_l]), RIG.focal_px)
     np.testing.assert_array_equal(also, again)
 
 
@@ -167,12 +175,37 @@ def test_silhouette_depth_is_corrected_to_an_upright_cylinders_axis(
     left, area_l, width_l = _cylinder_silhouette(c + half, r, h, f, cx, cy)
     right, area_r, width_r = _cylinder_silhouette(c - half, r, h, f, cx, cy)
     area, width = np.array([(area_l + area_r) / 2]), np.array([(width_l + width_r) / 2])
-    raw, _ = RIG.triangulate(left[None], right[None])
+    raw, cov = RIG.triangulate(left[None], right[None])
     assert -1.3 * r**2 / c[2] < raw[0, 2] - c[2] < -(r**2) / c[2]
-    got, _ = RIG.triangulate(left[None], right[None], area_px=area, width_px=width)
+    got, _, _ = silhouette_depth(raw, cov, area, RIG.focal_px, width)
     assert got[0, 2] == pytest.approx(c[2], abs=1e-3)
-    by_area, _ = RIG.triangulate(left[None], right[None], area_px=area)
+    by_area, _, _ = silhouette_depth(raw, cov, area, RIG.focal_px)
     assert by_area[0, 2] - c[2] > 4e-3
+
+
+@pytest.mark.parametrize(("depth_m", "plain_sigmas"), [(3.0, 1.0), (1.5, 4.0)])
+def test_a_flat_objects_depth_moves_at_most_the_cap_and_within_two_of_its_sigmas(
+    depth_m: float, plain_sigmas: float
+) -> None:
+    # A door 0.9 m wide and 2 m tall, face on: its silhouettes' centroids triangulate to its
+    # plane exactly (a plane's image is an affine copy), so any correction is an error. It is
+    # taken as deep as it is wide, at most SILHOUETTE_Q_MAX of its depth, and the depth's
+    # sigma grows to cover that guess.
+    c, w_m, h_m = np.array([0.3, 0.0, depth_m]), 0.9, 2.0
+    f, cx, cy = RIG.focal_px, RIG.cx_px, RIG.cy_px
+    left = np.array([f * (c[0] + RIG.baseline_m / 2) / c[2] + cx, cy])
+    right = np.array([f * (c[0] - RIG.baseline_m / 2) / c[2] + cx, cy])
+    raw, raw_cov = RIG.triangulate(left[None], right[None], sigma_px=0.15)
+    np.testing.assert_allclose(raw[0], c, atol=1e-9)
+    width = f * w_m / c[2]
+    area = width * f * h_m / c[2]
+    got, cov, k = silhouette_depth(raw, raw_cov, np.array([area]), f, np.array([width]))
+    q = min((w_m / 2 / c[2]) ** 2, SILHOUETTE_Q_MAX)
+    assert k[0] == pytest.approx(1.0 + q, rel=1e-12)
+    error = got[0, 2] - c[2]
+    assert 0.0 < error <= SILHOUETTE_Q_MAX * c[2] + 1e-12
+    assert error / math.sqrt(cov[0, 2, 2]) <= 2.0
+    assert error / math.sqrt(raw_cov[0, 2, 2]) > plain_sigmas  # the sigma it would have had
 
 
 def test_rig_rejects_nonsense() -> None:
