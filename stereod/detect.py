@@ -230,11 +230,11 @@ class Detector:
             raise ValueError(f"learn_stride must be at least 1, got {params.learn_stride}")
         self.params = params
         self._background: np.ndarray | None = None
-        self._coarse: tuple[np.ndarray, np.ndarray] | None = None
-        """T on the first pass's grid (float32, a copy) and the same rounded to grey levels
-        (uint8), kept in step with T row by row as eq. 3 learns (:meth:`_learned_rows`);
-        ``None`` until first taken, and after T is replaced (a new background, a rescale, a
-        stride whose rows are not the grid's) until taken again."""
+        self._coarse: np.ndarray | None = None
+        """T on the first pass's rows rounded to grey levels (uint8), kept in step with T row
+        by row as eq. 3 learns (:meth:`_learned_rows`); ``None`` until first taken, and after
+        T is replaced (a new background, a rescale, a stride whose rows are not the first
+        pass's) until taken again."""
         self._coarse_version = 0
         """Counts the changes to ``_coarse``: what the gain keeps of it is of this version."""
         self._gain_base: tuple[int, np.ndarray, np.ndarray] | None = None
@@ -257,6 +257,9 @@ class Detector:
         self._part: np.ndarray | None = None
         """This frame's foreground bitmap inside ``_roi`` (uint8, 0 or 255): everything of M
         that is not zero, so no whole-frame bitmap is made unless :attr:`mask` is asked for."""
+        self._grown: np.ndarray | None = None
+        """``_part`` grown by ``hold_margin_px`` when the closing made it on the way (the
+        held foreground, see :meth:`_held`), else ``None``."""
         self._shape: tuple[int, int] | None = None
         """(h, w) px of the frame M belongs to; ``None`` before M exists."""
         self._mask: np.ndarray | None = None
@@ -265,6 +268,12 @@ class Detector:
         self._open = _kernel(params.open_px)
         self._close = _kernel(params.close_px)
         self._hold = _kernel(2 * params.hold_margin_px + 1)
+        self._hold_is_close = (
+            params.close_px > 1 and params.close_px == 2 * params.hold_margin_px + 1
+        )
+        """Whether the closing's kernel is the hold's: then the closing's dilation is the held
+        foreground (a dilation is unchanged by an opening with its own kernel, so dilating
+        the closed bitmap gives the dilation the closing started from)."""
         low = params.hysteresis * params.threshold
         self._grow = _kernel(2 * params.grow_px + 1) if 0 < low < params.threshold else None
         self._low_u8 = float(math.ceil(low) - 1)
@@ -272,17 +281,15 @@ class Detector:
         """d >= t on integer grey levels is d > ceil(t) - 1 (THRESH_BINARY is strict)."""
         self._find_u8 = self._low_u8 if self._grow is not None else self._thresh_u8
         self._row_step = max(d for d in _ROW_STEPS if d <= max(params.open_px, 1))
-        """Rows (and columns) apart that the first pass of eq. 4 looks at. A pixel the opening
-        keeps lies in an ``open_px`` square of pixels, inside the image, each at least the
-        weak level (the threshold without hysteresis), so any ``open_px`` rows and columns in
-        a row hold part of it: the rectangle around what that grid finds, grown by
-        ``_margin`` (what the hysteresis and the morphology reach, plus the rows and columns
-        skipped), holds the whole foreground, and the result is that of every pixel for a
-        ninth of the whole-frame work (``open_px`` 3)."""
-        self._columns = (0, 1)
-        """First column and column step of the first pass's grid (see ``_grid_columns``)."""
+        """Rows apart that the first pass of eq. 4 looks at. A pixel the opening keeps lies in
+        an ``open_px`` square of pixels, inside the image, each at least the weak level (the
+        threshold without hysteresis), so any ``open_px`` rows in a row hold part of it: the
+        rectangle around what those rows show, grown by ``_margin`` (what the hysteresis and
+        the morphology reach, plus the rows skipped), holds the whole foreground, and the
+        result is that of every pixel for a third of the whole-frame work (``open_px`` 3).
+        The rows are views of the frame: nothing is copied to look at them."""
         self._grid_of: tuple[int, ...] = ()
-        """The image size (h, w px) ``_columns`` and ``_gain_step`` were found for."""
+        """The image size (h, w px) ``_gain_step`` was found for."""
         self._gain_step = _GAIN_STEP
         """Pixel step of the gain's grid in this image (``_GAIN_POINTS``)."""
         self._touches_coarse = math.gcd(params.learn_stride, self._row_step)
@@ -360,9 +367,14 @@ class Detector:
         return luminance(image, self.params.luminance)
 
     def _set_foreground(
-        self, shape: tuple[int, int] | None, roi: Rect | None, part: np.ndarray | None
+        self,
+        shape: tuple[int, int] | None,
+        roi: Rect | None,
+        part: np.ndarray | None,
+        grown: np.ndarray | None = None,
     ) -> None:
         self._shape, self._roi, self._part, self._mask = shape, roi, part, None
+        self._grown = grown
 
     def find(self, image: np.ndarray, t_ns: int = 0) -> Blobs:
         """Eq. 2, 4 and 5 against the current background at capture instant ``t_ns`` (ns);
@@ -386,25 +398,25 @@ class Detector:
             return Blobs.empty()
         step = self._row_step
         shape = (frame.shape[0], frame.shape[1])
-        grid_t, bg8 = self._coarse_background(bg)
-        grid = self._grid(frame)
+        bg8 = self._coarse_background(bg)
+        grid = frame[::step]
         coarse = cv2.absdiff(grid, bg8)
+        level = self._find_u8
         g = self._gain(grid, bg8, shape) if self.params.gain else 1.0
         if _negligible(g):
             g = 1.0
         else:  # against g T
             if abs(g - 1.0) > _GAIN_RESCALE:  # the light changed: learn at the new gain
                 np.multiply(bg, np.float32(g), out=bg)
-                np.multiply(grid_t, np.float32(g), out=grid_t)  # the same products
                 g = 1.0
-                scaled = cv2.convertScaleAbs(grid_t, dst=bg8)  # T changed: round it again
-                self._coarse_version += 1
-            else:
-                scaled = cv2.convertScaleAbs(grid_t, alpha=g)
+                self._coarse = None  # T changed: round it again
+                scaled = self._coarse_background(bg)
+            else:  # g times T rounded is g T rounded within one level: look one level lower
+                scaled = cv2.convertScaleAbs(bg8, alpha=g)
+                level -= 1.0
             coarse = cv2.absdiff(grid, scaled)
-        x, y, w, h = _above(_mean_channels(coarse), self._find_u8)
-        ox, sx = self._columns
-        box = (ox + x * sx, y * step, (w - 1) * sx + 1, (h - 1) * step + 1)
+        x, y, w, h = _above_any(coarse, level)
+        box = (x, y * step, w, (h - 1) * step + 1)
         roi = _grown_rect(box, self._margin, shape) if h else None
         if roi is None:  # nothing moved: no bitmap, no morphology, no contours
             return self._nothing(shape)
@@ -429,12 +441,16 @@ class Detector:
             part = cv2.morphologyEx(
                 part, cv2.MORPH_OPEN, self._open, borderType=cv2.BORDER_CONSTANT, borderValue=0
             )
-        if self._close is not None:
-            part = cv2.morphologyEx(part, cv2.MORPH_CLOSE, self._close)
+        grown = None
+        if self._close is not None:  # the closing, keeping its dilation for the hold
+            dilated = cv2.dilate(part, self._close)
+            part = cv2.erode(dilated, self._close)
+            if self._hold_is_close:
+                grown = dilated
         count = cv2.countNonZero(part)
         if count == 0:
             return self._nothing(shape)
-        self._set_foreground(shape, roi, part)
+        self._set_foreground(shape, roi, part, grown)
         if count > self.params.max_foreground * shape[0] * shape[1]:
             return self._saturated()
         contours, _ = cv2.findContours(
@@ -447,35 +463,18 @@ class Detector:
             return self._blobs(contours, part, (x0, y0), diff, frame[y0:y1, x0:x1], b8)
         return self._blobs(contours, part, (x0, y0), diff)
 
-    def _coarse_background(self, bg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """T on the first pass's grid (float32, a copy) and the same rounded to grey levels:
-        the cached pair, or taken from the whole of ``bg`` when there is none. Eq. 3's rows
-        are brought up to date in the cache by :meth:`_learned_rows` as they are learned."""
+    def _coarse_background(self, bg: np.ndarray) -> np.ndarray:
+        """T on the first pass's rows rounded to grey levels (uint8): the cached copy, or
+        taken from the whole of ``bg`` when there is none. Eq. 3's rows are brought up to date
+        in the cache by :meth:`_learned_rows` as they are learned."""
         if self._coarse is None:
             if self._grid_of != bg.shape[:2]:
-                self._columns = _grid_columns(bg.shape[1], self._row_step)
                 self._grid_of = bg.shape[:2]
                 points = bg.shape[0] * bg.shape[1] / (_GAIN_STEP * _GAIN_STEP * _GAIN_POINTS)
                 self._gain_step = _GAIN_STEP * max(1, int(math.sqrt(points)))
-            grid_t = self._grid(bg)
-            if grid_t.base is not None:  # a view: the gain scales T and this copy apart
-                grid_t = grid_t.copy()
-            self._coarse = (grid_t, cv2.convertScaleAbs(grid_t))
+            self._coarse = cv2.convertScaleAbs(bg[:: self._row_step])
             self._coarse_version += 1
         return self._coarse
-
-    def _grid(self, image: np.ndarray) -> np.ndarray:
-        """``image`` on the first pass's grid: every ``_row_step``-th row from the first, and
-        every ``_columns[1]``-th column from ``_columns[0]``."""
-        return self._grid_columns_of(image[:: self._row_step])
-
-    def _grid_columns_of(self, rows: np.ndarray) -> np.ndarray:
-        """The first pass's columns of ``rows`` (a nearest-pixel resize at an exact integer
-        ratio is a strided copy)."""
-        ox, sx = self._columns
-        if sx == 1:
-            return rows
-        return cv2.resize(rows[:, ox:], None, fx=1.0 / sx, fy=1.0, interpolation=cv2.INTER_NEAREST)
 
     def _nothing(self, shape: tuple[int, int]) -> Blobs:
         """No foreground in this frame (of ``shape`` (h, w) px)."""
@@ -486,18 +485,17 @@ class Detector:
     def _gain(self, grid: np.ndarray, grid8: np.ndarray, shape: tuple[int, int]) -> float:
         """Median of frame / background over every ``_gain_step``-th pixel each way that was
         background in the last frame and is not dark: the global gain, 1.0 when unknown.
-        ``grid`` is the frame of ``shape`` (h, w) px on the first pass's grid and ``grid8``
+        ``grid`` is the frame of ``shape`` (h, w) px on the first pass's rows and ``grid8``
         T there rounded to grey levels, as eq. 4 has just used them (rounding moves a ratio
         by at most 2.5 % at the darkest level counted, 0.5 % at mid-grey, and evenly both
         ways)."""
         s = self._gain_step
-        ox, sx = self._columns
-        ky, kx = s // self._row_step, s // sx
-        f = grid[::ky, ::kx].astype(np.float32)  # the pixels (s i, ox + s j)
+        ky = s // self._row_step
+        f = grid[::ky, ::s].astype(np.float32)  # the pixels (s i, s j)
         if f.ndim == 3:  # the mean of the channels (a matrix product: numpy sums a short
             f = f @ _THIRDS  # last axis slowly)
         if self._gain_base is None or self._gain_base[0] != self._coarse_version:
-            b = grid8[::ky, ::kx].astype(np.float32)  # T there changes on a third of frames
+            b = grid8[::ky, ::s].astype(np.float32)  # T there changes on a third of frames
             if b.ndim == 3:
                 b = b @ _THIRDS
             self._gain_base = (self._coarse_version, b, b > _GAIN_MIN_LEVEL)
@@ -506,8 +504,8 @@ class Detector:
         if self._roi is not None and self._part is not None and self._shape == shape:
             # the grid points inside the last foreground's rectangle that were foreground
             x0, y0 = self._roi[0], self._roi[1]
-            gx, gy = -(-(x0 - ox) // s), -(-y0 // s)
-            fg = self._part[gy * s - y0 :: s, ox + gx * s - x0 :: s] > 0
+            gx, gy = -(-x0 // s), -(-y0 // s)
+            fg = self._part[gy * s - y0 :: s, gx * s - x0 :: s] > 0
             use[gy : gy + fg.shape[0], gx : gx + fg.shape[1]] &= ~fg
         fs, bs = f[use], b[use]
         if fs.size < 32:
@@ -575,30 +573,33 @@ class Detector:
         the ``boxes`` and on held foreground outside the ``released`` rectangles); ``None``
         when nothing there is to be kept."""
         stride = self.params.learn_stride
-        rects = boxes + ([held[0]] if held is not None else [])
+        rects = [*boxes, held[0]] if held is not None else boxes
         if not rects:
             return None
-        ux0, uy0 = min(r[0] for r in rects), min(r[1] for r in rects)
-        ux1, uy1 = max(r[2] for r in rects), max(r[3] for r in rects)
+        ux0, uy0, ux1, uy1 = rects[0]
+        for x0, y0, x1, y1 in rects[1:]:
+            ux0, uy0, ux1, uy1 = min(ux0, x0), min(uy0, y0), max(ux1, x1), max(uy1, y1)
         first = uy0 + (phase - uy0) % stride  # the first of its rows eq. 3 learns now
         if first >= uy1:
             return None
-        keep = np.zeros((uy1 - uy0, ux1 - ux0), np.uint8)
-        if held is not None:
-            (x0, y0, x1, y1), allowed = held
-            for r in released:
-                c = _clipped(r, x1, y1, x0, y0)
-                if c is not None:
-                    allowed[c[1] - y0 : c[3] - y0, c[0] - x0 : c[2] - x0] = 255
-            keep[y0 - uy0 : y1 - uy0, x0 - ux0 : x1 - ux0] = cv2.bitwise_not(allowed)
-        for x0, y0, x1, y1 in boxes:
-            keep[y0 - uy0 : y1 - uy0, x0 - ux0 : x1 - ux0] = 255
         mine = slice(first - uy0, None, stride)
         region = bg[uy0:uy1, ux0:ux1][mine]
-        return region, region.copy(), keep[mine]
+        keep = np.zeros(region.shape[:2], np.uint8)
+        if held is not None:
+            (x0, y0, x1, y1), mask = held
+            if released:
+                mask = mask.copy()  # it may be the detector's own (``_grown``)
+                for r in released:
+                    c = _clipped(r, x1, y1, x0, y0)
+                    if c is not None:
+                        mask[c[1] - y0 : c[3] - y0, c[0] - x0 : c[2] - x0] = 0
+            _put_rows(keep, mask, x0 - ux0, y0 - uy0, first - uy0, stride)
+        for x0, y0, x1, y1 in boxes:
+            keep[_rows_within(y0 - uy0, y1 - uy0, first - uy0, stride), x0 - ux0 : x1 - ux0] = 255
+        return region, region.copy(), keep
 
     def _learned_rows(self, bg: np.ndarray, phase: int) -> None:
-        """After eq. 3 updated the rows of ``phase``: take the first pass's rows of T again if
+        """After eq. 3 updated the rows of ``phase``: round the first pass's rows of T again if
         they were among them (only those, when every row learned is one of them)."""
         if phase % self._touches_coarse != 0 or phase >= bg.shape[0]:
             return  # none of its rows are the first pass's (or there are none)
@@ -607,10 +608,8 @@ class Detector:
             self._coarse = None
             self._coarse_background(bg)
             return
-        grid_t, bg8 = self._coarse
         rows = slice(phase // step, None, stride // step)  # rows phase + stride k of T
-        grid_t[rows] = self._grid_columns_of(bg[phase::stride])
-        bg8[rows] = cv2.convertScaleAbs(grid_t[rows])
+        self._coarse[rows] = cv2.convertScaleAbs(bg[phase::stride])
         self._coarse_version += 1
 
     def _warmup(self, frame: np.ndarray) -> None:
@@ -636,10 +635,11 @@ class Detector:
         self._coarse = None
 
     def _held(self) -> tuple[Rect, np.ndarray] | None:
-        """Inside the rectangle around this frame's foreground, where eq. 3 may learn (uint8
-        255): outside the grown foreground, and where the foreground has stayed ``absorb_s``
-        seconds (it is still: make it background). Outside it everything may; ``None`` when
-        nothing is foreground."""
+        """Inside the rectangle around this frame's foreground, where eq. 3 must not learn
+        (uint8 255): the foreground grown by ``hold_margin_px``, less what has stayed
+        foreground ``absorb_s`` seconds (it is still: make it background). Outside it
+        everything may be learned; ``None`` when nothing is foreground. Keeps ``_since``, the
+        time each pixel was last background, up to date inside the rectangle."""
         shape = self._shape
         assert shape is not None
         if self._since is None or self._since.shape != shape:
@@ -650,31 +650,31 @@ class Detector:
         if roi is None or self._part is None:
             return None
         x0, y0, x1, y1 = roi
-        sub = self._part
-        grown = cv2.dilate(sub, self._hold) if self._hold is not None else sub
+        grown = self._grown
+        if grown is None:
+            grown = cv2.dilate(self._part, self._hold) if self._hold is not None else self._part
         since = self._since[y0:y1, x0:x1]
-        now = np.float32(self._t_s)
-        free = cv2.bitwise_not(grown)
-        # Background since now: what is not foreground, and what lay outside the last
-        # rectangle (it was background in the last frame).
-        if prev is None:
-            since.fill(now)
-        else:
-            px0, py0, px1, py1 = prev
-            kx0, ky0 = max(px0 - x0, 0), max(py0 - y0, 0)
-            kx1, ky1 = min(px1 - x0, x1 - x0), min(py1 - y0, y1 - y0)
+        # Background since now: all of the rectangle but the grown foreground that lay inside
+        # the last rectangle (outside it everything was background in the last frame), which
+        # keeps its time.
+        old = None
+        if prev is not None:
+            kx0, ky0 = max(prev[0] - x0, 0), max(prev[1] - y0, 0)
+            kx1, ky1 = min(prev[2] - x0, x1 - x0), min(prev[3] - y0, y1 - y0)
             if kx1 > kx0 and ky1 > ky0:
-                fresh = np.full(sub.shape, 255, np.uint8)
-                fresh[ky0:ky1, kx0:kx1] = free[ky0:ky1, kx0:kx1]
-                stamp = np.full(sub.shape, now, np.float32)
-                cv2.copyTo(stamp, fresh, since)  # in place: ``since`` is a view of the whole
-            else:
-                since.fill(now)
-        limit = np.float64(self._t_s - self.params.absorb_s)
+                old = since[ky0:ky1, kx0:kx1].copy()
+        since.fill(self._t_s)
+        if old is None:
+            return roi, grown
+        cv2.copyTo(old, grown[ky0:ky1, kx0:kx1], since[ky0:ky1, kx0:kx1])  # in place (a view)
+        limit = self._t_s - self.params.absorb_s
+        if float(old.min()) >= limit:  # no time kept is that old: nothing is still
+            return roi, grown
         if since.size == 1:  # OpenCV takes a one-element array for a scalar: give it two arrays
-            limit = np.full(since.shape, limit, np.float32)
-        stale = cv2.compare(since, limit, cv2.CMP_LT)
-        return roi, cv2.bitwise_or(free, stale)
+            stale = cv2.compare(since, np.full(since.shape, limit, np.float32), cv2.CMP_LT)
+        else:
+            stale = cv2.compare(since, np.float64(limit), cv2.CMP_LT)
+        return roi, cv2.subtract(grown, stale)
 
     def _blobs(
         self,
@@ -728,23 +728,6 @@ class Detector:
         )
 
 
-def _grid_columns(width: int, step: int) -> tuple[int, int]:
-    """First column and step (px) of the first pass's grid columns in an image ``width`` px
-    wide: every ``step``-th column from an offset below ``step`` such that the last lies
-    within ``step`` of the right edge (so any ``step`` columns in a row hold one of them, as
-    the rows do), and as many as a resize by 1/``step`` makes; (0, 1), every column, when no
-    offset does."""
-    for offset in range(step if step > 1 else 0):
-        if width - offset < step:
-            break
-        row = np.zeros((1, width - offset), np.uint8)
-        n = cv2.resize(row, None, fx=1.0 / step, fy=1.0, interpolation=cv2.INTER_NEAREST).shape[1]
-        last = offset + step * (n - 1)
-        if width - step <= last <= width - 1:
-            return (offset, step)
-    return (0, 1)
-
-
 def _mean_channels(diff: np.ndarray) -> np.ndarray:
     """The colour difference of eq. 4: the mean of the three channels' absolute differences
     (uint8); a one-channel difference as it is."""
@@ -754,6 +737,21 @@ def _mean_channels(diff: np.ndarray) -> np.ndarray:
 def _negligible(gain: float) -> bool:
     """Whether a gain moves no grey level (0-255) by half a level: T is then used as learned."""
     return abs(gain - 1.0) * 255.0 < 0.5
+
+
+def _above_any(diff: np.ndarray, level: float) -> tuple[int, int, int, int]:
+    """The bounding box (x, y, w, h px) of the pixels of ``diff`` where any channel is above
+    ``level`` (see :func:`_above`). Every pixel whose mean over the channels is above it is
+    among them, so the box holds eq. 4's colour foreground; a channel alone may add a little
+    to it, and the every-pixel pass inside decides. Taking the channels as they lie, as one
+    row of bytes, saves averaging them over the whole grid."""
+    if diff.ndim == 2:
+        return _above(diff, level)
+    n = diff.shape[2]
+    x, y, w, h = _above(diff.reshape(diff.shape[0], -1), level)
+    if h == 0:
+        return (0, 0, 0, 0)
+    return (x // n, y, (x + w - 1) // n - x // n + 1, h)
 
 
 def _above(diff: np.ndarray, level: float) -> tuple[int, int, int, int]:
@@ -768,6 +766,22 @@ def _above(diff: np.ndarray, level: float) -> tuple[int, int, int, int]:
     _, slab = cv2.threshold(diff[:, x0:x1], level, 255, cv2.THRESH_BINARY)
     _, y, _, h = cv2.boundingRect(slab)
     return (x0, y, x1 - x0, h)
+
+
+def _rows_within(y0: int, y1: int, first: int, stride: int) -> slice:
+    """The rows ``first + stride k`` (k >= 0) that lie in [y0, y1), as indices k."""
+    lo = max(0, -(-(y0 - first) // stride))
+    hi = max(lo, -(-(y1 - first) // stride))
+    return slice(lo, hi)
+
+
+def _put_rows(dst: np.ndarray, src: np.ndarray, x: int, y: int, first: int, stride: int) -> None:
+    """Into ``dst``, whose rows are ``first + stride k`` of a plane, the rows of ``src`` (at
+    (``x``, ``y``) of that plane) that are among them."""
+    k = _rows_within(y, y + src.shape[0], first, stride)
+    if k.stop > k.start:
+        top = first + stride * k.start - y
+        dst[k, x : x + src.shape[1]] = src[top::stride][: k.stop - k.start]
 
 
 def _clipped(rect: Sequence[int], x1: int, y1: int, x0: int = 0, y0: int = 0) -> Rect | None:
