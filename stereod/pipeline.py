@@ -26,7 +26,7 @@ from .frames import Eye, Frame, StereoPair
 from .geometry import Geometry
 from .geometry.rectified import CalibratedRig
 from .geometry.refine import RefineParams, refine_match
-from .geometry.stereo import CanonicalRig, MatchParams, match_blobs, silhouette_depth
+from .geometry.stereo import CanonicalRig, MatchParams, centre_depth, match_blobs, sym3
 from .pairing import DEFAULT_TOLERANCE_NS, Pairer
 from .tracking import Detection, Observation, Tracker, TrackerParams, TrackState
 
@@ -161,7 +161,7 @@ class Pipeline:
         self.params = params
         self.left = Detector(params.detector)
         self.right = Detector(params.detector)
-        self.tracker = Tracker(params.tracker, params.rig.project_rectified)
+        self.tracker = Tracker(params.tracker, params.rig.rectified.project)
         self._pending: list[Learning | None] = [None, None]
         """Each eye's eq. 3 rectangles (frozen, released) from the last pair, for the next;
         ``None`` once that eye has learned (or before the first pair)."""
@@ -453,7 +453,7 @@ class Pipeline:
         last observation (see :func:`_segmentation_jump_px`)."""
         p = self.params
         i, j = int(ij[0]), int(ij[1])
-        width_px = 0.5 * (lb.bbox_px[i, 2] + rb.bbox_px[j, 2])
+        width_px = 0.5 * (int(lb.bbox_px[i, 2]) + int(rb.bbox_px[j, 2]))
         sigma = p.centroid_sigma_px
         if before is not None and not clipped and not before.clipped:
             sigma = math.hypot(sigma, _segmentation_jump_px(lb, rb, i, j, before, width_px))
@@ -468,16 +468,15 @@ class Pipeline:
             )
             tri_left, tri_right = tri_left + shift_l, tri_right + shift_r
             area, width_px = 0.5 * (area_l + area_r), 0.5 * (width_l + width_r)
-        points, cov = p.rig.triangulate(tri_left[None, :], tri_right[None, :], sigma)
+        xl, yl = tri_left.tolist()
+        xr, yr = tri_right.tolist()
+        point, cov = p.rig.rectified.triangulate(xl, yl, xr, yr, sigma)
         factor = 1.0
         if p.silhouette_depth:
-            points, cov, k = silhouette_depth(
-                points, cov, np.array([area]), p.rig.focal_px, np.array([width_px])
-            )
-            factor = float(k[0])
+            point, cov, factor = centre_depth(point, cov, area, p.rig.focal_px, width_px)
         return Observation(
-            position_m=points[0],
-            cov_m2=cov[0],
+            position_m=np.array(point),
+            cov_m2=sym3(cov),
             left_px=lpx,
             right_px=rpx,
             left_image_px=lb.centroid_px[i],
@@ -487,7 +486,7 @@ class Pipeline:
             left_area_px=int(lb.area_px[i]),
             right_area_px=int(rb.area_px[j]),
             disparity_px=float(tri_left[0] - tri_right[0]),
-            size_m=float(width_px * points[0, 2] / p.rig.focal_px),
+            size_m=float(width_px * point[2] / p.rig.focal_px),
             exact=exact,
             clipped=clipped,
             depth_factor=factor,

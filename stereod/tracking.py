@@ -229,8 +229,9 @@ class Track:
     fading memory."""
 
 
-Projector = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
-"""Rig-frame points (n, 3) m to rectified px (n, 2) of the left and the right eye."""
+Projector = Callable[[float, float, float, bool], tuple[float, float]]
+"""A rig-frame point (x, y, z m) to rectified px (x, y) of the left eye (True) or the right
+(False), as :meth:`stereod.geometry.stereo.Rectified.project` does."""
 
 
 def predict_px(history: EyeHistory, t_ns: int, window_ns: int) -> tuple[np.ndarray, float]:
@@ -329,7 +330,7 @@ class Tracker:
     """How much of an eye's 2D track its image velocity is fitted over (ns)."""
 
     def __init__(self, params: TrackerParams, project: Projector | None = None) -> None:
-        """``project`` maps rig-frame points (n, 3) m to rectified px (n, 2) per eye; with it,
+        """``project`` maps a rig-frame point (m) to rectified px in one eye; with it,
         a track whose filter runs is looked for where its 3D prediction projects (which
         follows perspective: an object coming at the camera speeds up in the image), else
         where its image velocity leads."""
@@ -457,12 +458,13 @@ class Tracker:
         positions (3,) m at that eye's instant: the centre projected from ``depth_factor``
         times nearer (a 10 cm ball at 1 m, at the edge of a 640 px wide image, is seen 3 px
         further out than its centre projects); ``None`` behind the cameras."""
-        if self._project is None or at_left[2] <= 0 or at_right[2] <= 0:
+        xl, yl, zl = at_left.tolist()
+        xr, yr, zr = at_right.tolist()
+        if self._project is None or zl <= 0 or zr <= 0:
             return None
-        seen = np.stack([at_left, at_right])
-        seen[:, 2] /= depth_factor
-        left, right = self._project(seen)
-        return left[0], right[1]
+        left = self._project(xl, yl, zl / depth_factor, True)
+        right = self._project(xr, yr, zr / depth_factor, False)
+        return np.array(left), np.array(right)
 
     def histories(self, track_id: int | None) -> tuple[EyeHistory, EyeHistory] | None:
         """A track's two eye histories (for skew compensation), None for no track."""

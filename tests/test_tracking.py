@@ -322,7 +322,7 @@ def test_a_thrown_ball_is_filtered_as_falling() -> None:
     err = {}
     for gravity in (True, False):
         params = TrackerParams() if gravity else TrackerParams(gravity_mps2=(0.0, 0.0, 0.0))
-        tracker = Tracker(params, RIG.project)
+        tracker = Tracker(params, RIG.rectified.project)
         per_frame = run(tracker, [fall([-0.25, 0.0, 5.0], v0)], 12)
         assert [len(f) for f in per_frame] == [1] * 12
         last = per_frame[-1][0]
@@ -379,7 +379,7 @@ def test_an_object_cut_by_the_image_edge_keeps_its_id() -> None:
     """A robot 0.5 m wide, 2 m away, walks at 0.5 m/s until the left edge cuts it, stands
     half out of view, and walks back: one track all along (its cut centroid drifts away from
     the filter's prediction, which is only predicted while it is cut)."""
-    tracker = Tracker(TrackerParams(), RIG.project)
+    tracker = Tracker(TrackerParams(), RIG.rectified.project)
     ids = set()
     x = -0.2
     for k in range(150):
@@ -415,7 +415,7 @@ def test_a_track_is_looked_for_where_its_silhouettes_centroid_is(factor_known: b
     depth factor, the filter's prediction lands on the next centroids; without, 4.5 px off
     (of a 6 px gate)."""
     r = 0.1
-    tracker = Tracker(TrackerParams(), RIG.project_rectified)
+    tracker = Tracker(TrackerParams(), RIG.rectified.project)
     path = line([0.3, 0.05, 0.8], [0.2, 0.0, 0.0])
 
     def view(t_ns: int) -> tuple[Detection, Observation]:

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..calibration import Calibration
 from . import Geometry
-from .stereo import _grey, project_rectified, triangulate_rectified
+from .stereo import Rectified, _grey, project_rectified, triangulate_rectified
 
 
 class CalibratedRig:
@@ -36,6 +36,10 @@ class CalibratedRig:
         self.cx_left_px = float(self._p1[0, 2])
         self.cx_right_px = float(self._p2[0, 2])
         self.cy_px = float(self._p1[1, 2])
+        self.rectified = Rectified(
+            self.focal_px, self.baseline_m, self.cx_left_px, self.cx_right_px, self.cy_px
+        )
+        """The rectified pair (:class:`~stereod.geometry.stereo.Rectified`)."""
         self._map_cache: list[tuple[np.ndarray, np.ndarray] | None] = [None, None]
         self.margin_px = max(self.width_px, self.height_px) // 8
         if not self.baseline_m > 0:

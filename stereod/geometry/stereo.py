@@ -9,12 +9,81 @@ principal point at the image centre ((w - 1) / 2, (h - 1) / 2) in OpenCV pixel c
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from . import Geometry
+
+
+@dataclass(frozen=True, slots=True)
+class Rectified:
+    """A rectified (canonical) stereo pair, rig frame at the midpoint of the baseline:
+    ``focal_px``, ``baseline_m``, and the principal points (px). Its methods work on one
+    point in Python floats: the pipeline handles a few objects one at a time, and numpy's
+    per-call cost is most of the work on one point (eq. 9 and its covariance take 8 us so,
+    100 us as arrays of one)."""
+
+    focal_px: float
+    baseline_m: float
+    cx_left_px: float
+    cx_right_px: float
+    cy_px: float
+
+    def triangulate(
+        self, xl: float, yl: float, xr: float, yr: float, sigma_px: float
+    ) -> tuple[tuple[float, float, float], Cov6]:
+        """One matched pair of rectified points (px) to a rig-frame point (m) and its
+        covariance (m^2) as its six distinct entries (xx, xy, xz, yy, yz, zz): eq. 9, X and Y
+        from the mean of the two rays, the covariance propagated from an isotropic centroid
+        error of ``sigma_px`` per coordinate per eye through the Jacobian of (X, Y, Z) in
+        (x_L, x_R, y_L, y_R). A nil disparity gives an infinite point as IEEE arithmetic
+        would, without an error."""
+        f, b = self.focal_px, self.baseline_m
+        ul, ur = xl - self.cx_left_px, xr - self.cx_right_px
+        d = ul - ur
+        z = _div(b * f, d)
+        u = 0.5 * (ul + ur)
+        v = 0.5 * (yl + yr) - self.cy_px
+        dz = _div(-z, d)  # dZ/dx_L; dZ/dx_R = -dZ/dx_L
+        half = 0.5 * z / f
+        j00, j01 = half + u / f * dz, half - u / f * dz
+        j10, j11 = v / f * dz, -v / f * dz
+        s2 = sigma_px * sigma_px
+        cov = (
+            s2 * (j00 * j00 + j01 * j01),
+            s2 * (j00 * j10 + j01 * j11),
+            s2 * (j00 * dz - j01 * dz),
+            s2 * (j10 * j10 + j11 * j11 + half * half + half * half),
+            s2 * (j10 * dz - j11 * dz),
+            s2 * (dz * dz + dz * dz),
+        )
+        return (u * z / f, v * z / f, z), cov
+
+    def project(self, x: float, y: float, z: float, left: bool) -> tuple[float, float]:
+        """A rig-frame point (m) to rectified px in one eye (each eye half the baseline
+        from the origin): the inverse of :meth:`triangulate`."""
+        f, half = self.focal_px, 0.5 * self.baseline_m
+        if left:
+            return _div(f * (x + half), z) + self.cx_left_px, _div(f * y, z) + self.cy_px
+        return _div(f * (x - half), z) + self.cx_right_px, _div(f * y, z) + self.cy_px
+
+
+def _div(a: float, b: float) -> float:
+    """a / b as IEEE arithmetic (numpy's) has it: an infinity or NaN for b = 0, no error."""
+    if b != 0.0:
+        return a / b
+    if a != a or a == 0.0:
+        return math.nan
+    return math.copysign(math.inf, a) * math.copysign(1.0, b)
+
+
+def sym3(c: Sequence[float]) -> np.ndarray:
+    """A symmetric (3, 3) matrix from its six distinct entries (xx, xy, xz, yy, yz, zz)."""
+    xx, xy, xz, yy, yz, zz = c
+    return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
 
 
 @dataclass(frozen=True, slots=True)
@@ -26,6 +95,12 @@ class CanonicalRig:
     hfov_deg: float
     width_px: int
     height_px: int
+    focal_px: float = field(init=False, repr=False, compare=False)
+    """f = x_0 / (2 tan(phi_0 / 2)) (px): eq. 9 is then D = B f / (x_L - x_R)."""
+    cx_px: float = field(init=False, repr=False, compare=False)
+    cy_px: float = field(init=False, repr=False, compare=False)
+    rectified: Rectified = field(init=False, repr=False, compare=False)
+    """The pair as :class:`Rectified` (it is rectified already)."""
 
     def __post_init__(self) -> None:
         if not self.baseline_m > 0:
@@ -36,19 +111,12 @@ class CanonicalRig:
             )
         if self.width_px <= 0 or self.height_px <= 0:
             raise ValueError(f"image size must be positive, got {self.width_px}x{self.height_px}")
-
-    @property
-    def focal_px(self) -> float:
-        """f = x_0 / (2 tan(phi_0 / 2)) (px): eq. 9 is then D = B f / (x_L - x_R)."""
-        return self.width_px / (2.0 * math.tan(math.radians(self.hfov_deg) / 2.0))
-
-    @property
-    def cx_px(self) -> float:
-        return (self.width_px - 1) / 2.0
-
-    @property
-    def cy_px(self) -> float:
-        return (self.height_px - 1) / 2.0
+        focal = self.width_px / (2.0 * math.tan(math.radians(self.hfov_deg) / 2.0))
+        cx, cy = (self.width_px - 1) / 2.0, (self.height_px - 1) / 2.0
+        object.__setattr__(self, "focal_px", focal)
+        object.__setattr__(self, "cx_px", cx)
+        object.__setattr__(self, "cy_px", cy)
+        object.__setattr__(self, "rectified", Rectified(focal, self.baseline_m, cx, cx, cy))
 
     def principal_point_px(self, left: bool) -> tuple[float, float]:
         """(cx, cy) of one eye (px; both eyes share it)."""
@@ -149,14 +217,13 @@ def project_rectified(
     cy_px: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(n, 3) rig-frame points (m) to rectified left and right (n, 2) px: the inverse of
-    :func:`triangulate_rectified` (each eye half the baseline from the origin)."""
-    p = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
-    f, half = focal_px, baseline_m / 2.0
-    z = p[:, 2]
-    y = f * p[:, 1] / z + cy_px
-    xl = f * (p[:, 0] + half) / z + cx_left_px
-    xr = f * (p[:, 0] - half) / z + cx_right_px
-    return np.stack([xl, y], axis=1), np.stack([xr, y], axis=1)
+    :func:`triangulate_rectified` (each eye half the baseline from the origin), by
+    :meth:`Rectified.project`."""
+    r = Rectified(focal_px, baseline_m, cx_left_px, cx_right_px, cy_px)
+    p = np.atleast_2d(np.asarray(points_m, dtype=np.float64)).tolist()
+    left = np.array([r.project(x, y, z, True) for x, y, z in p], np.float64).reshape(-1, 2)
+    right = np.array([r.project(x, y, z, False) for x, y, z in p], np.float64).reshape(-1, 2)
+    return left, right
 
 
 def triangulate_rectified(
@@ -179,33 +246,19 @@ def triangulate_rectified(
     Z by D^2 / (B f), the exact form of eq. 12's D^2 / B tan(delta phi). A nil disparity
     gives an infinite point (and a negative one a point behind the rig), without a warning:
     the caller decides what to do with it. Points that are silhouettes' centroids lie
-    nearer than the object's centre: see :func:`silhouette_depth`.
+    nearer than the object's centre: see :func:`silhouette_depth`. Each point is
+    :meth:`Rectified.triangulate`'s.
     """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        left = np.atleast_2d(np.asarray(left_px, dtype=np.float64))
-        right = np.atleast_2d(np.asarray(right_px, dtype=np.float64))
-        f, b = focal_px, baseline_m
-        ul = left[:, 0] - cx_left_px
-        ur = right[:, 0] - cx_right_px
-        d = ul - ur
-        z = b * f / d
-        u = 0.5 * (ul + ur)
-        v = 0.5 * (left[:, 1] + right[:, 1]) - cy_px
-        points = np.stack([u * z / f, v * z / f, z], axis=1)
-        # Jacobian of (X, Y, Z) w.r.t. (x_L, x_R, y_L, y_R); dZ/dx_L = -Z/d, dZ/dx_R = Z/d.
-        n = len(d)
-        jac = np.zeros((n, 3, 4))
-        dz_dxl = -z / d
-        jac[:, 2, 0] = dz_dxl
-        jac[:, 2, 1] = -dz_dxl
-        jac[:, 0, 0] = 0.5 * z / f + u / f * dz_dxl
-        jac[:, 0, 1] = 0.5 * z / f - u / f * dz_dxl
-        jac[:, 1, 0] = v / f * dz_dxl
-        jac[:, 1, 1] = -v / f * dz_dxl
-        jac[:, 1, 2] = 0.5 * z / f
-        jac[:, 1, 3] = 0.5 * z / f
-        cov = sigma_px**2 * (jac @ jac.transpose(0, 2, 1))
-        return points, cov
+    r = Rectified(focal_px, baseline_m, cx_left_px, cx_right_px, cy_px)
+    left = np.atleast_2d(np.asarray(left_px, dtype=np.float64)).tolist()
+    right = np.atleast_2d(np.asarray(right_px, dtype=np.float64)).tolist()
+    got = [
+        r.triangulate(xl, yl, xr, yr, sigma_px)
+        for (xl, yl), (xr, yr) in zip(left, right, strict=True)
+    ]
+    points = np.array([p for p, _ in got], np.float64).reshape(-1, 3)
+    cov = np.array([sym3(c) for _, c in got], np.float64).reshape(-1, 3, 3)
+    return points, cov
 
 
 SILHOUETTE_Q_MAX = 0.05
@@ -246,11 +299,25 @@ def silhouette_depth_factor(
     Any other object is taken to be as deep as the smaller of its two
     cross-sections, up to ``SILHOUETTE_Q_MAX``.
     """
-    cos_theta = 1.0 / np.sqrt(1.0 + x_norm * x_norm + y_norm * y_norm)
+    area, x, y = (
+        np.atleast_1d(np.asarray(a, np.float64)).tolist() for a in (area_px, x_norm, y_norm)
+    )
+    width = [None] * len(area) if width_px is None else np.atleast_1d(width_px).tolist()
+    return np.array(
+        [depth_factor(*args, focal_px) for args in zip(area, x, y, width, strict=True)], np.float64
+    )
+
+
+def depth_factor(
+    area_px: float, x_norm: float, y_norm: float, width_px: float | None, focal_px: float
+) -> float:
+    """:func:`silhouette_depth_factor` of one silhouette (``width_px`` ``None``: unknown)."""
+    cos_theta = 1.0 / math.sqrt(1.0 + x_norm * x_norm + y_norm * y_norm)
     q = area_px * cos_theta / (math.pi * focal_px * focal_px)
     if width_px is not None:
-        q = np.minimum(q, (0.5 * width_px / focal_px) ** 2)
-    return 1.0 + np.minimum(q, SILHOUETTE_Q_MAX)
+        half = 0.5 * width_px / focal_px
+        q = min(q, half * half)
+    return 1.0 + min(q, SILHOUETTE_Q_MAX)
 
 
 def silhouette_depth(
@@ -261,25 +328,45 @@ def silhouette_depth(
     width_px: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Move (n, 3) points triangulated from silhouettes' centroids (m) to their objects'
-    centres: Z times :func:`silhouette_depth_factor`'s k, from the silhouettes' mean area and
-    width (n,) (rectified px); X and Y need no correction. Returns the points, their (n, 3, 3)
-    covariance (m^2) and k (n,). The covariance scales with Z, and the depth's variance gains
-    ((k - 1) Z / 2)^2: whether the object is as deep as it is wide is a guess (right for a
-    ball or a column, a whole (k - 1) Z too far for a flat object), and the filter should
-    weigh it as one."""
-    p = np.array(points_m, dtype=np.float64, copy=True)
-    z = p[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x, y = p[:, 0] / z, p[:, 1] / z
-    area = np.asarray(area_px, dtype=np.float64)
-    width = None if width_px is None else np.asarray(width_px, dtype=np.float64)
-    k = silhouette_depth_factor(area, x, y, focal_px, width)
-    scale = np.ones_like(p)
-    scale[:, 2] = k
-    cov = np.asarray(cov_m2, dtype=np.float64) * scale[:, :, None] * scale[:, None, :]
-    cov[:, 2, 2] += (0.5 * (k - 1.0) * z) ** 2
-    p[:, 2] = z * k
-    return p, cov, k
+    centres (:func:`centre_depth` of each): their (n, 3, 3) covariance (m^2) and k (n,) with
+    them, from the silhouettes' mean area and width (n,) (rectified px)."""
+    points = np.atleast_2d(np.asarray(points_m, np.float64)).tolist()
+    covs = np.asarray(cov_m2, np.float64).reshape(-1, 3, 3)
+    area = np.atleast_1d(np.asarray(area_px, np.float64)).tolist()
+    width = [None] * len(area) if width_px is None else np.atleast_1d(width_px).tolist()
+    got = [
+        centre_depth(tuple(p), tuple(c[np.triu_indices(3)].tolist()), a, focal_px, w)
+        for p, c, a, w in zip(points, covs, area, width, strict=True)
+    ]
+    return (
+        np.array([p for p, _, _ in got], np.float64).reshape(-1, 3),
+        np.array([sym3(c) for _, c, _ in got], np.float64).reshape(-1, 3, 3),
+        np.array([k for _, _, k in got], np.float64),
+    )
+
+
+Cov6 = tuple[float, float, float, float, float, float]
+"""A symmetric 3 x 3 covariance (m^2) as its six distinct entries (xx, xy, xz, yy, yz, zz)."""
+
+
+def centre_depth(
+    point_m: tuple[float, float, float],
+    cov: Cov6,
+    area_px: float,
+    focal_px: float,
+    width_px: float | None = None,
+) -> tuple[tuple[float, float, float], Cov6, float]:
+    """Move a point triangulated from silhouettes' centroids (m) to its object's centre: Z
+    times :func:`silhouette_depth_factor`'s k, from the silhouettes' mean area and width
+    (rectified px); X and Y need no correction. Returns the point, its covariance and k. The
+    covariance scales with Z, and the depth's variance gains ((k - 1) Z / 2)^2: whether the
+    object is as deep as it is wide is a guess (right for a ball or a column, a whole
+    (k - 1) Z too far for a flat object), and the filter should weigh it as one."""
+    x, y, z = point_m
+    k = depth_factor(area_px, _div(x, z), _div(y, z), width_px, focal_px)
+    xx, xy, xz, yy, yz, zz = cov
+    extra = 0.5 * (k - 1.0) * z
+    return (x, y, z * k), (xx, xy, xz * k, yy, yz * k, zz * k * k + extra * extra), k
 
 
 @dataclass(frozen=True, slots=True)
