@@ -237,9 +237,10 @@ class Detector:
         pass's) until taken again."""
         self._coarse_version = 0
         """Counts the changes to ``_coarse``: what the gain keeps of it is of this version."""
-        self._gain_base: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._gain_base: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
         """The version of ``_coarse`` and, on the gain's grid, T's mean over the channels there
-        (float32) and where it is bright enough to count (bool)."""
+        (float32, 1 where it is too dark to count), where it is bright enough to count (bool),
+        and its values there."""
         self._learned = 0
         """Frames eq. 3 has learned (after the warm-up): which rows the next one updates."""
         self._beta = 1.0 - (1.0 - params.beta) ** params.learn_stride
@@ -429,8 +430,8 @@ class Detector:
             count = cv2.countNonZero(part)
             if count == 0:  # no seed: nothing can grow
                 return self._nothing(shape)
-            for _ in range(3):
-                part = cv2.bitwise_or(part, cv2.bitwise_and(weak, cv2.dilate(part, self._grow)))
+            for _ in range(3):  # (what is above t is weak too, and the kernel holds its centre,
+                part = cv2.bitwise_and(weak, cv2.dilate(part, self._grow))  # so part stays)
                 count, before = cv2.countNonZero(part), count
                 if count == before:  # nothing weak left within reach
                     break
@@ -491,33 +492,33 @@ class Detector:
         ways)."""
         s = self._gain_step
         ky = s // self._row_step
-        f = grid[::ky, ::s].astype(np.float32)  # the pixels (s i, s j)
-        if f.ndim == 3:  # the mean of the channels (a matrix product: numpy sums a short
-            f = f @ _THIRDS  # last axis slowly)
-        if self._gain_base is None or self._gain_base[0] != self._coarse_version:
+        f = grid[::ky, ::s]  # the pixels (s i, s j)
+        f = f @ _THIRDS if f.ndim == 3 else f.astype(np.float32)  # (numpy sums a short last
+        if self._gain_base is None or self._gain_base[0] != self._coarse_version:  # axis slowly)
             b = grid8[::ky, ::s].astype(np.float32)  # T there changes on a third of frames
             if b.ndim == 3:
                 b = b @ _THIRDS
-            self._gain_base = (self._coarse_version, b, b > _GAIN_MIN_LEVEL)
-        _, b, bright = self._gain_base
-        use = bright.copy()
+            bright = b > _GAIN_MIN_LEVEL
+            self._gain_base = (self._coarse_version, np.where(bright, b, 1.0), bright, b[bright])
+        _, b, use, bs = self._gain_base
         if self._roi is not None and self._part is not None and self._shape == shape:
-            # the grid points inside the last foreground's rectangle that were foreground
+            # not the grid points inside the last foreground's rectangle that were foreground
             x0, y0 = self._roi[0], self._roi[1]
             gx, gy = -(-x0 // s), -(-y0 // s)
-            fg = self._part[gy * s - y0 :: s, gx * s - x0 :: s] > 0
-            use[gy : gy + fg.shape[0], gx : gx + fg.shape[1]] &= ~fg
-        fs, bs = f[use], b[use]
-        if fs.size < 32:
+            fg = self._part[gy * s - y0 :: s, gx * s - x0 :: s]
+            use = use.copy()
+            use[gy : gy + fg.shape[0], gx : gx + fg.shape[1]] &= fg == 0
+            bs = b[use]
+        if bs.size < 32:
             return 1.0
-        k = fs.size // 2  # numpy's vectorised sort beats its partition on these few points
-        g = float(np.sort(fs / bs)[k])
+        k = bs.size // 2  # numpy's vectorised sort beats its partition on these few points
+        g = float(np.sort((f / b)[use])[k])
         if _negligible(g):
             return g  # not applied: nothing to check
         # A gain must explain the change: what is left must look like sensor noise. A light
         # switched on unevenly, or a scene that changed, is not a gain: left alone, it
         # saturates the frame and the background is learned afresh.
-        misfit = np.abs(fs - g * bs)
+        misfit = np.abs(f[use] - g * bs)
         if float(np.sort(misfit)[k]) > _GAIN_MAX_MISFIT * self.params.threshold:
             return 1.0
         return g
@@ -862,8 +863,9 @@ def _padded(
     H, W = shape[0], shape[1]
     x0, y0 = max(x - 1, 0), max(y - 1, 0)
     x1, y1 = min(x + bw + 1, W), min(y + bh + 1, H)
-    own = np.zeros((y1 - y0, x1 - x0), np.uint8)
-    own[y - y0 : y - y0 + bh, x - x0 : x - x0 + bw] = support
+    own = cv2.copyMakeBorder(
+        support, y - y0, y1 - y - bh, x - x0, x1 - x - bw, cv2.BORDER_CONSTANT, value=0
+    )
     return x0, y0, x1, y1, own, cv2.erode(own, _RING)
 
 
@@ -931,7 +933,7 @@ def matte_centroid(
     ramp = _ramp(threshold)
     weight = cv2.LUT(cv2.bitwise_and(diff[y0:y1, x0:x1], band), ramp)
     f = frame[y0:y1, x0:x1]
-    b = background[y0:y1, x0:x1].astype(np.float32)
+    b = background[y0:y1, x0:x1]
     # the object's colour near each pixel: the mean of the interior pixels within two pixels
     near = (5, 5)
     count = cv2.boxFilter(inner, cv2.CV_32F, near, normalize=False, borderType=cv2.BORDER_CONSTANT)
@@ -944,21 +946,19 @@ def matte_centroid(
     )
     count *= np.float32(1.0 / 255.0)  # interior pixels are 255
     found = count > 0.5
+    np.maximum(count, 1.0, out=count)
+    o = total / (count[..., None] if f.ndim == 3 else count)
+    ob, fb = cv2.subtract(o, b, dtype=cv2.CV_32F), cv2.subtract(f, b, dtype=cv2.CV_32F)
     if f.ndim == 3:
-        o = total / np.maximum(count, 1.0)[..., None]
-        ob, fb = o - b, f.astype(np.float32) - b
         num, den = cv2.transform(fb * ob, _ONES3), cv2.transform(ob * ob, _ONES3)
         channels = 3
     else:
-        o = total / np.maximum(count, 1.0)
-        ob, fb = o - b, f.astype(np.float32) - b
         num, den = fb * ob, ob * ob
         channels = 1
     usable = found & (den >= channels * (0.5 * threshold) ** 2) & (band > 0)
-    alpha = num / np.where(usable, den, np.float32(1.0))
-    np.minimum(np.maximum(alpha, 0.0, out=alpha), 1.0, out=alpha)
-    weight = np.where(usable, alpha, weight)
-    weight[inner > 0] = 1.0
+    np.divide(num, den, out=weight, where=usable)  # the ramp's weight where it is not usable
+    np.clip(weight, 0.0, 1.0, out=weight)
+    np.putmask(weight, inner, 1.0)
     m = cv2.moments(weight)
     if m["m00"] <= 0:
         return (x + (bw - 1) / 2.0, y + (bh - 1) / 2.0)
