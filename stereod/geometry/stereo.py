@@ -8,6 +8,7 @@ principal point at the image centre ((w - 1) / 2, (h - 1) / 2) in OpenCV pixel c
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -399,36 +400,39 @@ def match_blobs(
     move in the image between the two eyes' capture instants (skew): a fast object seen by a
     late right eye can even show a negative disparity. Each blob is used once: pairs are taken
     greedily by increasing cost (row difference in tolerances, log area ratio, and how far out
-    of the range without slack the disparity is, in slacks), which is optimal for the few,
-    well separated blobs a scene has and needs no solver.
+    of the range without slack the disparity is, in slacks; ties by index), which is optimal
+    for the few, well separated blobs a scene has and needs no solver. Only the right blobs
+    within the row tolerance of a left blob are looked at (by bisection on their rows), one
+    pair at a time in Python floats: a scene has a few blobs, and a saturated one a few per
+    row.
     """
     nl, nr = len(left_px), len(right_px)
     if nl == 0 or nr == 0:
         return np.zeros((0, 2), dtype=np.intp)
-    dy = np.abs(left_px[:, None, 1] - right_px[None, :, 1])
-    disp = left_px[:, None, 0] - right_px[None, :, 0]
-    ratio = np.abs(
-        np.log(np.maximum(left_area[:, None], 1) / np.maximum(right_area[None, :], 1).astype(float))
-    )
-    ok = (
-        (dy <= params.row_tolerance_px)
-        & (disp >= params.min_disparity_px - slack_px)
-        & (disp <= params.max_disparity_px + slack_px)
-        & (ratio <= math.log(params.max_area_ratio))
-    )
-    outside = np.maximum(params.min_disparity_px - disp, 0.0) + np.maximum(
-        disp - params.max_disparity_px, 0.0
-    )
-    cost = dy / params.row_tolerance_px + ratio
-    if slack_px > 0:
-        cost = cost + outside / slack_px
-    cost = np.where(ok, cost, np.inf)
-    order = np.argsort(cost, axis=None)
-    used_l = np.zeros(nl, bool)
-    used_r = np.zeros(nr, bool)
+    left, right = np.asarray(left_px).tolist(), np.asarray(right_px).tolist()
+    l_area = np.maximum(np.asarray(left_area), 1).tolist()
+    r_area = np.maximum(np.asarray(right_area), 1).tolist()
+    by_row = sorted(range(nr), key=lambda j: right[j][1])
+    rows = [right[j][1] for j in by_row]
+    tol, lo, hi = params.row_tolerance_px, params.min_disparity_px, params.max_disparity_px
+    max_ratio = math.log(params.max_area_ratio)
+    candidates = []
+    for i, (xl, yl) in enumerate(left):
+        for k in range(bisect.bisect_left(rows, yl - tol), bisect.bisect_right(rows, yl + tol)):
+            j = by_row[k]
+            xr, yr = right[j]
+            dy, disp = abs(yl - yr), xl - xr
+            ratio = abs(math.log(l_area[i] / float(r_area[j])))
+            if dy > tol or ratio > max_ratio or not lo - slack_px <= disp <= hi + slack_px:
+                continue
+            cost = dy / tol + ratio
+            if slack_px > 0:
+                cost += (max(lo - disp, 0.0) + max(disp - hi, 0.0)) / slack_px
+            candidates.append((cost, i, j))
+    candidates.sort()
+    used_l, used_r = [False] * nl, [False] * nr
     out = []
-    for flat in order[: int(ok.sum())]:
-        i, j = divmod(int(flat), nr)
+    for _, i, j in candidates:
         if used_l[i] or used_r[j]:
             continue
         used_l[i] = used_r[j] = True

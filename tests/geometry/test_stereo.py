@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from stereod.geometry.stereo import (
     SILHOUETTE_Q_MAX,
@@ -242,3 +244,58 @@ def test_matching_rejects_very_different_sizes() -> None:
         MatchParams(max_area_ratio=2.0),
     )
     assert idx.shape == (0, 2)
+
+
+def _every_pair_matched(
+    left: np.ndarray,
+    la: np.ndarray,
+    right: np.ndarray,
+    ra: np.ndarray,
+    p: MatchParams,
+    slack: float,
+) -> list[tuple[int, int]]:
+    """The matching rule on every pair of blobs, without the bisection on rows: the
+    reference for :func:`match_blobs`."""
+    found = []
+    for i in range(len(left)):
+        for j in range(len(right)):
+            dy = abs(left[i, 1] - right[j, 1])
+            disp = left[i, 0] - right[j, 0]
+            ratio = abs(math.log(max(la[i], 1) / max(ra[j], 1)))
+            if (
+                dy <= p.row_tolerance_px
+                and p.min_disparity_px - slack <= disp <= p.max_disparity_px + slack
+                and ratio <= math.log(p.max_area_ratio)
+            ):
+                out = max(p.min_disparity_px - disp, 0.0) + max(disp - p.max_disparity_px, 0.0)
+                cost = dy / p.row_tolerance_px + ratio + (out / slack if slack > 0 else 0.0)
+                found.append((cost, i, j))
+    used_l, used_r, pairs = set(), set(), []
+    for _, i, j in sorted(found):
+        if i not in used_l and j not in used_r:
+            used_l.add(i)
+            used_r.add(j)
+            pairs.append((i, j))
+    return pairs
+
+
+@given(
+    st.integers(0, 40),
+    st.integers(0, 40),
+    st.integers(0, 2**32 - 1),
+    st.sampled_from([0.0, 3.0]),
+    st.sampled_from([2.0, 6.0, 400.0]),
+)
+def test_matching_looks_at_every_pair_that_can_match(
+    nl: int, nr: int, seed: int, slack: float, tolerance: float
+) -> None:
+    """Blobs on a few rows (many within one tolerance, some exactly on its edge): the pairs
+    found by bisection on the rows are those of the rule applied to every pair."""
+    rng = np.random.default_rng(seed)
+    rows = rng.choice([10.0, 12.0, 16.0, 100.0, 103.5, 240.0], size=nl + nr)
+    left = np.stack([rng.uniform(0, 640, nl), rows[:nl] + rng.choice([0.0, 0.5], nl)], 1)
+    right = np.stack([rng.uniform(0, 640, nr), rows[nl:]], 1)
+    la, ra = rng.integers(0, 400, nl), rng.integers(0, 400, nr)
+    p = MatchParams(row_tolerance_px=tolerance, max_disparity_px=150.0)
+    got = match_blobs(left.reshape(-1, 2), la, right.reshape(-1, 2), ra, p, slack)
+    assert [tuple(r) for r in got.tolist()] == _every_pair_matched(left, la, right, ra, p, slack)
