@@ -20,33 +20,25 @@ H = np.hstack([np.eye(3), np.zeros((3, 3))])
 
 
 _EYE6 = np.eye(6)
-_POS_VEL = (np.arange(3), np.arange(3, 6))
-"""Indices of F's position-from-velocity entries."""
+_ZERO6 = np.zeros((6, 6))
 
 
 def transition(dt_s: float) -> np.ndarray:
     """F (6, 6): p' = p + v dt, v' = v."""
     f = _EYE6.copy()
-    f[_POS_VEL] = dt_s
+    f[0, 3] = f[1, 4] = f[2, 5] = dt_s
     return f
-
-
-_NOISE_BASIS = np.stack(
-    [
-        np.kron(np.array([[1.0, 0.0], [0.0, 0.0]]), np.eye(3)),
-        np.kron(np.array([[0.0, 1.0], [1.0, 0.0]]), np.eye(3)),
-        np.kron(np.array([[0.0, 0.0], [0.0, 1.0]]), np.eye(3)),
-    ],
-    axis=-1,
-)
-"""(6, 6, 3): where Q's position, cross and velocity terms go."""
 
 
 def process_noise(dt_s: float, q: float) -> np.ndarray:
     """Q (6, 6) of a white-noise acceleration of spectral density ``q`` (m^2/s^3) over ``dt_s``:
     q dt^3 / 3 on positions, q dt^2 / 2 between position and velocity, q dt on velocities."""
     dt2 = dt_s * dt_s
-    return _NOISE_BASIS @ np.array([q * dt2 * dt_s / 3.0, q * dt2 / 2.0, q * dt_s])
+    pp, pv, vv = q * dt2 * dt_s / 3.0, q * dt2 / 2.0, q * dt_s
+    m = _ZERO6.copy()
+    for i in range(3):
+        m[i, i], m[i, i + 3], m[i + 3, i], m[i + 3, i + 3] = pp, pv, pv, vv
+    return m
 
 
 @dataclass
@@ -93,8 +85,9 @@ def predict(
     f = transition(dt)
     x = f @ s.x
     if accel_mps2 is not None:
-        x[:3] += 0.5 * dt * dt * accel_mps2
-        x[3:] += dt * accel_mps2
+        half = 0.5 * dt * dt
+        ax, ay, az = accel_mps2.tolist()
+        x += np.array([half * ax, half * ay, half * az, dt * ax, dt * ay, dt * az])
     return KalmanState(x, f @ s.P @ f.T + process_noise(abs(dt), q), t_ns)
 
 
@@ -164,9 +157,10 @@ def log_likelihood(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:
 
 
 def update(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> KalmanState:
-    """Fold in a position: K = P H' S^-1, x = x + K y, P = (I - K H) P (I - K H)' + K R K'."""
+    """Fold in a position: K = P H' S^-1, x = x + K y, P = P - K H P (K S K' for this, the
+    optimal gain), kept symmetric."""
     y, cov = innovation(s, z_m, r_m2)
-    return _update(s, y, cov, inverse3(cov), r_m2)
+    return _update(s, y, cov, inverse3(cov))
 
 
 def correct(
@@ -180,15 +174,17 @@ def correct(
     covariance."""
     y, cov = innovation(pred, z_m, r_m2)
     inv = inverse3(cov)
-    ll = _log_likelihood(y, cov, inv)
-    for _ in range(widen):
-        nis = _mahalanobis2(y, cov, inv)
+    nis = _mahalanobis2(y, cov, inv)
+    ll = _log_likelihood(y, cov, inv, nis)
+    for k in range(widen):
+        if k:
+            nis = _mahalanobis2(y, cov, inv)
         if nis <= chi2_max:
             break
         pred = KalmanState(pred.x, pred.P * (nis / chi2_max), pred.t_ns)
         cov = pred.P[:3, :3] + r_m2
         inv = inverse3(cov)
-    return _update(pred, y, cov, inv, r_m2), ll
+    return _update(pred, y, cov, inv), ll
 
 
 _LOG_2PI_3 = 3.0 * math.log(2.0 * math.pi)
@@ -197,16 +193,36 @@ _LOG_2PI_3 = 3.0 * math.log(2.0 * math.pi)
 def _mahalanobis2(y: np.ndarray, cov: np.ndarray, inv: tuple[np.ndarray, float] | None) -> float:
     if inv is None:
         return float(y @ np.linalg.solve(cov, y))
-    return float(y @ inv[0] @ y)
+    return quadratic3(y, inv[0])
 
 
-def _log_likelihood(y: np.ndarray, cov: np.ndarray, inv: tuple[np.ndarray, float] | None) -> float:
+def quadratic3(y: np.ndarray, m: np.ndarray) -> float:
+    """y' M y for a 3-vector and a 3 x 3 matrix, in Python floats (numpy's per-call cost is
+    most of the work at this size)."""
+    a, b, c = y.tolist()
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = m.tolist()
+    return (
+        a * (m00 * a + m01 * b + m02 * c)
+        + b * (m10 * a + m11 * b + m12 * c)
+        + c * (m20 * a + m21 * b + m22 * c)
+    )
+
+
+def _log_likelihood(
+    y: np.ndarray,
+    cov: np.ndarray,
+    inv: tuple[np.ndarray, float] | None,
+    nis: float | None = None,
+) -> float:
+    """Gaussian log-density of the innovation ``y`` (``nis``: y' S^-1 y when known)."""
     if inv is None:
         sign, logdet = np.linalg.slogdet(cov)
         if sign <= 0:
             return -math.inf
         return -0.5 * (float(y @ np.linalg.solve(cov, y)) + logdet + _LOG_2PI_3)
-    return -0.5 * (float(y @ inv[0] @ y) + math.log(inv[1]) + _LOG_2PI_3)
+    if nis is None:
+        nis = quadratic3(y, inv[0])
+    return -0.5 * (nis + math.log(inv[1]) + _LOG_2PI_3)
 
 
 def _update(
@@ -214,14 +230,11 @@ def _update(
     y: np.ndarray,
     cov: np.ndarray,
     inv: tuple[np.ndarray, float] | None,
-    r_m2: np.ndarray,
 ) -> KalmanState:
-    # K = P H' S^-1 = (S^-1 H P)', P and S being symmetric
+    # K = P H' S^-1 = (S^-1 H P)', P and S being symmetric; K S K' = K H P = K P[:3]
     k = s.P[:, :3] @ inv[0] if inv is not None else np.linalg.solve(cov, s.P[:3, :]).T
     x = s.x + k @ y
-    ikh = _EYE6.copy()
-    ikh[:, :3] -= k
-    p = ikh @ s.P @ ikh.T + k @ r_m2 @ k.T
+    p = s.P - k @ s.P[:3, :]
     return KalmanState(x, 0.5 * (p + p.T), s.t_ns)
 
 

@@ -628,7 +628,7 @@ class Tracker:
             residual = residual + 0.5 * (t1 - t0) * (t2 - t1) * 1e-18 * self._gravity
         cov = (r1 + a * a * r0 + b * b * r2) * tr.noise_scale
         inv = kalman.inverse3(cov)
-        d2 = float(residual @ (inv[0] if inv else np.linalg.inv(cov)) @ residual)
+        d2 = kalman.quadratic3(residual, inv[0] if inv else np.linalg.inv(cov))
         lo, hi = self.NOISE_BOUNDS
         rate = max(self.NOISE_RATE, 1.0 / (tr.updates + 2))
         scale = tr.noise_scale * (1.0 + rate * (min(d2, 30.0) / 3.0 - 1.0))
@@ -709,11 +709,11 @@ class Tracker:
         started = tr.started
         vel = tr.kf.velocity_mps.copy() if started else np.zeros(3)
         vcov = tr.kf.velocity_cov.copy()
-        spd = motion.speed(vel)
+        vx, vy, vz = vel.tolist()
+        spd = math.sqrt(vx * vx + vy * vy + vz * vz)
+        (sxx, _, _), (_, syy, _), (_, _, szz) = vcov.tolist()
         spd_sigma = (
-            math.sqrt(float(vel @ vcov @ vel)) / spd
-            if spd > 0
-            else math.sqrt(float(np.trace(vcov)))
+            math.sqrt(kalman.quadratic3(vel, vcov)) / spd if spd > 0 else math.sqrt(sxx + syy + szz)
         )
         confirmed = self._confirmed(tr)
         precise = spd_sigma <= max(p.valid_speed_sigma_mps, p.valid_speed_sigma_rel * spd)
@@ -741,10 +741,8 @@ class Tracker:
             velocity_valid=valid,
             speed_mps=spd,
             speed_sigma_mps=spd_sigma,
-            heading_deg=motion.heading_deg(float(vel[0]), float(vel[2])),
-            heading_sigma_deg=motion.heading_sigma_deg(
-                float(vel[0]), float(vel[2]), math.sqrt(vcov[0, 0]), math.sqrt(vcov[2, 2])
-            ),
+            heading_deg=motion.heading_deg(vx, vz),
+            heading_sigma_deg=motion.heading_sigma_deg(vx, vz, math.sqrt(sxx), math.sqrt(szz)),
             raw_velocity_mps=self._raw_velocity(tr),
             age_s=(t_ns - tr.first_t_ns) * 1e-9,
             freeze_background=still_for is not None and not tr.freeze_spent,
