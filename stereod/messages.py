@@ -260,8 +260,25 @@ def dump(msg: BaseModel) -> bytes:
     return msg.model_dump_json(by_alias=True).encode()
 
 
+def dump_objects(msg: ObjectsMessage) -> tuple[bytes, list[tuple[int, bytes]]]:
+    """The ``objects`` payload and each object's own (track id, payload), :func:`dump`'s to
+    the byte, with each object serialised once: the message's JSON is its other fields' and
+    then, last, its objects'."""
+    states = [dump(o) for o in msg.objects]
+    head = msg.model_dump_json(by_alias=True, exclude={"objects"}).encode()
+    payload = head[:-1] + b',"objects":[' + b",".join(states) + b"]}"
+    return payload, [(o.track_id, state) for o, state in zip(msg.objects, states, strict=True)]
+
+
 def _vec(a: np.ndarray) -> tuple[float, float, float]:
-    return (float(a[0]), float(a[1]), float(a[2]))
+    x, y, z = a.tolist()
+    return (x, y, z)
+
+
+def _sigmas(cov: np.ndarray) -> tuple[float, float, float]:
+    """The square roots of a (3, 3) covariance's diagonal (NaN where it is negative)."""
+    x, y, z = (math.sqrt(v) if v >= 0 else math.nan for v in cov.diagonal().tolist())
+    return (x, y, z)
 
 
 def _finite(x: float) -> float | None:
@@ -279,7 +296,7 @@ def _blob(centroid: np.ndarray, bbox: np.ndarray, area: int) -> EyeBlob:
 def object_state(s: TrackState, stamp_utc_ns: int, skew_ns: int) -> ObjectState:
     """The wire form of one track's state at ``stamp_utc_ns`` (UTC, ns)."""
     ob = s.observation
-    vsig = np.sqrt(np.diag(s.velocity_cov))
+    vsig = _sigmas(s.velocity_cov)
     return ObjectState(
         track_id=s.track_id,
         state=s.lifecycle,
@@ -287,9 +304,9 @@ def object_state(s: TrackState, stamp_utc_ns: int, skew_ns: int) -> ObjectState:
         stamp_utc_ns=stamp_utc_ns,
         skew_ns=skew_ns,
         position_m=_vec(s.position_m),
-        position_sigma_m=_vec(np.sqrt(np.diag(s.position_cov_m2))),
+        position_sigma_m=_sigmas(s.position_cov_m2),
         velocity_mps=_vec(s.velocity_mps),
-        velocity_sigma_mps=_vec(vsig) if np.all(np.isfinite(vsig)) else None,
+        velocity_sigma_mps=vsig if all(map(math.isfinite, vsig)) else None,
         velocity_valid=s.velocity_valid,
         speed_mps=s.speed_mps,
         speed_sigma_mps=_finite(s.speed_sigma_mps),

@@ -21,7 +21,7 @@ from .capture import Queued
 from .frames import Frame, StereoPair
 from .geometry.rectified import CalibratedRig
 from .geometry.stereo import CanonicalRig
-from .messages import ObjectsMessage, dump, objects_message
+from .messages import ObjectsMessage, dump_objects, objects_message
 from .overlay import PairImages
 from .pipeline import PairResult, Pipeline, PipelineParams
 from .queues import BoundedQueue, Closed
@@ -197,5 +197,5 @@ class PipelineWorker:
             utc_offset_ns=self._utc_offset_ns() or 0,
             queue_ms=queued_ms,
         )
-        tracks = [(o.track_id, dump(o)) for o in msg.objects]
-        return Outgoing(msg, dump(msg), tracks, result.ended, result)
+        payload, tracks = dump_objects(msg)
+        return Outgoing(msg, payload, tracks, result.ended, result)

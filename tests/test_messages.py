@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from stereod.messages import ALL_MESSAGES, ObjectsMessage, ObjectState
+from stereod.messages import ALL_MESSAGES, ObjectsMessage, ObjectState, dump, dump_objects
 
 GOLDEN = Path(__file__).parent / "golden" / "schemas.json"
 
@@ -71,3 +71,22 @@ def test_writers_stay_strict() -> None:
     del sample["objects"][0]["track_id"]
     with pytest.raises(ValidationError):
         ObjectsMessage.model_validate(sample)
+
+
+@pytest.mark.parametrize("count", [0, 1, 3])
+def test_the_objects_payload_is_dumps_to_the_byte_with_each_object_serialised_once(
+    count: int,
+) -> None:
+    """``dump_objects`` splices each object's JSON into the message's: the payload must be
+    what serialising the whole message gives, and each object's that of the object alone,
+    with fields left out (None) and numbers of every kind."""
+    sample = json.loads((Path(__file__).parent / "golden" / "objects_example.json").read_text())
+    one = sample["objects"][0]
+    objects = [
+        {**one, "track_id": k + 1, "velocity_sigma_mps": None if k == 1 else [0.1, 1e-9, 3.0]}
+        for k in range(count)
+    ]
+    msg = ObjectsMessage.model_validate({**sample, "objects": objects, "calibration_id": None})
+    payload, states = dump_objects(msg)
+    assert payload == dump(msg)
+    assert states == [(o.track_id, dump(o)) for o in msg.objects]
