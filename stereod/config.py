@@ -31,15 +31,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import (
-    AfterValidator,
-    BaseModel,
-    ConfigDict,
-    Field,
-    ValidationError,
-    ValidationInfo,
-    field_validator,
-)
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from . import keys
 from .detect import Centroid, DetectorParams, Luminance, Warmup
@@ -154,23 +146,8 @@ class DetectorConfig(_Section):
         _DETECT.learn_stride,
         ge=1,
         le=16,
-        description="Eq. 3 updates each row every n-th frame, in turn, at the same time constant",
+        description="Eq. 3 updates every n-th row each frame, in turn, at the same time constant",
     )
-    learn_every: int | None = Field(
-        _DETECT.learn_every,
-        ge=1,
-        le=16,
-        description="Eq. 3 runs on every n-th frame, on every (learn_stride / n)-th row; it must "
-        "divide learn_stride (unset: 2 if learn_stride is even, else 1)",
-    )
-
-    @field_validator("learn_every")
-    @classmethod
-    def _divides_stride(cls, v: int | None, info: ValidationInfo) -> int | None:
-        stride = info.data.get("learn_stride")
-        if v is not None and stride is not None and stride % v:
-            raise ValueError(f"must divide learn_stride ({stride})")
-        return v
 
     def params(self) -> DetectorParams:
         return DetectorParams(**self.model_dump())

@@ -38,17 +38,14 @@ Beyond the paper, each one chosen by measurement on two renderers (README, Accur
   the object's colour just inside (``centroid = "matte"``, :func:`matte_centroid`); or by a
   ramp of eq. 4's difference (``"coverage"``); or eq. 5 exactly (``"binary"``).
 
-- **Eq. 3 on each row every ``learn_stride``-th frame, in turn.** A row is updated once in
-  ``learn_stride`` frames with ``1 - (1 - beta) ** learn_stride``, so every row follows the same
-  time constant as eq. 3 at ``beta`` (on a steady scene it holds what eq. 3 gives after each of
-  its updates), for a ``learn_stride``-th of the memory traffic (eq. 3 on a colour frame is the
+- **Eq. 3 on every ``learn_stride``-th row, in turn.** Each frame updates one row in
+  ``learn_stride`` with ``1 - (1 - beta) ** learn_stride``, so every row follows the same time
+  constant as eq. 3 at ``beta`` (on a steady scene it holds what eq. 3 gives after each of its
+  updates), for a ``learn_stride``-th of the memory traffic (eq. 3 on a colour frame is the
   detector's largest cost). A row lags by at most ``learn_stride - 1`` frames (a sixth of a
   second at 30 Hz and the default 6), and averages fewer frames: its noise is about 2.5
   times eq. 3's at ``beta`` 0.02 and stride 6 (0.25 of one frame's noise instead of 0.10),
-  far under the threshold. The rows are learned together on every ``learn_every``-th frame
-  (every third row every second frame by default): the same work, in half the calls, each of
-  which costs most of its time where frames come at a camera's pace, not back to back.
-  ``learn_stride = 1`` is eq. 3 on every frame.
+  far under the threshold. ``learn_stride = 1`` is eq. 3 on every frame.
 
 A frame whose foreground covers more than ``max_foreground`` of the image, or holds more than
 ``max_blobs`` objects, is saturated (the lights changed, the camera moved): it reports nothing,
@@ -141,10 +138,7 @@ class DetectorParams:
     ``hysteresis``, ``grow_px``: pixels whose difference reaches ``hysteresis`` times ``t``
     join the foreground within ``grow_px`` of it (three steps), so the part of an object
     nearly the colour of the wall behind it is kept; 0 turns this off.
-    ``learn_stride``: eq. 3 updates each row every ``learn_stride``-th frame, in turn (1: all
-    rows every frame); ``learn_every``: it runs on every ``learn_every``-th frame (which must
-    divide ``learn_stride``; ``None``: 2 when ``learn_stride`` is even, else 1), on every
-    ``learn_stride / learn_every``-th row.
+    ``learn_stride``: eq. 3 updates every ``learn_stride``-th row each frame, in turn (1: all).
     """
 
     beta: float = 0.02
@@ -169,7 +163,6 @@ class DetectorParams:
     hysteresis: float = 0.65
     grow_px: int = 4
     learn_stride: int = 6
-    learn_every: int | None = None
 
 
 PAPER = DetectorParams(
@@ -184,7 +177,6 @@ PAPER = DetectorParams(
     gain=False,
     hysteresis=0.0,
     learn_stride=1,
-    learn_every=1,
 )
 """The paper's sec. II as written (eq. 2-5 with eq. 3 everywhere), plus only the opening."""
 
@@ -236,13 +228,6 @@ class Detector:
             raise ValueError(f"beta must be in [0, 1), got {params.beta}")
         if params.learn_stride < 1:
             raise ValueError(f"learn_stride must be at least 1, got {params.learn_stride}")
-        every = params.learn_every or (2 if params.learn_stride % 2 == 0 else 1)
-        if every < 1 or params.learn_stride % every:
-            raise ValueError(
-                f"learn_every must divide learn_stride ({params.learn_stride}), got {every}"
-            )
-        self._learn_every = every
-        """Frames apart that eq. 3 runs on (``learn_every``, resolved)."""
         self.params = params
         self._background: np.ndarray | None = None
         self._coarse: np.ndarray | None = None
@@ -257,10 +242,7 @@ class Detector:
         (float32, 1 where it is too dark to count), where it is bright enough to count (bool),
         and its values there."""
         self._learned = 0
-        """Frames given to eq. 3 (after the warm-up): whether it runs on the next, and on which
-        rows."""
-        self._row_stride = params.learn_stride // every
-        """Rows apart that one run of eq. 3 updates."""
+        """Frames eq. 3 has learned (after the warm-up): which rows the next one updates."""
         self._beta = 1.0 - (1.0 - params.beta) ** params.learn_stride
         self._frame: np.ndarray | None = None
         self._warm: list[np.ndarray] = []
@@ -311,9 +293,9 @@ class Detector:
         """The image size (h, w px) ``_gain_step`` was found for."""
         self._gain_step = _GAIN_STEP
         """Pixel step of the gain's grid in this image (``_GAIN_POINTS``)."""
-        self._touches_coarse = math.gcd(self._row_stride, self._row_step)
-        """Eq. 3 changes the first pass's rows on the runs whose phase (rows from the first) is a
-        multiple of this."""
+        self._touches_coarse = math.gcd(params.learn_stride, self._row_step)
+        """Eq. 3 changes the first pass's rows on the frames whose phase (``_learned`` modulo
+        ``learn_stride``) is a multiple of this."""
         self.saturated = 0
         """Frames that were saturated (see the module docstring) and reported empty."""
         self._saturated_run = 0
@@ -553,11 +535,9 @@ class Detector:
         for the initial background, then T = T (1 - beta) + L beta where allowed: not in the
         ``frozen`` rectangles (objects the tracker freezes), and not on held foreground unless
         in a ``released`` one (an object the tracker knows has stopped for good). Rectangles
-        are (x0, y0, x1, y1) px, end exclusive. Eq. 3 runs on every ``learn_every``-th frame,
-        on every ``learn_stride / learn_every``-th row, in turn, in one call (on the frames
-        between, nothing is done: a still pixel is taken in ``absorb_s`` give or take those
-        frames); what it must not have changed there (:meth:`_kept`: the learned rows under the
-        frozen and held rectangles' union) is copied before and put back after."""
+        are (x0, y0, x1, y1) px, end exclusive. Eq. 3 runs on every ``learn_stride``-th row, in
+        turn, in one call; what it must not have changed there (:meth:`_kept`: the learned rows
+        under the frozen and held rectangles' union) is copied before and put back after."""
         frame = self._frame
         if frame is None:
             return
@@ -568,15 +548,12 @@ class Detector:
             return
         bg = self._background
         assert bg is not None
-        run, skip = divmod(self._learned, self._learn_every)
-        self._learned += 1
-        if skip:
-            return
         h, w = bg.shape[:2]
         held = self._held() if p.hold_foreground else None
         boxes = [r for r in (_clipped(b, w, h) for b in frozen) if r is not None]
-        phase = run % self._row_stride
-        rows = slice(phase, None, self._row_stride)
+        phase = self._learned % p.learn_stride
+        self._learned += 1
+        rows = slice(phase, None, p.learn_stride)
         kept = self._kept(bg, phase, held, boxes, released)
         cv2.accumulateWeighted(frame[rows], bg[rows], self._beta)
         if kept is not None:
@@ -596,7 +573,7 @@ class Detector:
         around the rectangles, a copy of it, and where to put the copy back (uint8 255: in
         the ``boxes`` and on held foreground outside the ``released`` rectangles); ``None``
         when nothing there is to be kept."""
-        stride = self._row_stride
+        stride = self.params.learn_stride
         rects = [*boxes, held[0]] if held is not None else boxes
         if not rects:
             return None
@@ -627,7 +604,7 @@ class Detector:
         they were among them (only those, when every row learned is one of them)."""
         if phase % self._touches_coarse != 0 or phase >= bg.shape[0]:
             return  # none of its rows are the first pass's (or there are none)
-        stride, step = self._row_stride, self._row_step
+        stride, step = self.params.learn_stride, self._row_step
         if self._coarse is None or stride % step != 0:
             self._coarse = None
             self._coarse_background(bg)
