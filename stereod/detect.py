@@ -112,7 +112,8 @@ share of the threshold (sensor noise of a few grey levels passes; an offset of 4
 _GAIN_RESCALE = 0.01
 """A gain further than this from 1 scales the stored background itself."""
 _ROW_STEPS = (1, 2, 3, 4, 6)
-"""Row steps of eq. 4's first pass: divisors of ``_GAIN_STEP``, whose grid it serves too."""
+"""Row steps of eq. 4's first pass: divisors of ``_GAIN_STEP``, so the gain's points lie on
+its rows."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -381,9 +382,9 @@ class Detector:
         """Eq. 2, 4 and 5 against the current background at capture instant ``t_ns`` (ns);
         call :meth:`learn` afterwards.
 
-        Eq. 4 is first taken on a grid of every ``_row_step``-th row and column only, which is
-        enough to find the rectangle around the foreground (see ``_row_step``), then on every
-        pixel inside it."""
+        Eq. 4 is first taken on every ``_row_step``-th row only, channel by channel, which is
+        enough to find the rectangle around the foreground (see ``_row_step`` and
+        :func:`_above_any`), then on every pixel inside it."""
         frame = self._prepare(image)
         self._frame = frame
         if self._t0_ns is None:
