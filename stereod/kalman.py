@@ -157,10 +157,11 @@ def log_likelihood(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:
 
 
 def update(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> KalmanState:
-    """Fold in a position: K = P H' S^-1, x = x + K y, P = P - K H P (K S K' for this, the
-    optimal gain), kept symmetric."""
+    """Fold in a position: K = P H' S^-1, x = x + K y, P = (I - K H) P (I - K H)' + K R K'
+    (Joseph's form: it stays a covariance through rounding, where P - K H P, equal in exact
+    arithmetic, can lose a variance's sign on a precise measurement after a long coast)."""
     y, cov = innovation(s, z_m, r_m2)
-    return _update(s, y, cov, inverse3(cov))
+    return _update(s, y, cov, inverse3(cov), r_m2)
 
 
 def correct(
@@ -184,7 +185,7 @@ def correct(
         pred = KalmanState(pred.x, pred.P * (nis / chi2_max), pred.t_ns)
         cov = pred.P[:3, :3] + r_m2
         inv = inverse3(cov)
-    return _update(pred, y, cov, inv), ll
+    return _update(pred, y, cov, inv, r_m2), ll
 
 
 _LOG_2PI_3 = 3.0 * math.log(2.0 * math.pi)
@@ -230,11 +231,14 @@ def _update(
     y: np.ndarray,
     cov: np.ndarray,
     inv: tuple[np.ndarray, float] | None,
+    r_m2: np.ndarray,
 ) -> KalmanState:
-    # K = P H' S^-1 = (S^-1 H P)', P and S being symmetric; K S K' = K H P = K P[:3]
+    # K = P H' S^-1 = (S^-1 H P)', P and S being symmetric
     k = s.P[:, :3] @ inv[0] if inv is not None else np.linalg.solve(cov, s.P[:3, :]).T
     x = s.x + k @ y
-    p = s.P - k @ s.P[:3, :]
+    ikh = _EYE6.copy()
+    ikh[:, :3] -= k
+    p = ikh @ s.P @ ikh.T + k @ r_m2 @ k.T
     return KalmanState(x, 0.5 * (p + p.T), s.t_ns)
 
 
