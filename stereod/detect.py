@@ -948,7 +948,7 @@ def matte_centroid(
     count *= np.float32(1.0 / 255.0)  # interior pixels are 255
     found = count > 0.5
     np.maximum(count, 1.0, out=count)
-    o = total / (count[..., None] if f.ndim == 3 else count)
+    o: np.ndarray = total / (count[..., None] if f.ndim == 3 else count)
     ob, fb = cv2.subtract(o, b, dtype=cv2.CV_32F), cv2.subtract(f, b, dtype=cv2.CV_32F)
     if f.ndim == 3:
         num, den = cv2.transform(fb * ob, _ONES3), cv2.transform(ob * ob, _ONES3)

@@ -384,6 +384,10 @@ class MatchParams:
     max_disparity_px: float = 200.0
     max_area_ratio: float = 2.5
 
+    def __post_init__(self) -> None:
+        if not self.row_tolerance_px > 0:
+            raise ValueError(f"row tolerance must be > 0 px, got {self.row_tolerance_px}")
+
 
 def match_blobs(
     left_px: np.ndarray,
@@ -412,12 +416,15 @@ def match_blobs(
     left, right = np.asarray(left_px).tolist(), np.asarray(right_px).tolist()
     l_area = np.maximum(np.asarray(left_area), 1).tolist()
     r_area = np.maximum(np.asarray(right_area), 1).tolist()
-    by_row = sorted(range(nr), key=lambda j: right[j][1])
+    # a row that is not a number matches nothing (and would break the rows' order)
+    by_row = sorted((j for j in range(nr) if math.isfinite(right[j][1])), key=lambda j: right[j][1])
     rows = [right[j][1] for j in by_row]
     tol, lo, hi = params.row_tolerance_px, params.min_disparity_px, params.max_disparity_px
     max_ratio = math.log(params.max_area_ratio)
     candidates = []
     for i, (xl, yl) in enumerate(left):
+        if not math.isfinite(yl):
+            continue
         for k in range(bisect.bisect_left(rows, yl - tol), bisect.bisect_right(rows, yl + tol)):
             j = by_row[k]
             xr, yr = right[j]

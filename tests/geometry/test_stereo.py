@@ -235,6 +235,11 @@ def test_matching_uses_each_blob_once_and_prefers_the_closer_row() -> None:
     assert idx.tolist() == [[1, 0]]
 
 
+def test_a_row_tolerance_of_zero_is_refused() -> None:
+    with pytest.raises(ValueError, match="row tolerance must be > 0 px"):
+        MatchParams(row_tolerance_px=0.0)
+
+
 def test_matching_rejects_very_different_sizes() -> None:
     idx = match_blobs(
         np.array([[300.0, 100.0]]),
@@ -289,10 +294,11 @@ def _every_pair_matched(
 def test_matching_looks_at_every_pair_that_can_match(
     nl: int, nr: int, seed: int, slack: float, tolerance: float
 ) -> None:
-    """Blobs on a few rows (many within one tolerance, some exactly on its edge): the pairs
-    found by bisection on the rows are those of the rule applied to every pair."""
+    """Blobs on a few rows (many within one tolerance, some exactly on its edge, some not a
+    number): the pairs found by bisection on the rows are those of the rule applied to every
+    pair."""
     rng = np.random.default_rng(seed)
-    rows = rng.choice([10.0, 12.0, 16.0, 100.0, 103.5, 240.0], size=nl + nr)
+    rows = rng.choice([10.0, 12.0, 16.0, 100.0, 103.5, 240.0, np.nan], size=nl + nr)
     left = np.stack([rng.uniform(0, 640, nl), rows[:nl] + rng.choice([0.0, 0.5], nl)], 1)
     right = np.stack([rng.uniform(0, 640, nr), rows[nl:]], 1)
     la, ra = rng.integers(0, 400, nl), rng.integers(0, 400, nr)
