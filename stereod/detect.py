@@ -238,6 +238,10 @@ class Detector:
         pass's) until taken again."""
         self._coarse_version = 0
         """Counts the changes to ``_coarse``: what the gain keeps of it is of this version."""
+        self._over_range = False
+        """Whether T may exceed 255.5 somewhere (a rescale brightened it past what a frame can
+        hold), so that rounded and clipped to grey levels it may be more than half a level
+        off: set at each rescale, and only a rescale can raise T past the frames' range."""
         self._gain_base: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
         """The version of ``_coarse`` and, on the gain's grid, T's mean over the channels there
         (float32, 1 where it is too dark to count), where it is bright enough to count (bool),
@@ -253,6 +257,8 @@ class Detector:
         self._since: np.ndarray | None = None
         """When each pixel was last background (s), kept up to date inside ``_held_roi``."""
         self._held_roi: Rect | None = None
+        self._held_t: float | None = None
+        """The instant (s) of the last frame :meth:`_held` saw."""
         self._roi: Rect | None = None
         """The rectangle around this frame's foreground, grown by what the morphology and the
         hold can reach; ``None`` when nothing is foreground."""
@@ -333,23 +339,27 @@ class Detector:
             else:  # a grey background of grey frames serves a colour detector too
                 self._background = other._background.copy()
             self._coarse = None
+            self._over_range = other._over_range
             self._learned = other._learned  # the rows' turn goes on where it was
             self._seen = self.params.warmup_frames
             self._t0_ns = other._t0_ns
             if other._since is not None:
                 self._since = other._since.copy()
                 self._held_roi = other._held_roi
+                self._held_t = other._held_t
 
     def reset(self) -> None:
         """Forget the background (after a lighting jump or a camera re-plug); the next frames
         are its warm-up again."""
         self._background = None
         self._coarse = None
+        self._over_range = False
         self._learned = 0
         self._warm = []
         self._seen = 0
         self._since = None
         self._held_roi = None
+        self._held_t = None
         self._set_foreground(None, None, None)
         self._saturated_run = 0
 
@@ -410,9 +420,12 @@ class Detector:
         else:  # against g T
             if abs(g - 1.0) > _GAIN_RESCALE:  # the light changed: learn at the new gain
                 np.multiply(bg, np.float32(g), out=bg)
+                self._over_range = float(bg.max()) >= 255.5
                 g = 1.0
                 self._coarse = None  # T changed: round it again
                 scaled = self._coarse_background(bg)
+            elif self._over_range:  # T clipped at 255 on its rows: scale T itself
+                scaled = cv2.convertScaleAbs(bg[::step], alpha=g)
             else:  # g times T rounded is g T rounded within one level: look one level lower
                 scaled = cv2.convertScaleAbs(bg8, alpha=g)
                 level -= 1.0
@@ -640,13 +653,18 @@ class Detector:
         """Inside the rectangle around this frame's foreground, where eq. 3 must not learn
         (uint8 255): the foreground grown by ``hold_margin_px``, less what has stayed
         foreground ``absorb_s`` seconds (it is still: make it background). Outside it
-        everything may be learned; ``None`` when nothing is foreground. Keeps ``_since``, the
-        time each pixel was last background, up to date inside the rectangle."""
+        everything may be learned; ``None`` when nothing is foreground. Keeps ``_since`` up to
+        date inside the rectangle: for each pixel held now, the last frame it was not (for a
+        pixel outside the last frame's rectangle, that frame, whatever the rectangle's
+        reach), and for every other pixel, now."""
         shape = self._shape
         assert shape is not None
+        now, before = self._t_s, self._held_t
+        self._held_t = now
         if self._since is None or self._since.shape != shape:
-            self._since = np.full(shape, self._t_s, np.float32)
+            self._since = np.full(shape, now, np.float32)
             self._held_roi = None
+            before = None
         prev, roi = self._held_roi, self._roi
         self._held_roi = roi
         if roi is None or self._part is None:
@@ -656,22 +674,21 @@ class Detector:
         if grown is None:
             grown = cv2.dilate(self._part, self._hold) if self._hold is not None else self._part
         since = self._since[y0:y1, x0:x1]
-        # Background since now: all of the rectangle but the grown foreground that lay inside
-        # the last rectangle (outside it everything was background in the last frame), which
-        # keeps its time.
         old = None
         if prev is not None:
             kx0, ky0 = max(prev[0] - x0, 0), max(prev[1] - y0, 0)
             kx1, ky1 = min(prev[2] - x0, x1 - x0), min(prev[3] - y0, y1 - y0)
             if kx1 > kx0 and ky1 > ky0:
                 old = since[ky0:ky1, kx0:kx1].copy()
-        since.fill(self._t_s)
-        if old is None:
-            return roi, grown
-        cv2.copyTo(old, grown[ky0:ky1, kx0:kx1], since[ky0:ky1, kx0:kx1])  # in place (a view)
-        limit = self._t_s - self.params.absorb_s
-        if float(old.min()) >= limit:  # no time kept is that old: nothing is still
-            return roi, grown
+        since.fill(now)
+        held_since = now if before is None else before
+        if held_since != now:
+            np.putmask(since, grown != 0, held_since)  # held, not in the last rectangle: then
+        if old is not None:  # held, and in the last rectangle: its time as it was kept
+            cv2.copyTo(old, grown[ky0:ky1, kx0:kx1], since[ky0:ky1, kx0:kx1])  # in place
+        limit = now - self.params.absorb_s
+        if min(held_since, float(old.min()) if old is not None else held_since) >= limit:
+            return roi, grown  # no time kept is that old: nothing is still
         if since.size == 1:  # OpenCV takes a one-element array for a scalar: give it two arrays
             stale = cv2.compare(since, np.full(since.shape, limit, np.float32), cv2.CMP_LT)
         else:

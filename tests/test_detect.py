@@ -381,6 +381,15 @@ class _EveryPixel(Detector):
         self._touches_coarse = 1  # every row is a first-pass row
 
 
+class _WholeFrame(_EveryPixel):
+    """The every-pixel detector whose rectangle around the foreground is the whole frame:
+    what is held, and for how long, must not depend on how far that rectangle reaches."""
+
+    def __init__(self, params: DetectorParams) -> None:
+        super().__init__(params)
+        self._margin = 1_000_000
+
+
 @pytest.mark.parametrize(
     ("color", "width", "stride"), [(True, 160, 3), (False, 160, 3), (True, 161, 6), (False, 161, 4)]
 )
@@ -400,9 +409,9 @@ def test_the_first_pass_on_a_grid_finds_what_every_pixel_finds(
     h, w = 120, width
     base = cv2.merge([textured(h, w, s) for s in (4, 5, 6)]) if color else textured(h, w, 4)
     params = dataclasses.replace(
-        DetectorParams(), warmup_frames=3, color=color, learn_stride=stride
+        DetectorParams(), warmup_frames=3, color=color, learn_stride=stride, absorb_s=0.2
     )
-    sparse, dense = Detector(params), _EveryPixel(params)
+    sparse, dense, whole = Detector(params), _EveryPixel(params), _WholeFrame(params)
     assert sparse._row_step == 3
     light = 1.0
     for k in range(60):
@@ -436,13 +445,20 @@ def test_the_first_pass_on_a_grid_finds_what_every_pixel_finds(
                 img[y : y + 8, x : x + 8, 1] = np.clip(patch + 30, 0, 255)
             fx, fy = int(rng.integers(0, w - 10)), int(rng.integers(0, h - 10))
             frozen = [(fx, fy, fx + 10, fy + 10)]
-        a, b = sparse.detect(img, frozen), dense.detect(img, frozen)
+        if k >= 20:  # parked: held, then taken into the background after absorb_s
+            img[60:68, 20:28] = np.clip(img[60:68, 20:28].astype(int) + 50, 0, 255)
+        t_ns = k * 33_333_333
+        a, b = sparse.detect(img, frozen, t_ns), dense.detect(img, frozen, t_ns)
+        c = whole.detect(img, frozen, t_ns)
+        np.testing.assert_array_equal(a.bbox_px, c.bbox_px, err_msg=f"frame {k}")
+        np.testing.assert_allclose(a.centroid_px, c.centroid_px, atol=1e-9, err_msg=f"frame {k}")
         np.testing.assert_array_equal(a.bbox_px, b.bbox_px, err_msg=f"frame {k}")
         np.testing.assert_allclose(a.centroid_px, b.centroid_px, atol=1e-9, err_msg=f"frame {k}")
         np.testing.assert_array_equal(sparse.mask, dense.mask, err_msg=f"frame {k}")
         assert sparse.background is not None or k < 3
         if sparse.background is not None:
             np.testing.assert_array_equal(sparse.background, dense.background)
+            np.testing.assert_array_equal(sparse.background, whole.background)
             bg8 = sparse._coarse_background(sparse.background)
             np.testing.assert_array_equal(bg8, cv2.convertScaleAbs(sparse.background[::3]))
     assert sparse.saturated == 0
@@ -467,6 +483,66 @@ def test_the_first_pass_at_a_small_gain_misses_no_object_that_rounding_hides() -
     assert len(found[1]) == 1, "the reference must find the object"
     assert len(found[0]) == 1
     np.testing.assert_array_equal(found[0].bbox_px, found[1].bbox_px)
+
+
+def test_the_first_pass_at_a_small_gain_below_a_background_brighter_than_a_frame() -> None:
+    """A light up by 5 % rescales T past 255 where the frame saturates (262.5 against 255);
+    dimmed again by 1 %, g T is 259 there, clipped to 255, where T rounded and clipped to
+    255, then scaled, is 252: three levels off, more than the first pass's one level of
+    slack. An object whose only first-pass row differs from the clipped g T by just over
+    the weak level must still be found, as the every-pixel pass finds it."""
+    params = dataclasses.replace(DetectorParams(), warmup_frames=1, color=False)
+    found = []
+    for det in (Detector(params), _EveryPixel(params)):
+        base = np.full((120, 160), 100, np.uint8)
+        base[:, 100:] = 250
+        det.detect(base, t_ns=0)
+        up = np.full((120, 160), 105, np.uint8)
+        up[:, 100:] = 255
+        det.detect(up, t_ns=33_000_000)
+        assert det.background is not None and float(det.background.max()) > 255.5
+        down = np.full((120, 160), 104, np.uint8)
+        down[:, 100:] = 255
+        down[31:33, 120:125] = 200  # strong, on rows the first pass skips
+        down[33, 120:125] = 238  # weak, on a first-pass row
+        found.append(det.detect(down, t_ns=66_000_000))
+    assert found[1].bbox_px.tolist() == [[120, 31, 5, 3]], "the reference must find it"
+    np.testing.assert_array_equal(found[0].bbox_px, found[1].bbox_px)
+
+
+@pytest.mark.parametrize("stride", [1, 3, 6])
+def test_how_long_an_object_is_held_does_not_depend_on_the_rectangle_searched(stride: int) -> None:
+    """A pixel is held from the last frame it was seen as background: an object that parks
+    where the last frame's rectangle around the foreground did not reach (it was all
+    background there) is held from that frame, as it is where a rectangle the whole frame
+    wide reached, and is taken into the background after ``absorb_s`` in both, on the same
+    frame."""
+    h, w = 120, 160
+    base = textured(h, w, 4)
+    params = dataclasses.replace(
+        DetectorParams(), warmup_frames=3, color=False, learn_stride=stride, absorb_s=0.2
+    )
+    small, whole = Detector(params), _WholeFrame(params)
+    absorbed = []
+    for k in range(40):
+        img = base.copy()
+        if k >= 5:  # one object moving in a corner: a small rectangle around the foreground
+            x = w - 12 - (k % 4)
+            img[h - 10 : h - 4, x : x + 6] = np.clip(img[h - 10 : h - 4, x : x + 6] + 60.0, 0, 255)
+        if k >= 15:  # parks far from it
+            img[20:28, 30:38] = np.clip(img[20:28, 30:38] + 50.0, 0, 255)
+        t_ns = k * 33_333_333
+        a, b = small.detect(img, (), t_ns), whole.detect(img, (), t_ns)
+        np.testing.assert_array_equal(a.bbox_px, b.bbox_px, err_msg=f"frame {k}")
+        if small.background is not None:
+            if k == 14:  # the last frame before it parks: the rectangle is far from there
+                assert small._roi is not None and small._roi[1] > 28, small._roi
+            np.testing.assert_array_equal(small.background, whole.background, err_msg=f"frame {k}")
+            if float(small.background[24, 34]) > float(base[24, 34]) + 0.5:
+                absorbed.append(k)
+    # held from frame 14 (its last as background), absorbed from 0.2 s on: frame 21, and
+    # learned on its row's next turn
+    assert absorbed and 21 <= absorbed[0] <= 21 + stride, absorbed[:1]
 
 
 def test_a_detector_that_takes_over_a_background_learns_the_rows_in_the_same_turn() -> None:
