@@ -317,7 +317,8 @@ def depth_factor(
     q = area_px * cos_theta / (math.pi * focal_px * focal_px)
     if width_px is not None:
         half = 0.5 * width_px / focal_px
-        q = min(q, half * half)
+        if math.isnan(half) or half * half < q:  # numpy's minimum: a NaN of either wins
+            q = half * half
     return 1.0 + min(q, SILHOUETTE_Q_MAX)
 
 

@@ -15,6 +15,7 @@ from stereod.geometry.stereo import (
     MatchParams,
     match_blobs,
     silhouette_depth,
+    silhouette_depth_factor,
 )
 
 RIG = CanonicalRig(baseline_m=0.06, hfov_deg=60.0, width_px=640, height_px=480)
@@ -305,3 +306,20 @@ def test_matching_looks_at_every_pair_that_can_match(
     p = MatchParams(row_tolerance_px=tolerance, max_disparity_px=150.0)
     got = match_blobs(left.reshape(-1, 2), la, right.reshape(-1, 2), ra, p, slack)
     assert [tuple(r) for r in got.tolist()] == _every_pair_matched(left, la, right, ra, p, slack)
+
+
+def test_the_depth_factor_of_each_silhouette_is_the_closed_form_with_numpys_nans() -> None:
+    """Each silhouette's factor is 1 + min(area cos(theta) / (pi f^2), (w / 2f)^2, cap),
+    computed here on arrays as numpy does (a NaN anywhere gives a NaN factor)."""
+    rng = np.random.default_rng(2)
+    n = 400
+    area = rng.uniform(0, 5000, n)
+    x, y = rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
+    width = rng.uniform(1, 120, n)
+    area[::37], width[5::41], x[11::43] = np.nan, np.nan, np.nan
+    f = 450.0
+    q = area / np.sqrt(1 + x * x + y * y) / (math.pi * f * f)
+    expected = 1 + np.minimum(np.minimum(q, (0.5 * width / f) ** 2), SILHOUETTE_Q_MAX)
+    got = silhouette_depth_factor(area, x, y, f, width)
+    np.testing.assert_allclose(got, expected, rtol=1e-12, equal_nan=True)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(expected))
