@@ -148,6 +148,12 @@ class DetectorConfig(_Section):
         le=16,
         description="Eq. 3 updates every n-th row each frame, in turn, at the same time constant",
     )
+    disc_max_px: int = Field(
+        _DETECT.disc_max_px,
+        ge=0,
+        le=256,
+        description="Round blobs up to this size, px, are centred by a disc fitted to them; 0: off",
+    )
 
     def params(self) -> DetectorParams:
         return DetectorParams(**self.model_dump())

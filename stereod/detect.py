@@ -63,6 +63,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from stereod.disc import disc_centre, is_round
+
 
 class Centroid(str, enum.Enum):
     """How a blob's centre is computed."""
@@ -140,6 +142,9 @@ class DetectorParams:
     join the foreground within ``grow_px`` of it (three steps), so the part of an object
     nearly the colour of the wall behind it is kept; 0 turns this off.
     ``learn_stride``: eq. 3 updates every ``learn_stride``-th row each frame, in turn (1: all).
+    ``disc_max_px``: a round blob (:func:`stereod.disc.is_round`) at most this wide and high
+    (px) is centred by fitting a disc to the image (:func:`stereod.disc.disc_centre`) when
+    matting; 0 turns this off.
     """
 
     beta: float = 0.02
@@ -164,6 +169,7 @@ class DetectorParams:
     hysteresis: float = 0.65
     grow_px: int = 4
     learn_stride: int = 6
+    disc_max_px: int = 24
 
 
 PAPER = DetectorParams(
@@ -727,6 +733,10 @@ class Detector:
                 at = (x - origin[0], y - origin[1])
                 cx, cy = matte_centroid(own, frame, background, diff, at, p.threshold)
                 centre = (cx + origin[0], cy + origin[1])
+                if max(bw, bh) <= p.disc_max_px and is_round(own, area):
+                    fit = disc_centre(frame, background, (*at, bw, bh), (cx, cy), area)
+                    if fit is not None:
+                        centre = (fit[0] + origin[0], fit[1] + origin[1])
             elif p.centroid is not Centroid.BINARY:
                 cx, cy = coverage_centroid(own, diff, (x - origin[0], y - origin[1]), p.threshold)
                 centre = (cx + origin[0], cy + origin[1])
