@@ -40,10 +40,10 @@ def coverage(s: np.ndarray, nx: np.ndarray, ny: np.ndarray) -> tuple[np.ndarray,
     (px, positive when the pixel's centre is inside) with unit normal (``nx``, ``ny``), and its
     derivative in ``s``: linear while the edge crosses two opposite sides of the pixel,
     quadratic while it cuts off a corner (closed form for a square and a half-plane)."""
-    a = np.maximum(np.abs(nx), np.abs(ny))
-    b = np.minimum(np.abs(nx), np.abs(ny))
-    linear = np.abs(s) <= (a - b) / 2
-    corner = np.clip((a + b) / 2 - np.abs(s), 0.0, None)
+    ax, ay, d = np.abs(nx), np.abs(ny), np.abs(s)
+    a, b = np.maximum(ax, ay), np.minimum(ax, ay)
+    linear = d <= (a - b) / 2
+    corner = np.clip((a + b) / 2 - d, 0.0, None)
     ab = np.maximum(a * b, 1e-9)
     tail = corner * corner / (2 * ab)
     share = np.where(linear, 0.5 + s / a, np.where(s > 0, 1.0 - tail, tail))
@@ -91,6 +91,10 @@ def disc_centre(
     diff = f - b
     theta = np.array([cx0, cy0, r0])
     beta: np.ndarray | None = None
+    grad = np.empty((len(xs), 3))
+    normal = np.empty((3 + k * channels,) * 2)
+    normal[3:, 3:] = 0.0
+    rhs = np.empty(3 + k * channels)
     for _ in range(_ITERATIONS):
         dx, dy = xs - theta[0], ys - theta[1]
         dist = np.maximum(np.hypot(dx, dy), 1e-9)
@@ -101,22 +105,19 @@ def disc_centre(
             beta = np.linalg.lstsq(covered, diff + share[:, None] * b, rcond=None)[0]
         contrast = basis @ beta - b
         residual = diff - share[:, None] * contrast
-        grad = np.stack([nx, ny, np.ones_like(nx)], axis=1) * slope[:, None]
+        grad[:, 0], grad[:, 1], grad[:, 2] = nx * slope, ny * slope, slope
         # normal equations of the Jacobian [d model / d theta, d model / d beta] by blocks:
         # theta couples to every channel, each channel's beta only to its own pixels
-        n = 3 + k * channels
-        normal = np.zeros((n, n))
-        rhs = np.empty(n)
         normal[:3, :3] = grad.T @ (grad * np.einsum("nc,nc->n", contrast, contrast)[:, None])
         rhs[:3] = grad.T @ np.einsum("nc,nc->n", contrast, residual)
+        cross = (grad[:, :, None] * contrast[:, None, :]).reshape(len(xs), 3 * channels).T @ covered
+        rhs[3:] = (covered.T @ residual).T.reshape(-1)
         own = covered.T @ covered
         for c in range(channels):
             cols = slice(3 + c * k, 3 + (c + 1) * k)
-            cross = (grad * contrast[:, c : c + 1]).T @ covered
-            normal[:3, cols] = cross
-            normal[cols, :3] = cross.T
+            normal[:3, cols] = cross[c::channels]
+            normal[cols, :3] = cross[c::channels].T
             normal[cols, cols] = own
-            rhs[cols] = covered.T @ residual[:, c]
         try:
             step = np.linalg.solve(normal, rhs)
         except np.linalg.LinAlgError:
