@@ -666,7 +666,9 @@ def test_matte_centroid_finds_an_object_of_one_colour_against_any_background(
         u, v, r = rng.uniform(25, 55), rng.uniform(20, 40), rng.uniform(3, 8)
         a = _disc_coverage(h, w, u, v, r)[..., None]
         for mode in errs:
-            det = Detector(DetectorParams(warmup_frames=1, centroid=mode, color=color))
+            det = Detector(
+                DetectorParams(warmup_frames=1, centroid=mode, color=color, disc_max_px=0)
+            )
             noise = rng.normal(0.0, 1.5, bg.shape)
             det.detect(np.clip(bg + noise, 0, 255).astype(np.uint8).squeeze())
             noise = rng.normal(0.0, 1.5, bg.shape)
