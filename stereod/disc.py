@@ -31,8 +31,16 @@ equivalent radius is not trusted."""
 _FILL = (0.65, 0.97)
 """A disc covers pi/4 = 0.785 of its box, and up to 0.95 when a few pixels across (its outline
 is drawn through the edge pixels' centres); a support outside this range is not round."""
-_ASPECT = 0.7
-"""A support whose box is narrower than this ratio either way is not round."""
+_ASPECT = 0.6
+"""A support whose box is narrower than this ratio either way is not round (a ball whose side
+matches the wall loses a column or two of its support: 6 x 9 px for one 8 px across)."""
+_SMALL_PX = 7
+"""A support at most this many pixels across is drawn by a handful of pixels: a disc 4 px
+across fills its whole box, and a pixel more or less on one side moves its aspect by a
+quarter. Such a blob is round when it fills ``_FILL[0]`` of its box, with sides no further
+apart than ``_SMALL_ASPECT``. (A box or a cylinder that small is centred by the fit as well
+as by its outline: both are symmetric about their centre.)"""
+_SMALL_ASPECT = 0.5
 
 
 def coverage(s: np.ndarray, nx: np.ndarray, ny: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -53,9 +61,12 @@ def coverage(s: np.ndarray, nx: np.ndarray, ny: np.ndarray) -> tuple[np.ndarray,
 
 def is_round(support: np.ndarray, area: int) -> bool:
     """Whether a blob's support (h, w) of ``area`` px is shaped like a disc: its box nearly
-    square and filled about pi/4 (a box or an upright cylinder fills its box)."""
+    square and filled about pi/4 (a box or an upright cylinder fills its box); below
+    ``_SMALL_PX`` only not too thin nor too empty."""
     h, w = support.shape
     fill = area / float(h * w)
+    if max(h, w) <= _SMALL_PX:
+        return _SMALL_ASPECT <= w / h <= 1.0 / _SMALL_ASPECT and fill >= _FILL[0]
     return _ASPECT <= w / h <= 1.0 / _ASPECT and _FILL[0] <= fill <= _FILL[1]
 
 
