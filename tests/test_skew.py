@@ -112,6 +112,24 @@ def test_a_ball_crossing_off_the_axis_keeps_its_depth() -> None:
     assert skew.size_depth_ratio(a0, a2, c0, c2, max_change=10.0 / 30 / 2.5) is None
 
 
+def test_a_ball_thrown_at_the_rig_from_afar_is_already_on_the_curve() -> None:
+    """A ball coming at 20 m/s from 5 m, 0.3 m off the axis, seen at 30 Hz by a 277 px
+    camera (320x240, 60 deg): its image moves 2.5 then 3.5 px a frame, a change of 1 px that
+    is well above a fitted centroid's noise, so the instant half a frame before the newest
+    is taken on the curve, exact, where the line is 0.1 px off (a tenth of the disparity's
+    error budget at that range)."""
+
+    def seen(t_s: float) -> np.ndarray:
+        return np.array([277.0 * 0.3 / (5.0 - 20.0 * t_s) + 160.0, 120.0])
+
+    times = (0, 33_333_333, 66_666_667)
+    target = 50_000_000
+    cs = tuple(seen(t * 1e-9) for t in times)
+    truth = seen(target * 1e-9)
+    np.testing.assert_allclose(skew.moebius(times, cs, target), truth, atol=1e-9)
+    assert abs((cs[1][0] + cs[2][0]) / 2 - truth[0]) > 0.08
+
+
 def test_moebius_stays_between_the_bracketing_samples() -> None:
     """A coordinate whose samples go back and forth (noise on a still object) is interpolated
     linearly; a monotone one lands between the two samples that bracket the instant."""
