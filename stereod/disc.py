@@ -30,17 +30,19 @@ _RADIUS_TOLERANCE = 0.3
 equivalent radius is not trusted."""
 _FILL = (0.65, 0.97)
 """A disc covers pi/4 = 0.785 of its box, and up to 0.95 when a few pixels across (its outline
-is drawn through the edge pixels' centres); a support outside this range is not round."""
-_ASPECT = 0.6
-"""A support whose box is narrower than this ratio either way is not round (a ball whose side
-matches the wall loses a column or two of its support: 6 x 9 px for one 8 px across)."""
+is drawn through the edge pixels' centres); a larger support outside this range is not
+round."""
+_ASPECT = 0.7
+"""A support whose box is narrower than this ratio either way is not round."""
 _SMALL_PX = 7
 """A support at most this many pixels across is drawn by a handful of pixels: a disc 4 px
 across fills its whole box, and a pixel more or less on one side moves its aspect by a
-quarter. Such a blob is round when it fills ``_FILL[0]`` of its box, with sides no further
-apart than ``_SMALL_ASPECT``. (A box or a cylinder that small is centred by the fit as well
-as by its outline: both are symmetric about their centre.)"""
-_SMALL_ASPECT = 0.5
+quarter, so there a fill of ``_FILL[0]`` and sides within ``_SMALL_ASPECT`` are enough. At
+that size a ball's support and a half disc's look alike (4 x 6 px, filled 0.92, nearly
+symmetric): the fit takes both for a ball, which is right for what this daemon follows and
+puts a small half disc's centre 0.4 px off (rms) where the matte puts it 0.15 px off. A box
+that small is centred by the fit as well as by its outline: both are symmetric."""
+_SMALL_ASPECT = 0.6
 
 
 def coverage(s: np.ndarray, nx: np.ndarray, ny: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -61,13 +63,15 @@ def coverage(s: np.ndarray, nx: np.ndarray, ny: np.ndarray) -> tuple[np.ndarray,
 
 def is_round(support: np.ndarray, area: int) -> bool:
     """Whether a blob's support (h, w) of ``area`` px is shaped like a disc: its box nearly
-    square and filled about pi/4 (a box or an upright cylinder fills its box); below
-    ``_SMALL_PX`` only not too thin nor too empty."""
+    square and filled about pi/4 (a box or an upright cylinder fills its box, and so does a
+    disc a few pixels across: below ``_SMALL_PX`` a full box is round too, and so is one a
+    row longer than wide)."""
     h, w = support.shape
     fill = area / float(h * w)
+    aspect = min(w, h) / max(w, h)
     if max(h, w) <= _SMALL_PX:
-        return _SMALL_ASPECT <= w / h <= 1.0 / _SMALL_ASPECT and fill >= _FILL[0]
-    return _ASPECT <= w / h <= 1.0 / _ASPECT and _FILL[0] <= fill <= _FILL[1]
+        return aspect >= _SMALL_ASPECT and fill >= _FILL[0]
+    return aspect >= _ASPECT and _FILL[0] <= fill <= _FILL[1]
 
 
 def disc_centre(

@@ -137,11 +137,14 @@ def projective_weight(w: float, depth_ratio: float | None) -> float:
 
 MOEBIUS_MIN_CHANGE_PX = 0.5
 """How much a coordinate's motion per frame must change between the last two intervals (px)
-before the fractional-linear curve is used instead of the line: above centroid noise (the
-change is a second difference, sqrt(6) times one centroid's error: 0.12 px for a ball
-centred by the disc fit, 0.37 px at ``centroid_sigma_px``). Lower than this, a ball thrown
-at the rig (20 m/s at 320x240, 30 Hz, 4 m off) is still interpolated along the line when
-its image motion grows from 2.5 to 3.5 px a frame, 0.1 px of disparity off."""
+before the fractional-linear curve is used instead of the line. The change is a second
+difference, sqrt(6) times one centroid's error: 0.12 px for a ball centred by the disc fit,
+so noise alone never takes the curve there, and 0.37 px at ``centroid_sigma_px`` (0.15 px),
+where it takes it in about one frame in six and adds about 0.02 px rms to the interpolated
+centroid. At 1.0 px a ball thrown at the rig (20 m/s, 4 m off, 320x240 at 30 Hz) was
+interpolated along the line while its image motion grew from 2.5 to 3.5 px a frame, 0.1 px
+of disparity off; over every cell of ``make accuracy`` 0.5 px did better (heading error
+median 0.050 to 0.040 deg, speed error mean 0.25 to 0.22 %)."""
 
 
 def moebius(

@@ -84,7 +84,7 @@ def test_a_ball_whose_shaded_side_matches_the_wall_is_centred_by_the_disc() -> N
 
 def test_a_ball_four_to_six_pixels_across_is_centred_by_the_disc() -> None:
     """A ball 4.4-5.6 px across (a thrown ball far off) is drawn by a handful of pixels: its
-    support fills its box or is a pixel longer one way, and is fitted all the same. Its
+    support may fill its box, and is fitted all the same. Its
     matte centroid errs by 0.3-0.4 px in one blob in ten; the disc's by under 0.12 px."""
     rng = np.random.default_rng(6)
     h, w = 32, 32
@@ -109,19 +109,19 @@ def test_a_ball_four_to_six_pixels_across_is_centred_by_the_disc() -> None:
 
 
 def test_only_a_round_blob_inside_the_image_is_fitted() -> None:
-    """A filled square or a tall box is not round; a disc is, however small, and so is a
-    ball's support that lost a side or is a handful of pixels; a blob whose margin leaves
-    the image gets no fit."""
+    """A filled square or a tall box is not round, nor is a half disc 7 px tall; a disc is,
+    however small, and so is a ball's support a handful of pixels across, which fills its
+    box or is a row longer than wide; a blob whose margin leaves the image gets no fit."""
     square = np.full((10, 10), 255, np.uint8)
     tall = np.full((20, 8), 255, np.uint8)
     assert not is_round(square, cv2.countNonZero(square))
     assert not is_round(tall, cv2.countNonZero(tall))
-    assert not is_round(np.full((7, 3), 255, np.uint8), 21)
-    for shape in ((4, 4), (5, 3), (3, 5)):  # a ball 4-5 px across
+    for shape in ((4, 4), (5, 3), (4, 6)):  # a ball 4-5 px across, or a row longer
         assert is_round(np.full(shape, 255, np.uint8), shape[0] * shape[1])
-    yy, xx = np.mgrid[0:9, 0:9] - 4.0
-    lost = np.where(xx * xx + yy * yy <= 4.5**2, 255, 0).astype(np.uint8)[:, 3:]
-    assert is_round(lost, cv2.countNonZero(lost))  # 9 x 6: two columns matched the wall
+    yy, xx = np.mgrid[0:7, 0:7] - 3.0
+    half = np.where(xx * xx + yy * yy <= 3.5**2, 255, 0).astype(np.uint8)[:, :4]
+    assert not is_round(half, cv2.countNonZero(half))  # 7 x 4
+    assert not is_round(np.full((7, 4), 255, np.uint8), 28)
     for side in (7, 11, 20):
         yy, xx = np.mgrid[0:side, 0:side] - (side - 1) / 2
         disc = np.where(xx * xx + yy * yy <= (side / 2) ** 2, 255, 0).astype(np.uint8)

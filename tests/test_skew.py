@@ -117,10 +117,9 @@ def test_a_ball_crossing_off_the_axis_keeps_its_depth() -> None:
 
 def test_a_ball_thrown_at_the_rig_from_afar_is_already_on_the_curve() -> None:
     """A ball coming at 20 m/s from 5 m, 0.3 m off the axis, seen at 30 Hz by a 277 px
-    camera (320x240, 60 deg): its image moves 2.5 then 3.5 px a frame, a change of 1 px that
+    camera (320x240, 60 deg): its image moves 2.6 then 3.5 px a frame, a change of 0.9 px that
     is well above a fitted centroid's noise, so the instant half a frame before the newest
-    is taken on the curve, exact, where the line is 0.1 px off (a tenth of the disparity's
-    error budget at that range)."""
+    is taken on the curve, exact, where the line is 0.1 px off."""
 
     def seen(t_s: float) -> np.ndarray:
         return np.array([277.0 * 0.3 / (5.0 - 20.0 * t_s) + 160.0, 120.0])
