@@ -105,7 +105,10 @@ class ObjectState(_Model):
         description="One-sigma velocity error per axis, m/s; null while unknown"
     )
     velocity_valid: bool = Field(
-        description="False until the track is confirmed and has lived for the time base"
+        description=(
+            "False until the track is confirmed and its speed's own sigma is within 0.1 m/s"
+            " or 10 % of the speed (tracking.valid_speed_sigma_*)"
+        )
     )
     speed_mps: float = Field(description="|velocity| (eq. 22), m/s")
     speed_sigma_mps: float | None = Field(description="One-sigma speed error, m/s")
