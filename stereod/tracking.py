@@ -202,12 +202,12 @@ class Track:
     updates: int = 0
     """Filter updates so far (the noise scale learns fast at first, then settles)."""
     noise_scale: float = 1.0
+    """How much larger (or smaller) this object's measurement noise is than its triangulation
+    covariance says, learned from the filter's innovations (1: as said)."""
     recent: collections.deque[tuple[int, np.ndarray, np.ndarray]] = field(
         default_factory=lambda: collections.deque(maxlen=3)
     )
     """The last three whole observations: instant (ns), position (m), covariance (m^2)."""
-    """How much larger (or smaller) this object's measurement noise is than its triangulation
-    covariance says, learned from the filter's innovations (1: as said)."""
     whole: bool = False
     """Whether the latest observation was whole (not clipped by the image's edge)."""
     started: bool = False
