@@ -203,7 +203,9 @@ class ReplayDriver(Driver):
         try:
             self.options = ReplayOptions.model_validate(options)
         except ValidationError as exc:
-            raise ConfigError(describe_validation_error(exc, "driver.options")) from exc
+            raise ConfigError(
+                describe_validation_error(exc, "driver.options", ReplayOptions)
+            ) from exc
 
     def open(self) -> ReplaySource:
         o = self.options
@@ -260,6 +262,14 @@ class ReplayDriver(Driver):
 
     def _open_videos(self, left: Path, right: Path) -> ReplaySource:
         o = self.options
+        missing = [
+            f"{path}: no such video file (the {eye} eye's: --{eye}-video or "
+            f"driver.options.{eye}_video; check the path)"
+            for eye, path in (("left", left), ("right", right))
+            if not path.exists()
+        ]
+        if missing:
+            raise MissingInputError("; ".join(missing))
         lw, lh, ln = probe_video(left)
         rw, rh, rn = probe_video(right)
         if (lw, lh) != (rw, rh):

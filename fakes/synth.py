@@ -405,7 +405,7 @@ class SyntheticDriver(Driver):
             self.flags = SynthFlags.model_validate(own)
             self.scene = Scene.model_validate(options)
         except ValidationError as exc:
-            raise ConfigError(describe_validation_error(exc, "driver.options")) from exc
+            raise ConfigError(describe_validation_error(exc, "driver.options", Scene)) from exc
         self.live = self.flags.live
 
     def open(self) -> StereoSource:

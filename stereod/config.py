@@ -35,7 +35,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationErr
 
 from . import keys
 from .detect import Centroid, DetectorParams, Luminance, Warmup
-from .errors import ConfigError, UsageError, describe_error
+from .errors import ConfigError, MissingInputError, UsageError, describe_error
 from .geometry.refine import RefineParams
 from .geometry.stereo import MatchParams
 from .pairing import DEFAULT_TOLERANCE_NS
@@ -356,9 +356,9 @@ def read_toml(path: Path) -> dict[str, Any]:
         with path.open("rb") as fh:
             return tomllib.load(fh)
     except FileNotFoundError as exc:
-        raise ConfigError(f"{path}: no such config file (pass --config FILE)") from exc
+        raise MissingInputError(f"{path}: no such config file (pass --config FILE)") from exc
     except OSError as exc:
-        raise ConfigError(f"{path}: cannot read config file: {exc.strerror}") from exc
+        raise MissingInputError(f"{path}: cannot read config file: {exc.strerror}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML: {exc}") from exc
     except UnicodeDecodeError as exc:
@@ -463,7 +463,10 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
         return StereodConfig.model_validate(_merge(below, flags))
     except ValidationError as exc:
         errors = [(_origin(tuple(e["loc"]), path, flags), e) for e in exc.errors(include_url=False)]
-        parts = [f"{origin}: invalid config: {describe_error(e)}" for origin, e in errors]
+        parts = [
+            f"{origin}: invalid config: {describe_error(e, model=StereodConfig)}"
+            for origin, e in errors
+        ]
         if all(origin == "command line" for origin, _ in errors):
             raise UsageError("; ".join(parts)) from exc  # a bad flag, exit 64
         raise ConfigError("; ".join(parts)) from exc

@@ -21,6 +21,8 @@ boundary with ``raise ... from exc`` so callers only ever catch ``StereodError``
 
 from __future__ import annotations
 
+import difflib
+from collections.abc import Sequence
 from typing import Any
 
 from pydantic import ValidationError
@@ -123,11 +125,12 @@ class InternalError(StereodError):
     exit_code = EX_SOFTWARE
 
 
-def describe_validation_error(exc: ValidationError, prefix: str = "") -> str:
+def describe_validation_error(exc: ValidationError, prefix: str = "", model: Any = None) -> str:
     """One line naming every field a pydantic model refused, the value given and what is
     allowed: ``driver.options.fps = -15: Input should be greater than 0``. ``prefix`` is the
-    section the model sits in (``driver.options``), if any."""
-    return "; ".join(describe_error(e, prefix) for e in exc.errors(include_url=False))
+    section the model sits in (``driver.options``), if any; ``model``, the model's class, lets
+    a misspelt field be answered with the nearest real one."""
+    return "; ".join(describe_error(e, prefix, model) for e in exc.errors(include_url=False))
 
 
 def one_line(text: str) -> str:
@@ -136,20 +139,37 @@ def one_line(text: str) -> str:
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
-def describe_error(e: Any, prefix: str = "") -> str:
-    """One of a ValidationError's ``errors()`` as ``field = value: what is wrong``."""
+def describe_error(e: Any, prefix: str = "", model: Any = None) -> str:
+    """One of a ValidationError's ``errors()`` as ``field = value: what is wrong``; an unknown
+    field of ``model`` (a pydantic model class) close to a real one names it."""
     loc = ".".join(str(p) for p in (prefix.split(".") if prefix else []) + list(e["loc"]))
     loc = one_line(loc or "(top level)")
     msg = one_line(str(e["msg"]).removeprefix("Value error, "))
     if e["type"] == "json_invalid":
         return f"not valid JSON ({msg.removeprefix('Invalid JSON: ')})"
     if e["type"] == "extra_forbidden":
-        return f"{loc}: unknown field (check its spelling)"
+        near = nearest_field(model, e["loc"]) if model is not None else None
+        hint = f"did you mean {near}?" if near else "check its spelling"
+        return f"{loc}: unknown field ({hint})"
     if e["type"] == "missing":
         return f"{loc}: required field is missing"
     if "input" in e and not isinstance(e["input"], dict | list):
         return f"{loc} = {_shown(e['input'])}: {msg}"
     return f"{loc}: {msg}"
+
+
+def nearest_field(model: Any, loc: Sequence[int | str]) -> str | None:
+    """The field of the pydantic ``model`` class (followed through its nested models along
+    ``loc``) whose name is nearest the last part of ``loc``, if one is near enough to be a
+    misspelling of it (difflib ratio 0.75: ``treshold`` for ``threshold``)."""
+    for part in loc[:-1]:
+        field = getattr(model, "model_fields", {}).get(str(part))
+        model = getattr(field, "annotation", None)
+        if not hasattr(model, "model_fields"):
+            return None
+    names = list(getattr(model, "model_fields", {}))
+    found = difflib.get_close_matches(str(loc[-1]), names, n=1, cutoff=0.75) if loc else []
+    return found[0] if found else None
 
 
 def _shown(value: object, limit: int = 60) -> str:

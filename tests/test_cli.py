@@ -258,12 +258,25 @@ def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
         "junk.avi: cannot open as a video|junk.avi: no frame decodes",
     )
     one_line_error(stereod("replay", str(tmp_path)), 66, "recording.json missing")
-    one_line_error(stereod("replay"), 78, "nothing to replay")
+    one_line_error(stereod("replay"), 64, "nothing to replay")
+    one_line_error(
+        stereod("replay", "--left-video", "l.mp4", "--right-video", "r.mp4", "--fps", "10"),
+        66,
+        r"l\.mp4: no such video file \(the left eye's: --left-video .*r\.mp4: no such video "
+        r"file \(the right eye's: --right-video",
+    )
     bad = tmp_path / "bad.toml"
     bad.write_text("[detector]\nbeta = 3\n")
     one_line_error(stereod("run", "--config", str(bad)), 78, r"detector\.beta = 3")
+    typo = tmp_path / "typo.toml"
+    typo.write_text("[detector]\ntreshold = 30\n")
     one_line_error(
-        stereod("run", "--config", str(tmp_path / "none.toml")), 78, "no such config file"
+        stereod("run", "--config", str(typo)),
+        78,
+        r"detector\.treshold: unknown field \(did you mean threshold\?\)",
+    )
+    one_line_error(
+        stereod("run", "--config", str(tmp_path / "none.toml")), 66, "no such config file"
     )
     one_line_error(stereod("run", "--driver", "warp"), 78, "driver.name = 'warp': no such driver")
     one_line_error(

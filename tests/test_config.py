@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from stereod.config import load_config
-from stereod.errors import EX_CONFIG, ConfigError
+from stereod.errors import EX_CONFIG, ConfigError, MissingInputError
 
 
 def test_defaults_are_the_minoru() -> None:
@@ -75,7 +75,7 @@ def test_bad_environment_value(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_missing_file(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match="no such config file"):
+    with pytest.raises(MissingInputError, match="no such config file"):
         load_config(tmp_path / "nope.toml")
 
 

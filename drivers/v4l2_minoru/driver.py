@@ -264,7 +264,9 @@ class MinoruDriver(Driver):
         try:
             self.options = MinoruOptions.model_validate(options)
         except ValidationError as exc:
-            raise ConfigError(describe_validation_error(exc, "driver.options")) from exc
+            raise ConfigError(
+                describe_validation_error(exc, "driver.options", MinoruOptions)
+            ) from exc
         for name in self.options.controls:
             _control_id(name)
         self.io = io
@@ -281,7 +283,9 @@ class MinoruDriver(Driver):
             if path is None:
                 raise DeviceError(
                     f"no {eye} eye: no {default} and no Minoru eye on hub port "
-                    f"{1 if eye == 'left' else 2}; set driver.options.{eye} (see stereod devices)"
+                    f"{1 if eye == 'left' else 2}; plug the camera in, or set driver.options.{eye} "
+                    f"in the --config file or STEREOD_DRIVER__OPTIONS__{eye.upper()} to its "
+                    "/dev/videoN (see stereod devices; stereod replay runs without a camera)"
                 )
             paths.append(path)
         return paths[0], paths[1]

@@ -10,7 +10,7 @@ from typing import Any
 from ..config import StereodConfig, load_config
 from ..daemon import Daemon
 from ..drivers import load_driver
-from ..errors import ConfigError, StereodError
+from ..errors import StereodError, UsageError
 from ..mcap_run import RunMcap, config_geometry
 from ..output_file import check_not_input
 from ..progress import Progress
@@ -93,7 +93,7 @@ def driver_options(a: argparse.Namespace) -> dict[str, Any]:
     options: dict[str, Any]
     if a.recording is not None:
         if a.left_video or a.right_video:
-            raise ConfigError("give a recording directory or --left-video/--right-video, not both")
+            raise UsageError("give a recording directory or --left-video/--right-video, not both")
         options = {"path": a.recording}
     elif a.left_video or a.right_video:
         options = {
@@ -105,7 +105,7 @@ def driver_options(a: argparse.Namespace) -> dict[str, Any]:
         }
         options = {k: v for k, v in options.items() if v is not None}
     else:
-        raise ConfigError(
+        raise UsageError(
             "nothing to replay: give a recording directory or "
             "--left-video L --right-video R with --fps or --left-ts/--right-ts"
         )
@@ -162,7 +162,7 @@ def _mcap(a: argparse.Namespace, cfg: StereodConfig, options: dict[str, Any]) ->
     if a.mcap is None:
         return None
     if a.jsonl is not None and a.mcap.resolve() == a.jsonl.resolve():
-        raise ConfigError(f"--mcap {a.mcap} and --jsonl are the same file; give two names")
+        raise UsageError(f"--mcap {a.mcap} and --jsonl are the same file; give two names")
     inputs = [Path(p) for k, p in options.items() if k != "loop" and k != "fps"]
     inputs += [p for p in (a.config, cfg.rig.calibration) if p is not None]
     if a.recording is not None and a.recording.is_dir():
