@@ -119,7 +119,7 @@ def run_demo(
     ``view`` also serves the view page on ``view_port`` (0: any free port) and plays once a
     page is open."""
     ball = DemoBall(heading_deg, speed_mps)
-    with tempfile.TemporaryDirectory(prefix="stereod-demo-") as tmp:
+    with _sigterm_as_interrupt(), tempfile.TemporaryDirectory(prefix="stereod-demo-") as tmp:
         out = keep if keep is not None else Path(tmp) / "scene"
         counts = record(load_driver("synthetic", ball.scene_options()), out)
         print(
@@ -191,6 +191,25 @@ def run_demo(
                 with contextlib.suppress(KeyboardInterrupt):
                     wait_until(threading.Event())
     return code
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM (``timeout``, ``kill``) ends the demo as Ctrl-C does, so whatever it waits for
+    (a page to open, Ctrl-C at the end) the scene's temporary folder is removed; off the main
+    thread nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def on_sigterm(_signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt
+
+    before = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before)
 
 
 @contextlib.contextmanager

@@ -95,6 +95,28 @@ def test_ctrl_c_while_the_demo_plays_stops_it_cleanly(tmp_path: Path) -> None:
     assert not list(tmp_path.glob("stereod-demo-*"))
 
 
+def test_sigterm_while_the_view_waits_for_a_page_removes_the_scene(tmp_path: Path) -> None:
+    """``timeout`` or ``kill`` while ``demo --view`` waits for a page: the demo ends as on
+    Ctrl-C (exit 130, no traceback) and its scene's temporary folder is gone."""
+    proc = start_stereod("demo", "--view", "--view-port", "0", env={"TMPDIR": str(tmp_path)})
+    assert proc.stdout is not None
+    try:
+        line = ""
+        while not line.startswith("view: open"):
+            line = proc.stdout.readline()
+            assert line, "the demo ended before serving its page"
+        assert list(tmp_path.glob("stereod-demo-*"))
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert not list(tmp_path.glob("stereod-demo-*"))
+
+
 def test_a_reader_that_stops_reading_ends_the_demo_quietly() -> None:
     """``stereod demo | head -2``: the demo stops its daemon and exits 0, saying nothing."""
     proc = start_stereod("demo", "--rate", "0", stdout=subprocess.PIPE)
