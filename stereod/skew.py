@@ -93,11 +93,12 @@ def at_instant(
 SIZE_NOISE = 1.0
 """A blob's area wobbles by its outline's jitter, so half the log of a ratio of two of its
 sizes (the log of the depth ratio) wobbles by about k / sqrt(A) for a blob of A px. Measured
-on the independent renderer's balls crossing the view at constant depth (angle off the axis
-taken out), k has a standard deviation of 0.18 to 0.38 and reaches 0.81 (0.38 and 0.81 at
-320x240, 60 deg, where a ball is 8 px across). A depth change is taken from sizes only beyond
-``SIZE_NOISE / sqrt(A)`` (0.13 for a 56 px blob): at 0.75 a ball crossing at 20 m/s was read
-as coming 10 % closer between two frames, and placed 0.5 m short."""
+against the true depths on the independent renderer's thrown balls
+(``benchmarks/size_noise.py``), k has a standard deviation of 0.18 to 0.37 and a 95th
+percentile of 0.38 to 0.73 by mode, the most at 320x240, 60 deg, where a ball is 4 to 8 px
+across (largest 1.15). A depth change is taken from sizes only beyond ``SIZE_NOISE /
+sqrt(A)`` (0.13 for a 56 px blob): at 0.75 a ball crossing at 20 m/s was read as coming 10 %
+closer between two frames, and placed 0.5 m short."""
 
 
 def size_depth_ratio(
