@@ -67,6 +67,22 @@ def fast_over(endpoint: str) -> list[str]:
     return ["--rate", "0", "--connect", endpoint, "--wait-subscriber", "10"]
 
 
+def test_run_waits_for_a_subscriber_as_replay_does(
+    scene_dir: tuple[Scene, Path], endpoint: str, listener: zenoh.Session, tmp_path: Path
+) -> None:
+    """``stereod run --wait-subscriber`` with a file driver in its config: a subscriber that
+    was there first gets every pair from the first (as fast as possible, nothing missed)."""
+    scene, rec = scene_dir
+    col = Collector(listener)
+    cfg = tmp_path / "run.toml"
+    cfg.write_text(f'[driver]\nname = "replay"\n[driver.options]\npath = "{rec}"\n')
+    res = stereod("run", "--config", str(cfg), *fast_over(endpoint))
+    assert res.returncode == 0, res.stderr
+    key = "stereod/minoru/objects"
+    assert col.wait_for(lambda: len(col.messages(key)) == scene.n_frames)
+    assert [m["seq"] for m in col.messages(key)] == list(range(scene.n_frames))
+
+
 def test_replay_publishes_truthful_motion_over_zenoh(
     scene_dir: tuple[Scene, Path], endpoint: str, listener: zenoh.Session, tmp_path: Path
 ) -> None:

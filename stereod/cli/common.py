@@ -81,6 +81,17 @@ def add_rate(p: argparse.ArgumentParser, help_text: str) -> None:
     p.add_argument("--rate", type=number(0.0, 1000.0), default=1.0, metavar="X", help=help_text)
 
 
+def add_wait_subscriber(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument(
+        "--wait-subscriber",
+        type=number(0.0, 3600.0, unit="s"),
+        default=0.0,
+        metavar="S",
+        help="wait up to S seconds for a subscriber to the objects key or the tracks' keys "
+        f"(objects/*) before {what}",
+    )
+
+
 def add_config(p: argparse.ArgumentParser | argparse._ArgumentGroup, what: str = "") -> None:
     p.add_argument("--config", type=path_arg, metavar="FILE", help=f"TOML config file{what}")
 

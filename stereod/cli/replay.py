@@ -19,6 +19,7 @@ from .common import (
     EPILOG_KEYS,
     add_pipeline,
     add_rate,
+    add_wait_subscriber,
     command_log_level,
     load_checked,
     number,
@@ -75,14 +76,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "camera_info, tf and the tracks, as `stereod export` does (replaced only when the run "
         "succeeds)",
     )
-    p.add_argument(
-        "--wait-subscriber",
-        type=number(0.0, 3600.0, unit="s"),
-        default=0.0,
-        metavar="S",
-        help="wait up to S seconds for a subscriber to the objects key or the tracks' keys "
-        "(objects/*) before playing",
-    )
+    add_wait_subscriber(p, "playing")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stdout")
     add_pipeline(p)
     p.set_defaults(func=run)

@@ -11,6 +11,7 @@ from .common import (
     add_driver,
     add_pipeline,
     add_rate,
+    add_wait_subscriber,
     load_checked,
     pipeline_overrides,
     run_daemon,
@@ -24,12 +25,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="run the daemon from a config file",
         description="Run the daemon with the driver, rig, detector and Zenoh settings of a TOML "
         "config file. Environment variables STEREOD_<SECTION>__<FIELD> override the file, flags "
-        "override both. Exits 78 on a bad configuration.",
+        "override both. Exits 78 on a bad configuration, 66 on a missing one.",
         epilog=EPILOG_KEYS,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_driver(p)
     add_rate(p, "playback speed for file drivers: 1 real time, 0 as fast as possible")
+    add_wait_subscriber(p, "capturing")
     p.add_argument(
         "--check",
         action="store_true",
@@ -51,5 +53,11 @@ def run(a: argparse.Namespace) -> int:
     if a.check:
         print(cfg.model_dump_json(indent=2))
         return 0
-    daemon = Daemon(cfg, driver, rate=a.rate, reload_config=lambda: load_checked(path, ov)[0])
+    daemon = Daemon(
+        cfg,
+        driver,
+        rate=a.rate,
+        wait_subscriber_s=a.wait_subscriber,
+        reload_config=lambda: load_checked(path, ov)[0],
+    )
     return run_daemon(daemon, quiet=True, problems_fail=False)
