@@ -19,7 +19,7 @@ import signal
 import socket
 import tempfile
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -194,43 +194,43 @@ def run_demo(
 
 
 @contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM (``timeout``, ``kill``) ends the demo as Ctrl-C does, so whatever it waits for
-    (a page to open, Ctrl-C at the end) the scene's temporary folder is removed; off the main
-    thread nothing changes."""
+def _handling(
+    signals: tuple[signal.Signals, ...], handler: Callable[[int, object], None]
+) -> Iterator[None]:
+    """``handler`` for ``signals`` inside the block, the previous handlers after it; off the
+    main thread (where no handler can be set) nothing changes."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    before = {s: signal.signal(s, handler) for s in signals}
+    try:
+        yield
+    finally:
+        for s, previous in before.items():
+            signal.signal(s, previous)
+
+
+def _sigterm_as_interrupt() -> contextlib.AbstractContextManager[None]:
+    """SIGTERM (``timeout``, ``kill``) ends the demo as Ctrl-C does, so whatever it waits for
+    (a page to open, Ctrl-C at the end) the scene's temporary folder is removed."""
 
     def on_sigterm(_signum: int, _frame: object) -> None:
         raise KeyboardInterrupt
 
-    before = signal.signal(signal.SIGTERM, on_sigterm)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, before)
+    return _handling((signal.SIGTERM,), on_sigterm)
 
 
-@contextlib.contextmanager
-def _stopping_on_signals(daemon: Daemon, interrupted: threading.Event) -> Iterator[None]:
+def _stopping_on_signals(
+    daemon: Daemon, interrupted: threading.Event
+) -> contextlib.AbstractContextManager[None]:
     """While the daemon runs, Ctrl-C or SIGTERM stops it as ``stereod run`` does (its threads
-    drain and end, the scene's folder is removed) and sets ``interrupted``; off the main
-    thread (where no handler can be set) nothing changes."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
+    drain and end, the scene's folder is removed) and sets ``interrupted``."""
 
     def on_signal(_signum: int, _frame: object) -> None:
         interrupted.set()
         daemon.stop()
 
-    before = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for s, handler in before.items():
-            signal.signal(s, handler)
+    return _handling((signal.SIGINT, signal.SIGTERM), on_signal)
 
 
 def report(ball: DemoBall, rig: CanonicalRig, received: list[ObjectsMessage]) -> int:

@@ -114,10 +114,8 @@ def disc_centre(
         dx, dy = xs - theta[0], ys - theta[1]
         dist = np.hypot(dx, dy)
         centred = dist < 1e-9  # a pixel at the centre (a small blob's start): any normal will do
-        np.putmask(dist, centred, 1.0)
-        nx, ny = dx / dist, dy / dist
-        np.putmask(nx, centred, 1.0)
-        np.putmask(dist, centred, 0.0)
+        safe = np.where(centred, 1.0, dist)
+        nx, ny = np.where(centred, 1.0, dx / safe), dy / safe
         share, slope = coverage(theta[2] - dist, nx, ny)
         covered = share[:, None] * basis
         if beta is None:  # the colour that best explains the pixels for the starting disc
