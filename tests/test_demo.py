@@ -77,36 +77,28 @@ def test_demo_with_view_plays_once_a_page_is_open_and_serves_it_after() -> None:
 def test_ctrl_c_while_the_demo_plays_stops_it_cleanly(tmp_path: Path) -> None:
     """Ctrl-C mid-scene: every thread of the daemon ends (the images thread too), the scene's
     folder is removed, and the exit is 130 with no traceback."""
-    proc = start_stereod("demo", "--rate", "1", env={"TMPDIR": str(tmp_path)})
-    assert proc.stdout is not None
-    try:
-        line = ""
-        while not line.startswith("t "):  # a track: the scene is playing
-            line = proc.stdout.readline()
-            assert line, "the demo ended before any track"
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    assert proc.returncode == 130, err
-    assert "Traceback" not in err
-    assert not list(tmp_path.glob("stereod-demo-*"))
+    _stopped_cleanly(tmp_path, ["--rate", "1"], "t ", signal.SIGINT)  # "t ": a track
 
 
 def test_sigterm_while_the_view_waits_for_a_page_removes_the_scene(tmp_path: Path) -> None:
     """``timeout`` or ``kill`` while ``demo --view`` waits for a page: the demo ends as on
     Ctrl-C (exit 130, no traceback) and its scene's temporary folder is gone."""
-    proc = start_stereod("demo", "--view", "--view-port", "0", env={"TMPDIR": str(tmp_path)})
+    _stopped_cleanly(tmp_path, ["--view", "--view-port", "0"], "view: open", signal.SIGTERM)
+
+
+def _stopped_cleanly(tmp_path: Path, flags: list[str], until: str, sig: signal.Signals) -> None:
+    """Start ``stereod demo`` with ``flags`` (its temporary folder under ``tmp_path``), send
+    ``sig`` once a line starts with ``until``, and check it ended as on Ctrl-C: exit 130, no
+    traceback, its scene's folder gone."""
+    proc = start_stereod("demo", *flags, env={"TMPDIR": str(tmp_path)})
     assert proc.stdout is not None
     try:
         line = ""
-        while not line.startswith("view: open"):
+        while not line.startswith(until):
             line = proc.stdout.readline()
-            assert line, "the demo ended before serving its page"
+            assert line, f"the demo ended before a line starting {until!r}"
         assert list(tmp_path.glob("stereod-demo-*"))
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(sig)
         _, err = proc.communicate(timeout=20)
     finally:
         if proc.poll() is None:

@@ -31,6 +31,32 @@ def _sphere(h: int, w: int, u: float, v: float, r: float, light: np.ndarray) -> 
     return np.dstack([cover, shaded])
 
 
+def _wall(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """(h, w, 3) float: a smooth random colour texture, a grey level about 110 +- 25."""
+    coarse = rng.normal(110.0, 25.0, (h // 4 + 1, w // 4 + 1, 3))
+    return cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC)
+
+
+def _centre_errors(
+    rng: np.random.Generator,
+    wall: np.ndarray,
+    frame: np.ndarray,
+    centre: tuple[float, float],
+    noise: float,
+    errors: dict[int, list[float]],
+) -> None:
+    """For each ``disc_max_px`` in ``errors`` (0: the matte alone), detect the ball of
+    ``frame`` against ``wall`` (both float, noise ``noise`` grey levels added) and append each
+    blob's distance from the true ``centre`` (px); at most one blob."""
+    for size in errors:
+        det = Detector(DetectorParams(warmup_frames=1, disc_max_px=size))
+        det.detect(np.clip(wall + rng.normal(0.0, noise, wall.shape), 0, 255).astype(np.uint8))
+        img = np.clip(frame + rng.normal(0.0, noise, frame.shape), 0, 255).astype(np.uint8)
+        blobs = det.detect(img)
+        assert len(blobs) <= 1
+        errors[size].extend(float(np.hypot(*(c - centre))) for c in blobs.centroid_px)
+
+
 def test_coverage_is_the_share_of_a_pixel_a_straight_edge_leaves_inside() -> None:
     """The closed form against a pixel sampled 200 x 200 times, for edges at every angle and
     distance (inside is the side the normal points away from)."""
@@ -61,20 +87,13 @@ def test_a_ball_whose_shaded_side_matches_the_wall_is_centred_by_the_disc() -> N
     errors: dict[int, list[float]] = {0: [], 24: []}
     for _ in range(20):
         colour = rng.uniform(120.0, 230.0, 3)
-        coarse = rng.normal(110.0, 25.0, (h // 4 + 1, w // 4 + 1, 3))
-        wall = cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC)
+        wall = _wall(rng, h, w)
         u, v, r = rng.uniform(20, 28), rng.uniform(20, 28), rng.uniform(3.0, 5.5)
         corner = (np.arange(h)[:, None, None] > v) & (np.arange(w)[None, :, None] > u)
         wall = np.where(corner, colour * 0.3 + rng.normal(0.0, 3.0, wall.shape), wall)
         ball = _sphere(h, w, u, v, r, light)
         frame = ball[..., 1:2] * colour + (1.0 - ball[..., :1]) * wall
-        for size in errors:
-            det = Detector(DetectorParams(warmup_frames=1, disc_max_px=size))
-            det.detect(np.clip(wall + rng.normal(0.0, 1.0, wall.shape), 0, 255).astype(np.uint8))
-            img = np.clip(frame + rng.normal(0.0, 1.0, frame.shape), 0, 255).astype(np.uint8)
-            blobs = det.detect(img)
-            assert len(blobs) <= 1
-            errors[size].extend(float(np.hypot(*(c - (u, v)))) for c in blobs.centroid_px)
+        _centre_errors(rng, wall, frame, (u, v), 1.0, errors)
     assert len(errors[0]) == len(errors[24]) >= 15
     matte, fitted = float(np.median(errors[0])), float(np.median(errors[24]))
     assert matte > 0.5, f"the scene is meant to be hard for the matte: {matte:.3f} px"
@@ -92,16 +111,11 @@ def test_a_ball_four_to_six_pixels_across_is_centred_by_the_disc() -> None:
     errors: dict[int, list[float]] = {0: [], 24: []}
     for _ in range(20):
         colour = rng.uniform(120.0, 230.0, 3)
-        coarse = rng.normal(110.0, 25.0, (h // 4 + 1, w // 4 + 1, 3))
-        wall = cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC)
+        wall = _wall(rng, h, w)
         u, v, r = rng.uniform(13, 18), rng.uniform(13, 18), rng.uniform(2.2, 2.8)
         ball = _sphere(h, w, u, v, r, light)
         frame = ball[..., 1:2] * colour + (1.0 - ball[..., :1]) * wall
-        for size in errors:
-            det = Detector(DetectorParams(warmup_frames=1, disc_max_px=size))
-            det.detect(np.clip(wall + rng.normal(0.0, 2.0, wall.shape), 0, 255).astype(np.uint8))
-            img = np.clip(frame + rng.normal(0.0, 2.0, frame.shape), 0, 255).astype(np.uint8)
-            errors[size].extend(float(np.hypot(*(c - (u, v)))) for c in det.detect(img).centroid_px)
+        _centre_errors(rng, wall, frame, (u, v), 2.0, errors)
     assert len(errors[24]) >= 10
     matte, fitted = float(np.percentile(errors[0], 90)), float(np.percentile(errors[24], 90))
     assert matte > 0.25, f"the scene is meant to be hard for the matte: {matte:.3f} px"
