@@ -546,29 +546,35 @@ class Pipeline:
 
 
 SEGMENTATION_SLACK = 0.03
-"""How far (as a share) the ratio of an object's two blob areas may change from one
-observation to the next before its centroids are trusted less: noise and the object's own
-turning change it by a few percent."""
+"""How far (as a share) an object's two blob areas may differ, or their ratio change from
+one observation to the next, before its centroids are trusted less: noise, the object's own
+turning and the side of a box that one eye sees more of than the other change it by a few
+percent."""
 
 
 def _segmentation_jump_px(
     lb: Blobs, rb: Blobs, i: int, j: int, before: Observation, width_px: float
 ) -> float:
     """How far (px, one sigma) the centroids may have moved because the two eyes segmented
-    the object differently from the last observation to this one. Where part of an object is
-    the colour of what is behind it, each eye loses or regains that part on its own frame
-    (each sees another patch of background), and the eye that lost a share ``s`` of the
-    object's area has its centroid moved by up to ``s`` times half the object's width: the
-    disparity, so the depth, jumps for that frame. The two eyes' area changes tell it apart
-    (logs, since ``before``): they differ by ``s``. An object coming closer or going away
-    grows in both, and differently through the eyes' skew alone, by up to its growth, so
-    what counts is the difference beyond ``SEGMENTATION_SLACK`` and the mean growth; that,
+    the object differently. Where part of an object is the colour of what is behind it, each
+    eye loses or regains that part on its own frame (each sees another patch of background),
+    and the eye that lost a share ``s`` of the object's area has its centroid moved by up to
+    ``s`` times half the object's width: the disparity, so the depth, is off for as long as
+    the loss lasts. Two signs tell it apart: the two eyes' area changes since ``before``
+    (logs) differ by ``s`` on the frame it happens, and the two areas themselves differ by
+    ``s`` for every frame it lasts (the eyes of a canonical rig see the same outline to a
+    few percent). An object coming closer or going away grows in both, and differently
+    through the eyes' skew alone (by at most half a frame's growth), so what counts of
+    either sign is its excess over ``SEGMENTATION_SLACK`` and the mean growth; the larger,
     times half the blob's width ``width_px``, is added to the centroid error of this
-    observation, so the filter leans on its prediction across the jump instead of following
-    it. The mean growth holds half of a loss in one eye alone, so such a loss counts from
-    twice the slack (6 %), at half its size: a thrown ball's skewed growth looks the same,
-    and counting it in full cost those balls their valid speeds."""
-    left = math.log(max(int(lb.area_px[i]), 1) / max(before.left_area_px, 1))
-    right = math.log(max(int(rb.area_px[j]), 1) / max(before.right_area_px, 1))
+    observation, so the filter leans on its prediction across the loss instead of following
+    it. The mean growth holds half of a loss in one eye alone, so on its first frame such a
+    loss counts from twice the slack (6 %), at half its size: a thrown ball's skewed growth
+    looks the same, and counting it in full cost those balls their valid speeds."""
+    area_l, area_r = max(int(lb.area_px[i]), 1), max(int(rb.area_px[j]), 1)
+    left = math.log(area_l / max(before.left_area_px, 1))
+    right = math.log(area_r / max(before.right_area_px, 1))
     grew = abs(left + right) / 2.0
-    return max(abs(left - right) - SEGMENTATION_SLACK - grew, 0.0) * 0.5 * width_px
+    changed = abs(left - right)
+    apart = abs(math.log(area_l / area_r))
+    return max(max(changed, apart) - SEGMENTATION_SLACK - grew, 0.0) * 0.5 * width_px

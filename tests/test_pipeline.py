@@ -267,7 +267,8 @@ def test_detecting_the_earlier_eye_ahead_finds_what_the_pair_finds() -> None:
 def test_a_part_of_an_object_lost_in_one_eye_only_widens_that_observations_error() -> None:
     """One eye's blob lost a share s of its area since the track's last observation and
     the other's did not: the centroids may have moved by (s - slack - s / 2) times half the
-    blob's width (s / 2 is the pair's mean growth, which the eyes' skew alone can split)."""
+    blob's width (s / 2 is the pair's mean growth, which the eyes' skew alone can split).
+    While the loss lasts, the two areas still differ by s: (s - slack) times half the width."""
     from stereod.detect import Blobs
     from stereod.tracking import Observation
 
@@ -283,6 +284,9 @@ def test_a_part_of_an_object_lost_in_one_eye_only_widens_that_observations_error
     before = Observation(
         np.zeros(3), np.eye(3), z2, z2, z2, z2, np.zeros(4), np.zeros(4), 2440, 2440, 16.0, 0.1
     )
+    before_small = Observation(
+        np.zeros(3), np.eye(3), z2, z2, z2, z2, np.zeros(4), np.zeros(4), 1700, 1700, 16.0, 0.1
+    )
     lost = pipeline._segmentation_jump_px(blobs(2440), blobs(2170), 0, 0, before, 54.0)
     s = np.log(2440 / 2170)
     assert lost == pytest.approx((s - pipeline.SEGMENTATION_SLACK - s / 2) * 27.0)
@@ -293,6 +297,15 @@ def test_a_part_of_an_object_lost_in_one_eye_only_widens_that_observations_error
     assert pipeline._segmentation_jump_px(blobs(3200), blobs(2900), 0, 0, before, 54.0) == 0.0
     # within the slack: noise
     assert pipeline._segmentation_jump_px(blobs(2440), blobs(2400), 0, 0, before, 54.0) == 0.0
+    # a loss that lasts: the areas changed alike since the last observation, but one eye
+    # still holds a share s less of the object than the other, so its centroid is still off
+    lasting = Observation(
+        np.zeros(3), np.eye(3), z2, z2, z2, z2, np.zeros(4), np.zeros(4), 2440, 2170, 16.0, 0.1
+    )
+    still = pipeline._segmentation_jump_px(blobs(2440), blobs(2170), 0, 0, lasting, 54.0)
+    assert still == pytest.approx((s - pipeline.SEGMENTATION_SLACK) * 27.0)
+    # and the same areas from an object that grew in both eyes by more than they differ: skew
+    assert pipeline._segmentation_jump_px(blobs(2440), blobs(2170), 0, 0, before_small, 54.0) == 0.0
 
 
 @pytest.mark.parametrize("disparity_px", [0, 6])
