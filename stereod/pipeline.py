@@ -450,14 +450,11 @@ class Pipeline:
     ) -> Observation:
         """The observation of one matched pair of blobs; ``tri_*`` are the centroids to
         triangulate (moved to one instant when skew is compensated), ``before`` the track's
-        last observation (see :func:`_segmentation_jump_px`)."""
+        last observation (see :func:`_segmentation_error_px`)."""
         p = self.params
         i, j = int(ij[0]), int(ij[1])
         width_px = 0.5 * (int(lb.bbox_px[i, 2]) + int(rb.bbox_px[j, 2]))
-        sigma = p.centroid_sigma_px
-        if before is not None and not clipped and not before.clipped:
-            sigma = math.hypot(sigma, _segmentation_jump_px(lb, rb, i, j, before, width_px))
-        area = 0.5 * float(lb.area_px[i] + rb.area_px[j])
+        area_l, area_r = float(lb.area_px[i]), float(rb.area_px[j])
         if p.rig.geometry is Geometry.CALIBRATED and lb.support and rb.support:
             # Outlines in rectified px: a distorted image's blob is stretched and bent.
             area_l, width_l, shift_l = p.rig.rectified_silhouette(
@@ -467,7 +464,12 @@ class Pipeline:
                 False, rb.bbox_px[j], rb.support[j]
             )
             tri_left, tri_right = tri_left + shift_l, tri_right + shift_r
-            area, width_px = 0.5 * (area_l + area_r), 0.5 * (width_l + width_r)
+            width_px = 0.5 * (width_l + width_r)
+        area = 0.5 * (area_l + area_r)
+        sigma = p.centroid_sigma_px
+        if before is not None and not clipped and not before.clipped:
+            seg = _segmentation_error_px(lb, rb, i, j, before, width_px, (area_l, area_r))
+            sigma = math.hypot(sigma, seg)
         xl, yl = tri_left.tolist()
         xr, yr = tri_right.tolist()
         point, cov = p.rig.rectified.triangulate(xl, yl, xr, yr, sigma)
@@ -552,8 +554,14 @@ turning and the side of a box that one eye sees more of than the other change it
 percent."""
 
 
-def _segmentation_jump_px(
-    lb: Blobs, rb: Blobs, i: int, j: int, before: Observation, width_px: float
+def _segmentation_error_px(
+    lb: Blobs,
+    rb: Blobs,
+    i: int,
+    j: int,
+    before: Observation,
+    width_px: float,
+    areas: tuple[float, float] | None = None,
 ) -> float:
     """How far (px, one sigma) the centroids may have moved because the two eyes segmented
     the object differently. Where part of an object is the colour of what is behind it, each
@@ -570,11 +578,14 @@ def _segmentation_jump_px(
     observation, so the filter leans on its prediction across the loss instead of following
     it. The mean growth holds half of a loss in one eye alone, so on its first frame such a
     loss counts from twice the slack (6 %), at half its size: a thrown ball's skewed growth
-    looks the same, and counting it in full cost those balls their valid speeds."""
+    looks the same, and counting it in full cost those balls their valid speeds. The two
+    areas are compared as ``areas`` (left, right) gives them, in rectified px where lens
+    distortion scales the two eyes' images differently (the images' areas when None)."""
     area_l, area_r = max(int(lb.area_px[i]), 1), max(int(rb.area_px[j]), 1)
     left = math.log(area_l / max(before.left_area_px, 1))
     right = math.log(area_r / max(before.right_area_px, 1))
     grew = abs(left + right) / 2.0
     changed = abs(left - right)
-    apart = abs(math.log(area_l / area_r))
+    rect_l, rect_r = areas if areas is not None else (area_l, area_r)
+    apart = abs(math.log(max(rect_l, 1.0) / max(rect_r, 1.0)))
     return max(max(changed, apart) - SEGMENTATION_SLACK - grew, 0.0) * 0.5 * width_px

@@ -287,25 +287,34 @@ def test_a_part_of_an_object_lost_in_one_eye_only_widens_that_observations_error
     before_small = Observation(
         np.zeros(3), np.eye(3), z2, z2, z2, z2, np.zeros(4), np.zeros(4), 1700, 1700, 16.0, 0.1
     )
-    lost = pipeline._segmentation_jump_px(blobs(2440), blobs(2170), 0, 0, before, 54.0)
+    lost = pipeline._segmentation_error_px(blobs(2440), blobs(2170), 0, 0, before, 54.0)
     s = np.log(2440 / 2170)
     assert lost == pytest.approx((s - pipeline.SEGMENTATION_SLACK - s / 2) * 27.0)
     assert lost > 0.7
     # both eyes lost the same share (the object turned, or left the light): no jump
-    assert pipeline._segmentation_jump_px(blobs(2170), blobs(2170), 0, 0, before, 54.0) == 0.0
+    assert pipeline._segmentation_error_px(blobs(2170), blobs(2170), 0, 0, before, 54.0) == 0.0
     # an object coming closer, one eye a little later than the other: growth, not a jump
-    assert pipeline._segmentation_jump_px(blobs(3200), blobs(2900), 0, 0, before, 54.0) == 0.0
+    assert pipeline._segmentation_error_px(blobs(3200), blobs(2900), 0, 0, before, 54.0) == 0.0
     # within the slack: noise
-    assert pipeline._segmentation_jump_px(blobs(2440), blobs(2400), 0, 0, before, 54.0) == 0.0
+    assert pipeline._segmentation_error_px(blobs(2440), blobs(2400), 0, 0, before, 54.0) == 0.0
     # a loss that lasts: the areas changed alike since the last observation, but one eye
     # still holds a share s less of the object than the other, so its centroid is still off
     lasting = Observation(
         np.zeros(3), np.eye(3), z2, z2, z2, z2, np.zeros(4), np.zeros(4), 2440, 2170, 16.0, 0.1
     )
-    still = pipeline._segmentation_jump_px(blobs(2440), blobs(2170), 0, 0, lasting, 54.0)
+    still = pipeline._segmentation_error_px(blobs(2440), blobs(2170), 0, 0, lasting, 54.0)
     assert still == pytest.approx((s - pipeline.SEGMENTATION_SLACK) * 27.0)
+    # the same two blobs of a calibrated rig whose lenses scale the eyes' images differently:
+    # the areas compared are the rectified ones, and those agree
+    rectified = (2300.0, 2300.0)
+    assert (
+        pipeline._segmentation_error_px(blobs(2440), blobs(2170), 0, 0, lasting, 54.0, rectified)
+        == 0.0
+    )
     # and the same areas from an object that grew in both eyes by more than they differ: skew
-    assert pipeline._segmentation_jump_px(blobs(2440), blobs(2170), 0, 0, before_small, 54.0) == 0.0
+    assert (
+        pipeline._segmentation_error_px(blobs(2440), blobs(2170), 0, 0, before_small, 54.0) == 0.0
+    )
 
 
 @pytest.mark.parametrize("disparity_px", [0, 6])
