@@ -42,6 +42,41 @@ class Frame:
     t_ns: int
     seq: int
 
+    def __post_init__(self) -> None:
+        """Refuse what the detectors cannot read, with what to do, rather than failing deep
+        inside OpenCV frames later; ``"left"``/``"right"`` are taken for the :class:`Eye`, and
+        an image not laid out row by row (a transpose) is copied into one that is."""
+        try:
+            eye = Eye(self.eye)
+        except ValueError:
+            raise ValueError(f"eye must be 'left' or 'right', got {self.eye!r}") from None
+        object.__setattr__(self, "eye", eye)
+        image = self.image
+        where = f"{eye.value} frame {self.seq}"
+        if not isinstance(image, np.ndarray):
+            raise TypeError(f"{where}: image must be a numpy array, got {type(image).__name__}")
+        if image.dtype != np.uint8:
+            raise TypeError(
+                f"{where}: image must be uint8 (0-255), got {image.dtype}: scale it and "
+                "convert with image.astype(np.uint8)"
+            )
+        if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)) or not image.size:
+            hint = ""
+            if image.ndim == 3 and image.shape[2] == 4:
+                hint = ": drop alpha with cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)"
+            raise ValueError(
+                f"{where}: image must be grey (h, w) or BGR (h, w, 3), got shape "
+                f"{image.shape}{hint}"
+            )
+        if not image.flags.c_contiguous:
+            object.__setattr__(self, "image", np.ascontiguousarray(image))
+        if isinstance(self.t_ns, float) or not isinstance(self.t_ns, (int, np.integer)):
+            raise TypeError(
+                f"{where}: t_ns must be an integer count of nanoseconds, got "
+                f"{self.t_ns!r}: for seconds, use round(t * 1e9)"
+            )
+        object.__setattr__(self, "t_ns", int(self.t_ns))
+
 
 @dataclass(frozen=True, slots=True)
 class StereoPair:
@@ -67,8 +102,8 @@ class StereoPair:
         instants (ns, one monotonic clock); both frames get sequence number ``seq``."""
         return cls(
             seq,
-            Frame(Eye.LEFT, left_image, int(t_left_ns), seq),
-            Frame(Eye.RIGHT, right_image, int(t_right_ns), seq),
+            Frame(Eye.LEFT, left_image, t_left_ns, seq),
+            Frame(Eye.RIGHT, right_image, t_right_ns, seq),
         )
 
     @property

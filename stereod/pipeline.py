@@ -80,6 +80,19 @@ class PipelineParams:
     max_image_speed_wps: float = 10.0
     refine: RefineParams = field(default_factory=RefineParams)
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.rig, (CanonicalRig, CalibratedRig)):
+            raise TypeError(
+                "rig must be a CanonicalRig (baseline, field of view, image size) or a "
+                f"CalibratedRig (a calibration file), got {type(self.rig).__name__}"
+            )
+        for name in ("centroid_sigma_px", "skew_window_s", "max_image_speed_wps"):
+            value = getattr(self, name)
+            if not 0 < value < math.inf:
+                raise ValueError(f"{name} must be a finite number > 0, got {value}")
+        if self.detect_workers not in (1, 2):
+            raise ValueError(f"detect_workers must be 1 or 2, got {self.detect_workers}")
+
 
 @dataclass(frozen=True, slots=True)
 class Timings:
@@ -180,7 +193,8 @@ class Pipeline:
         )
 
     def close(self) -> None:
-        """Stop the detection workers (idempotent); the pipeline cannot process afterwards."""
+        """Stop the detection workers (idempotent). A pipeline used again afterwards detects
+        both eyes on the calling thread."""
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
@@ -221,8 +235,11 @@ class Pipeline:
     def run(
         self, frames: Iterable[Frame], tolerance_ns: int = DEFAULT_TOLERANCE_NS
     ) -> Iterator[PairResult]:
-        """Pair ``frames`` (both eyes, each eye in capture order, interleaved in any way) by
-        nearest capture time within ``tolerance_ns`` and yield each pair's result as soon as
+        """Pair ``frames`` (both eyes, in the order they were captured, as a camera delivers
+        them: a frame waits for the other eye's nearest one within ``tolerance_ns`` among at
+        most 8 of its eye's, so frames given long before their partners, such as one eye's
+        whole sequence before the other's, are dropped; see :class:`stereod.pairing.Pairer`)
+        and yield each pair's result as soon as
         the pair is formed (a frame that waits for its partner is detected meanwhile, as the
         daemon does: :meth:`detect_ahead`). Tracks still live at the end stay live:
         :meth:`finish` ends them."""
@@ -258,6 +275,29 @@ class Pipeline:
         self._ahead[e] = (frame.seq, frame.t_ns, self._eye(e, frame.image, frame.t_ns))
         return True
 
+    def _check(self, pair: StereoPair) -> None:
+        """Refuse a pair whose frames do not fit the rig or the eyes' time lines (see
+        :meth:`process`)."""
+        w, h = self.params.rig.width_px, self.params.rig.height_px
+        for e, (frame, eye) in enumerate(((pair.left, Eye.LEFT), (pair.right, Eye.RIGHT))):
+            if frame.eye is not eye:
+                raise ValueError(
+                    f"pair {pair.seq}: its {eye.value} frame is the {frame.eye.value} eye's"
+                )
+            fh, fw = frame.image.shape[:2]
+            if (fw, fh) != (w, h):
+                raise ValueError(
+                    f"pair {pair.seq}: the {eye.value} frame is {fw}x{fh} px but the rig is "
+                    f"{w}x{h}: give PipelineParams a rig of the frames' size"
+                )
+            last = self._last[e]
+            if last is not None and frame.t_ns <= last[1]:
+                raise ValueError(
+                    f"pair {pair.seq}: the {eye.value} frame's capture time {frame.t_ns} ns "
+                    f"is not after that of the last pair's ({last[1]} ns): capture times must "
+                    "increase, in ns on one monotonic clock"
+                )
+
     def _detected(self, e: int, frame: Frame) -> Blobs | None:
         """This eye's blobs for ``frame`` if it was detected ahead, else ``None`` (a frame
         detected ahead that did not make it into this pair is dropped)."""
@@ -268,8 +308,11 @@ class Pipeline:
         return ahead[2]
 
     def process(self, pair: StereoPair) -> PairResult:
-        """Run one pair through eq. 2-5, 9, 12 and 21-23."""
+        """Run one pair through eq. 2-5, 9, 12 and 21-23. A pair the pipeline cannot use (an
+        eye's frame not the rig's size, or not later than that eye's frame in the last pair)
+        raises ValueError before anything is changed."""
         p = self.params
+        self._check(pair)
         t0 = time.perf_counter_ns()
         lb, rb = self._detected(0, pair.left), self._detected(1, pair.right)
         if lb is None and rb is None and self._pool is not None:

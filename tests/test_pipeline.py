@@ -354,3 +354,41 @@ def test_one_view_in_both_eyes_never_makes_a_track_at_infinity(disparity_px: int
         (z,) = depths.values()
         assert len(z) > 50
         assert np.median(z) == pytest.approx(0.06 * rig.focal_px / disparity_px, rel=0.01)
+
+
+def test_a_pair_the_pipeline_cannot_use_is_refused_before_anything_changes() -> None:
+    """A frame not of the rig's size, eyes given the wrong way round, or a capture time that
+    is not later than its eye's last one raise a ValueError that names the pair, the eye and
+    what to change; the pipeline then goes on with the next good pair as if the bad one had
+    never come."""
+    import math
+
+    from stereod import CanonicalRig, Frame, Pipeline, StereoPair
+    from stereod.frames import Eye
+
+    rig = CanonicalRig(0.06, 60.0, 64, 48)
+    grey = np.full((48, 64), 90, np.uint8)
+    good = [StereoPair.of(grey, grey, k * 10**8, k * 10**8 + 10**6, seq=k) for k in range(3)]
+    with Pipeline(PipelineParams(rig)) as pipe:
+        pipe.process(good[0])
+        small = np.full((24, 32), 90, np.uint8)
+        with pytest.raises(
+            ValueError, match=r"pair 1: the right frame is 32x24 px but the rig is 64x48"
+        ):
+            pipe.process(StereoPair.of(grey, small, 10**8, 10**8, seq=1))
+        swapped = StereoPair(1, Frame(Eye.RIGHT, grey, 10**8, 1), Frame(Eye.LEFT, grey, 10**8, 1))
+        with pytest.raises(ValueError, match="pair 1: its left frame is the right eye's"):
+            pipe.process(swapped)
+        with pytest.raises(
+            ValueError, match=r"left frame's capture time 0 ns is not after .*\(0 ns\)"
+        ):
+            pipe.process(StereoPair.of(grey, grey, 0, 10**8, seq=1))
+        assert pipe.process(good[1]).seq == 1
+        assert pipe.process(good[2]).seq == 2
+    for name, value in (("centroid_sigma_px", math.nan), ("skew_window_s", 0.0)):
+        with pytest.raises(ValueError, match=f"{name} must be a finite number > 0"):
+            PipelineParams(rig, **{name: value})
+    with pytest.raises(ValueError, match="detect_workers must be 1 or 2"):
+        PipelineParams(rig, detect_workers=0)
+    with pytest.raises(TypeError, match=r"rig must be a CanonicalRig .* got NoneType"):
+        PipelineParams(None)  # type: ignore[arg-type]

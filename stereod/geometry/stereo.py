@@ -87,6 +87,13 @@ def sym3(c: Sequence[float]) -> np.ndarray:
     return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
 
 
+def _whole(v: object) -> bool:
+    """Whether ``v`` is a whole number (an int, or a float with nothing after the point)."""
+    if isinstance(v, bool):
+        return False
+    return isinstance(v, (int, np.integer)) or (isinstance(v, float) and v.is_integer())
+
+
 @dataclass(frozen=True, slots=True)
 class CanonicalRig:
     """Two parallel identical cameras ``baseline_m`` apart with horizontal field of view
@@ -104,12 +111,17 @@ class CanonicalRig:
     """The pair as :class:`Rectified` (it is rectified already)."""
 
     def __post_init__(self) -> None:
-        if not self.baseline_m > 0:
-            raise ValueError(f"baseline must be > 0 m, got {self.baseline_m}")
+        if not 0 < self.baseline_m < math.inf:
+            raise ValueError(f"baseline must be a finite number > 0 m, got {self.baseline_m}")
         if not 0 < self.hfov_deg < 180:
             raise ValueError(
                 f"horizontal field of view must be in (0, 180) deg, got {self.hfov_deg}"
             )
+        size = (self.width_px, self.height_px)
+        if not all(_whole(v) for v in size):
+            raise ValueError(f"image size must be whole pixels, got {size[0]}x{size[1]}")
+        object.__setattr__(self, "width_px", int(self.width_px))
+        object.__setattr__(self, "height_px", int(self.height_px))
         if self.width_px <= 0 or self.height_px <= 0:
             raise ValueError(f"image size must be positive, got {self.width_px}x{self.height_px}")
         focal = self.width_px / (2.0 * math.tan(math.radians(self.hfov_deg) / 2.0))

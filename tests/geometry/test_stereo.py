@@ -216,6 +216,14 @@ def test_rig_rejects_nonsense() -> None:
         CanonicalRig(0.0, 60, 640, 480)
     with pytest.raises(ValueError, match="field of view"):
         CanonicalRig(0.06, 180, 640, 480)
+    with pytest.raises(ValueError, match="finite number > 0 m"):
+        CanonicalRig(math.inf, 60, 640, 480)
+    for size in ((math.nan, 240), (320.5, 240), (True, 240)):
+        with pytest.raises(ValueError, match="whole pixels"):
+            CanonicalRig(0.06, 60, *size)  # type: ignore[arg-type]
+    # a whole number given as a float (from a division, a JSON file) is taken as the int
+    rig = CanonicalRig(0.06, 60, 320.0, np.int64(240))  # type: ignore[arg-type]
+    assert (rig.width_px, rig.height_px) == (320, 240) and isinstance(rig.width_px, int)
 
 
 def test_matching_by_row_disparity_and_size() -> None:
