@@ -40,6 +40,12 @@ contend for the interpreter lock between OpenCV calls; measured with
 gains 14-17 % at 1280x720 (0.92 Mpx)."""
 
 
+MIN_FRAME_INTERVAL_NS = 100_000
+"""The shortest time (ns) between one eye's frames in two pairs that the pipeline takes: 0.1
+ms, ten thousand frames a second. Closer frames are capture times in another unit (ms or us
+read as ns), which would make every speed a thousand times or more too fast."""
+
+
 @dataclass(frozen=True)
 class PipelineParams:
     """Everything the pipeline needs besides the frames.
@@ -297,6 +303,12 @@ class Pipeline:
                     f"is not after that of the last pair's ({last[1]} ns): capture times must "
                     "increase, in ns on one monotonic clock"
                 )
+            if last is not None and frame.t_ns - last[1] < MIN_FRAME_INTERVAL_NS:
+                raise ValueError(
+                    f"pair {pair.seq}: the {eye.value} frame was captured "
+                    f"{frame.t_ns - last[1]} ns after the last pair's: capture times must be "
+                    "in ns (a 30 Hz camera's frames are 33333333 ns apart)"
+                )
 
     def _detected(self, e: int, frame: Frame) -> Blobs | None:
         """This eye's blobs for ``frame`` if it was detected ahead, else ``None`` (a frame
@@ -309,8 +321,8 @@ class Pipeline:
 
     def process(self, pair: StereoPair) -> PairResult:
         """Run one pair through eq. 2-5, 9, 12 and 21-23. A pair the pipeline cannot use (an
-        eye's frame not the rig's size, or not later than that eye's frame in the last pair)
-        raises ValueError before anything is changed."""
+        eye's frame not the rig's size, or not at least ``MIN_FRAME_INTERVAL_NS`` later than
+        that eye's frame in the last pair) raises ValueError before anything is changed."""
         p = self.params
         self._check(pair)
         t0 = time.perf_counter_ns()

@@ -172,9 +172,10 @@ def test_wrong_size_frame_mid_stream_is_skipped_and_reported(
 def test_pipeline_behind_drops_oldest_and_counts(endpoint: str) -> None:
     """A live source faster than the pipeline: memory stays bounded, drops are counted."""
     n = 400
-    # 640x480 frames delivered as fast as memory allows: far beyond the pipeline.
-    left = frames(Eye.LEFT, n, (480, 640), period_ns=1000)
-    right = frames(Eye.RIGHT, n, (480, 640), period_ns=1000)
+    # 640x480 frames 0.2 ms apart (5000 a second), delivered as fast as memory allows: far
+    # beyond the pipeline.
+    left = frames(Eye.LEFT, n, (480, 640), period_ns=200_000)
+    right = frames(Eye.RIGHT, n, (480, 640), period_ns=200_000)
     cfg = config(endpoint, queue_size=2)
     summary = Daemon(cfg, ListDriver(left, right, live=True), rate=0).run()
     assert summary.error is None

@@ -383,6 +383,9 @@ def test_a_pair_the_pipeline_cannot_use_is_refused_before_anything_changes() -> 
             ValueError, match=r"left frame's capture time 0 ns is not after .*\(0 ns\)"
         ):
             pipe.process(StereoPair.of(grey, grey, 0, 10**8, seq=1))
+        ms = StereoPair.of(grey, grey, 66, 10**6 + 66, seq=1)  # times in ms read as ns
+        with pytest.raises(ValueError, match="pair 1: the left frame was captured 66 ns after"):
+            pipe.process(ms)
         assert pipe.process(good[1]).seq == 1
         assert pipe.process(good[2]).seq == 2
     for name, value in (("centroid_sigma_px", math.nan), ("skew_window_s", 0.0)):
