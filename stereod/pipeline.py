@@ -271,12 +271,14 @@ class Pipeline:
         still leaves what it saw of the light (the gain) and of the foreground to the next."""
         e = 0 if frame.eye is Eye.LEFT else 1
         last = self._last[e]
+        h, w = frame.image.shape[:2]
         if (
             self._ahead[e] is not None
             or last is None
             or frame.seq != last[0] + 1
-            or frame.t_ns <= last[1]
-        ):
+            or frame.t_ns - last[1] < MIN_FRAME_INTERVAL_NS
+            or (w, h) != (self.params.rig.width_px, self.params.rig.height_px)
+        ):  # (a frame its pair will be refused for is left to the pair to report)
             return False
         self._ahead[e] = (frame.seq, frame.t_ns, self._eye(e, frame.image, frame.t_ns))
         return True
