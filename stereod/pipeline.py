@@ -12,6 +12,7 @@ format (:func:`stereod.messages.objects_message` turns a result into the wire me
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Iterable, Iterator
@@ -27,8 +28,10 @@ from .geometry import Geometry
 from .geometry.rectified import CalibratedRig
 from .geometry.refine import RefineParams, refine_match
 from .geometry.stereo import CanonicalRig, MatchParams, centre_depth, match_blobs, sym3
-from .pairing import DEFAULT_TOLERANCE_NS, Pairer
+from .pairing import DEFAULT_TOLERANCE_NS, DROP_NON_MONOTONIC, DROP_OVERFLOW, Pairer, PairerStats
 from .tracking import Detection, Observation, Tracker, TrackerParams, TrackState
+
+log = logging.getLogger(__name__)
 
 FREEZE_MARGIN_PX = 4
 """Margin (px) around a tracked blob's box where the background is not learned either."""
@@ -39,6 +42,9 @@ contend for the interpreter lock between OpenCV calls; measured with
 ``benchmarks/throughput.py``, that costs more than the overlap saves at 640x480 (0.31 Mpx) and
 gains 14-17 % at 1280x720 (0.92 Mpx)."""
 
+
+_DISORDER = (DROP_OVERFLOW, DROP_NON_MONOTONIC)
+"""Pairing drops that mean :meth:`Pipeline.run` was given frames out of capture order."""
 
 MIN_FRAME_INTERVAL_NS = 100_000
 """The shortest time (ns) between one eye's frames in two pairs that the pipeline takes: 0.1
@@ -188,6 +194,8 @@ class Pipeline:
         """Per eye, (seq, t_ns, blobs) of a frame detected before its pair was formed."""
         self._last: list[tuple[int, int] | None] = [None, None]
         """Per eye, (seq, t_ns) of its frame in the last pair processed."""
+        self.pairing: PairerStats | None = None
+        """The pairer's counts of the last :meth:`run` (None before one)."""
         self.detected_ahead = 0
         """Frames whose detection was done before their pair formed (:meth:`detect_ahead`)
         and then used."""
@@ -248,8 +256,11 @@ class Pipeline:
         and yield each pair's result as soon as
         the pair is formed (a frame that waits for its partner is detected meanwhile, as the
         daemon does: :meth:`detect_ahead`). Tracks still live at the end stay live:
-        :meth:`finish` ends them."""
+        :meth:`finish` ends them. The pairer's counts (frames in, pairs out, drops by reason)
+        are :attr:`pairing` meanwhile and after; frames dropped because they came out of
+        order (``overflow``, ``non_monotonic``) are also logged as a warning at the end."""
         pairer = Pairer(tolerance_ns)
+        self.pairing = pairer.stats
         for frame in frames:
             pairs = pairer.push(frame)
             if not pairs:
@@ -258,6 +269,15 @@ class Pipeline:
                 yield self.process(pair)
         for pair in pairer.flush():
             yield self.process(pair)
+        disorder = {k: n for k, n in pairer.stats.drops.items() if k in _DISORDER and n}
+        if disorder:
+            counts = ", ".join(f"{k} {n}" for k, n in sorted(disorder.items()))
+            log.warning(
+                "Pipeline.run dropped %d frames while pairing (%s): give the frames in the "
+                "order they were captured",
+                sum(disorder.values()),
+                counts,
+            )
 
     def detect_ahead(self, frame: Frame) -> bool:
         """Detect one eye's frame before its pair is formed (eq. 2-5, after eq. 3 with that

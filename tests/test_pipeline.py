@@ -423,3 +423,31 @@ def test_a_pair_the_pipeline_cannot_use_is_refused_before_anything_changes() -> 
         PipelineParams(rig, detect_workers=0)
     with pytest.raises(TypeError, match=r"rig must be a CanonicalRig .* got NoneType"):
         PipelineParams(None)  # type: ignore[arg-type]
+
+
+def test_run_says_what_it_dropped_when_frames_come_out_of_capture_order(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """One eye's whole sequence before the other's: the pairer holds 8 frames of an eye, so
+    most are dropped; run counts them by reason and warns once at the end. Frames in capture
+    order are all paired, with nothing to warn about."""
+    from stereod import CanonicalRig, Frame, Pipeline
+    from stereod.frames import Eye
+
+    rig = CanonicalRig(0.06, 60.0, 32, 24)
+    grey = np.full((24, 32), 90, np.uint8)
+    left = [Frame(Eye.LEFT, grey, k * 33_333_333, k) for k in range(40)]
+    right = [Frame(Eye.RIGHT, grey, k * 33_333_333 + 10**6, k) for k in range(40)]
+    with Pipeline(PipelineParams(rig)) as pipe, caplog.at_level("WARNING", "stereod.pipeline"):
+        assert pipe.pairing is None
+        in_order = [f for pair in zip(left, right, strict=True) for f in pair]
+        assert len(list(pipe.run(in_order))) == 40
+        assert caplog.records == []
+    with Pipeline(PipelineParams(rig)) as pipe, caplog.at_level("WARNING", "stereod.pipeline"):
+        got = len(list(pipe.run(left + right)))
+    assert pipe.pairing is not None and got == pipe.pairing.pairs < 40
+    dropped = pipe.pairing.drops[pairing.DROP_OVERFLOW]
+    assert dropped == 40 - 8
+    (warning,) = caplog.records
+    assert f"dropped {dropped} frames while pairing (overflow {dropped})" in warning.message
+    assert "in the order they were captured" in warning.message
