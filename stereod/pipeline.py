@@ -291,46 +291,49 @@ class Pipeline:
         still leaves what it saw of the light (the gain) and of the foreground to the next."""
         e = 0 if frame.eye is Eye.LEFT else 1
         last = self._last[e]
-        h, w = frame.image.shape[:2]
         if (
             self._ahead[e] is not None
             or last is None
             or frame.seq != last[0] + 1
-            or frame.t_ns - last[1] < MIN_FRAME_INTERVAL_NS
-            or (w, h) != (self.params.rig.width_px, self.params.rig.height_px)
-        ):  # (a frame its pair will be refused for is left to the pair to report)
+            or self._refusal(frame, frame.eye) is not None  # left to its pair to report
+        ):
             return False
         self._ahead[e] = (frame.seq, frame.t_ns, self._eye(e, frame.image, frame.t_ns))
         return True
 
-    def _check(self, pair: StereoPair) -> None:
-        """Refuse a pair whose frames do not fit the rig or the eyes' time lines (see
-        :meth:`process`)."""
+    def _refusal(self, frame: Frame, eye: Eye) -> str | None:
+        """Why ``frame``, as ``eye``'s frame of a pair, cannot be used (see :meth:`process`),
+        or None when it can."""
+        if frame.eye is not eye:
+            return f"its {eye.value} frame is the {frame.eye.value} eye's"
         w, h = self.params.rig.width_px, self.params.rig.height_px
-        for e, (frame, eye) in enumerate(((pair.left, Eye.LEFT), (pair.right, Eye.RIGHT))):
-            if frame.eye is not eye:
-                raise ValueError(
-                    f"pair {pair.seq}: its {eye.value} frame is the {frame.eye.value} eye's"
-                )
-            fh, fw = frame.image.shape[:2]
-            if (fw, fh) != (w, h):
-                raise ValueError(
-                    f"pair {pair.seq}: the {eye.value} frame is {fw}x{fh} px but the rig is "
-                    f"{w}x{h}: give PipelineParams a rig of the frames' size"
-                )
-            last = self._last[e]
-            if last is not None and frame.t_ns <= last[1]:
-                raise ValueError(
-                    f"pair {pair.seq}: the {eye.value} frame's capture time {frame.t_ns} ns "
-                    f"is not after that of the last pair's ({last[1]} ns): capture times must "
-                    "increase, in ns on one monotonic clock"
-                )
-            if last is not None and frame.t_ns - last[1] < MIN_FRAME_INTERVAL_NS:
-                raise ValueError(
-                    f"pair {pair.seq}: the {eye.value} frame was captured "
-                    f"{frame.t_ns - last[1]} ns after the last pair's: capture times must be "
-                    "in ns (a 30 Hz camera's frames are 33333333 ns apart)"
-                )
+        fh, fw = frame.image.shape[:2]
+        if (fw, fh) != (w, h):
+            return (
+                f"the {eye.value} frame is {fw}x{fh} px but the rig is {w}x{h}: give "
+                "PipelineParams a rig of the frames' size"
+            )
+        last = self._last[0 if eye is Eye.LEFT else 1]
+        if last is not None and frame.t_ns <= last[1]:
+            return (
+                f"the {eye.value} frame's capture time {frame.t_ns} ns is not after that of "
+                f"the last pair's ({last[1]} ns): capture times must increase, in ns on one "
+                "monotonic clock"
+            )
+        if last is not None and frame.t_ns - last[1] < MIN_FRAME_INTERVAL_NS:
+            return (
+                f"the {eye.value} frame was captured {frame.t_ns - last[1]} ns after the last "
+                "pair's: capture times must be in ns (a 30 Hz camera's frames are 33333333 ns "
+                "apart)"
+            )
+        return None
+
+    def _check(self, pair: StereoPair) -> None:
+        """Refuse a pair whose frames do not fit the rig or the eyes' time lines."""
+        for frame, eye in ((pair.left, Eye.LEFT), (pair.right, Eye.RIGHT)):
+            why = self._refusal(frame, eye)
+            if why is not None:
+                raise ValueError(f"pair {pair.seq}: {why}")
 
     def _detected(self, e: int, frame: Frame) -> Blobs | None:
         """This eye's blobs for ``frame`` if it was detected ahead, else ``None`` (a frame
