@@ -32,7 +32,7 @@ from .drivers import load_driver
 from .geometry.stereo import CanonicalRig
 from .interrupt import wait_until
 from .motion import angle_diff_deg, circular_median_deg
-from .publish import open_session
+from .publish import opened_session
 from .record import record
 from .subscribe import format_object
 
@@ -171,7 +171,7 @@ def run_demo(
                 )
                 while not page.connected.wait(0.5):
                     pass
-            session = stack.enter_context(open_session(ZenohConfig(connect=[endpoint])))
+            session = stack.enter_context(opened_session(ZenohConfig(connect=[endpoint])))
             stack.enter_context(
                 subscribe_objects(session, on_event, rig=cfg.rig.name, prefix=cfg.zenoh.prefix)
             )

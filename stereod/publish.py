@@ -9,12 +9,13 @@ query everything else. Publishing never blocks the pipeline: puts use congestion
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import re
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from types import TracebackType
 from typing import Any
 
@@ -109,6 +110,26 @@ def open_session(cfg: ZenohConfig) -> zenoh.Session:
         if "Unable to connect" in reason:  # a router that is down now may be up later
             raise UnavailableError(f"{text}; is the router running?") from exc
         raise ConfigError(text) from exc
+
+
+def close_session(session: zenoh.Session) -> None:
+    """Close a session. A peer that stopped answering (a frozen subscriber) makes Zenoh's close
+    time out after about ten seconds; the session is gone for this process all the same, so
+    that is logged, not raised: a program that ends cleanly does not fail on its way out."""
+    try:
+        session.close()
+    except zenoh.ZError as exc:
+        log.warning("zenoh: closing the session: %s (a peer stopped answering)", zenoh_reason(exc))
+
+
+@contextlib.contextmanager
+def opened_session(cfg: ZenohConfig) -> Iterator[zenoh.Session]:
+    """:func:`open_session` for a ``with`` block, closed by :func:`close_session` after it."""
+    session = open_session(cfg)
+    try:
+        yield session
+    finally:
+        close_session(session)
 
 
 def reachable(session: zenoh.Session, timeout_s: float = 1.0) -> bool:
@@ -270,7 +291,7 @@ class Publisher:
             for e in self._entities:
                 e.undeclare()
             self._entities.clear()
-            self._session.close()
+            close_session(self._session)
             self._session = None
 
     def __enter__(self) -> Publisher:

@@ -8,6 +8,7 @@ import json
 import os
 import re
 import signal
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -489,3 +490,35 @@ def test_a_full_disk_on_stdout_stops_subscribe_with_73(tmp_path: Path, endpoint:
         _, err = sub.communicate(timeout=60)
     assert sub.returncode == 73, err
     assert err.splitlines() == ["stereod: stdout: writing failed: No space left on device"]
+
+
+def test_a_frozen_peer_does_not_make_subscribe_fail_on_its_way_out(
+    listener: object, endpoint: str
+) -> None:
+    """Another subscriber on the bus is stopped (SIGSTOP) and never answers again: closing a
+    session then times out in Zenoh (after about ten seconds), yet ``subscribe`` got what it
+    asked for, so it says so in one line and exits 0, not as an internal error (70)."""
+    frozen = start_stereod("subscribe", "stereod/**", "--connect", endpoint, "--duration", "120")
+    try:
+        time.sleep(1.5)  # it joins the bus
+        frozen.send_signal(signal.SIGSTOP)
+        stop = threading.Event()
+
+        def put() -> None:
+            while not stop.wait(0.1):
+                listener.put("stereod/frozen/status", b"{}")  # type: ignore[attr-defined]
+
+        threading.Thread(target=put, daemon=True).start()
+        try:
+            got = run_stereod(
+                "subscribe", "stereod/frozen/status", "--connect", endpoint, "--count", "1"
+            )
+        finally:
+            stop.set()
+    finally:
+        frozen.send_signal(signal.SIGCONT)
+        frozen.kill()
+        frozen.communicate(timeout=30)
+    assert got.returncode == 0, got.stderr
+    assert got.stdout.startswith("stereod/frozen/status:")
+    assert "internal error" not in got.stderr

@@ -13,7 +13,7 @@ from pydantic import ValidationError
 from ..config import ZenohConfig
 from ..errors import OutputError, UsageError, describe_validation_error
 from ..interrupt import wait_until
-from ..publish import open_session
+from ..publish import opened_session
 from ..subscribe import format_sample
 from .common import DEFAULT_CONNECT, add_zenoh, number, zenoh_overrides
 
@@ -90,7 +90,7 @@ def run(a: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGINT, lambda *_: done.set())
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    with open_session(zcfg) as session:
+    with opened_session(zcfg) as session:
         sub = session.declare_subscriber(key, on_sample)
         wait_until(done, a.duration)
         sub.undeclare()

@@ -49,7 +49,7 @@ from ..client import (
 from ..config import ZenohConfig
 from ..errors import ConfigError
 from ..messages import CanonicalGeometry, ObjectState, StatusMessage
-from ..publish import open_session
+from ..publish import close_session, open_session
 
 log = logging.getLogger(__name__)
 
@@ -287,7 +287,7 @@ class ViewServer:
         self._subs.clear()
         self.hub.session = None
         if self._session is not None:
-            self._session.close()
+            close_session(self._session)
             self._session = None
         loop, thread = self._loop, self._thread
         if loop is not None and thread is not None and thread.is_alive():
