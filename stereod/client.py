@@ -36,8 +36,10 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import queue
 import threading
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from types import TracebackType
@@ -291,9 +293,10 @@ class EventStream:
             self.dropped += 1
 
     def get(self, timeout_s: float | None = None) -> Event | None:
-        """The next event, or ``None`` after ``timeout_s`` seconds without one."""
+        """The next event, or ``None`` after ``timeout_s`` seconds without one (``None`` or
+        infinity: wait for one)."""
         try:
-            return self._queue.get(timeout=timeout_s)
+            return self._queue.get(timeout=_wait_s(timeout_s, forever=True))
         except queue.Empty:
             return None
 
@@ -334,7 +337,9 @@ def wait_alive(
     timeout_s: float = 10.0,
 ) -> bool:
     """Wait until the daemon of ``rig`` is up (its liveliness token is declared last, so its
-    queryables answer once it is seen); False after ``timeout_s`` seconds."""
+    queryables answer once it is seen); False after ``timeout_s`` seconds (infinity: wait
+    for it)."""
+    wait_s = _wait_s(timeout_s, forever=True)
     seen = threading.Event()
     sub = session.liveliness().declare_subscriber(
         keys.alive(rig, prefix=prefix),
@@ -342,21 +347,43 @@ def wait_alive(
         history=True,
     )
     try:
-        return seen.wait(timeout_s)
+        return seen.wait(wait_s)
     finally:
         sub.undeclare()
 
 
+def _wait_s(timeout_s: float | None, *, forever: bool) -> float | None:
+    """A timeout argument checked: seconds >= 0, or (where ``forever`` is allowed) ``None``
+    or infinity for no limit, returned as ``None``; anything else is a ValueError."""
+    if timeout_s is None and forever:
+        return None
+    if isinstance(timeout_s, bool) or not isinstance(timeout_s, (int, float)):
+        raise ValueError(f"timeout_s must be a number of seconds, got {timeout_s!r}")
+    if math.isinf(timeout_s) and timeout_s > 0 and forever:
+        return None
+    if not (math.isfinite(timeout_s) and timeout_s >= 0):
+        limit = "a number of seconds >= 0" if forever else "a finite number of seconds > 0"
+        raise ValueError(f"timeout_s must be {limit}, got {timeout_s!r}")
+    return float(timeout_s)
+
+
 def _query(session: zenoh.Session, key: str, timeout_s: float) -> bytes:
-    for reply in session.get(key, timeout=timeout_s):
+    wait_s = _wait_s(timeout_s, forever=False)
+    if not wait_s:
+        raise ValueError(f"timeout_s must be a finite number of seconds > 0, got {timeout_s!r}")
+    start = time.monotonic()
+    for reply in session.get(key, timeout=wait_s):
         if reply.ok is not None:
             return reply.ok.payload.to_bytes()
         raise QueryError(
             f"{key}: the daemon replied with an error: {reply.err.payload.to_bytes()!r}"
         )
-    raise QueryError(
-        f"{key}: no reply within {timeout_s:g} s (is the daemon running? see wait_alive)"
-    )
+    if time.monotonic() - start < 0.5 * wait_s:  # Zenoh knew at once that nothing serves it
+        raise QueryError(
+            f"{key}: no daemon on the bus answers it (is one running with this rig name and "
+            "prefix? see wait_alive)"
+        )
+    raise QueryError(f"{key}: no reply within {wait_s:g} s (is the daemon running? see wait_alive)")
 
 
 def query_config(

@@ -31,7 +31,15 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+)
 
 from . import keys
 from .detect import Centroid, DetectorParams, Luminance, Warmup
@@ -186,6 +194,15 @@ class MatchingConfig(_Section):
     max_area_ratio: float = Field(
         _MATCH.max_area_ratio, ge=1.0, description="Largest blob area ratio"
     )
+
+    @field_validator("max_disparity_px")
+    @classmethod
+    def _above_min(cls, v: float, info: ValidationInfo) -> float:
+        low = info.data.get("min_disparity_px")
+        if low is not None and not v > low:
+            raise ValueError(f"must be larger than min_disparity_px ({low:g}): nothing can match")
+        return v
+
     centroid_sigma_px: float = Field(
         _pipe("centroid_sigma_px"), gt=0.0, description="Centroid error per axis, px"
     )

@@ -55,6 +55,10 @@ def test_a_flag_naming_another_driver_leaves_the_files_driver_options_out(tmp_pa
             r"zenoh\.mode = 'satellite': Input should be 'peer', 'client' or 'router'",
         ),
         ("[detector\n", r"c\.toml: invalid TOML"),
+        (
+            "[matching]\nmin_disparity_px = 10.0\nmax_disparity_px = 5.0\n",
+            r"matching\.max_disparity_px = 5\.0: must be larger than min_disparity_px \(10\)",
+        ),
     ],
 )
 def test_bad_values_are_one_line_naming_the_field(tmp_path: Path, toml: str, pattern: str) -> None:
