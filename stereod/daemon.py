@@ -252,6 +252,12 @@ class Daemon:
         }
         with Publisher(cfg.zenoh, cfg.rig.name, queryables, self._status_now.set) as pub:
             self._publisher = pub
+            if pub.rig_taken:
+                h.problem(
+                    f"another stereod already publishes rig {cfg.rig.name!r} under "
+                    f"{pub.base}/: their messages mix and either may answer a query; give "
+                    "each daemon its own [rig] name"
+                )
             self._wait_for_subscriber(pub)
             if not self._stop.is_set():
                 h.state = DaemonState.RUNNING

@@ -168,6 +168,9 @@ class Publisher:
         self._lock = threading.Lock()
         self.published = 0
         self.errors = 0
+        self.rig_taken = False
+        """Whether another daemon's ``alive`` token for this rig was on the bus at open: two
+        daemons under one rig name mix their messages and answer each other's queries."""
 
     def open(self) -> Publisher:
         s = open_session(self._cfg)
@@ -201,7 +204,9 @@ class Publisher:
                     keys.queryable(name, self.rig, prefix=self.prefix), self._replier(name, fn)
                 )
             )
-        self._alive = s.liveliness().declare_token(keys.alive(self.rig, prefix=self.prefix))
+        alive = keys.alive(self.rig, prefix=self.prefix)
+        self.rig_taken = any(r.ok is not None for r in s.liveliness().get(alive, timeout=1.0))
+        self._alive = s.liveliness().declare_token(alive)
         log.info("zenoh session open, publishing under %s/", self.base)
         return self
 

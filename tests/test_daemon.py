@@ -81,6 +81,26 @@ def test_queryables_liveliness_and_status_on_new_subscriber(
     assert left == []
 
 
+def test_a_second_daemon_under_the_same_rig_name_says_so(
+    endpoint: str, listener: zenoh.Session
+) -> None:
+    """Two daemons publishing one rig's keys on one bus mix their messages; the one that comes
+    second finds the first's liveliness token and says so on its status (the first never
+    learns of it: Zenoh merges two tokens on one key)."""
+    first = Daemon(config(endpoint), SyntheticDriver({"duration_s": 3.0, "fps": 15}), rate=1.0)
+    thread, _ = start(first)
+    try:
+        wait_alive(listener, "stereod/minoru/alive")
+        second = Daemon(config(endpoint), SyntheticDriver({"duration_s": 0.5, "fps": 15}))
+        summary = second.run()
+    finally:
+        first.stop()
+        thread.join(15)
+    assert summary.error is None
+    assert any("another stereod already publishes rig 'minoru'" in p for p in summary.problems)
+    assert not any("another stereod" in p for p in first.health.problems())
+
+
 def test_live_source_runs_one_thread_per_eye(endpoint: str, listener: zenoh.Session) -> None:
     msgs: list[dict] = []
     sub = listener.declare_subscriber(
