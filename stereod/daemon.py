@@ -372,7 +372,16 @@ class Daemon:
             )
         assert self._worker is not None
         self._worker.reconfigure(params)
-        self.cfg = cfg
+        # What the config queryable reports is what runs: the parts that wait for a restart
+        # stay as they are until then.
+        self.cfg = cfg.model_copy(
+            update={
+                "driver": self.cfg.driver,
+                "zenoh": self.cfg.zenoh,
+                "daemon": self.cfg.daemon,
+                "rig": cfg.rig.model_copy(update={"name": self.cfg.rig.name}),
+            }
+        )
         log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)
         self._notifier.notify(READY=1)
         self._status_now.set()

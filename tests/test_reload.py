@@ -137,6 +137,14 @@ def test_no_new_file_kills_a_running_daemon(tmp_path: Path, endpoint: str) -> No
             proc.send_signal(signal.SIGHUP)
             assert wait(lambda: query_config(s, rig="svc")["detector"]["threshold"] == 31.0)
             assert statuses[-1]["state"] == "running"
+            # What waits for a restart is reported as it runs, not as the file has it.
+            renamed = good(endpoint, threshold=33.0).replace('"svc"', '"svc2"')
+            cfg.write_text(renamed.replace("width_px = 160", "width_px = 320"))
+            proc.send_signal(signal.SIGHUP)
+            assert wait(lambda: query_config(s, rig="svc")["detector"]["threshold"] == 33.0)
+            running = query_config(s, rig="svc")
+            assert running["rig"]["name"] == "svc"
+            assert running["driver"]["options"]["width_px"] == 160
     finally:
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=20)
