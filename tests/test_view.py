@@ -243,6 +243,11 @@ def test_view_command_prints_its_url_and_stops_on_sigint(endpoint: str) -> None:
         busy = run_stereod("view", "--port", port, "--connect", endpoint, timeout=60)
         assert busy.returncode == 78, busy.stderr
         assert busy.stderr.count("\n") == 1 and f"127.0.0.1:{port}" in busy.stderr
+        assert "pick another with --port" in busy.stderr
+        # A host that is not this machine's: the host is at fault, not the port.
+        alien = run_stereod("view", "--host", "999.1.1.1", "--connect", endpoint, timeout=60)
+        assert alien.returncode == 78, alien.stderr
+        assert alien.stderr.count("\n") == 1 and "check --host" in alien.stderr
     finally:
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=30)

@@ -22,9 +22,11 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import errno
 import json
 import logging
 import math
+import socket
 import threading
 from pathlib import Path
 from typing import Any
@@ -259,9 +261,13 @@ class ViewServer:
             self._thread.join()
             err = self._error
             if isinstance(err, OSError):
+                hint = (
+                    "check --host: a name or address of this machine"
+                    if isinstance(err, socket.gaierror) or err.errno == errno.EADDRNOTAVAIL
+                    else "pick another with --port, or --port 0 for any free one"
+                )
                 raise ConfigError(
-                    f"view: cannot serve on {self.host}:{self.port}: {err.strerror or err} "
-                    "(pick another with --port, or --port 0 for any free one)"
+                    f"view: cannot serve on {self.host}:{self.port}: {err.strerror or err} ({hint})"
                 ) from err
             raise err
         hub = self.hub
