@@ -109,6 +109,11 @@ def open_session(cfg: ZenohConfig) -> zenoh.Session:
         text = f"zenoh: cannot open a session{f' ({ends})' if ends else ''}: {reason}"
         if "Unable to connect" in reason:  # a router that is down now may be up later
             raise UnavailableError(f"{text}; is the router running?") from exc
+        if "Address already in use" in reason:  # taken now, maybe free later (a restart)
+            raise UnavailableError(
+                f"{text}; another process listens there (a daemon still stopping, or another "
+                "one: give each its own endpoint)"
+            ) from exc
         raise ConfigError(text) from exc
 
 

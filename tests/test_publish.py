@@ -7,11 +7,13 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 import zenoh
 
 from stereod.client import wait_alive
 from stereod.config import ZenohConfig
-from stereod.publish import Publisher, session_config
+from stereod.errors import UnavailableError
+from stereod.publish import Publisher, open_session, session_config
 
 
 def test_objects_tracks_deletes_and_failing_queryable(
@@ -93,3 +95,13 @@ def test_an_endpoint_not_up_yet_is_tried_again_within_a_quarter_second(tmp_path:
     own.write_text("{}")
     zc = session_config(ZenohConfig(connect=ep, config_file=own))
     assert json.loads(zc.get_json("connect/retry")) is None
+
+
+def test_an_endpoint_another_process_listens_on_is_unavailable_not_a_config_error(
+    endpoint: str, listener: zenoh.Session
+) -> None:
+    """Taken now, perhaps free in a moment (the daemon a restart replaces is still stopping):
+    exit 69, which systemd retries, not 78, which it does not."""
+    with pytest.raises(UnavailableError, match="another process listens there") as err:
+        open_session(ZenohConfig(listen=[endpoint]))
+    assert err.value.exit_code == 69
