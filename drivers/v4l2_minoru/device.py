@@ -16,12 +16,15 @@ from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, TypeVar
 
-from stereod.errors import DeviceError, DeviceLost
+from stereod.errors import ConfigError, DeviceError, DeviceLost
 
 from . import raw
 from .ioctl import IO, SystemIO, xioctl
 
 log = logging.getLogger(__name__)
+
+_PICK_NODE = "point the eye at a camera's capture node (`stereod devices` lists them)"
+"""The fix for a node that is not a camera's: a wrong path, which retrying will not mend."""
 
 S = TypeVar("S", bound=ctypes.Structure)
 
@@ -76,10 +79,18 @@ class V4L2Device:
             ) from exc
         except OSError as exc:
             raise DeviceError(f"{self.path}: cannot open: {exc.strerror}") from exc
-        caps = self.querycap()
+        try:
+            caps = self.querycap()
+        except DeviceError as exc:
+            self.close()
+            if isinstance(exc.__cause__, OSError) and exc.__cause__.errno == errno.ENOTTY:
+                raise ConfigError(f"{self.path}: not a V4L2 device; {_PICK_NODE}") from exc
+            raise
         if not caps["capabilities"] & raw.V4L2_CAP_VIDEO_CAPTURE:
             self.close()
-            raise DeviceError(f"{self.path}: not a video capture device ({caps['card']})")
+            raise ConfigError(
+                f"{self.path}: not a video capture device ({caps['card']}); {_PICK_NODE}"
+            )
         return self
 
     def close(self) -> None:

@@ -141,3 +141,11 @@ def test_option_errors() -> None:
         MinoruDriver({"fps": 0})
     with pytest.raises(DeviceLost, match="no such device"):
         MinoruDriver({**OPTS, "left": "/dev/none"}, io=kernel()).open()
+
+
+def test_a_node_that_is_not_a_camera_is_a_config_error() -> None:
+    """The real kernel's answer to a V4L2 query on /dev/null (ENOTTY): a wrong path in the
+    configuration, exit 78, which systemd does not retry, rather than an unavailable device."""
+    with pytest.raises(ConfigError, match=r"/dev/null: not a V4L2 device; point the eye") as err:
+        V4L2Device("/dev/null").open()
+    assert err.value.exit_code == 78
