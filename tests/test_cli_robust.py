@@ -522,3 +522,12 @@ def test_a_frozen_peer_does_not_make_subscribe_fail_on_its_way_out(
     assert got.returncode == 0, got.stderr
     assert got.stdout.startswith("stereod/frozen/status:")
     assert "internal error" not in got.stderr
+
+
+def test_subscribe_to_an_endpoint_nothing_answers_on_says_so(endpoint: str) -> None:
+    """Silence from a wrong address looks like an idle rig: it is said once, on stderr."""
+    got = run_stereod("subscribe", "--connect", endpoint, "--duration", "1")
+    assert got.returncode == 0, got.stderr
+    assert got.stdout == ""
+    assert f"no Zenoh peer or router answers at {endpoint}" in got.stderr
+    assert got.stderr.count("\n") == 1

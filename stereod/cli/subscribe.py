@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 import signal
+import sys
 import threading
+import time
 
 import zenoh
 from pydantic import ValidationError
@@ -13,7 +15,7 @@ from pydantic import ValidationError
 from ..config import ZenohConfig
 from ..errors import OutputError, UsageError, describe_validation_error
 from ..interrupt import wait_until
-from ..publish import opened_session
+from ..publish import opened_session, reachable
 from ..subscribe import format_sample
 from .common import DEFAULT_CONNECT, add_zenoh, number, zenoh_overrides
 
@@ -92,7 +94,15 @@ def run(a: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     with opened_session(zcfg) as session:
         sub = session.declare_subscriber(key, on_sample)
-        wait_until(done, a.duration)
+        start = time.monotonic()
+        if zcfg.connect and not reachable(session, min(1.0, a.duration or 1.0)):
+            print(
+                f"stereod: no Zenoh peer or router answers at {', '.join(zcfg.connect)} "
+                "(is the daemon running there?); listening anyway",
+                file=sys.stderr,
+                flush=True,
+            )
+        wait_until(done, None if a.duration is None else a.duration - (time.monotonic() - start))
         sub.undeclare()
     if failed:
         if isinstance(failed[0], BrokenPipeError):
