@@ -28,7 +28,7 @@ from pathlib import Path
 from .capture import Capture, Queued
 from .config import StereodConfig
 from .errors import InternalError, StereodError
-from .frames import Driver, StereoSource
+from .frames import Driver, Eye, StereoSource
 from .geometry.rectified import CalibratedRig
 from .images import ImagePublishers, ImageWorker
 from .messages import CanonicalGeometry, DaemonState, StatusMessage, dump
@@ -396,6 +396,14 @@ class Daemon:
     def _finish(self) -> RunSummary:
         s = self.summary
         st = self.pairer.stats
+        left, right = self.pairer.last_ns(Eye.LEFT), self.pairer.last_ns(Eye.RIGHT)
+        if st.pairs == 0 and left is not None and right is not None:
+            self.health.problem(
+                f"no pairs: no frame had a partner of the other eye within "
+                f"{self.pairer.tolerance_ns / 1e6:g} ms; the eyes' last frames were "
+                f"{abs(left - right) / 1e9:.3g} s apart, so their clocks or timestamp files "
+                "do not agree"
+            )
         drops, errors, _ = self.health.counters()
         s.pairs = st.pairs
         s.frames = {e.value: n for e, n in st.frames.items()}

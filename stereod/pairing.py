@@ -65,6 +65,10 @@ class Pairer:
         self._next_seq = 0
         self.stats = PairerStats()
 
+    def last_ns(self, eye: Eye) -> int | None:
+        """The capture time (ns) of the last frame of an eye taken in order (None before)."""
+        return self._last_t[eye]
+
     def period_ns(self, eye: Eye) -> float | None:
         """Running estimate of an eye's frame period (ns), from successive timestamps."""
         return self._period_ns[eye]

@@ -531,3 +531,24 @@ def test_subscribe_to_an_endpoint_nothing_answers_on_says_so(endpoint: str) -> N
     assert got.stdout == ""
     assert f"no Zenoh peer or router answers at {endpoint}" in got.stderr
     assert got.stderr.count("\n") == 1
+
+
+def test_eyes_whose_clocks_disagree_by_seconds_say_why_nothing_paired(tmp_path: Path) -> None:
+    """The right eye's timestamp file 10 s ahead of the left's: no frame finds a partner,
+    and rather than a run that merely counts drops, it fails (65) saying how far apart the
+    eyes' last frames were."""
+    rec = recording(tmp_path)
+    rows = (rec / "right.csv").read_text().splitlines()
+    shifted = [rows[0]] + [
+        f"{int(t) + 10_000_000_000},{seq}" for t, seq in (r.split(",") for r in rows[1:])
+    ]
+    (tmp_path / "right10.csv").write_text("\n".join(shifted) + "\n")
+    got = run_stereod(
+        "replay",
+        *("--left-video", str(rec / "left.mkv"), "--right-video", str(rec / "right.mkv")),
+        *("--left-ts", str(rec / "left.csv"), "--right-ts", str(tmp_path / "right10.csv")),
+        *("--rate", "0", "-q"),
+    )
+    assert got.returncode == 65, got.stderr
+    assert "no pairs: no frame had a partner of the other eye within" in got.stderr
+    assert "last frames were 10 s apart" in got.stderr
