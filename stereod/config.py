@@ -42,7 +42,7 @@ from pydantic import (
 )
 
 from . import keys
-from .detect import Centroid, DetectorParams, Luminance, Warmup
+from .detect import MAX_WARMUP_FRAMES, Centroid, DetectorParams, Luminance, Warmup
 from .errors import ConfigError, MissingInputError, UsageError, describe_error
 from .geometry.refine import RefineParams
 from .geometry.stereo import MatchParams
@@ -105,7 +105,10 @@ class DetectorConfig(_Section):
     )
     min_area_px: int = Field(_DETECT.min_area_px, ge=1, le=10**7, description="Smallest blob, px")
     warmup_frames: int = Field(
-        _DETECT.warmup_frames, ge=1, le=1000, description="Frames in the initial background"
+        _DETECT.warmup_frames,
+        ge=1,
+        le=MAX_WARMUP_FRAMES,
+        description="Frames in the initial background",
     )
     warmup: Warmup = Field(_DETECT.warmup, description="median or mean of the warm-up frames")
     open_px: int = Field(

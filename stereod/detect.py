@@ -118,6 +118,11 @@ _ROW_STEPS = (1, 2, 3, 4, 6)
 its rows."""
 
 
+MAX_WARMUP_FRAMES = 1000
+"""Most frames the initial background may be made of (the warm-up keeps them all in memory:
+1000 BGR frames at 640x480 are 0.9 GB)."""
+
+
 @dataclass(frozen=True, slots=True)
 class DetectorParams:
     """Parameters of sec. II and of what is added to it (module docstring).

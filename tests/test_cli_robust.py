@@ -102,6 +102,13 @@ def truncated(d: Path, codec: Codec = Codec.MJPG) -> None:
 
 ROWS = [
     Row(
+        "--warmup beyond what the config allows",
+        ["replay", "{d}/rec", "--warmup", "5000"],
+        64,
+        r"--warmup: 5000: must be <= 1000",
+        recording,
+    ),
+    Row(
         "non-UTF-8 recording dir",
         ["replay", "{d}/r\udcff", "--rate", "0"],
         64,

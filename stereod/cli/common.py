@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..detect import DetectorParams
+from ..detect import MAX_WARMUP_FRAMES, DetectorParams
 from ..errors import EX_DATAERR, ConfigError, one_line
 
 log = logging.getLogger("stereod")
@@ -187,7 +187,7 @@ def add_pipeline(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--warmup",
-        type=number(1, 10000, integer=True),
+        type=number(1, MAX_WARMUP_FRAMES, integer=True),
         metavar="FRAMES",
         help="frames that make the initial background (their median unless the config says "
         f"mean; default {DetectorParams().warmup_frames})",
