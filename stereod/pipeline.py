@@ -183,6 +183,11 @@ class Pipeline:
     """
 
     def __init__(self, params: PipelineParams) -> None:
+        if not isinstance(params, PipelineParams):
+            raise TypeError(
+                f"Pipeline takes a PipelineParams, e.g. PipelineParams(CanonicalRig(...)), "
+                f"got {type(params).__name__}"
+            )
         self.params = params
         self.left = Detector(params.detector)
         self.right = Detector(params.detector)
@@ -261,7 +266,12 @@ class Pipeline:
         order (``overflow``, ``non_monotonic``) are also logged as a warning at the end."""
         pairer = Pairer(tolerance_ns)
         self.pairing = pairer.stats
-        for frame in frames:
+        for k, frame in enumerate(frames):
+            if not isinstance(frame, Frame):
+                raise TypeError(
+                    f"Pipeline.run: item {k} is a {type(frame).__name__}, not a Frame "
+                    "(Frame(eye, image, t_ns, seq), both eyes' frames in one sequence)"
+                )
             pairs = pairer.push(frame)
             if not pairs:
                 self.detect_ahead(frame)
@@ -269,6 +279,16 @@ class Pipeline:
                 yield self.process(pair)
         for pair in pairer.flush():
             yield self.process(pair)
+        seen = pairer.stats.frames
+        for eye, other in ((Eye.LEFT, Eye.RIGHT), (Eye.RIGHT, Eye.LEFT)):
+            if seen[other] and not seen[eye]:
+                log.warning(
+                    "Pipeline.run got %d %s frames and no %s one: nothing can be paired; give "
+                    "both eyes' frames in one sequence",
+                    seen[other],
+                    other.value,
+                    eye.value,
+                )
         disorder = {k: n for k, n in pairer.stats.drops.items() if k in _DISORDER and n}
         if disorder:
             counts = ", ".join(f"{k} {n}" for k, n in sorted(disorder.items()))
@@ -289,6 +309,8 @@ class Pipeline:
         :meth:`process`. The result is the same, to the bit, as detecting the frame with its
         pair, unless its pair never comes (the pairer dropped the frame): its detection then
         still leaves what it saw of the light (the gain) and of the foreground to the next."""
+        if not isinstance(frame, Frame):
+            raise TypeError(f"detect_ahead takes a Frame, got {type(frame).__name__}")
         e = 0 if frame.eye is Eye.LEFT else 1
         last = self._last[e]
         if (
@@ -330,6 +352,11 @@ class Pipeline:
 
     def _check(self, pair: StereoPair) -> None:
         """Refuse a pair whose frames do not fit the rig or the eyes' time lines."""
+        if not isinstance(pair, StereoPair):
+            raise TypeError(
+                f"process takes a StereoPair(seq, left, right) of two Frames, got "
+                f"{type(pair).__name__}"
+            )
         for frame, eye in ((pair.left, Eye.LEFT), (pair.right, Eye.RIGHT)):
             why = self._refusal(frame, eye)
             if why is not None:

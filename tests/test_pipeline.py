@@ -425,6 +425,26 @@ def test_a_pair_the_pipeline_cannot_use_is_refused_before_anything_changes() -> 
         PipelineParams(None)  # type: ignore[arg-type]
 
 
+def test_the_wrong_kind_of_argument_is_a_type_error_saying_what_is_wanted() -> None:
+    """What the README promises the library raises on bad input: TypeError or ValueError
+    with a line that says what was wanted, never an AttributeError from deep inside."""
+    from stereod import CanonicalRig, Frame, Pipeline
+    from stereod.frames import Eye
+
+    rig = CanonicalRig(0.06, 60.0, 32, 24)
+    image = np.zeros((24, 32), np.uint8)
+    left, right = Frame(Eye.LEFT, image, 1_000_000, 0), Frame(Eye.RIGHT, image, 1_000_000, 0)
+    with pytest.raises(TypeError, match=r"takes a PipelineParams.* got NoneType"):
+        Pipeline(None)  # type: ignore[arg-type]
+    with Pipeline(PipelineParams(rig)) as pipe:
+        with pytest.raises(TypeError, match=r"StereoPair\(seq, left, right\).* got tuple"):
+            pipe.process((left, right))  # type: ignore[arg-type]
+        with pytest.raises(TypeError, match="item 2 is a int, not a Frame"):
+            list(pipe.run([left, right, 3]))  # type: ignore[list-item]
+        with pytest.raises(TypeError, match="detect_ahead takes a Frame, got ndarray"):
+            pipe.detect_ahead(image)  # type: ignore[arg-type]
+
+
 def test_run_says_what_it_dropped_when_frames_come_out_of_capture_order(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
@@ -451,3 +471,7 @@ def test_run_says_what_it_dropped_when_frames_come_out_of_capture_order(
     (warning,) = caplog.records
     assert f"dropped {dropped} frames while pairing (overflow {dropped})" in warning.message
     assert "in the order they were captured" in warning.message
+    caplog.clear()
+    with Pipeline(PipelineParams(rig)) as pipe, caplog.at_level("WARNING", "stereod.pipeline"):
+        assert list(pipe.run(left)) == []
+    assert "got 40 left frames and no right one: nothing can be paired" in caplog.text

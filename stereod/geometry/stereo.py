@@ -400,6 +400,11 @@ class MatchParams:
     def __post_init__(self) -> None:
         if not self.row_tolerance_px > 0:
             raise ValueError(f"row tolerance must be > 0 px, got {self.row_tolerance_px}")
+        if not self.max_disparity_px > self.min_disparity_px:
+            raise ValueError(
+                f"max_disparity_px ({self.max_disparity_px:g}) must be larger than "
+                f"min_disparity_px ({self.min_disparity_px:g}): nothing could match"
+            )
 
 
 def match_blobs(

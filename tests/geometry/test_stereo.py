@@ -247,6 +247,8 @@ def test_matching_uses_each_blob_once_and_prefers_the_closer_row() -> None:
 def test_a_row_tolerance_of_zero_is_refused() -> None:
     with pytest.raises(ValueError, match="row tolerance must be > 0 px"):
         MatchParams(row_tolerance_px=0.0)
+    with pytest.raises(ValueError, match=r"max_disparity_px \(5\) must be larger than"):
+        MatchParams(min_disparity_px=10.0, max_disparity_px=5.0)
 
 
 def test_matching_rejects_very_different_sizes() -> None:
