@@ -14,7 +14,7 @@ from pydantic import ValidationError
 from stereod.cli.common import add_canonical_rig, number, path_arg, size_arg
 from stereod.errors import UsageError, describe_validation_error
 from stereod.progress import Progress
-from stereod.recording import Codec
+from stereod.recording import Codec, size_problem
 
 from .synth import Scene, write_scene
 
@@ -45,7 +45,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "'heading=60,speed=0.7,z=1.8' (repeatable; default one such ball)",
     )
     p.add_argument(
-        "--size", type=size_arg, default=(640, 480), metavar="WxH", help="image size, px"
+        "--size",
+        type=recording_size,
+        default=(640, 480),
+        metavar="WxH",
+        help="image size, px: even numbers (default 640x480)",
     )
     p.add_argument(
         "--fps", type=number(0.1, 1000.0, unit="Hz"), default=15.0, help="frame rate, Hz (15)"
@@ -129,6 +133,16 @@ def parse_ball(spec: str) -> dict[str, Any]:
     return out
 
 
+def recording_size(text: str) -> tuple[int, int]:
+    """An argparse type: ``WxH`` that a recording stores as it is (even sides: the video
+    writer would crop an odd one), so a bad ``--size`` is one line and exit 64."""
+    w, h = size_arg(text)
+    problem = size_problem(w, h)
+    if problem is not None:
+        raise argparse.ArgumentTypeError(problem)
+    return w, h
+
+
 def scene_from_args(a: argparse.Namespace) -> Scene:
     """The :class:`~.synth.Scene` described by ``stereod synth`` flags."""
     w, h = a.size
@@ -141,7 +155,7 @@ def scene_from_args(a: argparse.Namespace) -> Scene:
     for b in balls:
         b.update(t_on_s=t_on, t_off_s=t_off, t_mid_s=(t_on + t_off) / 2)
     try:
-        return Scene(
+        scene = Scene(
             width_px=w,
             height_px=h,
             fps=a.fps,
@@ -157,6 +171,12 @@ def scene_from_args(a: argparse.Namespace) -> Scene:
         )
     except ValidationError as exc:
         raise UsageError(f"synth: {describe_validation_error(exc)}") from exc
+    if scene.n_frames == 0:
+        raise UsageError(
+            f"--duration {a.duration:g} s at --fps {a.fps:g} Hz is not one frame: give a "
+            f"--duration of at least {1 / a.fps:g} s or a higher --fps"
+        )
+    return scene
 
 
 def run(a: argparse.Namespace) -> int:

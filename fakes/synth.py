@@ -130,6 +130,8 @@ def scene_from_truth(path: Path) -> Scene:
         return Scene.model_validate_json(path.read_bytes())
     except FileNotFoundError as exc:
         raise MissingInputError(f"{path}: no such truth file") from exc
+    except OSError as exc:
+        raise MissingInputError(f"{path}: cannot read the truth file: {exc.strerror}") from exc
     except ValidationError as exc:
         raise InputError(
             f"{path}: not a scene truth file: {describe_validation_error(exc)}"

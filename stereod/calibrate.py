@@ -14,6 +14,7 @@ seen in both eyes in a pose that differs enough from those already kept.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -126,27 +127,41 @@ def read_image(path: Path) -> np.ndarray:
     return img
 
 
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
+
+
 def pairs_in_directory(directory: Path) -> list[tuple[Path, Path]]:
     """Left/right image pairs in a folder: files whose names contain ``left`` matched with the
     same name with ``right`` (``left03.png`` and ``right03.png``), or ``left/`` and ``right/``
-    subfolders with equal file names."""
-    if not directory.is_dir():
+    subfolders with equal file names. An image without its partner comes with the partner's
+    expected path, which does not exist: :func:`calibrate_files` reports it as rejected."""
+    if not os.path.isdir(directory):
         raise MissingInputError(f"{directory}: no such folder of calibration pairs")
-    exts = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
-    if (directory / "left").is_dir() and (directory / "right").is_dir():
-        lefts = sorted(p for p in (directory / "left").iterdir() if p.suffix.lower() in exts)
+    if os.path.isdir(directory / "left") and os.path.isdir(directory / "right"):
+        lefts = _images(directory / "left", "")
+        rights = _images(directory / "right", "")
         pairs = [(p, directory / "right" / p.name) for p in lefts]
+        partners = [directory / "left" / p.name for p in rights]
     else:
-        lefts = sorted(
-            p for p in directory.iterdir() if "left" in p.name and p.suffix.lower() in exts
-        )
+        lefts = _images(directory, "left")
+        rights = [p for p in _images(directory, "right") if p not in lefts]
         pairs = [(p, p.with_name(p.name.replace("left", "right"))) for p in lefts]
-    pairs = [(a, b) for a, b in pairs if b.is_file()]
-    if not pairs:
+        partners = [p.with_name(p.name.replace("right", "left")) for p in rights]
+    pairs += [(a, b) for a, b in zip(partners, rights, strict=True) if a not in lefts]
+    if not any(a.is_file() and b.is_file() for a, b in pairs):
         raise InputError(
             f"{directory}: no image pairs (expected leftNN/rightNN files or left/ and right/)"
         )
     return pairs
+
+
+def _images(folder: Path, containing: str) -> list[Path]:
+    """The image files in ``folder`` whose names contain ``containing``, sorted."""
+    try:
+        names = sorted(folder.iterdir())
+    except OSError as exc:
+        raise MissingInputError(f"{folder}: cannot list the folder: {exc.strerror}") from exc
+    return [p for p in names if containing in p.name and p.suffix.lower() in IMAGE_SUFFIXES]
 
 
 def _image_list(fs: cv2.FileStorage) -> list[str] | OpenCVProblem:
@@ -167,7 +182,7 @@ def pairs_from_list(path: Path) -> list[tuple[Path, Path]]:
     """Pairs from a list file: an OpenCV ``imagelist`` (XML/YAML, left and right alternating,
     as OpenCV's stereo_calib.xml) or text with one ``LEFT RIGHT`` per line; relative names are
     relative to the list's folder."""
-    if not path.is_file():
+    if not os.path.isfile(path):
         raise MissingInputError(f"{path}: no such list file")
     names: list[str] = []
     if path.suffix.lower() in (".xml", ".yml", ".yaml", ".json"):
@@ -175,6 +190,8 @@ def pairs_from_list(path: Path) -> list[tuple[Path, Path]]:
     else:
         try:
             text = path.read_bytes().decode("utf-8")
+        except OSError as exc:
+            raise MissingInputError(f"{path}: cannot read the list: {exc.strerror}") from exc
         except UnicodeDecodeError as exc:
             raise InputError(
                 f"{path}: not a text file (byte {exc.start} is not UTF-8); an image list has "
@@ -192,6 +209,9 @@ def pairs_from_list(path: Path) -> list[tuple[Path, Path]]:
     for s in names:
         text_path(s, f"image named in {path}")
     paths = [Path(s) if Path(s).is_absolute() else path.parent / s for s in names]
+    for p in paths:
+        if not os.path.isfile(p):
+            raise MissingInputError(f"{path} names {p}: no such image file")
     return list(zip(paths[0::2], paths[1::2], strict=True))
 
 
@@ -303,6 +323,7 @@ def calibrate(
         epipolar_error_px=float(np.concatenate(epis).mean()),
         rectified_row_residual_px=float(np.concatenate(rows).mean()),
         pairs_used=len(found),
+        pairs_rejected=len(rejected),
     )
     cal = from_arrays(
         image_size,
@@ -338,15 +359,28 @@ def calibrate_files(
     progress: Callable[[int, str, bool], None] | None = None,
     window: int | None = None,
 ) -> Report:
-    """Calibrate from image files (``pairs_in_directory`` or ``pairs_from_list``)."""
-    images = ((a.name, read_image(a), read_image(b)) for a, b in pairs)
+    """Calibrate from image files (``pairs_in_directory`` or ``pairs_from_list``). A pair one
+    of whose images does not exist (an image in a folder without its partner) is rejected,
+    naming the missing image."""
+    unpaired, complete = [], []
+    for a, b in pairs:
+        if os.path.exists(a) and os.path.exists(b):
+            complete.append((a, b))
+        else:
+            here, gone, eye = (a, b, "right") if os.path.exists(a) else (b, a, "left")
+            unpaired.append(PairReport(here.name, False, f"no {eye} image ({gone} not found)"))
+    images = ((a.name, read_image(a), read_image(b)) for a, b in complete)
     found, rejected, size = detect_pairs(images, board, progress, window)
+    for k, r in enumerate(unpaired, len(complete) + 1):
+        if progress is not None:
+            progress(k, r.name, False)
+    rejected += unpaired
     if not found:
         raise CalibrationRejected(
             f"the {board.cols}x{board.rows} board was not found in both images of any of the "
-            f"{len(pairs)} pairs: check --board (inner corners, COLSxROWS)"
+            f"{len(complete)} pairs: check --board (inner corners, COLSxROWS)"
         )
-    source = f"{len(pairs)} pairs from {pairs[0][0].parent}"
+    source = f"{len(complete)} pairs from {complete[0][0].parent}"
     return calibrate(found, board, size, limits, rejected, source)
 
 
@@ -414,7 +448,8 @@ def format_report(report: Report) -> str:
     cal = report.calibration
     unit = "m" if cal.board is not None and cal.board.square < 1.0 else "square units"
     lines = [
-        f"pairs used: {q.pairs_used}; rejected: {sum(not p.used for p in report.pairs)}",
+        f"pairs used: {q.pairs_used}; rejected: "
+        f"{'not recorded' if q.pairs_rejected is None else q.pairs_rejected}",
         f"RMS reprojection error: left {q.rms_left_px:.3f} px, right {q.rms_right_px:.3f} px, "
         f"stereo {q.rms_stereo_px:.3f} px",
         f"epipolar error (both views): {q.epipolar_error_px:.3f} px; rectified row residual "

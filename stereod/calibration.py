@@ -17,6 +17,7 @@ import datetime
 import hashlib
 import json
 import math
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Final, Literal, TypeVar
@@ -61,12 +62,17 @@ MAX_ENTRY = 1e9
 numbers are damage, and would overflow the geometry's arithmetic."""
 
 
+MIN_BOARD_CORNERS = 3
+"""The fewest inner corners a side of a board may have: OpenCV's ``findChessboardCorners``
+refuses fewer ("both width and height of the pattern should have bigger than 2")."""
+
+
 class Board(BaseModel):
     """The chessboard: inner corners per row and column, square side (length unit)."""
 
     model_config = ConfigDict(extra="forbid")
-    cols: int = Field(gt=1)
-    rows: int = Field(gt=1)
+    cols: int = Field(ge=MIN_BOARD_CORNERS)
+    rows: int = Field(ge=MIN_BOARD_CORNERS)
     square: float = Field(gt=0)
 
 
@@ -80,6 +86,9 @@ class Quality(BaseModel):
     epipolar_error_px: float | None = None
     rectified_row_residual_px: float | None = None
     pairs_used: int | None = None
+    pairs_rejected: int | None = Field(
+        None, description="Pairs left out (no board, an image without its partner)"
+    )
 
 
 class Calibration(BaseModel):
@@ -273,16 +282,26 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
 
 def save(cal: Calibration, path: Path) -> None:
     """Write a calibration file (JSON) atomically: a write that fails leaves what was there."""
-    _write_atomic(path, cal.model_dump_json(indent=2) + "\n")
+    with create_output(path) as out:
+        write(cal, out)
 
 
-def _write_atomic(path: Path, text: str) -> None:
+def write(cal: Calibration, out: AtomicOutput) -> None:
+    """Write a calibration file (JSON) into an output of :func:`create_output`."""
+    out.write((cal.model_dump_json(indent=2) + "\n").encode())
+
+
+def create_output(path: Path) -> AtomicOutput:
+    """An output file, its folder made and a temporary file created beside it; committed by
+    rename. Made before the work that fills it, it refuses a path that cannot be written
+    (a folder, no permission) before that work is done."""
+    if os.path.isdir(path):
+        raise OutputError(f"{path}: is a folder, not a file; give the name of a file to write")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"{path.parent}: cannot create the folder: {exc.strerror}") from exc
-    with AtomicOutput(path) as out:
-        out.write(text.encode())
+    return AtomicOutput(path)
 
 
 def _yaml_matrix(name: str, a: np.ndarray) -> str:
@@ -310,7 +329,8 @@ def export_ros(cal: Calibration, directory: Path) -> list[Path]:
     out = []
     for eye in ("left", "right"):
         path = directory / f"{eye}.yaml"
-        _write_atomic(path, ros_camera_info(cal, eye))  # type: ignore[arg-type]
+        with create_output(path) as output:
+            output.write(ros_camera_info(cal, eye).encode())  # type: ignore[arg-type]
         out.append(path)
     return out
 

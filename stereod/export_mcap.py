@@ -89,29 +89,27 @@ comes from).
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import heapq
 import itertools
 import math
-import os
 import re
-import secrets
 import threading
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, Final, Literal
+from typing import IO, Any, Final, Literal, cast
 
 import cv2
 import numpy as np
 from pydantic import ValidationError
 
 from .calibration import Calibration, canonical
-from .errors import InputError, MissingInputError, OutputError, StereodError
+from .errors import InputError, MissingInputError, StereodError
 from .frames import Eye, Frame
 from .messages import ObjectsMessage, ObjectState, dump
+from .output_file import AtomicOutput
 from .paths import text_path
 from .recording import Manifest, read_manifest, read_timestamps
 
@@ -645,9 +643,11 @@ def _camera_info_body(cal: Calibration, eye: Eye) -> dict[str, Any]:
 class McapRunWriter:
     """Write one run into an MCAP file, message by message, while it is in progress or offline.
 
-    The file is written to a temporary file beside ``out`` (``.<name>.<random>.tmp``) and renamed
-    over ``out`` by :meth:`close`; :meth:`abort` (or an exception inside ``with``) removes it and
-    leaves a previous ``out`` untouched. Feed it in capture order: :meth:`write_frame` per eye
+    ``out`` is written by the rule of :mod:`stereod.output_file`: a regular file goes to a
+    temporary file beside it (``.<name>.<random>.part``, beside the file a symbolic link points
+    to) renamed over it by :meth:`close`, and :meth:`abort` (or an exception inside ``with``)
+    removes it, leaving a previous ``out`` untouched; a device or a FIFO (``/dev/null``, a pipe
+    to a reader) is written in place. Feed it in capture order: :meth:`write_frame` per eye
     frame, :meth:`write_objects` per ``stereod.objects/1`` message. ``/tf_static`` is written
     before the first message, at its stamp. Calls may come from several threads. If the process
     dies before :meth:`close`, the temporary file stays behind; ``mcap recover`` salvages it.
@@ -683,9 +683,9 @@ class McapRunWriter:
             [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)] if image_format == "jpeg" else []
         )
         self._lock = threading.Lock()
-        self._tmp, self._fh = _open_temp(self.out)
+        self._file = AtomicOutput(self.out)
         try:
-            self._ros = Writer(self._fh)
+            self._ros = Writer(cast(IO[bytes], self._file))
             self._ros.add_metadata("rosbag2", {"ROS_DISTRO": ROS_DISTRO})
         except BaseException:
             self._discard()
@@ -761,20 +761,10 @@ class McapRunWriter:
             self._closed = True
             try:
                 self._ros.finish()
-                self._fh.flush()
-                os.fsync(self._fh.fileno())
-                self._fh.close()
-                os.replace(self._tmp, self.out)
-            except OSError as exc:
-                self._discard()
-                raise OutputError(
-                    f"{self.out}: cannot write the MCAP file: {exc.strerror or exc}; check the "
-                    "free space and permissions of its folder"
-                ) from exc
+                self._file.commit()
             except BaseException:
                 self._discard()
                 raise
-            _fsync_dir(self.out.parent)
             return ExportSummary(
                 path=self.out,
                 messages=dict(sorted(self._counts.items())),
@@ -819,10 +809,7 @@ class McapRunWriter:
             )
 
     def _discard(self) -> None:
-        with contextlib.suppress(OSError):
-            self._fh.close()
-        with contextlib.suppress(OSError):
-            self._tmp.unlink()
+        self._file.discard()
 
     def _schema(self, typename: str) -> Any:
         schema = self._schemas.get(typename)
@@ -894,39 +881,6 @@ class McapRunWriter:
         if not ok:
             raise InputError(f"{frame.eye.value} frame {frame.seq}: cannot encode as {ext}")
         return buf.tobytes()
-
-
-def _open_temp(out: Path) -> tuple[Path, IO[bytes]]:
-    parent = out.parent
-    if out.is_dir():
-        raise OutputError(f"{out}: is a directory; give a file name such as {out / 'run.mcap'}")
-    if not parent.is_dir():
-        raise OutputError(f"{out}: folder {parent} does not exist; create it first")
-    for _ in range(16):
-        tmp = parent / f".{out.name}.{secrets.token_hex(4)}.tmp"
-        try:
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        except FileExistsError:
-            continue
-        except OSError as exc:
-            raise OutputError(
-                f"{out}: cannot create a file in {parent}: {exc.strerror}; check its permissions"
-            ) from exc
-        return tmp, os.fdopen(fd, "wb")
-    raise OutputError(f"{out}: cannot find a free temporary name in {parent}")
-
-
-def _fsync_dir(directory: Path) -> None:
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 # -- offline export -------------------------------------------------------------------------

@@ -5,8 +5,11 @@ plus the tracks).
 The file has the topics, types and frames of :mod:`stereod.export_mcap` (it is written by its
 :class:`~stereod.export_mcap.McapRunWriter`). It is opened when the frame size is known (the
 geometry's camera_info depends on it), and renamed into place only by :meth:`RunMcap.commit`,
-which a command calls once the run has succeeded; :meth:`RunMcap.abort` (a failed run) leaves a
-previous file at that path untouched.
+which a command calls once the run has succeeded; :meth:`RunMcap.abort` (a failed or interrupted
+run) leaves a previous file at that path untouched. The path follows the rule of
+:mod:`stereod.output_file` (a symbolic link is written through, a device or FIFO in place) and
+is checked when the object is made, so an output that cannot be written is refused before the
+run starts.
 
 Stamps: a frame's stamp is its capture instant ``t_ns`` plus the run's UTC offset: for a replay,
 ``stamp_utc_ns - t_ns`` of the first message (so frames and tracks line up exactly, as in
@@ -28,6 +31,7 @@ from .export_mcap import ExportSummary, McapRunWriter
 from .frames import Eye, Frame, SourceInfo
 from .geometry.rectified import CalibratedRig
 from .geometry.stereo import CanonicalRig
+from .output_file import output_target
 from .params import make_rig
 from .processing import Outgoing
 
@@ -51,7 +55,8 @@ class RunMcap:
     """One run's MCAP file at ``out`` for rig ``rig``. ``geometry(width, height)`` gives the
     calibration for frames of that size (px). ``images``: write each frame's compressed image
     (JPEG, ``jpeg_quality``, or PNG); without, only camera_info and tf. Safe to call from
-    several threads."""
+    several threads. Raises :class:`~stereod.errors.OutputError` at once for an ``out`` that
+    cannot be an output (a directory, a missing folder)."""
 
     def __init__(
         self,
@@ -63,6 +68,7 @@ class RunMcap:
         image_format: Literal["jpeg", "png"] = "jpeg",
         jpeg_quality: int = 90,
     ) -> None:
+        output_target(out)
         self.out = out
         self.rig = rig
         self.images = images

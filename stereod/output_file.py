@@ -1,28 +1,132 @@
-"""Output files that never destroy what was there before a run failed.
+"""Output files: one rule for every file a command writes (``--jsonl``, ``--mcap``, a
+calibration), so that writing an output never destroys what was at its path.
 
-A regular output file is written to a temporary file beside it and renamed over the target
-only when the run commits it, so a run that fails (bad input, a full disk) leaves an existing
-file untouched and no partial file behind. A target that exists and is not a regular file
-(``/dev/stdout``, a FIFO, ``/dev/full``) is written in place, since renaming over it would
-replace the device. An output that is one of the run's inputs is refused.
+* A symbolic link is written through: the file it points to is the output (a dangling link's
+  file is created) and the link stays a link.
+* A regular file there, or nothing, is written to a temporary file beside it
+  (``.<name>.<random>.part``) and renamed over it only when the run commits it, so a run that
+  fails or is interrupted leaves an existing file untouched and no partial file behind.
+* A character device or a FIFO (``/dev/null`` to discard, ``/dev/full``, a named pipe with a
+  reader) is written in place, as a shell's ``>`` would, and so is a path that names one of
+  a process's file descriptors (``/dev/stdout``, ``/proc/self/fd/N``): such a file is never
+  replaced by a regular one nor removed. Opening a FIFO waits for its reader, as ``>`` does.
+* Anything else there (a directory, a block device, a socket) is refused in one line.
+
+An output that is one of the run's inputs is refused (:func:`check_not_input`). A run that a
+signal stopped before its end commits no output; it ends with :class:`Interrupted`.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import signal
+import stat
 import tempfile
 from pathlib import Path
 from types import TracebackType
 from typing import IO
 
-from .errors import OutputError
+from .errors import OutputError, StereodError
+
+_MAX_LINKS = 40
+"""Symbolic links followed before a path is taken for a loop (the kernel's limit)."""
+
+
+class Interrupted(StereodError):
+    """A run stopped by a signal (Ctrl-C, SIGTERM) before its end; its outputs were not
+    replaced. The exit code is 128 plus the signal's number (130 for SIGINT, 143 for SIGTERM),
+    what a shell reports for a process the signal ended."""
+
+    def __init__(self, message: str, signum: int) -> None:
+        super().__init__(message)
+        self.signum = signum
+        self.exit_code = 128 + signum
+
+
+def signal_name(signum: int) -> str:
+    """``SIGINT`` for 2: how messages name a signal."""
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
 
 
 def _umask() -> int:
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
+
+
+def _in_proc(path: Path) -> bool:
+    """Whether ``path`` lies in /proc once its folder is resolved: a process's file descriptor
+    (``/dev/stdout`` leads to ``/proc/self/fd/1``), whose link text is no path to write."""
+    folder = os.path.realpath(path.parent)
+    return folder == "/proc" or folder.startswith("/proc/")
+
+
+def _follow(path: Path) -> tuple[Path, bool]:
+    """The file ``path`` leads to, symbolic links followed one at a time, and whether the way
+    went through a process's file descriptors (written in place, never resolved)."""
+    current = path
+    for _ in range(_MAX_LINKS):
+        if _in_proc(current):
+            return current, True
+        try:
+            link = os.readlink(current)
+        except OSError:  # not a link, or nothing there
+            return current, False
+        current = current.parent / link  # an absolute link replaces the whole path
+    raise OutputError(
+        f"{path}: too many levels of symbolic links (a loop?); give the path of a file"
+    )
+
+
+def follow_links(path: Path) -> Path:
+    """Where an output named ``path`` goes when it is a symbolic link: the path it leads to
+    (``path`` itself when it is no link). A recording directory is written there too."""
+    return _follow(path)[0]
+
+
+def output_target(path: Path) -> tuple[Path, bool]:
+    """Where an output named ``path`` is written by the module's rule: the file (symbolic links
+    followed) and whether it is written in place (a device, a FIFO, a file descriptor) rather
+    than replaced by rename. Raises :class:`OutputError` for what cannot be an output."""
+    target, descriptor = _follow(path)
+    if descriptor:
+        return target, True
+    try:
+        mode = os.stat(target).st_mode
+    except FileNotFoundError:
+        folder = target.parent
+        if not folder.is_dir():
+            raise OutputError(
+                f"{path}: cannot create the output file: folder {folder} does not exist; "
+                "create it first"
+            ) from None
+        return target, False
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot use as an output: {exc.strerror}") from exc
+    if stat.S_ISREG(mode):
+        return target, False
+    if stat.S_ISCHR(mode) or stat.S_ISFIFO(mode):
+        return target, True
+    if stat.S_ISDIR(mode):
+        raise OutputError(f"{path}: is a directory; give the name of a file in it")
+    kind = "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else None
+    raise OutputError(
+        f"{path}: is {kind or 'a special file'}, not a file an output can go to; give the path "
+        "of a regular file, or /dev/null to discard the output"
+    )
+
+
+def written_in_place(path: Path) -> bool:
+    """Whether an output at ``path`` is written in place (see :func:`output_target`): what a
+    run wrote there stays even when the run fails. False when ``path`` cannot be an output."""
+    try:
+        return output_target(path)[1]
+    except OutputError:
+        return False
 
 
 def check_not_input(output: Path, inputs: list[Path], flag: str) -> None:
@@ -36,32 +140,82 @@ def check_not_input(output: Path, inputs: list[Path], flag: str) -> None:
                 )
 
 
+def _open_in_place(target: Path) -> int:
+    """A descriptor writing ``target`` in place. One of this process's own descriptors
+    (``/dev/stdout``) is duplicated, so that it shares the position of what else the process
+    writes there; any other is opened without truncating or creating anything."""
+    if os.path.realpath(target.parent) == f"/proc/{os.getpid()}/fd":
+        with contextlib.suppress(ValueError):
+            return os.dup(int(target.name))
+    flags = os.O_WRONLY | (os.O_APPEND if _in_proc(target) else 0)
+    return os.open(target, flags)
+
+
+def _fsync_dir(directory: Path) -> None:
+    """Make a rename in ``directory`` durable (best effort: some file systems refuse)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
 class AtomicOutput:
-    """A binary output file committed by rename; use as a context manager or call
-    :meth:`commit` / :meth:`discard`. Write errors become :class:`OutputError` (exit 73)."""
+    """A binary output file written by the module's rule; use as a context manager or call
+    :meth:`commit` / :meth:`discard`. Write errors become :class:`OutputError` (exit 73).
+    :meth:`tell` counts the bytes written, so a writer that records positions (MCAP) can
+    write into a FIFO too."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
+        self.target, self.in_place = output_target(path)
         self._tmp: Path | None = None
-        in_place = path.exists() and not path.is_file()
+        self._written = 0
         try:
-            if in_place:
-                self._fh: IO[bytes] = path.open("wb")
+            if self.in_place:
+                self._fh: IO[bytes] = os.fdopen(_open_in_place(self.target), "wb")
             else:
                 fd, tmp = tempfile.mkstemp(
-                    prefix=f".{path.name}.", suffix=".part", dir=path.parent or Path(".")
+                    prefix=f".{self.target.name}.", suffix=".part", dir=self.target.parent
                 )
                 self._tmp = Path(tmp)
-                os.fchmod(fd, 0o666 & ~_umask())
                 self._fh = os.fdopen(fd, "wb")
+                os.fchmod(fd, self._mode())
         except OSError as exc:
+            self.discard()
             raise OutputError(f"{path}: cannot create the output file: {exc.strerror}") from exc
 
-    def write(self, data: bytes) -> None:
+    def _mode(self) -> int:
+        """The permissions of the file replaced, or those of a new file."""
+        try:
+            return stat.S_IMODE(os.stat(self.target).st_mode)
+        except OSError:
+            return 0o666 & ~_umask()
+
+    def write(self, data: bytes) -> int:
+        """Write ``data``; the number of bytes written."""
         if self._fh.closed:
             raise OutputError(f"{self.path}: already closed")
         try:
-            self._fh.write(data)
+            n = self._fh.write(data)
+        except OSError as exc:
+            raise OutputError(f"{self.path}: writing failed: {exc.strerror}") from exc
+        self._written += n
+        return n
+
+    def tell(self) -> int:
+        """Bytes written so far."""
+        return self._written
+
+    def flush(self) -> None:
+        """Hand what is buffered to the operating system."""
+        try:
+            self._fh.flush()
         except OSError as exc:
             raise OutputError(f"{self.path}: writing failed: {exc.strerror}") from exc
 
@@ -75,16 +229,19 @@ class AtomicOutput:
                 os.fsync(self._fh.fileno())
             self._fh.close()
             if self._tmp is not None:
-                os.replace(self._tmp, self.path)
+                os.replace(self._tmp, self.target)
                 self._tmp = None
+                _fsync_dir(self.target.parent)
         except OSError as exc:
             self.discard()
             raise OutputError(f"{self.path}: writing failed: {exc.strerror}") from exc
 
     def discard(self) -> None:
         """Close and remove the temporary file; the target stays as it was."""
-        with contextlib.suppress(OSError):
-            self._fh.close()
+        fh = getattr(self, "_fh", None)
+        if fh is not None:
+            with contextlib.suppress(OSError):
+                fh.close()
         if self._tmp is not None:
             with contextlib.suppress(OSError):
                 self._tmp.unlink()

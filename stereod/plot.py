@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
-from .errors import InputError, MissingInputError, NotInstalledError, OutputError
+from .errors import InputError, MissingInputError, NotInstalledError, OutputError, UsageError
 from .messages import ObjectsMessage, ObjectState
 
 FIGSIZE_IN = (12.0, 6.0)
@@ -78,9 +78,9 @@ def read_run(path: Path) -> Run:
     t0: int | None = None
     try:
         lines = path.read_text().splitlines()
-    except FileNotFoundError as exc:
-        raise MissingInputError(f"{path}: no such run file (write one with --jsonl)") from exc
-    except (OSError, UnicodeDecodeError) as exc:
+    except OSError as exc:
+        raise _unreadable(path, "run", exc, " (write one with --jsonl)") from exc
+    except UnicodeDecodeError as exc:
         raise InputError(f"{path}: cannot read the run file: {exc}") from exc
     for n, line in enumerate(lines, 1):
         if not line.strip():
@@ -123,8 +123,6 @@ def read_run(path: Path) -> Run:
 def read_truth(path: Path, t0_ns: int) -> list[TruthSeries]:
     """True trajectories from a ``truth.csv`` or a synthetic ``truth.json``, on the run's
     time axis (s after ``t0_ns``)."""
-    if not path.exists():
-        raise MissingInputError(f"{path}: no such truth file")
     if path.suffix == ".json":
         return truth_from_scene(path, t0_ns)
     columns = ("object", "t_ns", "x_m", "y_m", "z_m")
@@ -146,7 +144,9 @@ def read_truth(path: Path, t0_ns: int) -> list[TruthSeries]:
                 except (TypeError, ValueError) as exc:
                     raise InputError(f"{path}:{n}: not a number: {exc}") from exc
                 per.setdefault(row["object"], []).append(vals + vel)
-    except (OSError, UnicodeDecodeError) as exc:
+    except OSError as exc:
+        raise _unreadable(path, "truth", exc) from exc
+    except UnicodeDecodeError as exc:
         raise InputError(f"{path}: cannot read the truth file: {exc}") from exc
     out = []
     for name, rows in sorted(per.items()):
@@ -158,6 +158,14 @@ def read_truth(path: Path, t0_ns: int) -> list[TruthSeries]:
     return out
 
 
+def _unreadable(path: Path, what: str, exc: OSError, hint: str = "") -> MissingInputError:
+    """The one line for a ``what`` file the OS does not give: missing (then ``hint``), or
+    its reason (no permission, a folder)."""
+    if isinstance(exc, FileNotFoundError):
+        return MissingInputError(f"{path}: no such {what} file{hint}")
+    return MissingInputError(f"{path}: cannot read the {what} file: {exc.strerror}")
+
+
 def truth_from_scene(path: Path, t0_ns: int) -> list[TruthSeries]:
     """Every ball of a synthetic recording's ``truth.json``, at the left eye's frame times
     while it is in view."""
@@ -165,6 +173,8 @@ def truth_from_scene(path: Path, t0_ns: int) -> list[TruthSeries]:
 
     try:
         scene = Scene.model_validate_json(path.read_bytes())
+    except OSError as exc:
+        raise _unreadable(path, "truth", exc) from exc
     except ValidationError as exc:
         raise InputError(
             f"{path}: not a synthetic scene's truth.json: {exc.errors()[0]['msg']}"
@@ -250,15 +260,38 @@ def display_deg(heading_deg: np.ndarray) -> np.ndarray:
     return out - 360.0 * np.round((np.mean(out) - mean % 360.0) / 360.0)
 
 
-def plot_run(run: Run, truth: list[TruthSeries], out: Path, *, title: str = "") -> None:
-    """Draw the figure (FIGSIZE_IN at DPI) to ``out`` (PNG, or any format by its suffix)."""
+def _figure_class() -> Any:
+    """matplotlib's ``Figure``; without matplotlib, the one line saying how to install it."""
     try:
         from matplotlib.figure import Figure
     except ImportError as exc:
         raise NotInstalledError(
             "stereod plot needs matplotlib: pip install 'stereod[plot]'"
         ) from exc
-    fig = Figure(figsize=FIGSIZE_IN, dpi=DPI, layout="constrained")
+    return Figure
+
+
+def figure_target(out: Path) -> tuple[Path, str]:
+    """The file a figure for ``--out`` is written to and its format, by its suffix (``png``,
+    ``pdf``, ``svg``, ...), ``.png`` added when it has none, as matplotlib would. A suffix
+    matplotlib cannot write is refused before any work, listing those it can."""
+    if not out.suffix:
+        return out.with_name(out.name + ".png"), "png"
+    fmt = out.suffix[1:].lower()
+    supported = sorted(_figure_class()().canvas.get_supported_filetypes())
+    if fmt not in supported:
+        raise UsageError(
+            f"--out {out}: .{fmt} is not a figure format; give a file ending in "
+            f"{', '.join('.' + s for s in supported)}"
+        )
+    return out, fmt
+
+
+def plot_run(run: Run, truth: list[TruthSeries], out: Path, *, title: str = "") -> Path:
+    """Draw the figure (FIGSIZE_IN at DPI) to ``out`` (PNG, or any format by its suffix: see
+    :func:`figure_target`); return the path written."""
+    path, fmt = figure_target(out)
+    fig = _figure_class()(figsize=FIGSIZE_IN, dpi=DPI, layout="constrained")
     grid = fig.add_gridspec(2, 2, width_ratios=(1.0, 1.4))
     top = fig.add_subplot(grid[:, 0])
     spd = fig.add_subplot(grid[0, 1])
@@ -307,9 +340,10 @@ def plot_run(run: Run, truth: list[TruthSeries], out: Path, *, title: str = "") 
     if title:
         fig.suptitle(title)
     try:
-        fig.savefig(out, dpi=DPI)
+        fig.savefig(path, dpi=DPI, format=fmt)
     except OSError as exc:
-        raise OutputError(f"{out}: cannot write the figure: {exc.strerror or exc}") from exc
+        raise OutputError(f"{path}: cannot write the figure: {exc.strerror or exc}") from exc
+    return path
 
 
 def summary(run: Run) -> str:

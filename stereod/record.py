@@ -2,7 +2,9 @@
 
 A live source is read one thread per eye (a camera cannot wait), a file source in timestamp
 order; frames keep their capture times and sequence numbers, so replaying the recording
-reproduces them exactly (bit for bit with the lossless FFV1 codec).
+reproduces them exactly (bit for bit with the lossless FFV1 codec). A target that is a symbolic
+link is recorded into where it leads (the link stays), as every output is
+(:mod:`stereod.output_file`).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from pathlib import Path
 from .calibration import load as load_calibration
 from .errors import DeviceLost, StereodError
 from .frames import Driver, EyeSource, Frame, SourceInfo, merged
+from .output_file import follow_links
 from .recording import Codec, RecordingWriter
 
 
@@ -30,12 +33,14 @@ def record(
     on_start: Callable[[SourceInfo, int | None], None] | None = None,
 ) -> dict[str, int]:
     """Record until ``seconds`` of stream time, the end of input or ``stop``; return the frame
-    counts per eye. ``out`` must be new (or empty); it appears only when the recording closes.
+    counts per eye. ``out`` must be new (or empty; through a symbolic link, where it leads);
+    it appears only when the recording closes.
     ``calibration`` is checked as a run would check it, and stored in the manifest.
     ``on_frame`` sees every frame written (progress), one call at a time; ``on_start`` sees
     the opened source and the recording's UTC offset (ns, wall clock minus the frames' clock;
     None when unknown) before the first frame."""
     stop = stop or threading.Event()
+    out = follow_links(out)
     cal = load_calibration(calibration).model_dump(mode="json") if calibration else None
     counts = {"left": 0, "right": 0}
     lock = threading.Lock()

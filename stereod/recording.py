@@ -99,21 +99,50 @@ class Manifest(BaseModel):
 
 
 def read_manifest(directory: Path) -> Manifest:
-    """Load and validate ``recording.json``; errors name the file and the field."""
+    """Load and validate ``recording.json``, and check that every file it names that exists
+    can be read; errors name the file and the field, or the file and the OS's reason."""
     path = directory / MANIFEST
-    if not directory.exists():
-        raise MissingInputError(f"{directory}: no such recording directory")
-    if not path.is_file():
+    try:
+        data = path.read_bytes()
+    except (FileNotFoundError, NotADirectoryError) as exc:
+        if not os.path.exists(directory):
+            raise MissingInputError(f"{directory}: no such recording directory") from exc
         raise MissingInputError(
             f"{directory}: not a recording ({MANIFEST} missing); for plain videos use "
             "--left-video/--right-video"
-        )
-    try:
-        return Manifest.model_validate_json(path.read_bytes())
-    except ValidationError as exc:
-        raise InputError(f"{path}: {describe_validation_error(exc)}") from exc
+        ) from exc
     except OSError as exc:
         raise MissingInputError(f"{path}: cannot read the manifest: {exc.strerror}") from exc
+    try:
+        man = Manifest.model_validate_json(data)
+    except ValidationError as exc:
+        raise InputError(f"{path}: {describe_validation_error(exc)}") from exc
+    for files in (man.left, man.right):
+        _check_readable(directory / files.video, "video file")
+        _check_readable(directory / files.timestamps, "timestamp file")
+    return man
+
+
+def recording_files(directory: Path) -> list[Path]:
+    """The files in a recording directory, sorted (so an output can be checked against them);
+    a directory that cannot be listed is one line naming it and the OS's reason."""
+    try:
+        return sorted(directory.iterdir())
+    except OSError as exc:
+        raise MissingInputError(f"{directory}: cannot list the recording: {exc.strerror}") from exc
+
+
+def _check_readable(path: Path, what: str) -> None:
+    """Refuse a recording's file that exists but cannot be opened (no permission), naming it
+    and the OS's reason, before any reader (OpenCV's among them) meets it. A missing file or
+    a folder is left to its reader, which has its own words for them."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise MissingInputError(f"{path}: cannot read {what}: {exc.strerror}") from exc
+    os.close(fd)
 
 
 def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -178,6 +207,19 @@ def _shown_row(row: list[str], limit: int = 60) -> str:
     return repr(text if len(text) <= limit else text[: limit - 3] + "...")
 
 
+def size_problem(width: int, height: int) -> str | None:
+    """Why frames of ``width`` x ``height`` px cannot be recorded as they are, or None.
+    OpenCV's FFmpeg video writer (both codecs) silently drops the last column or row of a
+    frame of odd width or height, so the videos would not match the manifest."""
+    if width % 2 == 0 and height % 2 == 0:
+        return None
+    even = f"{max(width - width % 2, 2)}x{max(height - height % 2, 2)}"
+    return (
+        f"{width}x{height} px cannot be recorded: the video writer needs an even width and "
+        f"height (it would drop the last column or row); use an even size such as {even}"
+    )
+
+
 MIN_FREE_BYTES = 16 * 2**20
 """A recording stops with an error (exit 73) once its file system has less free space than
 this plus a few frames: OpenCV's video writer does not report a full disk."""
@@ -191,7 +233,9 @@ class RecordingWriter:
     nothing behind, and an existing directory is never written into: ``directory`` must not
     exist or be empty. A failure after frames were written still moves them into place (the
     manifest counts what was written), so what was recorded is kept. A file system running out
-    of space stops the recording with :class:`~stereod.errors.OutputError`.
+    of space stops the recording with :class:`~stereod.errors.OutputError`, and so does a
+    frame size the video writer cannot store as it is (see :func:`size_problem`), before
+    anything is written.
     """
 
     def __init__(
@@ -209,7 +253,14 @@ class RecordingWriter:
     ) -> None:
         self.directory = directory
         text_path(directory, "recording directory", OutputError)
-        if directory.exists() and (not directory.is_dir() or any(directory.iterdir())):
+        problem = size_problem(width, height)
+        if problem is not None:
+            raise OutputError(f"{directory}: {problem} (nothing was written)")
+        try:
+            occupied = directory.exists() and (not directory.is_dir() or any(directory.iterdir()))
+        except OSError as exc:
+            raise OutputError(f"{directory}: cannot look into it: {exc.strerror}") from exc
+        if occupied:
             raise OutputError(
                 f"{directory}: already exists and is not an empty directory; a recording goes "
                 "into a new one (nothing was written)"
@@ -247,6 +298,7 @@ class RecordingWriter:
                 video = self._tmp / f"{eye.value}{_EXT[codec]}"
                 w = cv2.VideoWriter(
                     text_path(video, "video", OutputError),
+                    cv2.CAP_FFMPEG,
                     fourcc,
                     fps or 30.0,
                     (width, height),

@@ -18,11 +18,13 @@ from stereod.calibrate import (
     pairs_from_list,
     pairs_in_directory,
 )
-from stereod.calibration import Board, load, rotation_angle_deg
+from stereod.calibration import MIN_BOARD_CORNERS, Board, load, rotation_angle_deg
 from stereod.errors import InputError, MissingInputError
 from stereod_fakes.rig import board_views, minoru_like, random_board_poses, write_board_recording
+from stereod_fakes.synth import Scene, write_scene
 
 from .conftest import shared_data, stereod
+from .test_cli import one_line_error
 
 BOARD = Board(cols=9, rows=6, square=0.03)
 
@@ -160,3 +162,88 @@ def test_cli_refuses_bad_calibration_unless_forced(tmp_path: Path) -> None:
     res = stereod(*args, "--force")
     assert res.returncode == 0 and out.exists()
     assert "per pair" in res.stdout and "RMS reprojection error" in res.stdout
+
+
+def test_opencv_finds_boards_of_three_inner_corners_a_side_and_no_fewer() -> None:
+    """The limit --board enforces is OpenCV's own: 3x3 is found, 2 corners a side refused."""
+    assert MIN_BOARD_CORNERS == 3
+    poses = random_board_poses(1, 3, 3, 0.05, seed=1)
+    (_, left, _), *_ = board_views(minoru_like(), 640, 480, 3, 3, 0.05, poses)
+    assert cv2.findChessboardCorners(left, (3, 3))[0]
+    for pattern in ((2, 3), (3, 2)):
+        with pytest.raises(cv2.error, match="should have bigger than 2"):
+            cv2.findChessboardCorners(left, pattern)
+
+
+@pytest.mark.parametrize(
+    ("source", "board"),
+    [("--pairs", "1x1"), ("--pairs", "9x1"), ("--list", "2x2"), ("--live", "3x2")],
+)
+def test_board_of_fewer_than_three_corners_a_side_is_a_flag_error(
+    tmp_path: Path, board: str, source: str
+) -> None:
+    where = [] if source == "--live" else [str(tmp_path)]
+    res = stereod("calibrate", source, *where, "--board", board, "--square", "0.025")
+    one_line_error(res, 64, rf"--board: '{board}': a board needs at least 3 inner corners a side")
+
+
+def _pairs_calibration(*more: str) -> list[str]:
+    pairs = shared_data("opencv_stereo")
+    return ["calibrate", "--pairs", str(pairs), "--board", "9x6", "--square", "1", *more]
+
+
+def test_an_output_that_cannot_be_written_is_refused_before_calibrating(tmp_path: Path) -> None:
+    """A folder, or one of the inputs, as --out: one line and exit 73 before any pair is
+    looked at (nothing on stdout, no report), and the input is left as it was."""
+    image = shared_data("opencv_stereo", "left01.jpg")
+    before = image.read_bytes()
+    for out, said in ((tmp_path, "is a folder, not a file"), (image, "is an input of this run")):
+        res = stereod(*_pairs_calibration("--out", str(out)))
+        one_line_error(res, 73, f"{out}: .*{said}")
+        assert res.stdout == ""
+    assert image.read_bytes() == before
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_live_output_is_checked_before_collecting(tmp_path: Path) -> None:
+    """With --live, before the stream is read: a folder as --out, or a file of the recording
+    it reads (it used to read the whole stream and then fail, or not even say so)."""
+    rec = write_scene(Scene(width_px=64, height_px=48, duration_s=0.4, fps=10), tmp_path / "rec")
+    live = ["calibrate", "--live", "--recording", str(rec), "--board", "9x6", "--square", "1"]
+    for out, said in ((rec, "is a folder"), (rec / "left.csv", "is an input of this run")):
+        res = stereod(*live, "--out", str(out))
+        one_line_error(res, 73, f"{out}: .*{said}")
+
+
+def test_an_image_without_its_partner_is_rejected_by_name(tmp_path: Path) -> None:
+    """left05.jpg without right05.jpg, and right07.jpg without left07.jpg, are listed as
+    rejected with the missing image (they used to be skipped without a word)."""
+    for image in shared_data("opencv_stereo").glob("*.jpg"):
+        if image.name not in ("right05.jpg", "left07.jpg"):
+            (tmp_path / image.name).symlink_to(image)
+    out = tmp_path / "out" / "c.json"
+    res = stereod(
+        "calibrate", "--pairs", str(tmp_path), "--board", "9x6", "--square", "1", "--out", str(out)
+    )
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines()[0] == "pairs used: 11; rejected: 2"
+    assert f"rejected: no right image ({tmp_path / 'right05.jpg'} not found)" in res.stdout
+    assert f"rejected: no left image ({tmp_path / 'left07.jpg'} not found)" in res.stdout
+    assert load(out).quality.pairs_rejected == 2
+
+
+def test_inputs_the_os_will_not_read_name_the_path_and_the_reason(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """As for a user without root's override after chmod 000 (the tests run as root)."""
+    (tmp_path / "pairs.txt").write_text("left01.png right01.png\n")
+
+    def denied(path: Path, *args: object) -> None:
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(Path, "read_bytes", denied)
+    monkeypatch.setattr(Path, "iterdir", denied)
+    with pytest.raises(MissingInputError, match=r"pairs\.txt: cannot read the list: Permission"):
+        pairs_from_list(tmp_path / "pairs.txt")
+    with pytest.raises(MissingInputError, match=rf"{tmp_path}: cannot list the folder: Permission"):
+        pairs_in_directory(tmp_path)

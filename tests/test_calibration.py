@@ -10,10 +10,21 @@ import numpy as np
 import pytest
 import yaml
 
-from stereod.calibration import Calibration, export_ros, from_arrays, import_opencv, load, save
+from stereod.calibrate import calibrate_files, format_report, pairs_from_list
+from stereod.calibration import (
+    Board,
+    Calibration,
+    export_ros,
+    from_arrays,
+    import_opencv,
+    load,
+    save,
+)
 from stereod.errors import CalibrationError, MissingInputError
 from stereod.geometry.rectified import CalibratedRig
 from stereod_fakes.rig import minoru_like
+
+from .conftest import shared_data, stereod
 
 
 def a_calibration() -> Calibration:
@@ -107,3 +118,18 @@ def test_opencv_filestorage_import_triangulates_like_the_source(tmp_path: Path) 
     np.testing.assert_allclose(b, a, rtol=1e-9)
     with pytest.raises(MissingInputError, match="no such OpenCV calibration file"):
         import_opencv(tmp_path / "nope.yml", None, (640, 480))
+
+
+def test_show_says_how_many_pairs_were_rejected(tmp_path: Path) -> None:
+    """calibrate's first line, pairs used and rejected, is what show prints of the file (it
+    used to say rejected: 0 whatever calibrate had said). An 8x6 board is not found in one
+    of OpenCV's 9x6 sample pairs."""
+    pairs = pairs_from_list(shared_data("opencv_stereo", "stereo_calib.xml"))
+    report = calibrate_files(pairs, Board(cols=8, rows=6, square=1.0))
+    said = format_report(report).splitlines()[0]
+    assert said == "pairs used: 12; rejected: 1"
+    path = tmp_path / "c.json"
+    save(report.calibration, path)
+    res = stereod("calibration", "show", str(path))
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines()[1] == said, res.stdout

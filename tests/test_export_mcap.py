@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
+import signal
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +33,8 @@ from stereod.frames import Eye, Frame
 from stereod.messages import ObjectsMessage
 
 from .conftest import ROOT, stereod
+from .processes import start_stereod
+from .test_replay import FifoReader, mcap_messages, wait_for
 
 TYPESTORE = get_typestore(Stores.ROS2_HUMBLE)
 GOLDEN = ROOT / "tests" / "golden" / "objects_example.json"
@@ -422,9 +426,14 @@ def test_recording_only_without_images(recorded: Recorded, tmp_path: Path) -> No
 # -- atomicity and errors ---------------------------------------------------------------------
 
 
+def temporaries(out: Path) -> list[str]:
+    """Temporary files of ``out`` left in its folder."""
+    return sorted(p.name for p in out.parent.iterdir() if p.name.startswith(f".{out.name}."))
+
+
 def assert_untouched(out: Path, before: bytes) -> None:
     assert out.read_bytes() == before
-    assert sorted(p.name for p in out.parent.iterdir() if p.name.endswith(".tmp")) == []
+    assert temporaries(out) == []
 
 
 def one_line(exc: pytest.ExceptionInfo[BaseException], *names: str) -> None:
@@ -686,8 +695,8 @@ def test_record_mcap_has_every_frame_of_the_recording(recorded: Recorded, tmp_pa
 def test_replay_mcap_into_a_missing_folder_fails_the_run(
     recorded: Recorded, tmp_path: Path
 ) -> None:
-    """The writer fails on the output thread: the run ends with exit 73 and one line, and the
-    JSONL of the failed run does not replace the previous one."""
+    """The output is refused before the run: exit 73 and one line, and the JSONL of the failed
+    run does not replace the previous one."""
     jsonl = tmp_path / "run.jsonl"
     before = b"previous run, must survive\n"
     jsonl.write_bytes(before)
@@ -712,3 +721,51 @@ def test_output_that_is_an_input_is_refused(recorded: Recorded) -> None:
         assert res.returncode == 73, res.stderr
         assert "--mcap" in res.stderr and "input" in res.stderr
     assert video.read_bytes() == before
+
+
+# -- where the file goes: through a symbolic link, into a FIFO; an export a signal stops ------
+
+
+def test_export_through_a_symlink_replaces_its_target_and_keeps_the_link(
+    recorded: Recorded, previous: tuple[Path, bytes], tmp_path: Path
+) -> None:
+    target, _ = previous
+    link = tmp_path / "latest.mcap"
+    link.symlink_to(target)
+    run_ok("export", "--jsonl", str(recorded.jsonl), "--mcap", str(link), "--no-images")
+    assert link.is_symlink() and link.resolve() == target, "the symbolic link was replaced"
+    assert len(read_bag(target).msgs(f"{RIG}/objects")) == len(recorded.lines)
+    assert temporaries(link) == temporaries(target) == []
+
+
+def test_export_into_a_fifo_streams_the_file_to_its_reader(
+    recorded: Recorded, tmp_path: Path
+) -> None:
+    fifo = FifoReader(tmp_path / "run.mcap")
+    res = stereod("export", "--jsonl", str(recorded.jsonl), "--mcap", str(fifo.path))
+    assert fifo.is_fifo(), "the FIFO was replaced by a regular file"
+    assert res.returncode == 0, res.stderr
+    assert mcap_messages(fifo.data(), f"{RIG}/objects") == len(recorded.lines)
+
+
+def test_export_stopped_by_sigterm_leaves_the_file_and_no_temporary(
+    recorded: Recorded, previous: tuple[Path, bytes], tmp_path: Path
+) -> None:
+    """The JSONL comes through a FIFO, read twice (a scan, then the messages): the test holds
+    the second pass open after a quarter of it, so the export is mid-way, its temporary file
+    made, when SIGTERM comes."""
+    out, before = previous
+    jsonl = tmp_path / "run.jsonl"
+    os.mkfifo(jsonl)
+    proc = start_stereod("export", "--jsonl", str(jsonl), "--mcap", str(out))
+    text = "".join(line + "\n" for line in recorded.lines).encode()
+    with jsonl.open("wb") as fh:  # the scan: all of it
+        fh.write(text)
+    wait_for(proc, lambda: bool(temporaries(out)))  # the scan is over, the writer made
+    with jsonl.open("wb", buffering=0) as fh:  # the messages: the export opens it again
+        fh.write(text[: len(text) // 4])
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert err == f"stereod: export interrupted by SIGTERM; {out} left as it was\n"
+    assert_untouched(out, before)

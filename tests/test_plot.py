@@ -171,9 +171,7 @@ def test_plot_without_matplotlib_says_how_to_install_it(tmp_path: Path) -> None:
 def test_a_truth_that_does_not_meet_the_run_in_time_is_refused(tmp_path: Path) -> None:
     """A truth from another run lies far off on this run's clock: one line naming the file and
     both spans, exit 65, and no figure; the same truth moved onto the run's clock is drawn."""
-    run = tmp_path / "run.jsonl"
-    line = (ROOT / "tests" / "golden" / "objects_example.json").read_text().replace("\n", "")
-    run.write_text(line + "\n")
+    run = _golden_run(tmp_path)
     t0 = read_run(run).t0_ns
     fig = tmp_path / "fig.png"
     for offset_s, code in ((1000.0, 65), (0.0, 0)):
@@ -190,3 +188,50 @@ def test_a_truth_that_does_not_meet_the_run_in_time_is_refused(tmp_path: Path) -
             assert f"{truth}: its times (1000.0 to 1000.3 s" in r.stderr, r.stderr
             assert not fig.exists()
     assert fig.exists()
+
+
+def _golden_run(tmp_path: Path) -> Path:
+    run = tmp_path / "run.jsonl"
+    line = (ROOT / "tests" / "golden" / "objects_example.json").read_text().replace("\n", "")
+    run.write_text(line + "\n")
+    return run
+
+
+def test_a_figure_format_matplotlib_cannot_write_is_refused_up_front(tmp_path: Path) -> None:
+    """-o out.xyz or x.jsonl: one line listing the suffixes that work, exit 64, nothing written
+    (it used to end in an internal error after the work)."""
+    run = _golden_run(tmp_path)
+    for name in ("out.xyz", "x.jsonl"):
+        r = stereod("plot", str(run), "-o", str(tmp_path / name))
+        assert r.returncode == 64, r.stderr
+        assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
+        suffix = name.rsplit(".", 1)[1]
+        assert f"{tmp_path / name}: .{suffix} is not a figure format" in r.stderr, r.stderr
+        assert ".pdf, " in r.stderr and ".png, " in r.stderr and ".svg, " in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.jsonl"]
+
+
+def test_a_figure_without_suffix_is_a_png_and_said_by_its_name(tmp_path: Path) -> None:
+    """-o pout writes pout.png, and says so (it used to say 'wrote pout')."""
+    run = _golden_run(tmp_path)
+    r = stereod("plot", str(run), "-o", str(tmp_path / "pout"))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[-1] == f"wrote {tmp_path / 'pout.png'}"
+    assert _png_size(tmp_path / "pout.png") == (int(FIGSIZE_IN[0] * DPI), int(FIGSIZE_IN[1] * DPI))
+    assert not (tmp_path / "pout").exists()
+
+
+def test_a_truth_or_run_that_cannot_be_read_is_one_line_and_exit_66(tmp_path: Path) -> None:
+    """A folder where the truth.json of a recording, or the run, is expected stands for any
+    file the OS will not read: one line naming it and the OS's reason (the truth.json case
+    used to be an internal error)."""
+    run = _golden_run(tmp_path)
+    folder = tmp_path / "truth.json"
+    folder.mkdir()
+    for args in (["--truth", str(folder)], []):
+        given = str(run) if args else str(folder)
+        r = stereod("plot", given, *args, "-o", str(tmp_path / "fig.png"))
+        assert r.returncode == 66, r.stderr
+        what = "truth" if args else "run"
+        assert r.stderr == f"stereod: {folder}: cannot read the {what} file: Is a directory\n"
+    assert not (tmp_path / "fig.png").exists()

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import itertools
 import json
+import re
+import signal
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,6 +20,8 @@ from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Renderer, Scene, SyntheticDriver
 
 from .conftest import stereod
+from .processes import start_stereod
+from .test_replay import mcap_messages, wait_for
 
 
 def test_replay_reproduces_recorded_frames_and_timestamps(tmp_path: Path) -> None:
@@ -112,3 +116,54 @@ def test_a_full_disk_stops_the_recording_and_keeps_what_was_recorded(
         str(quiet),
     )
     assert replay.returncode == 0, replay.stderr
+
+
+def synthetic_config(path: Path, **options: object) -> Path:
+    """A config whose driver is a small synthetic scene with ``options``."""
+    lines = "".join(f"{k} = {json.dumps(v)}\n" for k, v in options.items())
+    path.write_text(
+        f'[driver]\nname = "synthetic"\n[driver.options]\nwidth_px = 80\nheight_px = 60\n{lines}'
+    )
+    return path
+
+
+def test_record_through_symlinks_writes_where_they_lead(tmp_path: Path) -> None:
+    """A recording directory that is a link to an empty folder, and an MCAP file that is a link
+    to an earlier file: both are written where they lead, and the links stay."""
+    cfg = synthetic_config(tmp_path / "c.toml", duration_s=0.5, fps=10)
+    (tmp_path / "runs" / "today").mkdir(parents=True)
+    rec = tmp_path / "rec"
+    rec.symlink_to(tmp_path / "runs" / "today")
+    cams = tmp_path / "runs" / "cams.mcap"
+    cams.write_bytes(b"earlier recording")
+    link = tmp_path / "cams.mcap"
+    link.symlink_to(cams)
+    res = stereod("record", str(rec), "--config", str(cfg), "--mcap", str(link))
+    assert res.returncode == 0, res.stderr
+    assert rec.is_symlink() and link.is_symlink(), "a symbolic link was replaced"
+    assert json.loads((tmp_path / "runs" / "today" / "recording.json").read_text())["left"] == {
+        "video": "left.mkv",
+        "timestamps": "left.csv",
+        "frames": 5,
+    }
+    assert mcap_messages(cams.read_bytes(), "/stereod/minoru/left/camera_info") == 5
+    assert sorted(p.name for p in tmp_path.rglob(".*")) == []
+
+
+def test_ctrl_c_ends_a_recording_normally(tmp_path: Path) -> None:
+    """Ctrl-C is how a recording without --seconds ends: what was recorded is kept, the MCAP is
+    written with it, the summary names the signal, and the exit code is 0."""
+    cfg = synthetic_config(tmp_path / "c.toml", duration_s=600, fps=10, live=True)
+    out, cams = tmp_path / "rec", tmp_path / "cams.mcap"
+    proc = start_stereod("record", str(out), "--config", str(cfg), "--mcap", str(cams))
+    wait_for(proc, lambda: bool(list(tmp_path.glob(".cams.mcap.*"))))  # made at the start
+    proc.send_signal(signal.SIGINT)
+    printed, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    said = re.match(
+        rf"recorded (\d+) left and \d+ right frames to {out} \(stopped by SIGINT\)", printed
+    )
+    assert said, printed
+    frames = json.loads((out / "recording.json").read_text())["left"]["frames"]
+    assert int(said.group(1)) == frames
+    assert mcap_messages(cams.read_bytes(), "/stereod/minoru/left/camera_info") == frames

@@ -2,15 +2,21 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from stereod.errors import InputError, MissingInputError
+from stereod.errors import InputError, MissingInputError, OutputError
 from stereod.frames import Eye, Frame
 from stereod.recording import Codec, RecordingWriter, read_manifest, read_timestamps
 from stereod_fakes.replay import ReplayDriver
+from stereod_fakes.synth import Scene, write_scene
+
+from .conftest import ROOT, stereod
+from .test_cli import one_line_error
 
 
 def random_frames(n: int, color: bool, seed: int = 0) -> list[tuple[Frame, Frame]]:
@@ -91,3 +97,89 @@ def test_manifest_errors(tmp_path: Path) -> None:
         InputError, match=r"recording\.json: width = -1: Input should be greater than 0"
     ):
         read_manifest(tmp_path)
+
+
+@pytest.mark.parametrize("codec", list(Codec))
+def test_writer_refuses_an_odd_size_before_writing(tmp_path: Path, codec: Codec) -> None:
+    with pytest.raises(OutputError, match=r"65x48 px cannot be recorded: .* such as 64x48"):
+        RecordingWriter(tmp_path / "rec", 65, 48, fps=30.0, codec=codec)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_record_refuses_an_odd_size_before_writing(tmp_path: Path) -> None:
+    """A driver delivering 321x241 frames: one line, exit 73, nothing written (the video
+    writer used to crop them to 320x240 under a manifest saying 321x241)."""
+    config = tmp_path / "c.toml"
+    config.write_text(
+        '[driver]\nname = "synthetic"\n[driver.options]\n'
+        "duration_s = 0.5\nwidth_px = 321\nheight_px = 241\n"
+    )
+    res = stereod("record", str(tmp_path / "rec"), "--config", str(config))
+    one_line_error(res, 73, r"rec: 321x241 px cannot be recorded: .*such as 320x240")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
+
+
+UNREADABLE = """\
+import errno, io, os, sys
+from stereod.cli import main
+target, stat_too = sys.argv[1], sys.argv[2] == "1"
+def guard(call):
+    def guarded(path, *args, **kwargs):
+        if isinstance(path, (str, os.PathLike)) and (
+            os.fspath(path) == target or os.fspath(path).startswith(target + os.sep)
+        ):
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), os.fspath(path))
+        return call(path, *args, **kwargs)
+    return guarded
+os.open, io.open = guard(os.open), guard(io.open)
+os.listdir, os.scandir = guard(os.listdir), guard(os.scandir)
+if stat_too:
+    os.stat = guard(os.stat)
+sys.exit(main(sys.argv[3:]))
+"""
+"""``stereod ARGS`` with ``target`` unreadable as by ``chmod 000`` for a user without
+root's override (the tests run as root): opening or listing it, or anything under it, is
+refused; with ``stat_too`` (a folder) so is looking it up. OpenCV's own reads are not
+affected."""
+
+
+@pytest.mark.parametrize(
+    ("unreadable", "folder", "said"),
+    [
+        ("", True, r"rec/recording\.json: cannot read the manifest: Permission denied"),
+        ("recording.json", False, r"rec/recording\.json: cannot read the manifest: Permission"),
+        ("left.csv", False, r"rec/left\.csv: cannot read timestamp file: Permission denied"),
+        ("right.mkv", False, r"rec/right\.mkv: cannot read video file: Permission denied"),
+    ],
+)
+def test_unreadable_recording_is_one_line_and_exit_66(
+    tmp_path: Path, unreadable: str, folder: bool, said: str
+) -> None:
+    rec = write_scene(Scene(width_px=64, height_px=48, duration_s=0.4, fps=10), tmp_path / "rec")
+    target = rec / unreadable if unreadable else rec
+    guard = [sys.executable, "-c", UNREADABLE, str(target), "1" if folder else "0"]
+    res = subprocess.run(
+        [*guard, "replay", str(rec), "--rate", "0", "-q"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+    one_line_error(res, 66, said)
+
+
+@pytest.mark.parametrize("command", ["replay", "export"])
+def test_an_unlisted_recording_with_mcap_is_one_line_and_exit_66(
+    tmp_path: Path, command: str
+) -> None:
+    """``--mcap`` is checked against every file of the recording, which must be listed first."""
+    rec = write_scene(Scene(width_px=64, height_px=48, duration_s=0.4, fps=10), tmp_path / "rec")
+    guard = [sys.executable, "-c", UNREADABLE, str(rec), "0"]  # chmod 000: stat works
+    res = subprocess.run(
+        [*guard, command, str(rec), "--mcap", str(tmp_path / "run.mcap")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+    one_line_error(res, 66, r"rec: cannot list the recording: Permission denied")

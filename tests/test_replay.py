@@ -1,17 +1,32 @@
-"""Replay driver on plain videos: real files, every inconsistency a clear error."""
+"""Replay driver on plain videos: real files, every inconsistency a clear error; and where
+``stereod replay`` writes its outputs (through a symbolic link, into a FIFO), and that a replay
+stopped by a signal writes none of them."""
 
 from __future__ import annotations
 
+import contextlib
+import io
+import os
+import re
+import signal
+import stat
+import subprocess
+import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from stereod.errors import ConfigError, InputError, MissingInputError
 from stereod_fakes.replay import ReplayDriver
+from stereod_fakes.synth import Scene, write_scene
 
 from .conftest import shared_data
+from .processes import run_stereod, start_stereod
 
 
 def write_video(path: Path, n: int, size: tuple[int, int] = (64, 48), fps: float = 15.0) -> Path:
@@ -142,3 +157,139 @@ def test_bad_inputs_are_refused_up_front(
 def test_option_errors_name_the_field(options: dict, pattern: str) -> None:
     with pytest.raises(ConfigError, match=pattern):
         ReplayDriver(options)
+
+
+# -- `stereod replay`: where its outputs go, and a run a signal stops ----------------------------
+
+PAIRS = 45
+"""Stereo pairs in the recording of :func:`rec` (3 s at 15 Hz)."""
+LOOPBACK = ["--listen", "tcp/127.0.0.1:0"]
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small synthetic recording, replayed as fast as possible in about a second."""
+    scene = Scene(width_px=160, height_px=120, fps=15, duration_s=PAIRS / 15)
+    return write_scene(scene, tmp_path_factory.mktemp("replay") / "rec")
+
+
+class FifoReader:
+    """A named pipe at ``path`` and a thread reading all that is written into it, as the
+    program at the other end of a ``mkfifo`` would."""
+
+    def __init__(self, path: Path) -> None:
+        os.mkfifo(path)
+        self.path = path
+        self._data = b""
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        with self.path.open("rb") as fh:  # waits for a writer
+            self._data = fh.read()
+
+    def is_fifo(self) -> bool:
+        return stat.S_ISFIFO(os.lstat(self.path).st_mode)
+
+    def data(self) -> bytes:
+        """What was written, once the writer is done (call after it ended). A writer that never
+        opened the pipe leaves it empty: the read is then ended by opening it here."""
+        with contextlib.suppress(OSError):  # ENXIO: the reader is done already
+            os.close(os.open(self.path, os.O_WRONLY | os.O_NONBLOCK))
+        self._thread.join()
+        return self._data
+
+
+def mcap_messages(data: bytes, topic: str) -> int:
+    """Messages on ``topic`` in an MCAP file's bytes."""
+    return sum(1 for _ in make_reader(io.BytesIO(data)).iter_messages(topics=[topic]))
+
+
+def temporaries(folder: Path) -> list[str]:
+    """Temporary output files left in ``folder``."""
+    return sorted(p.name for p in folder.iterdir() if p.name.endswith(".part"))
+
+
+def wait_for(proc: subprocess.Popen, ready: Callable[[], bool]) -> None:
+    """Wait until ``ready()``, failing at once if ``proc`` ends first (a minute at most)."""
+    deadline = time.monotonic() + 60
+    while not ready():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            proc.kill()
+            out, err = proc.communicate()
+            pytest.fail(f"never ready (exit {proc.returncode}): {out} {err}")
+        time.sleep(0.02)
+
+
+def test_outputs_go_through_a_symlink_and_into_a_fifo(rec: Path, tmp_path: Path) -> None:
+    """A symbolic link is written through (its target replaced, the link kept) and a FIFO is
+    written in place (its reader gets the whole MCAP): neither becomes a regular file."""
+    target = tmp_path / "runs" / "run.jsonl"
+    target.parent.mkdir()
+    target.write_text("previous run\n")
+    link = tmp_path / "latest.jsonl"
+    link.symlink_to(target)
+    fifo = FifoReader(tmp_path / "run.mcap")
+    res = run_stereod(
+        "replay", str(rec), "--rate", "0", "-q", "--jsonl", str(link), "--mcap", str(fifo.path),
+        *LOOPBACK,
+    )  # fmt: skip
+    assert link.is_symlink() and link.resolve() == target, "the symbolic link was replaced"
+    assert fifo.is_fifo(), "the FIFO was replaced by a regular file"
+    assert res.returncode == 0, res.stderr
+    assert len(target.read_text().splitlines()) == PAIRS
+    assert mcap_messages(fifo.data(), "/stereod/minoru/objects") == PAIRS
+    assert temporaries(tmp_path) == temporaries(target.parent) == []
+
+
+@pytest.fixture
+def previous(tmp_path: Path) -> dict[Path, bytes]:
+    """A JSONL and an MCAP file of an earlier run, which an interrupted one must not touch."""
+    files = {tmp_path / "run.jsonl": b"earlier run\n", tmp_path / "run.mcap": b"earlier mcap"}
+    for path, data in files.items():
+        path.write_bytes(data)
+    return files
+
+
+def test_ctrl_c_while_playing_leaves_the_outputs_and_exits_130(
+    rec: Path, tmp_path: Path, previous: dict[Path, bytes]
+) -> None:
+    jsonl, mcap = previous
+    proc = start_stereod(
+        "replay", str(rec), "--rate", "0.05", "--jsonl", str(jsonl), "--mcap", str(mcap),
+        *LOOPBACK,
+    )  # fmt: skip
+    # The MCAP's temporary file is made at the first pair; at 1/20 of real time the input's
+    # end is a minute away.
+    wait_for(proc, lambda: bool(list(tmp_path.glob(".run.mcap.*"))))
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    (line,) = err.splitlines()
+    assert re.fullmatch(
+        rf"stereod: replay interrupted by SIGINT after \d+ pairs?; {jsonl} and {mcap} left as "
+        r"they were \(.*\)",
+        line,
+    ), line
+    assert " pairs from " in out
+    assert {p: p.read_bytes() for p in previous} == previous
+    assert temporaries(tmp_path) == []
+
+
+def test_sigterm_while_waiting_for_a_subscriber_leaves_the_jsonl(
+    rec: Path, tmp_path: Path, previous: dict[Path, bytes]
+) -> None:
+    jsonl = next(iter(previous))
+    proc = start_stereod(
+        "replay", str(rec), "--rate", "0", "-q", "--rig", "nobody_subscribes",
+        "--wait-subscriber", "600", "--jsonl", str(jsonl), *LOOPBACK,
+    )  # fmt: skip
+    wait_for(proc, lambda: bool(list(tmp_path.glob(".run.jsonl.*.part"))))
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert out == "" and err.startswith(
+        f"stereod: replay interrupted by SIGTERM after 0 pairs; {jsonl} left as it was"
+    ), err
+    assert jsonl.read_bytes() == previous[jsonl]
+    assert temporaries(tmp_path) == []

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from stereod.detect import Detector, DetectorParams
+from stereod.errors import MissingInputError
 from stereod.frames import Eye
 from stereod_fakes.synth import (
     Ball,
@@ -17,6 +18,9 @@ from stereod_fakes.synth import (
     scene_from_truth,
     write_scene,
 )
+
+from .conftest import stereod
+from .test_cli import one_line_error
 
 
 def test_ball_is_drawn_where_a_spheres_silhouette_is_centred() -> None:
@@ -81,9 +85,48 @@ def test_write_scene_and_truth_round_trip(tmp_path: Path) -> None:
     assert (tmp_path / "s" / "recording.json").is_file()
 
 
+def test_a_truth_file_that_cannot_be_read_names_it_and_the_reason(tmp_path: Path) -> None:
+    """A folder stands for any file the OS will not read (the tests run as root)."""
+    (tmp_path / "truth.json").mkdir()
+    with pytest.raises(MissingInputError, match=r"truth.json: cannot read the truth file: Is a"):
+        scene_from_truth(tmp_path / "truth.json")
+
+
 def test_synthetic_driver_streams_the_scene() -> None:
     with SyntheticDriver({"duration_s": 0.5, "fps": 10, "skew_s": 0.01}).open() as src:
         lf = [src.left.read() for _ in range(6)]
         assert lf[-1] is None
         rf = src.right.read()
         assert rf is not None and rf.t_ns - lf[0].t_ns == 10_000_000
+
+
+@pytest.mark.parametrize(
+    ("size", "more"),
+    [("321x241", []), ("320x241", ["--codec", "mjpg", "--color"]), ("1x1", [])],
+)
+def test_synth_refuses_a_size_the_video_writer_would_crop(
+    tmp_path: Path, size: str, more: list[str]
+) -> None:
+    """OpenCV's video writer drops an odd last column or row: such a size is a flag error
+    naming it and an even one, and nothing is written (it used to write 320x240 videos under a
+    manifest saying 321x241, which replay then refused)."""
+    res = stereod("synth", str(tmp_path / "s"), "--size", size, "--duration", "3", *more)
+    one_line_error(res, 64, rf"--size: {size} px cannot be recorded: .*even .*such as \d+x\d+")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_synth_at_an_even_size_replays_at_that_size(tmp_path: Path) -> None:
+    """162x122 is even but not a multiple of 4: the frames are stored as they are."""
+    rec = tmp_path / "s"
+    res = stereod("synth", str(rec), "--size", "162x122", "--duration", "3", "--codec", "mjpg")
+    assert res.returncode == 0, res.stderr
+    res = stereod("replay", str(rec), "--rate", "0")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith("45 pairs from 45 left and 45 right frames"), res.stdout
+
+
+def test_synth_refuses_a_run_of_no_frame(tmp_path: Path) -> None:
+    """0.1 Hz for 3 s is no frame: refused (it used to write a recording replay cannot open)."""
+    res = stereod("synth", str(tmp_path / "s"), "--fps", "0.1", "--duration", "3")
+    one_line_error(res, 64, r"--duration 3 s at --fps 0.1 Hz is not one frame.* at least 10 s")
+    assert list(tmp_path.iterdir()) == []

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from .. import calibrate as cb
-from ..calibration import Board, save
+from ..calibration import MIN_BOARD_CORNERS, Board, create_output, write
 from ..config import load_config
 from ..drivers import load_driver
 from ..frames import merged
@@ -49,7 +49,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--board",
         required=True,
-        type=size_arg,
+        type=board_arg,
         metavar="COLSxROWS",
         help="inner corners of the chessboard, e.g. 9x6",
     )
@@ -110,36 +110,57 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.set_defaults(func=run)
 
 
+def board_arg(text: str) -> tuple[int, int]:
+    """An argparse type: ``COLSxROWS`` inner corners, at least 3 a side (OpenCV looks for no
+    smaller board), so a bad ``--board`` is one line and exit 64 before any work."""
+    cols, rows = size_arg(text)
+    if min(cols, rows) < MIN_BOARD_CORNERS:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: a board needs at least {MIN_BOARD_CORNERS} inner corners a side; "
+            "count the corners where four squares meet, e.g. 9x6"
+        )
+    return cols, rows
+
+
 def run(a: argparse.Namespace) -> int:
     cols, rows = a.board
     board = Board(cols=cols, rows=rows, square=a.square)
     limits = cb.Limits(min_pairs=a.min_pairs, max_rms_px=a.max_rms)
-    if a.live:
-        report = _live(a, board, limits)
-    else:
+    pairs = None
+    if not a.live:
         pairs = cb.pairs_in_directory(a.pairs) if a.pairs else cb.pairs_from_list(a.list)
-        seen = {True: 0, False: 0}
-        with Progress("looking for the board", total=len(pairs), unit="pair") as bar:
-
-            def progress(k: int, name: str, found: bool) -> None:
-                seen[found] += 1
-                bar.update(1, found=seen[True], rejected=seen[False], last=name)
-
-            report = cb.calibrate_files(pairs, board, limits, progress, a.corner_window)
-    print(cb.format_report(report))
-    if report.problems:
-        bad = f"calibration is clearly bad: {'; '.join(report.problems)}"
-        if not a.force:
-            print(
-                f"stereod: {bad}; not written to {a.out} (use --force to write it anyway)",
-                file=sys.stderr,
-            )
-            return cb.CalibrationRejected.exit_code
-        print(f"stereod: {bad}; written anyway (--force)", file=sys.stderr)
-    check_not_input(a.out, [a.list] if a.list else [], "--out")
-    save(report.calibration, a.out)
+        images = [p for pair in pairs for p in pair]
+        check_not_input(a.out, [a.list, *images] if a.list else images, "--out")
+    # The output is made before the work, so that one that cannot be written is refused first.
+    with create_output(a.out) as out:
+        report = _live(a, board, limits) if pairs is None else _files(a, pairs, board, limits)
+        print(cb.format_report(report))
+        if report.problems:
+            bad = f"calibration is clearly bad: {'; '.join(report.problems)}"
+            if not a.force:
+                out.discard()
+                print(
+                    f"stereod: {bad}; not written to {a.out} (use --force to write it anyway)",
+                    file=sys.stderr,
+                )
+                return cb.CalibrationRejected.exit_code
+            print(f"stereod: {bad}; written anyway (--force)", file=sys.stderr)
+        write(report.calibration, out)
     print(f"wrote {a.out} (calibration id {report.calibration.id})")
     return 0
+
+
+def _files(
+    a: argparse.Namespace, pairs: list[tuple[Path, Path]], board: Board, limits: cb.Limits
+) -> cb.Report:
+    seen = {True: 0, False: 0}
+    with Progress("looking for the board", total=len(pairs), unit="pair") as bar:
+
+        def progress(k: int, name: str, found: bool) -> None:
+            seen[found] += 1
+            bar.update(1, found=seen[True], rejected=seen[False], last=name)
+
+        return cb.calibrate_files(pairs, board, limits, progress, a.corner_window)
 
 
 def _live(a: argparse.Namespace, board: Board, limits: cb.Limits) -> cb.Report:
@@ -156,6 +177,8 @@ def _live(a: argparse.Namespace, board: Board, limits: cb.Limits) -> cb.Report:
         driver.open() as source,
         Progress("pairs kept", total=a.wanted, unit="pair") as bar,
     ):
+        inputs = [p for p in (a.config, *source.info.inputs) if p is not None]
+        check_not_input(a.out, inputs, "--out")
         cb.collect_live(
             merged(source.left, source.right),
             collector,

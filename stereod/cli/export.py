@@ -1,14 +1,24 @@
 """``stereod export``: a finished run (recording and/or JSONL) to an MCAP file of standard ROS 2
-messages, for ``ros2 bag play``, Foxglove and PlotJuggler."""
+messages, for ``ros2 bag play``, Foxglove and PlotJuggler.
+
+Ctrl-C or SIGTERM during an export ends it as interrupted: the temporary file is removed, an
+existing ``--mcap`` file stays as it was, and the exit code is 130 (143 for SIGTERM).
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
 
 from ..calibration import load
 from ..errors import ConfigError
 from ..export_mcap import export_run
-from ..output_file import check_not_input
+from ..output_file import Interrupted, check_not_input, signal_name, written_in_place
+from ..recording import recording_files
 from .common import add_canonical_rig, number, path_arg
 
 TOPICS = """\
@@ -31,7 +41,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "`stereod replay REC --jsonl RUN.jsonl`) into one MCAP file of standard ROS 2 Humble "
         "messages: images, camera_info, tf, and the tracks as Odometry, markers and speed/"
         "heading. `ros2 bag play`, Foxglove and PlotJuggler open it without stereod. The file "
-        "is replaced only when the export succeeds.",
+        "is replaced only when the export succeeds: not when it fails or Ctrl-C (exit 130) or "
+        "SIGTERM (143) stops it. A symbolic link is written through, a device or FIFO such as "
+        "/dev/null in place.",
         epilog=TOPICS,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -73,13 +85,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
+    with _interruptible(a.mcap):
+        return _export(a)
+
+
+def _export(a: argparse.Namespace) -> int:
     if a.recording is None and a.jsonl is None:
         raise ConfigError(
             "nothing to export: give the run's recording directory and/or --jsonl RUN.jsonl"
         )
     inputs = [p for p in (a.jsonl, a.calibration) if p is not None]
     if a.recording is not None and a.recording.is_dir():
-        inputs += sorted(a.recording.iterdir())
+        inputs += recording_files(a.recording)
     check_not_input(a.mcap, inputs, "--mcap")
     cal = load(a.calibration) if a.calibration is not None else None
     summary = export_run(
@@ -96,3 +113,21 @@ def run(a: argparse.Namespace) -> int:
     if not a.quiet:
         print(summary.line(), flush=True)
     return 0
+
+
+@contextlib.contextmanager
+def _interruptible(out: Path) -> Iterator[None]:
+    """Within: Ctrl-C and SIGTERM raise :class:`Interrupted` where the export is, so that its
+    MCAP writer removes the temporary file (SIGTERM would otherwise end the process and leave
+    it behind) and ``out`` stays as it was."""
+    text = "" if written_in_place(out) else f"; {out} left as it was"
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        raise Interrupted(f"export interrupted by {signal_name(signum)}{text}", signum)
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

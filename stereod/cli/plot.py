@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..plot import check_overlap, plot_run, read_run, read_truth, summary
+from ..plot import check_overlap, figure_target, plot_run, read_run, read_truth, summary
 from .common import path_arg
 
 
@@ -26,18 +26,25 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "renderer's truth.csv) or a synthetic recording's truth.json",
     )
     p.add_argument(
-        "-o", "--out", type=path_arg, required=True, metavar="FIG.png", help="figure to write"
+        "-o",
+        "--out",
+        type=path_arg,
+        required=True,
+        metavar="FIG.png",
+        help="figure to write; its suffix gives the format (png, pdf, svg, ...; .png added "
+        "when it has none)",
     )
     p.add_argument("--title", default="", help="a title above the figure")
     p.set_defaults(func=run)
 
 
 def run(a: argparse.Namespace) -> int:
+    figure_target(a.out)
     data = read_run(a.run)
     truth = read_truth(a.truth, data.t0_ns) if a.truth is not None else []
     if a.truth is not None:
         check_overlap(data, truth, a.truth)
-    plot_run(data, truth, a.out, title=a.title)
+    written = plot_run(data, truth, a.out, title=a.title)
     print(summary(data))
-    print(f"wrote {a.out}")
+    print(f"wrote {written}")
     return 0

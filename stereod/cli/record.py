@@ -1,4 +1,10 @@
-"""``stereod record``: write what the cameras deliver into a recording, for replay."""
+"""``stereod record``: write what the cameras deliver into a recording, for replay.
+
+Ctrl-C and SIGTERM are how a recording without ``--seconds`` ends, so they end it normally: the
+frames recorded so far are kept, the ``--mcap`` file is written with them, the summary says
+which signal stopped it, and the exit code is 0. The recording directory is always new, so
+nothing that was there is replaced.
+"""
 
 from __future__ import annotations
 
@@ -6,12 +12,13 @@ import argparse
 import signal
 import threading
 from collections.abc import Callable
+from typing import Any
 
 from ..config import load_config
 from ..drivers import load_driver
 from ..frames import Eye, Frame, SourceInfo
 from ..mcap_run import RunMcap, config_geometry
-from ..output_file import check_not_input
+from ..output_file import check_not_input, signal_name
 from ..progress import Progress
 from ..record import record
 from .common import (
@@ -30,7 +37,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="record what the cameras deliver, for replay",
         description="Write both eyes' frames with their capture timestamps and sequence "
         "numbers, the camera settings and the calibration in force into a recording "
-        "directory (replay it with `stereod replay DIR`).",
+        "directory (replay it with `stereod replay DIR`). It records until --seconds, the end "
+        "of the input, or Ctrl-C or SIGTERM, which end it normally: what was recorded is kept, "
+        "and --mcap is written with it.",
     )
     p.add_argument("out", type=path_arg, help="recording directory to create")
     p.add_argument(
@@ -63,8 +72,14 @@ def run(a: argparse.Namespace) -> int:
     setup_logging(command_log_level(cfg))
     driver = load_driver(cfg.driver.name, cfg.driver.options, origin=a.config)
     stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    caught: list[int] = []
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        caught.append(signum)
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
     mcap = None
     if a.mcap is not None:
         inputs = [p for p in (a.config, cfg.rig.calibration) if p is not None]
@@ -92,7 +107,8 @@ def run(a: argparse.Namespace) -> int:
             if mcap is not None:
                 mcap.abort()
             raise
-    print(f"recorded {counts['left']} left and {counts['right']} right frames to {a.out}")
+    how = f" (stopped by {signal_name(caught[0])})" if caught else ""
+    print(f"recorded {counts['left']} left and {counts['right']} right frames to {a.out}{how}")
     if mcap is not None:
         summary = mcap.commit()
         print(summary.line() if summary else f"no frame recorded: {a.mcap} not written")

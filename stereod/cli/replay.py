@@ -1,20 +1,29 @@
-"""``stereod replay``: play a recording or two videos through the pipeline and publish."""
+"""``stereod replay``: play a recording or two videos through the pipeline and publish.
+
+A replay that Ctrl-C or SIGTERM stops before the end of its input is interrupted, not done: it
+writes none of its output files (an existing one stays as it was), says after how many pairs
+it stopped and exits 130 (143 for SIGTERM). With ``--loop`` a signal is the only end, so there
+it ends the run normally.
+"""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import signal
+import threading
 from pathlib import Path
 from typing import Any
 
 from ..config import StereodConfig, load_config
-from ..daemon import Daemon
+from ..daemon import Daemon, RunSummary
 from ..drivers import load_driver
 from ..errors import StereodError, UsageError
 from ..mcap_run import RunMcap, config_geometry
-from ..output_file import check_not_input
+from ..messages import DaemonState
+from ..output_file import Interrupted, check_not_input, signal_name, written_in_place
 from ..progress import Progress
-from ..recording import read_manifest
+from ..recording import read_manifest, recording_files
 from .common import (
     EPILOG_KEYS,
     add_pipeline,
@@ -36,7 +45,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="play a recording or two videos through the pipeline and publish",
         description="Play a recording directory (see `stereod synth`) or two plain video files "
         "through the full pipeline, publishing on Zenoh like the daemon. Exits 0 when the input "
-        "was played in full, 65 when it was truncated or inconsistent, 66 when missing.",
+        "was played in full, 65 when it was truncated or inconsistent, 66 when missing, 130 "
+        "(143) when Ctrl-C (SIGTERM) stopped it before its end: then existing output files are "
+        "left as they were and no new one is made. With --loop, Ctrl-C or SIGTERM ends the run "
+        "normally.",
         epilog=EPILOG_KEYS,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -60,21 +72,25 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--right-ts", type=path_arg, metavar="CSV", help="right capture times, as --left-ts"
     )
     add_rate(p, "playback speed: 1 real time (default), 2 twice as fast, 0 as fast as possible")
-    p.add_argument("--loop", action="store_true", help="start again at the end (until Ctrl-C)")
+    p.add_argument(
+        "--loop",
+        action="store_true",
+        help="start again at the end, until Ctrl-C or SIGTERM (which then end the run normally)",
+    )
     p.add_argument(
         "--jsonl",
         type=path_arg,
         metavar="FILE",
         help="also write every objects message, exactly as published, one per line (the file "
-        "is replaced only when the run succeeds)",
+        "is replaced only when the run succeeds, not when it fails or is interrupted; a "
+        "symbolic link is written through, a device or FIFO such as /dev/null in place)",
     )
     p.add_argument(
         "--mcap",
         type=path_arg,
         metavar="OUT",
         help="also write the run as MCAP with ROS 2 messages: the frames of every pair, "
-        "camera_info, tf and the tracks, as `stereod export` does (replaced only when the run "
-        "succeeds)",
+        "camera_info, tf and the tracks, as `stereod export` does (written as --jsonl is)",
     )
     add_wait_subscriber(p, "playing")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stdout")
@@ -115,7 +131,7 @@ def run(a: argparse.Namespace) -> int:
     cfg = load_config(a.config, ov)
     setup_logging(command_log_level(cfg))
     mcap = _mcap(a, cfg, options)
-    daemon = Daemon(
+    daemon = (Daemon if a.loop else _Replay)(
         cfg,
         load_driver("replay", options),
         rate=a.rate,
@@ -138,13 +154,18 @@ def run(a: argparse.Namespace) -> int:
         unit="pair",
         poll=lambda: (st.pairs, {"frames": sum(st.frames.values())}),
     )
-    if mcap is None:
-        return run_daemon(daemon, quiet=a.quiet, progress=bar)
     try:
         code = run_daemon(daemon, quiet=a.quiet, progress=bar)
+    except Interrupted as exc:
+        if mcap is not None:
+            mcap.abort()
+        raise Interrupted(_interrupted(a, exc.signum, daemon.summary.pairs), exc.signum) from None
     except BaseException:
-        mcap.abort()
+        if mcap is not None:
+            mcap.abort()
         raise
+    if mcap is None:
+        return code
     summary = mcap.commit()
     if not a.quiet:
         print(summary.line() if summary else f"no pair was processed: {a.mcap} not written")
@@ -160,6 +181,53 @@ def _mcap(a: argparse.Namespace, cfg: StereodConfig, options: dict[str, Any]) ->
     inputs = [Path(p) for k, p in options.items() if k != "loop" and k != "fps"]
     inputs += [p for p in (a.config, cfg.rig.calibration) if p is not None]
     if a.recording is not None and a.recording.is_dir():
-        inputs += sorted(a.recording.iterdir())
+        inputs += recording_files(a.recording)
     check_not_input(a.mcap, inputs, "--mcap")
     return RunMcap(a.mcap, rig=cfg.rig.name, geometry=config_geometry(cfg))
+
+
+class _Replay(Daemon):
+    """A replay that a signal (Ctrl-C, SIGTERM) stops before the end of its input: the run
+    fails with :class:`Interrupted`, so the daemon discards its JSONL as after any failure,
+    instead of committing what played as if it were the whole input."""
+
+    def run(self) -> RunSummary:
+        caught: list[int] = []
+        wake = threading.Event()
+
+        def on_signal(signum: int, _frame: Any) -> None:
+            caught.append(signum)
+            wake.set()
+
+        def watch() -> None:
+            # fail() takes locks that the main thread, where the handler runs, may hold.
+            wake.wait()
+            if caught and self.health.state is not DaemonState.FINISHED:
+                signum = caught[0]
+                self.fail(Interrupted(f"interrupted by {signal_name(signum)}", signum))
+
+        watcher = threading.Thread(target=watch, name="signals", daemon=True)
+        watcher.start()
+        previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            return super().run()
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+            wake.set()
+            watcher.join()
+
+
+def _interrupted(a: argparse.Namespace, signum: int, pairs: int) -> str:
+    """What an interrupted replay says: after how many pairs, and which files it did not write
+    (a device or FIFO written in place got what played)."""
+    unit = "pair" if pairs == 1 else "pairs"
+    text = f"replay interrupted by {signal_name(signum)} after {pairs} {unit}"
+    files = [str(p) for p in (a.jsonl, a.mcap) if p is not None and not written_in_place(p)]
+    if files:
+        were = "they were" if len(files) > 1 else "it was"
+        text += (
+            f"; {' and '.join(files)} left as {were} (a replay writes its outputs only when "
+            "it plays its input to the end)"
+        )
+    return text
