@@ -158,7 +158,7 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
     except OSError as exc:
         raise MissingInputError(f"{path}: cannot read timestamp file: {exc.strerror}") from exc
     try:
-        text = data.decode("utf-8")
+        text = data.decode("utf-8-sig")  # a byte-order mark, as some editors write, is no data
     except UnicodeDecodeError as exc:
         raise InputError(
             f"{path}: not a text file (byte {exc.start} is not UTF-8); a timestamp file is a "
@@ -168,6 +168,8 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
         rows = list(csv.reader(io.StringIO(text, newline="")))
     except csv.Error as exc:
         raise InputError(f"{path}: not a valid CSV file: {exc}") from exc
+    while rows and not "".join(rows[-1]).strip():  # blank lines at the end are no frames
+        rows.pop()
     if not rows or [c.strip() for c in rows[0][:1]] != ["t_ns"]:
         raise InputError(f"{path}: first line must be the header 't_ns' (or 't_ns,seq')")
     has_seq = len(rows[0]) > 1 and rows[0][1].strip() == "seq"

@@ -85,6 +85,13 @@ def test_timestamp_file_errors_name_file_and_line(tmp_path: Path) -> None:
     p.write_text("t_ns,seq\n10,4\n20,6\n")
     t, seq = read_timestamps(p)
     assert t.tolist() == [10, 20] and seq.tolist() == [4, 6]
+    # As an editor may save it: a byte-order mark first, blank lines at the end.
+    p.write_bytes(b"\xef\xbb\xbft_ns,seq\r\n10,4\r\n20,6\r\n\r\n\n")
+    t, seq = read_timestamps(p)
+    assert t.tolist() == [10, 20] and seq.tolist() == [4, 6]
+    p.write_text("t_ns\n1\n\n2\n")  # a blank line between frames is not an end
+    with pytest.raises(InputError, match="line 3: expected an integer"):
+        read_timestamps(p)
 
 
 def test_manifest_errors(tmp_path: Path) -> None:

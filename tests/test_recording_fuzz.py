@@ -34,7 +34,9 @@ def _csv_lines(text: str) -> list[str]:
     """The lines of a CSV text as CSV ends them (\r\n, \r or \n; a form feed or another of
     ``str.splitlines``' separators inside a cell ends nothing)."""
     lines = re.split(r"\r\n|\r|\n", text)
-    return lines[:-1] if lines and lines[-1] == "" else lines
+    while lines and not lines[-1].strip():  # blank lines at the end are no rows
+        lines.pop()
+    return lines
 
 
 def check_csv(path: Path) -> None:
@@ -42,7 +44,7 @@ def check_csv(path: Path) -> None:
     result = accepted_or_refused(read_timestamps, path)
     if not isinstance(result, StereodError):
         t, seq = result
-        text = path.read_bytes().decode()
+        text = path.read_bytes().decode("utf-8-sig")
         assert t.dtype == np.int64 and seq.dtype == np.int64 and len(t) == len(seq)
         assert np.all(np.diff(t) > 0), "accepted timestamps that do not increase"
         assert len(t) == len(_csv_lines(text)) - 1  # one per data row
