@@ -39,6 +39,7 @@ from pydantic import (
     ValidationError,
     ValidationInfo,
     field_validator,
+    model_validator,
 )
 
 from . import keys
@@ -333,6 +334,16 @@ class ZenohConfig(_Section):
         description="A Zenoh config file (JSON5: TLS, mTLS, access control); the settings "
         "above that are given go on top of it",
     )
+
+    @model_validator(mode="after")
+    def _client_has_a_router(self) -> ZenohConfig:
+        lost = self.mode == "client" and not (self.connect or self.multicast_scouting)
+        if lost and self.config_file is None:  # a Zenoh file of one's own may name it
+            raise ValueError(
+                "mode = 'client' needs a router to connect to: give zenoh.connect (its "
+                "endpoint), or multicast_scouting = true to find one"
+            )
+        return self
 
 
 class DaemonConfig(_Section):

@@ -56,6 +56,10 @@ def test_a_flag_naming_another_driver_leaves_the_files_driver_options_out(tmp_pa
         ),
         ("[detector\n", r"c\.toml: invalid TOML"),
         (
+            "[zenoh]\nmode = 'client'\n",
+            r"zenoh: mode = 'client' needs a router to connect to: give zenoh\.connect",
+        ),
+        (
             "[matching]\nmin_disparity_px = 10.0\nmax_disparity_px = 5.0\n",
             r"matching\.max_disparity_px = 5\.0: must be larger than min_disparity_px \(10\)",
         ),
