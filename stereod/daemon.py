@@ -352,39 +352,55 @@ class Daemon:
             return
         self._notifier.notify(RELOADING=1)
         try:
-            cfg = self._reload_config()
+            new = self._reload_config()
+            cfg = self._effective(new)
             params = pipeline_params(cfg, width, height)
         except Exception as exc:  # nothing in a new file may kill a running daemon
             reason = str(exc) if isinstance(exc, StereodError) else f"{type(exc).__name__}: {exc}"
             self.health.problem(f"reload refused, keeping the running configuration: {reason}")
             self._notifier.notify(READY=1)
             return
-        needs_restart = [
+        waiting = [
             name
-            for name in ("driver", "zenoh", "daemon")
-            if getattr(cfg, name) != getattr(self.cfg, name)
+            for name, now, then in (
+                ("driver", new.driver, self.cfg.driver),
+                ("zenoh", new.zenoh, self.cfg.zenoh),
+                ("daemon", new.daemon, self.cfg.daemon),
+                ("rig.name", new.rig.name, self.cfg.rig.name),
+                ("pairing.tolerance_ms", new.pairing.tolerance_ms, cfg.pairing.tolerance_ms),
+                ("pairing.max_pending", new.pairing.max_pending, cfg.pairing.max_pending),
+            )
+            if now != then
         ]
-        if cfg.rig.name != self.cfg.rig.name:
-            needs_restart.append("rig.name")
-        if needs_restart:
+        if waiting:
             self.health.problem(
-                f"reload: changes to {', '.join(needs_restart)} take effect at the next restart"
+                f"reload: changes to {', '.join(waiting)} take effect at the next restart"
             )
         assert self._worker is not None
         self._worker.reconfigure(params)
-        # What the config queryable reports is what runs: the parts that wait for a restart
-        # stay as they are until then.
-        self.cfg = cfg.model_copy(
+        self.cfg = cfg
+        log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)
+        self._notifier.notify(READY=1)
+        self._status_now.set()
+
+    def _effective(self, new: StereodConfig) -> StereodConfig:
+        """What of a reloaded configuration runs now: all of it but what only a restart can
+        change (the driver, Zenoh, the daemon's threads and queues, the rig's name and the
+        pairer), which stays as it runs. The config queryable reports this."""
+        return new.model_copy(
             update={
                 "driver": self.cfg.driver,
                 "zenoh": self.cfg.zenoh,
                 "daemon": self.cfg.daemon,
-                "rig": cfg.rig.model_copy(update={"name": self.cfg.rig.name}),
+                "rig": new.rig.model_copy(update={"name": self.cfg.rig.name}),
+                "pairing": new.pairing.model_copy(
+                    update={
+                        "tolerance_ms": self.cfg.pairing.tolerance_ms,
+                        "max_pending": self.cfg.pairing.max_pending,
+                    }
+                ),
             }
         )
-        log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)
-        self._notifier.notify(READY=1)
-        self._status_now.set()
 
     def _wait_for_subscriber(self, pub: Publisher) -> None:
         deadline = time.monotonic() + self.wait_subscriber_s

@@ -138,13 +138,19 @@ def test_no_new_file_kills_a_running_daemon(tmp_path: Path, endpoint: str) -> No
             assert wait(lambda: query_config(s, rig="svc")["detector"]["threshold"] == 31.0)
             assert statuses[-1]["state"] == "running"
             # What waits for a restart is reported as it runs, not as the file has it.
-            renamed = good(endpoint, threshold=33.0).replace('"svc"', '"svc2"')
+            before = query_config(s, rig="svc")
+            renamed = good(endpoint, 33.0, "[pairing]\ntolerance_ms = 31.0\n")
+            renamed = renamed.replace('"svc"', '"svc2"').replace("status_period_s = 0.5", "")
             cfg.write_text(renamed.replace("width_px = 160", "width_px = 320"))
+            seen = len(statuses)
             proc.send_signal(signal.SIGHUP)
             assert wait(lambda: query_config(s, rig="svc")["detector"]["threshold"] == 33.0)
             running = query_config(s, rig="svc")
             assert running["rig"]["name"] == "svc"
             assert running["driver"]["options"]["width_px"] == 160
+            assert running["pairing"] == before["pairing"] and running["daemon"] == before["daemon"]
+            waiting = "driver, daemon, rig.name, pairing.tolerance_ms take effect at the next"
+            assert wait(lambda: any(waiting in p for st in statuses[seen:] for p in st["problems"]))
     finally:
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=20)
