@@ -253,11 +253,7 @@ class Daemon:
         with Publisher(cfg.zenoh, cfg.rig.name, queryables, self._status_now.set) as pub:
             self._publisher = pub
             if pub.rig_taken:
-                h.problem(
-                    f"another stereod already publishes rig {cfg.rig.name!r} under "
-                    f"{pub.base}/: their messages mix and either may answer a query; give "
-                    "each daemon its own [rig] name"
-                )
+                self._rig_taken(pub)
             self._wait_for_subscriber(pub)
             if not self._stop.is_set():
                 h.state = DaemonState.RUNNING
@@ -382,6 +378,16 @@ class Daemon:
         log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)
         self._notifier.notify(READY=1)
         self._status_now.set()
+
+    def _rig_taken(self, pub: Publisher) -> None:
+        """Another daemon's ``alive`` token for this rig was on the bus at open: say so on the
+        status (a running service keeps running: the token may be a vanished peer's, held
+        until its lease ends)."""
+        self.health.problem(
+            f"another stereod already publishes rig {self.cfg.rig.name!r} under {pub.base}/: "
+            "their messages mix and either may answer a query; give each daemon its own "
+            "[rig] name"
+        )
 
     def _effective(self, new: StereodConfig) -> StereodConfig:
         """What of a reloaded configuration runs now: all of it but what only a restart can

@@ -559,3 +559,35 @@ def test_eyes_whose_clocks_disagree_by_seconds_say_why_nothing_paired(tmp_path: 
     assert got.returncode == 65, got.stderr
     assert "no pairs: no frame had a partner of the other eye within" in got.stderr
     assert "last frames were 10 s apart" in got.stderr
+
+
+def test_a_replay_under_a_rig_name_already_on_the_bus_is_refused(
+    tmp_path: Path, endpoint: str
+) -> None:
+    """A replay connected to a bus where a daemon already publishes its rig name would mix its
+    messages into that rig's: it is refused before it plays (78), its outputs untouched."""
+    from stereod.config import load_config
+    from stereod.daemon import Daemon
+    from stereod_fakes.synth import SyntheticDriver
+
+    rec = recording(tmp_path)
+    out = tmp_path / "run.jsonl"
+    out.write_text("kept\n")
+    cfg = load_config(overrides={"zenoh": {"listen": [endpoint]}})
+    live = Daemon(cfg, SyntheticDriver({"duration_s": 30.0, "fps": 15, "live": True}))
+    thread = threading.Thread(target=live.run)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 20
+        while live.health.state.value != "running" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        got = run_stereod(
+            "replay", str(rec), "--rate", "0", "-q", "--connect", endpoint, "--jsonl", str(out)
+        )
+    finally:
+        live.stop()
+        thread.join(15)
+    assert got.returncode == 78, got.stderr
+    assert "another stereod already publishes rig 'minoru'" in got.stderr
+    assert "--rig NAME" in got.stderr
+    assert out.read_text() == "kept\n"

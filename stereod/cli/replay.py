@@ -18,11 +18,12 @@ from typing import Any
 from ..config import StereodConfig, load_config
 from ..daemon import Daemon, RunSummary
 from ..drivers import load_driver
-from ..errors import StereodError, UsageError
+from ..errors import ConfigError, StereodError, UsageError
 from ..mcap_run import RunMcap, config_geometry
 from ..messages import DaemonState
 from ..output_file import Interrupted, check_not_input, signal_name, written_in_place
 from ..progress import Progress
+from ..publish import Publisher
 from ..recording import read_manifest, recording_files
 from .common import (
     EPILOG_KEYS,
@@ -190,6 +191,15 @@ class _Replay(Daemon):
     """A replay that a signal (Ctrl-C, SIGTERM) stops before the end of its input: the run
     fails with :class:`Interrupted`, so the daemon discards its JSONL as after any failure,
     instead of committing what played as if it were the whole input."""
+
+    def _rig_taken(self, pub: Publisher) -> None:
+        """A replay would mix its messages into a running rig's: refused before it plays."""
+        self.fail(
+            ConfigError(
+                f"another stereod already publishes rig {self.cfg.rig.name!r} under "
+                f"{pub.base}/ on this bus; give the replay its own name with --rig NAME"
+            )
+        )
 
     def run(self) -> RunSummary:
         caught: list[int] = []
