@@ -19,6 +19,7 @@ signal stopped before its end commits no output; it ends with :class:`Interrupte
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import signal
 import stat
@@ -143,12 +144,23 @@ def check_not_input(output: Path, inputs: list[Path], flag: str) -> None:
 def _open_in_place(target: Path) -> int:
     """A descriptor writing ``target`` in place. One of this process's own descriptors
     (``/dev/stdout``) is duplicated, so that it shares the position of what else the process
-    writes there; any other is opened without truncating or creating anything."""
+    writes there; any other is opened without truncating or creating anything. A FIFO is
+    opened without waiting: one with no reader is refused (waiting for one could not be
+    interrupted), then written as any pipe is."""
     if os.path.realpath(target.parent) == f"/proc/{os.getpid()}/fd":
         with contextlib.suppress(ValueError):
             return os.dup(int(target.name))
     flags = os.O_WRONLY | (os.O_APPEND if _in_proc(target) else 0)
-    return os.open(target, flags)
+    try:
+        fd = os.open(target, flags | os.O_NONBLOCK)
+    except OSError as exc:
+        if exc.errno == errno.ENXIO:
+            raise OutputError(
+                f"{target}: a named pipe with no reader; start its reader first"
+            ) from exc
+        raise
+    os.set_blocking(fd, True)
+    return fd
 
 
 def _fsync_dir(directory: Path) -> None:

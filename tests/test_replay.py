@@ -242,6 +242,20 @@ def test_outputs_go_through_a_symlink_and_into_a_fifo(rec: Path, tmp_path: Path)
     assert temporaries(tmp_path) == temporaries(target.parent) == []
 
 
+@pytest.mark.parametrize("flag", ["--jsonl", "--mcap"])
+def test_a_fifo_with_no_reader_is_refused_not_waited_for(
+    rec: Path, tmp_path: Path, flag: str
+) -> None:
+    """Opening a FIFO for writing waits for its reader, and no signal could end that wait: a
+    FIFO with no reader is refused in one line (73) instead, and stays a FIFO."""
+    fifo = tmp_path / "out"
+    os.mkfifo(fifo)
+    res = run_stereod("replay", str(rec), "--rate", "0", "-q", flag, str(fifo), *LOOPBACK)
+    assert res.returncode == 73, res.stderr
+    assert res.stderr.endswith("out: a named pipe with no reader; start its reader first\n")
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+
+
 @pytest.fixture
 def previous(tmp_path: Path) -> dict[Path, bytes]:
     """A JSONL and an MCAP file of an earlier run, which an interrupted one must not touch."""
