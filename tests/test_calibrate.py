@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import signal
+import time
 from pathlib import Path
 
 import cv2
@@ -24,6 +26,7 @@ from stereod_fakes.rig import board_views, minoru_like, random_board_poses, writ
 from stereod_fakes.synth import Scene, write_scene
 
 from .conftest import shared_data, stereod
+from .processes import start_stereod
 from .test_cli import one_line_error
 
 BOARD = Board(cols=9, rows=6, square=0.03)
@@ -247,3 +250,32 @@ def test_inputs_the_os_will_not_read_name_the_path_and_the_reason(
         pairs_from_list(tmp_path / "pairs.txt")
     with pytest.raises(MissingInputError, match=rf"{tmp_path}: cannot list the folder: Permission"):
         pairs_in_directory(tmp_path)
+
+
+def test_sigterm_while_collecting_leaves_no_file_and_exits_143(tmp_path: Path) -> None:
+    """``timeout``, systemd and ``kill`` stop a command with SIGTERM: a live calibration so
+    stopped says so in one line, writes nothing and leaves no temporary file behind."""
+    cfg = tmp_path / "live.toml"
+    cfg.write_text(
+        '[driver]\nname = "synthetic"\n[driver.options]\n'
+        "width_px = 160\nheight_px = 120\nlive = true\nloop = true\n"
+    )
+    proc = start_stereod(
+        *("calibrate", "--live", "--config", str(cfg), "--board", "9x6", "--square", "0.025"),
+        *("--out", str(tmp_path / "c.json")),
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not list(tmp_path.glob(".c.json.*.part")) and time.monotonic() < deadline:
+            time.sleep(0.05)  # collecting, its output made
+        assert list(tmp_path.glob(".c.json.*.part")), "calibrate never started collecting"
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 143, err
+    assert (
+        err.splitlines()[-1]
+        == f"stereod: calibrate stopped by SIGTERM: {tmp_path}/c.json not written"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["live.toml"]
