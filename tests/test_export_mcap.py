@@ -9,15 +9,18 @@ the timestamp files or the calibration.
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
 import shutil
 import signal
+import subprocess
+import time
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import cv2
 import numpy as np
@@ -748,6 +751,24 @@ def test_export_into_a_fifo_streams_the_file_to_its_reader(
     assert mcap_messages(fifo.data(), f"{RIG}/objects") == len(recorded.lines)
 
 
+def fifo_writer(fifo: Path, proc: subprocess.Popen, timeout_s: float = 60.0) -> IO[bytes]:
+    """The FIFO opened for writing once ``proc`` opens it for reading; a failure, not a hang,
+    when the process ends or never gets there."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)
+        except OSError as exc:
+            if exc.errno != errno.ENXIO:
+                raise
+            assert proc.poll() is None, f"export ended (rc {proc.returncode}) before reading"
+            assert time.monotonic() < deadline, "export never opened its input"
+            time.sleep(0.02)
+            continue
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "wb", buffering=0)
+
+
 def test_export_stopped_by_sigterm_leaves_the_file_and_no_temporary(
     recorded: Recorded, previous: tuple[Path, bytes], tmp_path: Path
 ) -> None:
@@ -759,10 +780,10 @@ def test_export_stopped_by_sigterm_leaves_the_file_and_no_temporary(
     os.mkfifo(jsonl)
     proc = start_stereod("export", "--jsonl", str(jsonl), "--mcap", str(out))
     text = "".join(line + "\n" for line in recorded.lines).encode()
-    with jsonl.open("wb") as fh:  # the scan: all of it
+    with fifo_writer(jsonl, proc) as fh:  # the scan: all of it
         fh.write(text)
     wait_for(proc, lambda: bool(temporaries(out)))  # the scan is over, the writer made
-    with jsonl.open("wb", buffering=0) as fh:  # the messages: the export opens it again
+    with fifo_writer(jsonl, proc) as fh:  # the messages: the export opens it again
         fh.write(text[: len(text) // 4])
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
