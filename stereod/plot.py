@@ -16,6 +16,7 @@ sampled at the scene's frame times while in view).
 from __future__ import annotations
 
 import csv
+import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,8 +25,9 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
-from .errors import InputError, MissingInputError, NotInstalledError, OutputError, UsageError
+from .errors import InputError, MissingInputError, NotInstalledError, UsageError
 from .messages import ObjectsMessage, ObjectState
+from .output_file import AtomicOutput, written_in_place
 
 FIGSIZE_IN = (12.0, 6.0)
 DPI = 100
@@ -276,9 +278,12 @@ def figure_target(out: Path) -> tuple[Path, str]:
     ``pdf``, ``svg``, ...), ``.png`` added when it has none, as matplotlib would. A suffix
     matplotlib cannot write is refused before any work, listing those it can."""
     if not out.suffix:
+        if written_in_place(out):  # /dev/null, a FIFO: that file, as PNG
+            return out, "png"
         return out.with_name(out.name + ".png"), "png"
     fmt = out.suffix[1:].lower()
-    supported = sorted(_figure_class()().canvas.get_supported_filetypes())
+    # PGF is LaTeX source that needs a TeX installation even to write: not offered.
+    supported = sorted(set(_figure_class()().canvas.get_supported_filetypes()) - {"pgf"})
     if fmt not in supported:
         raise UsageError(
             f"--out {out}: .{fmt} is not a figure format; give a file ending in "
@@ -339,10 +344,10 @@ def plot_run(run: Run, truth: list[TruthSeries], out: Path, *, title: str = "") 
             ax.legend(fontsize=7, loc="best")
     if title:
         fig.suptitle(title)
-    try:
-        fig.savefig(path, dpi=DPI, format=fmt)
-    except OSError as exc:
-        raise OutputError(f"{path}: cannot write the figure: {exc.strerror or exc}") from exc
+    image = io.BytesIO()
+    fig.savefig(image, dpi=DPI, format=fmt)
+    with AtomicOutput(path) as output:  # the output rule of every command (output_file)
+        output.write(image.getvalue())
     return path
 
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import os
+import stat
 import struct
 import subprocess
 import sys
@@ -219,6 +221,26 @@ def test_a_figure_without_suffix_is_a_png_and_said_by_its_name(tmp_path: Path) -
     assert r.stdout.splitlines()[-1] == f"wrote {tmp_path / 'pout.png'}"
     assert _png_size(tmp_path / "pout.png") == (int(FIGSIZE_IN[0] * DPI), int(FIGSIZE_IN[1] * DPI))
     assert not (tmp_path / "pout").exists()
+
+
+def test_a_figure_follows_the_rule_of_every_output(tmp_path: Path) -> None:
+    """Through a symbolic link to the file it names (the link kept); into /dev/null as it is
+    (no /dev/null.png, no regular file in its place); an earlier figure stays until the new
+    one is whole."""
+    run = _golden_run(tmp_path)
+    target = tmp_path / "figs" / "run.png"
+    target.parent.mkdir()
+    target.write_bytes(b"earlier")
+    link = tmp_path / "latest.png"
+    link.symlink_to(target)
+    r = stereod("plot", str(run), "-o", str(link))
+    assert r.returncode == 0, r.stderr
+    assert link.is_symlink() and _png_size(target)[0] == int(FIGSIZE_IN[0] * DPI)
+    r = stereod("plot", str(run), "-o", "/dev/null")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[-1] == "wrote /dev/null"
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+    assert sorted(p.name for p in target.parent.iterdir()) == ["run.png"]
 
 
 def test_a_truth_or_run_that_cannot_be_read_is_one_line_and_exit_66(tmp_path: Path) -> None:
