@@ -120,6 +120,9 @@ class Daemon:
         self._reload_requested = threading.Event()
         self._fatal_lock = threading.Lock()
         self._fatal: StereodError | None = None
+        self._settled = False
+        """Set once the run's outcome is decided (its output committed or discarded): an error
+        after that is logged, not made the run's, so what is reported matches what is on disk."""
         self._source: StereoSource | None = None
         self._worker: PipelineWorker | None = None
         self._publisher: Publisher | None = None
@@ -158,6 +161,9 @@ class Daemon:
             log.error("internal error", exc_info=exc)
             err = InternalError(f"internal error: {type(exc).__name__}: {exc}")
         with self._fatal_lock:
+            if self._settled:
+                log.warning("after the run ended: %s", err)
+                return
             if self._fatal is None:
                 self._fatal = err
         # The run's error is said once, by whoever reports the run's end; here only the
@@ -189,11 +195,14 @@ class Daemon:
                 if jsonl is not None:
                     jsonl.discard()
                 raise
+            with self._fatal_lock:
+                self._settled = True
+                failed = self._fatal is not None
             if jsonl is not None:
-                if self._fatal is None:
-                    jsonl.commit()
-                else:  # a failed run never replaces what the file held before
+                if failed:  # a failed run never replaces what the file held before
                     jsonl.discard()
+                else:
+                    jsonl.commit()
         return self._finish()
 
     def _thread(self, target: Callable[[], None], name: str) -> threading.Thread:

@@ -201,6 +201,9 @@ class AtomicOutput:
         except OSError as exc:
             self.discard()
             raise OutputError(f"{path}: cannot create the output file: {exc.strerror}") from exc
+        except BaseException:  # a signal's exception while it was made: leave nothing behind
+            self.discard()
+            raise
 
     def _mode(self) -> int:
         """The permissions of the file replaced, or those of a new file."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 from collections.abc import Iterator
 from pathlib import Path
@@ -17,7 +18,13 @@ from typing import Any
 from ..calibration import load
 from ..errors import ConfigError
 from ..export_mcap import export_run
-from ..output_file import Interrupted, check_not_input, signal_name, written_in_place
+from ..output_file import (
+    Interrupted,
+    check_not_input,
+    follow_links,
+    signal_name,
+    written_in_place,
+)
 from ..recording import recording_files
 from .common import add_canonical_rig, number, path_arg
 
@@ -120,9 +127,22 @@ def _interruptible(out: Path) -> Iterator[None]:
     """Within: Ctrl-C and SIGTERM raise :class:`Interrupted` where the export is, so that its
     MCAP writer removes the temporary file (SIGTERM would otherwise end the process and leave
     it behind) and ``out`` stays as it was."""
-    text = "" if written_in_place(out) else f"; {out} left as it was"
+    in_place = written_in_place(out)
+    text = "" if in_place else f"; {out} left as it was"
+    target = follow_links(out)
+
+    def identity() -> tuple[int, int] | None:
+        try:
+            st = os.stat(target)
+        except OSError:
+            return None
+        return st.st_ino, st.st_mtime_ns
+
+    before = identity()
 
     def on_signal(signum: int, _frame: Any) -> None:
+        if not in_place and identity() != before:
+            return  # the new file is already in place: the export is done, let it say so
         raise Interrupted(f"export interrupted by {signal_name(signum)}{text}", signum)
 
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
