@@ -17,7 +17,6 @@ import datetime
 import hashlib
 import json
 import math
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Final, Literal, TypeVar
@@ -295,8 +294,6 @@ def create_output(path: Path) -> AtomicOutput:
     """An output file, its folder made and a temporary file created beside it; committed by
     rename. Made before the work that fills it, it refuses a path that cannot be written
     (a folder, no permission) before that work is done."""
-    if os.path.isdir(path):
-        raise OutputError(f"{path}: is a folder, not a file; give the name of a file to write")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

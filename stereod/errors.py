@@ -13,7 +13,8 @@
     │   └── DeviceLost            a camera went away while in use (the source retries)
     ├── NotInstalledError         an optional dependency is missing; names the install (exit 69)
     ├── UnavailableError          a service cannot be reached (no Zenoh router; exit 69)
-    └── InternalError             a bug: an unexpected exception, logged in full (exit 70)
+    ├── InternalError             a bug: an unexpected exception, logged in full (exit 70)
+    └── Interrupted               a signal stopped a run before its end (exit 128 + signal)
 
 Foreign errors (OSError, cv2.error, pydantic.ValidationError) are translated into these at the
 boundary with ``raise ... from exc`` so callers only ever catch ``StereodError``.
@@ -175,3 +176,14 @@ def nearest_field(model: Any, loc: Sequence[int | str]) -> str | None:
 def _shown(value: object, limit: int = 60) -> str:
     text = one_line(repr(value))
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+class Interrupted(StereodError):
+    """A run stopped by a signal (Ctrl-C, SIGTERM) before its end; its outputs were not
+    replaced. The exit code is 128 plus the signal's number (130 for SIGINT, 143 for SIGTERM),
+    what a shell reports for a process the signal ended."""
+
+    def __init__(self, message: str, signum: int) -> None:
+        super().__init__(message)
+        self.signum = signum
+        self.exit_code = 128 + signum

@@ -28,21 +28,20 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO
 
-from .errors import OutputError, StereodError
+from .errors import Interrupted, OutputError
+
+__all__ = [
+    "AtomicOutput",
+    "Interrupted",
+    "check_not_input",
+    "follow_links",
+    "output_target",
+    "signal_name",
+    "written_in_place",
+]
 
 _MAX_LINKS = 40
 """Symbolic links followed before a path is taken for a loop (the kernel's limit)."""
-
-
-class Interrupted(StereodError):
-    """A run stopped by a signal (Ctrl-C, SIGTERM) before its end; its outputs were not
-    replaced. The exit code is 128 plus the signal's number (130 for SIGINT, 143 for SIGTERM),
-    what a shell reports for a process the signal ended."""
-
-    def __init__(self, message: str, signum: int) -> None:
-        super().__init__(message)
-        self.signum = signum
-        self.exit_code = 128 + signum
 
 
 def signal_name(signum: int) -> str:

@@ -200,7 +200,10 @@ def test_an_output_that_cannot_be_written_is_refused_before_calibrating(tmp_path
     looked at (nothing on stdout, no report), and the input is left as it was."""
     image = shared_data("opencv_stereo", "left01.jpg")
     before = image.read_bytes()
-    for out, said in ((tmp_path, "is a folder, not a file"), (image, "is an input of this run")):
+    for out, said in (
+        (tmp_path, "is a directory; give the name of a file"),
+        (image, "is an input of this run"),
+    ):
         res = stereod(*_pairs_calibration("--out", str(out)))
         one_line_error(res, 73, f"{out}: .*{said}")
         assert res.stdout == ""
@@ -213,7 +216,7 @@ def test_live_output_is_checked_before_collecting(tmp_path: Path) -> None:
     it reads (it used to read the whole stream and then fail, or not even say so)."""
     rec = write_scene(Scene(width_px=64, height_px=48, duration_s=0.4, fps=10), tmp_path / "rec")
     live = ["calibrate", "--live", "--recording", str(rec), "--board", "9x6", "--square", "1"]
-    for out, said in ((rec, "is a folder"), (rec / "left.csv", "is an input of this run")):
+    for out, said in ((rec, "is a directory"), (rec / "left.csv", "is an input of this run")):
         res = stereod(*live, "--out", str(out))
         one_line_error(res, 73, f"{out}: .*{said}")
 
