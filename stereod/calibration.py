@@ -56,6 +56,11 @@ _SHAPES: dict[str, tuple[int, int]] = {
 }
 
 
+def _is_number(x: object) -> bool:
+    """A JSON number (not a boolean, which Python counts as one)."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
 MAX_ENTRY = 1e9
 """The largest magnitude of any matrix entry (px, or lengths in the board's unit): larger
 numbers are damage, and would overflow the geometry's arithmetic."""
@@ -119,6 +124,15 @@ class Calibration(BaseModel):
     def _positive_size(cls, v: tuple[int, int]) -> tuple[int, int]:
         if v[0] <= 0 or v[1] <= 0:
             raise ValueError(f"must be positive, got {v[0]}x{v[1]}")
+        return v
+
+    @field_validator("T", "D1", "D2", mode="before")
+    @classmethod
+    def _vector_as_matrix(cls, v: Any, info: Any) -> Any:
+        """A vector written flat (``"T": [x, y, z]``, as by hand or by other tools) is taken
+        as the column (T) or row (D) the file stores."""
+        if isinstance(v, list) and v and all(_is_number(x) for x in v):
+            return [[x] for x in v] if _SHAPES[info.field_name][1] == 1 else [v]
         return v
 
     @field_validator(*_SHAPES)

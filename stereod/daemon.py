@@ -46,6 +46,9 @@ from .status import Health, geometry_note
 
 log = logging.getLogger(__name__)
 
+RELOAD_REFUSED = "reload refused, keeping the running configuration"
+"""How a refused reload's problem begins; a reload taken later takes those off the status."""
+
 DROP_PIPELINE_BEHIND = "pipeline_behind"
 """A pair waited too long for the pipeline and a newer one replaced it (live sources)."""
 DROP_PUBLISH_BEHIND = "publish_behind"
@@ -297,6 +300,7 @@ class Daemon:
                     self.images = images
             for p in source.problems():
                 h.problem(p)
+            self._check_paired()
             h.state = DaemonState.FINISHED
             pub.status(dump(h.status(1.0)))
             self.summary.objects = worker.objects
@@ -362,7 +366,7 @@ class Daemon:
             params = pipeline_params(cfg, width, height)
         except Exception as exc:  # nothing in a new file may kill a running daemon
             reason = str(exc) if isinstance(exc, StereodError) else f"{type(exc).__name__}: {exc}"
-            self.health.problem(f"reload refused, keeping the running configuration: {reason}")
+            self.health.problem(f"{RELOAD_REFUSED}: {reason}")
             self._notifier.notify(READY=1)
             return
         waiting = [
@@ -384,6 +388,7 @@ class Daemon:
         assert self._worker is not None
         self._worker.reconfigure(params)
         self.cfg = cfg
+        self.health.resolved(RELOAD_REFUSED)
         log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)
         self._notifier.notify(READY=1)
         self._status_now.set()
@@ -424,17 +429,21 @@ class Daemon:
                 return
             time.sleep(0.02)
 
-    def _finish(self) -> RunSummary:
-        s = self.summary
-        st = self.pairer.stats
+    def _check_paired(self) -> None:
+        """At the end of a run in which both eyes gave frames and none found a partner, say
+        how far apart the eyes' last frames were (on the last status and in the summary)."""
         left, right = self.pairer.last_ns(Eye.LEFT), self.pairer.last_ns(Eye.RIGHT)
-        if st.pairs == 0 and left is not None and right is not None:
+        if self.pairer.stats.pairs == 0 and left is not None and right is not None:
             self.health.problem(
                 f"no pairs: no frame had a partner of the other eye within "
                 f"{self.pairer.tolerance_ns / 1e6:g} ms; the eyes' last frames were "
                 f"{abs(left - right) / 1e9:.3g} s apart, so their clocks or timestamp files "
                 "do not agree"
             )
+
+    def _finish(self) -> RunSummary:
+        s = self.summary
+        st = self.pairer.stats
         drops, errors, _ = self.health.counters()
         s.pairs = st.pairs
         s.frames = {e.value: n for e, n in st.frames.items()}

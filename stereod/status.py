@@ -126,6 +126,15 @@ class Health:
             log.warning("%s%s", text, f" ({n} times)" if n > 1 else "")
         self._on_change()
 
+    def resolved(self, prefix: str) -> None:
+        """Take the recent problems that begin with ``prefix`` off the status key: what they
+        said holds no more (a reload refused, then one taken). The run's summary keeps them."""
+        with self.lock:
+            kept = [p for p in self._problems if not p.startswith(prefix)]
+            self._problems.clear()
+            self._problems.extend(kept)
+        self._on_change()
+
     def drop(self, reason: str, n: int = 1) -> None:
         with self.lock:
             self._drops[reason] += n

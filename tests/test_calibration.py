@@ -45,6 +45,25 @@ def test_save_load_round_trip_and_id(tmp_path: Path) -> None:
     assert other.id != cal.id
 
 
+def test_a_vector_written_flat_is_read_as_the_column_or_row_it_stands_for(
+    tmp_path: Path,
+) -> None:
+    """``"T": [x, y, z]`` and ``"D1": [k1, k2, p1, p2, k3]``, as a hand or another tool writes
+    them: the same calibration as the stored 3x1 and 1x5 (its id checks out); a flat vector
+    of the wrong length still names the shape wanted."""
+    cal = a_calibration()
+    data = json.loads(cal.model_dump_json())
+    data["T"] = [row[0] for row in data["T"]]
+    data["D1"], data["D2"] = data["D1"][0], data["D2"][0]
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(data))
+    assert load(path) == cal
+    data["T"] = data["T"][:2]
+    path.write_text(json.dumps(data))
+    with pytest.raises(CalibrationError, match=r"T: must be 3x1, got shape \(2, 1\)"):
+        load(path)
+
+
 @pytest.mark.parametrize(
     ("edit", "pattern"),
     [

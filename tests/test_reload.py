@@ -137,6 +137,10 @@ def test_no_new_file_kills_a_running_daemon(tmp_path: Path, endpoint: str) -> No
             proc.send_signal(signal.SIGHUP)
             assert wait(lambda: query_config(s, rig="svc")["detector"]["threshold"] == 31.0)
             assert statuses[-1]["state"] == "running"
+            # The refusals hold no more: the status key stops listing them (the log keeps them).
+            assert wait(lambda: not any("reload refused" in p for p in statuses[-1]["problems"])), (
+                statuses[-1]["problems"]
+            )
             # What waits for a restart is reported as it runs, not as the file has it.
             before = query_config(s, rig="svc")
             renamed = good(endpoint, 33.0, "[pairing]\ntolerance_ms = 31.0\n")
