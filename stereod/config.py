@@ -456,8 +456,9 @@ def _merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) -> str:
-    """Where the value at ``loc`` came from: a flag, the environment, the file, or defaults."""
+def origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) -> str:
+    """Where the value at ``loc`` (``("driver", "name")``) came from: a flag, the environment
+    (its variable, or one for a part of it), the file, or defaults."""
     node: Any = overrides
     for part in loc:
         if isinstance(node, dict):
@@ -468,9 +469,11 @@ def _origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) 
             node = None
     if node is not None:
         return "command line"
-    env = ENV_PREFIX + "__".join(str(p) for p in loc[:2]).upper()
-    if any(k.upper() == env for k in os.environ):
-        return f"environment {env}"
+    names = {k.upper() for k in os.environ}
+    for n in range(len(loc), 1, -1):
+        env = ENV_PREFIX + "__".join(str(p) for p in loc[:n]).upper()
+        if env in names or any(k.startswith(env + "__") for k in names):
+            return f"environment {env}"
     return str(path) if path is not None else "defaults"
 
 
@@ -493,7 +496,7 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
     try:
         return StereodConfig.model_validate(_merge(below, flags))
     except ValidationError as exc:
-        errors = [(_origin(tuple(e["loc"]), path, flags), e) for e in exc.errors(include_url=False)]
+        errors = [(origin(tuple(e["loc"]), path, flags), e) for e in exc.errors(include_url=False)]
         parts = [
             f"{origin}: invalid config: {describe_error(e, model=StereodConfig)}"
             for origin, e in errors

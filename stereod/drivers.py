@@ -22,15 +22,23 @@ def available() -> list[str]:
     return sorted(ep.name for ep in entry_points(group=GROUP))
 
 
-def load_driver(name: str, options: dict[str, Any], origin: Path | None = None) -> Driver:
+def load_driver(
+    name: str,
+    options: dict[str, Any],
+    origin: Path | str | None = None,
+    name_origin: Path | str | None = None,
+) -> Driver:
     """Instantiate driver ``name`` with ``options`` (validated by the driver: a bad option is
-    a :class:`ConfigError` naming ``origin``, the config file they came from, when given);
-    unknown names list what is installed."""
+    a :class:`ConfigError` naming ``origin``, where they came from, when given: the config
+    file, the environment); an unknown name (said to come from ``name_origin``, by default
+    ``origin``) lists what is installed."""
     where = f"{origin}: " if origin is not None else ""
+    named = name_origin if name_origin is not None else origin
     found = [ep for ep in entry_points(group=GROUP) if ep.name == name]
     if not found:
         raise ConfigError(
-            f"{where}driver.name = {name!r}: no such driver; installed: "
+            f"{f'{named}: ' if named is not None else ''}driver.name = {name!r}: no such "
+            "driver; installed: "
             f"{', '.join(available()) or 'none'}"
         )
     try:

@@ -294,7 +294,18 @@ def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
     one_line_error(
         stereod("run", "--config", str(tmp_path / "none.toml")), 66, "no such config file"
     )
-    one_line_error(stereod("run", "--driver", "warp"), 78, "driver.name = 'warp': no such driver")
+    one_line_error(
+        stereod("run", "--driver", "warp"), 78, "command line: driver.name = 'warp': no such driver"
+    )
+    # A driver option from the environment is blamed on the environment, not on the file.
+    synthetic = tmp_path / "synthetic.toml"
+    synthetic.write_text('[driver]\nname = "synthetic"\n')
+    env = {"STEREOD_DRIVER__OPTIONS__WIDTH_PX": "abc"}
+    one_line_error(
+        stereod("run", "--config", str(synthetic), "--check", env=env),
+        78,
+        r"environment STEREOD_DRIVER__OPTIONS: driver\.options\.width_px = 'abc'",
+    )
     one_line_error(
         stereod("replay", str(tmp_path), "--baseline", "-1"), 64, r"--baseline: -1: must be > 0 m"
     )

@@ -231,12 +231,17 @@ def load_checked(path: Path | None, overrides: dict[str, Any]) -> tuple[Any, Any
     alike at start, by ``run --check`` and on every reload, so that a file that passes one
     passes all three."""
     from ..calibration import load as load_calibration
-    from ..config import load_config
+    from ..config import load_config, origin
     from ..drivers import load_driver
     from ..publish import session_config
 
     cfg = load_config(path, overrides)
-    driver = load_driver(cfg.driver.name, cfg.driver.options, origin=path)
+    driver = load_driver(
+        cfg.driver.name,
+        cfg.driver.options,
+        origin=origin(("driver", "options"), path, overrides),
+        name_origin=origin(("driver", "name"), path, overrides),
+    )
     session_config(cfg.zenoh)
     if cfg.rig.calibration is not None:
         load_calibration(cfg.rig.calibration)
