@@ -7,14 +7,52 @@ Two ways to use it from Python: :class:`Pipeline` on frames you already have (no
 bus, no camera), and :mod:`stereod.client` for what a running daemon publishes.
 """
 
-from .frames import Eye, Frame, StereoPair
-from .geometry import Geometry
-from .geometry.rectified import CalibratedRig
-from .geometry.stereo import CanonicalRig
-from .pipeline import PairResult, Pipeline, PipelineParams, Timings
-from .tracking import TrackLifecycle, TrackState
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .frames import Eye, Frame, StereoPair
+    from .geometry import Geometry
+    from .geometry.rectified import CalibratedRig
+    from .geometry.stereo import CanonicalRig
+    from .pipeline import PairResult, Pipeline, PipelineParams, Timings
+    from .tracking import TrackLifecycle, TrackState
 
 __version__ = "0.2.0"
+
+_HOMES = {
+    "Eye": ".frames",
+    "Frame": ".frames",
+    "StereoPair": ".frames",
+    "Geometry": ".geometry",
+    "CalibratedRig": ".geometry.rectified",
+    "CanonicalRig": ".geometry.stereo",
+    "PairResult": ".pipeline",
+    "Pipeline": ".pipeline",
+    "PipelineParams": ".pipeline",
+    "Timings": ".pipeline",
+    "TrackLifecycle": ".tracking",
+    "TrackState": ".tracking",
+}
+"""Where each name of the public surface lives. They are imported on first use, so that
+``import stereod`` (which every command does first) costs nothing until NumPy and OpenCV are
+needed: the ``stereod`` command can then answer Ctrl-C and SIGHUP from its first instant."""
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'stereod' has no attribute {name!r}")
+    value = getattr(importlib.import_module(home, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_HOMES})
+
 
 __all__ = [
     "CalibratedRig",

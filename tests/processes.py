@@ -14,8 +14,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def stereod_command(*args: str) -> list[str]:
-    """The command line of ``stereod ARGS`` with this interpreter (no PATH lookup)."""
-    return [sys.executable, "-m", "stereod.cli", *args]
+    """The command line of ``stereod ARGS`` with this interpreter (no PATH lookup), through
+    the console script's own entry point."""
+    return [sys.executable, "-m", "stereod._entry", *args]
 
 
 def start_stereod(*args: str, env: dict[str, str] | None = None, **popen: Any) -> subprocess.Popen:

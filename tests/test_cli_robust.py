@@ -591,3 +591,26 @@ def test_a_replay_under_a_rig_name_already_on_the_bus_is_refused(
     assert "another stereod already publishes rig 'minoru'" in got.stderr
     assert "--rig NAME" in got.stderr
     assert out.read_text() == "kept\n"
+
+
+def test_a_daemon_asked_to_reload_while_it_starts_keeps_starting(tmp_path: Path) -> None:
+    """``systemctl reload`` (SIGHUP) in the first instant of ``stereod run``, while Python
+    still imports NumPy, OpenCV and Zenoh, where its default would end the process: the
+    daemon lives on, and stops cleanly when told to."""
+    cfg = tmp_path / "live.toml"
+    cfg.write_text(
+        '[driver]\nname = "synthetic"\n[driver.options]\n'
+        "width_px = 160\nheight_px = 120\nlive = true\nloop = true\n"
+    )
+    proc = start_stereod("run", "--config", str(cfg), cwd=tmp_path)
+    try:
+        time.sleep(0.1)
+        proc.send_signal(signal.SIGHUP)
+        time.sleep(3.0)
+        assert proc.poll() is None, proc.communicate()[1]
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err

@@ -84,7 +84,7 @@ def test_run_speaks_the_notify_protocol_in_order(tmp_path: Path, endpoint: str) 
     write_config(cfg, endpoint, 25.0)
     env = {**os.environ, "NOTIFY_SOCKET": address, "WATCHDOG_USEC": "1000000"}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "stereod.cli", "run", "--config", str(cfg)],
+        [sys.executable, "-m", "stereod._entry", "run", "--config", str(cfg)],
         cwd=ROOT,
         env=env,
         stdout=subprocess.PIPE,
@@ -123,7 +123,7 @@ def test_garbage_calibration_on_reload_keeps_the_old_one(tmp_path: Path, endpoin
     cfg = tmp_path / "svc.toml"
     write_config(cfg, endpoint, 25.0, cal_path)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "stereod.cli", "run", "--config", str(cfg)],
+        [sys.executable, "-m", "stereod._entry", "run", "--config", str(cfg)],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

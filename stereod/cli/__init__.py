@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 import tempfile
 import time
@@ -98,6 +99,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     quiet_third_party()
     try:
         args = build_parser().parse_args(argv)
+        if not getattr(args, "reloads_on_sighup", False) and hasattr(signal, "SIGHUP"):
+            signal.signal(signal.SIGHUP, signal.SIG_DFL)  # a closed terminal ends the command
         code: int = args.func(args)
         return code
     except StereodError as exc:

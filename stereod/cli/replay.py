@@ -96,7 +96,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_wait_subscriber(p, "playing")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary on stdout")
     add_pipeline(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, reloads_on_sighup=True)  # its handler comes with the daemon
 
 
 def driver_options(a: argparse.Namespace) -> dict[str, Any]:

@@ -38,7 +38,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="validate the configuration (driver options included), print it as JSON and exit",
     )
     add_pipeline(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, reloads_on_sighup=True)  # its handler comes with the daemon
 
 
 def run(a: argparse.Namespace) -> int:

@@ -1,0 +1,26 @@
+"""The ``stereod`` command's entry point, as light as a module can be: it sets what Ctrl-C
+and SIGHUP do before the command's imports (NumPy, OpenCV, Zenoh: most of a second), where
+Python's defaults would print a traceback, or end a daemon that a reload was asked of while
+it started."""
+
+from __future__ import annotations
+
+import signal
+import sys
+
+
+def main() -> int:
+    """Run the ``stereod`` command: exit 130 on a Ctrl-C during its imports. SIGHUP is ignored
+    until the command is known: the daemon (``run``, ``replay``) then handles it as a reload
+    once it has read its configuration, any other command ends on it as usual."""
+    if hasattr(signal, "SIGHUP"):
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        from .cli import main as command
+    except KeyboardInterrupt:
+        return 130
+    return command()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
