@@ -353,15 +353,16 @@ def wait_alive(
 
 
 def _wait_s(timeout_s: float | None, *, forever: bool) -> float | None:
-    """A timeout argument checked: seconds >= 0, or (where ``forever`` is allowed) ``None``
-    or infinity for no limit, returned as ``None``; anything else is a ValueError."""
+    """A timeout argument checked: where ``forever`` is allowed, seconds >= 0, or ``None`` or
+    infinity for no limit (returned as ``None``); else a finite number of seconds > 0.
+    Anything else is a ValueError."""
     if timeout_s is None and forever:
         return None
     if isinstance(timeout_s, bool) or not isinstance(timeout_s, (int, float)):
         raise ValueError(f"timeout_s must be a number of seconds, got {timeout_s!r}")
     if math.isinf(timeout_s) and timeout_s > 0 and forever:
         return None
-    if not (math.isfinite(timeout_s) and timeout_s >= 0):
+    if not (math.isfinite(timeout_s) and (timeout_s >= 0 if forever else timeout_s > 0)):
         limit = "a number of seconds >= 0" if forever else "a finite number of seconds > 0"
         raise ValueError(f"timeout_s must be {limit}, got {timeout_s!r}")
     return float(timeout_s)
@@ -369,8 +370,7 @@ def _wait_s(timeout_s: float | None, *, forever: bool) -> float | None:
 
 def _query(session: zenoh.Session, key: str, timeout_s: float) -> bytes:
     wait_s = _wait_s(timeout_s, forever=False)
-    if not wait_s:
-        raise ValueError(f"timeout_s must be a finite number of seconds > 0, got {timeout_s!r}")
+    assert wait_s is not None
     start = time.monotonic()
     for reply in session.get(key, timeout=wait_s):
         if reply.ok is not None:

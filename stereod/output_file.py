@@ -24,9 +24,10 @@ import os
 import signal
 import stat
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import IO
+from typing import IO, Any
 
 from .errors import Interrupted, OutputError
 
@@ -37,6 +38,7 @@ __all__ = [
     "follow_links",
     "output_target",
     "signal_name",
+    "stopped_by_signals",
     "written_in_place",
 ]
 
@@ -274,3 +276,35 @@ class AtomicOutput:
             self.commit()
         else:
             self.discard()
+
+
+@contextlib.contextmanager
+def stopped_by_signals(command: str, out: Path) -> Iterator[None]:
+    """Within: Ctrl-C and SIGTERM raise :class:`Interrupted` where ``command`` is, so that the
+    output it is writing to ``out`` removes its temporary file (SIGTERM would otherwise end
+    the process and leave it behind) and ``out`` stays as it was. Once the new file is in
+    place the command is done: a signal then lets it finish and say so."""
+    in_place = written_in_place(out)
+    text = "" if in_place else f"; {out} left as it was"
+    target = follow_links(out)
+
+    def identity() -> tuple[int, int] | None:
+        try:
+            st = os.stat(target)
+        except OSError:
+            return None
+        return st.st_ino, st.st_mtime_ns
+
+    before = identity()
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        if not in_place and identity() != before:
+            return
+        raise Interrupted(f"{command} interrupted by {signal_name(signum)}{text}", signum)
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

@@ -37,7 +37,7 @@ from stereod.messages import ObjectsMessage
 
 from .conftest import ROOT, stereod
 from .processes import start_stereod
-from .test_replay import FifoReader, mcap_messages, wait_for
+from .test_replay import FifoReader, mcap_messages, temporaries, wait_for
 
 TYPESTORE = get_typestore(Stores.ROS2_HUMBLE)
 GOLDEN = ROOT / "tests" / "golden" / "objects_example.json"
@@ -429,14 +429,9 @@ def test_recording_only_without_images(recorded: Recorded, tmp_path: Path) -> No
 # -- atomicity and errors ---------------------------------------------------------------------
 
 
-def temporaries(out: Path) -> list[str]:
-    """Temporary files of ``out`` left in its folder."""
-    return sorted(p.name for p in out.parent.iterdir() if p.name.startswith(f".{out.name}."))
-
-
 def assert_untouched(out: Path, before: bytes) -> None:
     assert out.read_bytes() == before
-    assert temporaries(out) == []
+    assert temporaries(out.parent) == []
 
 
 def one_line(exc: pytest.ExceptionInfo[BaseException], *names: str) -> None:
@@ -738,7 +733,7 @@ def test_export_through_a_symlink_replaces_its_target_and_keeps_the_link(
     run_ok("export", "--jsonl", str(recorded.jsonl), "--mcap", str(link), "--no-images")
     assert link.is_symlink() and link.resolve() == target, "the symbolic link was replaced"
     assert len(read_bag(target).msgs(f"{RIG}/objects")) == len(recorded.lines)
-    assert temporaries(link) == temporaries(target) == []
+    assert temporaries(link.parent) == temporaries(target.parent) == []
 
 
 def test_export_into_a_fifo_streams_the_file_to_its_reader(
@@ -782,7 +777,7 @@ def test_export_stopped_by_sigterm_leaves_the_file_and_no_temporary(
     text = "".join(line + "\n" for line in recorded.lines).encode()
     with fifo_writer(jsonl, proc) as fh:  # the scan: all of it
         fh.write(text)
-    wait_for(proc, lambda: bool(temporaries(out)))  # the scan is over, the writer made
+    wait_for(proc, lambda: bool(temporaries(out.parent)))  # the scan is over, the writer made
     with fifo_writer(jsonl, proc) as fh:  # the messages: the export opens it again
         fh.write(text[: len(text) // 4])
         proc.send_signal(signal.SIGTERM)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 from pathlib import Path
 
@@ -12,7 +11,7 @@ from ..calibration import MIN_BOARD_CORNERS, Board, create_output, write
 from ..config import load_config
 from ..drivers import load_driver
 from ..frames import merged
-from ..output_file import Interrupted, check_not_input, signal_name
+from ..output_file import check_not_input, stopped_by_signals
 from ..progress import Progress
 from .common import add_config, add_driver, number, path_arg, size_arg
 
@@ -133,15 +132,9 @@ def run(a: argparse.Namespace) -> int:
         images = [p for pair in pairs for p in pair]
         check_not_input(a.out, [a.list, *images] if a.list else images, "--out")
 
-    def stopped(signum: int, _frame: object) -> None:  # SIGTERM (timeout, systemd) as Ctrl-C
-        raise Interrupted(
-            f"calibrate stopped by {signal_name(signum)}: {a.out} not written", signum
-        )
-
-    signal.signal(signal.SIGTERM, stopped)
     # The output is made before the work, so that one that cannot be written is refused first;
     # whatever ends the work early (a signal too) removes its temporary file.
-    with create_output(a.out) as out:
+    with stopped_by_signals("calibrate", a.out), create_output(a.out) as out:
         report = _live(a, board, limits) if pairs is None else _files(a, pairs, board, limits)
         print(cb.format_report(report))
         if report.problems:

@@ -8,23 +8,11 @@ existing ``--mcap`` file stays as it was, and the exit code is 130 (143 for SIGT
 from __future__ import annotations
 
 import argparse
-import contextlib
-import os
-import signal
-from collections.abc import Iterator
-from pathlib import Path
-from typing import Any
 
 from ..calibration import load
 from ..errors import ConfigError
 from ..export_mcap import export_run
-from ..output_file import (
-    Interrupted,
-    check_not_input,
-    follow_links,
-    signal_name,
-    written_in_place,
-)
+from ..output_file import check_not_input, stopped_by_signals
 from ..recording import recording_files
 from .common import add_canonical_rig, number, path_arg
 
@@ -92,7 +80,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
-    with _interruptible(a.mcap):
+    with stopped_by_signals("export", a.mcap):
         return _export(a)
 
 
@@ -120,34 +108,3 @@ def _export(a: argparse.Namespace) -> int:
     if not a.quiet:
         print(summary.line(), flush=True)
     return 0
-
-
-@contextlib.contextmanager
-def _interruptible(out: Path) -> Iterator[None]:
-    """Within: Ctrl-C and SIGTERM raise :class:`Interrupted` where the export is, so that its
-    MCAP writer removes the temporary file (SIGTERM would otherwise end the process and leave
-    it behind) and ``out`` stays as it was."""
-    in_place = written_in_place(out)
-    text = "" if in_place else f"; {out} left as it was"
-    target = follow_links(out)
-
-    def identity() -> tuple[int, int] | None:
-        try:
-            st = os.stat(target)
-        except OSError:
-            return None
-        return st.st_ino, st.st_mtime_ns
-
-    before = identity()
-
-    def on_signal(signum: int, _frame: Any) -> None:
-        if not in_place and identity() != before:
-            return  # the new file is already in place: the export is done, let it say so
-        raise Interrupted(f"export interrupted by {signal_name(signum)}{text}", signum)
-
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
