@@ -34,6 +34,7 @@ from .errors import (
     describe_validation_error,
 )
 from .output_file import AtomicOutput
+from .versioned import known_format, warn_unknown_fields
 
 FORMAT: Final = "stereod.calibration/1"
 
@@ -74,7 +75,7 @@ refuses fewer ("both width and height of the pattern should have bigger than 2")
 class Board(BaseModel):
     """The chessboard: inner corners per row and column, square side (length unit)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="ignore")
     cols: int = Field(ge=MIN_BOARD_CORNERS)
     rows: int = Field(ge=MIN_BOARD_CORNERS)
     square: float = Field(gt=0)
@@ -83,7 +84,7 @@ class Board(BaseModel):
 class Quality(BaseModel):
     """How well the calibration fits its images (px)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="ignore")
     rms_left_px: float | None = None
     rms_right_px: float | None = None
     rms_stereo_px: float | None = None
@@ -98,7 +99,7 @@ class Quality(BaseModel):
 class Calibration(BaseModel):
     """A stereo calibration; matrices as nested lists, shapes checked, every number finite."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="ignore")
 
     format: Literal["stereod.calibration/1"] = FORMAT
     id: str = ""
@@ -118,6 +119,11 @@ class Calibration(BaseModel):
     board: Board | None = None
     created_utc: str = ""
     source: str = ""
+
+    @field_validator("format", mode="before")
+    @classmethod
+    def _known_format(cls, v: Any) -> Any:
+        return known_format(v, FORMAT)
 
     @field_validator("image_size")
     @classmethod
@@ -278,6 +284,7 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
         cal = Calibration.model_validate_json(text)
     except ValidationError as exc:
         raise CalibrationError(f"{path}: {describe_validation_error(exc)}") from exc
+    warn_unknown_fields(path, Calibration, text)
     if cal.id and cal.id != cal.content_id():
         raise CalibrationError(
             f"{path}: field id: {cal.id} does not match the numbers ({cal.content_id()}); "

@@ -10,6 +10,8 @@ calibration), so that writing an output never destroys what was at its path.
   reader) is written in place, as a shell's ``>`` would, and so is a path that names one of
   a process's file descriptors (``/dev/stdout``, ``/proc/self/fd/N``): such a file is never
   replaced by a regular one nor removed. Opening a FIFO waits for its reader, as ``>`` does.
+* A regular file that this process may not write (write-protected) is refused, as a shell's
+  ``>`` would refuse it, although renaming over it would succeed.
 * Anything else there (a directory, a block device, a socket) is refused in one line.
 
 An output that is one of the run's inputs is refused (:func:`check_not_input`). A run that a
@@ -110,6 +112,11 @@ def output_target(path: Path) -> tuple[Path, bool]:
     except OSError as exc:
         raise OutputError(f"{path}: cannot use as an output: {exc.strerror}") from exc
     if stat.S_ISREG(mode):
+        if not os.access(target, os.W_OK):
+            raise OutputError(
+                f"{path}: the file is write-protected; make it writable (chmod u+w) or choose "
+                "another output file"
+            )
         return target, False
     if stat.S_ISCHR(mode) or stat.S_ISFIFO(mode):
         return target, True

@@ -26,7 +26,14 @@ from typing import Annotated, Any, Final, Literal
 
 import cv2
 import numpy as np
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+)
 
 from .errors import (
     InputError,
@@ -37,6 +44,7 @@ from .errors import (
 )
 from .frames import Eye, Frame
 from .paths import path_problem, text_path
+from .versioned import known_format, warn_unknown_fields
 
 MANIFEST = "recording.json"
 FORMAT: Final = "stereod.recording/1"
@@ -73,7 +81,7 @@ def _inside(name: str) -> str:
 
 
 class EyeFiles(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="ignore")
     video: Annotated[str, AfterValidator(_inside)]
     timestamps: Annotated[str, AfterValidator(_inside)]
     frames: int = Field(ge=0, le=10**9)
@@ -82,7 +90,7 @@ class EyeFiles(BaseModel):
 class Manifest(BaseModel):
     """``recording.json``: how to read a recording back."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="ignore", allow_inf_nan=False)
 
     format: Literal["stereod.recording/1"] = FORMAT
     width: int = Field(gt=0, le=MAX_SIDE_PX)
@@ -96,6 +104,11 @@ class Manifest(BaseModel):
     created_utc: str = ""
     settings: dict[str, Any] = Field(default_factory=dict)
     calibration: dict[str, Any] | None = None
+
+    @field_validator("format", mode="before")
+    @classmethod
+    def _known_format(cls, v: Any) -> Any:
+        return known_format(v, FORMAT)
 
 
 def read_manifest(directory: Path) -> Manifest:
@@ -117,6 +130,7 @@ def read_manifest(directory: Path) -> Manifest:
         man = Manifest.model_validate_json(data)
     except ValidationError as exc:
         raise InputError(f"{path}: {describe_validation_error(exc)}") from exc
+    warn_unknown_fields(path, Manifest, data)
     for files in (man.left, man.right):
         _check_readable(directory / files.video, "video file")
         _check_readable(directory / files.timestamps, "timestamp file")

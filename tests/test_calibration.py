@@ -152,3 +152,29 @@ def test_show_says_how_many_pairs_were_rejected(tmp_path: Path) -> None:
     res = stereod("calibration", "show", str(path))
     assert res.returncode == 0, res.stderr
     assert res.stdout.splitlines()[1] == said, res.stdout
+
+
+def test_a_newer_file_with_fields_this_version_does_not_know_loads_and_says_which(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Within ``stereod.calibration/1`` fields are only added: a file from a newer stereod,
+    with a new top-level field and a new quality figure, loads as the same calibration (the
+    id still checks out) and one warning names both fields; a new format version is refused."""
+    cal = a_calibration()
+    data = json.loads(cal.model_dump_json())
+    data["temperature_c"] = 21.5
+    data["quality"]["coverage"] = 0.8
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(data))
+    assert load(path, (640, 480)) == cal
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 1 and str(path) in warned[0]
+    assert "quality.coverage, temperature_c" in warned[0]
+    data["format"] = "stereod.calibration/2"
+    path.write_text(json.dumps(data))
+    with pytest.raises(
+        CalibrationError,
+        match=r"c\.json: format = 'stereod\.calibration/2': this stereod reads "
+        r"stereod\.calibration/1; a newer stereod wrote this file: upgrade stereod",
+    ):
+        load(path)

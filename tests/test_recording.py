@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -104,6 +105,35 @@ def test_manifest_errors(tmp_path: Path) -> None:
         InputError, match=r"recording\.json: width = -1: Input should be greater than 0"
     ):
         read_manifest(tmp_path)
+
+
+def test_a_newer_manifest_with_fields_this_version_does_not_know_is_read(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Fields are only added within ``stereod.recording/1``: a manifest from a newer stereod
+    with a new field, at the top and in an eye's entry, reads as before and one warning names
+    both fields."""
+    with RecordingWriter(tmp_path / "rec", 64, 48, fps=30.0, codec=Codec.FFV1) as w:
+        for left, right in random_frames(2, False):
+            w.write(left)
+            w.write(right)
+    path = tmp_path / "rec" / "recording.json"
+    before = read_manifest(tmp_path / "rec")
+    data = json.loads(path.read_text())
+    data["lens"] = "M12"
+    data["left"]["exposure_us"] = 100
+    path.write_text(json.dumps(data))
+    assert read_manifest(tmp_path / "rec") == before
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 1 and str(path) in warned[0] and "left.exposure_us, lens" in warned[0]
+    data["format"] = "stereod.recording/2"
+    path.write_text(json.dumps(data))
+    with pytest.raises(InputError, match=r"format = 'stereod\.recording/2': this stereod reads"):
+        read_manifest(tmp_path / "rec")
+    data["format"] = "stereod.calibration/1"
+    path.write_text(json.dumps(data))
+    with pytest.raises(InputError, match=r"not a stereod\.recording file"):
+        read_manifest(tmp_path / "rec")
 
 
 @pytest.mark.parametrize("codec", list(Codec))
