@@ -94,6 +94,10 @@ class Daemon:
     ``Outgoing.pair`` when ``keep_frames`` is set.
     """
 
+    survives_reader_gone: bool = True
+    """Whether the run goes on when the reader of a JSONL written into a pipe closes it (a
+    daemon does, and says so on its status key; a replay ends quietly)."""
+
     def __init__(
         self,
         cfg: StereodConfig,
@@ -274,7 +278,15 @@ class Daemon:
             if images is not None:
                 worker.want_images = images.wanted
                 on_message = _both(images.offer, self._on_message)
-            output = Output(out, pub, h, jsonl=jsonl, on_fatal=self.fail, on_message=on_message)
+            output = Output(
+                out,
+                pub,
+                h,
+                jsonl=jsonl,
+                on_fatal=self.fail,
+                on_message=on_message,
+                survive_reader_gone=self.survives_reader_gone,
+            )
             threads = [self._thread(loop, name) for name, loop in capture.loops()]
             threads.append(self._thread(worker.loop, "pipeline"))
             sender = self._thread(output.loop, "output")

@@ -89,6 +89,14 @@ class OutputError(StereodError):
     exit_code = EX_CANTCREAT
 
 
+class ReaderGone(OutputError):
+    """An output written in place (stdout, a named pipe) whose reader closed it, as ``head``
+    does once it has its lines. A command ends quietly with 0, as when the reader of its stdout
+    goes away; a daemon keeps running without that output and says so on its status key."""
+
+    exit_code = 0
+
+
 class CalibrationError(StereodError):
     """A calibration is missing, ill-shaped, non-finite or does not fit the stream."""
 

@@ -1,8 +1,10 @@
 """The output thread: sends each pair's payloads over Zenoh and, when asked, to a JSONL file.
 
 Publishing never blocks (Zenoh puts use congestion DROP). A JSONL write that fails (a full
-disk, a closed pipe) ends the run with :class:`~stereod.errors.OutputError` (exit 73); the
-thread keeps draining its queue so the pipeline is never left blocked behind it.
+disk) ends the run with :class:`~stereod.errors.OutputError` (exit 73); the thread keeps
+draining its queue so the pipeline is never left blocked behind it. A JSONL written into a
+pipe whose reader closed it (:class:`~stereod.errors.ReaderGone`) ends a run that has an end
+(a replay), quietly; a daemon stops writing it and says so on its status key.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 
-from .errors import OutputError
+from .errors import OutputError, ReaderGone
 from .output_file import AtomicOutput
 from .processing import Outgoing
 from .publish import Publisher
@@ -32,6 +34,7 @@ class Output:
         jsonl: AtomicOutput | None,
         on_fatal: Callable[[BaseException], None],
         on_message: Callable[[Outgoing], None] | None = None,
+        survive_reader_gone: bool = False,
     ) -> None:
         self.out = out
         self.publisher = publisher
@@ -39,6 +42,7 @@ class Output:
         self.jsonl = jsonl
         self._on_fatal = on_fatal
         self._on_message = on_message
+        self._survive_reader_gone = survive_reader_gone
 
     def loop(self) -> None:
         while True:
@@ -59,7 +63,12 @@ class Output:
             if self.jsonl is not None:
                 try:
                     self.jsonl.write(item.payload + b"\n")
+                    if self.jsonl.in_place:  # a pipe's reader gets each message as it comes
+                        self.jsonl.flush()
                 except OutputError as exc:
                     self.jsonl.discard()
                     self.jsonl = None
-                    self._on_fatal(exc)
+                    if isinstance(exc, ReaderGone) and self._survive_reader_gone:
+                        self.health.problem(f"{exc}; the JSONL output is no longer written")
+                    else:
+                        self._on_fatal(exc)

@@ -31,11 +31,12 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
 
-from .errors import Interrupted, OutputError
+from .errors import Interrupted, OutputError, ReaderGone
 
 __all__ = [
     "AtomicOutput",
     "Interrupted",
+    "ReaderGone",
     "check_not_input",
     "follow_links",
     "output_target",
@@ -220,6 +221,13 @@ class AtomicOutput:
         except OSError:
             return 0o666 & ~_umask()
 
+    def _failed(self, exc: OSError) -> OutputError:
+        """The error a failed write becomes: :class:`ReaderGone` when the reader of a pipe
+        written in place closed it, otherwise :class:`OutputError`."""
+        if self.in_place and exc.errno == errno.EPIPE:
+            return ReaderGone(f"{self.path}: its reader closed it")
+        return OutputError(f"{self.path}: writing failed: {exc.strerror}")
+
     def write(self, data: bytes) -> int:
         """Write ``data``; the number of bytes written."""
         if self._fh.closed:
@@ -227,7 +235,7 @@ class AtomicOutput:
         try:
             n = self._fh.write(data)
         except OSError as exc:
-            raise OutputError(f"{self.path}: writing failed: {exc.strerror}") from exc
+            raise self._failed(exc) from exc
         self._written += n
         return n
 
@@ -240,7 +248,7 @@ class AtomicOutput:
         try:
             self._fh.flush()
         except OSError as exc:
-            raise OutputError(f"{self.path}: writing failed: {exc.strerror}") from exc
+            raise self._failed(exc) from exc
 
     def commit(self) -> None:
         """Flush, close and move the file into place (once; later calls do nothing)."""
@@ -257,7 +265,7 @@ class AtomicOutput:
                 _fsync_dir(self.target.parent)
         except OSError as exc:
             self.discard()
-            raise OutputError(f"{self.path}: writing failed: {exc.strerror}") from exc
+            raise self._failed(exc) from exc
 
     def discard(self) -> None:
         """Close and remove the temporary file; the target stays as it was."""

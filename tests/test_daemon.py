@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
+import os
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -232,6 +235,32 @@ def test_any_exception_in_an_eye_marks_it_down_and_it_recovers(endpoint: str) ->
     assert any("left eye streaming again" in p for p in summary.problems)
     assert summary.frames["left"] == 30 and summary.pairs >= 10
     assert driver.source is not None and driver.source.left.recovered == 1  # type: ignore[attr-defined]
+
+
+def test_a_daemon_whose_jsonl_reader_goes_away_runs_on_and_says_so(
+    endpoint: str, tmp_path: Path
+) -> None:
+    """``run --jsonl FIFO``: when the pipe's reader closes it after a line, the daemon stops
+    writing the JSONL, says so on its status, and processes every pair to the end."""
+    fifo = tmp_path / "objects.fifo"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # a reader before the writer opens
+    driver = SyntheticDriver({"duration_s": 2.0, "fps": 15})
+    daemon = Daemon(config(endpoint), driver, rate=1.0, jsonl=fifo)
+    thread, out = start(daemon)
+    got = b""
+    deadline = time.monotonic() + 20
+    while b"\n" not in got and time.monotonic() < deadline:
+        with contextlib.suppress(BlockingIOError):
+            got += os.read(reader, 65536)
+        time.sleep(0.01)
+    os.close(reader)
+    thread.join(60)
+    summary = out["summary"]
+    assert json.loads(got.split(b"\n")[0])["seq"] == 0
+    assert summary.error is None and summary.pairs == 30 and summary.published == 30
+    gone = [p for p in summary.problems if "its reader closed it" in p]
+    assert gone == [f"{fifo}: its reader closed it; the JSONL output is no longer written"]
 
 
 def test_stats_before_run() -> None:

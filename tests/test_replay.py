@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import os
 import re
 import signal
@@ -307,3 +308,38 @@ def test_sigterm_while_waiting_for_a_subscriber_leaves_the_jsonl(
     ), err
     assert jsonl.read_bytes() == previous[jsonl]
     assert temporaries(tmp_path) == []
+
+
+@pytest.mark.parametrize("with_mcap", [False, True])
+def test_jsonl_into_stdout_whose_reader_stops_ends_the_replay(
+    rec: Path, tmp_path: Path, previous: dict[Path, bytes], with_mcap: bool
+) -> None:
+    """``replay --jsonl /dev/stdout | head -1``: the replay ends when ``head`` has its line,
+    quietly with 0 as any command whose stdout's reader stops. With ``--mcap`` as well, that
+    file would hold part of the input: it is left as it was, and the replay says so (141,
+    what a shell reports for a command SIGPIPE ended)."""
+    mcap = tmp_path / "run.mcap"
+    proc = start_stereod(
+        "replay", str(rec), "--rate", "0.2", "--jsonl", "/dev/stdout",
+        *(["--mcap", str(mcap)] if with_mcap else []), *LOOPBACK,
+    )  # fmt: skip
+    assert proc.stdout is not None and proc.stderr is not None
+    assert json.loads(proc.stdout.readline())["seq"] == 0
+    proc.stdout.close()
+    with proc.stderr:
+        err = proc.stderr.read()
+    proc.wait(60)
+    if not with_mcap:
+        assert (proc.returncode, err) == (0, "")
+        return
+    assert proc.returncode == 141, err
+    stopped = re.fullmatch(
+        r"stereod: replay stopped after (\d+) pairs?: /dev/stdout: its reader closed it; "
+        rf"{mcap} left as it was \(.*\)\n",
+        err,
+    )
+    assert stopped, err
+    # Each line is flushed as it is written, so the reader's going is seen a few pairs later
+    # (at a pair each 0.33 s), not once 8 kB of lines have been buffered (about 16 pairs).
+    assert int(stopped[1]) < 10, err
+    assert {p: p.read_bytes() for p in previous} == previous and temporaries(tmp_path) == []

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from .. import __version__
-from ..errors import EX_SOFTWARE, EX_USAGE, StereodError, one_line
+from ..errors import EX_SOFTWARE, EX_USAGE, ReaderGone, StereodError, one_line
 from .common import EPILOG_KEYS, quiet_third_party
 
 GROUP = "stereod.commands"
@@ -103,6 +103,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             signal.signal(signal.SIGHUP, signal.SIG_DFL)  # a closed terminal ends the command
         code: int = args.func(args)
         return code
+    except ReaderGone:
+        return 0  # an output's reader closed it (`--jsonl /dev/stdout | head`), as below
     except StereodError as exc:
         print(f"stereod: {one_line(str(exc))}", file=sys.stderr)
         return exc.exit_code

@@ -18,7 +18,7 @@ from typing import Any
 from ..config import StereodConfig, load_config
 from ..daemon import Daemon, RunSummary
 from ..drivers import load_driver
-from ..errors import ConfigError, StereodError, UsageError
+from ..errors import ConfigError, ReaderGone, StereodError, UsageError
 from ..mcap_run import RunMcap, config_geometry
 from ..messages import DaemonState
 from ..output_file import Interrupted, check_not_input, signal_name, written_in_place
@@ -161,6 +161,12 @@ def run(a: argparse.Namespace) -> int:
         if mcap is not None:
             mcap.abort()
         raise Interrupted(_interrupted(a, exc.signum, daemon.summary.pairs), exc.signum) from None
+    except ReaderGone as exc:
+        if mcap is None:
+            raise
+        mcap.abort()  # the MCAP would hold part of the input: say so, as a signal would
+        why = _interrupted(a, signal.SIGPIPE, daemon.summary.pairs, str(exc))
+        raise Interrupted(why, signal.SIGPIPE) from None
     except BaseException:
         if mcap is not None:
             mcap.abort()
@@ -190,7 +196,10 @@ def _mcap(a: argparse.Namespace, cfg: StereodConfig, options: dict[str, Any]) ->
 class _Replay(Daemon):
     """A replay that a signal (Ctrl-C, SIGTERM) stops before the end of its input: the run
     fails with :class:`Interrupted`, so the daemon discards its JSONL as after any failure,
-    instead of committing what played as if it were the whole input."""
+    instead of committing what played as if it were the whole input. A JSONL written into a
+    pipe whose reader closed it ends it too (``--jsonl /dev/stdout | head``)."""
+
+    survives_reader_gone = False
 
     def _rig_taken(self, pub: Publisher) -> None:
         """A replay would mix its messages into a running rig's: refused before it plays."""
@@ -228,11 +237,15 @@ class _Replay(Daemon):
             watcher.join()
 
 
-def _interrupted(a: argparse.Namespace, signum: int, pairs: int) -> str:
-    """What an interrupted replay says: after how many pairs, and which files it did not write
-    (a device or FIFO written in place got what played)."""
+def _interrupted(a: argparse.Namespace, signum: int, pairs: int, why: str = "") -> str:
+    """What an interrupted replay says: after how many pairs, why (the signal, unless ``why``
+    says), and which files it did not write (a device or FIFO written in place got what
+    played)."""
     unit = "pair" if pairs == 1 else "pairs"
-    text = f"replay interrupted by {signal_name(signum)} after {pairs} {unit}"
+    if why:
+        text = f"replay stopped after {pairs} {unit}: {why}"
+    else:
+        text = f"replay interrupted by {signal_name(signum)} after {pairs} {unit}"
     files = [str(p) for p in (a.jsonl, a.mcap) if p is not None and not written_in_place(p)]
     if files:
         were = "they were" if len(files) > 1 else "it was"
