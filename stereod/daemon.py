@@ -66,6 +66,9 @@ class RunSummary:
     drops: dict[str, int] = field(default_factory=dict)
     errors: dict[str, int] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
+    input_problems: list[str] = field(default_factory=list)
+    """The problems of the input itself, found at its end (a truncated video, eyes that
+    never paired): a run whose input has an end exits 65 on them, a daemon's run too."""
     error: StereodError | None = None
 
 
@@ -312,6 +315,7 @@ class Daemon:
                     self.images = images
             for p in source.problems():
                 h.problem(p)
+                self.summary.input_problems.append(p)
             self._check_paired()
             h.state = DaemonState.FINISHED
             pub.status(dump(h.status(1.0)))
@@ -446,12 +450,14 @@ class Daemon:
         how far apart the eyes' last frames were (on the last status and in the summary)."""
         left, right = self.pairer.last_ns(Eye.LEFT), self.pairer.last_ns(Eye.RIGHT)
         if self.pairer.stats.pairs == 0 and left is not None and right is not None:
-            self.health.problem(
+            text = (
                 f"no pairs: no frame had a partner of the other eye within "
                 f"{self.pairer.tolerance_ns / 1e6:g} ms; the eyes' last frames were "
                 f"{abs(left - right) / 1e9:.3g} s apart, so their clocks or timestamp files "
                 "do not agree"
             )
+            self.health.problem(text)
+            self.summary.input_problems.append(text)
 
     def _finish(self) -> RunSummary:
         s = self.summary

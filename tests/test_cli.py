@@ -256,6 +256,23 @@ def test_run_with_config_file_and_synthetic_driver(
     assert check.returncode == 0 and json.loads(check.stdout)["rig"]["name"] == "bench"
 
 
+def test_run_on_a_truncated_recording_exits_65_as_replay_does(
+    tmp_path: Path, endpoint: str
+) -> None:
+    """The daemon with the replay driver plays a video that decodes 68 of the 444 frames its
+    header announces (DATA.md), says so in its log, and exits 65 as ``replay`` does: its input
+    ended and was bad. A service must not report such a run as a success."""
+    tree = shared_data("video", "tree.avi")
+    cfg = tmp_path / "stereod.toml"
+    cfg.write_text(
+        f'[driver]\nname = "replay"\n[driver.options]\nleft_video = "{tree}"\n'
+        f'right_video = "{tree}"\nfps = 15\n[zenoh]\nconnect = ["{endpoint}"]\n'
+    )
+    res = stereod("run", "--config", str(cfg), "--rate", "0")
+    assert res.returncode == 65, res.stderr
+    assert "truncated" in res.stderr and "444" in res.stderr and "68" in res.stderr
+
+
 def one_line_error(res: subprocess.CompletedProcess[str], code: int, pattern: str) -> None:
     assert res.returncode == code, (res.returncode, res.stderr)
     lines = res.stderr.splitlines()

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from stereod.errors import EX_CONFIG, EX_NOINPUT, UsageError
+from stereod.errors import EX_CONFIG, EX_DATAERR, EX_NOINPUT, UsageError
 from stereod.install import hidden_from_service, plan
 
 from .conftest import stereod
@@ -77,12 +77,12 @@ def test_a_system_install_refuses_a_stereod_the_service_cannot_see(
 def test_the_service_does_not_restart_into_a_bad_or_missing_configuration(
     tmp_path: Path, unit: str
 ) -> None:
-    """A configuration that is invalid (78) or missing (66) stays so on a restart: systemd
-    must not loop on it every two seconds."""
+    """A configuration that is invalid (78) or missing (66), or a file driver's input that
+    ended bad (65), stays so on a restart: systemd must not loop on it every two seconds."""
     text = (installed(tmp_path) / unit).read_text()
     m = re.search(r"^RestartPreventExitStatus=(.+)$", text, re.M)
     assert m, text
-    assert {str(EX_CONFIG), str(EX_NOINPUT)} <= set(m.group(1).split())
+    assert {str(EX_CONFIG), str(EX_NOINPUT), str(EX_DATAERR)} <= set(m.group(1).split())
 
 
 def test_no_reload_under_a_prefix(tmp_path: Path) -> None:

@@ -275,7 +275,8 @@ def run_daemon(
 ) -> int:
     """Run until the input ends or a signal; SIGHUP reloads. With ``problems_fail`` (replay)
     a run that hit input problems exits 65 after saying them in one line; a daemon exits 0 on
-    a clean stop, its problems having gone to the log and the status key. A fatal error is
+    a clean stop, its problems having gone to the log and the status key, or 65 when its input
+    ended and was bad (a truncated recording played by the replay driver). A fatal error is
     raised after the summary (its one line is the caller's to print). ``progress`` (a
     :class:`~stereod.progress.Progress`) is closed before the summary is printed."""
     if problems_fail:
@@ -309,6 +310,8 @@ def run_daemon(
         raise summary.error
     if summary.problems and problems_fail:
         print(f"stereod: {one_line(summarise(summary.problems))}", file=sys.stderr)
+        return EX_DATAERR
+    if summary.input_problems:  # already logged: the exit code says the input was bad
         return EX_DATAERR
     return 0
 
