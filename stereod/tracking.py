@@ -191,6 +191,8 @@ class Track:
     image_speed_pxps: float
     area_px: float
     hits: int = 1
+    misses: int = 0
+    """Pairs in a row in which the track was not seen."""
     last_seen_ns: int = 0
     last_moving_ns: int | None = None
     """When the object was last seen clearly moving (speed above ``stationary_mps`` and three
@@ -515,6 +517,7 @@ class Tracker:
                 else:
                     self._filter(tr, t_ns, ob)
                 tr.hits += 1
+                tr.misses = 0
                 tr.last = ob
                 tr.last_seen_ns = t_ns
                 tr.image_speed_pxps = det.image_speed_pxps
@@ -531,7 +534,14 @@ class Tracker:
         for tid, tr in list(self._tracks.items()):
             if tid in seen:
                 continue
-            if not self._confirmed(tr) or t_ns - tr.last_seen_ns > coast_ns:
+            tr.misses += 1
+            if not self._confirmed(tr):
+                # An object entering the view is small, and one eye may miss it once: a
+                # tentative track waits one pair for it, unseen and unreported.
+                if tr.misses > self.TENTATIVE_MISSES:
+                    ended.append(tid)
+                    del self._tracks[tid]
+            elif t_ns - tr.last_seen_ns > coast_ns:
                 ended.append(tid)
                 del self._tracks[tid]
             else:
@@ -539,6 +549,9 @@ class Tracker:
                 if tr.started or tr.whole:
                     states.append(self._state(tr, t_ns, observed=False))
         return states, ended
+
+    TENTATIVE_MISSES = 1
+    """Pairs in a row a tentative track may go unseen before it ends."""
 
     NOISE_RATE = 0.05
     """How fast a track's measurement noise scale follows its innovations once settled (per
