@@ -27,7 +27,7 @@ from pathlib import Path
 
 from .capture import Capture, Queued
 from .config import StereodConfig
-from .errors import InternalError, StereodError
+from .errors import InternalError, ReaderGone, StereodError
 from .frames import Driver, Eye, StereoSource
 from .geometry.rectified import CalibratedRig
 from .images import ImagePublishers, ImageWorker
@@ -67,8 +67,8 @@ class RunSummary:
     errors: dict[str, int] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
     input_problems: list[str] = field(default_factory=list)
-    """The problems of the input itself, found at its end (a truncated video, eyes that
-    never paired): a run whose input has an end exits 65 on them, a daemon's run too."""
+    """The problems of a file source's input itself, found at its end (a truncated video,
+    eyes that never paired): such a run exits 65, a daemon's run too."""
     error: StereodError | None = None
 
 
@@ -96,10 +96,6 @@ class Daemon:
     ``on_message`` sees every published pair on the output thread, with the pair's frames in
     ``Outgoing.pair`` when ``keep_frames`` is set.
     """
-
-    survives_reader_gone: bool = True
-    """Whether the run goes on when the reader of a JSONL written into a pipe closes it (a
-    daemon does, and says so on its status key; a replay ends quietly)."""
 
     def __init__(
         self,
@@ -180,6 +176,11 @@ class Daemon:
         # status key learns of it.
         self.health.problem(str(err), logged=False)
         self.stop()
+
+    def _jsonl_reader_gone(self, exc: ReaderGone) -> None:
+        """The reader of the JSONL, written into a pipe, closed it: a daemon runs on without
+        it and says so on its status key (a replay ends instead)."""
+        self.health.problem(f"{exc}; the JSONL output is no longer written")
 
     def _ready(self) -> None:
         self._notifier.notify(READY=1, STATUS="streaming")
@@ -288,7 +289,7 @@ class Daemon:
                 jsonl=jsonl,
                 on_fatal=self.fail,
                 on_message=on_message,
-                survive_reader_gone=self.survives_reader_gone,
+                on_reader_gone=self._jsonl_reader_gone,
             )
             threads = [self._thread(loop, name) for name, loop in capture.loops()]
             threads.append(self._thread(worker.loop, "pipeline"))
@@ -315,7 +316,8 @@ class Daemon:
                     self.images = images
             for p in source.problems():
                 h.problem(p)
-                self.summary.input_problems.append(p)
+                if not source.info.live:
+                    self.summary.input_problems.append(p)
             self._check_paired()
             h.state = DaemonState.FINISHED
             pub.status(dump(h.status(1.0)))
@@ -457,7 +459,8 @@ class Daemon:
                 "do not agree"
             )
             self.health.problem(text)
-            self.summary.input_problems.append(text)
+            if self._source is not None and not self._source.info.live:
+                self.summary.input_problems.append(text)
 
     def _finish(self) -> RunSummary:
         s = self.summary

@@ -90,11 +90,14 @@ class OutputError(StereodError):
 
 
 class ReaderGone(OutputError):
-    """An output written in place (stdout, a named pipe) whose reader closed it, as ``head``
-    does once it has its lines. A command ends quietly with 0, as when the reader of its stdout
-    goes away; a daemon keeps running without that output and says so on its status key."""
+    """An output written in place (stdout, a named pipe) whose reader closed it. When it is
+    the process's stdout (``--jsonl /dev/stdout | head``) a command ends quietly with 0, as
+    when the reader of its stdout goes away; a named pipe's reader that went away is an error
+    (73). A daemon keeps running without that output and says so on its status key."""
 
-    exit_code = 0
+    def __init__(self, message: str, *, stdout: bool) -> None:
+        super().__init__(message)
+        self.stdout = stdout
 
 
 class CalibrationError(StereodError):

@@ -3,8 +3,8 @@
 Publishing never blocks (Zenoh puts use congestion DROP). A JSONL write that fails (a full
 disk) ends the run with :class:`~stereod.errors.OutputError` (exit 73); the thread keeps
 draining its queue so the pipeline is never left blocked behind it. A JSONL written into a
-pipe whose reader closed it (:class:`~stereod.errors.ReaderGone`) ends a run that has an end
-(a replay), quietly; a daemon stops writing it and says so on its status key.
+pipe whose reader closed it (:class:`~stereod.errors.ReaderGone`) goes to ``on_reader_gone``:
+a replay ends, a daemon stops writing it and says so on its status key.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ class Output:
         jsonl: AtomicOutput | None,
         on_fatal: Callable[[BaseException], None],
         on_message: Callable[[Outgoing], None] | None = None,
-        survive_reader_gone: bool = False,
+        on_reader_gone: Callable[[ReaderGone], None] | None = None,
     ) -> None:
         self.out = out
         self.publisher = publisher
@@ -42,7 +42,7 @@ class Output:
         self.jsonl = jsonl
         self._on_fatal = on_fatal
         self._on_message = on_message
-        self._survive_reader_gone = survive_reader_gone
+        self._on_reader_gone = on_reader_gone or on_fatal
 
     def loop(self) -> None:
         while True:
@@ -63,12 +63,12 @@ class Output:
             if self.jsonl is not None:
                 try:
                     self.jsonl.write(item.payload + b"\n")
-                    if self.jsonl.in_place:  # a pipe's reader gets each message as it comes
+                    if self.jsonl.in_place:  # a pipe or terminal gets each message as it comes
                         self.jsonl.flush()
                 except OutputError as exc:
                     self.jsonl.discard()
                     self.jsonl = None
-                    if isinstance(exc, ReaderGone) and self._survive_reader_gone:
-                        self.health.problem(f"{exc}; the JSONL output is no longer written")
+                    if isinstance(exc, ReaderGone):
+                        self._on_reader_gone(exc)
                     else:
                         self._on_fatal(exc)

@@ -39,6 +39,7 @@ __all__ = [
     "ReaderGone",
     "check_not_input",
     "follow_links",
+    "is_stdout",
     "output_target",
     "signal_name",
     "stopped_by_signals",
@@ -115,8 +116,8 @@ def output_target(path: Path) -> tuple[Path, bool]:
     if stat.S_ISREG(mode):
         if not os.access(target, os.W_OK):
             raise OutputError(
-                f"{path}: the file is write-protected; make it writable (chmod u+w) or choose "
-                "another output file"
+                f"{path}: this user may not write the file (write-protected, or on a "
+                "read-only file system); choose another output file"
             )
         return target, False
     if stat.S_ISCHR(mode) or stat.S_ISFIFO(mode):
@@ -128,6 +129,16 @@ def output_target(path: Path) -> tuple[Path, bool]:
         f"{path}: is {kind or 'a special file'}, not a file an output can go to; give the path "
         "of a regular file, or /dev/null to discard the output"
     )
+
+
+def is_stdout(path: Path) -> bool:
+    """Whether ``path`` is this process's stdout (``/dev/stdout``, or the file, pipe or
+    terminal that stdout is): what else the process prints there would land in the output."""
+    try:
+        a, b = os.stat(path), os.fstat(1)
+    except OSError:
+        return False
+    return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
 
 
 def written_in_place(path: Path) -> bool:
@@ -197,6 +208,8 @@ class AtomicOutput:
         self.target, self.in_place = output_target(path)
         self._tmp: Path | None = None
         self._written = 0
+        self.stdout = self.in_place and is_stdout(self.target)
+        """Whether the output is this process's stdout."""
         try:
             if self.in_place:
                 self._fh: IO[bytes] = os.fdopen(_open_in_place(self.target), "wb")
@@ -225,7 +238,7 @@ class AtomicOutput:
         """The error a failed write becomes: :class:`ReaderGone` when the reader of a pipe
         written in place closed it, otherwise :class:`OutputError`."""
         if self.in_place and exc.errno == errno.EPIPE:
-            return ReaderGone(f"{self.path}: its reader closed it")
+            return ReaderGone(f"{self.path}: its reader closed it", stdout=self.stdout)
         return OutputError(f"{self.path}: writing failed: {exc.strerror}")
 
     def write(self, data: bytes) -> int:

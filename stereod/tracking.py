@@ -5,7 +5,8 @@ object is in each eye at that eye's own capture instant (its filter's prediction
 into that eye; before the filter runs, its last centroid moved along that eye's image
 velocity, or the line through its first two positions projected), and each stereo detection
 is assigned to the track it is nearest to in both eyes at once, globally (Hungarian
-algorithm), within a gate. A track with one observation
+algorithm), within a gate: confirmed tracks first, then tentative ones among the detections
+left. A track with one observation
 has no velocity yet; its gate is how far an object at ``max_speed_mps`` can move in the image at
 its depth (its disparity gives the pixels per metre), so an object as fast as a thrown ball is
 followed from its second frame. A detection that a live object's prediction explains in both
@@ -27,8 +28,9 @@ speed, whichever is larger).
 Lifecycle: ``tentative`` until ``confirm_hits`` observations and a running filter (two
 observations no faster than ``max_speed_mps`` apart), then ``confirmed``; a confirmed
 track not seen in a pair is ``coasting`` (predicted) until ``max_coast_s`` has passed, then it
-ends (a tentative track ends at its first miss). Ids are never reused. All times are seconds
-computed from timestamps, never frame counts.
+ends. A tentative track ends at its first miss, except that one seen once waits one pair
+(still ``tentative``): an object entering the view is small, and one eye may miss it once.
+Ids are never reused. All times are seconds computed from timestamps, never frame counts.
 """
 
 from __future__ import annotations
@@ -192,7 +194,8 @@ class Track:
     area_px: float
     hits: int = 1
     misses: int = 0
-    """Pairs in a row in which the track was not seen."""
+    """Pairs in a row in which the track was not seen (a tentative track seen once may
+    wait one such pair; see :meth:`Tracker.update`)."""
     last_seen_ns: int = 0
     last_moving_ns: int | None = None
     """When the object was last seen clearly moving (speed above ``stationary_mps`` and three
@@ -412,12 +415,20 @@ class Tracker:
             if len(alone) == 1:
                 cost[i, alone[0]] = keep
             may_start[i] = False
-        feasible = np.isfinite(cost)
-        if feasible.any():
-            rows, cols = min_cost_assignment(np.where(feasible, cost, 1e9))
+        # Confirmed tracks choose first, then tentative ones among what is left: a tentative
+        # track seen once has a gate as wide as max_speed_mps allows, so its cost (distance
+        # over gate) is small, and it would take a confirmed object's detection from it.
+        for group in (confirmed, ~confirmed):
+            cols_in = np.flatnonzero(group)
+            rows_in = np.array([i for i in range(n) if out[i] is None], np.intp)
+            sub = cost[np.ix_(rows_in, cols_in)]
+            feasible = np.isfinite(sub)
+            if not feasible.any():
+                continue
+            rows, cols = min_cost_assignment(np.where(feasible, sub, 1e9))
             for i, j in zip(rows, cols, strict=True):
                 if feasible[i, j]:
-                    out[i] = tracks[j].track_id
+                    out[rows_in[i]] = tracks[cols_in[j]].track_id
         for i, d in enumerate(detections):
             if out[i] is None and may_start[i]:
                 may_start[i] = not _piece(d, detections, out, tracks)
@@ -536,11 +547,14 @@ class Tracker:
                 continue
             tr.misses += 1
             if not self._confirmed(tr):
-                # An object entering the view is small, and one eye may miss it once: a
-                # tentative track waits one pair for it, unseen and unreported.
-                if tr.misses > self.TENTATIVE_MISSES:
+                # An object entering the view is small, and one eye may miss it once: a track
+                # seen once waits one pair for it. Any other tentative track ends unseen (a
+                # blob that flickers on and off never gathers the hits to be confirmed).
+                if tr.hits > 1 or tr.misses > 1:
                     ended.append(tid)
                     del self._tracks[tid]
+                elif tr.started or tr.whole:
+                    states.append(self._state(tr, t_ns, observed=False))
             elif t_ns - tr.last_seen_ns > coast_ns:
                 ended.append(tid)
                 del self._tracks[tid]
@@ -549,9 +563,6 @@ class Tracker:
                 if tr.started or tr.whole:
                     states.append(self._state(tr, t_ns, observed=False))
         return states, ended
-
-    TENTATIVE_MISSES = 1
-    """Pairs in a row a tentative track may go unseen before it ends."""
 
     NOISE_RATE = 0.05
     """How fast a track's measurement noise scale follows its innovations once settled (per
@@ -736,7 +747,7 @@ class Tracker:
         still_for = None if tr.last_moving_ns is None else (t_ns - tr.last_moving_ns) * 1e-9
         if still_for is not None and still_for >= p.freeze_s:
             tr.freeze_spent = True
-        if not observed:
+        if not observed and confirmed:
             lifecycle = TrackLifecycle.COASTING
         elif confirmed:
             lifecycle = TrackLifecycle.CONFIRMED

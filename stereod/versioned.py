@@ -48,15 +48,22 @@ def unknown_fields(model: type[BaseModel], data: object, prefix: str = "") -> li
     return found
 
 
+_warned: set[tuple[str, int]] = set()
+"""(path, hash of its text) of the files already warned about: a file read again (by a
+reload, or by two parts of one command) is not warned about twice."""
+
+
 def warn_unknown_fields(path: Path, model: type[BaseModel], text: bytes) -> list[str]:
     """Log one warning naming ``path`` and the fields of its JSON ``text`` that ``model`` does
-    not know (they are ignored); the names, for a caller that reports them."""
+    not know (they are ignored), once per process for that file and text; the names."""
     try:
         data = json.loads(text)
     except ValueError:
         return []
     names = unknown_fields(model, data)
-    if names:
+    key = (str(path), hash(text))
+    if names and key not in _warned:
+        _warned.add(key)
         log.warning(
             "%s: ignoring fields this stereod does not know: %s (written by a newer stereod?)",
             path,
@@ -71,9 +78,12 @@ def known_format(value: object, expected: str) -> object:
     file of another kind."""
     if value == expected:
         return value
-    kind = expected.rsplit("/", 1)[0]
+    kind, version = expected.rsplit("/", 1)
     if isinstance(value, str) and value.startswith(f"{kind}/"):
-        raise ValueError(
-            f"this stereod reads {expected}; a newer stereod wrote this file: upgrade stereod"
-        )
+        theirs = value.removeprefix(f"{kind}/")
+        if theirs.isdigit() and int(theirs) > int(version):
+            raise ValueError(
+                f"this stereod reads {expected}; a newer stereod wrote this file: upgrade stereod"
+            )
+        raise ValueError(f"this stereod reads {expected} only")
     raise ValueError(f"not a {kind} file (format {expected})")

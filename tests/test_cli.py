@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import signal
 import subprocess
 import threading
 import time
@@ -16,7 +17,7 @@ import zenoh
 
 from stereod.motion import angle_diff_deg, circular_median_deg
 from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
-from tests.processes import stereod_command
+from tests.processes import start_stereod, stereod_command
 
 from .conftest import ROOT, shared_data, stereod
 
@@ -271,6 +272,25 @@ def test_run_on_a_truncated_recording_exits_65_as_replay_does(
     res = stereod("run", "--config", str(cfg), "--rate", "0")
     assert res.returncode == 65, res.stderr
     assert "truncated" in res.stderr and "444" in res.stderr and "68" in res.stderr
+
+
+def test_run_on_a_live_camera_stopped_by_sigterm_exits_0_even_with_no_pairs(
+    tmp_path: Path, endpoint: str
+) -> None:
+    """A live source whose eyes never pair (here 33 ms apart, paired within 5 ms) is a
+    problem for the status key, not bad input: ``systemctl stop`` (SIGTERM) still ends the
+    daemon normally with 0, or the unit would be marked failed."""
+    cfg = tmp_path / "stereod.toml"
+    cfg.write_text(
+        '[driver]\nname = "synthetic"\n[driver.options]\nlive = true\nduration_s = 60.0\n'
+        f"fps = 15\nskew_s = 0.0333\n[pairing]\ntolerance_ms = 5\n"
+        f'[zenoh]\nconnect = ["{endpoint}"]\n'
+    )
+    proc = start_stereod("run", "--config", str(cfg))
+    time.sleep(3.0)  # frames flow meanwhile, none pairs
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
 
 
 def one_line_error(res: subprocess.CompletedProcess[str], code: int, pattern: str) -> None:

@@ -310,32 +310,46 @@ def test_sigterm_while_waiting_for_a_subscriber_leaves_the_jsonl(
     assert temporaries(tmp_path) == []
 
 
-@pytest.mark.parametrize("with_mcap", [False, True])
-def test_jsonl_into_stdout_whose_reader_stops_ends_the_replay(
-    rec: Path, tmp_path: Path, previous: dict[Path, bytes], with_mcap: bool
-) -> None:
-    """``replay --jsonl /dev/stdout | head -1``: the replay ends when ``head`` has its line,
-    quietly with 0 as any command whose stdout's reader stops. With ``--mcap`` as well, that
-    file would hold part of the input: it is left as it was, and the replay says so (141,
-    what a shell reports for a command SIGPIPE ended)."""
-    mcap = tmp_path / "run.mcap"
-    proc = start_stereod(
-        "replay", str(rec), "--rate", "0.2", "--jsonl", "/dev/stdout",
-        *(["--mcap", str(mcap)] if with_mcap else []), *LOOPBACK,
-    )  # fmt: skip
+def _stdout_read_then_closed(*args: str) -> tuple[int, str]:
+    """``stereod replay ARGS | head -1``: its exit code and stderr, once the first line (the
+    first pair's message) was read and stdout closed."""
+    proc = start_stereod("replay", *args, *LOOPBACK)
     assert proc.stdout is not None and proc.stderr is not None
     assert json.loads(proc.stdout.readline())["seq"] == 0
     proc.stdout.close()
     with proc.stderr:
         err = proc.stderr.read()
     proc.wait(60)
-    if not with_mcap:
-        assert (proc.returncode, err) == (0, "")
-        return
-    assert proc.returncode == 141, err
+    return proc.returncode, err
+
+
+@pytest.mark.parametrize("mcap", [None, "/dev/null"])
+def test_jsonl_into_stdout_whose_reader_stops_ends_the_replay_quietly(
+    rec: Path, mcap: str | None
+) -> None:
+    """``replay --jsonl /dev/stdout | head -1``: the replay ends when ``head`` has its line,
+    quietly with 0 as any command whose stdout's reader stops; an ``--mcap`` written in place
+    loses nothing either."""
+    extra = ["--mcap", mcap] if mcap else []
+    assert _stdout_read_then_closed(
+        str(rec), "--rate", "0.2", "--jsonl", "/dev/stdout", *extra
+    ) == (0, "")
+
+
+def test_jsonl_reader_gone_leaves_the_mcap_file_and_says_so(
+    rec: Path, tmp_path: Path, previous: dict[Path, bytes]
+) -> None:
+    """With ``--mcap`` into a file as well, that file would hold part of the input: it is left
+    as it was, and the replay says so (141, what a shell reports for a command SIGPIPE
+    ended)."""
+    mcap = tmp_path / "run.mcap"
+    code, err = _stdout_read_then_closed(
+        str(rec), "--rate", "0.2", "--jsonl", "/dev/stdout", "--mcap", str(mcap)
+    )
+    assert code == 141, err
     stopped = re.fullmatch(
         r"stereod: replay stopped after (\d+) pairs?: /dev/stdout: its reader closed it; "
-        rf"{mcap} left as it was \(.*\)\n",
+        rf"{re.escape(str(mcap))} left as it was \(.*\)\n",
         err,
     )
     assert stopped, err
@@ -343,3 +357,44 @@ def test_jsonl_into_stdout_whose_reader_stops_ends_the_replay(
     # (at a pair each 0.33 s), not once 8 kB of lines have been buffered (about 16 pairs).
     assert int(stopped[1]) < 10, err
     assert {p: p.read_bytes() for p in previous} == previous and temporaries(tmp_path) == []
+
+
+def test_a_looping_replay_ends_normally_when_its_jsonl_reader_goes(
+    rec: Path, tmp_path: Path
+) -> None:
+    """``replay --loop`` has no end of its own; its JSONL reader going away ends it as a
+    signal would, normally: 0, and the MCAP of what played is written."""
+    mcap = tmp_path / "run.mcap"
+    code, err = _stdout_read_then_closed(
+        str(rec), "--loop", "--rate", "0.2", "--jsonl", "/dev/stdout", "--mcap", str(mcap)
+    )
+    assert (code, err) == (0, "")
+    assert mcap_messages(mcap.read_bytes(), "/stereod/minoru/objects") >= 1
+
+
+def test_summaries_go_to_stderr_when_the_jsonl_is_stdout(rec: Path) -> None:
+    """``replay --jsonl /dev/stdout | jq``: every line on stdout is a message, the summary
+    line is on stderr."""
+    res = run_stereod("replay", str(rec), "--rate", "0", "--jsonl", "/dev/stdout", *LOOPBACK)
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    assert [json.loads(line)["seq"] for line in lines] == list(range(PAIRS))
+    assert f"{PAIRS} pairs from " in res.stderr
+
+
+def test_a_named_pipe_whose_reader_dies_is_an_error(rec: Path, tmp_path: Path) -> None:
+    """A named pipe's reader that goes away mid-run (it crashed) is not ``| head``: one line
+    and 73."""
+    fifo = tmp_path / "out.jsonl"
+    os.mkfifo(fifo)
+
+    def read_one_line() -> None:
+        with fifo.open("rb") as fh:
+            fh.readline()
+
+    reader = threading.Thread(target=read_one_line)
+    reader.start()
+    res = run_stereod("replay", str(rec), "--rate", "0.2", "-q", "--jsonl", str(fifo), *LOOPBACK)
+    reader.join()
+    assert res.returncode == 73, res.stderr
+    assert res.stderr == f"stereod: {fifo}: its reader closed it\n"

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
-from stereod.versioned import known_format, unknown_fields
+from stereod.versioned import known_format, unknown_fields, warn_unknown_fields
 
 
 class Inner(BaseModel):
@@ -35,5 +37,23 @@ def test_unknown_fields_are_found_at_every_level_in_file_order() -> None:
 def test_a_newer_version_and_another_kind_of_file_are_told_apart() -> None:
     with pytest.raises(ValidationError, match=r"this stereod reads x\.thing/1; a newer stereod"):
         Outer.model_validate({"format": "x.thing/2"})
-    with pytest.raises(ValidationError, match=r"not a x\.thing file \(format x\.thing/1\)"):
-        Outer.model_validate({"format": "y.other/1"})
+    for other in ("y.other/1", 1):
+        with pytest.raises(ValidationError, match=r"not a x\.thing file \(format x\.thing/1\)"):
+            Outer.model_validate({"format": other})
+    for older in ("x.thing/0", "x.thing/beta"):
+        with pytest.raises(ValidationError, match=r"this stereod reads x\.thing/1 only"):
+            Outer.model_validate({"format": older})
+
+
+def test_a_file_is_warned_about_once_however_often_it_is_read(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A command may read one file twice (a driver and its progress bar), a daemon again at
+    each reload: its unknown fields are named once, and again only if the file changed."""
+    path = tmp_path / "f.json"
+    text = b'{"new": 1}'
+    for _ in range(3):
+        assert warn_unknown_fields(path, Outer, text) == ["new"]
+    warn_unknown_fields(path, Outer, b'{"newer": 2}')
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 2 and "fields this stereod does not know: newer" in warned[1]

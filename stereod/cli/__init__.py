@@ -103,8 +103,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             signal.signal(signal.SIGHUP, signal.SIG_DFL)  # a closed terminal ends the command
         code: int = args.func(args)
         return code
-    except ReaderGone:
-        return 0  # an output's reader closed it (`--jsonl /dev/stdout | head`), as below
+    except ReaderGone as exc:
+        if exc.stdout:  # `--jsonl /dev/stdout | head`: as for stdout below
+            return 0
+        print(f"stereod: {one_line(str(exc))}", file=sys.stderr)
+        return exc.exit_code
     except StereodError as exc:
         print(f"stereod: {one_line(str(exc))}", file=sys.stderr)
         return exc.exit_code

@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from ..detect import MAX_WARMUP_FRAMES, DetectorParams
-from ..errors import EX_DATAERR, ConfigError, one_line
+from ..errors import EX_DATAERR, ConfigError, ReaderGone, one_line
+from ..output_file import is_stdout
 
 log = logging.getLogger("stereod")
 
@@ -298,6 +299,8 @@ def run_daemon(
     finally:
         if progress is not None:
             progress.close()
+    if isinstance(summary.error, ReaderGone) and summary.error.stdout:
+        stdout_gone()
     if not quiet:
         drops = ", ".join(f"{k} {v}" for k, v in summary.drops.items()) or "none"
         say(
@@ -311,16 +314,38 @@ def run_daemon(
     if summary.problems and problems_fail:
         print(f"stereod: {one_line(summarise(summary.problems))}", file=sys.stderr)
         return EX_DATAERR
-    if summary.input_problems:  # already logged: the exit code says the input was bad
+    if summary.input_problems:
+        print(f"stereod: {one_line(summarise(summary.input_problems))}", file=sys.stderr)
         return EX_DATAERR
     return 0
 
 
+_summaries_to_stderr = False
+_stdout_gone = False
+
+
+def stdout_gone() -> None:
+    """The reader of an output that is stdout went away (``--jsonl /dev/stdout | head``):
+    the run's summary lines are no longer wanted anywhere."""
+    global _stdout_gone
+    _stdout_gone = True
+
+
+def summaries_off_stdout(*outputs: Path | None) -> None:
+    """Print the run's summary lines (:func:`say`) on stderr when one of ``outputs`` is this
+    process's stdout (``--jsonl /dev/stdout | jq``): on stdout they would land inside it."""
+    global _summaries_to_stderr
+    _summaries_to_stderr = any(p is not None and is_stdout(p) for p in outputs)
+
+
 def say(text: str) -> None:
-    """Print a line on stdout; a reader that went away (``| head``) is not an error of ours,
-    and the exit code stays that of the run."""
+    """Print a line on stdout (stderr when an output is stdout, see
+    :func:`summaries_off_stdout`); a reader that went away (``| head``) is not an error of
+    ours, and the exit code stays that of the run."""
+    if _stdout_gone:
+        return
     try:
-        print(text, flush=True)
+        print(text, flush=True, file=sys.stderr if _summaries_to_stderr else sys.stdout)
     except BrokenPipeError:
         # Later flushes (at exit) would fail again: point stdout at nothing.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

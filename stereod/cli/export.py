@@ -14,7 +14,7 @@ from ..errors import ConfigError
 from ..export_mcap import export_run
 from ..output_file import check_not_input, stopped_by_signals
 from ..recording import recording_files
-from .common import add_canonical_rig, number, path_arg
+from .common import add_canonical_rig, number, path_arg, say, summaries_off_stdout
 
 TOPICS = """\
 topics (<rig> from the messages, e.g. minoru):
@@ -94,6 +94,7 @@ def _export(a: argparse.Namespace) -> int:
         inputs += recording_files(a.recording)
     check_not_input(a.mcap, inputs, "--mcap")
     cal = load(a.calibration) if a.calibration is not None else None
+    summaries_off_stdout(a.mcap)
     summary = export_run(
         a.mcap,
         jsonl=a.jsonl,
@@ -106,5 +107,5 @@ def _export(a: argparse.Namespace) -> int:
         jpeg_quality=a.jpeg_quality,
     )
     if not a.quiet:
-        print(summary.line(), flush=True)
+        say(summary.line())
     return 0

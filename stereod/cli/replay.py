@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import signal
 import threading
 from pathlib import Path
@@ -36,8 +37,13 @@ from .common import (
     path_arg,
     pipeline_overrides,
     run_daemon,
+    say,
     setup_logging,
+    stdout_gone,
+    summaries_off_stdout,
 )
+
+log = logging.getLogger(__name__)
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -132,7 +138,8 @@ def run(a: argparse.Namespace) -> int:
     cfg = load_config(a.config, ov)
     setup_logging(command_log_level(cfg))
     mcap = _mcap(a, cfg, options)
-    daemon = (Daemon if a.loop else _Replay)(
+    summaries_off_stdout(a.jsonl, a.mcap)
+    daemon = (_LoopReplay if a.loop else _Replay)(
         cfg,
         load_driver("replay", options),
         rate=a.rate,
@@ -162,9 +169,11 @@ def run(a: argparse.Namespace) -> int:
             mcap.abort()
         raise Interrupted(_interrupted(a, exc.signum, daemon.summary.pairs), exc.signum) from None
     except ReaderGone as exc:
-        if mcap is None:
-            raise
-        mcap.abort()  # the MCAP would hold part of the input: say so, as a signal would
+        if mcap is not None:
+            mcap.abort()
+        if all(p is None or written_in_place(p) for p in (a.jsonl, a.mcap)):
+            raise  # nothing left unwritten: quietly for stdout's reader, else its one line
+        # A file would hold part of the input: say which was left as it was, as a signal would.
         why = _interrupted(a, signal.SIGPIPE, daemon.summary.pairs, str(exc))
         raise Interrupted(why, signal.SIGPIPE) from None
     except BaseException:
@@ -175,7 +184,7 @@ def run(a: argparse.Namespace) -> int:
         return code
     summary = mcap.commit()
     if not a.quiet:
-        print(summary.line() if summary else f"no pair was processed: {a.mcap} not written")
+        say(summary.line() if summary else f"no pair was processed: {a.mcap} not written")
     return code
 
 
@@ -199,7 +208,8 @@ class _Replay(Daemon):
     instead of committing what played as if it were the whole input. A JSONL written into a
     pipe whose reader closed it ends it too (``--jsonl /dev/stdout | head``)."""
 
-    survives_reader_gone = False
+    def _jsonl_reader_gone(self, exc: ReaderGone) -> None:
+        self.fail(exc)
 
     def _rig_taken(self, pub: Publisher) -> None:
         """A replay would mix its messages into a running rig's: refused before it plays."""
@@ -235,6 +245,17 @@ class _Replay(Daemon):
                 signal.signal(sig, handler)
             wake.set()
             watcher.join()
+
+
+class _LoopReplay(Daemon):
+    """A replay that plays its input again and again: a signal is its normal end, and so is
+    the reader of its JSONL going away (``--loop --jsonl /dev/stdout | head``)."""
+
+    def _jsonl_reader_gone(self, exc: ReaderGone) -> None:
+        log.info("%s: stopping", exc)
+        if exc.stdout:
+            stdout_gone()
+        self.stop()
 
 
 def _interrupted(a: argparse.Namespace, signum: int, pairs: int, why: str = "") -> str:
