@@ -55,7 +55,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "was played in full, 65 when it was truncated or inconsistent, 66 when missing, 130 "
         "(143) when Ctrl-C (SIGTERM) stopped it before its end: then existing output files are "
         "left as they were and no new one is made. With --loop, Ctrl-C or SIGTERM ends the run "
-        "normally.",
+        "normally. A reader of stdout that goes away (--jsonl /dev/stdout | head) ends it "
+        "quietly with 0.",
         epilog=EPILOG_KEYS,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -90,7 +91,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="FILE",
         help="also write every objects message, exactly as published, one per line (the file "
         "is replaced only when the run succeeds, not when it fails or is interrupted; a "
-        "symbolic link is written through, a device or FIFO such as /dev/null in place)",
+        "symbolic link is written through, a device or FIFO such as /dev/null in place, a "
+        "line at a time; /dev/stdout sends the summary to stderr)",
     )
     p.add_argument(
         "--mcap",
@@ -100,7 +102,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "camera_info, tf and the tracks, as `stereod export` does (written as --jsonl is)",
     )
     add_wait_subscriber(p, "playing")
-    p.add_argument("-q", "--quiet", action="store_true", help="no summary on stdout")
+    p.add_argument("-q", "--quiet", action="store_true", help="no summary line")
     add_pipeline(p)
     p.set_defaults(func=run, reloads_on_sighup=True)  # its handler comes with the daemon
 
