@@ -227,6 +227,9 @@ class ObjectScore:
 
     name: str
     heading_err_deg: float = math.nan
+    heading_p90_deg: float = math.nan
+    """The 90th percentile of the same estimates' |heading error|: what single frames show,
+    which the median hides (a box's heading strays as it crosses the rig)."""
     speed_err: float = math.nan
     """Relative: (estimate - truth) / truth."""
     position_ratio: float = math.nan
@@ -316,6 +319,7 @@ def score(case: Case, results: list[PairResult]) -> CaseScore:
         o.valid_estimates = len(dh)
         if dh:
             o.heading_err_deg = float(np.median(dh))
+            o.heading_p90_deg = float(np.percentile(np.abs(dh), 90))
             o.speed_err = float(np.median(ds))
         if dp:
             o.position_err_m = float(np.median(dp))
