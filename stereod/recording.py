@@ -182,7 +182,8 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
         rows = list(csv.reader(io.StringIO(text, newline="")))
     except csv.Error as exc:
         raise InputError(f"{path}: not a valid CSV file: {exc}") from exc
-    while rows and not "".join(rows[-1]).strip():  # blank lines at the end are no frames
+    # Blank lines at the end are no frames, nor rows of empty cells (a spreadsheet's ",,").
+    while rows and not "".join(rows[-1]).strip():
         rows.pop()
     if not rows or [c.strip() for c in rows[0][:1]] != ["t_ns"]:
         raise InputError(f"{path}: first line must be the header 't_ns' (or 't_ns,seq')")

@@ -4,6 +4,7 @@ sysexits code; the files never change."""
 
 from __future__ import annotations
 
+import csv
 import json
 import re
 import shutil
@@ -32,9 +33,11 @@ headers = st.sampled_from(["t_ns", "t_ns,seq", "t_ns, seq", "seq,t_ns", "", "T_N
 
 def _csv_lines(text: str) -> list[str]:
     """The lines of a CSV text as CSV ends them (\r\n, \r or \n; a form feed or another of
-    ``str.splitlines``' separators inside a cell ends nothing)."""
+    ``str.splitlines``' separators inside a cell ends nothing), without the blank ones at the
+    end: nothing but white space in its cells (``,`` too, as a spreadsheet writes an empty
+    row), which are no rows."""
     lines = re.split(r"\r\n|\r|\n", text)
-    while lines and not lines[-1].strip():  # blank lines at the end are no rows
+    while lines and not "".join(next(csv.reader([lines[-1]]), [])).strip():
         lines.pop()
     return lines
 
@@ -56,6 +59,7 @@ def check_csv(path: Path) -> None:
 @example(header="t_ns,seq", body=["1,0", "99999999999999999999,1"], newline="\n")
 @example(header="t_ns", body=["1", "-5"], newline="\n")
 @example(header="t_ns", body=["0,\x0c"], newline="\n")  # an extra cell of a form feed
+@example(header="t_ns", body=[","], newline="\n")  # a spreadsheet's empty row at the end
 def test_timestamp_csv(tmp_path_factory, header: str, body: list[str], newline: str) -> None:
     path = tmp_path_factory.mktemp("csv") / "left.csv"
     path.write_bytes(newline.join([header, *body]).encode() + newline.encode())
