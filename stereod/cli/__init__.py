@@ -103,12 +103,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             signal.signal(signal.SIGHUP, signal.SIG_DFL)  # a closed terminal ends the command
         code: int = args.func(args)
         return code
-    except ReaderGone as exc:
-        if exc.stdout:  # `--jsonl /dev/stdout | head`: as for stdout below
-            return 0
-        print(f"stereod: {one_line(str(exc))}", file=sys.stderr)
-        return exc.exit_code
     except StereodError as exc:
+        if isinstance(exc, ReaderGone) and exc.stdout:  # `--jsonl /dev/stdout | head`
+            return 0  # as for stdout's own reader below
         print(f"stereod: {one_line(str(exc))}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:

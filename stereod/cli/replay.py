@@ -173,7 +173,7 @@ def run(a: argparse.Namespace) -> int:
     except ReaderGone as exc:
         if mcap is not None:
             mcap.abort()
-        if all(p is None or written_in_place(p) for p in (a.jsonl, a.mcap)):
+        if not _replaced_files(a):
             raise  # nothing left unwritten: quietly for stdout's reader, else its one line
         # A file would hold part of the input: say which was left as it was, as a signal would.
         why = _interrupted(a, signal.SIGPIPE, daemon.summary.pairs, str(exc))
@@ -260,6 +260,12 @@ class _LoopReplay(Daemon):
         self.stop()
 
 
+def _replaced_files(a: argparse.Namespace) -> list[str]:
+    """The outputs a replay writes by replacing a file at its end, so leaves as they were when
+    it does not reach its end (a device or FIFO written in place is not one)."""
+    return [str(p) for p in (a.jsonl, a.mcap) if p is not None and not written_in_place(p)]
+
+
 def _interrupted(a: argparse.Namespace, signum: int, pairs: int, why: str = "") -> str:
     """What an interrupted replay says: after how many pairs, why (the signal, unless ``why``
     says), and which files it did not write (a device or FIFO written in place got what
@@ -269,7 +275,7 @@ def _interrupted(a: argparse.Namespace, signum: int, pairs: int, why: str = "") 
         text = f"replay stopped after {pairs} {unit}: {why}"
     else:
         text = f"replay interrupted by {signal_name(signum)} after {pairs} {unit}"
-    files = [str(p) for p in (a.jsonl, a.mcap) if p is not None and not written_in_place(p)]
+    files = _replaced_files(a)
     if files:
         were = "they were" if len(files) > 1 else "it was"
         text += (
