@@ -33,7 +33,9 @@ Beyond the paper, each one chosen by measurement on two renderers (README, Accur
   of another colour is still found.
 - **Whole objects.** An object's support is its outline filled in, so a part of it that
   matches the background (a hole) still counts; pieces of one object split by a stripe are
-  joined by the closing. Its centre is eq. 5 over that support, with each edge pixel weighted
+  joined by the closing. A pinhole (one pixel, its four neighbours foreground) is filled
+  before the opening, which would otherwise erase a ball a few pixels across whose centre
+  matches the wall behind it. Its centre is eq. 5 over that support, with each edge pixel weighted
   by the share of it the object covers, solved from the pixel, the background behind it and
   the object's colour just inside (``centroid = "matte"``, :func:`matte_centroid`); or by a
   ramp of eq. 4's difference (``"coverage"``); or eq. 5 exactly (``"binary"``).
@@ -137,7 +139,8 @@ class DetectorParams:
     ``color``: difference colour frames channel by channel instead of by luminance.
     ``hold_foreground``: do not learn foreground pixels (grown by ``hold_margin_px``) until
     they have stayed foreground ``absorb_s`` seconds.
-    ``fill_holes``: an object's support is its filled outline, not only its foreground pixels;
+    ``fill_holes``: an object's support is its filled outline, not only its foreground pixels
+    (and a pinhole is foreground before the opening);
     ``convex``: and that outline is the convex hull of the blob (a part of a robot or a ball
     as bright and coloured as the floor behind it leaves a notch, not a hole).
     ``merge_gap``: pieces closer than this share of the smaller one's size are one object.
@@ -226,6 +229,11 @@ def luminance(image: np.ndarray, mode: Luminance) -> np.ndarray:
     if mode is Luminance.MEAN:
         return cv2.transform(image, _MEAN_RGB)
     return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+
+
+_CROSS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], np.uint8)
+"""A pixel's four neighbours, without the pixel: eroding by it marks the pixels whose four
+neighbours are all set."""
 
 
 def _kernel(side: int) -> np.ndarray | None:
@@ -460,6 +468,13 @@ class Detector:
                 count, before = cv2.countNonZero(part), count
                 if count == before:  # nothing weak left within reach
                     break
+        if self._open is not None and self.params.fill_holes:
+            # A pinhole (a pixel the colour of the background behind it, all four neighbours
+            # foreground) is foreground: the opening's square would otherwise fit nowhere in
+            # a ball a few pixels across, and it would vanish. Its row neighbours are
+            # foreground, so the first pass still sees every row the opening keeps.
+            pins = cv2.erode(part, _CROSS, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+            part = cv2.bitwise_or(part, pins)
         if self._open is not None:
             # Outside the rectangle is background to the opening (OpenCV's default border
             # counts it as foreground for the erosion): a strip thinner than ``open_px`` goes
