@@ -94,8 +94,8 @@ def test_a_ball_thrown_at_20_mps_from_five_metres_at_60_deg(seed: int) -> None:
     and in view for 7: its speed in the middle of its path is right only when those small
     blobs are centred by the disc fit and the later eye is brought back along the curve of
     its image motion (with the segmentation's centroid and the line it read 9 % high). Seed 1
-    still misses: the left eye loses the ball on its second frame (README, what still
-    misses)."""
+    still misses: its speed's sigma is still above 10 % in the scored frames (README, what
+    still misses)."""
     case = acc.world_preset(
         "fast_ball", acc.MODES[1], seed=seed, direction="radial", speed_mps=20.0
     )
