@@ -425,7 +425,10 @@ class Pipeline:
                 lc, rc, exact = lpx[k], rpx[k], True
             clipped = detections[k].clipped
             before = self.tracker.track(tid).last if tid is not None else None
-            ob = self._observe(lb, rb, idx[k], lpx[k], rpx[k], lc, rc, exact, clipped, before)
+            growth = self._expected_growth(tid, eye_times)
+            ob = self._observe(
+                lb, rb, idx[k], lpx[k], rpx[k], lc, rc, exact, clipped, before, growth
+            )
             observations.append(ob if self._in_range(ob) else None)
         t2 = time.perf_counter_ns()
         states, ended = self.tracker.update(t_ns, observations, assignment, eye_times, detections)
@@ -450,6 +453,32 @@ class Pipeline:
             timings=timings,
             row_residuals_px=np.abs(lpx[:, 1] - rpx[:, 1]),
         )
+
+    def _expected_growth(
+        self, tid: int | None, eye_times_ns: tuple[int, int]
+    ) -> tuple[float, float] | None:
+        """How much a track's blob should have grown in each eye since that eye last saw it,
+        as the log of the area ratio: 2 log(Z then / Z now), with Z at that eye's two instants
+        from the track's filter (so the eyes' skew is allowed for exactly, whatever it is);
+        ``None`` before the filter runs (a track's first two observations)."""
+        if tid is None:
+            return None
+        tr = self.tracker.track(tid)
+        if not tr.started:
+            return None
+        kf = tr.kf
+        z, vz = float(kf.x[2]), float(kf.x[5])
+        out: list[float] = []
+        for history, t_now in (
+            (tr.left_history, eye_times_ns[0]),
+            (tr.right_history, eye_times_ns[1]),
+        ):
+            z_then = z + vz * (history[-1][0] - kf.t_ns) * 1e-9
+            z_now = z + vz * (t_now - kf.t_ns) * 1e-9
+            if z_then <= 0 or z_now <= 0:
+                return None
+            out.append(2.0 * math.log(z_then / z_now))
+        return out[0], out[1]
 
     def _depth_ratios(
         self,
@@ -554,10 +583,12 @@ class Pipeline:
         exact: bool,
         clipped: bool,
         before: Observation | None = None,
+        growth: tuple[float, float] | None = None,
     ) -> Observation:
         """The observation of one matched pair of blobs; ``tri_*`` are the centroids to
         triangulate (moved to one instant when skew is compensated), ``before`` the track's
-        last observation (see :func:`_segmentation_error_px`)."""
+        last observation and ``growth`` how much its blob should have grown in each eye since
+        (see :func:`_segmentation_error_px`)."""
         p = self.params
         i, j = int(ij[0]), int(ij[1])
         width_px = 0.5 * (int(lb.bbox_px[i, 2]) + int(rb.bbox_px[j, 2]))
@@ -575,7 +606,7 @@ class Pipeline:
         area = 0.5 * (area_l + area_r)
         sigma = p.centroid_sigma_px
         if before is not None and not clipped and not before.clipped:
-            seg = _segmentation_error_px(lb, rb, i, j, before, width_px, (area_l, area_r))
+            seg = _segmentation_error_px(lb, rb, i, j, before, width_px, (area_l, area_r), growth)
             sigma = math.hypot(sigma, seg)
         xl, yl = tri_left.tolist()
         xr, yr = tri_right.tolist()
@@ -669,6 +700,7 @@ def _segmentation_error_px(
     before: Observation,
     width_px: float,
     areas: tuple[float, float] | None = None,
+    growth: tuple[float, float] | None = None,
 ) -> float:
     """How far (px, one sigma) the centroids may have moved because the two eyes segmented
     the object differently. Where part of an object is the colour of what is behind it, each
@@ -679,20 +711,31 @@ def _segmentation_error_px(
     (logs) differ by ``s`` on the frame it happens, and the two areas themselves differ by
     ``s`` for every frame it lasts (the eyes of a canonical rig see the same outline to a
     few percent). An object coming closer or going away grows in both, and differently
-    through the eyes' skew alone (by at most half a frame's growth), so what counts of
-    either sign is its excess over ``SEGMENTATION_SLACK`` and the mean growth; the larger,
-    times half the blob's width ``width_px``, is added to the centroid error of this
-    observation, so the filter leans on its prediction across the loss instead of following
-    it. The mean growth holds half of a loss in one eye alone, so on its first frame such a
-    loss counts from twice the slack (6 %), at half its size: a thrown ball's skewed growth
-    looks the same, and counting it in full cost those balls their valid speeds. The two
+    through the eyes' skew alone. With the track's filter running, ``growth`` gives what
+    each eye's change should be (:meth:`Pipeline._expected_growth`), and the two changes
+    count by how far their difference is from the expected one: a loss in one eye counts in
+    full on its first frame, and a thrown ball's skewed growth not at all. Before that, what
+    counts is the excess over the mean growth (by at most half a frame's growth apart
+    through the skew); the mean holds half of a loss in one eye alone, so such a loss then
+    counts from twice the slack (6 %), at half its size. The two areas apart count beyond
+    the mean growth. Either counts beyond ``SEGMENTATION_SLACK`` and the areas' own noise,
+    2 ``SIZE_NOISE`` / sqrt(A) of the smallest of the four areas A (a difference of two log
+    area ratios, each twice the half-log that :func:`stereod.skew.size_depth_ratio` bounds
+    by ``SIZE_NOISE`` / sqrt(A): a ball 5 px across wobbles by a fifth); the larger, times
+    half the blob's width ``width_px``, is added to the centroid error of this observation,
+    so the filter leans on its prediction across the loss instead of following it. The two
     areas are compared as ``areas`` (left, right) gives them, in rectified px where lens
     distortion scales the two eyes' images differently (the images' areas when None)."""
     area_l, area_r = max(int(lb.area_px[i]), 1), max(int(rb.area_px[j]), 1)
-    left = math.log(area_l / max(before.left_area_px, 1))
-    right = math.log(area_r / max(before.right_area_px, 1))
+    then_l, then_r = max(before.left_area_px, 1), max(before.right_area_px, 1)
+    left = math.log(area_l / then_l)
+    right = math.log(area_r / then_r)
     grew = abs(left + right) / 2.0
-    changed = abs(left - right)
     rect_l, rect_r = areas if areas is not None else (area_l, area_r)
-    apart = abs(math.log(max(rect_l, 1.0) / max(rect_r, 1.0)))
-    return max(max(changed, apart) - SEGMENTATION_SLACK - grew, 0.0) * 0.5 * width_px
+    apart = abs(math.log(max(rect_l, 1.0) / max(rect_r, 1.0))) - grew
+    if growth is None:
+        changed = abs(left - right) - grew
+    else:
+        changed = abs((left - right) - (growth[0] - growth[1]))
+    noise = 2.0 * skew.SIZE_NOISE / math.sqrt(min(area_l, area_r, then_l, then_r))
+    return max(max(changed, apart) - SEGMENTATION_SLACK - noise, 0.0) * 0.5 * width_px

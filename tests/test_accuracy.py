@@ -88,14 +88,16 @@ def test_a_ball_thrown_at_20_mps_and_seen_at_15_hz() -> None:
     assert ball.first_tracked == 2, ball.first_tracked
 
 
-@pytest.mark.parametrize("seed", [0, 2])
+@pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_ball_thrown_at_20_mps_from_five_metres_at_60_deg(seed: int) -> None:
     """At 320x240 and the nominal 60 deg the ball is 4 to 6 px across for its first frames
     and in view for 7: its speed in the middle of its path is right only when those small
     blobs are centred by the disc fit and the later eye is brought back along the curve of
-    its image motion (with the segmentation's centroid and the line it read 9 % high). Seed 1
-    still misses: its speed's sigma is still above 10 % in the scored frames (README, what
-    still misses)."""
+    its image motion (with the segmentation's centroid and the line it read 9 % high). In
+    seed 1 its second frame has a pinhole where it matches the wall (filled before the
+    opening, or the ball is lost there), and its areas wobble by a fifth between the eyes
+    (taken for a loss in one eye, its speed was valid only after the scored frames, until
+    the areas' own noise was allowed for)."""
     case = acc.world_preset(
         "fast_ball", acc.MODES[1], seed=seed, direction="radial", speed_mps=20.0
     )

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
 
 from stereod import PipelineParams, pairing, pipeline
-from stereod.detect import DetectorParams
+from stereod.detect import Blobs, DetectorParams
 from stereod.motion import circular_median_deg
-from stereod.tracking import TrackerParams
+from stereod.skew import SIZE_NOISE
+from stereod.tracking import Observation, TrackerParams
 from stereod_fakes.synth import Ball, Scene
 from tests.scenes import run_recording, run_scene, sigma, states
 
@@ -264,57 +266,86 @@ def test_detecting_the_earlier_eye_ahead_finds_what_the_pair_finds() -> None:
         assert pipe.detected_ahead == 0
 
 
-def test_a_part_of_an_object_lost_in_one_eye_only_widens_that_observations_error() -> None:
-    """One eye's blob lost a share s of its area since the track's last observation and
-    the other's did not: the centroids may have moved by (s - slack - s / 2) times half the
-    blob's width (s / 2 is the pair's mean growth, which the eyes' skew alone can split).
-    While the loss lasts, the two areas still differ by s: (s - slack) times half the width."""
-    from stereod.detect import Blobs
-    from stereod.tracking import Observation
+def _blobs(area: int) -> Blobs:
+    return Blobs(
+        centroid_px=np.zeros((1, 2)),
+        bbox_px=np.array([[0, 0, 54, 47]], np.int32),
+        area_px=np.array([area], np.int32),
+        support=(np.zeros((47, 54), np.uint8),),
+    )
 
-    def blobs(area: int) -> Blobs:
-        return Blobs(
-            centroid_px=np.zeros((1, 2)),
-            bbox_px=np.array([[0, 0, 54, 47]], np.int32),
-            area_px=np.array([area], np.int32),
-            support=(np.zeros((47, 54), np.uint8),),
-        )
 
+def _seen(left_area: int, right_area: int) -> Observation:
     z2 = np.zeros(2)
-    before = Observation(
-        np.zeros(3), np.eye(3), z2, z2, z2, z2, np.zeros(4), np.zeros(4), 2440, 2440, 16.0, 0.1
-    )
-    before_small = Observation(
-        np.zeros(3), np.eye(3), z2, z2, z2, z2, np.zeros(4), np.zeros(4), 1700, 1700, 16.0, 0.1
-    )
-    lost = pipeline._segmentation_error_px(blobs(2440), blobs(2170), 0, 0, before, 54.0)
-    s = np.log(2440 / 2170)
-    assert lost == pytest.approx((s - pipeline.SEGMENTATION_SLACK - s / 2) * 27.0)
+    return Observation(
+        np.zeros(3), np.eye(3), z2, z2, z2, z2, np.zeros(4), np.zeros(4), left_area, right_area,
+        16.0, 0.1,
+    )  # fmt: skip
+
+
+def _noise(*areas: int) -> float:
+    """The areas' own noise in a difference of two log area ratios."""
+    return 2.0 * SIZE_NOISE / math.sqrt(min(areas))
+
+
+def test_a_part_of_an_object_lost_in_one_eye_only_widens_that_observations_error() -> None:
+    """Before a track's filter runs: one eye's blob lost a share s of its area since the
+    track's last observation and the other's did not: the centroids may have moved by
+    (s - slack - s / 2 - noise) times half the blob's width (s / 2 is the pair's mean
+    growth, which the eyes' skew alone can split; the noise is the areas' own). While the
+    loss lasts, the two areas still differ by s: (s - slack - noise) times half the width."""
+    seg = pipeline._segmentation_error_px
+    before = _seen(2440, 2440)
+    lost = seg(_blobs(2440), _blobs(1950), 0, 0, before, 54.0)
+    s = np.log(2440 / 1950)
+    noise = _noise(1950)
+    assert lost == pytest.approx((s - pipeline.SEGMENTATION_SLACK - s / 2 - noise) * 27.0)
     assert lost > 0.7
     # both eyes lost the same share (the object turned, or left the light): no jump
-    assert pipeline._segmentation_error_px(blobs(2170), blobs(2170), 0, 0, before, 54.0) == 0.0
+    assert seg(_blobs(1950), _blobs(1950), 0, 0, before, 54.0) == 0.0
     # an object coming closer, one eye a little later than the other: growth, not a jump
-    assert pipeline._segmentation_error_px(blobs(3200), blobs(2900), 0, 0, before, 54.0) == 0.0
+    assert seg(_blobs(3200), _blobs(2900), 0, 0, before, 54.0) == 0.0
     # within the slack: noise
-    assert pipeline._segmentation_error_px(blobs(2440), blobs(2400), 0, 0, before, 54.0) == 0.0
+    assert seg(_blobs(2440), _blobs(2400), 0, 0, before, 54.0) == 0.0
     # a loss that lasts: the areas changed alike since the last observation, but one eye
     # still holds a share s less of the object than the other, so its centroid is still off
-    lasting = Observation(
-        np.zeros(3), np.eye(3), z2, z2, z2, z2, np.zeros(4), np.zeros(4), 2440, 2170, 16.0, 0.1
-    )
-    still = pipeline._segmentation_error_px(blobs(2440), blobs(2170), 0, 0, lasting, 54.0)
-    assert still == pytest.approx((s - pipeline.SEGMENTATION_SLACK) * 27.0)
+    lasting = _seen(2440, 1950)
+    still = seg(_blobs(2440), _blobs(1950), 0, 0, lasting, 54.0)
+    assert still == pytest.approx((s - pipeline.SEGMENTATION_SLACK - noise) * 27.0)
     # the same two blobs of a calibrated rig whose lenses scale the eyes' images differently:
     # the areas compared are the rectified ones, and those agree
-    rectified = (2300.0, 2300.0)
-    assert (
-        pipeline._segmentation_error_px(blobs(2440), blobs(2170), 0, 0, lasting, 54.0, rectified)
-        == 0.0
-    )
+    assert seg(_blobs(2440), _blobs(1950), 0, 0, lasting, 54.0, (2300.0, 2300.0)) == 0.0
     # and the same areas from an object that grew in both eyes by more than they differ: skew
-    assert (
-        pipeline._segmentation_error_px(blobs(2440), blobs(2170), 0, 0, before_small, 54.0) == 0.0
+    assert seg(_blobs(2440), _blobs(1950), 0, 0, _seen(1700, 1700), 54.0) == 0.0
+    # a small blob's area wobbles by its outline's pixels: a ball 5 px across, 20 px, that
+    # reads 23 px in one eye and 19 in the other has lost nothing
+    assert seg(_blobs(23), _blobs(19), 0, 0, _seen(20, 20), 5.0) == 0.0
+
+
+def test_with_the_filter_running_a_loss_counts_against_the_growth_each_eye_should_show() -> None:
+    """Once the track's filter runs, each eye's area change is compared with what the
+    track's depth at that eye's two instants says it should be. A robot that keeps its
+    distance, one eye losing a share s of it: the whole loss counts on its first frame
+    (s - slack - noise), not half of it. An object coming closer loses the same share in
+    one eye: the mean growth no longer hides it. A ball thrown at the rig, whose later eye
+    grew less for being seen sooner: exactly what the skew explains, nothing counts."""
+    seg = pipeline._segmentation_error_px
+    before = _seen(2440, 2440)
+    s = np.log(2440 / 1950)
+    noise = _noise(1950)
+    still = seg(_blobs(2440), _blobs(1950), 0, 0, before, 54.0, None, (0.0, 0.0))
+    assert still == pytest.approx((s - pipeline.SEGMENTATION_SLACK - noise) * 27.0)
+    assert still > 2 * seg(_blobs(2440), _blobs(1950), 0, 0, before, 54.0)
+    near_l, near_r = int(2440 * 1.5), int(2440 * 1.5 / 1.25)  # grew 1.5 in both, one lost 0.2
+    closer = seg(_blobs(near_l), _blobs(near_r), 0, 0, before, 54.0, None, (0.405, 0.405))
+    assert closer == pytest.approx(
+        (np.log(1.25) - pipeline.SEGMENTATION_SLACK - _noise(2440)) * 27.0, rel=1e-3
     )
+    assert seg(_blobs(near_l), _blobs(near_r), 0, 0, before, 54.0) == 0.0  # as it was
+    thrown = _seen(400, 400)
+    grow_l, grow_r = 0.30, 0.12  # the right eye's last frame was later: it grew less since
+    ball_l, ball_r = round(400 * math.exp(grow_l)), round(400 * math.exp(grow_r))
+    assert seg(_blobs(ball_l), _blobs(ball_r), 0, 0, thrown, 22.0, None, (grow_l, grow_r)) == 0.0
 
 
 @pytest.mark.parametrize("disparity_px", [0, 6])
