@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import skew
+from . import kalman, skew
 from .detect import Blobs, Detector, DetectorParams, Rect
 from .frames import Eye, Frame, StereoPair
 from .geometry import Geometry
@@ -466,15 +466,13 @@ class Pipeline:
         tr = self.tracker.track(tid)
         if not tr.started:
             return None
-        kf = tr.kf
-        z, vz = float(kf.x[2]), float(kf.x[5])
         out: list[float] = []
         for history, t_now in (
             (tr.left_history, eye_times_ns[0]),
             (tr.right_history, eye_times_ns[1]),
         ):
-            z_then = z + vz * (history[-1][0] - kf.t_ns) * 1e-9
-            z_now = z + vz * (t_now - kf.t_ns) * 1e-9
+            z_then = float(kalman.position_at(tr.kf, history[-1][0])[2])
+            z_now = float(kalman.position_at(tr.kf, t_now)[2])
             if z_then <= 0 or z_now <= 0:
                 return None
             out.append(2.0 * math.log(z_then / z_now))
