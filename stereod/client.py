@@ -8,7 +8,7 @@ fields are ignored. A sample that does not parse is counted in ``Subscription.re
 skipped, never raised into Zenoh's thread. A callback::
 
     import zenoh
-    from stereod.client import ObjectsMessage, TrackEnded, subscribe_objects
+    from stereod.client import ObjectsMessage, TrackEnded, subscribe_objects, zenoh_config
 
     def on_event(event):
         if isinstance(event, ObjectsMessage):
@@ -17,12 +17,13 @@ skipped, never raised into Zenoh's thread. A callback::
         elif isinstance(event, TrackEnded):
             print("track", event.track_id, "ended")
 
-    with zenoh.open(zenoh.Config()) as session, subscribe_objects(session, on_event):
+    endpoint = "tcp/127.0.0.1:7447"  # where the daemon listens
+    with zenoh.open(zenoh_config(endpoint)) as session, subscribe_objects(session, on_event):
         input("press Enter to stop\\n")
 
 or an iterator, which also waits for the daemon before querying it::
 
-    with zenoh.open(zenoh.Config()) as session:
+    with zenoh.open(zenoh_config(endpoint)) as session:
         wait_alive(session, rig="minoru", timeout_s=10)
         print(query_stats(session, rig="minoru").pairs, "pairs so far")
         with object_events(session, rig="minoru") as events:
@@ -40,7 +41,7 @@ import math
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
@@ -50,6 +51,8 @@ from pydantic import ValidationError
 
 from . import keys
 from .calibration import Calibration
+from .config import ZenohConfig
+from .errors import ConfigError, describe_validation_error
 from .messages import (
     CanonicalGeometry,
     ImageInfo,
@@ -58,6 +61,7 @@ from .messages import (
     StatsMessage,
     StatusMessage,
 )
+from .publish import session_config
 
 __all__ = [
     "DaemonAlive",
@@ -81,6 +85,7 @@ __all__ = [
     "subscribe_objects",
     "subscribe_status",
     "wait_alive",
+    "zenoh_config",
 ]
 
 log = logging.getLogger(__name__)
@@ -327,6 +332,21 @@ def object_events(
     """The events of :func:`subscribe_objects` as an iterator (a context manager); at most
     ``maxsize`` wait, beyond that the newest are dropped and counted in ``dropped``."""
     return EventStream(session, maxsize, rig=rig, prefix=prefix)
+
+
+def zenoh_config(*connect: str, listen: Sequence[str] = ()) -> zenoh.Config:
+    """A Zenoh config for a program that uses a daemon: connect to each ``connect`` endpoint
+    (where a daemon listens, e.g. ``"tcp/127.0.0.1:7447"``) and listen on ``listen``, with no
+    multicast scouting. An endpoint that is not up yet (the program was started before the
+    daemon) is tried again every 100 to 250 ms, not after Zenoh's default 1 to 4 s, so the
+    program sees the daemon as soon as it listens. A malformed endpoint is a ValueError."""
+    try:
+        cfg = ZenohConfig(connect=list(connect), listen=list(listen))
+        return session_config(cfg)
+    except ValidationError as exc:
+        raise ValueError(describe_validation_error(exc, "zenoh")) from None
+    except ConfigError as exc:
+        raise ValueError(str(exc)) from None
 
 
 def wait_alive(

@@ -57,6 +57,7 @@ def test_client_exports_are_pinned() -> None:
         "subscribe_objects",
         "subscribe_status",
         "wait_alive",
+        "zenoh_config",
     ]
     for name in stereod.client.__all__:
         assert hasattr(stereod.client, name), name

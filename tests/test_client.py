@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
@@ -12,7 +13,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from stereod import keys
+from stereod import client, keys
 from stereod.client import (
     DaemonAlive,
     Event,
@@ -157,3 +158,39 @@ def test_readme_client_example_runs(endpoint: str) -> None:
     assert res.returncode == 0, res.stderr
     assert "daemon up" in res.stdout
     assert "heading" in res.stdout and " ended" in res.stdout, res.stdout
+
+
+def test_zenoh_config_tries_a_missing_daemon_again_soon() -> None:
+    conf = json.loads(client.zenoh_config("tcp/127.0.0.1:7447").get_json("connect"))
+    assert conf["endpoints"] == ["tcp/127.0.0.1:7447"]
+    assert conf["retry"]["period_max_ms"] <= 250  # Zenoh's own default grows to 4000
+    with pytest.raises(ValueError, match="nonsense"):
+        client.zenoh_config("nonsense")
+
+
+@pytest.mark.slow
+def test_readme_client_example_started_before_the_daemon(endpoint: str) -> None:
+    """As the README says to run it: the program first, the daemon a few seconds later (here
+    8 s, past Zenoh's default retries at 1, 3 and 7 s); it sees the whole run."""
+    code = readme_examples()["client"].replace('"minoru"', '"bench"')
+    program = subprocess.Popen(
+        [sys.executable, "-c", code, endpoint],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        time.sleep(8.0)
+        daemon, thread = run_daemon(endpoint, rate=1.0, duration_s=4.0)
+        try:
+            out, err = program.communicate(timeout=60)
+        finally:
+            daemon.stop()
+            thread.join(15)
+    finally:
+        program.kill()
+    assert program.returncode == 0, err
+    # The daemon waits for a subscriber before it plays, so a client that found it in time
+    # queried it before its first pair.
+    assert "daemon up, 0 pairs so far" in out, out
+    assert "heading" in out and " ended" in out, out
