@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ctypes
 import errno
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,6 +42,9 @@ class FakeCamera:
     clock_copy: bool = False
     """Stamp buffers with V4L2_BUF_FLAG_TIMESTAMP_COPY instead of MONOTONIC."""
     enospc_on_streamon: bool = False
+    stall_after: int | None = None
+    """From this sequence on the camera delivers nothing (its buffers never become readable)
+    while it stays open; closing and streaming it again cures it, as a USB hiccup is."""
     present: bool = True
     streaming: bool = False
     buffers: list[bytearray] = field(default_factory=list)
@@ -92,6 +96,9 @@ class FakeKernel:
 
     def wait_readable(self, fd: int, timeout_s: float) -> bool:
         cam = self._cam(fd)
+        if cam.stall_after is not None and cam.next_seq >= cam.stall_after:
+            time.sleep(timeout_s)  # select() timing out
+            return False
         return cam.streaming and bool(cam.queued)
 
     def ioctl(self, fd: int, request: int, arg: Any) -> None:
@@ -192,6 +199,8 @@ class FakeKernel:
     def _vidioc_streamon(self, cam: FakeCamera, t: ctypes.c_int) -> None:
         if cam.enospc_on_streamon:
             raise OSError(errno.ENOSPC, "No space left on device")
+        if cam.stall_after is not None and cam.next_seq >= cam.stall_after:
+            cam.stall_after = None
         cam.streaming = True
 
     def _vidioc_streamoff(self, cam: FakeCamera, t: ctypes.c_int) -> None:

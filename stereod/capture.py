@@ -10,7 +10,9 @@ idle pipeline detects that eye meanwhile.
 An eye thread survives anything its source raises: a :class:`~stereod.errors.DeviceLost` or
 any other exception marks the eye down, is counted and reported, and the eye starts over as
 after a re-plug (:meth:`~stereod.frames.EyeSource.recover`), with a growing pause between
-repeated failures. Only the file merge thread treats an error as the end of the run.
+repeated failures. An eye that streams but then delivers nothing is reported down by the
+status loop (:meth:`~stereod.status.Health.check_stalls`), and its next frame counts as a
+reconnect. Only the file merge thread treats an error as the end of the run.
 """
 
 from __future__ import annotations
@@ -101,12 +103,16 @@ class Capture:
         with h.lock:
             eye = h.eyes[frame.eye]
             eye.frames += 1
+            back = eye.state is EyeState.DOWN
             eye.state = EyeState.STREAMING
             pairs = self.pairer.push(frame)
-            h.last_frame_s = time.monotonic()
+            h.last_frame_s = eye.last_frame_s = time.monotonic()
             ready = not self._ready and all(e.frames for e in h.eyes.values())
             if ready:
                 self._ready = True
+        if back:
+            h.recovered(frame.eye)
+            h.problem(f"{frame.eye.value} eye streaming again")
         if ready:
             self._on_ready()
         now = time.perf_counter_ns()
@@ -141,10 +147,7 @@ class Capture:
                     continue
                 if frame is None:
                     break
-                if health.state is EyeState.DOWN:
-                    h.recovered(eye.eye)
-                    h.problem(f"{name} eye streaming again")
-                    pause = RETRY_FIRST_S
+                pause = RETRY_FIRST_S
                 if not self.push(frame):
                     break
         finally:

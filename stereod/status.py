@@ -43,6 +43,8 @@ class EyeHealth:
         self.frames = 0
         self.errors = 0
         self.last_error: str | None = None
+        self.last_frame_s = 0.0
+        """When (monotonic s) its last frame arrived; 0 before the first."""
         self._frames_at_last_status = 0
 
     def fps(self, period_s: float) -> float:
@@ -50,6 +52,13 @@ class EyeHealth:
         n = self.frames - self._frames_at_last_status
         self._frames_at_last_status = self.frames
         return n / period_s if period_s > 0 else 0.0
+
+
+STALL_S = 3.0
+"""A live eye that streamed but has delivered no frame for this long (s) is reported down,
+whatever its driver does about it (the V4L2 driver reopens such an eye after its own
+``stall_s``, 2 s): a camera can stop mid-stream and stay open, and the other eye's frames alone
+make no pair. A Minoru delivers 15 or 30 frames a second."""
 
 
 def geometry_note(rig: object) -> str:
@@ -159,8 +168,28 @@ class Health:
             return list(self._all_problems)
 
     def frames_flowing(self, within_s: float) -> bool:
-        """Frames arrived within the last ``within_s`` seconds (the watchdog's condition)."""
+        """Frames arrived within the last ``within_s`` seconds (the watchdog's condition: the
+        daemon is not hung; an eye that is down is reported and reopened by its own thread,
+        which a restart would not do better)."""
         return time.monotonic() - self.last_frame_s < within_s
+
+    def check_stalls(self) -> None:
+        """Report each live eye that is streaming but has had no frame for ``STALL_S``: it is
+        down (its next frame counts as a reconnect) and the daemon is degraded."""
+        if not self.live:
+            return
+        now = time.monotonic()
+        stalled = []
+        with self.lock:
+            for eye, h in self.eyes.items():
+                quiet = now - h.last_frame_s
+                if h.state is EyeState.STREAMING and quiet >= STALL_S:
+                    h.state = EyeState.DOWN
+                    h.last_error = f"no frame for {quiet:.1f} s"
+                    self._errors[f"{eye.value}_stalled"] += 1
+                    stalled.append((eye, h.last_error))
+        for eye, why in stalled:
+            self.problem(f"{eye.value} eye down: {why}; waiting for it", f"{eye.value}_down")
 
     # -- counters ----------------------------------------------------------------------------
 
@@ -201,6 +230,7 @@ class Health:
 
     def status(self, period_s: float) -> StatusMessage:
         """The status message for the last ``period_s`` seconds (resets per-period figures)."""
+        self.check_stalls()
         with self.lock:
             skews, self._skews_ms = self._skews_ms, []
             resid, self._residuals = self._residuals, []

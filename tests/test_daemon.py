@@ -20,6 +20,8 @@ from stereod.config import load_config
 from stereod.daemon import Daemon
 from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
 from stereod_fakes.synth import SyntheticDriver
+from stereod_fakes.v4l2_kernel import FakeCamera, FakeKernel
+from stereod_v4l2_minoru.driver import MinoruDriver
 
 
 def config(endpoint: str, **daemon: Any):
@@ -371,3 +373,45 @@ def test_a_calibrated_rig_has_no_such_note() -> None:
     from stereod.status import geometry_note
 
     assert geometry_note(CalibratedRig(canonical(0.06, 60.0, 640, 480))) == ""
+
+
+class _PacedKernel(FakeKernel):
+    """The fake kernel delivering each frame at its camera's pace, as a real one does."""
+
+    def __init__(self, cameras: dict[str, FakeCamera]) -> None:
+        super().__init__(cameras)
+        self.start = time.monotonic()
+
+    def wait_readable(self, fd: int, timeout_s: float) -> bool:
+        cam = self._cam(fd)
+        if cam.stall_after is None or cam.next_seq < cam.stall_after:
+            wait = self.start + cam.next_seq / cam.fps - time.monotonic()
+            if wait > timeout_s:
+                time.sleep(timeout_s)
+                return False
+            time.sleep(max(wait, 0.0))
+        return super().wait_readable(fd, timeout_s)
+
+
+def test_a_camera_that_stops_mid_stream_is_reported_and_reopened(endpoint: str) -> None:
+    """The right eye delivers 30 frames, then nothing while it stays open: it is reported
+    down (a stalled eye is no longer hidden behind the other eye's frames), reopened as after
+    a re-plug, and streams again."""
+    k = _PacedKernel({"/dev/fake0": FakeCamera(), "/dev/fake1": FakeCamera(stall_after=30)})
+    opts = {"left": "/dev/fake0", "right": "/dev/fake1", "width": 64, "height": 48, "fps": 30}
+    driver = MinoruDriver({**opts, "read_timeout_s": 0.1, "stall_s": 0.5}, io=k)
+    daemon = Daemon(config(endpoint), driver, rate=0)
+    t, out = start(daemon)
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and daemon.health.stats().reconnects != {"right": 1}:
+            time.sleep(0.05)
+    finally:
+        daemon.stop()
+        t.join(15)
+    summary = out["summary"]
+    assert daemon.health.stats().reconnects == {"right": 1}
+    assert summary.errors.get("right_lost") == 1
+    down = [p for p in summary.problems if p.startswith("right eye down")]
+    assert down == ["right eye down: /dev/fake1: no frame for 0.5 s; retrying"], summary.problems
+    assert "right eye streaming again" in summary.problems

@@ -74,6 +74,17 @@ class MinoruOptions(BaseModel):
     retry_s: float = Field(0.5, gt=0, description="First reconnect delay, s (doubles)")
     retry_max_s: float = Field(5.0, gt=0, description="Longest reconnect delay, s")
     read_timeout_s: float = Field(0.5, gt=0)
+    stall_s: float = Field(
+        2.0,
+        gt=0,
+        description="An eye streaming no frame for this long (s) is closed and reopened, as "
+        "after a re-plug (a camera can stop mid-stream and stay open)",
+    )
+
+
+FIRST_FRAME_S = 5.0
+"""How long (s) an eye just opened may take to deliver its first frame before it counts as
+stalled (``stall_s`` if longer)."""
 
 
 def _control_id(name: str) -> int:
@@ -101,6 +112,8 @@ class CameraEye(EyeSource):
         self._last_seq: int | None = None
         self._counters = EyeCounters()
         self._delay = opts.retry_s
+        self._waiting_since = 0.0
+        """When (monotonic s) the eye started waiting for its next frame."""
         self.fps: float | None = None
 
     def _locate(self) -> str:
@@ -124,6 +137,7 @@ class CameraEye(EyeSource):
             raise
         self.device = dev
         self._last_seq = None
+        self._waiting_since = time.monotonic()
         log.info(
             "%s eye streaming from %s: %dx%d %s at %.3g fps, delivered as %s",
             self.eye.value,
@@ -189,7 +203,16 @@ class CameraEye(EyeSource):
                 self.close()
                 raise
             if cap is None:
+                stalled = time.monotonic() - self._waiting_since
+                first = self._last_seq is None  # a camera may take a while to start
+                if stalled >= (
+                    max(self.opts.stall_s, FIRST_FRAME_S) if first else self.opts.stall_s
+                ):
+                    path = self.device.path
+                    self.close()
+                    raise DeviceLost(f"{path}: no frame for {stalled:.1f} s")
                 continue
+            self._waiting_since = time.monotonic()
             if cap.error:
                 self._count(self._counters.errors, "frame_error")
                 continue

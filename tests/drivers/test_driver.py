@@ -149,3 +149,22 @@ def test_a_node_that_is_not_a_camera_is_a_config_error() -> None:
     with pytest.raises(ConfigError, match=r"/dev/null: not a V4L2 device; point the eye") as err:
         V4L2Device("/dev/null").open()
     assert err.value.exit_code == 78
+
+
+def test_an_eye_that_stops_streaming_is_reopened() -> None:
+    """A camera can stop delivering mid-stream and stay open: after ``stall_s`` without a
+    frame the eye is lost (so the daemon reports it) and reopened, and streams again."""
+    k = kernel(stall_after=3)
+    opts = {**OPTS, "retry_s": 0.01, "read_timeout_s": 0.05, "stall_s": 0.3}
+    src = MinoruDriver(opts, io=k).open()
+    try:
+        assert [src.right.read().seq for _ in range(3)] == [0, 1, 2]  # type: ignore[union-attr]
+        t0 = time.monotonic()
+        with pytest.raises(DeviceLost, match=r"/dev/fake1: no frame for 0\.[3-9] s"):
+            src.right.read()
+        assert 0.3 <= time.monotonic() - t0 < 2.0
+        f = src.right.read()
+        assert f is not None and f.seq == 3
+        assert src.left.read() is not None  # the other eye never noticed
+    finally:
+        src.close()

@@ -1,0 +1,53 @@
+"""The daemon's health: a live eye that stops delivering is reported."""
+
+from __future__ import annotations
+
+import time
+
+from stereod.frames import Eye
+from stereod.messages import DaemonState, EyeState
+from stereod.pairing import Pairer
+from stereod.status import STALL_S, Health
+
+
+def live_health() -> Health:
+    h = Health("bench", "test", Pairer(), on_change=lambda: None)
+    h.live = True
+    h.state = DaemonState.RUNNING
+    now = time.monotonic()
+    for e in h.eyes.values():
+        e.state = EyeState.STREAMING
+        e.frames = 30
+        e.last_frame_s = now
+    h.last_frame_s = now
+    return h
+
+
+def test_eyes_streaming_are_healthy() -> None:
+    h = live_health()
+    st = h.status(1.0)
+    assert st.state is DaemonState.RUNNING and st.problems == []
+    assert h.frames_flowing(1.0)
+
+
+def test_an_eye_quiet_for_the_stall_time_is_down_and_the_daemon_degraded() -> None:
+    h = live_health()
+    h.eyes[Eye.RIGHT].last_frame_s -= STALL_S + 0.5
+    st = h.status(1.0)
+    assert st.state is DaemonState.DEGRADED
+    assert st.left.state is EyeState.STREAMING and st.right.state is EyeState.DOWN
+    assert st.right.last_error is not None and st.right.last_error.startswith("no frame for 3.5")
+    assert st.errors == {"right_stalled": 1}
+    assert st.problems == ["right eye down: no frame for 3.5 s; waiting for it"]
+    h.status(1.0)  # said once, not every second
+    assert h.status(1.0).errors == {"right_stalled": 1}
+
+
+def test_a_file_source_is_never_stalled() -> None:
+    """A replay paces itself (and may be paused by its reader): no eye is judged by time."""
+    h = live_health()
+    h.live = False
+    for e in h.eyes.values():
+        e.last_frame_s -= 100.0
+    st = h.status(1.0)
+    assert st.right.state is EyeState.STREAMING and st.errors == {}
