@@ -33,7 +33,7 @@ from .geometry.rectified import CalibratedRig
 from .images import ImagePublishers, ImageWorker
 from .messages import CanonicalGeometry, DaemonState, StatusMessage, dump
 from .output import Output
-from .output_file import AtomicOutput, check_not_input
+from .output_file import AtomicOutput, check_not_input, give_up_writing
 from .pairing import Pairer
 from .params import pipeline_params
 from .pipeline import Pipeline
@@ -48,6 +48,10 @@ log = logging.getLogger(__name__)
 
 RELOAD_REFUSED = "reload refused, keeping the running configuration"
 """How a refused reload's problem begins; a reload taken later takes those off the status."""
+
+STOP_WRITE_S = 2.0
+"""Once a stop is asked for, how long (s) an output written in place (a pipe) may wait for a
+reader that stopped reading before it counts as gone: the daemon then ends all the same."""
 
 DROP_PIPELINE_BEHIND = "pipeline_behind"
 """A pair waited too long for the pipeline and a newer one replaced it (live sources)."""
@@ -148,6 +152,7 @@ class Daemon:
                 self.health.state = DaemonState.STOPPING
         self._stop.set()
         self._status_now.set()
+        give_up_writing(STOP_WRITE_S)  # a pipe's reader that stopped reading cannot hold it
         source = self._source
         if source is not None:
             source.left.interrupt()

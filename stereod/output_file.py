@@ -16,16 +16,25 @@ calibration), so that writing an output never destroys what was at its path.
 
 An output that is one of the run's inputs is refused (:func:`check_not_input`). A run that a
 signal stopped before its end commits no output; it ends with :class:`Interrupted`.
+
+An output written in place is written only when it can take the bytes without blocking (a
+pipe whose reader stops reading would otherwise hold its writer, and the thread that waits for
+it, for good): once a stop is asked for, :func:`give_up_writing` bounds that wait, and a
+reader still not reading then counts as gone (:class:`ReaderGone`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import io
 import os
+import select
 import signal
 import stat
 import tempfile
+import time
+import weakref
 from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
@@ -183,6 +192,56 @@ def _open_in_place(target: Path) -> int:
     return fd
 
 
+_CHUNK = select.PIPE_BUF
+"""Bytes written at a time in place: a pipe that polls writable takes this many at once."""
+_POLL_MS = 200
+
+
+class _InPlaceWriter(io.RawIOBase):
+    """Writes a descriptor written in place without ever blocking in ``write``: each chunk of
+    at most ``PIPE_BUF`` bytes waits until the descriptor polls writable, and that wait ends
+    with ``ETIMEDOUT`` once :attr:`deadline` (monotonic s) has passed."""
+
+    def __init__(self, fd: int) -> None:
+        super().__init__()
+        self._fd = fd
+        self.deadline: float | None = None
+        self._poll = select.poll()
+        self._poll.register(fd, select.POLLOUT)
+
+    def writable(self) -> bool:
+        return True
+
+    def fileno(self) -> int:
+        return self._fd
+
+    def write(self, b: Any) -> int:
+        while not self._poll.poll(_POLL_MS):
+            deadline = self.deadline
+            if deadline is not None and time.monotonic() >= deadline:
+                raise OSError(errno.ETIMEDOUT, "its reader stopped reading")
+        return os.write(self._fd, memoryview(b)[:_CHUNK])
+
+    def close(self) -> None:
+        if not self.closed:
+            with contextlib.suppress(OSError):
+                os.close(self._fd)
+        super().close()
+
+
+_IN_PLACE: weakref.WeakSet[_InPlaceWriter] = weakref.WeakSet()
+
+
+def give_up_writing(after_s: float) -> None:
+    """Let every output written in place wait at most ``after_s`` more seconds for its reader
+    (a stop was asked for: what is queued still goes out to a reader that reads). Safe to call
+    from a signal handler."""
+    deadline = time.monotonic() + after_s
+    for w in list(_IN_PLACE):
+        if w.deadline is None or w.deadline > deadline:
+            w.deadline = deadline
+
+
 def _fsync_dir(directory: Path) -> None:
     """Make a rename in ``directory`` durable (best effort: some file systems refuse)."""
     try:
@@ -212,7 +271,9 @@ class AtomicOutput:
         """Whether the output is this process's stdout."""
         try:
             if self.in_place:
-                self._fh: IO[bytes] = os.fdopen(_open_in_place(self.target), "wb")
+                raw = _InPlaceWriter(_open_in_place(self.target))
+                _IN_PLACE.add(raw)
+                self._fh: IO[bytes] = io.BufferedWriter(raw)
             else:
                 fd, tmp = tempfile.mkstemp(
                     prefix=f".{self.target.name}.", suffix=".part", dir=self.target.parent
@@ -239,6 +300,8 @@ class AtomicOutput:
         written in place closed it, otherwise :class:`OutputError`."""
         if self.in_place and exc.errno == errno.EPIPE:
             return ReaderGone(f"{self.path}: its reader closed it", stdout=self.stdout)
+        if self.in_place and exc.errno == errno.ETIMEDOUT:
+            return ReaderGone(f"{self.path}: its reader stopped reading", stdout=self.stdout)
         return OutputError(f"{self.path}: writing failed: {exc.strerror}")
 
     def write(self, data: bytes) -> int:

@@ -614,3 +614,31 @@ def test_a_daemon_asked_to_reload_while_it_starts_keeps_starting(tmp_path: Path)
         proc.kill()
     assert proc.returncode == 0, err
     assert "Traceback" not in err
+
+
+def test_ctrl_c_ends_a_replay_whose_pipe_reader_stopped_reading(tmp_path: Path) -> None:
+    """The JSONL goes into a named pipe whose reader reads nothing: the pipe fills and the
+    writer waits, as it should. Ctrl-C still ends the run within a few seconds (the reader
+    then counts as gone), where it used to wait for that reader for good."""
+    import fcntl
+
+    rec = recording(tmp_path)
+    fifo = tmp_path / "out.fifo"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        fcntl.fcntl(reader, fcntl.F_SETPIPE_SZ, 4096)  # full after a few messages
+        proc = start_stereod(
+            "replay", str(rec), "--rate", "0", "-q", "--jsonl", str(fifo), cwd=tmp_path
+        )
+        time.sleep(3.0)  # long enough to fill the pipe and block on it
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGINT)
+        try:
+            _, err = proc.communicate(timeout=20)
+        finally:
+            proc.kill()
+        assert proc.returncode == 130, err
+        assert "interrupted by SIGINT" in err, err
+    finally:
+        os.close(reader)

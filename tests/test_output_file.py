@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import tempfile
+import threading
 from pathlib import Path
 
 import pytest
 
-from stereod.errors import OutputError
-from stereod.output_file import AtomicOutput, output_target
+from stereod.errors import OutputError, ReaderGone
+from stereod.output_file import AtomicOutput, give_up_writing, output_target
 
 
 def test_a_regular_file_is_replaced_by_rename_and_a_link_is_written_through(
@@ -77,3 +79,59 @@ def test_a_write_protected_file_is_refused_and_left_as_it_was() -> None:
         assert path.read_text() == "precious\n" and sorted(folder.iterdir()) == [path]
     finally:
         shutil.rmtree(folder)
+
+
+def test_a_pipe_whose_reader_stops_reading_is_given_up_once_asked() -> None:
+    """A write into a full pipe waits for its reader, but once :func:`give_up_writing` is
+    called the wait is bounded, and the reader counts as gone instead of holding the writer
+    (and whoever waits for it) for good."""
+    read_fd, write_fd = os.pipe()
+    try:
+        out = AtomicOutput(Path(f"/proc/self/fd/{write_fd}"))
+        failure: list[BaseException] = []
+        written = threading.Event()
+
+        def writer() -> None:
+            try:
+                for _ in range(64):  # 4 MB: far more than a pipe holds
+                    out.write(b"x" * 65536)
+                written.set()
+            except BaseException as exc:
+                failure.append(exc)
+
+        t = threading.Thread(target=writer)
+        t.start()
+        assert os.read(read_fd, 65536)  # the reader reads a little, then stops
+        t.join(1.0)
+        assert t.is_alive() and not written.is_set()  # held by the reader, as it should be
+        give_up_writing(0.3)
+        t.join(5.0)
+        assert not t.is_alive()
+        assert len(failure) == 1 and isinstance(failure[0], ReaderGone), failure
+        assert "its reader stopped reading" in str(failure[0])
+        out.discard()
+    finally:
+        os.close(read_fd)
+        with contextlib.suppress(OSError):
+            os.close(write_fd)
+
+
+def test_a_reader_that_reads_gets_everything() -> None:
+    read_fd, write_fd = os.pipe()
+    got = bytearray()
+    reader = threading.Thread(target=lambda: _drain(read_fd, got))
+    reader.start()
+    try:
+        with AtomicOutput(Path(f"/proc/self/fd/{write_fd}")) as out:
+            for k in range(200):
+                out.write(bytes([k]) * 10000)
+    finally:
+        os.close(write_fd)
+        reader.join(10)
+        os.close(read_fd)
+    assert bytes(got) == b"".join(bytes([k]) * 10000 for k in range(200))
+
+
+def _drain(fd: int, into: bytearray) -> None:
+    while chunk := os.read(fd, 65536):
+        into.extend(chunk)
