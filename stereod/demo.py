@@ -245,7 +245,8 @@ def report(ball: DemoBall, rig: CanonicalRig, received: list[ObjectsMessage]) ->
     pos = np.array([o.position_m for _, o in states])
     pos_err = np.linalg.norm(pos - truth, axis=1)
     bound = rig.depth_error_one_px_m(truth[:, 2])
-    heading = circular_median_deg([o.heading_deg for o in valid])
+    headed = [o for o in valid if o.heading_valid]
+    heading = circular_median_deg([o.heading_deg for o in headed]) if headed else math.nan
     spd = float(np.median([o.speed_mps for o in valid]))
     raw = [o.raw_velocity_mps for o in valid if o.raw_velocity_mps is not None]
     raw_v = np.median(np.asarray(raw), axis=0) if raw else np.full(3, np.nan)
@@ -255,6 +256,7 @@ def report(ball: DemoBall, rig: CanonicalRig, received: list[ObjectsMessage]) ->
     ds = spd - ball.speed_mps
     print(
         f"{len(received)} messages, {len(states)} object states, {len(valid)} with valid velocity"
+        f" ({len(headed)} with a valid heading)"
     )
     print(f"{'':24}{'heading (deg)':>14}{'speed (m/s)':>13}")
     print(f"{'true':24}{ball.heading_deg:14.1f}{ball.speed_mps:13.3f}")

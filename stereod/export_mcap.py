@@ -73,7 +73,8 @@ Mapping of a ``stereod.objects/1`` message (field names of :mod:`stereod.message
   namespace ``tracks`` a sphere of diameter ``size_m`` at ``position_m`` coloured by ``state``
   (tentative yellow, confirmed green, coasting grey); ``velocity`` an arrow from the position to
   position + 1 s of velocity, while ``velocity_valid``; ``labels`` a text
-  "<id> <speed> m/s <heading> deg" (or "<id> <state>") above the sphere. Marker id =
+  "<id> <speed> m/s <heading> deg" (the heading once ``heading_valid``; "<id> <state>" until
+  ``velocity_valid``) above the sphere. Marker id =
   ``track_id``, lifetime 0; when a track disappears from the messages its markers get a DELETE.
 * ``std_msgs/msg/String`` on ``/stereod/<rig>/objects``: the message's JSON exactly as published
   (the JSONL line), so nothing is lost (blobs, disparity, latency, skew, ages).
@@ -616,6 +617,8 @@ class RosMessages:
             label["scale"] = _vec((0.0, 0.0, 0.05))
             label["text"] = (
                 f"{o.track_id} {o.speed_mps:.2f} m/s {o.heading_deg:.0f} deg"
+                if o.heading_valid
+                else f"{o.track_id} {o.speed_mps:.2f} m/s"
                 if o.velocity_valid
                 else f"{o.track_id} {_value(o.state)}"
             )

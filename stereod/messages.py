@@ -110,6 +110,14 @@ class ObjectState(_Model):
             " or 10 % of the speed (tracking.valid_speed_sigma_*)"
         )
     )
+    heading_valid: bool = Field(
+        False,
+        description=(
+            "False until velocity_valid and the velocity's sigma across its direction on the"
+            " ground is within the same bound: the direction is known, not only the speed (read"
+            " as false when absent: a daemon older than this field)"
+        ),
+    )
     speed_mps: float = Field(description="|velocity| (eq. 22), m/s")
     speed_sigma_mps: float | None = Field(description="One-sigma speed error, m/s")
     heading_deg: float = Field(
@@ -311,6 +319,7 @@ def object_state(s: TrackState, stamp_utc_ns: int, skew_ns: int) -> ObjectState:
         velocity_mps=_vec(s.velocity_mps),
         velocity_sigma_mps=vsig if all(map(math.isfinite, vsig)) else None,
         velocity_valid=s.velocity_valid,
+        heading_valid=s.heading_valid,
         speed_mps=s.speed_mps,
         speed_sigma_mps=_finite(s.speed_sigma_mps),
         heading_deg=s.heading_deg,

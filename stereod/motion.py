@@ -33,12 +33,15 @@ def heading_deg(dx: float, dz: float) -> float:
     return math.degrees(math.atan2(dx, dz)) % 360.0
 
 
-def heading_sigma_deg(vx: float, vz: float, sx: float, sz: float) -> float:
-    """First-order sigma (deg) of eq. 23's heading for velocity sigmas ``sx``, ``sz`` (m/s)."""
+def heading_sigma_deg(vx: float, vz: float, sx: float, sz: float, cxz: float = 0.0) -> float:
+    """First-order sigma (deg) of eq. 23's heading for velocity sigmas ``sx``, ``sz`` (m/s)
+    and their covariance ``cxz`` (m^2/s^2): the velocity's sigma across its direction on the
+    ground over the ground speed."""
     h2 = vx * vx + vz * vz
     if h2 <= 0.0:
         return 180.0
-    return math.degrees(math.sqrt((vz * sx) ** 2 + (vx * sz) ** 2) / h2)
+    across2 = (vz * sx) ** 2 + (vx * sz) ** 2 - 2.0 * vx * vz * cxz
+    return math.degrees(math.sqrt(max(across2, 0.0)) / h2)
 
 
 def fit_velocity(

@@ -149,8 +149,10 @@ def _track_label(s: TrackState) -> str:
         return f"#{s.track_id} tentative"
     if s.lifecycle is TrackLifecycle.COASTING:
         return f"#{s.track_id} coasting"
-    if s.velocity_valid:
+    if s.heading_valid:
         return f"#{s.track_id} {s.speed_mps:.2f} m/s {s.heading_deg:.0f} deg"
+    if s.velocity_valid:
+        return f"#{s.track_id} {s.speed_mps:.2f} m/s"
     return f"#{s.track_id}"
 
 

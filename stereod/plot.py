@@ -43,6 +43,7 @@ class TrackSeries:
     t_s: np.ndarray
     position_m: np.ndarray
     valid: np.ndarray
+    heading_valid: np.ndarray
     speed_mps: np.ndarray
     speed_sigma_mps: np.ndarray
     heading_deg: np.ndarray
@@ -109,6 +110,7 @@ def read_run(path: Path) -> Run:
                 t_s=np.array([(t - t0) * 1e-9 for t, _ in states]),
                 position_m=np.array([o.position_m for o in obs], dtype=float),
                 valid=np.array([o.velocity_valid for o in obs], dtype=bool),
+                heading_valid=np.array([o.heading_valid for o in obs], dtype=bool),
                 speed_mps=np.array([o.speed_mps for o in obs], dtype=float),
                 speed_sigma_mps=np.array([_num(o.speed_sigma_mps) for o in obs]),
                 heading_deg=np.array([o.heading_deg for o in obs], dtype=float),
@@ -320,14 +322,17 @@ def plot_run(run: Run, truth: list[TruthSeries], out: Path, *, title: str = "") 
         lo, hi = band(tr.speed_mps[v], tr.speed_sigma_mps[v])
         spd.fill_between(t, lo, hi, color=c, alpha=0.2, lw=0)
         spd.plot(t, tr.speed_mps[v], "-", color=c, label=f"{name} filter")
-        h = display_deg(tr.heading_deg[v])
-        lo, hi = band(h, tr.heading_sigma_deg[v])
-        hdg.fill_between(t, lo, hi, color=c, alpha=0.2, lw=0)
-        hdg.plot(t, h, "-", color=c, label=f"{name} filter")
+        hv = tr.heading_valid
+        h = display_deg(tr.heading_deg[hv])
+        if hv.any():
+            lo, hi = band(h, tr.heading_sigma_deg[hv])
+            hdg.fill_between(tr.t_s[hv], lo, hi, color=c, alpha=0.2, lw=0)
+            hdg.plot(tr.t_s[hv], h, "-", color=c, label=f"{name} filter")
         rt, rs, rh = eq21(tr)
         if len(rt):
             spd.plot(rt, rs, "x", color=c, ms=4, label=f"{name} eq. 21")
-            hdg.plot(rt, unwrap_deg(rh, h[0]), "x", color=c, ms=4, label=f"{name} eq. 21")
+            near = h[0] if len(h) else None
+            hdg.plot(rt, unwrap_deg(rh, near), "x", color=c, ms=4, label=f"{name} eq. 21")
     top.plot([0.0], [0.0], "k^", ms=8)
     top.set_xlabel("X (m), right")
     top.set_ylabel("Z (m), away from the camera")
@@ -355,13 +360,16 @@ def summary(run: Run) -> str:
     """One line per track: its span and median valid speed and heading."""
     lines = []
     for tr in run.tracks:
-        v = tr.valid
+        v, hv = tr.valid, tr.heading_valid
         if v.any():
             s = float(np.median(tr.speed_mps[v]))
-            h = float(np.degrees(np.angle(np.mean(np.exp(1j * np.radians(tr.heading_deg[v]))))))
+            heading = "not yet valid"
+            if hv.any():
+                h = np.degrees(np.angle(np.mean(np.exp(1j * np.radians(tr.heading_deg[hv])))))
+                heading = f"{float(h) % 360.0:.1f} deg"
             lines.append(
                 f"track {tr.track_id}: {tr.t_s[0]:.2f}-{tr.t_s[-1]:.2f} s, {int(v.sum())} valid "
-                f"states, speed {s:.3f} m/s, heading {h % 360.0:.1f} deg"
+                f"states, speed {s:.3f} m/s, heading {heading}"
             )
         else:
             lines.append(f"track {tr.track_id}: {len(tr.t_s)} states, no valid velocity")

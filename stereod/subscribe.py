@@ -17,8 +17,9 @@ def _v(vec: Sequence[float] | None, fmt: str = "{:+.3f}") -> str:
 
 def format_object(o: ObjectState) -> str:
     """One object as one line: id, state, position (m), velocity (m/s), speed, heading."""
+    heading = f"{o.heading_deg:6.1f} deg" if o.heading_valid else "(not yet valid)"
     motion = (
-        f"v {_v(o.velocity_mps)} m/s  |v| {o.speed_mps:.3f} m/s  heading {o.heading_deg:6.1f} deg"
+        f"v {_v(o.velocity_mps)} m/s  |v| {o.speed_mps:.3f} m/s  heading {heading}"
         if o.velocity_valid
         else "v (not yet valid)"
     )

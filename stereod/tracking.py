@@ -23,7 +23,10 @@ a thrown ball is followed along its arc. Velocity, speed and heading come from t
 (eq. 22, 23 on its velocity); the paper's eq. 21 finite difference over ``time_base_s`` is kept
 beside them as the raw velocity. A velocity is valid once the track is confirmed and the
 speed's own sigma is small (``valid_speed_sigma_mps`` or ``valid_speed_sigma_rel`` of the
-speed, whichever is larger).
+speed, whichever is larger); its heading is valid once, besides, the velocity's sigma across
+its direction on the ground is within the same bound (a track's first estimates often know
+the speed long before the direction: two observations of a ball across the view, each a few
+cm off in depth, give its speed to 2 % and its heading to 12 deg).
 
 Lifecycle: ``tentative`` until ``confirm_hits`` observations and a running filter (two
 observations no faster than ``max_speed_mps`` apart), then ``confirmed``; a confirmed
@@ -129,7 +132,8 @@ class TrackerParams:
     ``time_base_s``: tau of eq. 21 (s). ``max_coast_s``: how long (s) a confirmed track lives
     unseen. ``confirm_hits``: observations to confirm. ``valid_speed_sigma_mps``,
     ``valid_speed_sigma_rel``: a velocity is valid once the speed's sigma is below the larger
-    of these (m/s; share of the speed). ``freeze_s``: how long (s) after it was last seen
+    of these (m/s; share of the speed), its heading once the sigma across it on the ground is
+    too. ``freeze_s``: how long (s) after it was last seen
     moving an object keeps the background frozen under it. ``stationary_mps``: below this
     speed an object is not moving. ``gravity_mps2``: gravity in the rig frame (m/s^2; Y points
     down in a level rig); every moving track is filtered both as moving straight and as
@@ -167,6 +171,10 @@ class TrackState:
     velocity_mps: np.ndarray
     velocity_cov: np.ndarray
     velocity_valid: bool
+    """The speed is known: the track is confirmed and the speed's sigma within the bound."""
+    heading_valid: bool
+    """The heading is known too: the velocity is valid and its sigma across its direction on
+    the ground (the heading's sigma times the ground speed) within the same bound."""
     speed_mps: float
     speed_sigma_mps: float
     heading_deg: float
@@ -735,13 +743,17 @@ class Tracker:
         vcov = tr.kf.velocity_cov.copy()
         vx, vy, vz = vel.tolist()
         spd = math.sqrt(vx * vx + vy * vy + vz * vz)
-        (sxx, _, _), (_, syy, _), (_, _, szz) = vcov.tolist()
+        (sxx, _, sxz), (_, syy, _), (_, _, szz) = vcov.tolist()
         spd_sigma = (
             math.sqrt(kalman.quadratic3(vel, vcov)) / spd if spd > 0 else math.sqrt(sxx + syy + szz)
         )
+        ground = math.hypot(vx, vz)
+        heading_sigma = motion.heading_sigma_deg(vx, vz, math.sqrt(sxx), math.sqrt(szz), sxz)
+        across = math.radians(heading_sigma) * ground if ground > 0 else math.inf
         confirmed = self._confirmed(tr)
-        precise = spd_sigma <= max(p.valid_speed_sigma_mps, p.valid_speed_sigma_rel * spd)
-        valid = started and confirmed and precise
+        bound = max(p.valid_speed_sigma_mps, p.valid_speed_sigma_rel * spd)
+        valid = started and confirmed and spd_sigma <= bound
+        heading_valid = valid and across <= bound
         if valid and spd > max(p.stationary_mps, 3.0 * spd_sigma):
             tr.last_moving_ns = t_ns
         still_for = None if tr.last_moving_ns is None else (t_ns - tr.last_moving_ns) * 1e-9
@@ -763,10 +775,11 @@ class Tracker:
             velocity_mps=vel,
             velocity_cov=vcov,
             velocity_valid=valid,
+            heading_valid=heading_valid,
             speed_mps=spd,
             speed_sigma_mps=spd_sigma,
             heading_deg=motion.heading_deg(vx, vz),
-            heading_sigma_deg=motion.heading_sigma_deg(vx, vz, math.sqrt(sxx), math.sqrt(szz)),
+            heading_sigma_deg=heading_sigma,
             raw_velocity_mps=self._raw_velocity(tr),
             age_s=(t_ns - tr.first_t_ns) * 1e-9,
             freeze_background=still_for is not None and not tr.freeze_spent,

@@ -7,8 +7,9 @@ skew wanders between -1/2 and +1/2 frame, per-eye gain, drift, noise). Both give
 true 3D centre and velocity at any instant. The scoring matches every published track state to
 the object it follows and reports, per object:
 
-- heading and speed error: the median over valid estimates in the middle 60 % of the object's
-  time in view of (estimate - truth at that instant);
+- heading and speed error: the median over valid estimates (``heading_valid`` for the heading,
+  ``velocity_valid`` for the speed) in the middle 60 % of the object's time in view of
+  (estimate - truth at that instant);
 - position error as a share of eq. 12's one-pixel depth error at the true depth (median, same
   window);
 - how many confirmed track ids followed it (one is right; two is an id switch), how many
@@ -243,6 +244,7 @@ class ObjectScore:
     first_valid: int | None = None
     """The first of its frames in view with a valid velocity on it."""
     valid_estimates: int = 0
+    """States scored for the heading (the fewer: a heading is valid only with the speed)."""
 
 
 @dataclass
@@ -312,14 +314,16 @@ def score(case: Case, results: list[PairResult]) -> CaseScore:
             err = float(np.linalg.norm(s.position_m - p))
             dp.append(err)
             ratio.append(err / float(rig.depth_error_one_px_m(float(p[2]))))
+            if s.heading_valid:
+                dh.append(angle_diff_deg(s.heading_deg, math.degrees(math.atan2(v[0], v[2]))))
             if s.velocity_valid:
                 speed = float(np.linalg.norm(v))
-                dh.append(angle_diff_deg(s.heading_deg, math.degrees(math.atan2(v[0], v[2]))))
                 ds.append((s.speed_mps - speed) / speed)
         o.valid_estimates = len(dh)
         if dh:
             o.heading_err_deg = float(np.median(dh))
             o.heading_p90_deg = float(np.percentile(np.abs(dh), 90))
+        if ds:
             o.speed_err = float(np.median(ds))
         if dp:
             o.position_err_m = float(np.median(dp))

@@ -61,6 +61,16 @@ def test_an_older_reader_ignores_fields_it_does_not_know() -> None:
     assert json.loads(msg.model_dump_json(by_alias=True)) == sample
 
 
+def test_a_message_from_an_older_daemon_has_no_valid_heading() -> None:
+    """``heading_valid`` was added to ``stereod.object/1``: a daemon that predates it sends
+    none, and a reader takes the heading as not known rather than refusing the message."""
+    sample = json.loads((Path(__file__).parent / "golden" / "objects_example.json").read_text())
+    sample["objects"][0]["velocity_valid"] = True
+    del sample["objects"][0]["heading_valid"]
+    msg = ObjectsMessage.model_validate_json(json.dumps(sample))
+    assert msg.objects[0].velocity_valid and not msg.objects[0].heading_valid
+
+
 def test_writers_stay_strict() -> None:
     """The producer validates what it emits: a wrong type or a missing field is refused."""
     from pydantic import ValidationError

@@ -36,6 +36,20 @@ def test_heading_sigma_first_order_matches_sampling() -> None:
     assert motion.heading_sigma_deg(vx, vz, sx, sz) == pytest.approx(samples.std(), rel=0.03)
 
 
+def test_heading_sigma_counts_the_covariance_of_the_two_components() -> None:
+    """Errors in vx and vz that go together along the velocity move the speed, not the
+    heading: the first-order sigma with their covariance matches sampling, and without it
+    would be twice too large here."""
+    rng = np.random.default_rng(3)
+    vx, vz, sx, sz, rho = 0.6, 0.6, 0.03, 0.03, 0.8
+    cov = np.array([[sx * sx, rho * sx * sz], [rho * sx * sz, sz * sz]])
+    v = rng.multivariate_normal([vx, vz], cov, 200000)
+    samples = np.degrees(np.arctan2(v[:, 0], v[:, 1]))
+    got = motion.heading_sigma_deg(vx, vz, sx, sz, cov[0, 1])
+    assert got == pytest.approx(samples.std(), rel=0.03)
+    assert motion.heading_sigma_deg(vx, vz, sx, sz) > 2.0 * got
+
+
 def test_fit_velocity_exact_on_a_line_and_equals_eq21_for_two_points() -> None:
     t = np.array([0.0, 0.1, 0.25, 0.4])
     v_true = np.array([0.3, -0.1, 0.7])

@@ -37,6 +37,7 @@ def _track(raw: np.ndarray, speed: np.ndarray, sigma: np.ndarray) -> TrackSeries
         t_s=np.arange(n) * 0.1,
         position_m=np.zeros((n, 3)),
         valid=np.ones(n, bool),
+        heading_valid=np.ones(n, bool),
         speed_mps=speed,
         speed_sigma_mps=sigma,
         heading_deg=np.zeros(n),

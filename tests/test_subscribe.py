@@ -28,6 +28,9 @@ def test_valid_velocity_shows_speed_and_heading() -> None:
         velocity_valid=True, velocity_mps=[0.5, 0.0, 0.5], speed_mps=0.7071, heading_deg=45.0
     )
     text = format_sample("stereod/minoru/objects/1", json.dumps(obj).encode())
+    assert "|v| 0.707 m/s" in text and "heading (not yet valid)" in text  # speed known first
+    obj.update(heading_valid=True)
+    text = format_sample("stereod/minoru/objects/1", json.dumps(obj).encode())
     assert "|v| 0.707 m/s" in text and "heading   45.0 deg" in text
 
 

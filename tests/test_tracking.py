@@ -359,6 +359,43 @@ def test_validity_follows_the_speed_sigma(speed: float) -> None:
             assert s.speed_sigma_mps > bound
 
 
+def test_the_heading_is_valid_once_the_sigma_across_the_motion_is_small_too() -> None:
+    """Across the view the speed (along X) is known from the images long before the direction
+    is: it needs the depth's change, which eq. 12 knows far less well (here at 3 m, 1 px of
+    disparity is 25 cm). With the motion along X, the sigma across it on the ground is the
+    velocity's Z sigma, and the heading's sigma in rad is that over the speed."""
+    p = TrackerParams()
+    per_frame = run(Tracker(p), [line([-0.6, 0.0, 3.0], [1.5, 0.0, 0.0])], 30, sigma_px=0.5)
+    speed_first = heading_first = None
+    for k, s in enumerate(f[0] for f in per_frame):
+        bound = max(p.valid_speed_sigma_mps, p.valid_speed_sigma_rel * s.speed_mps)
+        across = float(np.sqrt(s.velocity_cov[2, 2]))
+        if s.velocity_valid and np.linalg.norm(s.velocity_mps[[0, 2]]) > 0:
+            vx, vz = s.velocity_mps[0], s.velocity_mps[2]
+            ground = float(np.hypot(vx, vz))
+            assert np.radians(s.heading_sigma_deg) * ground == pytest.approx(
+                np.sqrt(
+                    vz * vz * s.velocity_cov[0, 0]
+                    + vx * vx * s.velocity_cov[2, 2]
+                    - 2 * vx * vz * s.velocity_cov[0, 2]
+                )
+                / ground,
+                rel=1e-9,
+            )
+            assert s.heading_valid == (np.radians(s.heading_sigma_deg) * ground <= bound)
+            if abs(vz) < 0.01 * abs(vx):
+                assert s.heading_valid == (across <= bound * 1.0001)
+        else:
+            assert not s.heading_valid
+        if s.velocity_valid and speed_first is None:
+            speed_first = k
+        if s.heading_valid and heading_first is None:
+            heading_first = k
+    assert speed_first is not None and heading_first is not None
+    assert heading_first > speed_first  # the speed first, then the direction
+    assert per_frame[-1][0].heading_valid
+
+
 G = np.array([0.0, 9.81, 0.0])
 
 

@@ -83,6 +83,7 @@ def compact(o: ObjectState) -> dict[str, Any]:
         "p": _vec(o.position_m),
         "v": _vec(o.velocity_mps),
         "valid": o.velocity_valid,
+        "heading_valid": o.heading_valid,
         "speed": _num(o.speed_mps),
         "speed_sigma": _num(o.speed_sigma_mps),
         "heading": _num(o.heading_deg),

@@ -214,10 +214,8 @@ function renderList(tracks, chosen) {
     tr.dataset.trackId = t.id;
     tr.dataset.state = t.endedAt === null ? o.state : "ended";
     tr.dataset.valid = o.valid;
-    if (o.valid) {
-      tr.dataset.headingDeg = o.heading.toFixed(2);
-      tr.dataset.speedMps = o.speed.toFixed(3);
-    }
+    if (o.valid) tr.dataset.speedMps = o.speed.toFixed(3);
+    if (o.heading_valid) tr.dataset.headingDeg = o.heading.toFixed(2);
     if (chosen && chosen.id === t.id) tr.classList.add("selected");
     if (t.endedAt !== null) tr.classList.add("ended");
     const sw = `<span class="swatch" style="background:${colour(t.id)}"></span>`;
@@ -226,7 +224,7 @@ function renderList(tracks, chosen) {
       t.endedAt === null ? o.state : "ended",
       o.p.map((x) => fmt(x, 2)).join(", "),
       o.valid ? `${fmt(o.speed, 2)} ± ${fmt(o.speed_sigma, 2)}` : "-",
-      o.valid ? `${fmt(o.heading, 1)} ± ${fmt(o.heading_sigma, 1)}` : "-",
+      o.heading_valid ? `${fmt(o.heading, 1)} ± ${fmt(o.heading_sigma, 1)}` : "-",
     ];
     tr.innerHTML = cells.map((c) => `<td>${c}</td>`).join("");
     tr.addEventListener("click", () => { view.selected = t.id; view.dirty = true; });
@@ -417,13 +415,15 @@ function drawPlot(track) {
   const t = pts.map((p) => p.t);
   const speed = pts.map((p) => p.speed);
   const ssig = pts.map((p) => p.speed_sigma ?? 0);
-  const heading = unwrap(pts.map((p) => p.heading));
-  const hsig = pts.map((p) => Math.min(p.heading_sigma ?? 0, 90));
+  const hpts = pts.filter((p) => p.heading_valid);  // the speed can be known before the heading
+  const ht = hpts.map((p) => p.t);
+  const heading = unwrap(hpts.map((p) => p.heading));
+  const hsig = hpts.map((p) => Math.min(p.heading_sigma ?? 0, 90));
   const raw = pts.filter((p) => p.raw && p.raw[0] !== null && p.raw[2] !== null);
   const rawSpeed = raw.map((p) => [p.t, Math.hypot(p.raw[0], p.raw[1] ?? 0, p.raw[2])]);
-  const rawHeading = raw.map((p, i) => {
+  const rawHeading = raw.map((p) => {
     let a = (Math.atan2(p.raw[0], p.raw[2]) * 180) / Math.PI;
-    const ref = heading[pts.indexOf(p)] ?? heading[i] ?? a;
+    const ref = heading[hpts.indexOf(p)] ?? heading[heading.length - 1] ?? a;
     while (a - ref > 180) a -= 360;
     while (a - ref < -180) a += 360;
     return [p.t, a];
@@ -435,7 +435,7 @@ function drawPlot(track) {
     raw: rawSpeed, colour: col, band, minSpan: 0.2,
   }, "speed", "m/s");
   panel(ctx, { x0: 0, y0: ph + gap, w, h: ph }, {
-    t, y: heading, lo: heading.map((s, i) => s - hsig[i]), hi: heading.map((s, i) => s + hsig[i]),
+    t: ht, y: heading, lo: heading.map((s, i) => s - hsig[i]), hi: heading.map((s, i) => s + hsig[i]),
     raw: rawHeading, colour: col, band, minSpan: 20,
   }, "heading", "deg");
 }
