@@ -1,10 +1,10 @@
 """``stereod record``: write what a source delivers into the recording format (design sec. 6).
 
 A live source is read one thread per eye (a camera cannot wait), a file source in timestamp
-order; frames keep their capture times and sequence numbers, so replaying the recording
-reproduces them exactly (bit for bit with the lossless FFV1 codec). A target that is a symbolic
-link is recorded into where it leads (the link stays), as every output is
-(:mod:`stereod.output_file`).
+order; frames keep their capture times and sequence numbers, and their colour (BGR stays BGR,
+grey stays grey), so replaying the recording reproduces them exactly (bit for bit with the
+lossless FFV1 codec). A target that is a symbolic link is recorded into where it leads (the
+link stays), as every output is (:mod:`stereod.output_file`).
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ def record(
 ) -> dict[str, int]:
     """Record until ``seconds`` of stream time, the end of input or ``stop``; return the frame
     counts per eye. ``out`` must be new (or empty; through a symbolic link, where it leads);
-    it appears only when the recording closes.
+    it appears only when the recording closes. Frames are stored as the source delivers them,
+    BGR or grey (the first frame decides; the manifest's ``color`` says which).
     ``calibration`` is checked as a run would check it, and stored in the manifest.
     ``on_frame`` sees every frame written (progress), one call at a time; ``on_start`` sees
     the opened source and the recording's UTC offset (ns, wall clock minus the frames' clock;
@@ -56,7 +57,7 @@ def record(
             info.height,
             fps=info.fps,
             codec=Codec(codec),
-            color=False,
+            color=None,
             settings=info.settings,
             utc_offset_ns=offset,
             calibration=cal,

@@ -253,6 +253,11 @@ class RecordingWriter:
     of space stops the recording with :class:`~stereod.errors.OutputError`, and so does a
     frame size the video writer cannot store as it is (see :func:`size_problem`), before
     anything is written.
+
+    ``color`` says whether the videos hold BGR (True) or grey (False) frames; a frame of the
+    other kind is converted. ``None`` lets the first frame written decide (BGR stays BGR, grey
+    stays grey), so a recording keeps what its source delivers; the videos are then opened
+    with that frame, and a recording with no frame at all is grey.
     """
 
     def __init__(
@@ -263,7 +268,7 @@ class RecordingWriter:
         *,
         fps: float | None,
         codec: Codec = Codec.FFV1,
-        color: bool = False,
+        color: bool | None = False,
         settings: dict[str, Any] | None = None,
         utc_offset_ns: int | None = None,
         calibration: dict[str, Any] | None = None,
@@ -307,26 +312,13 @@ class RecordingWriter:
         self._ts: dict[Eye, Any] = {}
         self._extra: dict[str, str] = {}
         self._counts = {Eye.LEFT: 0, Eye.RIGHT: 0}
-        self._frame_bytes = width * height * (3 if color else 1)
+        self._size = (height, width)
+        self._codec, self._fps = codec, fps
+        self._frame_bytes = width * height * (1 if color is False else 3)
         self._writes = 0
+        self._closed = False
         try:
-            fourcc = cv2.VideoWriter.fourcc(*_FOURCC[codec])
             for eye in Eye:
-                video = self._tmp / f"{eye.value}{_EXT[codec]}"
-                w = cv2.VideoWriter(
-                    text_path(video, "video", OutputError),
-                    cv2.CAP_FFMPEG,
-                    fourcc,
-                    fps or 30.0,
-                    (width, height),
-                    isColor=color,
-                )
-                if not w.isOpened():
-                    raise OutputError(
-                        f"{directory / video.name}: cannot open for writing with codec "
-                        f"{codec.value}"
-                    )
-                self._writers[eye] = w
                 try:
                     fh = (self._tmp / f"{eye.value}.csv").open("w", newline="")
                     fh.write("t_ns,seq\n")
@@ -335,10 +327,42 @@ class RecordingWriter:
                         f"{directory}: cannot write timestamps: {exc.strerror}"
                     ) from exc
                 self._ts[eye] = fh
+            if color is not None:
+                self._open_videos(color)
         except BaseException:
             self.discard()
             raise
-        self._size = (height, width)
+
+    def _open_videos(self, color: bool) -> None:
+        """Open both eyes' video writers for BGR (``color``) or grey frames; the manifest
+        says which."""
+        height, width = self._size
+        codec = self._codec
+        fourcc = cv2.VideoWriter.fourcc(*_FOURCC[codec])
+        try:
+            for eye in Eye:
+                video = self._tmp / f"{eye.value}{_EXT[codec]}"
+                w = cv2.VideoWriter(
+                    text_path(video, "video", OutputError),
+                    cv2.CAP_FFMPEG,
+                    fourcc,
+                    self._fps or 30.0,
+                    (width, height),
+                    isColor=color,
+                )
+                if not w.isOpened():
+                    raise OutputError(
+                        f"{self.directory / video.name}: cannot open for writing with codec "
+                        f"{codec.value}"
+                    )
+                self._writers[eye] = w
+        except BaseException:
+            for w in self._writers.values():
+                w.release()
+            self._writers.clear()
+            raise
+        self._manifest["color"] = color
+        self._frame_bytes = width * height * (3 if color else 1)
 
     def write(self, frame: Frame) -> None:
         """Append one frame (its pixels, capture time and sequence number)."""
@@ -348,6 +372,8 @@ class RecordingWriter:
                 f"{frame.eye.value} frame is {img.shape[1]}x{img.shape[0]}, recording is "
                 f"{self._size[1]}x{self._size[0]}"
             )
+        if not self._writers:  # the first frame decides: BGR stays BGR, grey stays grey
+            self._open_videos(img.ndim == 3)
         if self._writes % 8 == 0:
             self._check_space()
         self._writes += 1
@@ -387,8 +413,15 @@ class RecordingWriter:
 
     def close(self) -> None:
         """Finish the videos, write the manifest last and move the recording into place."""
-        if not self._writers:
+        if self._closed:
             return
+        self._closed = True
+        try:
+            if not self._writers:  # no frame said BGR or grey: empty videos, grey
+                self._open_videos(False)
+        except BaseException:
+            self.discard()
+            raise
         for w in self._writers.values():
             w.release()
         self._writers.clear()
@@ -417,6 +450,7 @@ class RecordingWriter:
 
     def discard(self) -> None:
         """Drop everything written; ``directory`` stays as it was."""
+        self._closed = True
         for w in self._writers.values():
             w.release()
         self._writers.clear()

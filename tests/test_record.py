@@ -7,6 +7,7 @@ import json
 import re
 import signal
 import subprocess
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -14,18 +15,29 @@ import numpy as np
 import pytest
 
 from stereod.calibration import canonical, save
-from stereod.frames import merged
+from stereod.frames import Eye, Frame, merged
 from stereod.record import record
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Renderer, Scene, SyntheticDriver
+from stereod_fakes.v4l2_kernel import FakeCamera, FakeKernel
+from stereod_v4l2_minoru.driver import MinoruDriver
 
 from .conftest import stereod
 from .processes import start_stereod
 from .test_replay import mcap_messages, wait_for
 
 
-def test_replay_reproduces_recorded_frames_and_timestamps(tmp_path: Path) -> None:
-    scene = {"duration_s": 1.0, "fps": 10, "skew_s": 0.013, "width_px": 160, "height_px": 120}
+@pytest.mark.parametrize("color", [False, True])
+def test_replay_reproduces_recorded_frames_and_timestamps(tmp_path: Path, color: bool) -> None:
+    """Grey frames stay grey and BGR frames stay BGR, bit for bit, and the manifest says which."""
+    scene = {
+        "duration_s": 1.0,
+        "fps": 10,
+        "skew_s": 0.013,
+        "width_px": 160,
+        "height_px": 120,
+        "color": color,
+    }
     cal = tmp_path / "cal.json"
     save(canonical(0.06, 60.0, 160, 120), cal)
     counts = record(SyntheticDriver(scene), tmp_path / "rec", calibration=cal)
@@ -40,6 +52,7 @@ def test_replay_reproduces_recorded_frames_and_timestamps(tmp_path: Path) -> Non
         assert np.array_equal(g.image, want.image), f"{g.eye} frame {g.seq} differs"
     man = json.loads((tmp_path / "rec" / "recording.json").read_text())
     assert man["calibration"] == json.loads(cal.read_text())
+    assert man["color"] is color
 
 
 def test_live_record_stops_after_seconds(tmp_path: Path) -> None:
@@ -116,6 +129,42 @@ def test_a_full_disk_stops_the_recording_and_keeps_what_was_recorded(
         str(quiet),
     )
     assert replay.returncode == 0, replay.stderr
+
+
+def test_a_v4l2_camera_is_recorded_in_colour(tmp_path: Path) -> None:
+    """The V4L2 driver delivers BGR by default: the recording keeps it, says so, and replays
+    the very frames the camera gave (the fake kernel gives every run the same frames)."""
+    opts = {"left": "/dev/fake0", "right": "/dev/fake1", "width": 64, "height": 48, "fps": 30}
+
+    def camera() -> MinoruDriver:
+        return MinoruDriver(
+            opts, io=FakeKernel({"/dev/fake0": FakeCamera(), "/dev/fake1": FakeCamera()})
+        )
+
+    # The fake kernel has every frame ready at once: stop once both eyes have a few.
+    stop, seen = threading.Event(), {Eye.LEFT: 0, Eye.RIGHT: 0}
+
+    def count(frame: Frame) -> None:
+        seen[frame.eye] += 1
+        if min(seen.values()) >= 3:
+            stop.set()
+
+    out = tmp_path / "rec"
+    counts = record(camera(), out, stop=stop, on_frame=count)
+    assert json.loads((out / "recording.json").read_text())["color"] is True
+    live = camera().open()
+    try:
+        with ReplayDriver({"path": out}).open() as replay:
+            for got_eye, live_eye in ((replay.left, live.left), (replay.right, live.right)):
+                n = 0
+                while (got := got_eye.read()) is not None:
+                    want = live_eye.read()
+                    assert want is not None and got.image.shape == (48, 64, 3)
+                    assert got.seq == want.seq and np.array_equal(got.image, want.image)
+                    n += 1
+                assert n == counts[got_eye.eye.value] >= 3
+    finally:
+        live.close()
 
 
 def synthetic_config(path: Path, **options: object) -> Path:

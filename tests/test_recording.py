@@ -136,6 +136,32 @@ def test_a_newer_manifest_with_fields_this_version_does_not_know_is_read(
         read_manifest(tmp_path / "rec")
 
 
+@pytest.mark.parametrize("color", [False, True])
+def test_a_writer_left_to_decide_keeps_what_the_first_frame_is(tmp_path: Path, color: bool) -> None:
+    """``color=None``: BGR frames are stored as BGR, grey as grey, bit for bit, and the manifest
+    says which; a recording that got no frame is grey."""
+    frames = random_frames(3, color)
+    with RecordingWriter(tmp_path / "rec", 64, 48, fps=30.0, color=None) as w:
+        for left, right in frames:
+            w.write(left)
+            w.write(right)
+    assert read_manifest(tmp_path / "rec").color is color
+    with ReplayDriver({"path": tmp_path / "rec"}).open() as src:
+        got = [src.left.read() for _ in frames]
+    assert all(g is not None and np.array_equal(g.image, f.image) for g, (f, _) in zip(got, frames))
+    with RecordingWriter(tmp_path / "empty", 64, 48, fps=30.0, color=None):
+        pass
+    man = read_manifest(tmp_path / "empty")
+    assert (man.color, man.left.frames) == (False, 0)
+    assert sorted(p.name for p in (tmp_path / "empty").iterdir()) == [
+        "left.csv",
+        "left.mkv",
+        "recording.json",
+        "right.csv",
+        "right.mkv",
+    ]
+
+
 @pytest.mark.parametrize("codec", list(Codec))
 def test_writer_refuses_an_odd_size_before_writing(tmp_path: Path, codec: Codec) -> None:
     with pytest.raises(OutputError, match=r"65x48 px cannot be recorded: .* such as 64x48"):
