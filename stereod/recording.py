@@ -369,8 +369,9 @@ class RecordingWriter:
         img = frame.image
         if img.shape[:2] != self._size:
             raise InputError(
-                f"{frame.eye.value} frame is {img.shape[1]}x{img.shape[0]}, recording is "
-                f"{self._size[1]}x{self._size[0]}"
+                f"{frame.eye.value} frame {frame.seq} is {img.shape[1]}x{img.shape[0]} px, the "
+                f"recording {self.directory} is {self._size[1]}x{self._size[0]} px: its source "
+                f"changed the frame size; recording stopped, {self._kept()}"
             )
         if not self._writers:  # the first frame decides: BGR stays BGR, grey stays grey
             self._open_videos(img.ndim == 3)
@@ -396,11 +397,14 @@ class RecordingWriter:
             return
         free = st.f_bavail * st.f_frsize
         if free < MIN_FREE_BYTES + 16 * self._frame_bytes:
-            kept = "the frames recorded so far were kept" if self.frames else "nothing written"
             raise OutputError(
                 f"{self.directory}: the disk is full ({free // 2**20} MiB free); recording "
-                f"stopped, {kept}"
+                f"stopped, {self._kept()}"
             )
+
+    def _kept(self) -> str:
+        """What a failure now leaves (see :meth:`__exit__`), for its message."""
+        return "the frames recorded so far were kept" if self.frames else "nothing written"
 
     def write_text(self, name: str, text: str) -> None:
         """Add a small text file (``truth.json``) to the recording, moved into place with it."""

@@ -14,8 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import stereod.cli.record as record_command
 from stereod.calibration import canonical, save
-from stereod.frames import Eye, Frame, merged
+from stereod.cli import main
+from stereod.errors import InputError, InternalError, StereodError
+from stereod.frames import Driver, Eye, EyeSource, Frame, StereoSource, merged
 from stereod.record import record
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Renderer, Scene, SyntheticDriver
@@ -24,7 +27,7 @@ from stereod_v4l2_minoru.driver import MinoruDriver
 
 from .conftest import stereod
 from .processes import start_stereod
-from .test_replay import mcap_messages, wait_for
+from .test_replay import mcap_messages, temporaries, wait_for
 
 
 @pytest.mark.parametrize("color", [False, True])
@@ -129,6 +132,152 @@ def test_a_full_disk_stops_the_recording_and_keeps_what_was_recorded(
         str(quiet),
     )
     assert replay.returncode == 0, replay.stderr
+
+
+def test_a_full_disk_stops_a_live_recording_with_73_and_no_success(
+    tmp_path: Path, small_disk: Path
+) -> None:
+    """A camera-like source (one thread per eye) filling the disk: both eyes stop, the error
+    is one line and exit 73, nothing on stdout says "recorded" and the --mcap is not written;
+    the frames recorded so far are kept, the manifest counting exactly those."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(  # noisy frames do not compress: about 100 KB each in FFV1
+        '[driver]\nname = "synthetic"\n[driver.options]\nduration_s = 60\nfps = 30\n'
+        "width_px = 320\nheight_px = 240\nnoise_sigma = 30\nlive = true\n"
+    )
+    out, cams = small_disk / "rec", tmp_path / "cams.mcap"
+    res = stereod("record", str(out), "--config", str(cfg), "--mcap", str(cams))
+    assert res.returncode == 73, res.stderr
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1 and "the disk is full" in lines[0], res.stderr
+    assert "frames recorded so far were kept" in lines[0]
+    assert res.stdout == ""
+    assert not cams.exists() and temporaries(tmp_path) == []
+    assert [p.name for p in small_disk.iterdir()] == ["rec"]
+    man = json.loads((out / "recording.json").read_text())
+    for eye in ("left", "right"):
+        rows = (out / f"{eye}.csv").read_text().splitlines()[1:]
+        assert 0 < man[eye]["frames"] == len(rows) < 1800
+    assert abs(man["left"]["frames"] - man["right"]["frames"]) <= 3, man
+
+
+class _FaultyEye(EyeSource):
+    """An eye of another source whose read number ``at`` (from 0) fails: it raises ``fault``,
+    or, when ``fault`` is a (height, width), delivers a frame of that size instead."""
+
+    def __init__(self, inner: EyeSource, fault: BaseException | tuple[int, int], at: int) -> None:
+        self.eye = inner.eye
+        self._inner, self._fault, self._at, self._k = inner, fault, at, 0
+
+    def read(self) -> Frame | None:
+        frame = self._inner.read()
+        k, self._k = self._k, self._k + 1
+        if frame is None or k != self._at:
+            return frame
+        if isinstance(self._fault, BaseException):
+            raise self._fault
+        return Frame(frame.eye, np.zeros(self._fault, np.uint8), frame.t_ns, frame.seq)
+
+    def interrupt(self) -> None:
+        self._inner.interrupt()
+
+    def close(self) -> None:
+        self._inner.close()
+
+
+class FaultyDriver(Driver):
+    """The synthetic driver playing a 6 s scene live at 20 Hz (one thread per eye, as a
+    camera), whose left eye fails at its frame 10 (see :class:`_FaultyEye`)."""
+
+    name = "faulty"
+
+    def __init__(self, fault: BaseException | tuple[int, int]) -> None:
+        self.fault = fault
+        self.inner = SyntheticDriver(
+            {"duration_s": 6.0, "fps": 20, "width_px": 80, "height_px": 60, "live": True}
+        )
+
+    def open(self) -> StereoSource:
+        src = self.inner.open()
+        return StereoSource(_FaultyEye(src.left, self.fault, 10), src.right, src.info)
+
+
+FAULTS = [
+    pytest.param((30, 40), InputError, "left frame 10 is 40x30 px", id="wrong-size"),
+    pytest.param(
+        RuntimeError("decoder crashed"),
+        InternalError,
+        "internal error while recording the left eye: RuntimeError: decoder crashed",
+        id="read-raises",
+    ),
+]
+
+
+def recorded_frames(out: Path) -> dict[str, int]:
+    """Frames per eye in the recording ``out``, checked against its timestamp files."""
+    man = json.loads((out / "recording.json").read_text())
+    for eye in ("left", "right"):
+        assert man[eye]["frames"] == len((out / f"{eye}.csv").read_text().splitlines()) - 1
+    return {eye: man[eye]["frames"] for eye in ("left", "right")}
+
+
+@pytest.mark.parametrize(("fault", "error", "said"), FAULTS)
+def test_a_failing_eye_stops_both_and_is_raised(
+    tmp_path: Path, fault: BaseException | tuple[int, int], error: type[StereodError], said: str
+) -> None:
+    """One eye's failure, whatever it is, stops the other eye at once (not 110 frames later,
+    at the scene's end) and is raised from record(); a bug is a one-line InternalError naming
+    the eye, with the original as its cause. The frames written before it are kept."""
+    out = tmp_path / "rec"
+    with pytest.raises(error, match=re.escape(said)) as got:
+        record(FaultyDriver(fault), out)
+    assert "recording stopped, the frames recorded so far were kept" in str(got.value)
+    if error is InternalError:
+        assert got.value.__cause__ is fault
+    counts = recorded_frames(out)
+    assert counts["left"] == 10 and 0 < counts["right"] <= 13, counts
+
+
+@pytest.fixture
+def own_signals() -> Iterator[None]:
+    """The handlers of the signals a command sets in this process, given back after the test."""
+    signums = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    saved = {s: signal.getsignal(s) for s in signums}
+    yield
+    for s, handler in saved.items():
+        signal.signal(s, handler)
+
+
+@pytest.mark.parametrize(
+    ("fault", "code"),
+    [pytest.param((30, 40), 65, id="wrong-size"), pytest.param(RuntimeError("x"), 70, id="bug")],
+)
+def test_a_failing_eye_ends_the_record_command_with_its_code(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    own_signals: None,
+    fault: BaseException | tuple[int, int],
+    code: int,
+) -> None:
+    """The command exits with the eye's error's code in one line (a bug's names its crash log,
+    with the eye thread's traceback), prints no summary and writes no --mcap."""
+    monkeypatch.setenv("STEREOD_CRASH_DIR", str(tmp_path))
+    monkeypatch.setattr(record_command, "load_driver", lambda *_, **__: FaultyDriver(fault))
+    cfg = synthetic_config(tmp_path / "c.toml", duration_s=1)
+    out, cams = tmp_path / "rec", tmp_path / "cams.mcap"
+    assert main(["record", str(out), "--config", str(cfg), "--mcap", str(cams)]) == code
+    printed = capsys.readouterr()
+    lines = printed.err.splitlines()
+    assert len(lines) == 1 and "left" in lines[0], printed.err
+    assert printed.out == ""
+    assert not cams.exists() and temporaries(tmp_path) == []
+    assert recorded_frames(out)["left"] == 10
+    if code == 70:
+        log = re.search(r"details in (\S+);", lines[0])
+        assert log, lines[0]
+        text = Path(log.group(1)).read_text()
+        assert "RuntimeError: x" in text and "in eye_loop" in text  # the eye thread's traceback
 
 
 def test_a_v4l2_camera_is_recorded_in_colour(tmp_path: Path) -> None:

@@ -162,6 +162,20 @@ def test_a_writer_left_to_decide_keeps_what_the_first_frame_is(tmp_path: Path, c
     ]
 
 
+def test_a_frame_of_another_size_names_the_eye_frame_and_what_was_kept(tmp_path: Path) -> None:
+    (left, right), (bad, _) = random_frames(2, False)
+    bad = Frame(Eye.LEFT, bad.image[:24, :32], bad.t_ns, bad.seq)
+    with pytest.raises(InputError) as got, RecordingWriter(tmp_path / "rec", 64, 48, fps=30.0) as w:
+        w.write(left)
+        w.write(right)
+        w.write(bad)
+    assert str(got.value) == (
+        f"left frame 101 is 32x24 px, the recording {tmp_path / 'rec'} is 64x48 px: its source "
+        "changed the frame size; recording stopped, the frames recorded so far were kept"
+    )
+    assert (read_manifest(tmp_path / "rec").left.frames, len(list(tmp_path.iterdir()))) == (1, 1)
+
+
 @pytest.mark.parametrize("codec", list(Codec))
 def test_writer_refuses_an_odd_size_before_writing(tmp_path: Path, codec: Codec) -> None:
     with pytest.raises(OutputError, match=r"65x48 px cannot be recorded: .* such as 64x48"):

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from .. import __version__
-from ..errors import EX_SOFTWARE, EX_USAGE, ReaderGone, StereodError, one_line
+from ..errors import EX_SOFTWARE, EX_USAGE, InternalError, ReaderGone, StereodError, one_line
 from .common import EPILOG_KEYS, quiet_third_party
 
 GROUP = "stereod.commands"
@@ -106,7 +106,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except StereodError as exc:
         if isinstance(exc, ReaderGone) and exc.stdout:  # `--jsonl /dev/stdout | head`
             return 0  # as for stdout's own reader below
-        print(f"stereod: {one_line(str(exc))}", file=sys.stderr)
+        line = one_line(str(exc))
+        if isinstance(exc, InternalError) and exc.__cause__ is not None:
+            # An unexpected exception another thread caught and named: its traceback too.
+            line += f" ({_details(exc)})"
+        print(f"stereod: {line}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         return 130
@@ -115,14 +119,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         sys.stderr.close()
         return 0
     except Exception as exc:  # the last guard: one line, the details in a file
-        path = crash_log(exc)
-        where = f"details in {path}" if path else "and the details could not be written"
         print(
             f"stereod: internal error: {type(exc).__name__}: {one_line(str(exc))[:200]} "
-            f"({where}; please report it)",
+            f"({_details(exc)})",
             file=sys.stderr,
         )
         return EX_SOFTWARE
+
+
+def _details(exc: BaseException) -> str:
+    """Where the traceback of an unexpected ``exc`` went (its crash log), for its one line."""
+    path = crash_log(exc)
+    where = f"details in {path}" if path else "and the details could not be written"
+    return f"{where}; please report it"
 
 
 if __name__ == "__main__":

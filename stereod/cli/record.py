@@ -2,8 +2,9 @@
 
 Ctrl-C and SIGTERM are how a recording without ``--seconds`` ends, so they end it normally: the
 frames recorded so far are kept, the ``--mcap`` file is written with them, the summary says
-which signal stopped it, and the exit code is 0. The recording directory is always new, so
-nothing that was there is replaced.
+which signal stopped it, and the exit code is 0. A failure of either eye ends it with that
+error instead (:mod:`stereod.record`): no summary, no ``--mcap``, the error's exit code. The
+recording directory is always new, so nothing that was there is replaced.
 """
 
 from __future__ import annotations
