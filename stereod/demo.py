@@ -162,7 +162,12 @@ def run_demo(
                 from .view.server import ViewServer  # aiohttp only when asked for
 
                 page = stack.enter_context(
-                    ViewServer(ZenohConfig(connect=[endpoint]), rig=cfg.rig.name, port=view_port)
+                    ViewServer(
+                        ZenohConfig(connect=[endpoint]),
+                        rig=cfg.rig.name,
+                        port=view_port,
+                        port_flag="--view-port",
+                    )
                 )
                 print(
                     f"view: open {page.url} in a browser; the scene plays once it is open "

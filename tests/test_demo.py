@@ -17,7 +17,7 @@ import pytest
 
 from stereod.demo import DEMO_PORT, free_tcp_port, run_demo
 from stereod.motion import angle_diff_deg
-from tests.processes import start_stereod
+from tests.processes import run_stereod, start_stereod
 
 
 def test_angle_difference_wraps() -> None:
@@ -150,3 +150,20 @@ def test_a_port_left_in_time_wait_is_free_for_the_demo() -> None:
         conn.close()  # the server side closes first: it keeps the TIME_WAIT
         client.close()
     assert free_tcp_port(port) == port
+
+
+def test_demo_view_on_a_port_in_use_names_its_own_flag(tmp_path: Path) -> None:
+    """``stereod demo --view`` on a port another program serves: one line naming the flag the
+    demo has (``--view-port``, not view's ``--port``), exit 69 (unavailable, as a Zenoh
+    endpoint in use is: a busy port is no configuration error), the scene's folder gone."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        res = run_stereod("demo", "--view", "--view-port", str(port), env={"TMPDIR": str(tmp_path)})
+    lines = res.stderr.splitlines()
+    assert res.returncode == 69, res.stderr
+    assert len(lines) == 1 and f"127.0.0.1:{port}" in lines[0], res.stderr
+    assert "pick another port with --view-port, or --view-port 0" in lines[0]
+    assert "with --port" not in lines[0]
+    assert not list(tmp_path.glob("stereod-demo-*"))

@@ -26,7 +26,7 @@ from scipy.spatial.transform import Rotation
 
 from stereod.config import load_config
 from stereod.daemon import Daemon
-from stereod.errors import ConfigError
+from stereod.errors import UnavailableError
 from stereod.overlay import HEADER_PX
 from stereod.view.foxglove import FoxgloveBridge
 from stereod_fakes.synth import Ball, Scene, SyntheticDriver
@@ -263,7 +263,7 @@ def test_port_in_use_is_one_line(session_client: Any) -> None:
     _, bridge = session_client
     with (
         zenoh.open(zenoh_config()) as session,
-        pytest.raises(ConfigError, match=f"127.0.0.1:{bridge.port}.*--foxglove-port") as exc,
+        pytest.raises(UnavailableError, match=f"127.0.0.1:{bridge.port}.*--foxglove-port") as exc,
     ):
         FoxgloveBridge(session, port=bridge.port).start()
     assert "\n" not in str(exc.value)
@@ -271,7 +271,7 @@ def test_port_in_use_is_one_line(session_client: Any) -> None:
 
 def test_view_command_serves_foxglove(endpoint: str, listener: zenoh.Session) -> None:
     """``stereod view --foxglove`` prints the WebSocket address; a Foxglove client is told the
-    channels there; the same port again is one line and exit 78; Ctrl-C stops it with 0."""
+    channels there; the same port again is one line and exit 69; Ctrl-C stops it with 0."""
     proc = start_stereod(
         "view", "--port", "0", "--foxglove", "--foxglove-port", "0", "--connect", endpoint
     )
@@ -294,7 +294,7 @@ def test_view_command_serves_foxglove(endpoint: str, listener: zenoh.Session) ->
             "view", "--port", "0", "--foxglove", "--foxglove-port", port, "--connect", endpoint,
             timeout=60,
         )  # fmt: skip
-        assert busy.returncode == 78, busy.stderr
+        assert busy.returncode == 69, busy.stderr
         assert busy.stderr.count("\n") == 1 and f"127.0.0.1:{port}" in busy.stderr
     finally:
         proc.send_signal(signal.SIGINT)

@@ -54,7 +54,7 @@ from ..client import (
     subscribe_images,
     subscribe_objects,
 )
-from ..errors import ConfigError, NotInstalledError, StereodError
+from ..errors import ConfigError, NotInstalledError, StereodError, UnavailableError
 from ..export_mcap import RosMessage, RosMessages, cdr_encoder, ros2_msgdef
 from ..frames import Eye
 from ..messages import CanonicalGeometry
@@ -140,8 +140,9 @@ class FoxgloveBridge:
     # -- life ----------------------------------------------------------------------------------
 
     def start(self) -> FoxgloveBridge:
-        """Start the server and subscribe to the rig; :class:`ConfigError` when the address
-        cannot be bound, :class:`NotInstalledError` without foxglove-sdk."""
+        """Start the server and subscribe to the rig; :class:`UnavailableError` when the port
+        is in use, :class:`ConfigError` when the address cannot be bound otherwise,
+        :class:`NotInstalledError` without foxglove-sdk."""
         try:
             import foxglove
         except ImportError as exc:
@@ -171,10 +172,13 @@ class FoxgloveBridge:
         except RuntimeError as exc:
             self._close_channels()
             reason = str(exc).removeprefix("FoxgloveError: ")
-            raise ConfigError(
+            text = (
                 f"foxglove: cannot serve on {self.host}:{self.port}: {reason} (pick another "
                 "with --foxglove-port, or 0 for any free one)"
-            ) from exc
+            )
+            if "Address already in use" in reason:  # taken now, maybe free later
+                raise UnavailableError(text) from exc
+            raise ConfigError(text) from exc
         self.port = int(self._server.port)
         self._subs.append(
             subscribe_objects(self.session, self._on_event, rig=self.rig, prefix=self.prefix)

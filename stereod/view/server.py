@@ -49,7 +49,7 @@ from ..client import (
     subscribe_status,
 )
 from ..config import ZenohConfig
-from ..errors import ConfigError
+from ..errors import ConfigError, UnavailableError
 from ..messages import CanonicalGeometry, ObjectState, StatusMessage
 from ..publish import close_session, open_session
 
@@ -213,7 +213,9 @@ def _image_message(image: Image) -> dict[str, Any]:
 class ViewServer:
     """The view of one rig: a Zenoh session and a web server on ``host:port`` (0: any free
     port), both run until :meth:`stop`. Use :meth:`start` (returns once the page is served)
-    or as a context manager."""
+    or as a context manager. ``port_flag`` is the flag that sets the port on the command that
+    serves the page (``--port`` for ``stereod view``, ``--view-port`` for ``stereod demo``):
+    the error for a port that cannot be bound names it."""
 
     def __init__(
         self,
@@ -222,8 +224,10 @@ class ViewServer:
         rig: str = keys.DEFAULT_RIG,
         host: str = "127.0.0.1",
         port: int = 8765,
+        port_flag: str = "--port",
     ) -> None:
         self.zenoh_cfg = zenoh_cfg
+        self.port_flag = port_flag
         self.hub = ViewHub(rig, zenoh_cfg.prefix)
         self.host = host
         self.port = port
@@ -253,8 +257,9 @@ class ViewServer:
     # -- life ----------------------------------------------------------------------------------
 
     def start(self) -> ViewServer:
-        """Open the session, subscribe, serve the page; raise :class:`ConfigError` when the
-        address cannot be bound."""
+        """Open the session, subscribe, serve the page; raise :class:`UnavailableError` when
+        the port is in use (another program serves there), :class:`ConfigError` when the
+        address cannot be bound otherwise (a host that is not this machine's)."""
         self._thread = threading.Thread(target=self._serve, name="view-http", daemon=True)
         self._thread.start()
         self._ready.wait()
@@ -262,14 +267,19 @@ class ViewServer:
             self._thread.join()
             err = self._error
             if isinstance(err, OSError):
+                where = f"view: cannot serve on {self.host}:{self.port}: {err.strerror or err}"
+                flag = self.port_flag
+                if err.errno == errno.EADDRINUSE:  # taken now, maybe free later
+                    raise UnavailableError(
+                        f"{where} (another program serves there; pick another port with "
+                        f"{flag}, or {flag} 0 for any free one)"
+                    ) from err
                 hint = (
                     "check --host: a name or address of this machine"
                     if isinstance(err, socket.gaierror) or err.errno == errno.EADDRNOTAVAIL
-                    else "pick another with --port, or --port 0 for any free one"
+                    else f"pick another with {flag}, or {flag} 0 for any free one"
                 )
-                raise ConfigError(
-                    f"view: cannot serve on {self.host}:{self.port}: {err.strerror or err} ({hint})"
-                ) from err
+                raise ConfigError(f"{where} ({hint})") from err
             raise err
         hub = self.hub
         try:
