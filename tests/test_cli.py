@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from stereod.cli import main
 from stereod.motion import angle_diff_deg, circular_median_deg
 from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
 from tests.processes import start_stereod, stereod_command
@@ -299,6 +300,52 @@ def one_line_error(res: subprocess.CompletedProcess[str], code: int, pattern: st
     assert "Traceback" not in res.stderr, res.stderr
     assert len(lines) == 1 and lines[0].startswith("stereod"), res.stderr
     assert __import__("re").search(pattern, lines[0]), lines[0]
+
+
+def error_in_process(
+    capsys: pytest.CaptureFixture[str], argv: list[str], code: int, pattern: str
+) -> str:
+    """``stereod ARGV`` run in this process must end with ``code`` and one stderr line
+    matching ``pattern`` (for mistakes found before anything starts); that line."""
+    try:
+        got = main(argv)
+    except SystemExit as exc:  # the parser's own errors
+        got = exc.code  # type: ignore[assignment]
+    err = capsys.readouterr().err
+    assert got == code, (got, err)
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("stereod"), err
+    assert __import__("re").search(pattern, lines[0]), lines[0]
+    return lines[0]
+
+
+def test_plain_video_flag_mistakes_are_usage_errors_naming_the_flags(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """Plain-video flags that make no input are a bad command line (64) naming the flags; the
+    same mistake in a config file stays a configuration error (78) naming its fields."""
+    videos = ["--left-video", "L.mkv", "--right-video", "R.mkv"]
+    for argv, pattern in (
+        (["--left-video", "L.mkv", "--fps", "15"], "--left-video needs --right-video"),
+        (["--right-video", "R.mkv", "--fps", "15"], "--right-video needs --left-video"),
+        ([*videos, "--left-ts", "A"], "--left-ts needs --right-ts"),
+        ([*videos, "--right-ts", "B"], "--right-ts needs --left-ts"),
+        (
+            [*videos, "--left-ts", "A", "--right-ts", "B", "--fps", "30"],
+            "--fps and --left-ts/--right-ts are exclusive",
+        ),
+        (videos, "give --fps HZ or --left-ts/--right-ts"),
+    ):
+        line = error_in_process(capsys, ["replay", *argv], 64, pattern)
+        assert "left_video" not in line and "driver.options" not in line, line
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[driver]\nname = "replay"\n[driver.options]\nleft_video = "L.mkv"\nfps = 15\n')
+    error_in_process(
+        capsys,
+        ["run", "--check", "--config", str(cfg)],
+        78,
+        "driver.options: plain videos need both left_video and right_video",
+    )
 
 
 def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:

@@ -115,6 +115,7 @@ def driver_options(a: argparse.Namespace) -> dict[str, Any]:
             raise UsageError("give a recording directory or --left-video/--right-video, not both")
         options = {"path": a.recording}
     elif a.left_video or a.right_video:
+        plain_video_flags(a)
         options = {
             "left_video": a.left_video,
             "right_video": a.right_video,
@@ -131,6 +132,28 @@ def driver_options(a: argparse.Namespace) -> dict[str, Any]:
     if a.loop:
         options["loop"] = True
     return options
+
+
+def plain_video_flags(a: argparse.Namespace) -> None:
+    """Refuse plain-video flags that do not make one input, naming the flags (the driver
+    names its config fields instead, for the same mistake in a config file)."""
+    if a.right_video is None:
+        raise UsageError("--left-video needs --right-video too: plain videos are one per eye")
+    if a.left_video is None:
+        raise UsageError("--right-video needs --left-video too: plain videos are one per eye")
+    if a.left_ts is not None and a.right_ts is None:
+        raise UsageError("--left-ts needs --right-ts too: capture times are one file per eye")
+    if a.right_ts is not None and a.left_ts is None:
+        raise UsageError("--right-ts needs --left-ts too: capture times are one file per eye")
+    if a.left_ts is not None and a.fps is not None:
+        raise UsageError(
+            "--fps and --left-ts/--right-ts are exclusive: give --fps HZ (frame i at i / fps) "
+            "or the two timestamp files, not both"
+        )
+    if a.left_ts is None and a.fps is None:
+        raise UsageError(
+            "plain videos need their capture times: give --fps HZ or --left-ts/--right-ts CSV"
+        )
 
 
 def run(a: argparse.Namespace) -> int:
