@@ -120,6 +120,10 @@ def read_manifest(directory: Path) -> Manifest:
     except (FileNotFoundError, NotADirectoryError) as exc:
         if not os.path.exists(directory):
             raise MissingInputError(f"{directory}: no such recording directory") from exc
+        if directory.name == MANIFEST and os.path.isfile(directory):
+            raise MissingInputError(
+                f"{directory}: that is a recording's manifest; give its folder, {directory.parent}"
+            ) from exc
         raise MissingInputError(
             f"{directory}: not a recording ({MANIFEST} missing); for plain videos use "
             "--left-video/--right-video"
@@ -135,6 +139,14 @@ def read_manifest(directory: Path) -> Manifest:
         _check_readable(directory / files.video, "video file")
         _check_readable(directory / files.timestamps, "timestamp file")
     return man
+
+
+def recording_folder(path: Path) -> Path:
+    """The recording ``path`` names: the folder itself, or the folder of the manifest file
+    ``path`` names (``out/scene/recording.json`` is the recording ``out/scene``)."""
+    if path.name == MANIFEST and os.path.isfile(path):
+        return path.parent
+    return path
 
 
 def recording_files(directory: Path) -> list[Path]:

@@ -348,6 +348,27 @@ def test_plain_video_flag_mistakes_are_usage_errors_naming_the_flags(
     )
 
 
+def test_a_recording_named_by_its_manifest_plays_as_its_folder(
+    scene_dir: tuple[Scene, Path], tmp_path: Path
+) -> None:
+    """``stereod replay REC/recording.json`` plays the recording REC, as ``--help`` says; a
+    config file whose driver path names the manifest is told to name the folder."""
+    scene, rec = scene_dir
+    jsonl = tmp_path / "run.jsonl"
+    manifest = rec / "recording.json"
+    res = stereod("replay", str(manifest), "--rate", "0", "--jsonl", str(jsonl), "-q")
+    assert res.returncode == 0, res.stderr
+    assert jsonl.read_text().count("\n") == scene.n_frames
+    assert "recording.json names it too" in stereod("replay", "--help").stdout
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'[driver]\nname = "replay"\n[driver.options]\npath = "{manifest}"\n')
+    one_line_error(
+        stereod("run", "--config", str(cfg), "--rate", "0"),
+        66,
+        f"recording.json: that is a recording's manifest; give its folder, {rec}$",
+    )
+
+
 def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
     one_line_error(stereod("replay", str(tmp_path / "nope")), 66, "no such recording directory")
     junk = tmp_path / "junk.avi"

@@ -13,7 +13,7 @@ from ..drivers import load_driver
 from ..frames import merged
 from ..output_file import check_not_input, stopped_by_signals
 from ..progress import Progress
-from .common import add_config, add_driver, number, path_arg, size_arg
+from .common import add_config, add_driver, number, path_arg, recording_arg, size_arg
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -103,9 +103,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_driver(live)
     live.add_argument(
         "--recording",
-        type=path_arg,
+        type=recording_arg,
         metavar="DIR",
-        help="shorthand for the replay driver on this recording",
+        help="shorthand for the replay driver on this recording (its folder, or its "
+        "recording.json)",
     )
     p.set_defaults(func=run)
 

@@ -78,6 +78,14 @@ def path_arg(text: str) -> Path:
     return Path(text)
 
 
+def recording_arg(text: str) -> Path:
+    """An argparse type: a recording, named by its folder or by its manifest file
+    (``rec/recording.json`` is the recording ``rec``)."""
+    from ..recording import recording_folder
+
+    return recording_folder(path_arg(text))
+
+
 def add_rate(p: argparse.ArgumentParser, help_text: str) -> None:
     p.add_argument("--rate", type=number(0.0, 1000.0), default=1.0, metavar="X", help=help_text)
 

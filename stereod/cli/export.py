@@ -14,7 +14,14 @@ from ..errors import ConfigError
 from ..export_mcap import export_run
 from ..output_file import check_not_input, stopped_by_signals
 from ..recording import recording_files
-from .common import add_canonical_rig, number, path_arg, say, summaries_off_stdout
+from .common import (
+    add_canonical_rig,
+    number,
+    path_arg,
+    recording_arg,
+    say,
+    summaries_off_stdout,
+)
 
 TOPICS = """\
 topics (<rig> from the messages, e.g. minoru):
@@ -45,8 +52,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "recording",
         nargs="?",
-        type=path_arg,
-        help="the run's recording directory (images and per-frame camera_info)",
+        type=recording_arg,
+        help="the run's recording directory (images and per-frame camera_info; its "
+        "recording.json names it too)",
     )
     p.add_argument(
         "--jsonl",

@@ -36,6 +36,7 @@ from .common import (
     number,
     path_arg,
     pipeline_overrides,
+    recording_arg,
     run_daemon,
     say,
     setup_logging,
@@ -60,7 +61,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         epilog=EPILOG_KEYS,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("recording", nargs="?", type=path_arg, help="recording directory")
+    p.add_argument(
+        "recording",
+        nargs="?",
+        type=recording_arg,
+        help="recording directory (its recording.json names it too)",
+    )
     v = p.add_argument_group("plain videos (instead of a recording)")
     v.add_argument("--left-video", type=path_arg, metavar="FILE", help="left eye video")
     v.add_argument("--right-video", type=path_arg, metavar="FILE", help="right eye video")
