@@ -7,16 +7,18 @@ entry-point group, like the drivers in ``stereod.drivers``.
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any
 
 from pydantic import ValidationError
 
 from stereod.cli.common import add_canonical_rig, number, path_arg, size_arg
+from stereod.detect import DetectorParams
 from stereod.errors import UsageError, describe_validation_error
 from stereod.progress import Progress
 from stereod.recording import Codec, size_problem
 
-from .synth import Scene, write_scene
+from .synth import Ball, Scene, write_scene
 
 BALL_KEYS = {
     "heading": "heading_deg",
@@ -42,7 +44,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="SPEC",
         help="a sphere as comma-separated key=value: heading (deg), speed (m/s), "
         "x, y, z (m, position at mid-time), radius (m), vy (m/s), brightness (grey); e.g. "
-        "'heading=60,speed=0.7,z=1.8' (repeatable; default one such ball)",
+        "'heading=60,speed=0.7,z=1.8' (repeatable; default one such ball). A ball must lie "
+        "between the camera and the wall 4 m away, fit in the view and be a few pixels wide",
     )
     p.add_argument(
         "--size",
@@ -130,7 +133,56 @@ def parse_ball(spec: str) -> dict[str, Any]:
                 f"{spec!r}: unknown key {k!r} (heading, speed, x, y, z, radius, vy, brightness)"
             )
     out["centre_m"] = tuple(centre)
+    out[SPEC] = spec
     return out
+
+
+SPEC = "_spec"
+"""The key of :func:`parse_ball`'s result that keeps the spec as given, for messages."""
+
+
+def ball_problem(scene: Scene, ball: Ball, *, move: bool = False) -> str | None:
+    """Why ``ball`` cannot be seen in ``scene`` (its ``--ball`` key, the value and the range
+    it must lie in), or None. At mid-travel the ball must lie between the camera and the wall
+    without touching either, and its image must be large enough for the detector's smallest
+    blob (a box of ``min_area_px``, the ball straddling pixels: one pixel narrower) and fit in
+    the view. The range given is the radius's at
+    the ball's z, or with ``move`` (the user gave z, not the radius) z's for its radius,
+    whichever exists."""
+    z, r, wall = ball.centre_m[2], ball.radius_m, scene.wall_m
+    f = scene.rig.focal_px
+    side = min(scene.width_px, scene.height_px)  # px: the widest image that fits
+    smallest = math.sqrt(DetectorParams().min_area_px) - 1  # px: the narrowest one detected
+
+    def radii(z: float) -> tuple[float, float]:  # the radii that work at depth z
+        return smallest * z / (2 * f), min(side * z / (2 * f), z, wall - z)
+
+    z_lo, z_hi = max(r, 2 * f * r / side), min(wall - r, 2 * f * r / smallest)
+    r_lo, r_hi = radii(z) if 0 < z < wall else (1.0, 0.0)
+    if r_lo <= r <= r_hi:
+        return None
+    across = 2 * f * r / z if z > 0 else math.inf
+    if z <= 0:
+        why = "is behind the camera"
+    elif z >= wall:
+        why = f"is at or behind the wall at {wall:g} m"
+    elif r >= z:
+        why = "holds the camera"
+    elif r >= wall - z:
+        why = f"reaches through the wall at {wall:g} m"
+    elif r < r_lo:
+        why = f"is {across:.2g} px across, too small to detect (under {smallest:.2g} px)"
+    else:
+        why = f"is {across:.0f} px across, more than the {scene.width_px}x{scene.height_px} view"
+    ball_at = f"a ball of radius {r:g} m at z = {z:g} m {why}"
+    radius_range = f"radius must be between {r_lo:.2g} and {r_hi:.2g} m at that z"
+    z_range = f"z must be between {z_lo:.3g} and {z_hi:.3g} m for that radius"
+    if 0 < z < wall and r_lo <= r_hi and not (move and z_lo <= z_hi):
+        return f"{ball_at}; {radius_range}"
+    if z_lo <= z_hi:
+        return f"{ball_at}; {z_range}"
+    largest = max(radii(wall * k / 1000)[1] for k in range(1, 1000))
+    return f"{ball_at}; no z fits it: radius must be below {largest:.2g} m"
 
 
 def recording_size(text: str) -> tuple[int, int]:
@@ -152,6 +204,7 @@ def scene_from_args(a: argparse.Namespace) -> Scene:
         )
     t_on, t_off = a.lead_in, a.lead_in + a.travel
     balls = [dict(b) for b in (a.ball or [parse_ball("")])]
+    specs = [b.pop(SPEC) for b in balls]
     for b in balls:
         b.update(t_on_s=t_on, t_off_s=t_off, t_mid_s=(t_on + t_off) / 2)
     try:
@@ -171,6 +224,11 @@ def scene_from_args(a: argparse.Namespace) -> Scene:
         )
     except ValidationError as exc:
         raise UsageError(f"synth: {describe_validation_error(exc)}") from exc
+    for spec, ball in zip(specs, scene.balls, strict=True):
+        keys = {part.partition("=")[0].strip() for part in spec.split(",")}
+        problem = ball_problem(scene, ball, move="z" in keys and "radius" not in keys)
+        if problem is not None:
+            raise UsageError(f"--ball {spec!r}: {problem} (nothing was written)")
     if scene.n_frames == 0:
         raise UsageError(
             f"--duration {a.duration:g} s at --fps {a.fps:g} Hz is not one frame: give a "

@@ -130,3 +130,23 @@ def test_synth_refuses_a_run_of_no_frame(tmp_path: Path) -> None:
     res = stereod("synth", str(tmp_path / "s"), "--fps", "0.1", "--duration", "3")
     one_line_error(res, 64, r"--duration 3 s at --fps 0.1 Hz is not one frame.* at least 10 s")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("ball", "pattern"),
+    [
+        ("z=-1", r"z = -1 m is behind the camera; z must be between 0\.115 and 3\.95 m"),
+        ("z=10", r"z = 10 m is at or behind the wall at 4 m; z must be between 0\.115 and 3\.95"),
+        ("heading=90,z=3.98", r"reaches through the wall at 4 m; z must be between"),
+        ("radius=5", r"5 m at z = 1\.8 m holds the camera; radius must be between"),
+        ("radius=0.7,z=1", r"more than the 640x480 view; radius must be between 0\.0022 and 0\.43"),
+        ("radius=0.001", r"too small to detect .*; radius must be between 0\.004 and 0\.78 m"),
+    ],
+)
+def test_synth_refuses_a_ball_that_cannot_be_seen(tmp_path: Path, ball: str, pattern: str) -> None:
+    """A ball behind the camera or the wall (4 m away), around the camera, wider than the view
+    or too small for the detector is a flag error naming the --ball key and its range, and
+    nothing is written (such scenes used to be rendered, with nothing in them to track)."""
+    res = stereod("synth", str(tmp_path / "s"), "--ball", "heading=60", "--ball", ball)
+    one_line_error(res, 64, rf"--ball '{ball}': a ball of radius .*{pattern}")
+    assert list(tmp_path.iterdir()) == []
