@@ -369,6 +369,24 @@ def test_a_recording_named_by_its_manifest_plays_as_its_folder(
     )
 
 
+def test_a_flag_a_command_does_not_have_points_to_that_commands_help(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The command's help lists its flags; the top-level help does not."""
+    error_in_process(
+        capsys,
+        ["replay", "rec", "--speed", "2"],
+        64,
+        r"^stereod replay: unrecognized arguments: --speed 2 \(see stereod replay --help\)$",
+    )
+    error_in_process(
+        capsys,
+        ["calibration", "export", "cal.json", "--ros", "ros", "--bogus"],
+        64,
+        r"^stereod calibration export: .* --bogus \(see stereod calibration export --help\)$",
+    )
+
+
 def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
     one_line_error(stereod("replay", str(tmp_path / "nope")), 66, "no such recording directory")
     junk = tmp_path / "junk.avi"

@@ -49,11 +49,32 @@ ORDER = (
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse with a one-line error and exit 64."""
+    """argparse with a one-line error and exit 64, pointing to the help of the command whose
+    line it is (``stereod replay --help`` for a flag ``replay`` does not have)."""
 
     def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: {one_line(message)} (see {self.prog} --help)", file=sys.stderr)
         raise SystemExit(EX_USAGE)
+
+    def parse_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> argparse.Namespace:
+        # argparse reports unknown arguments from the top-level parser, whose help does not
+        # list a command's flags: report them from the command's own parser instead.
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            self.command_parser(parsed).error(f"unrecognized arguments: {' '.join(extras)}")
+        return parsed
+
+    def command_parser(self, parsed: argparse.Namespace) -> Parser:
+        """The parser of the (sub)command ``parsed`` chose, innermost first: this one when it
+        has no subcommands."""
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                chosen = action.choices.get(getattr(parsed, action.dest, None) or "")
+                if isinstance(chosen, Parser):
+                    return chosen.command_parser(parsed)
+        return self
 
 
 def build_parser() -> argparse.ArgumentParser:
