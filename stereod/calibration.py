@@ -312,13 +312,9 @@ def write(cal: Calibration, out: AtomicOutput) -> None:
 
 
 def create_output(path: Path) -> AtomicOutput:
-    """An output file, its folder made and a temporary file created beside it; committed by
-    rename. Made before the work that fills it, it refuses a path that cannot be written
-    (a folder, no permission) before that work is done."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"{path.parent}: cannot create the folder: {exc.strerror}") from exc
+    """An output file, a temporary file created beside it; committed by rename. Made before
+    the work that fills it, it refuses a path that cannot be written (a folder that does not
+    exist, a directory, no permission) before that work is done, as every output is."""
     return AtomicOutput(path)
 
 
@@ -343,7 +339,12 @@ def ros_camera_info(cal: Calibration, eye: Literal["left", "right"]) -> str:
 
 
 def export_ros(cal: Calibration, directory: Path) -> list[Path]:
-    """Write ``left.yaml`` and ``right.yaml`` into ``directory``; return their paths."""
+    """Write ``left.yaml`` and ``right.yaml`` into ``directory``, made if missing (with its
+    missing parents, as a recording's folder is); return their paths."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{directory}: cannot create the folder: {exc.strerror}") from exc
     out = []
     for eye in ("left", "right"):
         path = directory / f"{eye}.yaml"

@@ -196,13 +196,15 @@ def _pairs_calibration(*more: str) -> list[str]:
 
 
 def test_an_output_that_cannot_be_written_is_refused_before_calibrating(tmp_path: Path) -> None:
-    """A folder, or one of the inputs, as --out: one line and exit 73 before any pair is
-    looked at (nothing on stdout, no report), and the input is left as it was."""
+    """A folder, one of the inputs, or a file in a folder that does not exist as --out: one
+    line and exit 73 before any pair is looked at (nothing on stdout, no report), the input
+    left as it was and no folder made (as for every output file: --jsonl, --mcap, plot -o)."""
     image = shared_data("opencv_stereo", "left01.jpg")
     before = image.read_bytes()
     for out, said in (
         (tmp_path, "is a directory; give the name of a file"),
         (image, "is an input of this run"),
+        (tmp_path / "no" / "dir" / "c.json", f"folder {tmp_path}/no/dir does not exist; create"),
     ):
         res = stereod(*_pairs_calibration("--out", str(out)))
         one_line_error(res, 73, f"{out}: .*{said}")
@@ -228,6 +230,7 @@ def test_an_image_without_its_partner_is_rejected_by_name(tmp_path: Path) -> Non
         if image.name not in ("right05.jpg", "left07.jpg"):
             (tmp_path / image.name).symlink_to(image)
     out = tmp_path / "out" / "c.json"
+    out.parent.mkdir()
     res = stereod(
         "calibrate", "--pairs", str(tmp_path), "--board", "9x6", "--square", "1", "--out", str(out)
     )

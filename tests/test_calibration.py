@@ -20,7 +20,7 @@ from stereod.calibration import (
     load,
     save,
 )
-from stereod.errors import CalibrationError, MissingInputError
+from stereod.errors import CalibrationError, MissingInputError, OutputError
 from stereod.geometry.rectified import CalibratedRig
 from stereod_fakes.rig import minoru_like
 
@@ -115,6 +115,18 @@ def test_ros_camera_info_round_trip(tmp_path: Path) -> None:
     info = yaml.safe_load(right.read_text())
     p2 = np.asarray(info["projection_matrix"]["data"]).reshape(3, 4)
     assert p2[0, 3] == pytest.approx(-p2[0, 0] * 0.060, rel=1e-6)  # -fx * B, B in metres
+
+
+def test_ros_export_makes_its_folder_but_save_needs_one(tmp_path: Path) -> None:
+    """``calibration export --ros DIR`` makes DIR, as documented; a calibration file (``--out``
+    of ``calibrate`` and ``calibration import``) goes into a folder that exists, as every
+    output file does."""
+    cal = a_calibration()
+    left, right = export_ros(cal, tmp_path / "ros" / "rig")
+    assert left.parent == tmp_path / "ros" / "rig" and left.is_file() and right.is_file()
+    with pytest.raises(OutputError, match=r"folder .*/no does not exist; create it first"):
+        save(cal, tmp_path / "no" / "c.json")
+    assert not (tmp_path / "no").exists()
 
 
 def test_opencv_filestorage_import_triangulates_like_the_source(tmp_path: Path) -> None:

@@ -18,7 +18,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     c.add_argument("file", type=path_arg, help="calibration file")
     c = csub.add_parser("export", help="write ROS camera_info YAML (left.yaml, right.yaml)")
     c.add_argument("file", type=path_arg, help="calibration file")
-    c.add_argument("--ros", required=True, type=path_arg, metavar="DIR", help="output folder")
+    c.add_argument(
+        "--ros", required=True, type=path_arg, metavar="DIR", help="output folder (made if missing)"
+    )
     c = csub.add_parser(
         "import",
         help="convert OpenCV FileStorage files (stereo_calib's intrinsics.yml/extrinsics.yml)",
