@@ -34,6 +34,7 @@ from .errors import (
     describe_validation_error,
 )
 from .output_file import AtomicOutput
+from .paths import read_input_file
 from .versioned import known_format, warn_unknown_fields
 
 FORMAT: Final = "stereod.calibration/1"
@@ -275,7 +276,7 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
     """Read and validate a calibration file; with ``image_size`` (w, h) also check that it was
     made for frames of that size. Errors name the file and the field."""
     try:
-        text = path.read_bytes()
+        text = read_input_file(path, "a calibration file", too_large=CalibrationError)
     except FileNotFoundError as exc:
         raise MissingInputError(f"{path}: no such calibration file") from exc
     except OSError as exc:
@@ -367,7 +368,7 @@ def read_opencv_storage(
     crashes the interpreter when it is collected. It reports a problem by returning an
     :class:`OpenCVProblem`, which is raised as ``error`` once the storage is gone."""
     try:
-        data = path.read_bytes()
+        data = read_input_file(path, "an OpenCV FileStorage file", too_large=error)
     except FileNotFoundError as exc:
         raise MissingInputError(f"{path}: no such file") from exc
     except OSError as exc:
@@ -487,7 +488,7 @@ def import_opencv(
     arrays: dict[str, np.ndarray] = {}
     names = {"M1": "K1", "D1": "D1", "M2": "K2", "D2": "D2"}
     for path, wanted in ((intrinsics, names), (extrinsics, {"R": "R", "T": "T"})):
-        if not path.is_file():
+        if not path.exists():
             raise MissingInputError(f"{path}: no such OpenCV calibration file")
         found = read_opencv_storage(
             path, "an OpenCV calibration file", InputError, _matrices(list(wanted))

@@ -48,7 +48,7 @@ from .errors import ConfigError, MissingInputError, UsageError, describe_error
 from .geometry.refine import RefineParams
 from .geometry.stereo import MatchParams
 from .pairing import DEFAULT_TOLERANCE_NS
-from .paths import TextPath
+from .paths import TextPath, read_input_file
 from .pipeline import PipelineParams
 from .tracking import TrackerParams
 
@@ -384,8 +384,7 @@ class StereodConfig(BaseModel):
 def read_toml(path: Path) -> dict[str, Any]:
     """Parse a TOML config file; errors name the file and what to do."""
     try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
+        return tomllib.loads(read_input_file(path, "a config file", too_large=ConfigError).decode())
     except FileNotFoundError as exc:
         raise MissingInputError(f"{path}: no such config file (pass --config FILE)") from exc
     except OSError as exc:

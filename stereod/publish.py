@@ -25,7 +25,7 @@ from . import keys
 from .config import ZenohConfig
 from .errors import ConfigError, UnavailableError
 from .messages import OBJECT_SCHEMA, OBJECTS_SCHEMA, STATUS_SCHEMA, encoding_for
-from .paths import text_path
+from .paths import check_input_file, text_path
 
 log = logging.getLogger(__name__)
 
@@ -61,8 +61,11 @@ def session_config(cfg: ZenohConfig) -> zenoh.Config:
     the base and only the settings given in stereod's config, environment or flags go on top."""
     given = cfg.model_fields_set if cfg.config_file is not None else set(ZenohConfig.model_fields)
     if cfg.config_file is not None:
+        name = text_path(cfg.config_file, "Zenoh config", ConfigError)
+        with contextlib.suppress(OSError):  # a file that is not there: Zenoh's words for it
+            check_input_file(name, "a Zenoh config file", too_large=ConfigError)
         try:
-            zc = zenoh.Config.from_file(text_path(cfg.config_file, "Zenoh config", ConfigError))
+            zc = zenoh.Config.from_file(name)
         except zenoh.ZError as exc:
             raise ConfigError(
                 f"{cfg.config_file}: invalid Zenoh config file: {zenoh_reason(exc)} "

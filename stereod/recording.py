@@ -43,7 +43,7 @@ from .errors import (
     describe_validation_error,
 )
 from .frames import Eye, Frame
-from .paths import path_problem, text_path
+from .paths import MAX_TIMESTAMP_BYTES, path_problem, read_input_file, text_path
 from .versioned import known_format, warn_unknown_fields
 
 MANIFEST = "recording.json"
@@ -116,7 +116,7 @@ def read_manifest(directory: Path) -> Manifest:
     can be read; errors name the file and the field, or the file and the OS's reason."""
     path = directory / MANIFEST
     try:
-        data = path.read_bytes()
+        data = read_input_file(path, "a recording manifest")
     except (FileNotFoundError, NotADirectoryError) as exc:
         if not os.path.exists(directory):
             raise MissingInputError(f"{directory}: no such recording directory") from exc
@@ -178,7 +178,7 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
     Times must strictly increase; the error names the file and row.
     """
     try:
-        data = path.read_bytes()
+        data = read_input_file(path, "a timestamp file", limit=MAX_TIMESTAMP_BYTES)
     except FileNotFoundError as exc:
         raise MissingInputError(f"{path}: no such timestamp file") from exc
     except OSError as exc:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import resource
 import signal
 import subprocess
 import threading
@@ -17,6 +19,7 @@ import zenoh
 
 from stereod.cli import main
 from stereod.motion import angle_diff_deg, circular_median_deg
+from stereod.paths import MAX_TEXT_BYTES, MAX_TIMESTAMP_BYTES
 from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
 from tests.processes import start_stereod, stereod_command
 
@@ -385,6 +388,41 @@ def test_a_flag_a_command_does_not_have_points_to_that_commands_help(
         64,
         r"^stereod calibration export: .* --bogus \(see stereod calibration export --help\)$",
     )
+
+
+def _two_gigabytes_of_memory() -> None:
+    """A child's address space capped, so that a reader without a bound fails fast (exit 70)
+    instead of filling the machine's memory."""
+    resource.setrlimit(resource.RLIMIT_AS, (2 * 2**30, 2 * 2**30))
+
+
+def test_inputs_that_are_no_regular_files_or_far_too_large_are_refused_unread(
+    scene_dir: tuple[Scene, Path], tmp_path: Path
+) -> None:
+    """A config, calibration or timestamp file that is a device (/dev/zero), a named pipe or
+    a directory is refused by name (66) without being read (they used to be read without
+    bound: MemoryError, exit 70, or a wait forever for a pipe's writer); one far larger than
+    such a file can be is refused as bad content of its kind (config 78, timestamps 65)."""
+    _, rec = scene_dir
+    videos = ["--left-video", str(rec / "left.mkv"), "--right-video", str(rec / "right.mkv")]
+    right_ts = ["--right-ts", str(rec / "right.csv"), "--rate", "0"]
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    big_toml, big_csv = tmp_path / "big.toml", tmp_path / "big.csv"
+    for path, size in ((big_toml, MAX_TEXT_BYTES), (big_csv, MAX_TIMESTAMP_BYTES)):
+        with path.open("wb") as fh:
+            fh.truncate(size + 1)  # sparse: no disk space used
+    for argv, code, pattern in (
+        (["run", "--config", "/dev/zero", "--check"], 66, "/dev/zero: is a character device, "),
+        (["run", "--config", str(fifo), "--check"], 66, "fifo: is a named pipe, not a config"),
+        (["run", "--config", str(tmp_path), "--check"], 66, ": is a directory, not a config file"),
+        (["run", "--config", str(big_toml), "--check"], 78, "larger than 16 MiB, too large for a"),
+        (["replay", str(rec), "--calibration", "/dev/zero"], 66, "not a calibration file; give"),
+        (["replay", *videos, "--left-ts", "/dev/zero", *right_ts], 66, "not a timestamp file"),
+        (["replay", *videos, "--left-ts", str(big_csv), *right_ts], 65, "too large for a timest"),
+    ):
+        res = stereod(*argv, timeout=60, preexec_fn=_two_gigabytes_of_memory)
+        one_line_error(res, code, pattern)
 
 
 def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
