@@ -26,7 +26,7 @@ from collections.abc import Callable
 from .errors import DeviceLost
 from .frames import EyeSource, Frame, StereoPair, StereoSource, merged
 from .messages import EyeState
-from .pairing import Pairer
+from .pairing import RESYNC_AFTER, Pairer
 from .queues import BoundedQueue
 from .status import Health
 
@@ -105,7 +105,9 @@ class Capture:
             eye.frames += 1
             back = eye.state is EyeState.DOWN
             eye.state = EyeState.STREAMING
+            resyncs = self.pairer.stats.resyncs[frame.eye]
             pairs = self.pairer.push(frame)
+            jumped = self.pairer.stats.resyncs[frame.eye] != resyncs
             h.last_frame_s = eye.last_frame_s = time.monotonic()
             ready = not self._ready and all(e.frames for e in h.eyes.values())
             if ready:
@@ -113,6 +115,13 @@ class Capture:
         if back:
             h.recovered(frame.eye)
             h.problem(f"{frame.eye.value} eye streaming again")
+        if jumped:
+            h.problem(
+                f"{frame.eye.value} eye: its frames went back in time by "
+                f"{RESYNC_AFTER} in a row; the frames stamped ahead were dropped and pairing "
+                "goes on from these",
+                "clock_jump",
+            )
         if ready:
             self._on_ready()
         now = time.perf_counter_ns()

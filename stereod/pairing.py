@@ -33,6 +33,14 @@ DROP_NON_MONOTONIC = "non_monotonic"
 """The frame's timestamp was not after the previous frame of the same eye."""
 DROP_OVERFLOW = "overflow"
 """Too many frames of one eye waited for the other eye (the other eye stalled)."""
+DROP_CLOCK_JUMP = "clock_jump"
+"""A frame stamped ahead of its eye's clock, found out when the eye's next frames, in order
+among themselves, all came before it (see ``RESYNC_AFTER``)."""
+RESYNC_AFTER = 3
+"""Frames of one eye in a row, in order among themselves, that must come before the eye's last
+accepted frame before that frame counts as a jump of its clock, not theirs: it is dropped and
+the eye goes on from them. Without this, one frame stamped days ahead would stop all pairing
+until the clock caught up."""
 
 
 @dataclass
@@ -42,6 +50,8 @@ class PairerStats:
     frames: dict[Eye, int] = field(default_factory=lambda: {Eye.LEFT: 0, Eye.RIGHT: 0})
     pairs: int = 0
     drops: dict[str, int] = field(default_factory=collections.Counter)
+    resyncs: dict[Eye, int] = field(default_factory=lambda: {Eye.LEFT: 0, Eye.RIGHT: 0})
+    """Times an eye's clock was found to have jumped ahead (see ``RESYNC_AFTER``)."""
 
 
 class Pairer:
@@ -62,6 +72,7 @@ class Pairer:
         }
         self._last_t: dict[Eye, int | None] = {Eye.LEFT: None, Eye.RIGHT: None}
         self._period_ns: dict[Eye, float | None] = {Eye.LEFT: None, Eye.RIGHT: None}
+        self._rejected: dict[Eye, list[int]] = {Eye.LEFT: [], Eye.RIGHT: []}
         self._next_seq = 0
         self.stats = PairerStats()
 
@@ -79,8 +90,16 @@ class Pairer:
         self.stats.frames[eye] += 1
         last = self._last_t[eye]
         if last is not None and frame.t_ns <= last:
-            self.stats.drops[DROP_NON_MONOTONIC] += 1
-            return []
+            rejected = self._rejected[eye]
+            if rejected and frame.t_ns <= rejected[-1]:
+                rejected.clear()  # not a stream of its own: just a frame out of order
+            rejected.append(frame.t_ns)
+            if len(rejected) < RESYNC_AFTER:
+                self.stats.drops[DROP_NON_MONOTONIC] += 1
+                return []
+            self._resync(eye, rejected[0])
+            last = self._last_t[eye]
+        self._rejected[eye].clear()
         if last is not None:
             dt = float(frame.t_ns - last)
             p = self._period_ns[eye]
@@ -92,6 +111,19 @@ class Pairer:
             queue.popleft()
             self.stats.drops[DROP_OVERFLOW] += 1
         return self._match(final=False)
+
+    def _resync(self, eye: Eye, t_ns: int) -> None:
+        """The eye's last accepted frames from ``t_ns`` (ns) on were stamped ahead of its
+        clock: drop them (``clock_jump``) and go on from the frames rejected meanwhile (all but
+        the newest, still counted ``non_monotonic``; the newest is taken now)."""
+        queue = self._pending[eye]
+        ahead = [f for f in queue if f.t_ns >= t_ns]
+        for f in ahead:
+            queue.remove(f)
+        self.stats.drops[DROP_CLOCK_JUMP] += len(ahead)
+        self.stats.resyncs[eye] += 1
+        self._last_t[eye] = queue[-1].t_ns if queue else None
+        self._rejected[eye].clear()
 
     def flush(self) -> list[StereoPair]:
         """End of input: pair what can be paired and count the rest as unpaired."""

@@ -7,10 +7,12 @@ import pytest
 
 from stereod.frames import Eye, Frame
 from stereod.pairing import (
+    DROP_CLOCK_JUMP,
     DROP_NO_PARTNER,
     DROP_NON_MONOTONIC,
     DROP_OVERFLOW,
     HYSTERESIS,
+    RESYNC_AFTER,
     Pairer,
 )
 
@@ -120,6 +122,39 @@ def test_non_monotonic_timestamp_is_dropped_and_counted() -> None:
     got = run(pairer, [left[0], right[0], left[1], right[1], left[2], left[3], right[2]])
     assert got == [(0, 0), (1, 1), (3, 2)]
     assert pairer.stats.drops[DROP_NON_MONOTONIC] == 1
+
+
+@pytest.mark.parametrize("ahead_s", [5.0, 1e6])
+def test_one_frame_stamped_far_ahead_costs_a_few_pairs_not_the_run(ahead_s: float) -> None:
+    """Left frame 30 is stamped far in the future (a driver's glitch): the left frames after
+    it are all before it, in order among themselves, so after ``RESYNC_AFTER`` of them the
+    glitch is dropped and pairing goes on; every other pair is made, partners matched."""
+    period = 1e9 / 30
+    left_t = np.arange(100) * period
+    right_t = left_t + 3 * MS
+    stream = interleave(frames(Eye.LEFT, left_t), frames(Eye.RIGHT, right_t))  # as they come
+    k = next(i for i, f in enumerate(stream) if f.eye is Eye.LEFT and f.seq == 30)
+    stream[k] = Frame(Eye.LEFT, IMG, int(left_t[30] + ahead_s * 1e9), 30)
+    pairer = Pairer(tolerance_ns=10 * MS)
+    got = run(pairer, stream)
+    assert all(i == j for i, j in got), "a frame was paired with the wrong partner"
+    lost = set(range(100)) - {i for i, _ in got}
+    assert 30 in lost and len(lost) <= RESYNC_AFTER + 2, sorted(lost)
+    assert max(lost) < 30 + RESYNC_AFTER + 2
+    assert pairer.stats.drops[DROP_CLOCK_JUMP] == 1
+    assert pairer.stats.resyncs == {Eye.LEFT: 1, Eye.RIGHT: 0}
+
+
+def test_frames_out_of_order_now_and_then_do_not_resync() -> None:
+    """Single late frames are dropped as before; only a stream of its own resynchronises."""
+    period = 33 * MS
+    t = [k * period for k in range(40)]
+    for k in (10, 20, 30):
+        t[k] = t[k - 2] - MS  # late: before the frame two earlier
+    pairer = Pairer(tolerance_ns=10 * MS)
+    run(pairer, frames(Eye.LEFT, t))
+    assert pairer.stats.drops[DROP_NON_MONOTONIC] == 3
+    assert pairer.stats.resyncs[Eye.LEFT] == 0
 
 
 def test_stalled_eye_does_not_grow_memory() -> None:

@@ -1,0 +1,76 @@
+"""Capture: every frame through one door (size check, eye health, pairer), as the eye
+threads deliver them."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from stereod.capture import Capture
+from stereod.frames import Eye, EyeSource, Frame, SourceInfo, StereoSource
+from stereod.messages import EyeState
+from stereod.pairing import Pairer
+from stereod.queues import BoundedQueue
+from stereod.status import Health
+
+MS = 1_000_000
+IMG = np.zeros((4, 6), np.uint8)
+
+
+class _Idle(EyeSource):
+    def __init__(self, eye: Eye) -> None:
+        self.eye = eye
+
+    def read(self) -> Frame | None:
+        return None
+
+
+def capture() -> tuple[Capture, Health, BoundedQueue]:
+    info = SourceInfo(6, 4, 30.0, True, "frames pushed by the test")
+    source = StereoSource(_Idle(Eye.LEFT), _Idle(Eye.RIGHT), info)
+    pairer = Pairer()
+    health = Health("bench", "test", pairer, on_change=lambda: None)
+    health.live = True
+    pairs: BoundedQueue = BoundedQueue(1000, drop_oldest=True)
+    cap = Capture(
+        source,
+        pairer,
+        pairs,
+        health,
+        threading.Event(),
+        rate=0.0,
+        on_ready=lambda: None,
+        on_fatal=lambda exc: None,
+    )
+    return cap, health, pairs
+
+
+def test_a_frame_stamped_days_ahead_is_said_once_and_pairing_goes_on() -> None:
+    cap, health, _ = capture()
+    period = 33 * MS
+    for k in range(60):
+        t = k * period
+        left_t = t + 10**15 if k == 20 else t  # 11.6 days ahead: a driver's glitch
+        assert cap.push(Frame(Eye.LEFT, IMG, left_t, k))
+        assert cap.push(Frame(Eye.RIGHT, IMG, t + 2 * MS, k))
+    assert 60 - 5 <= cap.pairer.stats.pairs < 60
+    jumps = [p for p in health.problems() if "went back in time" in p]
+    assert len(jumps) == 1 and jumps[0].startswith("left eye:"), health.problems()
+    assert health.counters()[0]["clock_jump"] == 1
+
+
+def test_a_frame_of_another_size_is_skipped_and_said() -> None:
+    cap, health, _ = capture()
+    assert cap.push(Frame(Eye.LEFT, np.zeros((8, 6), np.uint8), 0, 0))
+    assert health.eyes[Eye.LEFT].errors == 1 and cap.pairer.stats.frames[Eye.LEFT] == 0
+    assert "frame 0 is 6x8, stream is 6x4; skipped" in health.problems()[-1]
+
+
+def test_the_first_frame_after_an_eye_was_down_counts_a_reconnect() -> None:
+    cap, health, _ = capture()
+    health.eyes[Eye.RIGHT].state = EyeState.DOWN
+    assert cap.push(Frame(Eye.RIGHT, IMG, 0, 0))
+    assert health.eyes[Eye.RIGHT].state is EyeState.STREAMING
+    assert health.counters()[2] == {"right": 1}
+    assert health.problems()[-1] == "right eye streaming again"
