@@ -379,7 +379,7 @@ class Daemon:
         an invalid one leaves everything as it was and says why."""
         if self._reload_config is None:
             self.health.problem(
-                "reload requested but this run has no configuration file to re-read"
+                "reload requested but this run has no configuration file to re-read", notice=True
             )
             return
         self._notifier.notify(RELOADING=1)
@@ -389,7 +389,7 @@ class Daemon:
             params = pipeline_params(cfg, width, height)
         except Exception as exc:  # nothing in a new file may kill a running daemon
             reason = str(exc) if isinstance(exc, StereodError) else f"{type(exc).__name__}: {exc}"
-            self.health.problem(f"{RELOAD_REFUSED}: {reason}")
+            self.health.problem(f"{RELOAD_REFUSED}: {reason}", notice=True)
             self._notifier.notify(READY=1)
             return
         waiting = [
@@ -406,7 +406,8 @@ class Daemon:
         ]
         if waiting:
             self.health.problem(
-                f"reload: changes to {', '.join(waiting)} take effect at the next restart"
+                f"reload: changes to {', '.join(waiting)} take effect at the next restart",
+                notice=True,
             )
         assert self._worker is not None
         self._worker.reconfigure(params)
@@ -423,7 +424,8 @@ class Daemon:
         self.health.problem(
             f"another stereod already publishes rig {self.cfg.rig.name!r} under {pub.base}/: "
             "their messages mix and either may answer a query; give each daemon its own "
-            "[rig] name"
+            "[rig] name",
+            notice=True,
         )
 
     def _effective(self, new: StereodConfig) -> StereodConfig:

@@ -183,6 +183,7 @@ class PipelineWorker:
                     f"{name} eye: the whole scene changed (most of the image is foreground); "
                     "no objects until the background has learned it again",
                     f"{name}_saturated",
+                    notice=True,  # the scene's doing, handled: not a fault of the input
                 )
             self._saturated[name] = det.saturated
 

@@ -103,6 +103,7 @@ class Health:
         self._reconnects: collections.Counter[str] = collections.Counter()
         self._problems: collections.deque[str] = collections.deque(maxlen=20)
         self._all_problems: list[str] = []
+        self._failing: list[str] = []
         self._problem_counts: dict[str, int] = {}
         self._pipeline_ms: collections.deque[float] = collections.deque(maxlen=2000)
         self._skews_ms: list[float] = []
@@ -119,17 +120,23 @@ class Health:
 
     # -- reporting ---------------------------------------------------------------------------
 
-    def problem(self, text: str, kind: str | None = None, *, logged: bool = True) -> None:
+    def problem(
+        self, text: str, kind: str | None = None, *, logged: bool = True, notice: bool = False
+    ) -> None:
         """Record a problem for the status key and the run summary. It is logged as a warning
         unless ``logged`` is false or :attr:`log_problems` is off (a command that prints its
-        problems at the end says each once)."""
+        problems at the end says each once). A ``notice`` says what happened to a run that
+        went right (a reload's changes wait for a restart, the scene changed): it is on the
+        status key and in the summary, but is no fault of the input (see :meth:`failing`)."""
         key = kind or text
         with self.lock:
             n = self._problem_counts[key] = self._problem_counts.get(key, 0) + 1
             self._problems.append(text)
             if len(self._all_problems) < 1000:
                 self._all_problems.append(text)
-        if not (logged and self.log_problems):
+                if not notice and len(self._failing) < 1000:
+                    self._failing.append(text)
+        if not (logged and (self.log_problems or notice)):  # a notice is never said later
             log.debug("problem: %s", text)
         elif n == 1 or (kind is not None and math.log10(n).is_integer()):
             log.warning("%s%s", text, f" ({n} times)" if n > 1 else "")
@@ -166,6 +173,12 @@ class Health:
         """Every problem so far (at most 1000), oldest first."""
         with self.lock:
             return list(self._all_problems)
+
+    def failing(self) -> list[str]:
+        """The problems so far that are not notices (at most 1000), oldest first: what makes
+        a replay of a file exit 65."""
+        with self.lock:
+            return list(self._failing)
 
     def frames_flowing(self, within_s: float) -> bool:
         """Frames arrived within the last ``within_s`` seconds (the watchdog's condition: the

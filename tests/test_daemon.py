@@ -6,6 +6,7 @@ import contextlib
 import itertools
 import json
 import os
+import signal
 import threading
 import time
 from collections.abc import Iterator
@@ -415,3 +416,27 @@ def test_a_camera_that_stops_mid_stream_is_reported_and_reopened(endpoint: str) 
     down = [p for p in summary.problems if p.startswith("right eye down")]
     assert down == ["right eye down: /dev/fake1: no frame for 0.5 s; retrying"], summary.problems
     assert "right eye streaming again" in summary.problems
+
+
+def test_a_change_of_the_whole_scene_is_said_but_fails_no_replay(endpoint: str) -> None:
+    """The lights go on at frame 25 of a file: the detectors find the whole image changed,
+    which the status says, and they learn the scene again. That is the scene's doing, handled,
+    not a fault of the input: a replay of it exits 0 (a notice, not a failing problem)."""
+    from stereod.cli.common import run_daemon
+
+    rng = np.random.default_rng(0)
+    scene = rng.integers(20, 120, (48, 64), dtype=np.uint8)
+
+    def eye(e: Eye) -> list[Frame | Exception]:
+        return [Frame(e, scene + (90 if k >= 25 else 0), 10**9 + k * 10**8, k) for k in range(60)]
+
+    daemon = Daemon(config(endpoint), ListDriver(eye(Eye.LEFT), eye(Eye.RIGHT)), rate=0)
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        assert run_daemon(daemon, quiet=True) == 0  # (it takes the signals, as a command does)
+    finally:
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+    said = [p for p in daemon.health.problems() if "the whole scene changed" in p]
+    assert said, daemon.health.problems()
+    assert daemon.health.failing() == []

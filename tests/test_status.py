@@ -51,3 +51,12 @@ def test_a_file_source_is_never_stalled() -> None:
         e.last_frame_s -= 100.0
     st = h.status(1.0)
     assert st.right.state is EyeState.STREAMING and st.errors == {}
+
+
+def test_a_notice_is_said_but_is_no_failing_problem() -> None:
+    h = live_health()
+    h.problem("reload: changes to zenoh take effect at the next restart", notice=True)
+    h.problem("left eye: frame 7 is 32x24, stream is 64x48; skipped", "bad_size")
+    assert len(h.problems()) == 2
+    assert h.failing() == ["left eye: frame 7 is 32x24, stream is 64x48; skipped"]
+    assert h.status(1.0).problems == h.problems()

@@ -283,7 +283,8 @@ def run_daemon(
     daemon: Any, *, quiet: bool = False, problems_fail: bool = True, progress: Any = None
 ) -> int:
     """Run until the input ends or a signal; SIGHUP reloads. With ``problems_fail`` (replay)
-    a run that hit input problems exits 65 after saying them in one line; a daemon exits 0 on
+    a run that hit input problems exits 65 after saying them in one line (notices, such as a
+    reload's or a change of the whole scene, do not count); a daemon exits 0 on
     a clean stop, its problems having gone to the log and the status key, or 65 when its input
     ended and was bad (a truncated recording played by the replay driver). A fatal error is
     raised after the summary (its one line is the caller's to print). ``progress`` (a
@@ -319,8 +320,9 @@ def run_daemon(
         )
     if summary.error is not None:
         raise summary.error
-    if summary.problems and problems_fail:
-        print(f"stereod: {one_line(summarise(summary.problems))}", file=sys.stderr)
+    failing = daemon.health.failing()
+    if failing and problems_fail:
+        print(f"stereod: {one_line(summarise(failing))}", file=sys.stderr)
         return EX_DATAERR
     if summary.input_problems:
         print(f"stereod: {one_line(summarise(summary.input_problems))}", file=sys.stderr)
