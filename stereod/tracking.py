@@ -505,10 +505,13 @@ class Tracker:
         """Fold in one pair's observations at ``t_ns`` (``None`` in ``observations`` is a
         detection that neither joins nor starts a track); ``eye_times_ns`` are the left and
         right capture instants of the centroids. Returns the state of every live track
-        (observed or coasting) and the ids of the tracks that ended."""
+        (observed or coasting) and the ids of the tracks that ended. A track whose filter puts
+        it behind the rig (Z <= 0, where no camera sees) ends there: its filter has lost the
+        object, and what it would publish means nothing."""
         p = self.params
         seen: set[int] = set()
         states: list[TrackState] = []
+        ended: list[int] = []
         t_left, t_right = eye_times_ns
         for ob, tid, det in zip(observations, assignment, detections, strict=True):
             if ob is None:
@@ -546,9 +549,11 @@ class Tracker:
             tr.left_history.append((t_left, ob.left_px))
             tr.right_history.append((t_right, ob.right_px))
             seen.add(tr.track_id)
-            if tr.started or tr.whole:  # a track seen only cut by the image's edge is kept quiet
+            if _behind(tr):
+                ended.append(tr.track_id)
+                del self._tracks[tr.track_id]
+            elif tr.started or tr.whole:  # a track seen only cut by the image's edge is quiet
                 states.append(self._state(tr, t_ns, observed=True))
-        ended = []
         coast_ns = int(p.max_coast_s * 1e9)
         for tid, tr in list(self._tracks.items()):
             if tid in seen:
@@ -568,7 +573,10 @@ class Tracker:
                 del self._tracks[tid]
             else:
                 self._predict(tr, t_ns)
-                if tr.started or tr.whole:
+                if _behind(tr):
+                    ended.append(tid)
+                    del self._tracks[tid]
+                elif tr.started or tr.whole:
                     states.append(self._state(tr, t_ns, observed=False))
         return states, ended
 
@@ -785,3 +793,10 @@ class Tracker:
             freeze_background=still_for is not None and not tr.freeze_spent,
             release_background=tr.freeze_spent,
         )
+
+
+def _behind(tr: Track) -> bool:
+    """Whether a track's running filter puts it behind the rig (Z <= 0 m). Before the filter
+    runs a track's position is its first sight, which for a fast object seen with the eyes'
+    skew may well lie there; that only places it."""
+    return tr.started and not float(tr.kf.position_m[2]) > 0.0

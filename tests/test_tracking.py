@@ -396,6 +396,28 @@ def test_the_heading_is_valid_once_the_sigma_across_the_motion_is_small_too() ->
     assert per_frame[-1][0].heading_valid
 
 
+def test_a_track_whose_filter_goes_behind_the_rig_ends_there() -> None:
+    """An object coming at the rig at 3 m/s is seen down to 0.3 m, then no more: coasting
+    carries its filter through the rig within a tenth of a second, long before
+    ``max_coast_s``. No state is published behind the rig (Z <= 0, where no camera sees); the
+    track ends there instead, and its id is not reused."""
+    tracker = Tracker(TrackerParams())
+    path = line([0.0, 0.0, 1.2], [0.0, 0.0, -3.0])
+    frames = 9  # 1.2 m to 0.3 m at 30 Hz
+    run(tracker, [path], frames)
+    ended: list[int] = []
+    coasted = []
+    for k in range(frames, frames + 12):
+        states, gone = tracker.update(k * DT_NS, [], [], (k * DT_NS, k * DT_NS), [])
+        coasted += states
+        ended += gone
+    assert ended == [1]
+    assert coasted and all(s.position_m[2] > 0 for s in coasted)
+    assert len(coasted) < 5  # ended on the way through, not at max_coast_s (15 pairs)
+    _, gone = step(tracker, 30 * DT_NS, [np.array([0.0, 0.0, 1.0])])
+    assert not gone
+
+
 G = np.array([0.0, 9.81, 0.0])
 
 
