@@ -35,6 +35,10 @@ log = logging.getLogger(__name__)
 RETRY_FIRST_S = 0.1
 """Pause after an eye's first unexpected failure (s); doubles per repeat, up to RETRY_MAX_S."""
 RETRY_MAX_S = 5.0
+MAX_PACED_GAP_S = 5.0
+"""A file's frames are paced at their capture times, but a gap between two of them longer
+than this (s, stream time) is not slept through: the replay goes on at once and says so (a
+recording that paused, or a timestamp file that jumps)."""
 
 Queued = tuple[StereoPair | Frame, int]
 """A pair, or one eye's frame that is waiting for its partner (for the pipeline to detect
@@ -171,13 +175,24 @@ class Capture:
     def _merge_loop(self) -> None:
         t_first: int | None = None
         wall_first = 0.0
+        last_ns = 0
         try:
             for frame in merged(self.source.left, self.source.right):
                 if self.stop.is_set():
                     break
                 if self.rate > 0:
+                    if t_first is not None and frame.t_ns - last_ns > MAX_PACED_GAP_S * 1e9:
+                        self.health.problem(
+                            f"{frame.eye.value} eye: its frame {frame.seq} comes "
+                            f"{(frame.t_ns - last_ns) * 1e-9:.3g} s after the one before; "
+                            "played on at once, not after that wait",
+                            "paced_gap",
+                            notice=True,
+                        )
+                        t_first = None
                     if t_first is None:
                         t_first, wall_first = frame.t_ns, time.monotonic()
+                    last_ns = max(last_ns, frame.t_ns)
                     due = wall_first + (frame.t_ns - t_first) * 1e-9 / self.rate
                     delay = due - time.monotonic()
                     if delay > 0 and self.stop.wait(delay):

@@ -49,6 +49,10 @@ log = logging.getLogger(__name__)
 RELOAD_REFUSED = "reload refused, keeping the running configuration"
 """How a refused reload's problem begins; a reload taken later takes those off the status."""
 
+UNPAIRED_SHARE = 0.1
+"""At the end of a file, more than this share of its frames without a partner is a fault of
+the input (its eyes' timestamps disagree), not chance: a few frames at its ends may be."""
+
 STOP_WRITE_S = 2.0
 """Once a stop is asked for, how long (s) an output written in place (a pipe) may wait for a
 reader that stopped reading before it counts as gone: the daemon then ends all the same."""
@@ -456,7 +460,21 @@ class Daemon:
 
     def _check_paired(self) -> None:
         """At the end of a run in which both eyes gave frames and none found a partner, say
-        how far apart the eyes' last frames were (on the last status and in the summary)."""
+        how far apart the eyes' last frames were (on the last status and in the summary); at
+        the end of a file in which more than ``UNPAIRED_SHARE`` of the frames found none, say
+        that (its timestamps disagree part of the way: a timestamp file that jumps)."""
+        st = self.pairer.stats
+        frames = sum(st.frames.values())
+        unpaired = frames - 2 * st.pairs
+        live = self._source is None or self._source.info.live
+        if st.pairs and not live and unpaired > UNPAIRED_SHARE * frames:
+            text = (
+                f"{unpaired} of {frames} frames found no partner of the other eye within "
+                f"{self.pairer.tolerance_ns / 1e6:g} ms: the eyes' timestamps disagree for "
+                "part of the input"
+            )
+            self.health.problem(text)
+            self.summary.input_problems.append(text)
         left, right = self.pairer.last_ns(Eye.LEFT), self.pairer.last_ns(Eye.RIGHT)
         if self.pairer.stats.pairs == 0 and left is not None and right is not None:
             text = (

@@ -642,3 +642,22 @@ def test_ctrl_c_ends_a_replay_whose_pipe_reader_stopped_reading(tmp_path: Path) 
         assert "interrupted by SIGINT" in err, err
     finally:
         os.close(reader)
+
+
+@pytest.mark.parametrize("rate", ["0", "1"])
+def test_a_timestamp_file_that_jumps_is_played_on_and_said(tmp_path: Path, rate: str) -> None:
+    """The left eye's timestamps jump 11.6 days ahead from its tenth frame on (still in order,
+    so the file is valid on its own): in real time the replay does not sleep through the jump,
+    and since the eyes then never pair again, the run exits 65 saying so."""
+    rec = recording(tmp_path)
+    csv = rec / "left.csv"
+    head, *rows = csv.read_text().splitlines()
+    for k in range(10, len(rows)):
+        t, seq = rows[k].split(",")
+        rows[k] = f"{int(t) + 10**15},{seq}"
+    csv.write_text("\n".join([head, *rows]) + "\n")
+    t0 = time.monotonic()
+    res = run_stereod("replay", str(rec), "--rate", rate, "-q", cwd=tmp_path, timeout=60)
+    assert time.monotonic() - t0 < 30
+    assert res.returncode == 65, res.stderr
+    assert "found no partner of the other eye" in res.stderr, res.stderr
