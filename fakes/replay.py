@@ -116,6 +116,9 @@ class VideoEye(EyeSource):
         self._i = 0
         self._offset_ns = 0
         self._seq_offset = 0
+        self.lap: tuple[int, int] | None = None
+        """How far (ns, sequence numbers) each lap of a loop moves this eye's stamps; both
+        eyes get the same (:func:`common_lap`), else each eye's own decoded frames decide."""
         self.decoded = 0
         self.bad_frames = 0
         self.problems: list[str] = []
@@ -163,14 +166,30 @@ class VideoEye(EyeSource):
             return round(i * 1e9 / self._fps), i
         return int(self._t[i]), int(self._seq[i]) if self._seq is not None else i
 
-    def _restart(self) -> None:
-        n = self._i
+    def stated_span(self) -> tuple[int, int, int] | None:
+        """(first, end) capture times (ns; end = last + one period) and the count of sequence
+        numbers of this eye's input as its timestamps or frame count state it, whatever was
+        decoded; None when it states nothing."""
+        n = len(self._t) if self._t is not None else self._expected
+        if n < 1:
+            return None
         t0, s0 = self._stamp(0)
         t1, s1 = self._stamp(n - 1)
-        period = (t1 - t0) // (n - 1) if n > 1 else 1
-        self._offset_ns += t1 - t0 + period
-        self._seq_offset += s1 - s0 + 1
-        self._expected = n
+        period = (t1 - t0) // (n - 1) if n > 1 else round(1e9 / (self._fps or 30.0))
+        return t0, t1 + period, s1 - s0 + 1
+
+    def _restart(self) -> None:
+        if self.lap is not None:
+            self._offset_ns += self.lap[0]
+            self._seq_offset += self.lap[1]
+        else:
+            n = self._i
+            t0, s0 = self._stamp(0)
+            t1, s1 = self._stamp(n - 1)
+            period = (t1 - t0) // (n - 1) if n > 1 else 1
+            self._offset_ns += t1 - t0 + period
+            self._seq_offset += s1 - s0 + 1
+        self._expected = self._i
         if self._cap is not None:
             self._cap.release()
         self._cap = _open_capture(self.path, self._gray)
@@ -182,12 +201,26 @@ class VideoEye(EyeSource):
             self._cap = None
 
 
+def common_lap(left: VideoEye, right: VideoEye) -> None:
+    """Give both eyes of a loop the same lap: the whole input's span as its timestamps state
+    it, so that an eye whose video is truncated keeps its frames at their instants, lap after
+    lap, beside the other eye's (each eye's own decoded span would drift the two apart by what
+    is missing, and pair frames from different moments)."""
+    spans = [s for s in (left.stated_span(), right.stated_span()) if s is not None]
+    if not spans:
+        return
+    lap = (max(s[1] for s in spans) - min(s[0] for s in spans), max(s[2] for s in spans))
+    if lap[0] > 0 and lap[1] > 0:
+        left.lap = right.lap = lap
+
+
 class ReplaySource(StereoSource):
     """Two :class:`VideoEye` and what the input says about itself."""
 
     def __init__(self, left: VideoEye, right: VideoEye, info: SourceInfo) -> None:
         super().__init__(left, right, info)
         self._eyes = (left, right)
+        common_lap(left, right)
 
     def problems(self) -> list[str]:
         return self._eyes[0].problems + self._eyes[1].problems

@@ -81,6 +81,32 @@ def test_loop_continues_timestamps(tmp_path: Path) -> None:
     assert times == [k * 100_000_000 for k in range(10)]
 
 
+def test_a_loop_keeps_a_truncated_eye_in_step_with_the_other(tmp_path: Path) -> None:
+    """One eye's video decodes only 4 of its 10 frames; each lap of a loop moves both eyes'
+    stamps by the input's whole span (its timestamps), so lap after lap left frame k stays
+    beside right frame k, not 6 frames off as each eye's own decoded span made it."""
+    times = [k * 66_666_667 for k in range(10)]
+    lt, rt = write_ts(tmp_path / "l.csv", times), write_ts(tmp_path / "r.csv", times)
+    l, r = write_video(tmp_path / "l.avi", 10), write_video(tmp_path / "r.avi", 10)
+    cut = tmp_path / "cut.avi"
+    cap = cv2.VideoCapture(str(l))
+    w = cv2.VideoWriter(str(cut), cv2.VideoWriter.fourcc(*"MJPG"), 15.0, (64, 48))
+    for _ in range(4):
+        ok, img = cap.read()
+        assert ok
+        w.write(img)
+    w.release()
+    cap.release()
+    opts = {"left_video": cut, "right_video": r, "left_ts": lt, "right_ts": rt, "loop": True}
+    with ReplayDriver(opts).open() as src:
+        left = [src.left.read() for _ in range(12)]  # three laps of the 4 frames
+        right = [src.right.read() for _ in range(30)]  # three laps of the 10
+    right_at = {f.t_ns: f.seq for f in right if f is not None}
+    for f in left:
+        assert f is not None and right_at[f.t_ns] == f.seq, (f.t_ns, f.seq)
+    assert {f.seq % 10 for f in left if f is not None} == {0, 1, 2, 3}
+
+
 def test_truncated_video_plays_what_decodes_and_says_so() -> None:
     tree = shared_data("video", "tree.avi")
     left, right, problems = read_all(
