@@ -35,6 +35,7 @@ from pydantic import (
     field_validator,
 )
 
+from .calibration import Calibration
 from .errors import (
     InputError,
     MissingInputError,
@@ -92,7 +93,7 @@ class Manifest(BaseModel):
 
     model_config = ConfigDict(extra="ignore", allow_inf_nan=False)
 
-    format: Literal["stereod.recording/1"] = FORMAT
+    format: Literal["stereod.recording/1"]
     width: int = Field(gt=0, le=MAX_SIDE_PX)
     height: int = Field(gt=0, le=MAX_SIDE_PX)
     fps: float | None = Field(default=None, gt=0, le=10000)
@@ -109,6 +110,20 @@ class Manifest(BaseModel):
     @classmethod
     def _known_format(cls, v: Any) -> Any:
         return known_format(v, FORMAT)
+
+    @field_validator("calibration")
+    @classmethod
+    def _valid_calibration(cls, v: dict[str, Any] | None) -> dict[str, Any] | None:
+        """The calibration in force when it was recorded, checked as a calibration file is
+        (so every command that reads the recording refuses a bad one alike)."""
+        if v is not None:
+            try:
+                Calibration.model_validate(v)
+            except ValidationError as exc:
+                raise ValueError(
+                    f"not a valid calibration: {describe_validation_error(exc)}"
+                ) from None
+        return v
 
 
 def read_manifest(directory: Path) -> Manifest:
@@ -310,6 +325,7 @@ class RecordingWriter:
                 f"{directory}: cannot create the recording directory: {exc.strerror}"
             ) from exc
         self._manifest = dict(
+            format=FORMAT,
             width=width,
             height=height,
             fps=fps,

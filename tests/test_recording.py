@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from stereod.calibration import canonical
 from stereod.errors import InputError, MissingInputError, OutputError
 from stereod.frames import Eye, Frame
 from stereod.recording import Codec, RecordingWriter, read_manifest, read_timestamps
@@ -100,11 +101,32 @@ def test_manifest_errors(tmp_path: Path) -> None:
         read_manifest(tmp_path / "missing")
     with pytest.raises(MissingInputError, match=r"recording\.json missing"):
         read_manifest(tmp_path)
-    (tmp_path / "recording.json").write_text('{"width": -1}')
+    (tmp_path / "recording.json").write_text('{"format": "stereod.recording/1", "width": -1}')
     with pytest.raises(
         InputError, match=r"recording\.json: width = -1: Input should be greater than 0"
     ):
         read_manifest(tmp_path)
+    # A misspelt "format" is no manifest of this kind, not a newer one.
+    (tmp_path / "recording.json").write_text('{"fromat": "stereod.recording/1", "width": 8}')
+    with pytest.raises(InputError, match=r"recording\.json: format: required field is missing"):
+        read_manifest(tmp_path)
+
+
+def test_a_manifest_whose_calibration_is_no_calibration_is_refused(tmp_path: Path) -> None:
+    """The calibration a recording stores is checked when the manifest is read, so replay and
+    export refuse a bad one alike, naming what is wrong with it."""
+    cal = canonical(0.06, 60.0, 64, 48).model_dump(mode="json")
+    with RecordingWriter(tmp_path / "rec", 64, 48, fps=30.0, calibration=cal) as w:
+        for left, right in random_frames(2, False):
+            w.write(left)
+            w.write(right)
+    assert read_manifest(tmp_path / "rec").calibration == cal
+    path = tmp_path / "rec" / "recording.json"
+    data = json.loads(path.read_text())
+    del data["calibration"]["K1"]
+    path.write_text(json.dumps(data))
+    with pytest.raises(InputError, match=r"calibration: not a valid calibration: K1: required"):
+        read_manifest(tmp_path / "rec")
 
 
 def test_a_newer_manifest_with_fields_this_version_does_not_know_is_read(
