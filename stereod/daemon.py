@@ -47,6 +47,9 @@ from .status import Health, geometry_note
 log = logging.getLogger(__name__)
 
 RELOAD_REFUSED = "reload refused, keeping the running configuration"
+RELOAD_WAITING = "reload: changes to"
+"""How a reload's note of settings that wait for a restart begins; the next reload taken
+replaces it."""
 """How a refused reload's problem begins; a reload taken later takes those off the status."""
 
 UNPAIRED_SHARE = 0.1
@@ -408,9 +411,10 @@ class Daemon:
             )
             if now != then
         ]
+        self.health.resolved(RELOAD_WAITING)  # what an earlier reload said waits may not now
         if waiting:
             self.health.problem(
-                f"reload: changes to {', '.join(waiting)} take effect at the next restart",
+                f"{RELOAD_WAITING} {', '.join(waiting)} take effect at the next restart",
                 notice=True,
             )
         assert self._worker is not None

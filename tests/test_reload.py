@@ -155,6 +155,12 @@ def test_no_new_file_kills_a_running_daemon(tmp_path: Path, endpoint: str) -> No
             assert running["pairing"] == before["pairing"] and running["daemon"] == before["daemon"]
             waiting = "driver, daemon, rig.name, pairing.tolerance_ms take effect at the next"
             assert wait(lambda: any(waiting in p for st in statuses[seen:] for p in st["problems"]))
+            # The running file again: nothing waits any more, and the status stops saying so.
+            cfg.write_text(good(endpoint, threshold=34.0))
+            proc.send_signal(signal.SIGHUP)
+            assert wait(lambda: query_config(s, rig="svc")["detector"]["threshold"] == 34.0)
+            settled = wait(lambda: not any(waiting in p for p in statuses[-1]["problems"]))
+            assert settled, statuses[-1]["problems"]
     finally:
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=20)
