@@ -377,6 +377,11 @@ class _SynthSource(StereoSource):
             return self._start_s
 
 
+MAX_PRERENDER_BYTES = 8 * 2**30
+"""The most memory (bytes, both eyes, colour) ``prerender`` may take: a scene beyond it is
+refused when the options are read (``run --check`` says so), not when it fails to open."""
+
+
 class SynthFlags(BaseModel):
     """How the ``synthetic`` driver plays its scene (options beside the scene's own fields)."""
 
@@ -409,6 +414,16 @@ class SyntheticDriver(Driver):
         except ValidationError as exc:
             raise ConfigError(describe_validation_error(exc, "driver.options", Scene)) from exc
         self.live = self.flags.live
+        if self.flags.prerender:
+            sc = self.scene
+            need = 2 * sc.n_frames * sc.width_px * sc.height_px * 3
+            if need > MAX_PRERENDER_BYTES:
+                raise ConfigError(
+                    f"driver.options.prerender: {sc.n_frames} frames an eye at "
+                    f"{sc.width_px}x{sc.height_px} need {need / 2**30:.3g} GiB, over "
+                    f"{MAX_PRERENDER_BYTES / 2**30:g} GiB; shorten duration_s, or set "
+                    "prerender = false to render each frame as it is read"
+                )
 
     def open(self) -> StereoSource:
         return _SynthSource(self.scene, self.flags)

@@ -150,3 +150,16 @@ def test_synth_refuses_a_ball_that_cannot_be_seen(tmp_path: Path, ball: str, pat
     res = stereod("synth", str(tmp_path / "s"), "--ball", "heading=60", "--ball", ball)
     one_line_error(res, 64, rf"--ball '{ball}': a ball of radius .*{pattern}")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_prerendered_scene_that_cannot_fit_in_memory_is_refused_when_read() -> None:
+    """``run --check`` reads the options; a scene whose frames could never be held (here 54.9
+    TiB an eye) is refused there, naming the option and what to change, not when it opens."""
+    from stereod.errors import ConfigError
+    from stereod_fakes.synth import SyntheticDriver
+
+    big = {"width_px": 4096, "height_px": 4096, "fps": 1000, "duration_s": 3600}
+    # 2 eyes x 3600 s x 1000 Hz x 4096 x 4096 x 3 bytes = 3.38e5 GiB
+    with pytest.raises(ConfigError, match=r"prerender: 3600000 frames .* need 3\.38e\+05 GiB"):
+        SyntheticDriver({**big, "prerender": True})
+    SyntheticDriver(big)  # rendered as it is read: nothing held
