@@ -206,6 +206,8 @@ def common_lap(left: VideoEye, right: VideoEye) -> None:
     it, so that an eye whose video is truncated keeps its frames at their instants, lap after
     lap, beside the other eye's (each eye's own decoded span would drift the two apart by what
     is missing, and pair frames from different moments)."""
+    if left._t is None or right._t is None:
+        return  # a frame rate and a header's frame count: each eye's decoded frames decide
     spans = [s for s in (left.stated_span(), right.stated_span()) if s is not None]
     if not spans:
         return

@@ -47,10 +47,10 @@ from .status import Health, geometry_note
 log = logging.getLogger(__name__)
 
 RELOAD_REFUSED = "reload refused, keeping the running configuration"
+"""How a refused reload's problem begins; a reload taken later takes those off the status."""
 RELOAD_WAITING = "reload: changes to"
 """How a reload's note of settings that wait for a restart begins; the next reload taken
 replaces it."""
-"""How a refused reload's problem begins; a reload taken later takes those off the status."""
 
 UNPAIRED_SHARE = 0.1
 """At the end of a file, more than this share of its frames without a partner is a fault of

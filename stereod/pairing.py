@@ -73,6 +73,9 @@ class Pairer:
         self._last_t: dict[Eye, int | None] = {Eye.LEFT: None, Eye.RIGHT: None}
         self._period_ns: dict[Eye, float | None] = {Eye.LEFT: None, Eye.RIGHT: None}
         self._rejected: dict[Eye, list[int]] = {Eye.LEFT: [], Eye.RIGHT: []}
+        self._period_before: dict[Eye, float | None] = {Eye.LEFT: None, Eye.RIGHT: None}
+        """Each eye's period estimate before its last accepted frame (a clock jump's frame
+        must not leave its gap in the estimate)."""
         self._next_seq = 0
         self.stats = PairerStats()
 
@@ -100,6 +103,7 @@ class Pairer:
             self._resync(eye, rejected[0])
             last = self._last_t[eye]
         self._rejected[eye].clear()
+        self._period_before[eye] = self._period_ns[eye]
         if last is not None:
             dt = float(frame.t_ns - last)
             p = self._period_ns[eye]
@@ -123,6 +127,7 @@ class Pairer:
         self.stats.drops[DROP_CLOCK_JUMP] += len(ahead)
         self.stats.resyncs[eye] += 1
         self._last_t[eye] = queue[-1].t_ns if queue else None
+        self._period_ns[eye] = self._period_before[eye]
         self._rejected[eye].clear()
 
     def flush(self) -> list[StereoPair]:

@@ -142,7 +142,10 @@ def read_input_file(
     ``what`` names the file in messages, with its article (``"a config file"``). OSError from
     opening or reading (no such file, no permission) is left to the caller, whose words for it
     differ."""
+    # Not even opened unless a regular file (opening a device can act on it: a serial port
+    # resets what hangs on it); checked again once open, in case it was swapped meanwhile.
     # O_NONBLOCK: opening a named pipe with no writer would wait for one.
+    _check_file(path, os.stat(path), what, limit, too_large)
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     try:
         _check_file(path, os.fstat(fd), what, limit, too_large)

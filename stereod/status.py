@@ -134,8 +134,8 @@ class Health:
             self._problems.append(text)
             if len(self._all_problems) < 1000:
                 self._all_problems.append(text)
-                if not notice and len(self._failing) < 1000:
-                    self._failing.append(text)
+            if not notice and len(self._failing) < 1000:
+                self._failing.append(text)
         if not (logged and (self.log_problems or notice)):  # a notice is never said later
             log.debug("problem: %s", text)
         elif n == 1 or (kind is not None and math.log10(n).is_integer()):

@@ -593,16 +593,25 @@ def test_a_replay_under_a_rig_name_already_on_the_bus_is_refused(
     assert out.read_text() == "kept\n"
 
 
-def _hup_set_aside(pid: int) -> bool:
-    """Whether process ``pid`` ignores or catches SIGHUP now (/proc/PID/status)."""
+def _handles(pid: int, sig: int) -> bool:
+    """Whether process ``pid`` ignores or catches ``sig`` now (/proc/PID/status)."""
     try:
         fields = dict(
             line.split(":\t", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines()
         )
     except (OSError, ValueError):
         return False
-    bit = 1 << (signal.SIGHUP - 1)
+    bit = 1 << (sig - 1)
     return bool((int(fields["SigIgn"], 16) | int(fields["SigCgt"], 16)) & bit)
+
+
+def _queued(fd: int) -> int:
+    """Bytes waiting in the pipe read by ``fd``."""
+    import fcntl
+    import struct
+    import termios
+
+    return int(struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0" * 4))[0])
 
 
 def test_a_daemon_asked_to_reload_while_it_starts_keeps_starting(tmp_path: Path) -> None:
@@ -621,7 +630,7 @@ def test_a_daemon_asked_to_reload_while_it_starts_keeps_starting(tmp_path: Path)
         # systemd never reloads in (it waits for READY=1), and on a busy machine 0.1 s after
         # the start can fall within it.
         deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and not _hup_set_aside(proc.pid):
+        while time.monotonic() < deadline and not _handles(proc.pid, signal.SIGHUP):
             time.sleep(0.005)
         proc.send_signal(signal.SIGHUP)
         time.sleep(3.0)
@@ -649,8 +658,16 @@ def test_ctrl_c_ends_a_replay_whose_pipe_reader_stopped_reading(tmp_path: Path) 
         proc = start_stereod(
             "replay", str(rec), "--rate", "0", "-q", "--jsonl", str(fifo), cwd=tmp_path
         )
-        time.sleep(3.0)  # long enough to fill the pipe and block on it
-        assert proc.poll() is None
+        # Once the replay takes Ctrl-C itself and has written into the pipe, which then
+        # stays as it is (full: the writer waits on it; the replay has ended its frames).
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (
+            _queued(reader) and _handles(proc.pid, signal.SIGINT)
+        ):
+            time.sleep(0.02)
+        queued = _queued(reader)
+        time.sleep(1.0)
+        assert proc.poll() is None and _queued(reader) == queued > 0
         proc.send_signal(signal.SIGINT)
         try:
             _, err = proc.communicate(timeout=20)

@@ -6,6 +6,7 @@ import contextlib
 import itertools
 import json
 import os
+import re
 import signal
 import threading
 import time
@@ -414,7 +415,8 @@ def test_a_camera_that_stops_mid_stream_is_reported_and_reopened(endpoint: str) 
     assert daemon.health.stats().reconnects == {"right": 1}
     assert summary.errors.get("right_lost") == 1
     down = [p for p in summary.problems if p.startswith("right eye down")]
-    assert down == ["right eye down: /dev/fake1: no frame for 0.5 s; retrying"], summary.problems
+    assert len(down) == 1, summary.problems
+    assert re.fullmatch(r"right eye down: /dev/fake1: no frame for \d\.\d s; retrying", down[0])
     assert "right eye streaming again" in summary.problems
 
 

@@ -143,6 +143,8 @@ def test_one_frame_stamped_far_ahead_costs_a_few_pairs_not_the_run(ahead_s: floa
     assert max(lost) < 30 + RESYNC_AFTER + 2
     assert pairer.stats.drops[DROP_CLOCK_JUMP] == 1
     assert pairer.stats.resyncs == {Eye.LEFT: 1, Eye.RIGHT: 0}
+    # The jump left nothing in the eye's period estimate (it decides when to wait).
+    assert pairer.period_ns(Eye.LEFT) == pytest.approx(period, rel=0.01)
 
 
 def test_frames_out_of_order_now_and_then_do_not_resync() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import time
 
 from stereod.frames import Eye
@@ -36,9 +37,10 @@ def test_an_eye_quiet_for_the_stall_time_is_down_and_the_daemon_degraded() -> No
     st = h.status(1.0)
     assert st.state is DaemonState.DEGRADED
     assert st.left.state is EyeState.STREAMING and st.right.state is EyeState.DOWN
-    assert st.right.last_error is not None and st.right.last_error.startswith("no frame for 3.5")
+    assert st.right.last_error is not None
+    assert re.fullmatch(r"no frame for 3\.[5-9] s", st.right.last_error), st.right.last_error
     assert st.errors == {"right_stalled": 1}
-    assert st.problems == ["right eye down: no frame for 3.5 s; waiting for it"]
+    assert st.problems == [f"right eye down: {st.right.last_error}; waiting for it"]
     h.status(1.0)  # said once, not every second
     assert h.status(1.0).errors == {"right_stalled": 1}
 
