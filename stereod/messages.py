@@ -113,9 +113,10 @@ class ObjectState(_Model):
     heading_valid: bool = Field(
         False,
         description=(
-            "False until velocity_valid and the velocity's sigma across its direction on the"
-            " ground is within the same bound: the direction is known, not only the speed (read"
-            " as false when absent: a daemon older than this field)"
+            "False until velocity_valid, the velocity's sigma across its direction on the"
+            " ground is within the same bound and the heading's sigma within 15 deg: the"
+            " direction is known, not only the speed (read as false when absent: a daemon older"
+            " than this field)"
         ),
     )
     speed_mps: float = Field(description="|velocity| (eq. 22), m/s")

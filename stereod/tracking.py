@@ -24,9 +24,11 @@ a thrown ball is followed along its arc. Velocity, speed and heading come from t
 beside them as the raw velocity. A velocity is valid once the track is confirmed and the
 speed's own sigma is small (``valid_speed_sigma_mps`` or ``valid_speed_sigma_rel`` of the
 speed, whichever is larger); its heading is valid once, besides, the velocity's sigma across
-its direction on the ground is within the same bound (a track's first estimates often know
-the speed long before the direction: two observations of a ball across the view, each a few
-cm off in depth, give its speed to 2 % and its heading to 12 deg).
+its direction on the ground is within the same bound and the heading's sigma within
+``VALID_HEADING_SIGMA_DEG``: a track's first estimates often know the speed long before the
+direction (two observations of a ball across the view, each a few cm off in depth, give its
+speed to 2 % and its heading to 12 deg), and an object slow on the ground, or falling, may
+have a speed known to 0.1 m/s and no direction at all.
 
 Lifecycle: ``tentative`` until ``confirm_hits`` observations and a running filter (two
 observations no faster than ``max_speed_mps`` apart), then ``confirmed``; a confirmed
@@ -133,12 +135,13 @@ class TrackerParams:
     unseen. ``confirm_hits``: observations to confirm. ``valid_speed_sigma_mps``,
     ``valid_speed_sigma_rel``: a velocity is valid once the speed's sigma is below the larger
     of these (m/s; share of the speed), its heading once the sigma across it on the ground is
-    too. ``freeze_s``: how long (s) after it was last seen
-    moving an object keeps the background frozen under it. ``stationary_mps``: below this
-    speed an object is not moving. ``gravity_mps2``: gravity in the rig frame (m/s^2; Y points
-    down in a level rig); every moving track is filtered both as moving straight and as
-    falling freely, and follows the likelier (a thrown ball falls 5 mm in one frame at 30 Hz,
-    and a straight-line filter bends its depth to explain that); (0, 0, 0) turns this off.
+    too and the heading's within ``VALID_HEADING_SIGMA_DEG``. ``freeze_s``: how long (s)
+    after it was last seen moving an object keeps the background frozen under it.
+    ``stationary_mps``: below this speed an object is not moving. ``gravity_mps2``: gravity
+    in the rig frame (m/s^2; Y points down in a level rig); every moving track is filtered
+    both as moving straight and as falling freely, and follows the likelier (a thrown ball
+    falls 5 mm in one frame at 30 Hz, and a straight-line filter bends its depth to explain
+    that); (0, 0, 0) turns this off.
     """
 
     gate_px: float = 6.0
@@ -157,6 +160,12 @@ class TrackerParams:
     gravity_mps2: tuple[float, float, float] = (0.0, 9.81, 0.0)
 
 
+VALID_HEADING_SIGMA_DEG = 15.0
+"""The largest heading sigma (deg) of a valid heading. Above about 0.4 m/s on the ground the
+speed's bound across the motion (0.1 m/s, or 10 % of the speed) is the tighter; slower, this
+is: a robot creeping at 3 cm/s has its speed known to 0.1 m/s long before its direction."""
+
+
 @dataclass(frozen=True, slots=True)
 class TrackState:
     """A track's state at one instant, everything in SI units (m, m/s, deg, s)."""
@@ -173,8 +182,9 @@ class TrackState:
     velocity_valid: bool
     """The speed is known: the track is confirmed and the speed's sigma within the bound."""
     heading_valid: bool
-    """The heading is known too: the velocity is valid and its sigma across its direction on
-    the ground (the heading's sigma times the ground speed) within the same bound."""
+    """The heading is known too: the velocity is valid, its sigma across its direction on the
+    ground (the heading's sigma times the ground speed) within the same bound, and the
+    heading's sigma within ``VALID_HEADING_SIGMA_DEG``."""
     speed_mps: float
     speed_sigma_mps: float
     heading_deg: float
@@ -761,7 +771,10 @@ class Tracker:
         confirmed = self._confirmed(tr)
         bound = max(p.valid_speed_sigma_mps, p.valid_speed_sigma_rel * spd)
         valid = started and confirmed and spd_sigma <= bound
-        heading_valid = valid and across <= bound
+        # The direction: across it within the speed's bound, and a heading sigma within
+        # VALID_HEADING_SIGMA_DEG (the speed's absolute floor would otherwise give anything
+        # slow on the ground, or falling, a "known" direction).
+        heading_valid = valid and across <= bound and heading_sigma <= VALID_HEADING_SIGMA_DEG
         if valid and spd > max(p.stationary_mps, 3.0 * spd_sigma):
             tr.last_moving_ns = t_ns
         still_for = None if tr.last_moving_ns is None else (t_ns - tr.last_moving_ns) * 1e-9

@@ -363,12 +363,12 @@ def test_the_heading_is_valid_once_the_sigma_across_the_motion_is_small_too() ->
     """Across the view the speed (along X) is known from the images long before the direction
     is: it needs the depth's change, which eq. 12 knows far less well (here at 3 m, 1 px of
     disparity is 25 cm). With the motion along X, the sigma across it on the ground is the
-    velocity's Z sigma, and the heading's sigma in rad is that over the speed."""
+    velocity's Z sigma, and the heading's sigma in rad is that over the speed; the heading is
+    valid once that is within the speed's bound (and the heading's sigma within 15 deg)."""
     p = TrackerParams()
     per_frame = run(Tracker(p), [line([-0.6, 0.0, 3.0], [1.5, 0.0, 0.0])], 30, sigma_px=0.5)
     speed_first = heading_first = None
     for k, s in enumerate(f[0] for f in per_frame):
-        bound = max(p.valid_speed_sigma_mps, p.valid_speed_sigma_rel * s.speed_mps)
         across = float(np.sqrt(s.velocity_cov[2, 2]))
         if s.velocity_valid and np.linalg.norm(s.velocity_mps[[0, 2]]) > 0:
             vx, vz = s.velocity_mps[0], s.velocity_mps[2]
@@ -382,8 +382,10 @@ def test_the_heading_is_valid_once_the_sigma_across_the_motion_is_small_too() ->
                 / ground,
                 rel=1e-9,
             )
-            assert s.heading_valid == (np.radians(s.heading_sigma_deg) * ground <= bound)
-            if abs(vz) < 0.01 * abs(vx):
+            bound = max(p.valid_speed_sigma_mps, p.valid_speed_sigma_rel * s.speed_mps)
+            precise = np.radians(s.heading_sigma_deg) * ground <= bound
+            assert s.heading_valid == (precise and s.heading_sigma_deg <= 15.0)
+            if abs(vz) < 0.01 * abs(vx) and s.heading_sigma_deg <= 15.0:
                 assert s.heading_valid == (across <= bound * 1.0001)
         else:
             assert not s.heading_valid
@@ -394,6 +396,25 @@ def test_the_heading_is_valid_once_the_sigma_across_the_motion_is_small_too() ->
     assert speed_first is not None and heading_first is not None
     assert heading_first > speed_first  # the speed first, then the direction
     assert per_frame[-1][0].heading_valid
+
+
+@pytest.mark.parametrize(("what", "v"), [("slow", [0.03, 0.0, 0.0]), ("falling", [0.0, 1.0, 0.0])])
+def test_a_speed_without_a_direction_on_the_ground_has_no_valid_heading(
+    what: str, v: list[float]
+) -> None:
+    """A speed can be known (within the absolute 0.1 m/s) while the direction on the ground is
+    not: an object creeping at 3 cm/s, or one moving straight down, has a valid speed with a
+    heading sigma of tens of degrees or more; its heading is valid only once that sigma is
+    within 15 deg (straight down: never)."""
+    per_frame = run(
+        Tracker(TrackerParams(gravity_mps2=(0.0, 0.0, 0.0))), [line([0.1, -0.3, 2.0], v)], 40
+    )
+    states = [f[0] for f in per_frame if f]
+    speed_only = [s for s in states if s.velocity_valid and not s.heading_valid]
+    assert speed_only and max(s.heading_sigma_deg for s in speed_only) > 30.0, what
+    assert all(s.heading_sigma_deg <= 15.0 for s in states if s.heading_valid), what
+    if what == "falling":
+        assert not any(s.heading_valid for s in states)
 
 
 def test_a_track_whose_filter_goes_behind_the_rig_ends_there() -> None:
@@ -414,8 +435,9 @@ def test_a_track_whose_filter_goes_behind_the_rig_ends_there() -> None:
     assert ended == [1]
     assert coasted and all(s.position_m[2] > 0 for s in coasted)
     assert len(coasted) < 5  # ended on the way through, not at max_coast_s (15 pairs)
-    _, gone = step(tracker, 30 * DT_NS, [np.array([0.0, 0.0, 1.0])])
+    states, gone = step(tracker, 30 * DT_NS, [np.array([0.0, 0.0, 1.0])])
     assert not gone
+    assert [s.track_id for s in states] == [2]  # a new id, never 1 again
 
 
 G = np.array([0.0, 9.81, 0.0])
