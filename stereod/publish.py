@@ -140,6 +140,12 @@ def opened_session(cfg: ZenohConfig) -> Iterator[zenoh.Session]:
         close_session(session)
 
 
+TOKEN_SETTLE_S = 0.2
+"""How long (s) a session just connected to peers waits before asking again whether another
+daemon's ``alive`` token is on the bus (the peers' tokens reach it a moment after the
+connection)."""
+
+
 def reachable(session: zenoh.Session, timeout_s: float = 1.0) -> bool:
     """Whether the session has a Zenoh peer or router to talk to, waiting up to ``timeout_s``
     seconds for one to answer (connecting takes milliseconds on a LAN)."""
@@ -213,10 +219,22 @@ class Publisher:
                 )
             )
         alive = keys.alive(self.rig, prefix=self.prefix)
-        self.rig_taken = any(r.ok is not None for r in s.liveliness().get(alive, timeout=1.0))
+        self.rig_taken = self._token_on_bus(s, alive)
         self._alive = s.liveliness().declare_token(alive)
         log.info("zenoh session open, publishing under %s/", self.base)
         return self
+
+    def _token_on_bus(self, s: zenoh.Session, alive: str) -> bool:
+        """Whether a liveliness token on ``alive`` is on the bus now. A peer just connected
+        may not have told this session of its tokens yet (a query then finds none at once), so
+        with peers to ask, an empty answer is asked again after ``TOKEN_SETTLE_S``."""
+        for attempt in range(2):
+            if any(r.ok is not None for r in s.liveliness().get(alive, timeout=1.0)):
+                return True
+            if attempt or not any(True for _ in s.info.peers_zid()):
+                return False
+            time.sleep(TOKEN_SETTLE_S)
+        return False
 
     @property
     def session(self) -> zenoh.Session:
