@@ -338,6 +338,8 @@ def test_plain_video_flag_mistakes_are_usage_errors_naming_the_flags(
             "--fps and --left-ts/--right-ts are exclusive",
         ),
         (videos, "give --fps HZ or --left-ts/--right-ts"),
+        (["REC", "--fps", "15"], "--fps: for plain videos only; a recording plays at the capture"),
+        (["REC", "--left-ts", "A"], "--left-ts: for plain videos only"),
     ):
         line = error_in_process(capsys, ["replay", *argv], 64, pattern)
         assert "left_video" not in line and "driver.options" not in line, line

@@ -119,6 +119,16 @@ def driver_options(a: argparse.Namespace) -> dict[str, Any]:
     if a.recording is not None:
         if a.left_video or a.right_video:
             raise UsageError("give a recording directory or --left-video/--right-video, not both")
+        given = [
+            f
+            for f, v in (("--fps", a.fps), ("--left-ts", a.left_ts), ("--right-ts", a.right_ts))
+            if v is not None
+        ]
+        if given:
+            raise UsageError(
+                f"{' and '.join(given)}: for plain videos only; a recording plays at the capture "
+                "times it holds (use --rate to play it faster or slower)"
+            )
         options = {"path": a.recording}
     elif a.left_video or a.right_video:
         plain_video_flags(a)
