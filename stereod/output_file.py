@@ -41,6 +41,7 @@ from types import TracebackType
 from typing import IO, Any
 
 from .errors import Interrupted, OutputError, ReaderGone
+from .paths import file_kind
 
 __all__ = [
     "AtomicOutput",
@@ -133,9 +134,8 @@ def output_target(path: Path) -> tuple[Path, bool]:
         return target, True
     if stat.S_ISDIR(mode):
         raise OutputError(f"{path}: is a directory; give the name of a file in it")
-    kind = "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else None
     raise OutputError(
-        f"{path}: is {kind or 'a special file'}, not a file an output can go to; give the path "
+        f"{path}: is {file_kind(mode)}, not a file an output can go to; give the path "
         "of a regular file, or /dev/null to discard the output"
     )
 

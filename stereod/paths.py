@@ -79,7 +79,8 @@ TextPathStr = Annotated[str, AfterValidator(_check_name)]
 """The same for a path kept as a string (device nodes)."""
 
 
-def _kind(mode: int) -> str:
+def file_kind(mode: int) -> str:
+    """What a file that is not a regular one is, from its ``st_mode``, with its article."""
     for test, name in (
         (stat.S_ISDIR, "a directory"),
         (stat.S_ISCHR, "a character device"),
@@ -101,7 +102,7 @@ def _check_file(
 ) -> None:
     if not stat.S_ISREG(st.st_mode):
         raise MissingInputError(
-            f"{shown(path)}: is {_kind(st.st_mode)}, not {what}; give the path of a file"
+            f"{shown(path)}: is {file_kind(st.st_mode)}, not {what}; give the path of a file"
         )
     if st.st_size > limit:
         raise too_large(_too_large(path, what, limit))
@@ -145,7 +146,7 @@ def read_input_file(
     # Not even opened unless a regular file (opening a device can act on it: a serial port
     # resets what hangs on it); checked again once open, in case it was swapped meanwhile.
     # O_NONBLOCK: opening a named pipe with no writer would wait for one.
-    _check_file(path, os.stat(path), what, limit, too_large)
+    check_input_file(path, what, limit=limit, too_large=too_large)
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     try:
         _check_file(path, os.fstat(fd), what, limit, too_large)
