@@ -99,7 +99,9 @@ class Observation:
     (False only for a track's first observation with skew); ``depth_factor``: how much
     deeper the object's centre is than where its silhouettes' centroids triangulate (see
     :func:`stereod.geometry.stereo.silhouette_depth`), so a centre at Z is seen where a
-    point at Z / ``depth_factor`` would be.
+    point at Z / ``depth_factor`` would be. ``row_gap_px``: y_L - y_R of the centroids
+    triangulated (rectified px, after any calibrated silhouette shift), or None where they
+    were not at one instant or were put on one row by appearance matching (``refine``).
     """
 
     position_m: np.ndarray
@@ -117,6 +119,7 @@ class Observation:
     exact: bool = True
     clipped: bool = False
     depth_factor: float = 1.0
+    row_gap_px: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

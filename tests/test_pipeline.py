@@ -348,6 +348,58 @@ def test_with_the_filter_running_a_loss_counts_against_the_growth_each_eye_shoul
     assert seg(_blobs(ball_l), _blobs(ball_r), 0, 0, thrown, 22.0, None, (grow_l, grow_r)) == 0.0
 
 
+def test_centroids_on_rows_apart_widen_the_observations_error() -> None:
+    """A rectified pair sees an object on one row in both eyes; where its two centroids come
+    to lie rows apart, the segmentations disagree, and the disparity may be off by as much:
+    each centroid's sigma gains the gap over sqrt(2). An object seen on one row, then 2 px
+    lower in the right eye than in the left: that observation's lateral variance is
+    (0.15^2 + 2^2 / 2) / 0.15^2 times what it is on one row (closed form: the triangulation's
+    covariance is the centroids' variance times a Jacobian of the positions alone). A gap
+    that stays (a calibration's row error) or goes back to none widens nothing."""
+    from stereod import CanonicalRig, Frame, Pipeline, StereoPair
+    from stereod.frames import Eye
+
+    rig = CanonicalRig(0.06, 60.0, 320, 180)
+    rng = np.random.default_rng(1)
+    bg = rng.integers(0, 255, (180, 320, 3)).astype(np.uint8)
+
+    def second_sight(
+        gaps: tuple[int, int], skew_ns: int = 0, **params: bool
+    ) -> tuple[np.ndarray, float | None]:
+        """The object's observation on its second pair, its right image ``gaps`` px lower
+        and ``skew_ns`` later."""
+        with Pipeline(PipelineParams(rig, **params)) as pipe:
+            for k in range(12):
+                left, right = bg.copy(), bg.copy()
+                if k >= 10:  # appears after the warm-up and stays
+                    g = gaps[k - 10]
+                    left[60:100, 100:130] = (0, 255, 0)
+                    right[60 + g : 100 + g, 94:124] = (0, 255, 0)
+                t = k * 40_000_000
+                pair = StereoPair(
+                    k, Frame(Eye.LEFT, left, t, k), Frame(Eye.RIGHT, right, t + skew_ns, k)
+                )
+                tracks = pipe.process(pair).tracks
+        (s,) = tracks
+        return s.observation.cov_m2, s.observation.row_gap_px
+
+    same, gap = second_sight((0, 0))
+    assert gap == pytest.approx(0.0, abs=1e-6)
+    apart, gap = second_sight((0, 2))
+    assert gap == pytest.approx(-2.0, abs=1e-6)
+    sigma0 = PipelineParams(rig).centroid_sigma_px
+    assert apart[0, 0] / same[0, 0] == pytest.approx((sigma0**2 + 2.0) / sigma0**2, rel=1e-9)
+    for gaps in ((2, 2), (2, 0)):
+        cov, _ = second_sight(gaps)
+        assert cov[0, 0] == pytest.approx(same[0, 0], rel=1e-9), gaps
+    # Eyes 10 ms apart, not brought to one instant: the rows' gap may be motion, not
+    # segmentation, and says nothing.
+    late, gap = second_sight((0, 2), 10_000_000, skew_compensation=False)
+    late_same, _ = second_sight((0, 0), 10_000_000, skew_compensation=False)
+    assert gap is None
+    assert late[0, 0] == pytest.approx(late_same[0, 0], rel=1e-9)
+
+
 @pytest.mark.parametrize("disparity_px", [0, 6])
 def test_one_view_in_both_eyes_never_makes_a_track_at_infinity(disparity_px: int) -> None:
     """Both eyes see the same image (no parallax, as two copies of one test pattern do) of an
