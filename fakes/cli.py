@@ -185,6 +185,27 @@ def ball_problem(scene: Scene, ball: Ball, *, move: bool = False) -> str | None:
     return f"{ball_at}; no z fits it: radius must be below {largest:.2g} m"
 
 
+def travel_problem(scene: Scene, ball: Ball) -> str | None:
+    """Why ``ball``, fine at mid-travel, cannot travel its whole path in ``scene``, or None: at
+    the start or end of its travel (its depth is linear in time, so the ends bound it) it must
+    still lie between the camera and the wall without touching either. A ball that leaves the
+    view sideways or up and down is fine: objects cross the view."""
+    wall, r = scene.wall_m, ball.radius_m
+    for when, t in (("start", ball.t_on_s), ("end", ball.t_off_s)):
+        z = float(ball.position_m(t)[2])
+        if z - r <= 0:
+            where = "at or behind the camera"
+        elif z + r >= wall:
+            where = f"through the wall at {wall:g} m"
+        else:
+            continue
+        return (
+            f"at the {when} of its travel ({t:g} s) it is at z = {z:.3g} m, {where}; "
+            "give it a lower speed, a heading more across the view, or a shorter --travel"
+        )
+    return None
+
+
 def recording_size(text: str) -> tuple[int, int]:
     """An argparse type: ``WxH`` that a recording stores as it is (even sides: the video
     writer would crop an odd one), so a bad ``--size`` is one line and exit 64."""
@@ -227,6 +248,8 @@ def scene_from_args(a: argparse.Namespace) -> Scene:
     for spec, ball in zip(specs, scene.balls, strict=True):
         keys = {part.partition("=")[0].strip() for part in spec.split(",")}
         problem = ball_problem(scene, ball, move="z" in keys and "radius" not in keys)
+        if problem is None:
+            problem = travel_problem(scene, ball)
         if problem is not None:
             raise UsageError(f"--ball {spec!r}: {problem} (nothing was written)")
     if scene.n_frames == 0:

@@ -152,6 +152,28 @@ def test_synth_refuses_a_ball_that_cannot_be_seen(tmp_path: Path, ball: str, pat
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize(
+    ("ball", "pattern"),
+    [  # at mid-travel at 1.8 m (or z), in view for the default 1.6 s from 1.2 s to 2.8 s
+        ("heading=0,speed=3", r"start of its travel \(1\.2 s\) it is at z = -0\.6 m, at or behind"),
+        ("heading=180,speed=3", r"start of its travel \(1\.2 s\) it is at z = 4\.2 m, through the"),
+        ("heading=0,speed=2,z=2.5", r"end of its travel \(2\.8 s\) it is at z = 4\.1 m, through"),
+    ],
+)
+def test_synth_refuses_a_ball_whose_travel_reaches_the_camera_or_the_wall(
+    tmp_path: Path, ball: str, pattern: str
+) -> None:
+    """A ball placed well at mid-travel whose straight path takes it through the camera or
+    the wall (its depth at each end of the travel: z -/+ speed x 0.8 s) is a flag error
+    saying where and what to change, and nothing is written; one that leaves the view across
+    it is a scene like any other."""
+    res = stereod("synth", str(tmp_path / "s"), "--ball", ball)
+    one_line_error(res, 64, rf"--ball '{ball}': at the {pattern}.*shorter --travel")
+    assert list(tmp_path.iterdir()) == []
+    res = stereod("synth", str(tmp_path / "t"), "--ball", "heading=90,speed=3", "--size", "160x120")
+    assert res.returncode == 0, res.stderr
+
+
 def test_a_prerendered_scene_that_cannot_fit_in_memory_is_refused_when_read() -> None:
     """``run --check`` reads the options; a scene whose frames could never be held (here 54.9
     TiB an eye) is refused there, naming the option and what to change, not when it opens."""
