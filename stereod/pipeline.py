@@ -429,10 +429,10 @@ class Pipeline:
             clipped = detections[k].clipped
             before = self.tracker.track(tid).last if tid is not None else None
             growth = self._expected_growth(tid, eye_times)
+            at_once = exact and (compensate or t_left == t_right)
             ob = self._observe(
-                lb, rb, idx[k], lpx[k], rpx[k], lc, rc, exact, clipped, before, growth,
-                one_instant=exact and (compensate or t_left == t_right),
-            )  # fmt: skip
+                lb, rb, idx[k], lpx[k], rpx[k], lc, rc, exact, clipped, before, growth, at_once
+            )
             observations.append(ob if self._in_range(ob) else None)
         t2 = time.perf_counter_ns()
         states, ended = self.tracker.update(t_ns, observations, assignment, eye_times, detections)
@@ -586,14 +586,12 @@ class Pipeline:
         clipped: bool,
         before: Observation | None = None,
         growth: tuple[float, float] | None = None,
-        *,
         one_instant: bool = True,
     ) -> Observation:
         """The observation of one matched pair of blobs; ``tri_*`` are the centroids to
         triangulate (moved to one instant when skew is compensated; ``one_instant`` whether
-        they are at one), ``before`` the track's
-        last observation and ``growth`` how much its blob should have grown in each eye since
-        (see :func:`_segmentation_error_px`)."""
+        they are at one), ``before`` the track's last observation and ``growth`` how much its
+        blob should have grown in each eye since (see :func:`_segmentation_error_px`)."""
         p = self.params
         i, j = int(ij[0]), int(ij[1])
         width_px = 0.5 * (int(lb.bbox_px[i, 2]) + int(rb.bbox_px[j, 2]))
@@ -698,6 +696,9 @@ class Pipeline:
                 det.learn(*pending)
 
 
+_SQRT_HALF = math.sqrt(0.5)
+
+
 def _row_error_px(gap: float, gap_before: float) -> float:
     """How far (px, one sigma, per centroid) the two eyes' centroids of one object may be
     off across the rows, from how far apart their rows are now and were at the track's last
@@ -713,9 +714,6 @@ def _row_error_px(gap: float, gap_before: float) -> float:
     depth a px of disparity), has its rows 0.5 to 1 px apart on about one frame in eight,
     and its depth 1.5 to 3 cm off there (0.3 to 0.6 px of disparity)."""
     return min(abs(gap), abs(gap - gap_before)) * _SQRT_HALF
-
-
-_SQRT_HALF = math.sqrt(0.5)
 
 
 SEGMENTATION_SLACK = 0.03
