@@ -31,6 +31,7 @@ from .errors import InternalError, ReaderGone, StereodError
 from .frames import Driver, Eye, StereoSource
 from .geometry.rectified import CalibratedRig
 from .images import ImagePublishers, ImageWorker
+from .memory import separate_large_buffers
 from .messages import CanonicalGeometry, DaemonState, StatusMessage, dump
 from .output import Output
 from .output_file import AtomicOutput, check_not_input, give_up_writing
@@ -208,6 +209,7 @@ class Daemon:
         with self.driver.open() as source:
             self._source = source
             info = source.info
+            separate_large_buffers(info.width * info.height * 3)
             if self.jsonl is not None:
                 check_not_input(self.jsonl, [*info.inputs, *self._inputs], "--jsonl")
             params = pipeline_params(self.cfg, info.width, info.height)
