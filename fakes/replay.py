@@ -4,7 +4,10 @@ Plain videos take either a frame rate (both eyes stamped ``i / fps``, no skew) o
 CSV per eye (header ``t_ns``, one integer per frame). Inconsistent inputs (missing or unreadable
 files, different sizes or frame counts between the eyes, timestamps that do not increase) are
 refused before anything plays; a video that decodes fewer frames than its header or timestamp
-file announce plays what it has and reports the truncation through ``problems()``.
+file announce plays what it has and reports the truncation through ``problems()``. A
+recording's frame whose pixels do not match the CRC-32 recorded beside it (a lossless video
+damaged on disk still decodes, into other pixels) is left out and reported the same way, as
+a camera's dropped frame would be: the pipeline never sees it.
 """
 
 from __future__ import annotations
@@ -20,7 +23,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from stereod.errors import ConfigError, InputError, MissingInputError, describe_validation_error
 from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
 from stereod.paths import TextPath, text_path
-from stereod.recording import MANIFEST, read_manifest, read_timestamps
+from stereod.recording import (
+    MANIFEST,
+    checksum,
+    damaged_frames,
+    read_checksums,
+    read_manifest,
+    read_timestamps,
+)
 
 log = logging.getLogger(__name__)
 
@@ -99,6 +109,7 @@ class VideoEye(EyeSource):
         expected: int,
         expected_from: str,
         loop: bool = False,
+        crc: np.ndarray | None = None,
     ) -> None:
         self.eye = eye
         self.path = path
@@ -112,6 +123,8 @@ class VideoEye(EyeSource):
         self._expected = expected
         self._expected_from = expected_from
         self._loop = loop
+        self._crc = crc
+        """Each frame's CRC-32 as recorded (a lossless recording's), or None: not checked."""
         self._cap: cv2.VideoCapture | None = _open_capture(path, gray)
         self._i = 0
         self._offset_ns = 0
@@ -121,6 +134,8 @@ class VideoEye(EyeSource):
         eyes get the same (:func:`common_lap`), else each eye's own decoded frames decide."""
         self.decoded = 0
         self.bad_frames = 0
+        self.damaged: list[int] = []
+        """Frames (from 0) left out because they differ from their CRC-32 (the first lap)."""
         self.problems: list[str] = []
 
     def read(self) -> Frame | None:
@@ -156,6 +171,11 @@ class VideoEye(EyeSource):
                 continue
             if self._gray and img.ndim == 3:
                 img = img[..., 0].copy()
+            if self._crc is not None and i < len(self._crc) and checksum(img) != self._crc[i]:
+                self.bad_frames += 1
+                if self._offset_ns == 0:  # said once, not again on each lap of a loop
+                    self.damaged.append(i)
+                continue
             self.decoded += 1
             t, seq = self._stamp(i)
             return Frame(self.eye, img, t + self._offset_ns, seq + self._seq_offset)
@@ -225,7 +245,11 @@ class ReplaySource(StereoSource):
         common_lap(left, right)
 
     def problems(self) -> list[str]:
-        return self._eyes[0].problems + self._eyes[1].problems
+        return [
+            *self._eyes[0].problems,
+            *self._eyes[1].problems,
+            *(damaged_frames(e.path, e.damaged, "left out") for e in self._eyes if e.damaged),
+        ]
 
 
 class ReplayDriver(Driver):
@@ -255,6 +279,7 @@ class ReplayDriver(Driver):
         inputs = [directory / MANIFEST]
         for eye, files in ((Eye.LEFT, man.left), (Eye.RIGHT, man.right)):
             t, seq = read_timestamps(directory / files.timestamps)
+            crc = read_checksums(directory / files.timestamps)
             if len(t) != files.frames:
                 raise InputError(
                     f"{directory / files.timestamps}: {len(t)} timestamps, manifest says "
@@ -281,6 +306,7 @@ class ReplayDriver(Driver):
                     expected=files.frames,
                     expected_from="the manifest",
                     loop=self.options.loop,
+                    crc=crc,
                 )
             )
         info = SourceInfo(

@@ -112,7 +112,14 @@ from .frames import Eye, Frame
 from .messages import ObjectsMessage, ObjectState, dump
 from .output_file import AtomicOutput
 from .paths import text_path
-from .recording import Manifest, read_manifest, read_timestamps
+from .recording import (
+    Manifest,
+    checksum,
+    damaged_frames,
+    read_checksums,
+    read_manifest,
+    read_timestamps,
+)
 
 __all__ = [
     "BODY_TO_OPTICAL",
@@ -958,6 +965,8 @@ class _Eye:
     video: Path
     t_ns: np.ndarray
     seq: np.ndarray
+    crc: np.ndarray | None
+    """Each frame's CRC-32 as recorded (lossless recordings), or None."""
 
 
 def _read_recording(directory: Path) -> tuple[Manifest, dict[Eye, _Eye]]:
@@ -973,7 +982,7 @@ def _read_recording(directory: Path) -> tuple[Manifest, dict[Eye, _Eye]]:
         video = directory / files.video
         if not video.is_file():
             raise MissingInputError(f"{video}: no such video file; the recording is incomplete")
-        eyes[eye] = _Eye(eye, video, t, seq)
+        eyes[eye] = _Eye(eye, video, t, seq, read_checksums(directory / files.timestamps))
     return man, eyes
 
 
@@ -983,6 +992,7 @@ def _decode(rec: _Eye, gray: bool, problems: list[str]) -> Iterator[Frame]:
         raise InputError(f"{rec.video}: cannot open as a video (corrupt or unsupported codec)")
     if gray:
         cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+    damaged: list[int] = []
     try:
         for i in itertools.count():
             ok, img = cap.read()
@@ -1000,9 +1010,14 @@ def _decode(rec: _Eye, gray: bool, problems: list[str]) -> Iterator[Frame]:
                 )
             if gray and img.ndim == 3:
                 img = np.ascontiguousarray(img[..., 0])
+            if rec.crc is not None and checksum(img) != rec.crc[i]:
+                damaged.append(i)
+                continue
             yield Frame(rec.eye, img, int(rec.t_ns[i]), int(rec.seq[i]))
     finally:
         cap.release()
+        if damaged:
+            problems.append(damaged_frames(rec.video, damaged, "not exported"))
 
 
 def _frame_events(

@@ -4,10 +4,15 @@ A recording is a directory::
 
     recording.json   manifest (pydantic-validated): format version, size, rate, codec, settings
     left.mkv         left eye video (FFV1 lossless by default; MJPG is lossy)
-    left.csv         ``t_ns,seq``: one row per frame, monotonic capture time (ns) and sequence
+    left.csv         ``t_ns,seq,crc32``: one row per frame, monotonic capture time (ns),
+                     sequence number and, with FFV1, the CRC-32 of the frame's pixels
     right.mkv, right.csv
 
 Replay reproduces the frames (bit-exact with FFV1) and the timestamps and sequence numbers.
+A lossless video damaged on disk still decodes, into other pixels, and FFmpeg says nothing
+that reaches the caller: the CRC-32 beside each frame is how a reader finds such a frame and
+leaves it out (:func:`read_checksums`, :func:`checksum`). MJPG recordings, lossy, have none;
+nor do recordings made before it was added, which replay as they did.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import os
 import shutil
 import tempfile
 import time
+import zlib
 from pathlib import Path, PurePosixPath
 from typing import Annotated, Any, Final, Literal
 
@@ -49,6 +55,8 @@ from .versioned import known_format, warn_unknown_fields
 
 MANIFEST = "recording.json"
 FORMAT: Final = "stereod.recording/1"
+CHECKSUM_COLUMN: Final = "crc32"
+"""The timestamp CSV's third column: CRC-32 of each frame's pixels (FFV1 recordings)."""
 
 
 class Codec(str, enum.Enum):
@@ -190,28 +198,10 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Read a timestamp CSV: header ``t_ns`` (optionally ``t_ns,seq``), one integer row per frame.
 
     Returns (n,) int64 times (ns) and (n,) int64 sequence numbers (row index when absent).
-    Times must strictly increase; the error names the file and row.
+    Times must strictly increase; the error names the file and row. Further columns (a
+    recording's ``crc32``) are left to their own readers.
     """
-    try:
-        data = read_input_file(path, "a timestamp file", limit=MAX_TIMESTAMP_BYTES)
-    except FileNotFoundError as exc:
-        raise MissingInputError(f"{path}: no such timestamp file") from exc
-    except OSError as exc:
-        raise MissingInputError(f"{path}: cannot read timestamp file: {exc.strerror}") from exc
-    try:
-        text = data.decode("utf-8-sig")  # a byte-order mark, as some editors write, is no data
-    except UnicodeDecodeError as exc:
-        raise InputError(
-            f"{path}: not a text file (byte {exc.start} is not UTF-8); a timestamp file is a "
-            "CSV with the header t_ns"
-        ) from exc
-    try:
-        rows = list(csv.reader(io.StringIO(text, newline="")))
-    except csv.Error as exc:
-        raise InputError(f"{path}: not a valid CSV file: {exc}") from exc
-    # Blank lines at the end are no frames, nor rows of empty cells (a spreadsheet's ",,").
-    while rows and not "".join(rows[-1]).strip():
-        rows.pop()
+    rows = _csv_rows(path)
     if not rows or [c.strip() for c in rows[0][:1]] != ["t_ns"]:
         raise InputError(f"{path}: first line must be the header 't_ns' (or 't_ns,seq')")
     has_seq = len(rows[0]) > 1 and rows[0][1].strip() == "seq"
@@ -244,6 +234,78 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
             "(timestamps must strictly increase)"
         )
     return t, seq
+
+
+def _csv_rows(path: Path) -> list[list[str]]:
+    """The rows of a timestamp CSV, header first, without the blank rows at its end."""
+    try:
+        data = read_input_file(path, "a timestamp file", limit=MAX_TIMESTAMP_BYTES)
+    except FileNotFoundError as exc:
+        raise MissingInputError(f"{path}: no such timestamp file") from exc
+    except OSError as exc:
+        raise MissingInputError(f"{path}: cannot read timestamp file: {exc.strerror}") from exc
+    try:
+        text = data.decode("utf-8-sig")  # a byte-order mark, as some editors write, is no data
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            f"{path}: not a text file (byte {exc.start} is not UTF-8); a timestamp file is a "
+            "CSV with the header t_ns"
+        ) from exc
+    try:
+        rows = list(csv.reader(io.StringIO(text, newline="")))
+    except csv.Error as exc:
+        raise InputError(f"{path}: not a valid CSV file: {exc}") from exc
+    # Blank lines at the end are no frames, nor rows of empty cells (a spreadsheet's ",,").
+    while rows and not "".join(rows[-1]).strip():
+        rows.pop()
+    return rows
+
+
+def checksum(image: np.ndarray) -> int:
+    """CRC-32 (zlib's) of an image's pixels in row-major order: what a lossless recording
+    stores beside each frame and checks when the frame is decoded again."""
+    return zlib.crc32(np.ascontiguousarray(image).data)
+
+
+def read_checksums(path: Path) -> np.ndarray | None:
+    """The per-frame CRC-32s of a timestamp CSV whose header's third column is ``crc32``
+    ((n,) uint32, one per frame, as :func:`read_timestamps` reads the rows), or None when it
+    has none (a lossy recording, an older one, a plain timestamp file). Read after
+    :func:`read_timestamps` has accepted the file; a cell that is no CRC-32 is an error naming
+    the file and line."""
+    rows = _csv_rows(path)
+    if not rows or len(rows[0]) < 3 or rows[0][2].strip() != CHECKSUM_COLUMN:
+        return None
+    crc = np.empty(len(rows) - 1, np.uint32)
+    for i, row in enumerate(rows[1:]):
+        try:
+            value = int(row[2])
+        except (IndexError, ValueError):
+            value = -1
+        if not 0 <= value < 2**32:
+            raise InputError(
+                f"{path} line {i + 2}: expected a CRC-32 (an integer from 0 to 2^32 - 1) in "
+                f"the third column, got {_shown_row(row)}; remove the column's header to "
+                "replay without checking the frames"
+            )
+        crc[i] = value
+    return crc
+
+
+def damaged_frames(video: Path, frames: list[int], outcome: str) -> str:
+    """The one problem line for the frames of ``video`` (indices from 0, in order) whose
+    pixels differ from their recorded CRC-32; ``outcome`` says what became of them."""
+    first, last = frames[0], frames[-1]
+    if len(frames) == 1:
+        which = f"frame {first}"
+    elif last - first + 1 == len(frames):
+        which = f"frames {first} to {last}"
+    else:
+        which = f"{len(frames)} frames from {first} to {last}"
+    return (
+        f"{video}: {which} decoded into pixels that differ from the CRC-32 recorded with them "
+        f"(the video file is damaged); {outcome}"
+    )
 
 
 def _shown_row(row: list[str], limit: int = 60) -> str:
@@ -342,6 +404,9 @@ class RecordingWriter:
         self._counts = {Eye.LEFT: 0, Eye.RIGHT: 0}
         self._size = (height, width)
         self._codec, self._fps = codec, fps
+        self._checksums = Codec(codec) is Codec.FFV1
+        """Whether each frame's CRC-32 is kept beside it: only a lossless video gives back the
+        pixels it was given."""
         self._frame_bytes = width * height * (1 if color is False else 3)
         self._writes = 0
         self._closed = False
@@ -349,7 +414,7 @@ class RecordingWriter:
             for eye in Eye:
                 try:
                     fh = (self._tmp / f"{eye.value}.csv").open("w", newline="")
-                    fh.write("t_ns,seq\n")
+                    fh.write(f"t_ns,seq,{CHECKSUM_COLUMN}\n" if self._checksums else "t_ns,seq\n")
                 except OSError as exc:
                     raise OutputError(
                         f"{directory}: cannot write timestamps: {exc.strerror}"
@@ -413,7 +478,12 @@ class RecordingWriter:
             img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
         self._writers[frame.eye].write(img)
         try:
-            self._ts[frame.eye].write(f"{frame.t_ns},{frame.seq}\n")
+            row = (
+                f"{frame.t_ns},{frame.seq},{checksum(img)}"
+                if self._checksums
+                else (f"{frame.t_ns},{frame.seq}")
+            )
+            self._ts[frame.eye].write(row + "\n")
         except OSError as exc:
             raise OutputError(f"{self.directory}: writing failed: {exc.strerror}") from exc
         self._counts[frame.eye] += 1

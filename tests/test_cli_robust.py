@@ -547,7 +547,7 @@ def test_eyes_whose_clocks_disagree_by_seconds_say_why_nothing_paired(tmp_path: 
     rec = recording(tmp_path)
     rows = (rec / "right.csv").read_text().splitlines()
     shifted = [rows[0]] + [
-        f"{int(t) + 10_000_000_000},{seq}" for t, seq in (r.split(",") for r in rows[1:])
+        f"{int(t) + 10_000_000_000},{rest}" for t, rest in (r.split(",", 1) for r in rows[1:])
     ]
     (tmp_path / "right10.csv").write_text("\n".join(shifted) + "\n")
     got = run_stereod(
@@ -688,8 +688,8 @@ def test_a_timestamp_file_that_jumps_is_played_on_and_said(tmp_path: Path, rate:
     csv = rec / "left.csv"
     head, *rows = csv.read_text().splitlines()
     for k in range(10, len(rows)):
-        t, seq = rows[k].split(",")
-        rows[k] = f"{int(t) + 10**15},{seq}"
+        t, rest = rows[k].split(",", 1)
+        rows[k] = f"{int(t) + 10**15},{rest}"
     csv.write_text("\n".join([head, *rows]) + "\n")
     t0 = time.monotonic()
     res = run_stereod("replay", str(rec), "--rate", rate, "-q", cwd=tmp_path, timeout=60)

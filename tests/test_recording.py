@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,13 @@ import pytest
 from stereod.calibration import canonical
 from stereod.errors import InputError, MissingInputError, OutputError
 from stereod.frames import Eye, Frame
-from stereod.recording import Codec, RecordingWriter, read_manifest, read_timestamps
+from stereod.recording import (
+    Codec,
+    RecordingWriter,
+    read_checksums,
+    read_manifest,
+    read_timestamps,
+)
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Scene, write_scene
 
@@ -69,6 +76,44 @@ def test_ffv1_round_trip_is_bit_exact_with_times_and_sequences(tmp_path: Path, c
                 assert np.array_equal(got.image, want.image), f"{eye.eye} frame {k} differs"
             assert eye.read() is None
         assert src.problems() == []
+
+
+@pytest.mark.parametrize("color", [False, True])
+def test_a_lossless_recording_keeps_each_frames_crc32(tmp_path: Path, color: bool) -> None:
+    """Beside each FFV1 frame, zlib's CRC-32 of the pixels it was given (row-major bytes);
+    a lossy MJPG recording, whose pixels come back changed, has no such column."""
+    frames = random_frames(5, color, seed=3)
+    for codec in Codec:
+        with RecordingWriter(
+            tmp_path / codec.value, 64, 48, fps=30.0, codec=codec, color=color
+        ) as w:
+            for left, right in frames:
+                w.write(left)
+                w.write(right)
+    for eye, idx in (("left", 0), ("right", 1)):
+        csv = tmp_path / "ffv1" / f"{eye}.csv"
+        assert csv.read_text().splitlines()[0] == "t_ns,seq,crc32"
+        want = [zlib.crc32(pair[idx].image.tobytes()) for pair in frames]
+        crc = read_checksums(csv)
+        assert crc is not None and crc.tolist() == want
+        assert read_timestamps(csv)[1].tolist() == [pair[idx].seq for pair in frames]
+        mjpg = tmp_path / "mjpg" / f"{eye}.csv"
+        assert mjpg.read_text().splitlines()[0] == "t_ns,seq"
+        assert read_checksums(mjpg) is None
+
+
+def test_a_checksum_that_is_no_crc32_is_refused_naming_the_line(tmp_path: Path) -> None:
+    p = tmp_path / "left.csv"
+    p.write_text("t_ns,seq,crc32\n10,0,123\n20,1,4294967296\n")
+    with pytest.raises(
+        InputError, match=r"left\.csv line 3: expected a CRC-32 .* '20,1,4294967296'"
+    ):
+        read_checksums(p)
+    p.write_text("t_ns,seq,crc32\n10,0\n")
+    with pytest.raises(InputError, match=r"line 2: expected a CRC-32"):
+        read_checksums(p)
+    p.write_text("t_ns,seq\n10,0\n")
+    assert read_checksums(p) is None
 
 
 def test_timestamp_file_errors_name_file_and_line(tmp_path: Path) -> None:

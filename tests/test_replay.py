@@ -23,6 +23,9 @@ import pytest
 from mcap.reader import make_reader
 
 from stereod.errors import ConfigError, InputError, MissingInputError
+from stereod.export_mcap import export_run
+from stereod.frames import Eye, Frame
+from stereod.recording import Codec, RecordingWriter
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Scene, write_scene
 
@@ -114,6 +117,72 @@ def test_truncated_video_plays_what_decodes_and_says_so() -> None:
     )
     assert len(left) == len(right) == 68
     assert problems and "truncated" in problems[0] and "444" in problems[0] and "68" in problems[0]
+
+
+def lossless_recording(path: Path, n: int = 12) -> list[np.ndarray]:
+    """An FFV1 recording of ``n`` pairs of random colour frames (64x48); the left frames."""
+    rng = np.random.default_rng(7)
+    lefts = []
+    with RecordingWriter(path, 64, 48, fps=30.0, codec=Codec.FFV1, color=True) as w:
+        for k in range(n):
+            t = 1_000_000_000 + k * 33_000_000
+            lefts.append(rng.integers(0, 256, (48, 64, 3), np.uint8))
+            w.write(Frame(Eye.LEFT, lefts[-1], t, k))
+            w.write(Frame(Eye.RIGHT, rng.integers(0, 256, (48, 64, 3), np.uint8), t + 1000, k))
+    return lefts
+
+
+def damage(path: Path, at: float) -> None:
+    """Invert 8 bytes of a file at the share ``at`` of its length, as a failing disk might."""
+    data = bytearray(path.read_bytes())
+    k = int(len(data) * at)
+    data[k : k + 8] = bytes(b ^ 0xFF for b in data[k : k + 8])
+    path.write_bytes(data)
+
+
+def test_a_damaged_lossless_recording_plays_only_the_pixels_it_recorded(tmp_path: Path) -> None:
+    """Bytes of the left video inverted half-way: FFmpeg still decodes every frame from there
+    on, into other pixels. Each of those differs from the CRC-32 recorded beside it, so it is
+    left out and said once, naming the file and frames; every frame played is the one
+    recorded, and the right eye plays whole."""
+    rec = tmp_path / "rec"
+    lefts = lossless_recording(rec)
+    damage(rec / "left.mkv", 0.5)
+    left, right, problems = read_all(ReplayDriver({"path": rec}))
+    assert 0 < len(left) < 12 and len(right) == 12
+    for f in left:
+        assert np.array_equal(f.image, lefts[f.seq]), f"left frame {f.seq} is not as recorded"
+    gone = sorted(set(range(12)) - {f.seq for f in left})
+    assert len(problems) == 1, problems
+    assert (
+        f"left.mkv: frames {gone[0]} to {gone[-1]} decoded into pixels that differ" in problems[0]
+    )
+    assert "damaged" in problems[0]
+
+
+def test_one_frame_whose_checksum_differs_is_left_out_and_the_run_exits_65(tmp_path: Path) -> None:
+    """One CRC-32 of the left eye's CSV changed (as one damaged frame would make it differ):
+    that frame alone is left out, the replay runs to its end and exits 65 saying which frame,
+    and the MCAP export leaves it out as well and says so in its summary."""
+    rec = tmp_path / "rec"
+    lossless_recording(rec)
+    csv = rec / "left.csv"
+    head, *rows = csv.read_text().splitlines()
+    t, seq, crc = rows[3].split(",")
+    rows[3] = f"{t},{seq},{(int(crc) + 1) % 2**32}"
+    csv.write_text("\n".join([head, *rows]) + "\n")
+    left, _, problems = read_all(ReplayDriver({"path": rec}))
+    assert [f.seq for f in left] == [0, 1, 2, *range(4, 12)]
+    assert problems == [
+        f"{rec / 'left.mkv'}: frame 3 decoded into pixels that differ from the CRC-32 recorded "
+        "with them (the video file is damaged); left out"
+    ]
+    res = run_stereod("replay", str(rec), "--rate", "0", "-q")
+    assert res.returncode == 65, res.stderr
+    last = res.stderr.splitlines()[-1]  # (random frames are all foreground: said before it)
+    assert last.startswith("stereod: ") and "left.mkv: frame 3 decoded" in last
+    summary = export_run(tmp_path / "out.mcap", jsonl=None, recording=rec)
+    assert any("left.mkv: frame 3 decoded" in p and "not exported" in p for p in summary.problems)
 
 
 @pytest.mark.parametrize(
