@@ -209,7 +209,7 @@ class Daemon:
         with self.driver.open() as source:
             self._source = source
             info = source.info
-            separate_large_buffers(info.width * info.height * 3)
+            separate_large_buffers(info.width, info.height)
             if self.jsonl is not None:
                 check_not_input(self.jsonl, [*info.inputs, *self._inputs], "--jsonl")
             params = pipeline_params(self.cfg, info.width, info.height)
