@@ -26,8 +26,8 @@ from stereod.paths import TextPath, text_path
 from stereod.recording import (
     MANIFEST,
     checksum,
-    damaged_frames,
-    read_checksums,
+    damaged_frames_problem,
+    read_frame_index,
     read_manifest,
     read_timestamps,
 )
@@ -110,6 +110,7 @@ class VideoEye(EyeSource):
         expected_from: str,
         loop: bool = False,
         crc: np.ndarray | None = None,
+        crc_file: Path | None = None,
     ) -> None:
         self.eye = eye
         self.path = path
@@ -125,6 +126,10 @@ class VideoEye(EyeSource):
         self._loop = loop
         self._crc = crc
         """Each frame's CRC-32 as recorded (a lossless recording's), or None: not checked."""
+        self.crc_file = crc_file
+        """The file ``crc`` was read from."""
+        self._lap_frames = 0
+        """Frames this lap of a loop has given so far."""
         self._cap: cv2.VideoCapture | None = _open_capture(path, gray)
         self._i = 0
         self._offset_ns = 0
@@ -137,6 +142,11 @@ class VideoEye(EyeSource):
         self.damaged: list[int] = []
         """Frames (from 0) left out because they differ from their CRC-32 (the first lap)."""
         self.problems: list[str] = []
+        self.other: VideoEye | None = None
+        """The other eye of the stereo input: a loop stops once that one has ended for good
+        (nothing it could pair with would come)."""
+        self.ended = False
+        """Whether this eye has given its last frame."""
 
     def read(self) -> Frame | None:
         while True:
@@ -149,9 +159,14 @@ class VideoEye(EyeSource):
                         f"{self.path}: truncated: {self._expected_from} says {self._expected} "
                         f"frames, only {self._i} decoded; replayed those"
                     )
-                if self._loop and self._i > 0:
+                if self._loop and self._i > 0 and self._lap_frames == 0:
+                    self.problems.append(
+                        f"{self.path}: every frame of a lap was left out; nothing to loop"
+                    )
+                elif self._loop and self._i > 0 and not (self.other and self.other.ended):
                     self._restart()
                     continue
+                self.ended = True
                 self.close()
                 return None
             if self._t is not None and self._i >= len(self._t):
@@ -177,6 +192,7 @@ class VideoEye(EyeSource):
                     self.damaged.append(i)
                 continue
             self.decoded += 1
+            self._lap_frames += 1
             t, seq = self._stamp(i)
             return Frame(self.eye, img, t + self._offset_ns, seq + self._seq_offset)
 
@@ -214,6 +230,7 @@ class VideoEye(EyeSource):
             self._cap.release()
         self._cap = _open_capture(self.path, self._gray)
         self._i = 0
+        self._lap_frames = 0
 
     def close(self) -> None:
         if self._cap is not None:
@@ -242,13 +259,18 @@ class ReplaySource(StereoSource):
     def __init__(self, left: VideoEye, right: VideoEye, info: SourceInfo) -> None:
         super().__init__(left, right, info)
         self._eyes = (left, right)
+        left.other, right.other = right, left
         common_lap(left, right)
 
     def problems(self) -> list[str]:
         return [
             *self._eyes[0].problems,
             *self._eyes[1].problems,
-            *(damaged_frames(e.path, e.damaged, "left out") for e in self._eyes if e.damaged),
+            *(
+                damaged_frames_problem(e.path, e.crc_file, e.damaged, "left out")
+                for e in self._eyes
+                if e.damaged and e.crc_file is not None
+            ),
         ]
 
 
@@ -278,8 +300,7 @@ class ReplayDriver(Driver):
         eyes = []
         inputs = [directory / MANIFEST]
         for eye, files in ((Eye.LEFT, man.left), (Eye.RIGHT, man.right)):
-            t, seq = read_timestamps(directory / files.timestamps)
-            crc = read_checksums(directory / files.timestamps)
+            t, seq, crc = read_frame_index(directory / files.timestamps)
             if len(t) != files.frames:
                 raise InputError(
                     f"{directory / files.timestamps}: {len(t)} timestamps, manifest says "
@@ -307,6 +328,7 @@ class ReplayDriver(Driver):
                     expected_from="the manifest",
                     loop=self.options.loop,
                     crc=crc,
+                    crc_file=directory / files.timestamps,
                 )
             )
         info = SourceInfo(

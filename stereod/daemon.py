@@ -468,12 +468,15 @@ class Daemon:
         """At the end of a run in which both eyes gave frames and none found a partner, say
         how far apart the eyes' last frames were (on the last status and in the summary); at
         the end of a file in which more than ``UNPAIRED_SHARE`` of the frames found none, say
-        that (its timestamps disagree part of the way: a timestamp file that jumps)."""
+        that (its timestamps disagree part of the way: a timestamp file that jumps), unless
+        the input has already said why frames are missing (a truncated or damaged video: the
+        other eye's frames of those instants have no partner, whatever their timestamps)."""
         st = self.pairer.stats
         frames = sum(st.frames.values())
         unpaired = frames - 2 * st.pairs
         live = self._source is None or self._source.info.live
-        if st.pairs and not live and unpaired > UNPAIRED_SHARE * frames:
+        explained = bool(self.summary.input_problems)
+        if st.pairs and not live and not explained and unpaired > UNPAIRED_SHARE * frames:
             text = (
                 f"{unpaired} of {frames} frames found no partner of the other eye within "
                 f"{self.pairer.tolerance_ns / 1e6:g} ms: the eyes' timestamps disagree for "

@@ -115,10 +115,9 @@ from .paths import text_path
 from .recording import (
     Manifest,
     checksum,
-    damaged_frames,
-    read_checksums,
+    damaged_frames_problem,
+    read_frame_index,
     read_manifest,
-    read_timestamps,
 )
 
 __all__ = [
@@ -967,13 +966,15 @@ class _Eye:
     seq: np.ndarray
     crc: np.ndarray | None
     """Each frame's CRC-32 as recorded (lossless recordings), or None."""
+    index: Path
+    """The timestamp CSV the times and CRC-32s were read from."""
 
 
 def _read_recording(directory: Path) -> tuple[Manifest, dict[Eye, _Eye]]:
     man = read_manifest(directory)
     eyes = {}
     for eye, files in ((Eye.LEFT, man.left), (Eye.RIGHT, man.right)):
-        t, seq = read_timestamps(directory / files.timestamps)
+        t, seq, crc = read_frame_index(directory / files.timestamps)
         if len(t) != files.frames:
             raise InputError(
                 f"{directory / files.timestamps}: {len(t)} timestamps, the manifest says "
@@ -982,7 +983,7 @@ def _read_recording(directory: Path) -> tuple[Manifest, dict[Eye, _Eye]]:
         video = directory / files.video
         if not video.is_file():
             raise MissingInputError(f"{video}: no such video file; the recording is incomplete")
-        eyes[eye] = _Eye(eye, video, t, seq, read_checksums(directory / files.timestamps))
+        eyes[eye] = _Eye(eye, video, t, seq, crc, directory / files.timestamps)
     return man, eyes
 
 
@@ -1017,7 +1018,7 @@ def _decode(rec: _Eye, gray: bool, problems: list[str]) -> Iterator[Frame]:
     finally:
         cap.release()
         if damaged:
-            problems.append(damaged_frames(rec.video, damaged, "not exported"))
+            problems.append(damaged_frames_problem(rec.video, rec.index, damaged, "not exported"))
 
 
 def _frame_events(

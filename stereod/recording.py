@@ -11,7 +11,7 @@ A recording is a directory::
 Replay reproduces the frames (bit-exact with FFV1) and the timestamps and sequence numbers.
 A lossless video damaged on disk still decodes, into other pixels, and FFmpeg says nothing
 that reaches the caller: the CRC-32 beside each frame is how a reader finds such a frame and
-leaves it out (:func:`read_checksums`, :func:`checksum`). MJPG recordings, lossy, have none;
+leaves it out (:func:`read_frame_index`, :func:`checksum`). MJPG recordings, lossy, have none;
 nor do recordings made before it was added, which replay as they did.
 """
 
@@ -198,12 +198,23 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Read a timestamp CSV: header ``t_ns`` (optionally ``t_ns,seq``), one integer row per frame.
 
     Returns (n,) int64 times (ns) and (n,) int64 sequence numbers (row index when absent).
-    Times must strictly increase; the error names the file and row. Further columns (a
-    recording's ``crc32``) are left to their own readers.
+    Times must strictly increase; the error names the file and row. A recording's ``crc32``
+    column is read by :func:`read_frame_index`.
     """
+    t, seq, _ = read_frame_index(path)
+    return t, seq
+
+
+def read_frame_index(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`read_timestamps`, and the per-frame CRC-32s when the header's third column is
+    ``crc32`` ((n,) uint32; None when there is none: a lossy recording, one made before the
+    column existed, a plain timestamp file). Errors name the file and line."""
     rows = _csv_rows(path)
     if not rows or [c.strip() for c in rows[0][:1]] != ["t_ns"]:
-        raise InputError(f"{path}: first line must be the header 't_ns' (or 't_ns,seq')")
+        raise InputError(
+            f"{path}: first line must be the header 't_ns' (or 't_ns,seq', or a recording's "
+            "'t_ns,seq,crc32')"
+        )
     has_seq = len(rows[0]) > 1 and rows[0][1].strip() == "seq"
     t = np.empty(len(rows) - 1, np.int64)
     seq = np.arange(len(rows) - 1, dtype=np.int64)
@@ -233,7 +244,7 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
             f"{path} line {j + 2}: timestamp {t[j]} is not after {t[j - 1]} "
             "(timestamps must strictly increase)"
         )
-    return t, seq
+    return t, seq, _checksums(path, rows) if has_seq else None
 
 
 def _csv_rows(path: Path) -> list[list[str]]:
@@ -267,14 +278,9 @@ def checksum(image: np.ndarray) -> int:
     return zlib.crc32(np.ascontiguousarray(image).data)
 
 
-def read_checksums(path: Path) -> np.ndarray | None:
-    """The per-frame CRC-32s of a timestamp CSV whose header's third column is ``crc32``
-    ((n,) uint32, one per frame, as :func:`read_timestamps` reads the rows), or None when it
-    has none (a lossy recording, an older one, a plain timestamp file). Read after
-    :func:`read_timestamps` has accepted the file; a cell that is no CRC-32 is an error naming
-    the file and line."""
-    rows = _csv_rows(path)
-    if not rows or len(rows[0]) < 3 or rows[0][2].strip() != CHECKSUM_COLUMN:
+def _checksums(path: Path, rows: list[list[str]]) -> np.ndarray | None:
+    """The ``crc32`` column of a timestamp CSV's ``rows`` (header first), or None."""
+    if len(rows[0]) < 3 or rows[0][2].strip() != CHECKSUM_COLUMN:
         return None
     crc = np.empty(len(rows) - 1, np.uint32)
     for i, row in enumerate(rows[1:]):
@@ -285,26 +291,29 @@ def read_checksums(path: Path) -> np.ndarray | None:
         if not 0 <= value < 2**32:
             raise InputError(
                 f"{path} line {i + 2}: expected a CRC-32 (an integer from 0 to 2^32 - 1) in "
-                f"the third column, got {_shown_row(row)}; remove the column's header to "
-                "replay without checking the frames"
+                f"the third column, got {_shown_row(row)}; remove 'crc32' from the header to "
+                "read the recording without checking its frames"
             )
         crc[i] = value
     return crc
 
 
-def damaged_frames(video: Path, frames: list[int], outcome: str) -> str:
-    """The one problem line for the frames of ``video`` (indices from 0, in order) whose
-    pixels differ from their recorded CRC-32; ``outcome`` says what became of them."""
+def damaged_frames_problem(video: Path, csv: Path, frames: list[int], outcome: str) -> str:
+    """The one problem line for the frames of ``video`` (indices from 0, ascending) whose
+    pixels differ from the CRC-32 recorded for them in ``csv``; ``outcome`` says what became
+    of them."""
     first, last = frames[0], frames[-1]
     if len(frames) == 1:
         which = f"frame {first}"
     elif last - first + 1 == len(frames):
         which = f"frames {first} to {last}"
     else:
-        which = f"{len(frames)} frames from {first} to {last}"
+        shown = ", ".join(str(i) for i in frames[:5])
+        which = f"{len(frames)} frames ({shown}{', ...' if len(frames) > 5 else ''})"
     return (
-        f"{video}: {which} decoded into pixels that differ from the CRC-32 recorded with them "
-        f"(the video file is damaged); {outcome}"
+        f"{video}: {which} decoded into pixels that differ from the CRC-32 recorded for them "
+        f"in {csv.name} (the video or {csv.name} is damaged); {outcome}; restore the recording "
+        f"from a copy, or remove 'crc32' from {csv.name}'s header to use it unchecked"
     )
 
 

@@ -17,7 +17,7 @@ from stereod.frames import Eye, Frame
 from stereod.recording import (
     Codec,
     RecordingWriter,
-    read_checksums,
+    read_frame_index,
     read_manifest,
     read_timestamps,
 )
@@ -94,12 +94,12 @@ def test_a_lossless_recording_keeps_each_frames_crc32(tmp_path: Path, color: boo
         csv = tmp_path / "ffv1" / f"{eye}.csv"
         assert csv.read_text().splitlines()[0] == "t_ns,seq,crc32"
         want = [zlib.crc32(pair[idx].image.tobytes()) for pair in frames]
-        crc = read_checksums(csv)
+        _, seq, crc = read_frame_index(csv)
         assert crc is not None and crc.tolist() == want
-        assert read_timestamps(csv)[1].tolist() == [pair[idx].seq for pair in frames]
+        assert seq.tolist() == [pair[idx].seq for pair in frames]
         mjpg = tmp_path / "mjpg" / f"{eye}.csv"
         assert mjpg.read_text().splitlines()[0] == "t_ns,seq"
-        assert read_checksums(mjpg) is None
+        assert read_frame_index(mjpg)[2] is None
 
 
 def test_a_checksum_that_is_no_crc32_is_refused_naming_the_line(tmp_path: Path) -> None:
@@ -108,12 +108,12 @@ def test_a_checksum_that_is_no_crc32_is_refused_naming_the_line(tmp_path: Path) 
     with pytest.raises(
         InputError, match=r"left\.csv line 3: expected a CRC-32 .* '20,1,4294967296'"
     ):
-        read_checksums(p)
+        read_frame_index(p)
     p.write_text("t_ns,seq,crc32\n10,0\n")
     with pytest.raises(InputError, match=r"line 2: expected a CRC-32"):
-        read_checksums(p)
+        read_frame_index(p)
     p.write_text("t_ns,seq\n10,0\n")
-    assert read_checksums(p) is None
+    assert read_frame_index(p)[2] is None
 
 
 def test_timestamp_file_errors_name_file_and_line(tmp_path: Path) -> None:

@@ -21,9 +21,9 @@ import cv2
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 
 from stereod.errors import ConfigError, InputError, MissingInputError
-from stereod.export_mcap import export_run
 from stereod.frames import Eye, Frame
 from stereod.recording import Codec, RecordingWriter
 from stereod_fakes.replay import ReplayDriver
@@ -141,10 +141,10 @@ def damage(path: Path, at: float) -> None:
 
 
 def test_a_damaged_lossless_recording_plays_only_the_pixels_it_recorded(tmp_path: Path) -> None:
-    """Bytes of the left video inverted half-way: FFmpeg still decodes every frame from there
-    on, into other pixels. Each of those differs from the CRC-32 recorded beside it, so it is
-    left out and said once, naming the file and frames; every frame played is the one
-    recorded, and the right eye plays whole."""
+    """Bytes of the left video inverted half-way: FFmpeg still decodes frames from there on,
+    into other pixels. Each of those differs from the CRC-32 recorded for it, so it is left
+    out and named, with the file and what to do; every frame played is the one recorded, and
+    the right eye plays whole."""
     rec = tmp_path / "rec"
     lefts = lossless_recording(rec)
     damage(rec / "left.mkv", 0.5)
@@ -152,37 +152,85 @@ def test_a_damaged_lossless_recording_plays_only_the_pixels_it_recorded(tmp_path
     assert 0 < len(left) < 12 and len(right) == 12
     for f in left:
         assert np.array_equal(f.image, lefts[f.seq]), f"left frame {f.seq} is not as recorded"
-    gone = sorted(set(range(12)) - {f.seq for f in left})
-    assert len(problems) == 1, problems
-    assert (
-        f"left.mkv: frames {gone[0]} to {gone[-1]} decoded into pixels that differ" in problems[0]
-    )
-    assert "damaged" in problems[0]
+    said = [p for p in problems if "decoded into pixels that differ from the CRC-32" in p]
+    assert len(said) == 1 and said[0].startswith(f"{rec / 'left.mkv'}: "), problems
+    assert "(the video or left.csv is damaged)" in said[0] and "restore the recording" in said[0]
+
+
+def with_one_crc_changed(rec: Path, frame: int) -> None:
+    """Change frame ``frame``'s CRC-32 in the left eye's CSV (as a damaged frame would make
+    its pixels differ from it)."""
+    csv = rec / "left.csv"
+    head, *rows = csv.read_text().splitlines()
+    t, seq, crc = rows[frame].split(",")
+    rows[frame] = f"{t},{seq},{(int(crc) + 1) % 2**32}"
+    csv.write_text("\n".join([head, *rows]) + "\n")
 
 
 def test_one_frame_whose_checksum_differs_is_left_out_and_the_run_exits_65(tmp_path: Path) -> None:
-    """One CRC-32 of the left eye's CSV changed (as one damaged frame would make it differ):
-    that frame alone is left out, the replay runs to its end and exits 65 saying which frame,
-    and the MCAP export leaves it out as well and says so in its summary."""
+    """One frame's CRC-32 differs: that frame alone is left out, the replay runs to its end
+    and exits 65 saying which frame (and nothing about timestamps that disagree: its partner
+    merely has none), and the MCAP export writes every other frame, pixel for pixel, and exits
+    65 the same way."""
     rec = tmp_path / "rec"
-    lossless_recording(rec)
-    csv = rec / "left.csv"
-    head, *rows = csv.read_text().splitlines()
-    t, seq, crc = rows[3].split(",")
-    rows[3] = f"{t},{seq},{(int(crc) + 1) % 2**32}"
-    csv.write_text("\n".join([head, *rows]) + "\n")
+    lefts = lossless_recording(rec)
+    with_one_crc_changed(rec, 3)
     left, _, problems = read_all(ReplayDriver({"path": rec}))
     assert [f.seq for f in left] == [0, 1, 2, *range(4, 12)]
     assert problems == [
         f"{rec / 'left.mkv'}: frame 3 decoded into pixels that differ from the CRC-32 recorded "
-        "with them (the video file is damaged); left out"
+        "for them in left.csv (the video or left.csv is damaged); left out; restore the "
+        "recording from a copy, or remove 'crc32' from left.csv's header to use it unchecked"
     ]
     res = run_stereod("replay", str(rec), "--rate", "0", "-q")
     assert res.returncode == 65, res.stderr
     last = res.stderr.splitlines()[-1]  # (random frames are all foreground: said before it)
     assert last.startswith("stereod: ") and "left.mkv: frame 3 decoded" in last
-    summary = export_run(tmp_path / "out.mcap", jsonl=None, recording=rec)
-    assert any("left.mkv: frame 3 decoded" in p and "not exported" in p for p in summary.problems)
+    assert "timestamps disagree" not in res.stderr
+    out = tmp_path / "out.mcap"
+    res = run_stereod("export", str(rec), "--mcap", str(out), "--png", "-q")
+    assert res.returncode == 65 and "left.mkv: frame 3 decoded" in res.stderr, res.stderr
+    assert "not exported" in res.stderr
+    reader = make_reader(io.BytesIO(out.read_bytes()), decoder_factories=[DecoderFactory()])
+    images = [
+        cv2.imdecode(np.frombuffer(bytes(decoded.data), np.uint8), cv2.IMREAD_UNCHANGED)
+        for _, channel, _, decoded in reader.iter_decoded_messages(log_time_order=True)
+        if channel.topic.endswith("/left/image/compressed")
+    ]
+    assert len(images) == 11
+    for img, k in zip(images, [0, 1, 2, *range(4, 12)], strict=True):
+        assert np.array_equal(img, lefts[k]), f"exported left frame {k} is not as recorded"
+
+
+def test_a_loop_whose_every_frame_is_left_out_ends_instead_of_spinning(tmp_path: Path) -> None:
+    """Every CRC-32 of the left eye differs: a looping replay has nothing to loop, so the
+    left eye ends, said (it used to restart that video for ever), the right eye ends its lap
+    with nothing left to pair with, and the replay exits 65."""
+    rec = tmp_path / "rec"
+    lossless_recording(rec, n=4)
+    for k in range(4):
+        with_one_crc_changed(rec, k)
+    driver = ReplayDriver({"path": rec, "loop": True})
+    with driver.open() as src:
+        assert src.left.read() is None
+        assert any("every frame of a lap was left out" in p for p in src.problems())
+    res = run_stereod("replay", str(rec), "--loop", "--rate", "0", "-q", timeout=60)
+    assert res.returncode == 65, res.stderr
+
+
+def test_a_lossless_recording_without_checksums_still_plays_bit_exact(tmp_path: Path) -> None:
+    """A recording made before the ``crc32`` column existed (``t_ns,seq``) plays as it did."""
+    rec = tmp_path / "rec"
+    lefts = lossless_recording(rec)
+    for eye in ("left", "right"):
+        csv = rec / f"{eye}.csv"
+        csv.write_text(
+            "".join(",".join(r.split(",")[:2]) + "\n" for r in csv.read_text().splitlines())
+        )
+    assert (rec / "left.csv").read_text().startswith("t_ns,seq\n")
+    left, right, problems = read_all(ReplayDriver({"path": rec}))
+    assert problems == [] and len(right) == 12
+    assert all(np.array_equal(f.image, lefts[f.seq]) for f in left) and len(left) == 12
 
 
 @pytest.mark.parametrize(

@@ -8,9 +8,10 @@ existing ``--mcap`` file stays as it was, and the exit code is 130 (143 for SIGT
 from __future__ import annotations
 
 import argparse
+import sys
 
 from ..calibration import load
-from ..errors import ConfigError
+from ..errors import EX_DATAERR, ConfigError, one_line
 from ..export_mcap import export_run
 from ..output_file import check_not_input, stopped_by_signals
 from ..recording import recording_files
@@ -21,6 +22,7 @@ from .common import (
     recording_arg,
     say,
     summaries_off_stdout,
+    summarise,
 )
 
 TOPICS = """\
@@ -116,4 +118,7 @@ def _export(a: argparse.Namespace) -> int:
     )
     if not a.quiet:
         say(summary.line())
+    if summary.problems:  # what could be exported was: the file stays, as replay's outputs do
+        print(f"stereod: {one_line(summarise(summary.problems))}", file=sys.stderr)
+        return EX_DATAERR
     return 0
