@@ -154,10 +154,15 @@ class VideoEye(EyeSource):
                 return None
             ok, img = self._cap.read()
             if not ok or img is None:
+                if self.damaged and self.crc_file is not None and self._offset_ns == 0:
+                    self.problems.append(
+                        damaged_frames_problem(self.path, self.crc_file, self.damaged, "left out")
+                    )
                 if self._i < self._expected and self._offset_ns == 0:
                     self.problems.append(
                         f"{self.path}: truncated: {self._expected_from} says {self._expected} "
-                        f"frames, only {self._i} decoded; replayed those"
+                        f"frames, only {self._i} decoded; replayed those (the file is cut "
+                        "short: restore it from a copy to replay the rest)"
                     )
                 if self._loop and self._i > 0 and self._lap_frames == 0:
                     self.problems.append(
@@ -263,15 +268,9 @@ class ReplaySource(StereoSource):
         common_lap(left, right)
 
     def problems(self) -> list[str]:
-        return [
-            *self._eyes[0].problems,
-            *self._eyes[1].problems,
-            *(
-                damaged_frames_problem(e.path, e.crc_file, e.damaged, "left out")
-                for e in self._eyes
-                if e.damaged and e.crc_file is not None
-            ),
-        ]
+        """What the input has said of itself so far: each eye's lap, once over, says whether
+        its video was truncated or damaged."""
+        return self._eyes[0].problems + self._eyes[1].problems
 
 
 class ReplayDriver(Driver):

@@ -142,6 +142,9 @@ class Daemon:
         """Set once the run's outcome is decided (its output committed or discarded): an error
         after that is logged, not made the run's, so what is reported matches what is on disk."""
         self._source: StereoSource | None = None
+        self._problems_said: set[str] = set()
+        """What the source has said of its input and this run has reported (see
+        :meth:`_input_problems`)."""
         self._worker: PipelineWorker | None = None
         self._publisher: Publisher | None = None
         self.pairer = Pairer(int(cfg.pairing.tolerance_ms * 1e6), cfg.pairing.max_pending)
@@ -328,10 +331,7 @@ class Daemon:
                         painter.join()
                     images.publishers.close()
                     self.images = images
-            for p in source.problems():
-                h.problem(p)
-                if not source.info.live:
-                    self.summary.input_problems.append(p)
+            self._input_problems()
             self._check_paired()
             h.state = DaemonState.FINISHED
             pub.status(dump(h.status(1.0)))
@@ -363,6 +363,7 @@ class Daemon:
                 self._do_reload(width, height)
             if self._status_now.is_set() or now - last >= period:
                 self._status_now.clear()
+                self._input_problems()
                 status = self.health.status(max(now - last, 1e-3))
                 pub.status(dump(status))
                 self._notify_status(status)
@@ -370,6 +371,20 @@ class Daemon:
             if watchdog and now - last_dog >= watchdog / 2 and self.health.frames_flowing(watchdog):
                 self._notifier.notify(WATCHDOG=1)
                 last_dog = now
+
+    def _input_problems(self) -> None:
+        """Report what the source has said of its input since last asked (a file's truncated
+        or damaged video, found as it plays): on the status key as the run goes (a looping
+        replay may never end), and, from a file, among the run's input problems."""
+        source = self._source
+        if source is None:
+            return
+        for p in source.problems():
+            if p not in self._problems_said:
+                self._problems_said.add(p)
+                self.health.problem(p)
+                if not source.info.live:
+                    self.summary.input_problems.append(p)
 
     def _notify_status(self, status: StatusMessage) -> None:
         if not self._notifier.enabled:

@@ -295,14 +295,16 @@ class ExportSummary:
         """Number of messages in the file."""
         return sum(self.messages.values())
 
-    def line(self) -> str:
-        """One line for a user: file, message and topic counts, duration (s), clock."""
+    def line(self, problems: bool = True) -> str:
+        """One line for a user: file, message and topic counts, duration (s), clock, and
+        what went wrong with the input unless ``problems`` is false (said apart)."""
         dur = 0.0
         if self.start_ns is not None and self.end_ns is not None:
             dur = (self.end_ns - self.start_ns) / 1e9
         return (
             f"wrote {self.path}: {self.total} messages on {len(self.messages)} topics, "
-            f"{dur:.2f} s, clock from {self.clock}" + "".join(f"; {p}" for p in self.problems)
+            f"{dur:.2f} s, clock from {self.clock}"
+            + "".join(f"; {p}" for p in (self.problems if problems else []))
         )
 
 

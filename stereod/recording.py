@@ -199,16 +199,19 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
     Returns (n,) int64 times (ns) and (n,) int64 sequence numbers (row index when absent).
     Times must strictly increase; the error names the file and row. A recording's ``crc32``
-    column is read by :func:`read_frame_index`.
+    column is ignored here (a plain video's timestamps): :func:`read_frame_index` reads it.
     """
-    t, seq, _ = read_frame_index(path)
+    t, seq, _ = read_frame_index(path, checksums=False)
     return t, seq
 
 
-def read_frame_index(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """:func:`read_timestamps`, and the per-frame CRC-32s when the header's third column is
-    ``crc32`` ((n,) uint32; None when there is none: a lossy recording, one made before the
-    column existed, a plain timestamp file). Errors name the file and line."""
+def read_frame_index(
+    path: Path, checksums: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`read_timestamps`, and the per-frame CRC-32s when ``checksums`` and the header's
+    third column is ``crc32`` ((n,) uint32; None when there is none: a lossy recording, one
+    made before the column existed, a plain timestamp file). Errors name the file and
+    line."""
     rows = _csv_rows(path)
     if not rows or [c.strip() for c in rows[0][:1]] != ["t_ns"]:
         raise InputError(
@@ -244,7 +247,7 @@ def read_frame_index(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | N
             f"{path} line {j + 2}: timestamp {t[j]} is not after {t[j - 1]} "
             "(timestamps must strictly increase)"
         )
-    return t, seq, _checksums(path, rows) if has_seq else None
+    return t, seq, _checksums(path, rows) if checksums and has_seq else None
 
 
 def _csv_rows(path: Path) -> list[list[str]]:

@@ -392,6 +392,19 @@ def test_a_flag_a_command_does_not_have_points_to_that_commands_help(
     )
 
 
+def test_an_abbreviated_flag_is_refused_not_taken_for_the_flag_it_begins(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """``--json out`` is no ``--jsonl out`` (argparse would take it for one, and write the
+    JSONL to a file named as the next word)."""
+    error_in_process(
+        capsys,
+        ["replay", "rec", "--json", "out"],
+        64,
+        r"^stereod replay: unrecognized arguments: --json out \(see stereod replay --help\)$",
+    )
+
+
 def _two_gigabytes_of_memory() -> None:
     """A child's address space capped, so that a reader without a bound fails fast (exit 70)
     instead of filling the machine's memory."""

@@ -442,3 +442,40 @@ def test_a_change_of_the_whole_scene_is_said_but_fails_no_replay(endpoint: str) 
     said = [p for p in daemon.health.problems() if "the whole scene changed" in p]
     assert said, daemon.health.problems()
     assert daemon.health.failing() == []
+
+
+def test_a_looping_replay_says_its_damaged_frames_on_the_status_key_as_it_plays(
+    endpoint: str, listener: zenoh.Session, tmp_path: Path
+) -> None:
+    """A looping replay may run for hours: a frame left out for its CRC-32 is said on the
+    status key once the first lap is over, not only when the run ends."""
+    from stereod_fakes.replay import ReplayDriver
+
+    from .test_replay import lossless_recording, with_one_crc_changed
+
+    rec = tmp_path / "rec"
+    lossless_recording(rec)
+    with_one_crc_changed(rec, 5)
+    said = threading.Event()
+
+    def on_status(sample: zenoh.Sample) -> None:
+        if any("frame 5 decoded" in p for p in json.loads(sample.payload.to_bytes())["problems"]):
+            said.set()
+
+    sub = listener.declare_subscriber("stereod/minoru/status", on_status)
+    daemon = Daemon(
+        config(endpoint, status_period_s=0.2),
+        ReplayDriver({"path": rec, "loop": True}),
+        rate=1.0,
+        wait_subscriber_s=0,
+    )
+    t, out = start(daemon)
+    try:
+        assert said.wait(20), "the status key never said the damaged frame"
+        assert t.is_alive()  # said while the loop goes on
+    finally:
+        daemon.stop()
+        t.join(30)
+        sub.undeclare()
+    problems = out["summary"].input_problems
+    assert sum("frame 5 decoded" in p for p in problems) == 1, problems

@@ -109,6 +109,7 @@ def test_a_checksum_that_is_no_crc32_is_refused_naming_the_line(tmp_path: Path) 
         InputError, match=r"left\.csv line 3: expected a CRC-32 .* '20,1,4294967296'"
     ):
         read_frame_index(p)
+    assert read_timestamps(p)[0].tolist() == [10, 20]  # a plain video's timestamps: ignored
     p.write_text("t_ns,seq,crc32\n10,0\n")
     with pytest.raises(InputError, match=r"line 2: expected a CRC-32"):
         read_frame_index(p)

@@ -22,7 +22,7 @@ import traceback
 from collections.abc import Sequence
 from importlib.metadata import entry_points
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from .. import __version__
 from ..errors import EX_SOFTWARE, EX_USAGE, InternalError, ReaderGone, StereodError, one_line
@@ -50,7 +50,12 @@ ORDER = (
 
 class Parser(argparse.ArgumentParser):
     """argparse with a one-line error and exit 64, pointing to the help of the command whose
-    line it is (``stereod replay --help`` for a flag ``replay`` does not have)."""
+    line it is (``stereod replay --help`` for a flag ``replay`` does not have), and no
+    abbreviated flags: ``--json out`` is refused, not taken for ``--jsonl out``."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: {one_line(message)} (see {self.prog} --help)", file=sys.stderr)

@@ -45,8 +45,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "`stereod replay REC --jsonl RUN.jsonl`) into one MCAP file of standard ROS 2 Humble "
         "messages: images, camera_info, tf, and the tracks as Odometry, markers and speed/"
         "heading. `ros2 bag play`, Foxglove and PlotJuggler open it without stereod. The file "
-        "is replaced only when the export succeeds: not when it fails or Ctrl-C (exit 130) or "
-        "SIGTERM (143) stops it. A symbolic link is written through, a device or FIFO such as "
+        "is replaced unless the export fails or Ctrl-C (exit 130) or SIGTERM (143) stops it; "
+        "an input found truncated or damaged still gives the file of what could be exported "
+        "(exit 65). A symbolic link is written through, a device or FIFO such as "
         "/dev/null in place.",
         epilog=TOPICS,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -117,7 +118,7 @@ def _export(a: argparse.Namespace) -> int:
         jpeg_quality=a.jpeg_quality,
     )
     if not a.quiet:
-        say(summary.line())
+        say(summary.line(problems=False))
     if summary.problems:  # what could be exported was: the file stays, as replay's outputs do
         print(f"stereod: {one_line(summarise(summary.problems))}", file=sys.stderr)
         return EX_DATAERR
