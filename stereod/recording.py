@@ -22,6 +22,7 @@ import csv
 import enum
 import io
 import json
+import logging
 import os
 import shutil
 import tempfile
@@ -52,6 +53,8 @@ from .errors import (
 from .frames import Eye, Frame
 from .paths import MAX_TIMESTAMP_BYTES, path_problem, read_input_file, text_path
 from .versioned import known_format, warn_unknown_fields
+
+log = logging.getLogger(__name__)
 
 MANIFEST = "recording.json"
 FORMAT: Final = "stereod.recording/1"
@@ -282,7 +285,18 @@ def checksum(image: np.ndarray) -> int:
 
 
 def _checksums(path: Path, rows: list[list[str]]) -> np.ndarray | None:
-    """The ``crc32`` column of a timestamp CSV's ``rows`` (header first), or None."""
+    """The ``crc32`` column of a timestamp CSV's ``rows`` (header first), or None. Columns
+    this stereod does not know are named in one warning (a misspelt ``crc32`` would
+    otherwise turn the check off without a word) and ignored."""
+    unknown = [c.strip() for c in rows[0][2:] if c.strip() != CHECKSUM_COLUMN]
+    if unknown:
+        log.warning(
+            "%s: ignoring columns this stereod does not know: %s (the frames' checksums are "
+            "read from a column named %s)",
+            path,
+            ", ".join(repr(c) for c in unknown),
+            CHECKSUM_COLUMN,
+        )
     if len(rows[0]) < 3 or rows[0][2].strip() != CHECKSUM_COLUMN:
         return None
     crc = np.empty(len(rows) - 1, np.uint32)

@@ -117,6 +117,22 @@ def test_a_checksum_that_is_no_crc32_is_refused_naming_the_line(tmp_path: Path) 
     assert read_frame_index(p)[2] is None
 
 
+def test_a_column_it_does_not_know_is_named_in_a_warning(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A misspelt ``crc32`` would turn the frames' check off: it is said, and ignored."""
+    p = tmp_path / "left.csv"
+    p.write_text("t_ns,seq,crc\n10,0,123\n")
+    with caplog.at_level("WARNING", logger="stereod.recording"):
+        assert read_frame_index(p)[2] is None
+    assert "left.csv: ignoring columns this stereod does not know: 'crc'" in caplog.text
+    caplog.clear()
+    p.write_text("t_ns,seq,crc32\n10,0,123\n")
+    with caplog.at_level("WARNING", logger="stereod.recording"):
+        assert read_frame_index(p)[2] is not None
+    assert caplog.text == ""
+
+
 def test_timestamp_file_errors_name_file_and_line(tmp_path: Path) -> None:
     p = tmp_path / "ts.csv"
     p.write_text("t_ns\n100\n200\n150\n")
