@@ -213,6 +213,7 @@ class Daemon:
             self._source = source
             info = source.info
             separate_large_buffers(info.width, info.height)
+            self.pairer.in_order = not info.live  # a file's frames come merged in time order
             if self.jsonl is not None:
                 check_not_input(self.jsonl, [*info.inputs, *self._inputs], "--jsonl")
             params = pipeline_params(self.cfg, info.width, info.height)

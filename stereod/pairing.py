@@ -58,7 +58,10 @@ class Pairer:
     """Match the two eyes by nearest timestamp within ``tolerance_ns``.
 
     ``max_pending`` bounds how many frames of one eye may wait for the other; beyond that the
-    oldest is dropped (``overflow``), so a stalled eye never grows memory.
+    oldest is dropped (``overflow``), so a stalled eye never grows memory. When frames come in
+    capture-time order across both eyes (``in_order``: a file's, merged), a frame that waited
+    that long has no partner: the other eye gave nothing for ``max_pending`` frames (a damaged
+    or missing stretch of its video), and the drop is counted as ``no_partner``.
     """
 
     def __init__(self, tolerance_ns: int = DEFAULT_TOLERANCE_NS, max_pending: int = 8) -> None:
@@ -78,6 +81,8 @@ class Pairer:
         must not leave its gap in the estimate)."""
         self._next_seq = 0
         self.stats = PairerStats()
+        self.in_order = False
+        """Whether frames come in capture-time order across both eyes (see the class)."""
 
     def last_ns(self, eye: Eye) -> int | None:
         """The capture time (ns) of the last frame of an eye taken in order (None before)."""
@@ -113,7 +118,7 @@ class Pairer:
         queue.append(frame)
         if len(queue) > self.max_pending:
             queue.popleft()
-            self.stats.drops[DROP_OVERFLOW] += 1
+            self.stats.drops[DROP_NO_PARTNER if self.in_order else DROP_OVERFLOW] += 1
         return self._match(final=False)
 
     def _resync(self, eye: Eye, t_ns: int) -> None:

@@ -167,6 +167,26 @@ def test_stalled_eye_does_not_grow_memory() -> None:
     assert pairer.stats.drops[DROP_OVERFLOW] == 992
 
 
+@pytest.mark.parametrize(
+    ("in_order", "drops"),
+    [(True, {DROP_NO_PARTNER: 20}), (False, {DROP_OVERFLOW: 12, DROP_NO_PARTNER: 8})],
+)
+def test_frames_of_a_file_whose_partners_are_missing_have_no_partner(
+    in_order: bool, drops: dict[str, int]
+) -> None:
+    """The left eye lacks frames 10 to 29 (a damaged stretch of its video): in a file's time
+    order, the right frames of those instants can have no partner, and are counted so, not as
+    the overflow of a stalled eye (which a live source's would be: 12 of them, beyond the 8
+    that may wait); every other frame pairs with its own."""
+    t = np.arange(60) * 33 * MS
+    left = [f for f in frames(Eye.LEFT, t) if not 10 <= f.seq < 30]
+    pairer = Pairer(tolerance_ns=10 * MS, max_pending=8)
+    pairer.in_order = in_order
+    pairs = run(pairer, interleave(left, frames(Eye.RIGHT, t + 5 * MS)))
+    assert pairs == [(k, k) for k in range(60) if not 10 <= k < 30]
+    assert {k: v for k, v in pairer.stats.drops.items() if v} == drops
+
+
 def test_tolerance_must_be_positive() -> None:
     with pytest.raises(ValueError, match="tolerance"):
         Pairer(tolerance_ns=0)
