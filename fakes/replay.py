@@ -141,6 +141,7 @@ class VideoEye(EyeSource):
         self.bad_frames = 0
         self.damaged: list[int] = []
         """Frames (from 0) left out because they differ from their CRC-32 (the first lap)."""
+        self._damage_said = False
         self.problems: list[str] = []
         self.other: VideoEye | None = None
         """The other eye of the stereo input: a loop stops once that one has ended for good
@@ -154,10 +155,8 @@ class VideoEye(EyeSource):
                 return None
             ok, img = self._cap.read()
             if not ok or img is None:
-                if self.damaged and self.crc_file is not None and self._offset_ns == 0:
-                    self.problems.append(
-                        damaged_frames_problem(self.path, self.crc_file, self.damaged, "left out")
-                    )
+                if self._offset_ns == 0:
+                    self.problems += self.damage_problems()
                 if self._i < self._expected and self._offset_ns == 0:
                     self.problems.append(
                         f"{self.path}: truncated: {self._expected_from} says {self._expected} "
@@ -200,6 +199,14 @@ class VideoEye(EyeSource):
             self._lap_frames += 1
             t, seq = self._stamp(i)
             return Frame(self.eye, img, t + self._offset_ns, seq + self._seq_offset)
+
+    def damage_problems(self) -> list[str]:
+        """The line naming the frames left out for their CRC-32, once: at the end of the first
+        lap, or when the run ends before it."""
+        if not self.damaged or self.crc_file is None or self._damage_said:
+            return []
+        self._damage_said = True
+        return [damaged_frames_problem(self.path, self.crc_file, self.damaged, "left out")]
 
     def _stamp(self, i: int) -> tuple[int, int]:
         if self._t is None:
@@ -271,6 +278,11 @@ class ReplaySource(StereoSource):
         """What the input has said of itself so far: each eye's lap, once over, says whether
         its video was truncated or damaged."""
         return self._eyes[0].problems + self._eyes[1].problems
+
+    def final_problems(self) -> list[str]:
+        """The frames a first lap cut short by the end of the run had left out for their
+        CRC-32 (a looping replay stopped early)."""
+        return self._eyes[0].damage_problems() + self._eyes[1].damage_problems()
 
 
 class ReplayDriver(Driver):

@@ -332,7 +332,7 @@ class Daemon:
                         painter.join()
                     images.publishers.close()
                     self.images = images
-            self._input_problems()
+            self._input_problems(final=True)
             self._check_paired()
             h.state = DaemonState.FINISHED
             pub.status(dump(h.status(1.0)))
@@ -373,14 +373,15 @@ class Daemon:
                 self._notifier.notify(WATCHDOG=1)
                 last_dog = now
 
-    def _input_problems(self) -> None:
+    def _input_problems(self, final: bool = False) -> None:
         """Report what the source has said of its input since last asked (a file's truncated
         or damaged video, found as it plays): on the status key as the run goes (a looping
-        replay may never end), and, from a file, among the run's input problems."""
+        replay may never end), and, from a file, among the run's input problems; ``final``
+        once reading has stopped, with what only then can be said."""
         source = self._source
         if source is None:
             return
-        for p in source.problems():
+        for p in source.problems() + (source.final_problems() if final else []):
             if p not in self._problems_said:
                 self._problems_said.add(p)
                 self.health.problem(p)

@@ -197,6 +197,11 @@ class StereoSource:
         """Non-fatal problems found while reading (for example a truncated video), one line each."""
         return []
 
+    def final_problems(self) -> list[str]:
+        """Problems that can only be said once reading has stopped (what a pass over a file
+        cut short by the end of the run had found so far), one line each; none by default."""
+        return []
+
     def close(self) -> None:
         self.left.close()
         self.right.close()

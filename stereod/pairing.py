@@ -61,7 +61,9 @@ class Pairer:
     oldest is dropped (``overflow``), so a stalled eye never grows memory. When frames come in
     capture-time order across both eyes (``in_order``: a file's, merged), a frame that waited
     that long has no partner: the other eye gave nothing for ``max_pending`` frames (a damaged
-    or missing stretch of its video), and the drop is counted as ``no_partner``.
+    or missing stretch of its video), and the drop is counted as ``no_partner`` (which holds
+    while ``max_pending`` frame periods exceed the tolerance, as with the defaults: 8 frames
+    against 40 ms).
     """
 
     def __init__(self, tolerance_ns: int = DEFAULT_TOLERANCE_NS, max_pending: int = 8) -> None:

@@ -222,6 +222,8 @@ def read_frame_index(
             "'t_ns,seq,crc32')"
         )
     has_seq = len(rows[0]) > 1 and rows[0][1].strip() == "seq"
+    if checksums:
+        _warn_unknown_columns(path, [c.strip() for c in rows[0]])
     t = np.empty(len(rows) - 1, np.int64)
     seq = np.arange(len(rows) - 1, dtype=np.int64)
     for i, row in enumerate(rows[1:]):
@@ -284,19 +286,31 @@ def checksum(image: np.ndarray) -> int:
     return zlib.crc32(np.ascontiguousarray(image).data)
 
 
+RECORDING_COLUMNS: Final = ("t_ns", "seq", CHECKSUM_COLUMN)
+"""A recording's timestamp CSV columns, in order."""
+
+
+def _warn_unknown_columns(path: Path, header: list[str]) -> None:
+    """One warning naming the columns of a recording's timestamp CSV that are not where this
+    stereod reads them (a misspelt or misplaced ``seq`` or ``crc32`` would otherwise turn the
+    frames' check off without a word); they are ignored."""
+    unknown = [
+        c for i, c in enumerate(header) if i >= len(RECORDING_COLUMNS) or c != RECORDING_COLUMNS[i]
+    ]
+    if unknown:
+        log.warning(
+            "%s: ignoring columns this stereod does not read there: %s (a recording's columns "
+            "are %s, in that order)",
+            path,
+            ", ".join(repr(c) for c in unknown),
+            ",".join(RECORDING_COLUMNS),
+        )
+
+
 def _checksums(path: Path, rows: list[list[str]]) -> np.ndarray | None:
     """The ``crc32`` column of a timestamp CSV's ``rows`` (header first), or None. Columns
     this stereod does not know are named in one warning (a misspelt ``crc32`` would
     otherwise turn the check off without a word) and ignored."""
-    unknown = [c.strip() for c in rows[0][2:] if c.strip() != CHECKSUM_COLUMN]
-    if unknown:
-        log.warning(
-            "%s: ignoring columns this stereod does not know: %s (the frames' checksums are "
-            "read from a column named %s)",
-            path,
-            ", ".join(repr(c) for c in unknown),
-            CHECKSUM_COLUMN,
-        )
     if len(rows[0]) < 3 or rows[0][2].strip() != CHECKSUM_COLUMN:
         return None
     crc = np.empty(len(rows) - 1, np.uint32)

@@ -479,3 +479,31 @@ def test_a_looping_replay_says_its_damaged_frames_on_the_status_key_as_it_plays(
         sub.undeclare()
     problems = out["summary"].input_problems
     assert sum("frame 5 decoded" in p for p in problems) == 1, problems
+
+
+def test_a_looping_replay_stopped_in_its_first_lap_still_names_its_damaged_frames(
+    endpoint: str, listener: zenoh.Session, tmp_path: Path
+) -> None:
+    """Stopped before the first lap is over (a looping replay stopped early, a service
+    stopped), the run still says which frames were left out for their CRC-32, so the frames
+    without a partner are not put down to timestamps that disagree."""
+    from stereod_fakes.replay import ReplayDriver
+
+    from .test_replay import lossless_recording, with_one_crc_changed
+
+    rec = tmp_path / "rec"
+    lossless_recording(rec)
+    with_one_crc_changed(rec, 1)
+    # 12 frames at 30 Hz, played at a fifth of real time: the first lap takes 2 s.
+    daemon = Daemon(
+        config(endpoint), ReplayDriver({"path": rec, "loop": True}), rate=0.2, wait_subscriber_s=0
+    )
+    t, out = start(daemon)
+    deadline = time.monotonic() + 30
+    while daemon.pairer.stats.frames[Eye.LEFT] < 4 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    daemon.stop()  # some 8 frames before the first lap's end
+    t.join(30)
+    problems = out["summary"].input_problems
+    assert any("left.mkv: frame 1 decoded" in p for p in problems), problems
+    assert not any("timestamps disagree" in p for p in problems), problems

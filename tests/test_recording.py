@@ -125,7 +125,16 @@ def test_a_column_it_does_not_know_is_named_in_a_warning(
     p.write_text("t_ns,seq,crc\n10,0,123\n")
     with caplog.at_level("WARNING", logger="stereod.recording"):
         assert read_frame_index(p)[2] is None
-    assert "left.csv: ignoring columns this stereod does not know: 'crc'" in caplog.text
+    assert "left.csv: ignoring columns this stereod does not read there: 'crc'" in caplog.text
+    for header, named in (
+        ("t_ns,sequence,crc32", "'sequence'"),
+        ("t_ns,crc32", "'crc32'"),
+    ):
+        caplog.clear()
+        p.write_text(f"{header}\n10,123\n")
+        with caplog.at_level("WARNING", logger="stereod.recording"):
+            assert read_frame_index(p)[2] is None
+        assert f"does not read there: {named} (a recording's columns" in caplog.text
     caplog.clear()
     p.write_text("t_ns,seq,crc32\n10,0,123\n")
     with caplog.at_level("WARNING", logger="stereod.recording"):

@@ -96,8 +96,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         type=path_arg,
         metavar="FILE",
         help="also write every objects message, exactly as published, one per line (the file "
-        "is replaced unless the run fails or is interrupted, and an input found truncated or "
-        "damaged still gives the file of what played, exit 65; a "
+        "is replaced unless the run fails or, without --loop, is interrupted, and an input found "
+        "truncated or damaged still gives the file of what played, exit 65; a "
         "symbolic link is written through, a device or FIFO such as /dev/null in place, a "
         "line at a time; /dev/stdout sends the summary to stderr)",
     )
