@@ -51,6 +51,9 @@ class Ball(BaseModel):
     t_on_s: float = 1.2
     t_off_s: float = 2.8
     t_stop_s: float | None = Field(None, description="From this time on the ball stands still")
+    t_resume_s: float | None = Field(
+        None, description="From this time on a stopped ball moves on at its velocity"
+    )
 
     @property
     def velocity_mps(self) -> np.ndarray:
@@ -61,12 +64,17 @@ class Ball(BaseModel):
         """(3,) or (n, 3) rig-frame position (m) at time(s) ``t_s`` (s from the scene's start)."""
         t = np.asarray(t_s, dtype=np.float64)
         if self.t_stop_s is not None:
-            t = np.minimum(t, self.t_stop_s)
+            moving = np.minimum(t, self.t_stop_s)
+            if self.t_resume_s is not None:
+                moving = moving + np.maximum(t - max(self.t_resume_s, self.t_stop_s), 0.0)
+            t = moving
         return np.asarray(self.centre_m) + (t[..., None] - self.t_mid_s) * self.velocity_mps
 
     def velocity_at(self, t_s: float) -> np.ndarray:
         """(3,) velocity (m/s) at ``t_s``: zero once stopped."""
         stopped = self.t_stop_s is not None and t_s >= self.t_stop_s
+        if stopped and self.t_resume_s is not None and self.t_stop_s is not None:
+            stopped = t_s < max(self.t_resume_s, self.t_stop_s)
         return np.zeros(3) if stopped else self.velocity_mps
 
     def visible(self, t_s: float) -> bool:
@@ -97,6 +105,13 @@ class Scene(BaseModel):
         4.0, ge=0.01, le=1000.0, description="Distance of the textured background wall, m"
     )
     color: bool = False
+    readout_s: float = Field(
+        0.0,
+        ge=0.0,
+        le=0.1,
+        description="Rolling shutter: row y is captured readout_s * y / height_px after the "
+        "frame's instant, s (0: global shutter)",
+    )
     seed: int = Field(0, ge=0, le=2**32 - 1)
     t0_ns: int = Field(
         1_000_000_000, ge=0, le=2**62, description="Monotonic time of the first frame, ns"
@@ -259,13 +274,13 @@ class Renderer:
         balls = [b for b in sc.balls if b.visible(t_s)]
         balls.sort(key=lambda b: -float(b.position_m(t_s)[2]))
         for b in balls:
+            if sc.readout_s > 0:
+                self._paint_rolling(img, eye, b, t_s)
+                continue
             p = b.position_m(t_s)
             if p[2] <= b.radius_m:
                 continue
-            u, v, r_px = self.silhouette(eye, p, b.radius_m)
-            # A lit sphere: a dimmer disc, a brighter cap offset towards the light (up-left).
-            _paint_disc(img, u, v, r_px, b.brightness * 0.9)
-            _paint_disc(img, u - r_px / 4, v - r_px / 4, r_px / 2, b.brightness)
+            self._paint_ball(img, eye, b, p)
         gain = 1.0 + sc.drift * math.sin(2 * math.pi * t_s / sc.drift_period_s)
         if gain != 1.0:
             img *= gain
@@ -273,6 +288,32 @@ class Renderer:
             img += self._rng.normal(0.0, sc.noise_sigma, img.shape).astype(np.float32)
         out = np.clip(img, 0, 255).astype(np.uint8)
         return out if sc.color else out[..., 0]
+
+    def _paint_ball(self, img: np.ndarray, eye: Eye, b: Ball, p: np.ndarray, row0: int = 0) -> None:
+        """A lit sphere at ``p`` (m): a dimmer disc, a brighter cap offset towards the light
+        (up-left); ``img`` holds the image's rows from ``row0`` on."""
+        u, v, r_px = self.silhouette(eye, p, b.radius_m)
+        v -= row0
+        _paint_disc(img, u, v, r_px, b.brightness * 0.9)
+        _paint_disc(img, u - r_px / 4, v - r_px / 4, r_px / 2, b.brightness)
+
+    def _paint_rolling(self, img: np.ndarray, eye: Eye, b: Ball, t_s: float) -> None:
+        """The ball through a rolling shutter: each image row painted as the ball is when that
+        row is read (``t_s`` plus the row's share of ``readout_s``)."""
+        h = img.shape[0]
+        line_s = self.scene.readout_s / h
+        rows: set[int] = set()
+        for t in (t_s, t_s + self.scene.readout_s):
+            p = b.position_m(t)
+            if p[2] > b.radius_m:
+                _, v, r_px = self.silhouette(eye, p, b.radius_m)
+                rows.update(range(max(int(v - r_px) - 2, 0), min(int(v + r_px) + 3, h)))
+        if rows:
+            lo, hi = min(rows), max(rows)
+            for y in range(lo, hi + 1):
+                p = b.position_m(t_s + y * line_s)
+                if p[2] > b.radius_m:
+                    self._paint_ball(img[y : y + 1], eye, b, p, y)
 
     def frames(self) -> Iterator[tuple[Frame, Frame]]:
         """Both eyes' frames in order, stamped with the scene's monotonic times (ns)."""

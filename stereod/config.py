@@ -33,6 +33,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import (
     AfterValidator,
+    AliasChoices,
     BaseModel,
     ConfigDict,
     Field,
@@ -47,6 +48,7 @@ from .detect import MAX_WARMUP_FRAMES, Centroid, DetectorParams, Luminance, Warm
 from .errors import ConfigError, MissingInputError, UsageError, describe_error
 from .geometry.refine import RefineParams
 from .geometry.stereo import MatchParams
+from .grouping import GroupParams
 from .pairing import DEFAULT_TOLERANCE_NS
 from .paths import TextPath, read_input_file
 from .pipeline import PipelineParams
@@ -69,6 +71,7 @@ _DETECT = DetectorParams()
 _MATCH = MatchParams()
 _TRACK = TrackerParams()
 _REFINE = RefineParams()
+_GROUP = GroupParams()
 
 
 def _pipe(name: str) -> Any:
@@ -84,6 +87,13 @@ class RigConfig(_Section):
     hfov_deg: float = Field(60.0, gt=0.0, lt=180.0, description="Horizontal field of view, deg")
     calibration: TextPath | None = Field(
         None, description="Calibration file (stereod calibrate); without it, the canonical rig"
+    )
+    readout_s: float = Field(
+        _pipe("readout_s"),
+        ge=0.0,
+        le=0.1,
+        description="Rolling shutter: time from the first image row to the last, s (0: global "
+        "shutter); a frame is at most a tenth of a second long at 10 Hz",
     )
 
 
@@ -166,6 +176,20 @@ class DetectorConfig(_Section):
         le=256,
         description="Round blobs up to this size, px, are centred by a disc fitted to them; 0: off",
     )
+    shadows: bool = Field(
+        _DETECT.shadows, description="Leave cast shadows (darkened background) out of objects"
+    )
+    shadow_ratio: tuple[float, float] = Field(
+        _DETECT.shadow_ratio,
+        description="A shadow darkens the background to between these shares of its brightness",
+    )
+
+    @field_validator("shadow_ratio")
+    @classmethod
+    def _ratio_order(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not 0.0 < v[0] < v[1] < 1.0:
+            raise ValueError("must be two shares with 0 < lower < upper < 1, e.g. [0.35, 0.92]")
+        return v
 
     def params(self) -> DetectorParams:
         return DetectorParams(**self.model_dump())
@@ -256,8 +280,19 @@ class TrackingConfig(_Section):
     valid_speed_sigma_rel: float = Field(
         _TRACK.valid_speed_sigma_rel, ge=0.0, le=1.0, description="Or this share of the speed"
     )
-    freeze_s: float = Field(
-        _TRACK.freeze_s, ge=0.0, le=86400.0, description="Stopped object kept out of background, s"
+    hold_still_s: float = Field(
+        _TRACK.hold_still_s,
+        ge=0.0,
+        le=86400.0,
+        validation_alias=AliasChoices("hold_still_s", "freeze_s"),
+        description="A stopped object is held out of the background, keeping its id, this long, s "
+        "(freeze_s, its older name, is read too)",
+    )
+    still_after_s: float = Field(
+        _TRACK.still_after_s,
+        gt=0.0,
+        le=3600.0,
+        description="Not seen moving this long: the object is stationary, s",
     )
     stationary_mps: float = Field(
         _TRACK.stationary_mps, ge=0.0, description="Below this an object is stopped"
@@ -279,6 +314,30 @@ class TrackingConfig(_Section):
 
     def params(self) -> TrackerParams:
         return TrackerParams(**self.model_dump(exclude={"freeze_background"}))
+
+
+class GroupingConfig(_Section):
+    """Which matched blob pairs are one object (see :class:`stereod.grouping.GroupParams`)."""
+
+    enabled: bool = Field(_GROUP.enabled, description="Group blob pairs into objects by depth")
+    max_object_size_m: float = Field(
+        _GROUP.max_object_size_m,
+        ge=0.0,
+        le=20.0,
+        description="Largest object's width, height and depth, m (a standing person: 1.8)",
+    )
+    max_gap_m: float = Field(
+        _GROUP.max_gap_m, ge=0.0, le=5.0, description="Largest gap between pieces of one object, m"
+    )
+    disparity_margin_px: float = Field(
+        _GROUP.disparity_margin_px,
+        ge=0.0,
+        le=50.0,
+        description="Pieces' disparities may differ by this beyond their depth, px",
+    )
+
+    def params(self) -> GroupParams:
+        return GroupParams(**self.model_dump())
 
 
 class RefineConfig(_Section):
@@ -377,6 +436,7 @@ class StereodConfig(BaseModel):
     matching: MatchingConfig = Field(default_factory=MatchingConfig)
     tracking: TrackingConfig = Field(default_factory=TrackingConfig)
     refine: RefineConfig = Field(default_factory=RefineConfig)
+    grouping: GroupingConfig = Field(default_factory=GroupingConfig)
     zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
     daemon: DaemonConfig = Field(default_factory=DaemonConfig)
 

@@ -153,6 +153,9 @@ class DetectorParams:
     ``disc_max_px``: a round blob (:func:`stereod.disc.is_round`) at most this wide and high
     (px) is centred by fitting a disc to the image (:func:`stereod.disc.disc_centre`) when
     matting; 0 turns this off.
+    ``shadows``: foreground that is the background darkened (its brightness times a factor
+    within ``shadow_ratio``, its colour's proportions and its texture kept) is a cast shadow,
+    not the object (:func:`shadow_mask`), and is left out before the centre is taken.
     """
 
     beta: float = 0.02
@@ -178,6 +181,8 @@ class DetectorParams:
     grow_px: int = 4
     learn_stride: int = 6
     disc_max_px: int = 24
+    shadows: bool = True
+    shadow_ratio: tuple[float, float] = (0.35, 0.92)
 
 
 PAPER = DetectorParams(
@@ -186,6 +191,7 @@ PAPER = DetectorParams(
     centroid=Centroid.BINARY,
     color=False,
     hold_foreground=False,
+    shadows=False,
     fill_holes=False,
     convex=False,
     merge_gap=0.0,
@@ -468,6 +474,12 @@ class Detector:
                 count, before = cv2.countNonZero(part), count
                 if count == before:  # nothing weak left within reach
                     break
+        if self.params.shadows:
+            shadow = shadow_mask(frame[y0:y1, x0:x1], b8, part, self.params.shadow_ratio)
+            if shadow is not None:
+                part = cv2.subtract(part, shadow)
+                if cv2.countNonZero(part) == 0:
+                    return self._nothing(shape)
         if self._open is not None and self.params.fill_holes:
             # A pinhole (a pixel the colour of the background behind it, all four neighbours
             # foreground) is foreground: the opening's square would otherwise fit nowhere in
@@ -775,6 +787,85 @@ class Detector:
             area_px=np.asarray(areas, np.int32),
             support=tuple(supports),
         )
+
+
+SHADOW_WINDOW_PX = 7
+"""Side (px) of the window a shadow's texture is compared with the background's over."""
+SHADOW_MIN_TEXTURE = 4.0
+"""The background's local standard deviation (grey levels) from which its texture can be
+compared: on a flatter background only colour tells a shadow from a dark object."""
+SHADOW_MIN_NCC = 0.6
+"""The smallest normalised cross-correlation of frame and background over the window for the
+texture to count as the background's (a shadow keeps it; an object hides it)."""
+SHADOW_RATIO_SPREAD = 0.08
+"""The largest standard deviation of frame / background over the window, as a share of its
+mean, in a shadow's inside (a shadow darkens by one factor; an object's ratio to the texture
+behind it follows that texture)."""
+SHADOW_GROW_STEPS = 2
+"""Steps of ``SHADOW_WINDOW_PX`` by which sure shadow reaches into its edge's candidates."""
+SHADOW_CHROMA = 0.06
+"""How far (share of the brightness) a shadowed pixel's colour may stray from the background's
+scaled by the pixel's own ratio."""
+
+
+def shadow_mask(
+    frame: np.ndarray,
+    background: np.ndarray,
+    foreground: np.ndarray,
+    ratio: tuple[float, float],
+) -> np.ndarray | None:
+    """The foreground pixels (uint8 255) that are a cast shadow: darker than the background by
+    a factor within ``ratio`` (lower, upper; Cucchiara et al.'s V test), with the background's
+    colour proportions (each channel the background's times that factor, within
+    ``SHADOW_CHROMA``: their H and S test, without leaving BGR) and, where the background has
+    texture, its texture (normalised cross-correlation over ``SHADOW_WINDOW_PX`` at least
+    ``SHADOW_MIN_NCC``). On a grey frame only a textured background can show a shadow.
+    ``frame`` and ``background`` (uint8, the background at the frame's gain) and
+    ``foreground`` share one shape; ``None`` when nothing is shadow."""
+    lo, hi = ratio
+    colour = frame.ndim == 3
+    f = frame.astype(np.float32)
+    b = background.astype(np.float32)
+    fl = cv2.transform(f, _MEAN_RGB) if colour else f
+    bl = cv2.transform(b, _MEAN_RGB) if colour else b
+    r = fl / (bl + 1.0)
+    cand = cv2.inRange(r, lo, hi)
+    cand = cv2.bitwise_and(cand, foreground)
+    if cv2.countNonZero(cand) == 0:
+        return None
+    k = (SHADOW_WINDOW_PX, SHADOW_WINDOW_PX)
+    mf, mb = cv2.blur(fl, k), cv2.blur(bl, k)
+    vf = cv2.blur(fl * fl, k) - mf * mf
+    vb = cv2.blur(bl * bl, k) - mb * mb
+    cov = cv2.blur(fl * bl, k) - mf * mb
+    textured = vb >= SHADOW_MIN_TEXTURE * SHADOW_MIN_TEXTURE
+    ncc = cov / np.sqrt(np.maximum(vf * vb, 1e-6))
+    gain = mf / (mb + 1.0)  # the window's darkening: its texture is the background's times it
+    mr = cv2.blur(r, k)
+    vr = cv2.blur(r * r, k) - mr * mr  # a shadow darkens its whole window alike
+    keeps_texture = (
+        textured
+        & (ncc >= SHADOW_MIN_NCC)
+        & (vf >= 0.25 * gain * gain * vb)
+        & (vr <= (SHADOW_RATIO_SPREAD * mr) ** 2)
+    )
+    if colour:
+        scaled = b * r[..., None]
+        off = np.abs(f - scaled).max(axis=2)
+        same_colour = off <= SHADOW_CHROMA * (bl + 1.0) + 3.0
+        cand = cv2.bitwise_and(cand, same_colour.view(np.uint8) * np.uint8(255))
+        core = keeps_texture | ~textured
+    else:
+        core = keeps_texture
+    shadow = cv2.bitwise_and(cand, core.view(np.uint8) * np.uint8(255))
+    if cv2.countNonZero(shadow) == 0:
+        return None
+    # Near the shadow's edge the window holds lit floor too and the texture test fails: a
+    # candidate (darkened, same colour) next to a sure shadow pixel is shadow as well.
+    grow = cv2.getStructuringElement(cv2.MORPH_RECT, k)
+    for _ in range(SHADOW_GROW_STEPS):
+        shadow = cv2.bitwise_and(cand, cv2.dilate(shadow, grow))
+    return shadow
 
 
 def _mean_channels(diff: np.ndarray) -> np.ndarray:

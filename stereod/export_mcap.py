@@ -168,6 +168,7 @@ _STATE_RGBA: Final = {
     "tentative": (1.0, 0.8, 0.0, 0.8),
     "confirmed": (0.1, 0.8, 0.2, 0.8),
     "coasting": (0.6, 0.6, 0.6, 0.6),
+    "stationary": (0.1, 0.5, 0.9, 0.8),
 }
 _MARKER_NS: Final = ("tracks", "velocity", "labels")
 _ARROW, _SPHERE, _TEXT = 0, 2, 9

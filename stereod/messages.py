@@ -91,9 +91,10 @@ class ObjectState(_Model):
     schema_: Literal["stereod.object/1"] = Field(OBJECT_SCHEMA, alias="schema")
     track_id: int = Field(description="Stable id of the track; never reused while running")
     state: TrackLifecycle = Field(
-        description="tentative (not yet confirmed), confirmed (seen in this pair), coasting "
-        "(confirmed, not seen in this pair: position and velocity are predicted, the blobs are "
-        "the last seen)"
+        description="tentative (not yet confirmed), confirmed (seen in this pair), stationary "
+        "(confirmed, seen in this pair, stopped: held out of the background, keeps its id when "
+        "it moves on), coasting (confirmed, not seen in this pair: position and velocity are "
+        "predicted, the blobs are the last seen)"
     )
     t_ns: int = Field(description="Capture instant, input's monotonic clock, ns")
     stamp_utc_ns: int = Field(description="Capture instant, UTC wall clock, ns")
@@ -134,6 +135,14 @@ class ObjectState(_Model):
     disparity_px: float = Field(description="x_left - x_right, px")
     size_m: float = Field(description="Blob width estimated from its bounding box and depth, m")
     age_s: float = Field(description="Time since the track started, s")
+    extent_min_m: Vec3 | None = Field(
+        None,
+        description="Corner of the object's 3D box with the smallest x, y and z (left, top, "
+        "near; rig frame, Y down), from its blobs' extent at its depth, as deep as wide, m",
+    )
+    extent_max_m: Vec3 | None = Field(
+        None, description="Corner of the object's 3D box with the largest x, y and z, m"
+    )
 
 
 class Latency(_Model):
@@ -309,6 +318,9 @@ def object_state(s: TrackState, stamp_utc_ns: int, skew_ns: int) -> ObjectState:
     """The wire form of one track's state at ``stamp_utc_ns`` (UTC, ns)."""
     ob = s.observation
     vsig = _sigmas(s.velocity_cov)
+    lo = hi = None
+    if ob.extent_m is not None:
+        lo, hi = _vec(s.position_m + ob.extent_m[0]), _vec(s.position_m + ob.extent_m[1])
     return ObjectState(
         track_id=s.track_id,
         state=s.lifecycle,
@@ -331,6 +343,8 @@ def object_state(s: TrackState, stamp_utc_ns: int, skew_ns: int) -> ObjectState:
         disparity_px=ob.disparity_px,
         size_m=ob.size_m,
         age_s=s.age_s,
+        extent_min_m=lo,
+        extent_max_m=hi,
     )
 
 

@@ -210,7 +210,7 @@ def _arrows(rig: CanonicalRig | CalibratedRig, tracks: list[TrackState]) -> np.n
 def _draw_track(canvas: np.ndarray, s: TrackState, w: int, arrow: np.ndarray | None) -> None:
     ob = s.observation
     col = colour(s.track_id)
-    seen = s.lifecycle is TrackLifecycle.CONFIRMED
+    seen = s.lifecycle in (TrackLifecycle.CONFIRMED, TrackLifecycle.STATIONARY)
     centres = (ob.left_image_px, ob.right_image_px)
     for e, (dx, bbox, c) in enumerate(
         ((0, ob.left_bbox_px, centres[0]), (w, ob.right_bbox_px, centres[1]))

@@ -39,4 +39,6 @@ def pipeline_params(cfg: StereodConfig, width: int, height: int) -> PipelinePara
         skew_compensation=cfg.pairing.skew_compensation,
         freeze_background=cfg.tracking.freeze_background,
         refine=cfg.refine.params(),
+        grouping=cfg.grouping.params(),
+        readout_s=cfg.rig.readout_s,
     )

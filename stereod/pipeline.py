@@ -28,6 +28,7 @@ from .geometry import Geometry
 from .geometry.rectified import CalibratedRig
 from .geometry.refine import RefineParams, refine_match
 from .geometry.stereo import CanonicalRig, MatchParams, centre_depth, match_blobs, sym3
+from .grouping import GroupParams, extent_m, group_objects
 from .pairing import DEFAULT_TOLERANCE_NS, DROP_NON_MONOTONIC, DROP_OVERFLOW, Pairer, PairerStats
 from .tracking import Detection, Observation, Tracker, TrackerParams, TrackState
 
@@ -80,6 +81,11 @@ class PipelineParams:
     (a 20 m/s ball 2.5 m away crosses a 42 deg view in a tenth of a second): with the skew, it
     bounds how far an object moves between the eyes' instants, and with no depth known yet,
     between frames.
+    ``grouping``: which matched blob pairs are one object (:mod:`stereod.grouping`).
+    ``readout_s``: a rolling shutter's readout time (s), from the first image row to the row
+    below the last: each blob is taken at its frame's instant plus its centroid's row times
+    ``readout_s / height_px``, wherever an eye's instant is used (association, skew
+    compensation, the filter); 0 for a global shutter.
     """
 
     rig: CanonicalRig | CalibratedRig
@@ -94,6 +100,8 @@ class PipelineParams:
     freeze_background: bool = True
     max_image_speed_wps: float = 10.0
     refine: RefineParams = field(default_factory=RefineParams)
+    grouping: GroupParams = field(default_factory=GroupParams)
+    readout_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.rig, (CanonicalRig, CalibratedRig)):
@@ -105,6 +113,8 @@ class PipelineParams:
             value = getattr(self, name)
             if not 0 < value < math.inf:
                 raise ValueError(f"{name} must be a finite number > 0, got {value}")
+        if not 0.0 <= self.readout_s <= 1.0:
+            raise ValueError(f"readout_s must be within 0 and 1 s, got {self.readout_s}")
         if self.detect_workers not in (1, 2):
             raise ValueError(f"detect_workers must be 1 or 2, got {self.detect_workers}")
 
@@ -195,6 +205,8 @@ class Pipeline:
         self.left = Detector(params.detector)
         self.right = Detector(params.detector)
         self.tracker = Tracker(params.tracker, params.rig.rectified.project)
+        self._line_ns = params.readout_s * 1e9 / params.rig.height_px
+        self.tracker.line_ns = self._line_ns
         self._pending: list[Learning | None] = [None, None]
         """Each eye's eq. 3 rectangles (frozen, released) from the last pair, for the next;
         ``None`` once that eye has learned (or before the first pair)."""
@@ -396,7 +408,7 @@ class Pipeline:
         t1 = time.perf_counter_ns()
         t_left, t_right = pair.left.t_ns, pair.right.t_ns
         eye_times = (t_left, t_right)
-        compensate = p.skew_compensation and t_left != t_right
+        compensate = p.skew_compensation and (t_left != t_right or self._line_ns > 0.0)
         t_ns = skew.common_instant(t_left, t_right) if compensate else pair.t_ns
         # Matching, association, compensation and triangulation work in rectified coordinates
         # (identical to image coordinates for the canonical rig); messages report the image ones.
@@ -407,10 +419,17 @@ class Pipeline:
         idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack)
         lpx = lrect[idx[:, 0]]
         rpx = rrect[idx[:, 1]]
+        grouped = group_objects(
+            lb, rb, idx, lpx, rpx, lrect, rrect, p.rig.focal_px, p.rig.baseline_m, p.grouping
+        )
+        if grouped is not None:  # pieces of one object, one detection
+            lb, rb, idx = grouped.left, grouped.right, grouped.index
+            lpx, rpx = grouped.left_px, grouped.right_px
         if p.refine.enabled:
             self._refine(pair, lb, idx, lpx, rpx)
         detections = self._detections(lb, rb, idx, lpx, rpx)
         assignment, may_start = self.tracker.associate(detections, eye_times)
+        blob_times = self._blob_times(lb, rb, idx, eye_times)
         window = int(p.skew_window_s * 1e9)
         observations: list[Observation | None] = []
         for k, tid in enumerate(assignment):
@@ -418,24 +437,27 @@ class Pipeline:
                 observations.append(None)
                 continue
             histories = self.tracker.histories(tid)
+            times = blob_times[k]
             if compensate:
                 areas = (int(lb.area_px[idx[k, 0]]), int(rb.area_px[idx[k, 1]]))
-                ratios = self._depth_ratios(tid, detections[k], eye_times, areas)
+                ratios = self._depth_ratios(tid, detections[k], times, areas)
                 lc, rc, exact = skew.compensate(
-                    histories, lpx[k], rpx[k], eye_times, t_ns, window, ratios
+                    histories, lpx[k], rpx[k], times, t_ns, window, ratios
                 )
             else:
                 lc, rc, exact = lpx[k], rpx[k], True
             clipped = detections[k].clipped
             before = self.tracker.track(tid).last if tid is not None else None
-            growth = self._expected_growth(tid, eye_times)
-            at_once = exact and (compensate or t_left == t_right)
+            growth = self._expected_growth(tid, times)
+            at_once = exact and (compensate or times[0] == times[1])
             ob = self._observe(
                 lb, rb, idx[k], lpx[k], rpx[k], lc, rc, exact, clipped, before, growth, at_once
             )
             observations.append(ob if self._in_range(ob) else None)
         t2 = time.perf_counter_ns()
-        states, ended = self.tracker.update(t_ns, observations, assignment, eye_times, detections)
+        states, ended = self.tracker.update(
+            t_ns, observations, assignment, eye_times, detections, blob_times
+        )
         self._learn(states)
         t3 = time.perf_counter_ns()
         timings = Timings(
@@ -457,6 +479,23 @@ class Pipeline:
             timings=timings,
             row_residuals_px=np.abs(lpx[:, 1] - rpx[:, 1]),
         )
+
+    def _blob_times(
+        self, lb: Blobs, rb: Blobs, idx: np.ndarray, eye_times_ns: tuple[int, int]
+    ) -> list[tuple[int, int]]:
+        """Each matched pair's capture instants (ns), left and right: its frame's instant plus
+        its centroid's image row times the rolling shutter's time per row (``readout_s``)."""
+        if self._line_ns <= 0.0:
+            return [eye_times_ns] * len(idx)
+        t_left, t_right = eye_times_ns
+        line = self._line_ns
+        return [
+            (
+                t_left + round(max(float(lb.centroid_px[i, 1]), 0.0) * line),
+                t_right + round(max(float(rb.centroid_px[j, 1]), 0.0) * line),
+            )
+            for i, j in idx.tolist()
+        ]
 
     def _expected_growth(
         self, tid: int | None, eye_times_ns: tuple[int, int]
@@ -624,8 +663,10 @@ class Pipeline:
         factor = 1.0
         if p.silhouette_depth:
             point, cov, factor = centre_depth(point, cov, area, p.rig.focal_px, width_px)
+        centre = np.array(point)
+        lo, hi = extent_m(centre, lb.bbox_px[i], rb.bbox_px[j], lb.centroid_px[i], p.rig.focal_px)
         return Observation(
-            position_m=np.array(point),
+            position_m=centre,
             cov_m2=sym3(cov),
             left_px=lpx,
             right_px=rpx,
@@ -641,6 +682,7 @@ class Pipeline:
             clipped=clipped,
             depth_factor=factor,
             row_gap_px=row_gap,
+            extent_m=(lo - centre, hi - centre),
         )
 
     def _in_range(self, ob: Observation) -> bool:
@@ -664,7 +706,7 @@ class Pipeline:
 
     def _learn(self, states: list[TrackState]) -> None:
         """Where eq. 3 may learn in each eye, applied when the next pair is detected: not under
-        objects seen moving (so one that stops stays seen, for ``freeze_s``), and at once under
+        objects seen moving (so one that stops stays seen, for ``hold_still_s``), and at once under
         one that has been still longer than that (the detector would otherwise hold it as
         foreground for its own ``absorb_s``)."""
         frozen: tuple[list[Rect], list[Rect]] = ([], [])

@@ -31,7 +31,9 @@ speed to 2 % and its heading to 12 deg), and an object slow on the ground, or fa
 have a speed known to 0.1 m/s and no direction at all.
 
 Lifecycle: ``tentative`` until ``confirm_hits`` observations and a running filter (two
-observations no faster than ``max_speed_mps`` apart), then ``confirmed``; a confirmed
+observations no faster than ``max_speed_mps`` apart), then ``confirmed``; a confirmed track
+seen moving that has not moved for ``still_after_s`` is ``stationary`` (held out of the
+background for ``hold_still_s``, so it stays seen and keeps its id when it moves on); a confirmed
 track not seen in a pair is ``coasting`` (predicted) until ``max_coast_s`` has passed, then it
 ends. A tentative track ends at its first miss, except that one seen once waits one pair
 (still ``tentative``): an object entering the view is small, and one eye may miss it once.
@@ -66,6 +68,10 @@ class TrackLifecycle(str, enum.Enum):
     """Seen often enough to be a real object, and seen in the latest pair."""
     COASTING = "coasting"
     """Confirmed but not seen in the latest pair: its state is predicted."""
+    STATIONARY = "stationary"
+    """Confirmed, seen in the latest pair, seen moving before and not for ``still_after_s``:
+    an object that stopped (a person sitting, a robot waiting). It is held out of the
+    background for ``hold_still_s`` and keeps its id when it moves on."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,6 +126,9 @@ class Observation:
     clipped: bool = False
     depth_factor: float = 1.0
     row_gap_px: float | None = None
+    extent_m: tuple[np.ndarray, np.ndarray] | None = None
+    """The object's 3D box (min and max corners, m) relative to ``position_m``
+    (:func:`stereod.grouping.extent_m`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,8 +147,10 @@ class TrackerParams:
     unseen. ``confirm_hits``: observations to confirm. ``valid_speed_sigma_mps``,
     ``valid_speed_sigma_rel``: a velocity is valid once the speed's sigma is below the larger
     of these (m/s; share of the speed), its heading once the sigma across it on the ground is
-    too and the heading's within ``VALID_HEADING_SIGMA_DEG``. ``freeze_s``: how long (s)
-    after it was last seen moving an object keeps the background frozen under it.
+    too and the heading's within ``VALID_HEADING_SIGMA_DEG``. ``hold_still_s``: how long (s)
+    after it was last seen moving an object keeps the background held under it (it stays
+    seen, ``stationary``, and keeps its id); after that it is part of the scene.
+    ``still_after_s``: an object not seen moving for this long (s) is ``stationary``.
     ``stationary_mps``: below this speed an object is not moving. ``gravity_mps2``: gravity
     in the rig frame (m/s^2; Y points down in a level rig); every moving track is filtered
     both as moving straight and as falling freely, and follows the likelier (a thrown ball
@@ -158,7 +169,8 @@ class TrackerParams:
     confirm_hits: int = 3
     valid_speed_sigma_mps: float = 0.1
     valid_speed_sigma_rel: float = 0.1
-    freeze_s: float = 10.0
+    hold_still_s: float = 60.0
+    still_after_s: float = 1.0
     stationary_mps: float = 0.05
     gravity_mps2: tuple[float, float, float] = (0.0, 9.81, 0.0)
 
@@ -196,10 +208,10 @@ class TrackState:
     age_s: float
     freeze_background: bool
     """Whether the background should not learn under this object now: it was seen moving, and
-    has not been stopped for longer than ``freeze_s``."""
+    has not been stopped for longer than ``hold_still_s``."""
     release_background: bool = False
     """Whether the background should learn this object now: it was seen moving, then stood
-    still for ``freeze_s``; it is part of the scene."""
+    still for ``hold_still_s``; it is part of the scene."""
 
 
 @dataclass
@@ -220,10 +232,13 @@ class Track:
     last_seen_ns: int = 0
     last_moving_ns: int | None = None
     """When the object was last seen clearly moving (speed above ``stationary_mps`` and three
-    sigmas); only an object seen moving freezes the background, for ``freeze_s`` after that
+    sigmas); only an object seen moving holds the background, for ``hold_still_s`` after that
     (a track born still, like a ghost of the background, never does)."""
+    stationary: bool = False
+    """Whether the track was last reported ``stationary``: standing still, held out of the
+    background."""
     freeze_spent: bool = False
-    """Set once the object has been still for ``freeze_s``: the background then takes it, and
+    """Set once the object has been still for ``hold_still_s``: the background then takes it, and
     the apparent motion of a blob fading into the background never re-arms the freeze."""
     updates: int = 0
     """Filter updates so far (the noise scale learns fast at first, then settles)."""
@@ -362,6 +377,9 @@ class Tracker:
         where its image velocity leads."""
         self.params = params
         self._project = project
+        self.line_ns = 0.0
+        """How much later a rolling shutter reads each image row than the one above (ns); 0
+        for a global shutter (set by the pipeline from ``readout_s``)."""
         g = np.asarray(params.gravity_mps2, dtype=np.float64)
         self._gravity: np.ndarray | None = g if np.any(g != 0.0) else None
         self._tracks: dict[int, Track] = {}
@@ -387,11 +405,11 @@ class Tracker:
             return out, may_start
         if not tracks:
             return out, [not _piece(d, detections, out, []) for d in detections]
-        t_left, t_right = eye_times_ns
         cost = np.full((n, len(tracks)), np.inf)
         inside = np.zeros((2, n, len(tracks)), bool)
         boxes = []
         for j, tr in enumerate(tracks):
+            t_left, t_right = self._row_instants(tr, eye_times_ns)
             pred = self._predict_px(tr, t_left, t_right)
             pl, pr, ml, mr = pred.left, pred.right, pred.left_motion, pred.right_motion
             boxes.append(
@@ -412,6 +430,8 @@ class Tracker:
                 )
                 if dist <= gate:
                     cost[i, j] = dist / gate
+                elif tr.stationary and _resumes(d, tr.last):
+                    cost[i, j] = RESUME_COST
                 inside[0, i, j] = _inside(pl, d.left_bbox_px, 0.0)
                 inside[1, i, j] = _inside(pr, d.right_bbox_px, 0.0)
         confirmed = np.array([self._confirmed(tr) for tr in tracks])
@@ -454,6 +474,17 @@ class Tracker:
             if out[i] is None and may_start[i]:
                 may_start[i] = not _piece(d, detections, out, tracks)
         return out, may_start
+
+    def _row_instants(self, tr: Track, eye_times_ns: tuple[int, int]) -> tuple[int, int]:
+        """When each eye's rolling shutter reads the rows a track was last seen on (ns): the
+        frame's instant plus that row times ``line_ns``."""
+        if self.line_ns <= 0.0:
+            return eye_times_ns
+        rows = (float(tr.last.left_image_px[1]), float(tr.last.right_image_px[1]))
+        return (
+            eye_times_ns[0] + round(max(rows[0], 0.0) * self.line_ns),
+            eye_times_ns[1] + round(max(rows[1], 0.0) * self.line_ns),
+        )
 
     def _predict_px(self, tr: Track, t_left: int, t_right: int) -> Prediction:
         """Where each eye should see a track at its capture instant (px), and how far that is
@@ -514,19 +545,23 @@ class Tracker:
         assignment: list[int | None],
         eye_times_ns: tuple[int, int],
         detections: list[Detection],
+        blob_times_ns: list[tuple[int, int]] | None = None,
     ) -> tuple[list[TrackState], list[int]]:
         """Fold in one pair's observations at ``t_ns`` (``None`` in ``observations`` is a
         detection that neither joins nor starts a track); ``eye_times_ns`` are the left and
-        right capture instants of the centroids. Returns the state of every live track
-        (observed or coasting) and the ids of the tracks that ended. A track whose filter puts
-        it behind the rig (Z <= 0, where no camera sees) ends there: its filter has lost the
-        object, and what it would publish means nothing."""
+        right capture instants of the frames, and ``blob_times_ns`` each detection's own (a
+        rolling shutter reads its rows later; default: the frames'). Returns the state of
+        every live track (observed or coasting) and the ids of the tracks that ended. A track
+        whose filter puts it behind the rig (Z <= 0, where no camera sees) ends there: its
+        filter has lost the object, and what it would publish means nothing."""
         p = self.params
         seen: set[int] = set()
         states: list[TrackState] = []
         ended: list[int] = []
-        t_left, t_right = eye_times_ns
-        for ob, tid, det in zip(observations, assignment, detections, strict=True):
+        times = blob_times_ns if blob_times_ns is not None else [eye_times_ns] * len(detections)
+        for ob, tid, det, (t_left, t_right) in zip(
+            observations, assignment, detections, times, strict=True
+        ):
             if ob is None:
                 continue
             if tid is None:
@@ -781,10 +816,14 @@ class Tracker:
         if valid and spd > max(p.stationary_mps, 3.0 * spd_sigma):
             tr.last_moving_ns = t_ns
         still_for = None if tr.last_moving_ns is None else (t_ns - tr.last_moving_ns) * 1e-9
-        if still_for is not None and still_for >= p.freeze_s:
+        if still_for is not None and still_for >= p.hold_still_s:
             tr.freeze_spent = True
+        tr.stationary = False
         if not observed and confirmed:
             lifecycle = TrackLifecycle.COASTING
+        elif confirmed and still_for is not None and still_for >= p.still_after_s:
+            lifecycle = TrackLifecycle.STATIONARY
+            tr.stationary = True
         elif confirmed:
             lifecycle = TrackLifecycle.CONFIRMED
         else:
@@ -809,6 +848,26 @@ class Tracker:
             freeze_background=still_for is not None and not tr.freeze_spent,
             release_background=tr.freeze_spent,
         )
+
+
+RESUME_COST = 0.99
+"""The association cost (of at most 1, the gate's edge) of a stationary track and a
+detection it did not predict that overlaps where it stood (:func:`_resumes`): the worst
+acceptable, so any detection the track's prediction explains is preferred."""
+RESUME_IOU = 0.3
+"""How much a detection's box must overlap a stationary track's last box, in each eye, to be
+that object moving on (a person or robot starting off moves a fraction of its size in a
+frame; a ball 17 px across that sets off at 0.4 m/s, 7 px a frame, keeps 0.4)."""
+
+
+def _resumes(d: Detection, last: Observation) -> bool:
+    """Whether a detection overlaps a stationary track's last boxes in both eyes enough to be
+    the object setting off again: it stood still, so its filter predicts it where it was, and
+    the first step of a start can lie outside the gate of an object at rest."""
+    return (
+        _iou(d.left_bbox_px, last.left_bbox_px) >= RESUME_IOU
+        and _iou(d.right_bbox_px, last.right_bbox_px) >= RESUME_IOU
+    )
 
 
 def _behind(tr: Track) -> bool:

@@ -44,7 +44,7 @@ def states(
         s
         for r in results
         for s in r.tracks
-        if (not confirmed or s.lifecycle is TrackLifecycle.CONFIRMED)
+        if (not confirmed or s.lifecycle in (TrackLifecycle.CONFIRMED, TrackLifecycle.STATIONARY))
         and (not valid or s.velocity_valid)
     ]
 

@@ -731,3 +731,61 @@ def test_matte_centroid_leaves_a_small_blob_and_a_blob_like_its_background_to_th
     same = matte_centroid(big, background, background, np.zeros((30, 30), np.uint8), (8, 8), 25.0)
     assert np.all(np.isfinite(same))
     np.testing.assert_allclose(same, (8 + 6, 8 + 6), atol=0.5)
+
+
+def _floor(h: int, w: int, seed: int = 4) -> np.ndarray:
+    """A fine colour texture (a floor's grain: a few pixels across)."""
+    rng = np.random.default_rng(seed)
+    small = rng.uniform(70, 170, (h // 2, w // 2, 3)).astype(np.float32)
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR).astype(np.uint8)
+
+
+def _with_shadow(bg: np.ndarray, factor: float) -> tuple[np.ndarray, tuple[float, float]]:
+    """A red disc (r 10 px at (60, 60)) and its long shadow: an ellipse of the floor darkened
+    by ``factor`` reaching 40 px to its right (a low lamp to the left). Returns the frame and
+    the disc's true centre (x, y px)."""
+    img = bg.copy()
+    mask = np.zeros(bg.shape[:2], np.uint8)
+    cv2.ellipse(mask, (88, 66), (34, 8), 0, 0, 360, 255, -1)
+    shade = img.astype(np.float32) * factor
+    img[mask > 0] = shade[mask > 0].astype(np.uint8)
+    disc = np.zeros(bg.shape[:2], np.uint8)
+    cv2.circle(disc, (60, 60), 10, 255, -1)
+    img[disc > 0] = (40, 40, 220)
+    m = cv2.moments(disc, binaryImage=True)
+    return img, (m["m10"] / m["m00"], m["m01"] / m["m00"])
+
+
+@pytest.mark.parametrize("factor", [0.5, 0.7, 0.85])
+def test_a_cast_shadow_is_left_out_of_the_object(factor: float) -> None:
+    """Design sec. 11: a shadow is darker background with the background's colour and
+    texture. With shadows on, the centroid is the disc's (eq. 5 over the object alone); with
+    them off, the shadow drags it by several pixels towards itself."""
+    bg = _floor(120, 160)
+    img, truth = _with_shadow(bg, factor)
+    found = {}
+    for shadows in (True, False):
+        det = Detector(DetectorParams(warmup_frames=3, shadows=shadows))
+        warm(det, bg, 3)
+        blobs = det.detect(img)
+        assert len(blobs) == 1, (shadows, len(blobs))
+        found[shadows] = blobs.centroid_px[0]
+    assert np.hypot(*(found[True] - truth)) < 0.6, (found[True], truth)
+    assert found[False][0] - truth[0] > 5.0, "the shadow should drag the centroid unsuppressed"
+
+
+@pytest.mark.parametrize("color", [True, False])
+def test_a_dark_object_is_not_taken_for_a_shadow(color: bool) -> None:
+    """A dark flat box on the textured floor is darker, but it hides the floor's texture (and,
+    in colour, its hue): it is the object, whole."""
+    bg = _floor(120, 160)
+    img = bg.copy()
+    cv2.rectangle(img, (50, 40), (79, 69), (45, 50, 55), -1)
+    if not color:
+        bg, img = cv2.cvtColor(bg, cv2.COLOR_BGR2GRAY), cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    det = Detector(DetectorParams(warmup_frames=3, shadows=True))
+    warm(det, bg, 3)
+    blobs = det.detect(img)
+    assert len(blobs) == 1
+    assert blobs.area_px[0] >= 0.97 * 30 * 30
+    np.testing.assert_allclose(blobs.centroid_px[0], (64.5, 54.5), atol=0.3)

@@ -129,15 +129,91 @@ def test_stopped_object_stays_tracked_while_background_is_frozen() -> None:
     frozen = tracks_by_frame(scene, detector=detector)
     paper = dataclasses.replace(detector, hold_foreground=False)
     learning = tracks_by_frame(scene, detector=paper, freeze_background=False)
-    assert frozen[-1] and set(frozen[-1].values()) == {"confirmed"}, frozen[-1]
+    assert frozen[-1] and set(frozen[-1].values()) == {"stationary"}, frozen[-1]
     assert learning[-1] == {}, "with eq. 3 everywhere, the stopped ball should fade"
     # A short freeze lets the background take it after that time.
-    short = tracks_by_frame(scene, detector=detector, tracker=TrackerParams(freeze_s=1.0))
+    short = tracks_by_frame(scene, detector=detector, tracker=TrackerParams(hold_still_s=1.0))
     assert short[-1] == {}
     # Untracked, held foreground is absorbed after absorb_s.
     held = dataclasses.replace(detector, absorb_s=1.0)
     absorbed = tracks_by_frame(scene, detector=held, freeze_background=False)
     assert absorbed[-1] == {}
+
+
+def test_object_that_stops_for_45_s_keeps_its_id_and_moves_on() -> None:
+    """Stop and go (design sec. 11): a ball rolls, stands still for 45 s (within the default
+    ``hold_still_s`` of 60 s), and rolls on. One id from its confirmation to the end; while
+    it stands it is ``stationary`` and where the scene put it; moving again, ``confirmed``."""
+    ball = Ball(
+        heading_deg=90,
+        speed_mps=0.4,
+        centre_m=(-0.2, 0.0, 1.6),
+        t_on_s=0.8,
+        t_off_s=1e9,
+        t_mid_s=1.0,
+        t_stop_s=1.5,
+        t_resume_s=46.5,
+    )
+    scene = Scene(width_px=320, height_px=240, fps=10.0, duration_s=48.5, balls=[ball])
+    results = run_scene(scene, PipelineParams(scene.rig))
+    ids: set[int] = set()
+    still: list[float] = []
+    for r in results:
+        t = (r.t_ns - scene.t0_ns) / 1e9
+        seen = [o for o in r.tracks if o.lifecycle.value in ("confirmed", "stationary")]
+        if t > 1.3:
+            assert len(seen) == 1, f"at {t:.1f} s: {[(o.track_id, o.lifecycle) for o in r.tracks]}"
+            ids.add(seen[0].track_id)
+            o = seen[0]
+            if 3.0 < t < 46.5:
+                assert o.lifecycle.value == "stationary", (t, o.lifecycle)
+                still.append(float(np.linalg.norm(o.position_m - ball.position_m(t))))
+            if t > 47.5:
+                assert o.lifecycle.value == "confirmed", (t, o.lifecycle)
+                assert np.linalg.norm(o.position_m - ball.position_m(t)) < 0.05
+    assert len(ids) == 1, f"ids {ids}"
+    assert max(still) < 0.02, f"the stopped ball drifts {max(still):.3f} m"
+
+
+def test_rolling_shutter_readout_puts_each_blob_at_its_rows_instant() -> None:
+    """A rolling shutter (30 ms from the first row to the last) reads a ball on row v at
+    v / height x 30 ms after the frame's instant. A ball moving right and down at 1 m/s each
+    way then seems to lag by up to 2 cm and moves faster down the image than it does (the
+    rows it reaches are read later): with ``readout_s`` set, each blob is taken at its rows'
+    instant, and positions and speed agree with the scene's truth."""
+    ball = Ball(
+        heading_deg=90,
+        speed_mps=1.0,
+        vy_mps=1.0,
+        centre_m=(0.0, 0.0, 2.0),
+        t_on_s=0.9,
+        t_off_s=1.6,
+        t_mid_s=1.25,
+    )
+    scene = Scene(
+        width_px=320, height_px=240, fps=30.0, duration_s=1.7, balls=[ball], readout_s=0.03
+    )
+
+    def errors(readout_s: float) -> tuple[float, float]:
+        params = PipelineParams(
+            scene.rig, readout_s=readout_s, tracker=TrackerParams(gravity_mps2=(0, 0, 0))
+        )
+        pos, spd = [], []
+        for r in run_scene(scene, params):
+            t = (r.t_ns - scene.t0_ns) / 1e9
+            for o in r.tracks:
+                if o.velocity_valid:
+                    pos.append(float(np.linalg.norm(o.position_m - ball.position_m(t))))
+                    spd.append(o.speed_mps / math.sqrt(2.0) - 1.0)
+        assert len(pos) >= 8
+        return float(np.median(pos)), float(np.median(np.abs(spd)))
+
+    pos_off, spd_off = errors(0.0)
+    pos_on, spd_on = errors(0.03)
+    assert pos_off > 0.008, f"without the readout the ball should lag, got {pos_off:.4f} m"
+    assert pos_on < 0.4 * pos_off and pos_on < 0.005, (pos_on, pos_off)
+    assert spd_off > 0.012, f"without the readout the speed should be off, got {spd_off:.1%}"
+    assert spd_on < 0.005, f"speed off by {spd_on:.1%} with the readout"
 
 
 @pytest.fixture(scope="module")

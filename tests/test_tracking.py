@@ -321,8 +321,8 @@ def test_noise_scale_learns_a_better_detector() -> None:
     assert learned < 0.95 * fixed, f"speed sigma {learned:.4f} m/s learned, {fixed:.4f} fixed"
 
 
-def test_stopped_object_freezes_background_for_freeze_s() -> None:
-    tracker = Tracker(TrackerParams(freeze_s=1.0))
+def test_stopped_object_holds_background_for_hold_still_s() -> None:
+    tracker = Tracker(TrackerParams(hold_still_s=1.0))
     moving = line([0.0, 0.0, 2.0], [0.5, 0.0, 0.0])
     states = []
     for k in range(30):

@@ -333,7 +333,8 @@ function drawMap(tracks) {
     view.drawn.push([t.id, cx, cy]);
     ctx.beginPath();
     ctx.arc(cx, cy, o.state === "tentative" ? 3 : 5, 0, 2 * Math.PI);
-    if (o.state === "confirmed" && t.endedAt === null) ctx.fill(); else ctx.stroke();
+    const seen = o.state === "confirmed" || o.state === "stationary";
+    if (seen && t.endedAt === null) ctx.fill(); else ctx.stroke();
     if (o.valid && o.v[0] !== null && o.v[2] !== null) {
       ctx.lineWidth = 2;
       arrow(ctx, cx, cy, X(o.p[0] + o.v[0] * ARROW_S), Z(o.p[2] + o.v[2] * ARROW_S));

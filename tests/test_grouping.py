@@ -1,0 +1,179 @@
+"""Objects, not blobs: pieces that stereo puts at one depth, close together, are one object."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stereod.detect import Blobs
+from stereod.geometry.stereo import CanonicalRig
+from stereod.grouping import GroupParams, extent_m, group_objects
+
+RIG = CanonicalRig(0.060, 42.0, 640, 480)
+F = RIG.focal_px
+B = RIG.baseline_m
+CX, CY = (RIG.width_px - 1) / 2, (RIG.height_px - 1) / 2
+
+
+def rect_px(x0_m: float, y0_m: float, x1_m: float, y1_m: float, z_m: float, left: bool) -> tuple:
+    """The image box (x, y, w, h px, rounded) of a rig-frame rectangle facing the rig at
+    depth ``z_m`` in one eye of the canonical rig (eq. 9: u = cx + f (X -+ B/2) / Z)."""
+    c = -B / 2 if left else B / 2
+    u0, u1 = CX + F * (x0_m - c) / z_m, CX + F * (x1_m - c) / z_m
+    v0, v1 = CY + F * y0_m / z_m, CY + F * y1_m / z_m
+    x, y = round(u0), round(v0)
+    return x, y, max(round(u1) - x, 1), max(round(v1) - y, 1)
+
+
+def blobs(boxes: list[tuple]) -> Blobs:
+    """Solid rectangular blobs: centre of gravity (eq. 5) at each box's centre."""
+    return Blobs(
+        centroid_px=np.array([(x + (w - 1) / 2, y + (h - 1) / 2) for x, y, w, h in boxes], float),
+        bbox_px=np.array(boxes, np.int32).reshape(-1, 4),
+        area_px=np.array([w * h for _, _, w, h in boxes], np.int32),
+        support=tuple(np.full((h, w), 255, np.uint8) for _, _, w, h in boxes),
+    )
+
+
+def joined(b: Blobs) -> Blobs:
+    """All of ``b``'s blobs as one blob (one outline around pieces the closing joined)."""
+    x0, y0 = b.bbox_px[:, :2].min(axis=0)
+    x1, y1 = (b.bbox_px[:, :2] + b.bbox_px[:, 2:]).max(axis=0)
+    support = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    for (x, y, w, h), s in zip(b.bbox_px, b.support, strict=True):
+        support[y - y0 : y - y0 + h, x - x0 : x - x0 + w] = s
+    a = b.area_px.astype(float)
+    return Blobs(
+        centroid_px=((b.centroid_px * a[:, None]).sum(axis=0) / a.sum())[None],
+        bbox_px=np.array([[x0, y0, x1 - x0, y1 - y0]], np.int32),
+        area_px=np.array([int(a.sum())], np.int32),
+        support=(support,),
+    )
+
+
+def run(
+    left: list[tuple],
+    right: list[tuple],
+    pairs: list[tuple[int, int]],
+    joined_left: bool = False,
+    **kw: float,
+):
+    lb, rb = blobs(left), blobs(right)
+    if joined_left:
+        lb = joined(lb)
+    idx = np.array(pairs, np.intp).reshape(-1, 2)
+    lrect, rrect = lb.centroid_px.copy(), rb.centroid_px.copy()
+    return group_objects(
+        lb, rb, idx, lrect[idx[:, 0]], rrect[idx[:, 1]], lrect, rrect, F, B, GroupParams(**kw)
+    )
+
+
+def person(z: float, dx: float = 0.0) -> list[tuple[float, float, float, float]]:
+    """A person's pieces as segmentation cuts them (m, rig frame, Y down): torso, a raised
+    arm beside it with a 5 cm gap, legs below a 10 cm gap (the still hips learned away)."""
+    return [
+        (dx - 0.2, -0.4, dx + 0.2, 0.2),  # torso
+        (dx + 0.25, -0.7, dx + 0.33, -0.1),  # arm
+        (dx - 0.18, 0.3, dx + 0.18, 1.1),  # legs
+    ]
+
+
+def test_a_person_in_three_pieces_is_one_object_centred_on_their_union() -> None:
+    z = 3.4
+    parts = person(z)
+    left = [rect_px(*p, z, True) for p in parts]
+    right = [rect_px(*p, z, False) for p in parts]
+    g = run(left, right, [(0, 0), (1, 1), (2, 2)])
+    assert g is not None and g.pieces == (3,)
+    areas = np.array([w * h for _, _, w, h in left], float)
+    expected = (blobs(left).centroid_px * areas[:, None]).sum(axis=0) / areas.sum()
+    assert np.allclose(g.left.centroid_px[0], expected)
+    assert g.left.area_px[0] == areas.sum()
+    # the union's disparity is the pieces' own: the depth is unchanged (eq. 9)
+    d = float(g.left_px[0, 0] - g.right_px[0, 0])
+    assert F * B / d == pytest.approx(z, rel=0.03)
+    x0 = min(b[0] for b in left)
+    assert tuple(g.left.bbox_px[0][:2]) == (x0, min(b[1] for b in left))
+    assert g.left.support[0].shape == (g.left.bbox_px[0][3], g.left.bbox_px[0][2])
+
+
+def test_pieces_at_different_depths_stay_apart() -> None:
+    """Two balls crossing: 1.5 m and 1.8 m deep, overlapping in the image. Their disparity
+    ranges (each +- its own half width) do not overlap: two objects."""
+    a = (-0.07, -0.07, 0.07, 0.07)
+    b = (0.02, -0.07, 0.16, 0.07)
+    left = [rect_px(*a, 1.5, True), rect_px(*b, 1.8, True)]
+    right = [rect_px(*a, 1.5, False), rect_px(*b, 1.8, False)]
+    assert run(left, right, [(0, 0), (1, 1)]) is None
+
+
+def test_two_people_a_metre_apart_stay_two() -> None:
+    z = 3.0
+    parts = [person(z, -0.6)[0], person(z, 0.6)[0]]  # torsos 0.8 m apart: a gap of 0.8 m
+    left = [rect_px(*p, z, True) for p in parts]
+    right = [rect_px(*p, z, False) for p in parts]
+    assert run(left, right, [(0, 0), (1, 1)]) is None
+
+
+def test_nothing_larger_than_max_object_size_is_one_object() -> None:
+    """A chain of pieces each close to the next: joined only while the whole fits 2 m."""
+    z = 3.0
+    parts = [(x, 0.0, x + 0.4, 0.4) for x in np.arange(-1.5, 1.5, 0.5)]  # 0.1 m gaps
+    left = [rect_px(*p, z, True) for p in parts]
+    right = [rect_px(*p, z, False) for p in parts]
+    g = run(left, right, [(k, k) for k in range(len(parts))])
+    assert g is not None
+    for k in range(len(g.pieces)):
+        w_m = g.left.bbox_px[k][2] * z / F
+        assert w_m <= 2.0 + 2 * z / F
+    assert len(g.pieces) == 2 and sum(g.pieces) == len(parts)
+
+
+def test_a_piece_one_eye_cut_apart_joins_its_object_in_that_eye() -> None:
+    """Left: the arm and torso segment as one blob; right: as two. The right arm, left
+    unmatched by the one-to-one matching, joins the object, so both eyes' centroids are of
+    the same union and the depth is right (leaving it out biases the disparity)."""
+    z = 2.5
+    torso = person(z)[0]
+    arm = (0.25, -0.35, 0.33, 0.15)  # hanging beside the torso, 5 cm from it
+    lt, la = rect_px(*torso, z, True), rect_px(*arm, z, True)
+    rt, ra = rect_px(*torso, z, False), rect_px(*arm, z, False)
+    g = run([lt, la], [rt, ra], [(0, 0)], joined_left=True)
+    assert g is not None and g.pieces == (1,)
+    assert len(g.right) == 1  # the arm is in the object
+    d_grouped = float(g.left_px[0, 0] - g.right_px[0, 0])
+    d_alone = float(joined(blobs([lt, la])).centroid_px[0, 0] - blobs([rt]).centroid_px[0, 0])
+    truth = F * B / z
+    assert abs(d_grouped - truth) < abs(d_alone - truth)
+    assert abs(F * B / d_grouped - z) < 0.15
+
+
+def test_off_leaves_every_pair_alone() -> None:
+    z = 3.4
+    parts = person(z)
+    left = [rect_px(*p, z, True) for p in parts]
+    right = [rect_px(*p, z, False) for p in parts]
+    assert run(left, right, [(0, 0), (1, 1), (2, 2)], enabled=False) is None
+
+
+def test_extent_is_the_blob_box_at_the_objects_depth() -> None:
+    """A 0.5 m x 1.2 m rectangle at 3 m: its box is 0.5 m wide and 1.2 m high (to a pixel at
+    that depth), around where the rectangle is."""
+    z, (x0, y0, x1, y1) = 3.0, (-0.1, -0.6, 0.4, 0.6)
+    lbox = np.array(rect_px(x0, y0, x1, y1, z, True))
+    rbox = np.array(rect_px(x0, y0, x1, y1, z, False))
+    lc = np.array([lbox[0] + (lbox[2] - 1) / 2, lbox[1] + (lbox[3] - 1) / 2])
+    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, z])
+    lo, hi = extent_m(centre, lbox, rbox, lc, F)
+    px = z / F
+    assert hi[0] - lo[0] == pytest.approx(x1 - x0, abs=1.5 * px)
+    assert hi[1] - lo[1] == pytest.approx(y1 - y0, abs=1.5 * px)
+    assert lo[0] == pytest.approx(x0, abs=1.5 * px) and lo[1] == pytest.approx(y0, abs=1.5 * px)
+    assert lo[2] < z < hi[2] and math.isclose(hi[2] - lo[2], hi[0] - lo[0])
+
+
+def test_params_refuse_what_is_not_a_size() -> None:
+    with pytest.raises(ValueError, match="max_object_size_m"):
+        GroupParams(max_object_size_m=math.nan)
