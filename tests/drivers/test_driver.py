@@ -182,7 +182,9 @@ class MjpegKernel(FakeKernel):
     ``truncated`` (cut mid-scan, no EOI), ``garbage``, ``no_dht`` (the frame without its
     Huffman tables), ``small`` (a frame of a quarter of the size)."""
 
-    def __init__(self, cameras: dict[str, FakeCamera], faults: dict[int, str] | None = None):
+    def __init__(
+        self, cameras: dict[str, FakeCamera], faults: dict[int, str] | None = None
+    ) -> None:
         super().__init__(cameras)
         self.faults = faults or {}
         self.formats: dict[int, int] = {}
