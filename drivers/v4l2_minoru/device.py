@@ -276,8 +276,8 @@ class V4L2Device:
                 raise DeviceError(
                     f"{self.path}: not enough USB bandwidth for "
                     f"{self.width}x{self.height} {raw.fourcc_str(self.pixelformat)}: both eyes "
-                    "of a Minoru share one USB 2.0 hub; use 640x480 at 15 fps or 320x240 at "
-                    "30 fps (YUYV)"
+                    'of a Minoru share one USB 2.0 hub; set pixel_format = "mjpeg", or use '
+                    "640x480 at 15 fps or 320x240 at 30 fps (YUYV)"
                 ) from exc
             raise
         self._streaming = True

@@ -3,10 +3,11 @@
 Each eye is configured the same way (size, rate, pixel format, and controls: manual exposure,
 gain and white balance, so the background model is not fooled by auto exposure), and again
 after every re-plug. Frames carry the kernel's CLOCK_MONOTONIC capture time and V4L2 sequence
-number; sequence gaps and frames flagged as corrupt are counted. When an eye's device goes
-away (ENODEV, EIO, the node vanishes) :meth:`CameraEye.read` raises
-:class:`~stereod.errors.DeviceLost` once, then keeps trying to reopen it with a growing
-backoff, finding it again by its udev name or hub port, and streams on when it is back.
+number; sequence gaps, frames flagged as corrupt and MJPEG frames that do not decode are
+counted. When an eye's device goes away (ENODEV, EIO, the node vanishes)
+:meth:`CameraEye.read` raises :class:`~stereod.errors.DeviceLost` once, then keeps trying to
+reopen it with a growing backoff, finding it again by its udev name or hub port, and streams
+on when it is back.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import time
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from stereod.errors import ConfigError, DeviceError, DeviceLost, describe_validation_error
 from stereod.frames import (
@@ -30,7 +31,7 @@ from stereod.frames import (
     StereoSource,
 )
 
-from . import raw
+from . import bandwidth, raw
 from .convert import mjpeg_to_bgr, mjpeg_to_gray, yuyv_to_bgr, yuyv_to_gray
 from .device import V4L2Device
 from .discovery import find_nodes, minoru_eyes
@@ -57,8 +58,14 @@ class MinoruOptions(BaseModel):
     )
     width: int = Field(640, gt=0)
     height: int = Field(480, gt=0)
-    fps: float = Field(15.0, gt=0, description="Frame rate, Hz (640x480 fits USB 2.0 at 15)")
-    pixel_format: Literal["YUYV", "MJPG"] = "YUYV"
+    fps: float = Field(
+        15.0, gt=0, description="Frame rate, Hz (640x480 YUYV fits USB 2.0 at 15, MJPEG at 30)"
+    )
+    pixel_format: Literal["yuyv", "mjpeg", "auto"] = Field(
+        "auto",
+        description="What the eyes stream: yuyv (uncompressed), mjpeg (decoded here), or auto: "
+        "yuyv when both eyes fit one USB 2.0 bus uncompressed at this size and rate, else mjpeg",
+    )
     color: bool = Field(
         True,
         description="Deliver BGR frames, which colour differencing ([detect] color, the "
@@ -80,6 +87,15 @@ class MinoruOptions(BaseModel):
         description="An eye streaming no frame for this long (s) is closed and reopened, as "
         "after a re-plug (a camera can stop mid-stream and stay open)",
     )
+
+    @field_validator("pixel_format", mode="before")
+    @classmethod
+    def _format_name(cls, value: object) -> object:
+        """Any case, and the fourccs: ``YUYV``, ``MJPG`` (the names this setting once took)."""
+        if isinstance(value, str):
+            name = value.strip().lower()
+            return "mjpeg" if name == "mjpg" else name
+        return value
 
 
 FIRST_FRAME_S = 5.0
@@ -115,6 +131,10 @@ class CameraEye(EyeSource):
         self._waiting_since = 0.0
         """When (monotonic s) the eye started waiting for its next frame."""
         self.fps: float | None = None
+        self.format: bandwidth.Format = bandwidth.resolve(
+            opts.pixel_format, opts.width, opts.height, opts.fps
+        )
+        """What the eye streams (``auto`` resolved)."""
 
     def _locate(self) -> str:
         """The node now: the configured path when it exists, else the Minoru eye by port."""
@@ -128,7 +148,7 @@ class CameraEye(EyeSource):
         o = self.opts
         dev = V4L2Device(self._locate(), self.io).open()
         try:
-            dev.set_format(o.width, o.height, o.pixel_format)
+            dev.set_format(o.width, o.height, bandwidth.FOURCC[self.format])
             self.fps = dev.set_fps(o.fps)
             self._apply_controls(dev)
             dev.start(o.buffers)
@@ -144,7 +164,7 @@ class CameraEye(EyeSource):
             dev.path,
             o.width,
             o.height,
-            o.pixel_format,
+            bandwidth.FOURCC[self.format],
             self.fps,
             "BGR" if o.color else "grey",
         )
@@ -233,16 +253,21 @@ class CameraEye(EyeSource):
                     )
                 self._count(self._counters.errors, "clock_not_monotonic")
             o = self.opts
-            if o.pixel_format == "YUYV":
+            if self.format == "yuyv":
                 if len(cap.data) < 2 * o.width * o.height:
                     self._count(self._counters.errors, "short_frame")
                     continue
                 convert = yuyv_to_bgr if o.color else yuyv_to_gray
                 image = convert(cap.data, o.width, o.height)
             else:
+                # A UVC camera's MJPEG frame can be empty, cut short (no EOI) or corrupt
+                # without the kernel flagging it: it is counted and skipped, as a flagged one.
                 decoded = (mjpeg_to_bgr if o.color else mjpeg_to_gray)(cap.data)
                 if decoded is None:
-                    self._count(self._counters.errors, "frame_error")
+                    self._count(self._counters.errors, "bad_jpeg")
+                    continue
+                if decoded.shape[:2] != (o.height, o.width):
+                    self._count(self._counters.errors, "wrong_size")
                     continue
                 image = decoded
             return Frame(self.eye, image, t_ns, cap.sequence)
@@ -279,7 +304,11 @@ def _source(left: CameraEye, right: CameraEye, o: MinoruOptions) -> StereoSource
 
 
 class MinoruDriver(Driver):
-    """Streams both eyes of a Minoru (or any two V4L2 capture nodes) as a live source."""
+    """Streams both eyes of a Minoru (or any two V4L2 capture nodes) as a live source.
+
+    Its options are checked against one USB 2.0 bus before any eye is opened
+    (:mod:`.bandwidth`): a mode both eyes cannot stream together is a ConfigError naming the
+    fix, not an ENOSPC from the second eye's STREAMON."""
 
     name = "v4l2_minoru"
 
@@ -290,6 +319,12 @@ class MinoruDriver(Driver):
             raise ConfigError(
                 describe_validation_error(exc, "driver.options", MinoruOptions)
             ) from exc
+        o = self.options
+        try:
+            fmt = bandwidth.choose(o.pixel_format, o.width, o.height, o.fps)
+        except ValueError as exc:
+            raise ConfigError(f"driver.options: {exc}") from exc
+        self.options = o.model_copy(update={"pixel_format": fmt})
         for name in self.options.controls:
             _control_id(name)
         self.io = io

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import time
+from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 
@@ -13,6 +15,8 @@ from stereod_fakes.v4l2_kernel import FakeCamera, FakeKernel
 from stereod_v4l2_minoru import raw
 from stereod_v4l2_minoru.device import V4L2Device
 from stereod_v4l2_minoru.driver import MinoruDriver
+
+from .jpegs import encode, scene, strip_dht
 
 OPTS = {"left": "/dev/fake0", "right": "/dev/fake1", "width": 64, "height": 48, "fps": 30}
 
@@ -99,7 +103,7 @@ def test_timestamps_not_on_the_monotonic_clock_are_restamped() -> None:
 
 
 def test_enospc_says_the_eyes_do_not_fit_the_bus() -> None:
-    with pytest.raises(DeviceError, match=r"not enough USB bandwidth .* 640x480 at 15 fps"):
+    with pytest.raises(DeviceError, match=r'not enough USB bandwidth .* "mjpeg", or use 640x480'):
         MinoruDriver(OPTS, io=kernel(enospc_on_streamon=True)).open()
 
 
@@ -166,5 +170,157 @@ def test_an_eye_that_stops_streaming_is_reopened() -> None:
         f = src.right.read()
         assert f is not None and f.seq == 3
         assert src.left.read() is not None  # the other eye never noticed
+    finally:
+        src.close()
+
+
+class MjpegKernel(FakeKernel):
+    """The fake kernel with a UVC camera's second format: Motion-JPEG (MJPG), whose frames
+    are :func:`jpegs.scene` images encoded by OpenCV at quality 90 (its green level stepping
+    with the sequence), each buffer's ``bytesused`` the JPEG's length. ``faults`` maps a
+    sequence number to what a camera may send instead, on every camera: ``empty`` (0 bytes),
+    ``truncated`` (cut mid-scan, no EOI), ``garbage``, ``no_dht`` (the frame without its
+    Huffman tables), ``small`` (a frame of a quarter of the size)."""
+
+    def __init__(
+        self, cameras: dict[str, FakeCamera], faults: dict[int, str] | None = None
+    ) -> None:
+        super().__init__(cameras)
+        self.faults = faults or {}
+        self.formats: dict[int, int] = {}
+        """The pixel format each camera (by id) was set to."""
+
+    @staticmethod
+    def image(width: int, height: int, seq: int) -> np.ndarray:
+        return scene(width, height, level=60 + (seq * 10) % 120)
+
+    def format_of(self, path: str) -> str:
+        return raw.fourcc_str(self.formats[id(self.cameras[path])])
+
+    def _vidioc_enum_fmt(self, cam: FakeCamera, d: raw.v4l2_fmtdesc) -> None:
+        if d.index == 1:
+            d.pixelformat, d.description = raw.V4L2_PIX_FMT_MJPEG, b"Motion-JPEG"
+            return
+        super()._vidioc_enum_fmt(cam, d)
+
+    def _vidioc_s_fmt(self, cam: FakeCamera, f: raw.v4l2_format) -> None:
+        wanted = f.fmt.pix.pixelformat
+        super()._vidioc_s_fmt(cam, f)
+        if wanted == raw.V4L2_PIX_FMT_MJPEG:  # uvcvideo: sizeimage the uncompressed size
+            f.fmt.pix.pixelformat, f.fmt.pix.bytesperline = wanted, 0
+        self.formats[id(cam)] = f.fmt.pix.pixelformat
+
+    def _vidioc_dqbuf(self, cam: FakeCamera, b: raw.v4l2_buffer) -> None:
+        super()._vidioc_dqbuf(cam, b)
+        if self.formats.get(id(cam)) != raw.V4L2_PIX_FMT_MJPEG:
+            return
+        seq = b.sequence
+        img = self.image(cam.width, cam.height, seq)
+        jpg = encode(img)
+        fault = self.faults.get(seq)
+        if fault == "empty":
+            jpg = b""
+        elif fault == "truncated":
+            jpg = jpg[: len(jpg) * 3 // 4]
+        elif fault == "garbage":
+            jpg = bytes(np.random.default_rng(seq).integers(0, 256, 2000, dtype=np.uint8))
+        elif fault == "no_dht":
+            jpg = strip_dht(jpg)
+        elif fault == "small":
+            jpg = encode(img[: cam.height // 2, : cam.width // 2])
+        buf = cam.buffers[b.index]
+        assert len(jpg) <= len(buf)
+        buf[: len(jpg)] = jpg
+        b.bytesused = len(jpg)
+
+
+def mjpeg_kernel(faults: dict[int, str] | None = None, **right: Any) -> MjpegKernel:
+    return MjpegKernel({"/dev/fake0": FakeCamera(), "/dev/fake1": FakeCamera(**right)}, faults)
+
+
+def test_mjpeg_is_negotiated_and_decoded_to_bgr_and_grey() -> None:
+    """With ``pixel_format = "mjpeg"`` both eyes are set to MJPG and each buffer's bytesused
+    bytes decode to the image the camera encoded: BGR by default, the luma with ``color =
+    false`` (BT.601, as OpenCV's BGR to grey computes it from the image)."""
+    k = mjpeg_kernel()
+    with V4L2Device("/dev/fake0", k) as dev:
+        assert dev.formats() == [("YUYV", "YUYV 4:2:2"), ("MJPG", "Motion-JPEG")]
+    src = MinoruDriver({**OPTS, "pixel_format": "mjpeg"}, io=k).open()
+    try:
+        assert k.format_of("/dev/fake0") == k.format_of("/dev/fake1") == "MJPG"
+        for seq in range(3):
+            f = src.left.read()
+            assert f is not None and f.seq == seq and f.image.shape == (48, 64, 3)
+            want = MjpegKernel.image(64, 48, seq).astype(int)
+            assert np.abs(f.image.astype(int) - want)[4:-4, 4:28].max() <= 6
+            assert np.abs(f.image.astype(int) - want)[4:-4, 36:60].max() <= 6
+        assert src.info.settings["pixel_format"] == "mjpeg"
+    finally:
+        src.close()
+    src = MinoruDriver({**OPTS, "pixel_format": "mjpeg", "color": False}, io=mjpeg_kernel()).open()
+    try:
+        f = src.right.read()
+        assert f is not None and f.image.shape == (48, 64)
+        want = cv2.cvtColor(MjpegKernel.image(64, 48, 0), cv2.COLOR_BGR2GRAY).astype(int)
+        assert np.abs(f.image.astype(int) - want)[4:-4, 4:60].max() <= 6
+        assert src.right.counters() == EyeCounters()
+    finally:
+        src.close()
+
+
+def test_auto_negotiates_by_the_bus() -> None:
+    """``auto`` (the default) streams YUYV where both eyes fit USB 2.0 uncompressed (64x48
+    at 30 Hz) and MJPEG where they do not (640x480 at 30 Hz)."""
+    k = mjpeg_kernel()
+    src = MinoruDriver(OPTS, io=k).open()
+    try:
+        assert k.format_of("/dev/fake0") == "YUYV"
+        assert src.left.read() is not None
+    finally:
+        src.close()
+    k = mjpeg_kernel()
+    src = MinoruDriver({**OPTS, "width": 640, "height": 480}, io=k).open()
+    try:
+        assert k.format_of("/dev/fake0") == k.format_of("/dev/fake1") == "MJPG"
+        f = src.right.read()
+        assert f is not None and f.image.shape == (480, 640, 3)
+        assert np.abs(f.image.astype(int) - MjpegKernel.image(640, 480, 0))[8:-8, 8:312].max() <= 6
+    finally:
+        src.close()
+
+
+def test_bad_mjpeg_frames_are_counted_and_skipped_and_the_eye_streams_on() -> None:
+    """A frame that is empty, cut short, not a JPEG, flagged V4L2_BUF_FLAG_ERROR, or of
+    another size is counted and left out; the frames around it arrive, decoded."""
+    faults = {1: "empty", 2: "truncated", 4: "garbage", 6: "small"}
+    k = mjpeg_kernel(faults, error_sequences={5})
+    src = MinoruDriver({**OPTS, "pixel_format": "mjpeg"}, io=k).open()
+    try:
+        frames = [src.right.read() for _ in range(4)]
+        assert [f.seq for f in frames] == [0, 3, 7, 8]  # type: ignore[union-attr]
+        for f in frames:
+            assert f is not None
+            want = MjpegKernel.image(64, 48, f.seq).astype(int)
+            assert np.abs(f.image.astype(int) - want)[4:-4, 4:28].max() <= 6
+        # The flagged frame is also a gap in the sequence, as with YUYV.
+        assert src.right.counters() == EyeCounters(
+            {"sequence_gap": 1}, {"bad_jpeg": 3, "frame_error": 1, "wrong_size": 1}
+        )
+    finally:
+        src.close()
+
+
+def test_mjpeg_frames_without_huffman_tables_stream() -> None:
+    """A camera that leaves the DHT out of its frames: they decode to the same pixels as the
+    frames with it, and nothing is counted."""
+    k = mjpeg_kernel({0: "no_dht", 1: "no_dht"})
+    src = MinoruDriver({**OPTS, "pixel_format": "mjpeg"}, io=k).open()
+    try:
+        for seq in (0, 1):
+            f = src.left.read()
+            assert f is not None and f.seq == seq
+            whole = encode(MjpegKernel.image(64, 48, seq))
+            np.testing.assert_array_equal(f.image, cv2.imdecode(np.frombuffer(whole, np.uint8), 1))
+        assert src.left.counters() == EyeCounters()
     finally:
         src.close()
