@@ -184,6 +184,12 @@ class DetectorConfig(_Section):
         description="A shadow darkens the background to between these shares of its brightness",
     )
 
+    near_objects: bool = Field(
+        _DETECT.near_objects,
+        description="A large foreground is an object unless changed light or a moved camera "
+        "explains it",
+    )
+
     @field_validator("shadow_ratio")
     @classmethod
     def _ratio_order(cls, v: tuple[float, float]) -> tuple[float, float]:

@@ -49,9 +49,12 @@ Beyond the paper, each one chosen by measurement on two renderers (README, Accur
   times eq. 3's at ``beta`` 0.02 and stride 6 (0.25 of one frame's noise instead of 0.10),
   far under the threshold. ``learn_stride = 1`` is eq. 3 on every frame.
 
-A frame whose foreground covers more than ``max_foreground`` of the image, or holds more than
-``max_blobs`` objects, is saturated (the lights changed, the camera moved): it reports nothing,
-and after ``warmup_frames`` such frames in a row the background is learned afresh.
+A frame whose foreground covers more than ``max_foreground`` of the image and is what the
+photometric model explains (light that changed: the background under another factor, its
+texture kept) or covers the image edge to edge (the camera moved), or that holds more than
+``max_blobs`` objects, is saturated: it reports nothing, and after ``warmup_frames`` such
+frames in a row the background is learned afresh. A large foreground that is neither is an
+object close to the camera (a person at 0.8 m fills most of the view), found as any other.
 """
 
 from __future__ import annotations
@@ -156,6 +159,9 @@ class DetectorParams:
     ``shadows``: foreground that is the background darkened (its brightness times a factor
     within ``shadow_ratio``, its colour's proportions and its texture kept) is a cast shadow,
     not the object (:func:`shadow_mask`), and is left out before the centre is taken.
+    ``near_objects``: a foreground over ``max_foreground`` is an object close to the camera
+    unless the photometric model explains it or it covers the image edge to edge
+    (:func:`scene_changed`); off, any such frame is saturated.
     """
 
     beta: float = 0.02
@@ -183,6 +189,7 @@ class DetectorParams:
     disc_max_px: int = 24
     shadows: bool = True
     shadow_ratio: tuple[float, float] = (0.35, 0.92)
+    near_objects: bool = True
 
 
 PAPER = DetectorParams(
@@ -192,6 +199,7 @@ PAPER = DetectorParams(
     color=False,
     hold_foreground=False,
     shadows=False,
+    near_objects=False,
     fill_holes=False,
     convex=False,
     merge_gap=0.0,
@@ -504,7 +512,10 @@ class Detector:
         if count == 0:
             return self._nothing(shape)
         self._set_foreground(shape, roi, part, grown)
-        if count > self.params.max_foreground * shape[0] * shape[1]:
+        if count > self.params.max_foreground * shape[0] * shape[1] and (
+            not self.params.near_objects
+            or scene_changed(frame[y0:y1, x0:x1], b8, part, (x0, y0), shape)
+        ):
             return self._saturated()
         contours, _ = cv2.findContours(
             part, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x0, y0)
@@ -808,20 +819,20 @@ SHADOW_CHROMA = 0.06
 scaled by the pixel's own ratio."""
 
 
-def shadow_mask(
+def _relit(
     frame: np.ndarray,
     background: np.ndarray,
     foreground: np.ndarray,
     ratio: tuple[float, float],
-) -> np.ndarray | None:
-    """The foreground pixels (uint8 255) that are a cast shadow: darker than the background by
-    a factor within ``ratio`` (lower, upper; Cucchiara et al.'s V test), with the background's
-    colour proportions (each channel the background's times that factor, within
-    ``SHADOW_CHROMA``: their H and S test, without leaving BGR) and, where the background has
-    texture, its texture (normalised cross-correlation over ``SHADOW_WINDOW_PX`` at least
-    ``SHADOW_MIN_NCC``). On a grey frame only a textured background can show a shadow.
-    ``frame`` and ``background`` (uint8, the background at the frame's gain) and
-    ``foreground`` share one shape; ``None`` when nothing is shadow."""
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where the foreground is the background under other light: the candidates (uint8 255;
+    brightness times a factor within ``ratio``, lower and upper, and in colour each channel
+    the background's times that factor within ``SHADOW_CHROMA``: Cucchiara et al.'s V, H and
+    S tests without leaving BGR) and, among them, the sure ones, whose window (side
+    ``SHADOW_WINDOW_PX``) keeps the background's texture (normalised cross-correlation at
+    least ``SHADOW_MIN_NCC``, as much texture as the factor leaves, one factor across it
+    within ``SHADOW_RATIO_SPREAD``), or in colour, lies on flat background. On a grey frame
+    only a textured background can tell. ``None`` when no pixel is a candidate."""
     lo, hi = ratio
     colour = frame.ndim == 3
     f = frame.astype(np.float32)
@@ -829,8 +840,11 @@ def shadow_mask(
     fl = cv2.transform(f, _MEAN_RGB) if colour else f
     bl = cv2.transform(b, _MEAN_RGB) if colour else b
     r = fl / (bl + 1.0)
-    cand = cv2.inRange(r, lo, hi)
-    cand = cv2.bitwise_and(cand, foreground)
+    cand = cv2.bitwise_and(cv2.inRange(r, lo, hi), foreground)
+    if colour:
+        off = np.abs(f - b * r[..., None]).max(axis=2)
+        same_colour = off <= SHADOW_CHROMA * (bl + 1.0) + 3.0
+        cand = cv2.bitwise_and(cand, same_colour.view(np.uint8) * np.uint8(255))
     if cv2.countNonZero(cand) == 0:
         return None
     k = (SHADOW_WINDOW_PX, SHADOW_WINDOW_PX)
@@ -840,32 +854,74 @@ def shadow_mask(
     cov = cv2.blur(fl * bl, k) - mf * mb
     textured = vb >= SHADOW_MIN_TEXTURE * SHADOW_MIN_TEXTURE
     ncc = cov / np.sqrt(np.maximum(vf * vb, 1e-6))
-    gain = mf / (mb + 1.0)  # the window's darkening: its texture is the background's times it
+    gain = mf / (mb + 1.0)  # the window's factor: its texture is the background's times it
     mr = cv2.blur(r, k)
-    vr = cv2.blur(r * r, k) - mr * mr  # a shadow darkens its whole window alike
+    vr = cv2.blur(r * r, k) - mr * mr  # other light changes its whole window alike
     keeps_texture = (
         textured
         & (ncc >= SHADOW_MIN_NCC)
         & (vf >= 0.25 * gain * gain * vb)
         & (vr <= (SHADOW_RATIO_SPREAD * mr) ** 2)
     )
-    if colour:
-        scaled = b * r[..., None]
-        off = np.abs(f - scaled).max(axis=2)
-        same_colour = off <= SHADOW_CHROMA * (bl + 1.0) + 3.0
-        cand = cv2.bitwise_and(cand, same_colour.view(np.uint8) * np.uint8(255))
-        core = keeps_texture | ~textured
-    else:
-        core = keeps_texture
-    shadow = cv2.bitwise_and(cand, core.view(np.uint8) * np.uint8(255))
+    core = (keeps_texture | ~textured) if colour else keeps_texture
+    return cand, cv2.bitwise_and(cand, core.view(np.uint8) * np.uint8(255))
+
+
+def shadow_mask(
+    frame: np.ndarray,
+    background: np.ndarray,
+    foreground: np.ndarray,
+    ratio: tuple[float, float],
+) -> np.ndarray | None:
+    """The foreground pixels (uint8 255) that are a cast shadow: the background darkened by a
+    factor within ``ratio`` with its colour and texture kept (:func:`_relit`), and the
+    candidates next to those (a shadow's edge, where the texture window holds lit floor too).
+    ``frame`` and ``background`` (uint8, the background at the frame's gain) and
+    ``foreground`` share one shape; ``None`` when nothing is shadow."""
+    found = _relit(frame, background, foreground, ratio)
+    if found is None:
+        return None
+    cand, shadow = found
     if cv2.countNonZero(shadow) == 0:
         return None
-    # Near the shadow's edge the window holds lit floor too and the texture test fails: a
-    # candidate (darkened, same colour) next to a sure shadow pixel is shadow as well.
-    grow = cv2.getStructuringElement(cv2.MORPH_RECT, k)
+    grow = cv2.getStructuringElement(cv2.MORPH_RECT, (SHADOW_WINDOW_PX, SHADOW_WINDOW_PX))
     for _ in range(SHADOW_GROW_STEPS):
         shadow = cv2.bitwise_and(cand, cv2.dilate(shadow, grow))
     return shadow
+
+
+RELIT_RATIO = (0.2, 5.0)
+"""The factors (lower, upper) by which light that changed may darken or brighten the scene."""
+SCENE_CHANGE_RELIT = 0.5
+"""A large foreground at least this share of which is the background under other light
+(:func:`_relit`) is the light that changed, not an object."""
+SCENE_CHANGE_COVER = 0.8
+"""A large foreground that covers at least this share of the image and reaches all four of its
+edges is the scene that changed (the camera knocked, the view blocked), not an object."""
+
+
+def scene_changed(
+    frame: np.ndarray,
+    background: np.ndarray,
+    foreground: np.ndarray,
+    origin: tuple[int, int],
+    shape: tuple[int, int],
+) -> bool:
+    """Whether a large foreground (uint8 255, ``frame`` and ``background`` around it, at
+    ``origin`` (x, y px) of an image of ``shape`` (h, w px)) is what the photometric model
+    explains (light that changed: most of it the background under another factor) or the whole
+    scene changing (it covers nearly all the image, edge to edge), rather than an object close
+    to the camera. A person
+    at 0.8 m fills most of a 42 deg view but leaves some of it, and hides the background's
+    texture."""
+    count = cv2.countNonZero(foreground)
+    x, y, w, h = cv2.boundingRect(foreground)
+    x, y = x + origin[0], y + origin[1]
+    edges = x == 0 and y == 0 and x + w == shape[1] and y + h == shape[0]
+    if edges and count >= SCENE_CHANGE_COVER * shape[0] * shape[1]:
+        return True
+    found = _relit(frame, background, foreground, RELIT_RATIO)
+    return found is not None and cv2.countNonZero(found[1]) >= SCENE_CHANGE_RELIT * count
 
 
 def _mean_channels(diff: np.ndarray) -> np.ndarray:

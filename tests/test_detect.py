@@ -789,3 +789,38 @@ def test_a_dark_object_is_not_taken_for_a_shadow(color: bool) -> None:
     assert len(blobs) == 1
     assert blobs.area_px[0] >= 0.97 * 30 * 30
     np.testing.assert_allclose(blobs.centroid_px[0], (64.5, 54.5), atol=0.3)
+
+
+def test_an_object_filling_most_of_the_view_is_an_object_not_a_scene_change() -> None:
+    """Design sec. 11: a person at 0.8 m fills most of the view. Its foreground (70 % of the
+    image, top to bottom, not side to side) hides the wall's texture: it is found as one
+    object, frame after frame, and the background is never learned afresh."""
+    bg = _floor(120, 160)
+    det = Detector(DetectorParams(warmup_frames=3))
+    warm(det, bg, 3)
+    rng = np.random.default_rng(9)
+    coat = cv2.resize(rng.uniform(20, 90, (15, 14, 3)).astype(np.float32), (112, 120))
+    for k in range(8):
+        img = bg.copy()
+        img[:, 20 + k : 132 + k] = coat.astype(np.uint8)
+        blobs = det.detect(img)
+        assert len(blobs) == 1, f"frame {k}: {len(blobs)} blobs, saturated {det.saturated}"
+        assert tuple(blobs.bbox_px[0]) == (20 + k, 0, 112, 120)
+    assert det.saturated == 0
+
+
+@pytest.mark.parametrize(("share", "factor"), [(0.67, 1.6), (0.6, 1.5), (0.45, 0.7)])
+def test_one_side_of_the_room_lit_differently_is_light_not_an_object(
+    share: float, factor: float
+) -> None:
+    """A lamp over part of the view switched on or off: each window there is the background
+    times one factor, with its texture and colour. Light, not an object: nothing is found
+    (the global gain and the shadow test, or the scene-change test, explain it). (A lamp over
+    less than ``max_foreground`` of the view that brightens it is still found as objects.)"""
+    bg = _floor(120, 160)
+    lit = bg.astype(np.float32)
+    lit[:, : int(share * 160)] *= factor
+    lit = np.clip(lit, 0, 255).astype(np.uint8)
+    det = Detector(DetectorParams(warmup_frames=3))
+    warm(det, bg, 3)
+    assert [len(det.detect(lit)) for _ in range(4)] == [0] * 4
