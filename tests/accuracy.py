@@ -255,6 +255,10 @@ class CaseScore:
     """Confirmed track ids that followed no object."""
 
 
+SEEN = (TrackLifecycle.CONFIRMED, TrackLifecycle.STATIONARY)
+"""The states of a confirmed track seen in its pair (moving, or stopped)."""
+
+
 def _gate_m(rig: CanonicalRig, depth_m: float) -> float:
     """Largest distance (m) at which a track state is taken to be on an object."""
     return max(0.2, 3.0 * float(rig.depth_error_one_px_m(depth_m)))
@@ -285,7 +289,7 @@ def score(case: Case, results: list[PairResult]) -> CaseScore:
     for tid, names in on.items():
         named = [n for n in names if n is not None]
         follows[tid] = max(set(named), key=named.count) if named else None
-    confirmed = {s.track_id for _, s, _ in rows if s.lifecycle is TrackLifecycle.CONFIRMED}
+    confirmed = {s.track_id for _, s, _ in rows if s.lifecycle in SEEN}
     ghosts = sorted(t for t in confirmed if follows[t] is None)
     scores = []
     for name in case.objects:
@@ -308,7 +312,7 @@ def score(case: Case, results: list[PairResult]) -> CaseScore:
                 o.first_tracked = i if o.first_tracked is None else min(o.first_tracked, i)
                 if s.velocity_valid:
                     o.first_valid = i if o.first_valid is None else min(o.first_valid, i)
-            if not lo <= k <= hi or s.lifecycle is not TrackLifecycle.CONFIRMED:
+            if not lo <= k <= hi or s.lifecycle not in SEEN:
                 continue
             p, v = case.truth(s.t_ns)[name]
             err = float(np.linalg.norm(s.position_m - p))
