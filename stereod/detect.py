@@ -831,8 +831,9 @@ def _relit(
     S tests without leaving BGR) and, among them, the sure ones, whose window (side
     ``SHADOW_WINDOW_PX``) keeps the background's texture (normalised cross-correlation at
     least ``SHADOW_MIN_NCC``, as much texture as the factor leaves, one factor across it
-    within ``SHADOW_RATIO_SPREAD``), or in colour, lies on flat background. On a grey frame
-    only a textured background can tell. ``None`` when no pixel is a candidate."""
+    within ``SHADOW_RATIO_SPREAD``). Only a textured background can tell: on a flat one a
+    darker object of its colour (a shaded side) looks the same. ``None`` when no pixel is a
+    candidate."""
     lo, hi = ratio
     colour = frame.ndim == 3
     f = frame.astype(np.float32)
@@ -863,8 +864,7 @@ def _relit(
         & (vf >= 0.25 * gain * gain * vb)
         & (vr <= (SHADOW_RATIO_SPREAD * mr) ** 2)
     )
-    core = (keeps_texture | ~textured) if colour else keeps_texture
-    return cand, cv2.bitwise_and(cand, core.view(np.uint8) * np.uint8(255))
+    return cand, cv2.bitwise_and(cand, keeps_texture.view(np.uint8) * np.uint8(255))
 
 
 def shadow_mask(

@@ -17,6 +17,7 @@ Everything here works on the few blobs of a frame, in Python floats and small ma
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -102,6 +103,9 @@ class _Group:
     d_hi: float
     """The disparities (px) the members' depth extents span, with the margin."""
     area: float
+    owners: frozenset[int] = frozenset()
+    """The live tracks the members' pairs belong to (at most one: two tracks are two
+    objects)."""
 
 
 def group_objects(
@@ -115,11 +119,15 @@ def group_objects(
     focal_px: float,
     baseline_m: float,
     params: GroupParams,
+    owners: Sequence[int | None] | None = None,
 ) -> Grouped | None:
     """Merge the matched pairs ``idx`` (m, 2; rectified centroids ``lpx``/``rpx``) that are
     one object, and attach each eye's unmatched blobs (all rectified centroids ``lrect``/
     ``rrect``) that belong to one; ``None`` when nothing changes (the blobs stay as they are).
-    ``focal_px`` and ``baseline_m`` turn a disparity into a depth (eq. 9: Z = f B / d)."""
+    ``focal_px`` and ``baseline_m`` turn a disparity into a depth (eq. 9: Z = f B / d).
+    ``owners``: per matched pair, the live track it belongs to, if any: pairs that two
+    tracks follow are two objects, whatever their depths (the disparities of two objects that
+    cross, each moving its own way, are off by the eyes' skew until it is compensated)."""
     m = len(idx)
     if not params.enabled or m == 0 or (m == 1 and len(lb) == 1 and len(rb) == 1):
         return None
@@ -133,7 +141,17 @@ def group_objects(
         # (d / Z px per metre, eq. 9) is half * d / f px.
         half = 0.5 * (box[2] - box[0])
         margin = params.disparity_margin_px + max(half * d / focal_px, 0.0)
-        groups.append(_Group([k], box, d - margin, d + margin, float(lb.area_px[i])))
+        owner = owners[k] if owners is not None else None
+        groups.append(
+            _Group(
+                [k],
+                box,
+                d - margin,
+                d + margin,
+                float(lb.area_px[i]),
+                frozenset() if owner is None else frozenset((owner,)),
+            )
+        )
     if m > 1:
         groups = _merge(groups, lpx, rpx, fb, focal_px, params)
     attached_l, attached_r = _attach(groups, lb, rb, idx, lrect, rrect, focal_px, fb, params)
@@ -161,6 +179,8 @@ def _merge(
                 gb = groups[b]
                 if ga.d_hi < gb.d_lo or gb.d_hi < ga.d_lo:
                     continue  # depths apart
+                if len(ga.owners | gb.owners) > 1:
+                    continue  # two tracks: two objects
                 d = max(0.5 * (max(ga.d_lo, gb.d_lo) + min(ga.d_hi, gb.d_hi)), 1e-6)
                 metres_per_px = fb / d / focal_px
                 gap = _gap(ga.box, gb.box) * metres_per_px
@@ -185,6 +205,7 @@ def _merge(
             min(ga.d_lo, gb.d_lo),
             max(ga.d_hi, gb.d_hi),
             ga.area + gb.area,
+            ga.owners | gb.owners,
         )
         del groups[b]
     return groups

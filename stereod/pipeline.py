@@ -419,12 +419,18 @@ class Pipeline:
         idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack)
         lpx = lrect[idx[:, 0]]
         rpx = rrect[idx[:, 1]]
-        grouped = group_objects(
-            lb, rb, idx, lpx, rpx, lrect, rrect, p.rig.focal_px, p.rig.baseline_m, p.grouping
-        )
-        if grouped is not None:  # pieces of one object, one detection
-            lb, rb, idx = grouped.left, grouped.right, grouped.index
-            lpx, rpx = grouped.left_px, grouped.right_px
+        if p.grouping.enabled and len(lb) + len(rb) > 2:
+            owners = None
+            if len(idx) > 1:  # which live track each pair is, before they are merged
+                pieces = self._detections(lb, rb, idx, lpx, rpx)
+                owners = self.tracker.associate(pieces, eye_times)[0]
+            grouped = group_objects(
+                lb, rb, idx, lpx, rpx, lrect, rrect, p.rig.focal_px, p.rig.baseline_m,
+                p.grouping, owners,
+            )  # fmt: skip
+            if grouped is not None:  # pieces of one object, one detection
+                lb, rb, idx = grouped.left, grouped.right, grouped.index
+                lpx, rpx = grouped.left_px, grouped.right_px
         if p.refine.enabled:
             self._refine(pair, lb, idx, lpx, rpx)
         detections = self._detections(lb, rb, idx, lpx, rpx)

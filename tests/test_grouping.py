@@ -177,3 +177,19 @@ def test_extent_is_the_blob_box_at_the_objects_depth() -> None:
 def test_params_refuse_what_is_not_a_size() -> None:
     with pytest.raises(ValueError, match="max_object_size_m"):
         GroupParams(max_object_size_m=math.nan)
+
+
+def test_pieces_two_tracks_follow_stay_two_objects() -> None:
+    """Two balls crossing, each moving its own way: the eyes' skew shifts their disparities
+    apart by as much as their depths do, so depth alone may join them. Each is followed by its
+    own live track: two objects."""
+    z = 2.0
+    a, b = (-0.2, -0.07, -0.06, 0.07), (-0.04, -0.07, 0.1, 0.07)
+    left = [rect_px(*a, z, True), rect_px(*b, z, True)]
+    right = [rect_px(*a, z, False), rect_px(*b, z, False)]
+    assert run(left, right, [(0, 0), (1, 1)]) is not None  # one depth, 2 cm apart: one
+    lb, rb = blobs(left), blobs(right)
+    idx = np.array([(0, 0), (1, 1)], np.intp)
+    args = (lb, rb, idx, lb.centroid_px, rb.centroid_px, lb.centroid_px, rb.centroid_px, F, B)
+    assert group_objects(*args, GroupParams(), owners=[3, 7]) is None
+    assert group_objects(*args, GroupParams(), owners=[3, None]) is not None
