@@ -283,7 +283,7 @@ class ViewServer:
             raise err
         hub = self.hub
         try:
-            session = self._session = open_session(self.zenoh_cfg)
+            session = self._session = open_session(self.zenoh_cfg, consumer=True)
         except BaseException:
             self.stop()
             raise
