@@ -373,7 +373,10 @@ class ZenohConfig(_Section):
     prefix: str = Field(keys.DEFAULT_PREFIX, pattern=keys.PREFIX_PATTERN)
     mode: Literal["peer", "client", "router"] = "peer"
     connect: list[Endpoint] = Field(default_factory=list, description="Endpoints to connect to")
-    listen: list[Endpoint] = Field(default_factory=list, description="Endpoints to listen on")
+    listen: list[Endpoint] = Field(
+        default_factory=list,
+        description="Endpoints to listen on (none: a daemon on loopback only, a consumer nowhere)",
+    )
     multicast_scouting: bool = Field(False, description="Find peers by multicast")
     config_file: TextPath | None = Field(
         None,
