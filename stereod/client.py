@@ -336,13 +336,14 @@ def object_events(
 
 def zenoh_config(*connect: str, listen: Sequence[str] = ()) -> zenoh.Config:
     """A Zenoh config for a program that uses a daemon: connect to each ``connect`` endpoint
-    (where a daemon listens, e.g. ``"tcp/127.0.0.1:7447"``) and listen on ``listen``, with no
-    multicast scouting. An endpoint that is not up yet (the program was started before the
+    (where a daemon listens, e.g. ``"tcp/127.0.0.1:7447"``) and listen on ``listen`` only
+    (nowhere by default: the program accepts no connection from anyone), with no multicast
+    scouting. An endpoint that is not up yet (the program was started before the
     daemon) is tried again every 100 to 250 ms, not after Zenoh's default 1 to 4 s, so the
     program sees the daemon as soon as it listens. A malformed endpoint is a ValueError."""
     try:
         cfg = ZenohConfig(connect=list(connect), listen=list(listen))
-        return session_config(cfg)
+        return session_config(cfg, consumer=True)
     except ValidationError as exc:
         raise ValueError(describe_validation_error(exc, "zenoh")) from None
     except ConfigError as exc:

@@ -176,7 +176,9 @@ def run_demo(
                 )
                 while not page.connected.wait(0.5):
                     pass
-            session = stack.enter_context(opened_session(ZenohConfig(connect=[endpoint])))
+            session = stack.enter_context(
+                opened_session(ZenohConfig(connect=[endpoint]), consumer=True)
+            )
             stack.enter_context(
                 subscribe_objects(session, on_event, rig=cfg.rig.name, prefix=cfg.zenoh.prefix)
             )

@@ -75,7 +75,9 @@ Mapping of a ``stereod.objects/1`` message (field names of :mod:`stereod.message
   position + 1 s of velocity, while ``velocity_valid``; ``labels`` a text
   "<id> <speed> m/s <heading> deg" (the heading once ``heading_valid``; "<id> <state>" until
   ``velocity_valid``) above the sphere. Marker id =
-  ``track_id``, lifetime 0; when a track disappears from the messages its markers get a DELETE.
+  ``track_id``, lifetime 3 frame periods (from the messages' capture times and sequence
+  numbers), so markers vanish by themselves once no message refreshes them; when a track
+  disappears from the messages its markers get a DELETE.
 * ``std_msgs/msg/String`` on ``/stereod/<rig>/objects``: the message's JSON exactly as published
   (the JSONL line), so nothing is lost (blobs, disparity, latency, skew, ages).
 
@@ -172,7 +174,13 @@ _STATE_RGBA: Final = {
 }
 _MARKER_NS: Final = ("tracks", "velocity", "labels")
 _ARROW, _SPHERE, _TEXT = 0, 2, 9
-_ADD, _DELETE = 0, 2
+_ADD, _DELETE, _DELETEALL = 0, 2, 3
+MARKER_LIFETIME_PERIODS: Final = 3
+"""A marker lives this many frame periods unless refreshed: the daemon re-sends every live
+track's markers with each pair, so a marker outlives its track (or a daemon that died) by at
+most this much instead of staying in a 3D panel for ever."""
+DEFAULT_FRAME_PERIOD_S: Final = 1.0 / 15.0
+"""The frame period (s) assumed until two messages show the rig's own (15 fps, the Minoru's)."""
 
 
 @functools.cache
@@ -422,6 +430,10 @@ class RosMessages:
         self._camera_info: dict[Eye, dict[str, Any]] = {}
         self._tracks: set[int] = set()
         self._arrows: set[int] = set()
+        self.frame_period_s = DEFAULT_FRAME_PERIOD_S
+        """The rig's frame period (s), measured between consecutive ``objects`` messages
+        (capture instants over sequence numbers, so dropped pairs do not stretch it)."""
+        self._last_pair: tuple[int, int] | None = None
         self.set_geometry(calibration, baseline_m)
 
     def set_geometry(
@@ -447,6 +459,23 @@ class RosMessages:
         """Start the markers afresh (a new daemon: its track ids start again)."""
         self._tracks.clear()
         self._arrows.clear()
+        self._last_pair = None
+
+    def delete_all_markers(self, stamp_ns: int) -> RosMessage:
+        """A MarkerArray whose one marker is a DELETEALL (every marker of the topic goes; the
+        daemon is gone), and the tracks forgotten."""
+        self.forget_tracks()
+        marker = self._marker(stamp_ns, "", 0, _SPHERE, _DELETEALL)
+        return RosMessage(self.names.markers_topic, _T_MARKERS, {"markers": [marker]}, stamp_ns)
+
+    def _measure_period(self, msg: ObjectsMessage) -> None:
+        """Update :attr:`frame_period_s` from this message and the one before it."""
+        last, self._last_pair = self._last_pair, (msg.seq, msg.t_ns)
+        if last is None or msg.seq <= last[0] or msg.t_ns <= last[1]:
+            return
+        period = (msg.t_ns - last[1]) / (msg.seq - last[0]) * 1e-9
+        if 1e-4 <= period <= 10.0:  # a pause in a replay is not the rig's frame rate
+            self.frame_period_s = period
 
     def tf_static(self, stamp_ns: int) -> RosMessage | None:
         """``/tf_static``: body frame, rig (optical) frame, the two cameras; None while the
@@ -508,6 +537,7 @@ class RosMessages:
                 f"{self.rig!r}: export each rig into its own file"
             )
         stamp = msg.stamp_utc_ns
+        self._measure_period(msg)
         text = raw_json.rstrip("\r\n") if raw_json is not None else dump(msg).decode()
         names = self.names
         out: list[RosMessage] = []
@@ -572,7 +602,7 @@ class RosMessages:
             "pose": {"position": _vec((0.0, 0.0, 0.0)), "orientation": _quat((0, 0, 0, 1))},
             "scale": _vec((1.0, 1.0, 1.0)),
             "color": {"r": 1.0, "g": 1.0, "b": 1.0, "a": 1.0},
-            "lifetime": {"sec": 0, "nanosec": 0},
+            "lifetime": self._lifetime(action),
             "frame_locked": False,
             "points": [],
             "colors": [],
@@ -588,6 +618,13 @@ class RosMessages:
             "mesh_file": {"filename": "", "data": b""},
             "mesh_use_embedded_materials": False,
         }
+
+    def _lifetime(self, action: int) -> dict[str, int]:
+        """An added marker's lifetime, :data:`MARKER_LIFETIME_PERIODS` frame periods."""
+        if action != _ADD:
+            return {"sec": 0, "nanosec": 0}
+        ns = round(MARKER_LIFETIME_PERIODS * self.frame_period_s * 1e9)
+        return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
 
     def _markers(self, msg: ObjectsMessage) -> dict[str, Any]:
         stamp = msg.stamp_utc_ns

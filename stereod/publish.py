@@ -55,10 +55,32 @@ starts at 1 s and grows to 4 s, so a subscriber started before the daemon missed
 seconds; a refused TCP connection costs next to nothing)."""
 
 
-def session_config(cfg: ZenohConfig) -> zenoh.Config:
+DEFAULT_LISTEN: dict[str, list[str]] = {
+    "peer": ["tcp/127.0.0.1:0"],
+    "router": ["tcp/127.0.0.1:7447"],
+    "client": [],
+}
+"""Where a daemon's session listens when nobody said where: loopback only (Zenoh's own default
+is every interface, ``tcp/[::]:0`` for a peer), so a daemon started without ``listen`` is
+reachable from this machine alone. A consumer (``subscribe``, ``view``, the client helpers)
+listens nowhere unless told to."""
+
+
+def _zenoh_default(key: str) -> str:
+    """Zenoh's built-in value of ``key`` (JSON), to tell whether a config file changed it."""
+    return str(zenoh.Config().get_json(key))
+
+
+def session_config(cfg: ZenohConfig, *, consumer: bool = False) -> zenoh.Config:
     """A Zenoh config from ours. Without ``config_file``: mode, endpoints, and no multicast
     scouting unless asked. With it, the file (Zenoh's own JSON5: TLS, access control, ...) is
-    the base and only the settings given in stereod's config, environment or flags go on top."""
+    the base and only the settings given in stereod's config, environment or flags go on top.
+
+    Nothing listens where the user did not say: without ``listen`` (and without a config file
+    that changes Zenoh's default listeners) a daemon listens on loopback only
+    (:data:`DEFAULT_LISTEN`) and a ``consumer`` (a program that connects to a daemon) on no
+    endpoint at all; multicast scouting, which binds a UDP socket on every interface, stays off
+    unless ``multicast_scouting`` (or the file) turns it on."""
     given = cfg.model_fields_set if cfg.config_file is not None else set(ZenohConfig.model_fields)
     if cfg.config_file is not None:
         name = text_path(cfg.config_file, "Zenoh config", ConfigError)
@@ -80,6 +102,8 @@ def session_config(cfg: ZenohConfig) -> zenoh.Config:
         settings.append(
             ("multicast_scouting", "scouting/multicast/enabled", cfg.multicast_scouting)
         )
+    elif zc.get_json("scouting/multicast/enabled") == _zenoh_default("scouting/multicast/enabled"):
+        settings.append(("multicast_scouting", "scouting/multicast/enabled", False))
     if cfg.config_file is None:
         settings.append(("multicast_scouting", "scouting/delay", 0))
     if cfg.connect:
@@ -88,6 +112,10 @@ def session_config(cfg: ZenohConfig) -> zenoh.Config:
             settings.append(("connect", "connect/retry", CONNECT_RETRY))
     if cfg.listen:
         settings.append(("listen", "listen/endpoints", cfg.listen))
+    elif zc.get_json("listen/endpoints") == _zenoh_default("listen/endpoints"):
+        mode = cfg.mode if "mode" in given else json.loads(zc.get_json("mode")) or "peer"
+        listen = [] if consumer else DEFAULT_LISTEN.get(mode, [])
+        settings.append(("listen", "listen/endpoints", listen))
     for field, key, value in settings:
         try:
             zc.insert_json5(key, json.dumps(value))
@@ -98,10 +126,11 @@ def session_config(cfg: ZenohConfig) -> zenoh.Config:
     return zc
 
 
-def open_session(cfg: ZenohConfig) -> zenoh.Session:
-    """Open a session; a bad endpoint becomes a :class:`ConfigError` naming it, a router that
-    cannot be reached (client mode) an :class:`UnavailableError`."""
-    zc = session_config(cfg)
+def open_session(cfg: ZenohConfig, *, consumer: bool = False) -> zenoh.Session:
+    """Open a session (a ``consumer`` listens nowhere unless ``cfg.listen`` says where, see
+    :func:`session_config`); a bad endpoint becomes a :class:`ConfigError` naming it, a router
+    that cannot be reached (client mode) an :class:`UnavailableError`."""
+    zc = session_config(cfg, consumer=consumer)
     try:
         return zenoh.open(zc)
     except zenoh.ZError as exc:
@@ -131,9 +160,9 @@ def close_session(session: zenoh.Session) -> None:
 
 
 @contextlib.contextmanager
-def opened_session(cfg: ZenohConfig) -> Iterator[zenoh.Session]:
+def opened_session(cfg: ZenohConfig, *, consumer: bool = False) -> Iterator[zenoh.Session]:
     """:func:`open_session` for a ``with`` block, closed by :func:`close_session` after it."""
-    session = open_session(cfg)
+    session = open_session(cfg, consumer=consumer)
     try:
         yield session
     finally:

@@ -382,6 +382,17 @@ def test_markers_follow_the_tracks_and_delete_ended_ones(run: Run) -> None:
     assert deletes_seen >= 2, "the run should end two tracks"
 
 
+def test_markers_expire_after_three_frame_periods(run: Run) -> None:
+    """Every added marker lives 3 periods of the recording's 15 fps (0.2 s), so a run that
+    stops mid-track leaves no marker behind in a 3D panel."""
+    added = [k for arr in run.bag.msgs(f"{RIG}/tracks/markers") for k in arr.markers]
+    added = [k for k in added if k.action == 0]
+    assert len(added) >= 30
+    for k in added:
+        lifetime_s = k.lifetime.sec + k.lifetime.nanosec * 1e-9
+        assert lifetime_s == pytest.approx(3 / 15, abs=1e-6), (k.ns, k.id, lifetime_s)
+
+
 def test_objects_topic_carries_the_jsonl_lines(run: Run) -> None:
     assert [m.data for m in run.bag.msgs(f"{RIG}/objects")] == run.lines
 

@@ -7,6 +7,7 @@ the ball, its heading and speed, tf's rotation, camera_info's K, the images."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import math
 import re
@@ -103,6 +104,12 @@ class Client:
             (t, TYPESTORE.deserialize_cdr(raw, ch["schemaName"])) for t, raw in self.messages[topic]
         ]
 
+    def cleared(self) -> bool:
+        """Whether a marker array with a DELETEALL (action 3) arrived."""
+        return any(
+            k.action == 3 for _, a in self.decoded(f"{RIG}/tracks/markers") for k in a.markers
+        )
+
     def done(self) -> bool:
         if not wanted_topics() <= set(self.messages):
             return False
@@ -138,6 +145,10 @@ async def play(bridge: FoxgloveBridge, endpoint: str) -> Client:
         finally:
             daemon.stop()
             await asyncio.get_running_loop().run_in_executor(None, thread.join)
+        # The daemon stopped mid-track: its token went away, the markers must be cleared.
+        with contextlib.suppress(TimeoutError):
+            while not client.cleared():
+                await client.receive(10)
     return client
 
 
@@ -201,6 +212,29 @@ def test_tracks_follow_the_ball(session_client: Any) -> None:
     assert arrays, "no marker array with a track"
     spheres = [k for a in arrays for k in a.markers if k.ns == "tracks" and k.action == 0]
     assert spheres and all(k.id == 1 for k in spheres)
+
+
+def test_markers_expire_after_three_frame_periods(session_client: Any) -> None:
+    """Each added marker lives 3 frame periods of the 15 fps scene (0.2 s) unless refreshed."""
+    client, _ = session_client
+    arrays = client.decoded(f"{RIG}/tracks/markers")
+    added = [k for _, a in arrays for k in a.markers if k.action == 0]
+    assert added, "no marker was added"
+    for k in added:
+        lifetime_s = k.lifetime.sec + k.lifetime.nanosec * 1e-9
+        assert lifetime_s == pytest.approx(3 / SCENE.fps, abs=1e-6), (k.ns, k.id, lifetime_s)
+
+
+def test_markers_are_cleared_when_the_daemon_goes(session_client: Any) -> None:
+    """The daemon stopped mid-track: one DELETEALL follows its last markers."""
+    client, _ = session_client
+    arrays = client.decoded(f"{RIG}/tracks/markers")
+    clears = [(t, a) for t, a in arrays if any(k.action == 3 for k in a.markers)]
+    assert len(clears) == 1, "no DELETEALL when the daemon's token went away"
+    (t_clear, clear), (t_last, last) = clears[0], arrays[-1]
+    assert (t_clear, clear) == (t_last, last), "markers were sent after the DELETEALL"
+    assert [k.action for k in clear.markers] == [3]
+    assert t_clear > max(t for t, a in arrays[:-1])
 
 
 def test_tf_static_rotates_the_rig_frame_into_the_body_frame(session_client: Any) -> None:

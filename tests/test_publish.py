@@ -85,6 +85,38 @@ def test_session_config_has_no_multicast_by_default() -> None:
     assert '"enabled":false' in cfg.get_json("scouting/multicast").replace(" ", "")
 
 
+def listen_of(zc: zenoh.Config) -> object:
+    return json.loads(zc.get_json("listen/endpoints"))
+
+
+def test_nothing_listens_where_the_user_did_not_say(tmp_path: Path) -> None:
+    """Zenoh's own default listens on every interface (tcp/[::]:0 for a peer): a daemon gets
+    loopback instead, a consumer nothing, and what the user says is kept, from stereod's config
+    or from a Zenoh file that changes the listeners."""
+    assert "[::]" in json.dumps(listen_of(zenoh.Config()))  # the default this guards against
+    assert listen_of(session_config(ZenohConfig())) == ["tcp/127.0.0.1:0"]
+    assert listen_of(session_config(ZenohConfig(mode="router"))) == ["tcp/127.0.0.1:7447"]
+    connect = ["tcp/127.0.0.1:7447"]
+    assert listen_of(session_config(ZenohConfig(connect=connect), consumer=True)) == []
+    told = ["tcp/0.0.0.0:7447"]
+    assert listen_of(session_config(ZenohConfig(listen=told), consumer=True)) == told
+    plain = tmp_path / "plain.json5"
+    plain.write_text("{ mode: 'peer' }")
+    zc = session_config(ZenohConfig(config_file=plain))
+    assert listen_of(zc) == ["tcp/127.0.0.1:0"]
+    assert json.loads(zc.get_json("scouting/multicast/enabled")) is False
+    opened = tmp_path / "opened.json5"
+    opened.write_text(
+        "{ listen: { endpoints: ['tcp/0.0.0.0:7448'] }, scouting: { multicast: { enabled: true,"
+        " listen: false } } }"
+    )
+    zc = session_config(ZenohConfig(config_file=opened))
+    assert listen_of(zc) == ["tcp/0.0.0.0:7448"]
+    assert json.loads(zc.get_json("scouting/multicast/enabled")) is True
+    quiet = ZenohConfig(config_file=opened, multicast_scouting=False)
+    assert json.loads(session_config(quiet).get_json("scouting/multicast/enabled")) is False
+
+
 def test_an_endpoint_not_up_yet_is_tried_again_within_a_quarter_second(tmp_path: Path) -> None:
     """A subscriber started before its daemon connects within 0.25 s of the daemon listening
     (Zenoh's own default waits 1 s, then up to 4 s); a user's own Zenoh file decides itself."""

@@ -27,6 +27,7 @@ from stereod.client import query_config, wait_alive
 
 from .conftest import free_endpoint
 from .processes import start_stereod
+from .sockets import process_sockets
 
 pytestmark = pytest.mark.slow
 
@@ -161,6 +162,11 @@ def client(d: Path, endpoint: str, name: str | None) -> zenoh.Config:
     return zenoh.Config.from_json5(json.dumps(conf))
 
 
+def listening_on(pid: int, port: int) -> bool:
+    """Whether process ``pid`` listens on TCP ``port`` (its session is open)."""
+    return any(s.listening and s.port == port for s in process_sockets(pid))
+
+
 def wait(pred: Callable[[], bool], timeout: float = 20.0) -> bool:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -187,6 +193,9 @@ def secured(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, st
     )
     proc = start_stereod("run", "--config", str(cfg), cwd=tmp_path)
     try:
+        port = int(endpoint.rsplit(":", 1)[1])
+        up = wait(lambda: proc.poll() is not None or listening_on(proc.pid, port), timeout=60)
+        assert up and proc.poll() is None, "the daemon did not listen"
         yield tmp_path, endpoint
         assert proc.poll() is None, proc.communicate(timeout=10)[1]
     finally:

@@ -7,6 +7,7 @@ import asyncio
 import json
 import re
 import signal
+import socket
 import tempfile
 import threading
 import urllib.request
@@ -253,3 +254,61 @@ def test_view_command_prints_its_url_and_stops_on_sigint(endpoint: str) -> None:
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
+
+
+def raw_request(port: int, path: str, headers: dict[str, str]) -> str:
+    """The status line of one HTTP/1.1 request sent as raw bytes to 127.0.0.1:``port`` (so
+    Host and Origin are exactly what a rebinding page's browser would send)."""
+    lines = [f"GET {path} HTTP/1.1", *(f"{k}: {v}" for k, v in headers.items()), "", ""]
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+        s.sendall("\r\n".join(lines).encode())
+        reply = b""
+        while b"\r\n" not in reply:
+            chunk = s.recv(4096)
+            if not chunk:
+                break
+            reply += chunk
+    return reply.split(b"\r\n", 1)[0].decode()
+
+
+UPGRADE = {
+    "Upgrade": "websocket",
+    "Connection": "Upgrade",
+    "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ==",
+    "Sec-WebSocket-Version": "13",
+}
+
+
+def test_page_and_socket_refuse_another_sites_host_and_origin(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """DNS rebinding: a page of evil.example whose name now resolves to 127.0.0.1 sends Host
+    evil.example and Origin http://evil.example; the view refuses both (403, no WebSocket
+    upgrade) and says so once, and still serves its own address and localhost names."""
+    with ViewServer(ZenohConfig(), port=0) as server:
+        port = server.port
+        own = f"127.0.0.1:{port}"
+        assert raw_request(port, "/", {"Host": own}).endswith("200 OK")
+        for name in ("localhost", "[::1]", "LOCALHOST"):
+            assert raw_request(port, "/", {"Host": f"{name}:{port}"}).endswith("200 OK")
+        ws_ok = raw_request(port, "/ws", {"Host": own, "Origin": f"http://{own}", **UPGRADE})
+        assert " 101 " in ws_ok, ws_ok
+        caplog.clear()
+        refused = [
+            ("/", {"Host": f"evil.example:{port}"}),
+            ("/", {"Host": "evil.example"}),
+            ("/", {"Host": f"127.0.0.1:{port + 1}"}),
+            ("/image/overlay.jpg", {"Host": f"evil.example:{port}"}),
+            ("/", {"Host": own, "Origin": "http://evil.example"}),
+            ("/ws", {"Host": f"evil.example:{port}", "Origin": "http://evil.example", **UPGRADE}),
+            ("/ws", {"Host": own, "Origin": "http://evil.example", **UPGRADE}),
+            ("/ws", {"Host": own, "Origin": f"http://evil.example:{port}", **UPGRADE}),
+            ("/ws", {"Host": own, "Origin": "null", **UPGRADE}),
+        ]
+        for path, headers in refused:
+            status = raw_request(port, path, headers)
+            assert status.endswith("403 Forbidden"), (path, headers, status)
+        assert server.refused == len(refused)
+    said = [r for r in caplog.records if "refused a request" in r.getMessage()]
+    assert len(said) == 1, [r.getMessage() for r in caplog.records]
+    assert "evil.example" in said[0].getMessage()

@@ -114,20 +114,34 @@ DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 listens there)."""
 
 
+def endpoint_arg(text: str) -> str:
+    """An argparse type: a Zenoh endpoint, checked where it is parsed (a malformed one such as
+    ``tcp/[::1`` is exit 64 naming the flag, not a session waiting for ever)."""
+    from ..config import check_endpoint
+
+    try:
+        return check_endpoint(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
+
+
 def add_zenoh(p: argparse.ArgumentParser) -> None:
     """--connect, --listen, --mode, --prefix."""
     g = p.add_argument_group("zenoh")
     g.add_argument(
         "--connect",
         action="append",
+        type=endpoint_arg,
         metavar="ENDPOINT",
         help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
     )
     g.add_argument(
         "--listen",
         action="append",
+        type=endpoint_arg,
         metavar="ENDPOINT",
-        help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)",
+        help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; default: a daemon "
+        "on loopback only, subscribe and view nowhere)",
     )
     g.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (peer)")
     g.add_argument("--prefix", help="key prefix (default: stereod)")

@@ -92,7 +92,7 @@ def run(a: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGINT, lambda *_: done.set())
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    with opened_session(zcfg) as session:
+    with opened_session(zcfg, consumer=True) as session:
         sub = session.declare_subscriber(key, on_sample)
         start = time.monotonic()
         if zcfg.connect and not reachable(session, min(1.0, a.duration or 1.0)):

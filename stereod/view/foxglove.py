@@ -24,7 +24,8 @@ Channels (``<rig>`` as in the export):
   only while someone listens; at most ``daemon.image_rate_hz`` a second;
 * ``/stereod/<rig>/tracks/odom``, ``.../tracks/markers``, ``/stereod/<rig>/objects`` and one
   ``.../tracks/track_<id>/speed_heading`` per track (advertised at the track's first valid
-  velocity, withdrawn when the track ends).
+  velocity, withdrawn when the track ends). Markers live 3 frame periods unless refreshed, and
+  a DELETEALL clears them when the daemon's liveliness token goes away (it stopped or died).
 
 A message is encoded only when some client subscribes to its channel. Every message's log time
 is its stamp (the capture instant, UTC).
@@ -274,6 +275,10 @@ class FoxgloveBridge:
             self._send(m)
 
     def _on_alive(self, alive: bool) -> None:
+        if not alive and self._alive is not False:  # its markers must not outlive it
+            with self._lock:
+                clear = self.ros.delete_all_markers(time.time_ns())
+            self._send(clear)
         if alive and self._alive is False:  # a new daemon: its track ids start again
             with self._lock:
                 self.ros.forget_tracks()

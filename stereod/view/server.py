@@ -23,6 +23,7 @@ import asyncio
 import collections
 import contextlib
 import errno
+import ipaddress
 import json
 import logging
 import math
@@ -63,6 +64,8 @@ TRACKS_KEPT = 30
 """Tracks (live or ended) whose history is kept."""
 CLIENT_QUEUE = 512
 """Messages waiting for one browser; beyond that the oldest are dropped."""
+LOCAL_NAMES = ("localhost", "127.0.0.1", "[::1]")
+"""Host names a page on this machine may use, besides the address the view serves on."""
 
 
 def _num(x: float | None) -> float | None:
@@ -199,6 +202,49 @@ class ViewHub:
         }
 
 
+def _host_name(host: str) -> str:
+    """``host`` as it appears in a URL's authority: IPv6 in brackets, lower case."""
+    host = host.strip().lower()
+    return f"[{host}]" if ":" in host and not host.startswith("[") else host
+
+
+def _split_authority(authority: str) -> tuple[str, int | None]:
+    """``name:port`` (``[v6]:port``) as (name, port); the port is None when absent, -1 when
+    it is not a number."""
+    text = authority.strip().lower()
+    if text.startswith("["):
+        end = text.find("]")
+        if end < 0:
+            return text, -1
+        name, rest = text[: end + 1], text[end + 1 :]
+        if not rest:
+            return name, None
+        if not rest.startswith(":"):
+            return text, -1
+        port = rest[1:]
+    else:
+        name, colon, port = text.rpartition(":")
+        if not colon:
+            return text, None
+    return name, int(port) if port.isdigit() else -1
+
+
+def allowed_authority(authority: str, host: str, port: int) -> bool:
+    """Whether ``authority`` (a Host header, or an Origin's ``name:port``) names this view:
+    its own address or a localhost name, with its port (HTTP's 80 may be left out). Any other
+    name is a page of some other site (DNS rebinding: a name of theirs that resolves here)."""
+    name, given = _split_authority(authority)
+    if (given if given is not None else 80) != port:
+        return False
+    if name in LOCAL_NAMES or name == _host_name(host):
+        return True
+    if _host_name(host) in ("0.0.0.0", "[::]"):  # every address of this machine: any literal
+        with contextlib.suppress(ValueError):
+            ipaddress.ip_address(name.strip("[]"))
+            return True
+    return False
+
+
 def _image_message(image: Image) -> dict[str, Any]:
     i = image.info
     return {
@@ -243,6 +289,8 @@ class ViewServer:
         self._sockets: set[web.WebSocketResponse] = set()
         self._session: zenoh.Session | None = None
         self._subs: list[Any] = []
+        self.refused = 0
+        """Requests refused for their Host or Origin (another site's page)."""
 
     @property
     def url(self) -> str:
@@ -283,7 +331,7 @@ class ViewServer:
             raise err
         hub = self.hub
         try:
-            session = self._session = open_session(self.zenoh_cfg)
+            session = self._session = open_session(self.zenoh_cfg, consumer=True)
         except BaseException:
             self.stop()
             raise
@@ -361,13 +409,41 @@ class ViewServer:
             q.put_nowait(text)
 
     def _app(self) -> web.Application:
-        app = web.Application()
+        app = web.Application(middlewares=[self._same_origin])
         app.router.add_get("/", self._index)
         app.router.add_get("/ws", self._ws)
         app.router.add_get("/image/overlay.jpg", self._overlay)
         app.router.add_static("/static/", STATIC, follow_symlinks=False)
         app.on_shutdown.append(self._close_sockets)
         return app
+
+    @web.middleware
+    async def _same_origin(self, request: web.Request, handler: Any) -> web.StreamResponse:
+        """Refuse (403, so no WebSocket upgrade either) a request whose Host is not this view's
+        address or a localhost name with its port, or whose Origin is another site's: a page
+        from elsewhere that reaches this port through a name of its own (DNS rebinding) must
+        not read the camera overlay or the tracks. The first refusal is logged."""
+        host = request.headers.get("Host", "")
+        origin = request.headers.get("Origin")
+        ok = allowed_authority(host, self.host, self.port)
+        if ok and origin is not None:
+            scheme, sep, authority = origin.partition("://")
+            ok = sep == "://" and scheme.lower() == "http"
+            ok = ok and allowed_authority(authority, self.host, self.port)
+        if not ok:
+            self.refused += 1
+            if self.refused == 1:
+                log.warning(
+                    "view: refused a request for %s with Host %r and Origin %r (a page of "
+                    "another site; open %s instead); further refusals are not logged",
+                    request.path,
+                    host[:80],
+                    (origin or "")[:80],
+                    self.url,
+                )
+            raise web.HTTPForbidden(text="stereod view: this page is served to its own address")
+        response: web.StreamResponse = await handler(request)
+        return response
 
     async def _index(self, request: web.Request) -> web.StreamResponse:
         return web.FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-cache"})
