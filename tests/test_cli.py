@@ -279,11 +279,13 @@ def test_run_on_a_truncated_recording_exits_65_as_replay_does(
 
 
 def test_run_on_a_live_camera_stopped_by_sigterm_exits_0_even_with_no_pairs(
-    tmp_path: Path, endpoint: str
+    tmp_path: Path, endpoint: str, listener: zenoh.Session
 ) -> None:
     """A live source whose eyes never pair (here 33 ms apart, paired within 5 ms) is a
     problem for the status key, not bad input: ``systemctl stop`` (SIGTERM) still ends the
-    daemon normally with 0, or the unit would be marked failed."""
+    daemon normally with 0, or the unit would be marked failed. The signal is sent once the
+    daemon runs (its first status is out), however long a busy host takes to start it."""
+    col = Collector(listener)
     cfg = tmp_path / "stereod.toml"
     cfg.write_text(
         '[driver]\nname = "synthetic"\n[driver.options]\nlive = true\nduration_s = 60.0\n'
@@ -291,8 +293,12 @@ def test_run_on_a_live_camera_stopped_by_sigterm_exits_0_even_with_no_pairs(
         f'[zenoh]\nconnect = ["{endpoint}"]\n'
     )
     proc = start_stereod("run", "--config", str(cfg))
-    time.sleep(3.0)  # frames flow meanwhile, none pairs
-    proc.send_signal(signal.SIGTERM)
+    try:
+        running = col.wait_for(lambda: bool(col.messages("stereod/minoru/status")), 120.0)
+        assert running, "no status from the daemon in 120 s"
+        time.sleep(1.0)  # frames flow meanwhile, none pairs
+    finally:
+        proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
 
