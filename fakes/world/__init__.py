@@ -69,23 +69,39 @@ from ._base import EYES, MODE_320x240_30, MODE_640x480_15
 from .camera import Clock, Photometry, Quality, RenderedFrame, Rig, clocks_for_skew
 from .cli import main
 from .files import load_scene, write_scene
-from .light import Lighting
-from .motion import Trajectory
-from .presets import PRESETS, crossing, fast_ball, robot_ball, robot_box, robot_cylinder
+from .light import AreaLight, Lamps, Lighting, PointLight
+from .motion import Trajectory, Waypoints
+from .people import Act, Person
+from .presets import crossing, fast_ball, robot_ball, robot_box, robot_cylinder
+from .presets_room import (
+    PRESETS,
+    lamp_ball,
+    people_crossing,
+    person_approach,
+    person_sit_walk,
+    robot_stop_go,
+)
 from .scene import Scene
-from .shapes import Box, Cylinder, Shape, Sphere
+from .shapes import Box, Capsule, Cylinder, Shape, Sphere
 from .textures import Room
+from .transport import Transport
 
 __all__ = [
     "EYES",
     "PRESETS",
+    "Act",
+    "AreaLight",
     "Box",
+    "Capsule",
     "Clock",
     "Cylinder",
+    "Lamps",
     "Lighting",
     "MODE_320x240_30",
     "MODE_640x480_15",
+    "Person",
     "Photometry",
+    "PointLight",
     "Quality",
     "RenderedFrame",
     "Rig",
@@ -94,13 +110,20 @@ __all__ = [
     "Shape",
     "Sphere",
     "Trajectory",
+    "Transport",
+    "Waypoints",
     "clocks_for_skew",
     "crossing",
     "fast_ball",
+    "lamp_ball",
     "load_scene",
     "main",
+    "people_crossing",
+    "person_approach",
+    "person_sit_walk",
     "robot_ball",
     "robot_box",
     "robot_cylinder",
+    "robot_stop_go",
     "write_scene",
 ]

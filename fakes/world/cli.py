@@ -8,7 +8,7 @@ from collections.abc import Sequence
 
 from ._base import MODE_320x240_30, MODE_640x480_15, Skew
 from .files import write_scene
-from .presets import PRESETS
+from .presets_room import PRESETS
 
 
 def main(argv: Sequence[str] | None = None) -> int:
