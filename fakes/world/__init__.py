@@ -54,13 +54,48 @@ same samples.  Truth is reported at the exact instant asked for.  The skew of th
 Scene content
 -------------
 A textured vertical wall (plane Z = wall distance) and a textured floor (plane Y = floor
-height), unlit, with seeded procedural colour textures defined in world coordinates (bilinear
+height), with seeded procedural colour textures defined in world coordinates (bilinear
 over a ``Room.texel_m`` grid: multi-octave value noise, palette blends, posters, floor tiles),
 so the parallax between the eyes is exact.
-Objects (spheres, upright cylinders, axis-aligned boxes; centre = centre of the volume) are
-Lambertian under one directional light plus ambient; they translate without rotating and cast
-no shadows.  Photometry: ``image = clip(round(radiance * eye_gain * drift(t) + noise))`` with
-Gaussian noise seeded by (seed, eye, t_ns), so any frame can be re-rendered identically.
+Objects (spheres, upright cylinders, axis-aligned boxes, capsules of any orientation;
+centre = centre of the volume) translate without rotating, along a :class:`Trajectory` or a
+piecewise-linear :class:`Waypoints` path (stops).  A :class:`Person` is an object made of
+capsules and a sphere, scripted by :class:`Act` steps (sit and wave, stand up, walk with
+swinging arms and legs, stand still; see ``people.py``); its truth centre is the torso's
+centroid, and ``Scene.truth_details`` adds the volume centroid of the figure and its
+axis-aligned extent.  Photometry: ``image = clip(round(radiance * eye_gain * drift(t) +
+noise))`` with Gaussian noise seeded by (seed, eye, t_ns), so any frame can be re-rendered
+identically.
+
+Light
+-----
+Without lamps (``Scene.lamps = None``, the default) the wall and floor are unlit and the
+objects are Lambertian under one directional light plus ambient, without shadows; such
+scenes render bit-identically to the renderer before lamps existed.  With :class:`Lamps`
+(point lights, and rectangular area lights sampled on a grid; inverse-square falloff) every
+surface (wall, floor, objects) is ``albedo * (ambient + sum of visible irradiance *
+max(0, n . l))``, visibility being a shadow ray from the surface point to each lamp sample
+tested against every solid: hard shadows from point lamps, soft ones from area lamps
+(``background.py`` says how the shadowed pixels of the wall and floor are sampled).
+
+Transport
+---------
+``Scene.transport`` (:class:`Transport`, all off by default) models the webcam: a rolling
+shutter (row r starts ``r * readout_s / H`` after row 0 and is cast at its own instants),
+100 Hz mains flicker integrated over each row's exposure, 4:2:2 chroma (YUYV) and MJPEG; see
+``transport.py``.  ``t_ns`` and the truth stay the instant row 0 starts exposing;
+``readout_s`` is written to scene.json and truth.csv.
+
+Cost
+----
+A frame in which nothing moves during its readout and exposure is kept, and the next frame
+with the same content reuses it, so long stops render once.  People and shadows cost more
+than balls: about 1 s per 320x240 frame for a walking person, 2-3 s with a lamp.
+
+Modules: ``scene`` (Scene, timing, truth, rendering), ``files`` (write_scene, load_scene),
+``shapes``, ``motion``, ``people``, ``light``, ``background`` (wall, floor, shadows),
+``raycast`` (object regions), ``camera`` (rig, clocks, photometry, quality), ``textures``,
+``transport``, ``presets`` and ``presets_room``, ``cli``.
 """
 
 from __future__ import annotations
