@@ -265,6 +265,10 @@ class Person:
     def volume_centroid(self, t_s: float, step_m: float = 0.01) -> F64:
         """Centroid of the union of the solids (overlaps once), on a global lattice of step."""
         parts = self.parts(t_s)
+        key = (step_m, tuple((solid, tuple(c)) for solid, c in parts))
+        cache = self._centroids
+        if key in cache:
+            return cache[key].copy()
         num, den = np.zeros(3), 0.0
         for solid, c in parts:
             h = solid.half_extent_m()
@@ -282,7 +286,14 @@ class Person:
             w = 1.0 / count
             num += (p * w[:, None]).sum(axis=0)
             den += float(w.sum())
-        return num / den
+        if len(cache) > 64:  # poses of a still stretch repeat; walking ones do not
+            cache.clear()
+        cache[key] = num / den
+        return cache[key].copy()
+
+    @cached_property
+    def _centroids(self) -> dict[Any, F64]:
+        return {}
 
     def to_dict(self) -> dict[str, Any]:
         from dataclasses import asdict
