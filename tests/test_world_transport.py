@@ -66,6 +66,12 @@ def test_rolling_shutter_renders_each_row_at_its_own_instant() -> None:
     assert np.abs(got - expected).max() < 0.05  # a third of a row's shift
     slope = np.polyfit(rows, got, 1)[0]
     assert abs(slope - rig.focal_px * speed * readout / (rig.height_px * depth)) < 1e-3
+    # Faster: bands of 6 rows, each cast at the instant of its middle row (a staircase).
+    banded = replace(scene, quality=replace(scene.quality, rolling_band_rows=6))
+    mid_rows = (rows // 6) * 6 + 2.5
+    x_band = -0.05 + speed * mid_rows * readout / rig.height_px
+    stairs = rig.cx + rig.focal_px * (x_band - rig.camera_centre("left")[0]) / depth
+    assert np.abs(row_centroids(banded) - stairs).max() < 0.05
     # A global shutter (the default) sees the whole bar at t: upright.
     upright = row_centroids(bar_scene(Transport(), speed, depth))
     assert np.ptp(upright) < 0.01 and abs(upright[0] - expected[0]) < 0.02

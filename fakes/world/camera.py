@@ -139,6 +139,7 @@ class Quality:
     background_supersample: int = 4  # rays per pixel for the static background
     exposure_samples: int = 0  # temporal samples when exposure > 0 (0: automatic)
     shadow_supersample: int = 2  # S x S rays per pixel where a lamp's shadow may fall
+    rolling_band_rows: int = 1  # rolling shutter: rows cast at one instant (1: exact)
 
 
 @dataclass(frozen=True, eq=False)

@@ -41,21 +41,22 @@ def lamp_ball(
     photometry: Photometry | None = None,
 ) -> Scene:
     """A ball rolling across the textured floor (as :func:`robot_ball` at 90 deg) under one
-    lamp: 'overhead' 1.95 m above the floor over the path's middle, or 'side' 0.6 m above
-    the floor 1.55 m to the left (a shadow about 0.5 m long).  ``soft``: a 0.4 x 0.4 m
+    lamp: 'overhead' 1.95 m above the floor over the path's middle, or 'side' 0.8 m above
+    the floor 2.55 m to the left (a shadow about 0.55 m long).  ``soft``: a 0.4 x 0.4 m
     area lamp (soft shadow, 4 x 4 samples) instead of a point lamp."""
     base = robot_ball(
         90.0, speed_mps, mode=mode, hfov_deg=hfov_deg, seed=seed, skew=skew,
         exposure_s=exposure_s, photometry=photometry,
     )  # fmt: skip
     floor = base.room.floor_height_m or 0.35
-    where = (0.05, floor - 1.95, 1.6) if lamp == "overhead" else (-1.5, floor - 0.6, 1.6)
+    where = (0.05, floor - 1.95, 1.6) if lamp == "overhead" else (-2.5, floor - 0.8, 1.6)
+    power = 1.0 if lamp == "overhead" else 2.0
     if lamp not in ("overhead", "side"):
         raise ValueError("lamp must be 'overhead' or 'side'")
     if soft:
-        lamps = Lamps(ambient=0.3, areas=(AreaLight(where, intensity=1.0),))
+        lamps = Lamps(ambient=0.3, areas=(AreaLight(where, intensity=power),))
     else:
-        lamps = Lamps(ambient=0.3, points=(PointLight(where, intensity=1.0),))
+        lamps = Lamps(ambient=0.3, points=(PointLight(where, intensity=power),))
     return replace(base, lamps=lamps, name=f"lamp_ball_{lamp}" + ("_soft" if soft else ""))
 
 

@@ -217,11 +217,13 @@ class Scene(_Backdrop, _Caster):
         else:
             out = np.empty((h, self.rig.width_px, 3), np.float32) if want_image else None
             cov = {}
-            for r in range(h):
-                times = self._exposure_times_s(t + r * readout / h)
-                band, bcov = self._render_band(eye, times, r, r + 1, want_image)
+            k = max(1, self.quality.rolling_band_rows)
+            for r in range(0, h, k):
+                r1 = min(h, r + k)
+                times = self._exposure_times_s(t + 0.5 * (r + r1 - 1) * readout / h)
+                band, bcov = self._render_band(eye, times, r, r1, want_image)
                 if out is not None and band is not None:
-                    out[r] = band[0]
+                    out[r:r1] = band
                 for name, a in bcov.items():
                     cov[name] = cov.get(name, 0.0) + a
         if key is not None and out is not None:

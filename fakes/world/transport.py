@@ -1,7 +1,8 @@
 """What a USB webcam does to a frame between the sensor and the host, each step optional.
 
 * Rolling shutter: image row r (0 = top) starts exposing ``r * readout_s / H`` after row 0;
-  the renderer casts every row at its own instants (see ``Scene.render_radiance``).
+  the renderer casts every row at its own instants (``Quality.rolling_band_rows`` = 1), or,
+  to save time, bands of that many rows at the instant of the band's middle row.
 * Mains flicker: lamps on 50 Hz mains pulse at ``flicker_hz`` = 100 Hz; the scene brightness
   is ``1 - depth * (1 + cos(2 pi f t + phase)) / 2`` (t scene seconds), averaged exactly over
   each row's exposure, so with a rolling shutter it varies from row to row (dark bands).
