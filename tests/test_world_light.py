@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -202,3 +203,10 @@ def test_lamp_presets_cast_a_shadow_on_the_floor_next_to_the_ball() -> None:
             assert cols.max() > u + 8
         else:
             assert cols.max() < u + 8
+
+
+def test_lamps_survive_scene_json() -> None:
+    for scene in (lamp_ball("side", soft=True), lamp_ball("overhead")):
+        back = Scene.from_dict(json.loads(json.dumps(scene.to_dict())))
+        assert back == scene and back.lamps == scene.lamps
+    assert Scene.from_dict(json.loads(json.dumps(Scene().to_dict()))).lamps is None
