@@ -81,6 +81,7 @@ class Lamps:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Lamps:
+        """Rebuild lamps from their ``asdict`` form in scene.json."""
         return cls(
             ambient=float(d.get("ambient", 0.35)),
             points=tuple(_build(PointLight, p) for p in d.get("points", [])),

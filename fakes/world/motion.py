@@ -71,13 +71,16 @@ class Waypoints:
 
     @property
     def t_start_s(self) -> float:
+        """Time of the first waypoint, s (the object appears then)."""
         return float(self.times_s[0])
 
     @property
     def t_end_s(self) -> float:
+        """Time of the last waypoint, s (the object vanishes after it unless held)."""
         return float(self.times_s[-1])
 
     def present(self, t_s: float) -> bool:
+        """Whether the object is in the scene at ``t_s`` (always when held)."""
         return self.hold or self.times_s[0] <= t_s <= self.times_s[-1]
 
     def state(self, t_s: float) -> tuple[F64, F64]:
@@ -93,6 +96,7 @@ class Waypoints:
         return pts[k] + vel * (t_s - ts[k]), vel
 
     def position(self, t_s: float) -> F64:
+        """Centre at ``t_s``, m."""
         return self.state(t_s)[0]
 
 

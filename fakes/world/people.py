@@ -21,7 +21,7 @@ lattice) and :meth:`Person.extent` the exact axis-aligned box of the union.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from functools import cached_property
 from typing import Any, Literal
 
@@ -144,6 +144,7 @@ class Person:
         return segs[-1].t1 if segs else self.t_start_s
 
     def present(self, t_s: float) -> bool:
+        """Whether the person is in the scene at ``t_s`` (from ``t_start_s`` on)."""
         return t_s >= self.t_start_s
 
     def moving(self, t0_s: float, t1_s: float) -> bool:
@@ -241,6 +242,7 @@ class Person:
         return np.array([0.9, 1.1, 0.9]) * k
 
     def bound_m(self) -> float:
+        """Radius of a sphere about the torso centre that holds the figure in any pose, m."""
         return float(np.linalg.norm(self.half_extent_m()))
 
     def extent(self, t_s: float) -> tuple[F64, F64]:
@@ -253,6 +255,7 @@ class Person:
         return lo, hi
 
     def torso_centre(self, t_s: float) -> F64:
+        """Centroid of the torso capsule at ``t_s`` (rig frame, m): the truth centre."""
         return self.parts(t_s)[0][1]
 
     def state(self, t_s: float) -> tuple[F64, F64]:
@@ -296,12 +299,12 @@ class Person:
         return {}
 
     def to_dict(self) -> dict[str, Any]:
-        from dataclasses import asdict
-
+        """JSON-ready fields with ``kind`` = "Person" (as written to scene.json)."""
         return {"kind": "Person", **asdict(self)}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Person:
+        """Rebuild a person from :meth:`to_dict`'s output (lists back to tuples)."""
         d = dict(d)
         d.pop("kind", None)
         d["acts"] = tuple(_build(Act, a) for a in d.get("acts", []))

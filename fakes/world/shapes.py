@@ -62,6 +62,7 @@ class _Solid:
         raise NotImplementedError
 
     def volume_m3(self) -> float:
+        """Volume of the solid, m^3."""
         raise NotImplementedError
 
     def intersect(self, o: F64, dx: F64, dy: F64) -> F64:
