@@ -7,7 +7,8 @@ background is cast once per eye like the unlit one; per frame only the pixels th
 a shadow are re-lit: a pixel whose centre's segment to a lamp passes within 2 cm of an
 object's bounding sphere, and its 8 neighbours.  Those pixels take the static lit value times
 the ratio of the mean shadowed to the mean unshadowed irradiance over an S x S grid of rays
-(``Quality.shadow_supersample``); fully lit pixels keep the static value exactly.
+(``Quality.shadow_supersample``); fully lit pixels keep the static value exactly.  Pixels
+re-cast at an object's edge apply their pixel's ratio to the unshadowed light of each ray.
 """
 
 from __future__ import annotations

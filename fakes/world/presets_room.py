@@ -14,7 +14,7 @@ from functools import partial
 from typing import Literal
 
 from ._base import Mode, MODE_320x240_30, Skew
-from .camera import Photometry, Rig
+from .camera import Photometry, Quality, Rig
 from .light import AreaLight, Lamps, PointLight
 from .motion import Waypoints
 from .people import SEAT_HEIGHT_M, Act, Person
@@ -25,6 +25,9 @@ from .shapes import Box, Cylinder
 from .textures import Room
 
 PERSON_ROOM = Room(wall_distance_m=5.0, floor_height_m=1.0)
+# People have long silhouettes: 8 x 8 rays per edge pixel (stratified to 1/64 px along each
+# axis) and 4 x 4 for their neighbours halve the render time against the default 16 and 8.
+PERSON_QUALITY = Quality(edge_supersample=8, ring_supersample=4)
 STOOL_BGR = (40.0, 70.0, 110.0)
 
 
@@ -72,6 +75,7 @@ def _room(
     exposure_s: float,
     photometry: Photometry | None,
     lamps: Lamps | None,
+    quality: Quality | None = None,
 ) -> Scene:
     left, right = _clocks(mode, skew, duration_s)
     return Scene(
@@ -86,6 +90,7 @@ def _room(
         exposure_s=exposure_s,
         name=name,
         lamps=lamps,
+        quality=quality or Quality(),
     )
 
 
@@ -132,7 +137,7 @@ def person_sit_walk(
     duration = person.t_end_s + 1.0
     return _room(
         "person_sit_walk", mode, hfov_deg, skew, duration, [stool, person], seed, room,
-        exposure_s, photometry, _lamp(lit, room),
+        exposure_s, photometry, _lamp(lit, room), PERSON_QUALITY,
     )  # fmt: skip
 
 
@@ -160,7 +165,7 @@ def person_approach(
     )  # fmt: skip
     return _room(
         "person_approach", mode, hfov_deg, skew, person.t_end_s, [person], seed, room,
-        exposure_s, photometry, _lamp(lit, room),
+        exposure_s, photometry, _lamp(lit, room), PERSON_QUALITY,
     )  # fmt: skip
 
 
@@ -198,7 +203,7 @@ def people_crossing(
     duration = max(near.t_end_s, far.t_end_s) + 0.3
     return _room(
         "people_crossing", mode, hfov_deg, skew, duration, [near, far], seed, room,
-        exposure_s, photometry, _lamp(lit, room),
+        exposure_s, photometry, _lamp(lit, room), PERSON_QUALITY,
     )  # fmt: skip
 
 

@@ -184,7 +184,7 @@ class _Caster:
         for sel, rays in ((mixed_b, q.edge_supersample), (ring & ~mixed_b, q.ring_supersample)):
             rr, cc = np.nonzero(sel & kept)
             if rr.size:
-                self._refine(eye, group, r0 + rr, c0 + cc, rays, out, rr, cc, cov, blockers)
+                self._refine(eye, group, r0 + rr, c0 + cc, rays, out, rr, cc, cov, blockers, bg)
         return out, cov
 
     def _refine(
@@ -199,9 +199,14 @@ class _Caster:
         cc: npt.NDArray[np.intp],
         cov: dict[str, float],
         blockers: list[Blocker],
+        bg: F32,
     ) -> None:
         """Re-cast pixels (rows, cols) with an E x E sheared ("n-rooks") grid, stratified to
-        1/E^2 along both axes; write them to out[rr, cc] and add their coverage to cov."""
+        1/E^2 along both axes; write them to out[rr, cc] and add their coverage to cov.
+
+        Rays that miss every object see the wall or floor: its texture (no lamps), or, lit,
+        its texture and unshadowed light per ray times the pixel's shadow ratio in ``bg``
+        (the frame's shadowed background over the static lit one)."""
         rig = self.rig
         f = rig.focal_px
         i, j = np.meshgrid(np.arange(e), np.arange(e), indexing="ij")
@@ -214,7 +219,13 @@ class _Caster:
             cov[name] += float(np.count_nonzero(ids == k)) / (e * e)
         if out is not None:
             miss = ids < 0
-            rad[miss] = self._bg_rays(eye, dx[miss], dy[miss], blockers)
+            if self.lamps is None:
+                rad[miss] = self._bg_rays(eye, dx[miss], dy[miss], blockers)
+            else:
+                static = self._background_image(eye)[rows, cols]
+                ratio = bg[rows, cols] / np.maximum(static, np.float32(1e-6))
+                lit = self._bg_rays(eye, dx[miss], dy[miss], [])
+                rad[miss] = lit * np.broadcast_to(ratio[:, None, :], rad.shape)[miss]
             out[rr, cc] = rad.mean(axis=1)
 
 
