@@ -258,6 +258,10 @@ class Scene(_Backdrop, _Caster):
                 if rect[1] <= r0 or rect[0] >= r1:
                     continue
                 clip = (max(rect[0], r0 - 1), min(rect[1], r1 + 1), rect[2], rect[3])
+                if clip[:2] != rect[:2]:  # a band: only the solids that reach its rows
+                    group = [it for it in group if self._reaches(eye, it, clip[0], clip[1])]
+                    if not group:
+                        continue
                 back = frame if frame is not None else np.zeros((0, 0, 3), np.float32)
                 vals, gcov = self._render_group(
                     eye, clip, group, want_image, back, blockers, (r0, r1)
@@ -277,6 +281,12 @@ class Scene(_Backdrop, _Caster):
             if out is not None and layer is not None:
                 out += layer / n if n > 1 else layer
         return out, cov
+
+    def _reaches(self, eye: str, item: _Placed, r0: int, r1: int) -> bool:
+        """Whether a placed solid's conservative pixel rectangle meets rows [r0, r1)."""
+        half = item[1].half_extent_m()
+        rect = self._pixel_rect(eye, item[2] - half, item[2] + half, 2)
+        return rect is not None and rect[0] < r1 and rect[1] > r0
 
     @staticmethod
     def _bounds(placed: list[_Placed]) -> list[Bound]:
