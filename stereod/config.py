@@ -296,6 +296,24 @@ class TrackingConfig(_Section):
         description="A stopped object is held out of the background, keeping its id, this long, s "
         "(freeze_s, its older name, is read too)",
     )
+    size_gate: float = Field(
+        _TRACK.size_gate,
+        ge=0.0,
+        le=5.0,
+        description="A track's gate is at least this share of its blob's size (sqrt of area)",
+    )
+    merge_depth_m: float = Field(
+        _TRACK.merge_depth_m,
+        ge=0.0,
+        le=10.0,
+        description="Tracks one blob holds within this depth of each other ...",
+    )
+    merge_speed_mps: float = Field(
+        _TRACK.merge_speed_mps,
+        ge=0.0,
+        le=10.0,
+        description="... and moving together within this are one object, m/s",
+    )
     still_after_s: float = Field(
         _TRACK.still_after_s,
         gt=0.0,

@@ -43,7 +43,7 @@ class GroupParams:
 
     enabled: bool = True
     max_object_size_m: float = 2.0
-    max_gap_m: float = 0.25
+    max_gap_m: float = 0.4
     disparity_margin_px: float = 0.5
 
     def __post_init__(self) -> None:

@@ -151,7 +151,12 @@ class TrackerParams:
     after it was last seen moving an object keeps the background held under it (it stays
     seen, ``stationary``, and keeps its id); after that it is part of the scene.
     ``still_after_s``: an object not seen moving for this long (s) is ``stationary``.
-    ``stationary_mps``: below this speed an object is not moving. ``gravity_mps2``: gravity
+    ``stationary_mps``: below this speed an object is not moving. ``size_gate``: a track's
+    gate is at least this share of its blob's size (the square root of its area, px): the
+    centre of a person, whose arms and legs swing, wanders by a fifth of their size from one
+    frame to the next. ``merge_depth_m``, ``merge_speed_mps``: confirmed tracks that one
+    detection holds, at one depth and moving together within these, are pieces of one object
+    followed apart, and the longest-followed one takes it. ``gravity_mps2``: gravity
     in the rig frame (m/s^2; Y points down in a level rig); every moving track is filtered
     both as moving straight and as falling freely, and follows the likelier (a thrown ball
     falls 5 mm in one frame at 30 Hz, and a straight-line filter bends its depth to explain
@@ -171,6 +176,9 @@ class TrackerParams:
     valid_speed_sigma_rel: float = 0.1
     hold_still_s: float = 60.0
     still_after_s: float = 1.0
+    size_gate: float = 0.25
+    merge_depth_m: float = 0.5
+    merge_speed_mps: float = 0.5
     stationary_mps: float = 0.05
     gravity_mps2: tuple[float, float, float] = (0.0, 9.81, 0.0)
 
@@ -377,6 +385,9 @@ class Tracker:
         where its image velocity leads."""
         self.params = params
         self._project = project
+        self._merging: dict[int, int] = {}
+        """Tracks the last :meth:`associate` found to be pieces of another's object (absorbed
+        id -> keeper id): they end in :meth:`update` once the keeper is seen."""
         self.line_ns = 0.0
         """How much later a rolling shutter reads each image row than the one above (ns); 0
         for a global shutter (set by the pipeline from ``readout_s``)."""
@@ -401,12 +412,14 @@ class Tracker:
         out: list[int | None] = [None] * n
         may_start = [True] * n
         tracks = list(self._tracks.values())
+        self._merging = {}
         if not detections:
             return out, may_start
         if not tracks:
             return out, [not _piece(d, detections, out, []) for d in detections]
         cost = np.full((n, len(tracks)), np.inf)
         inside = np.zeros((2, n, len(tracks)), bool)
+        confirmed_j = [self._confirmed(tr) for tr in tracks]
         boxes = []
         for j, tr in enumerate(tracks):
             t_left, t_right = self._row_instants(tr, eye_times_ns)
@@ -423,6 +436,7 @@ class Tracker:
             else:
                 dt = max(t_left - tr.left_history[-1][0], t_right - tr.right_history[-1][0])
                 gate = p.gate_px + tr.image_speed_pxps * dt * 1e-9
+            gate = max(gate, p.size_gate * math.sqrt(tr.area_px))
             for i, d in enumerate(detections):
                 dist = max(
                     _to_segment(d.left_px, pl, pred.left_far),
@@ -430,7 +444,7 @@ class Tracker:
                 )
                 if dist <= gate:
                     cost[i, j] = dist / gate
-                elif tr.stationary and _resumes(d, tr.last):
+                elif confirmed_j[j] and _resumes(d, tr.last):
                     cost[i, j] = RESUME_COST
                 inside[0, i, j] = _inside(pl, d.left_bbox_px, 0.0)
                 inside[1, i, j] = _inside(pr, d.right_bbox_px, 0.0)
@@ -440,6 +454,19 @@ class Tracker:
             if in_left.sum() < 2 and in_right.sum() < 2:
                 continue
             hosts = np.flatnonzero(in_left | in_right)
+            if self._one_object([tracks[j] for j in hosts]):
+                # Pieces of one object that were followed apart (an arm, a torso) now seen
+                # whole: the longest-followed track takes it, the others end into it.
+                held = [int(h) for h in hosts]
+                keeper = max(held, key=lambda h: (tracks[h].hits, -tracks[h].track_id))
+                keep = min(cost[i, keeper], RESUME_COST)
+                cost[i, :] = np.inf
+                cost[i, keeper] = keep
+                for h in held:
+                    if h != keeper:
+                        self._merging[tracks[h].track_id] = tracks[keeper].track_id
+                may_start[i] = False
+                continue
             # Two objects in one blob, in one eye or both. It is one of them (the other hidden
             # behind it) only if it looks like that one alone: its box where that one's box
             # should be, in both eyes; else a centroid is a blend of both, and both coast
@@ -474,6 +501,23 @@ class Tracker:
             if out[i] is None and may_start[i]:
                 may_start[i] = not _piece(d, detections, out, tracks)
         return out, may_start
+
+    def _one_object(self, tracks: list[Track]) -> bool:
+        """Whether confirmed tracks that one detection holds are pieces of one object: at one
+        depth (within ``merge_depth_m``) and moving together (velocities within
+        ``merge_speed_mps``). Two balls crossing at different depths, or two people crossing
+        each other's path, are not."""
+        p = self.params
+        if len(tracks) < 2 or not all(tr.started for tr in tracks):
+            return False
+        for a in range(len(tracks)):
+            for b in range(a + 1, len(tracks)):
+                ka, kb = tracks[a].kf, tracks[b].kf
+                if abs(float(ka.position_m[2] - kb.position_m[2])) > p.merge_depth_m:
+                    return False
+                if float(np.linalg.norm(ka.velocity_mps - kb.velocity_mps)) > p.merge_speed_mps:
+                    return False
+        return True
 
     def _row_instants(self, tr: Track, eye_times_ns: tuple[int, int]) -> tuple[int, int]:
         """When each eye's rolling shutter reads the rows a track was last seen on (ns): the
@@ -603,6 +647,11 @@ class Tracker:
             elif tr.started or tr.whole:  # a track seen only cut by the image's edge is quiet
                 states.append(self._state(tr, t_ns, observed=True))
         coast_ns = int(p.max_coast_s * 1e9)
+        for tid, keeper in self._merging.items():
+            if tid in self._tracks and tid not in seen and keeper in seen:
+                ended.append(tid)  # a piece of the keeper's object, now seen whole
+                del self._tracks[tid]
+        self._merging = {}
         for tid, tr in list(self._tracks.items()):
             if tid in seen:
                 continue

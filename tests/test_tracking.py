@@ -578,3 +578,54 @@ def test_a_track_is_looked_for_where_its_silhouettes_centroid_is(factor_known: b
         assert miss < 0.1
     else:
         assert miss > 4.0
+
+
+def _tracker() -> Tracker:
+    return Tracker(TrackerParams(), RIG.rectified.project)
+
+
+def test_pieces_followed_apart_end_into_one_track_when_seen_whole() -> None:
+    """A person's arm and torso were segmented apart and each became a confirmed track; now
+    one detection holds both (they are at one depth, moving together): the longer-followed
+    track takes it and the other ends into it, instead of both coasting out."""
+    tracker = _tracker()
+    torso, arm = line([0.0, 0.0, 3.0], [0.5, 0, 0]), line([0.25, -0.1, 3.0], [0.5, 0, 0])
+    for k in range(6):
+        t = k * DT_NS
+        paths = [torso] if k == 0 else [torso, arm]  # the torso's track is one frame older
+        step(tracker, t, [p(t * 1e-9) for p in paths], size_m=0.15)
+    assert len(tracker.live_ids()) == 2
+    t = 6 * DT_NS
+    both = 0.5 * (torso(t * 1e-9) + arm(t * 1e-9))
+    states, ended = step(tracker, t, [both], size_m=0.6)
+    assert tracker.live_ids() == [1] and ended == [2], (tracker.live_ids(), ended)
+    assert [(s.track_id, s.lifecycle) for s in states] == [(1, TrackLifecycle.CONFIRMED)]
+
+
+def test_two_objects_crossing_in_one_blob_are_not_merged() -> None:
+    """Two balls crossing in opposite directions at one depth: one detection holds both
+    tracks, but they move apart at 1 m/s: two objects, both coast, neither ends."""
+    tracker = _tracker()
+    a, b = line([-0.3, 0.0, 2.0], [1.0, 0, 0]), line([0.3, 0.0, 2.0], [-1.0, 0, 0])
+    for k in range(8):
+        t = k * DT_NS
+        step(tracker, t, [a(t * 1e-9), b(t * 1e-9)])
+    t = 9 * DT_NS
+    _, ended = step(tracker, t, [np.array([0.0, 0.0, 2.0])], size_m=0.35)
+    assert ended == [] and len(tracker.live_ids()) == 2
+
+
+def test_a_confirmed_track_takes_a_detection_that_overlaps_it_beyond_its_gate() -> None:
+    """A walking person's centre jumps 20 px when their blob changes shape: outside the gate,
+    but the detection still overlaps where they were (IoU >= 0.3 in both eyes) and nothing
+    else claims it: it is them."""
+    tracker = _tracker()
+    walk = line([0.0, 0.0, 3.0], [0.5, 0, 0])
+    for k in range(6):
+        t = k * DT_NS
+        step(tracker, t, [walk(t * 1e-9)], size_m=0.5)
+    t = 6 * DT_NS
+    jumped = walk(t * 1e-9) + np.array([0.12, 0.0, 0.0])  # 0.12 m: 22 px at 3 m
+    states, ended = step(tracker, t, [jumped], size_m=0.5)
+    assert ended == [] and [s.track_id for s in states] == [1]
+    assert states[0].lifecycle is TrackLifecycle.CONFIRMED
