@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..output_file import check_outputs
 from ..plot import check_overlap, figure_target, plot_run, read_run, read_truth, summary
 from .common import path_arg
 
@@ -39,7 +40,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
-    figure_target(a.out)
+    check_outputs({"--out": figure_target(a.out)[0]}, [a.run, a.truth])
     data = read_run(a.run)
     truth = read_truth(a.truth, data.t0_ns) if a.truth is not None else []
     if a.truth is not None:
