@@ -19,7 +19,6 @@ from .common import (
     number,
     path_arg,
     recording_arg,
-    run_inputs,
     size_arg,
 )
 
@@ -183,7 +182,8 @@ def _live(a: argparse.Namespace, board: Board, limits: cb.Limits) -> cb.Report:
     cfg = load_config(a.config, ov)
     collector = cb.LiveCollector(board)
     driver = load_driver(cfg.driver.name, cfg.driver.options, origin=a.config)
-    check_outputs({"--out": a.out}, run_inputs(a.config, cfg, driver))
+    # Not the config's calibration: this run does not read it, and replacing it is the point.
+    check_outputs({"--out": a.out}, [a.config, *driver.inputs()])
     with (
         driver.open() as source,
         Progress("pairs kept", total=a.wanted, unit="pair") as bar,
