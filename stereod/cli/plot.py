@@ -35,7 +35,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="figure to write; its suffix gives the format (png, pdf, svg, ...; .png added "
         "when it has none)",
     )
-    p.add_argument("--title", default="", help="a title above the figure")
+    p.add_argument(
+        "--title", default="", help="a title above the figure, drawn as written (no $math$)"
+    )
     p.set_defaults(func=run)
 
 
