@@ -78,6 +78,7 @@ def command_lines(draw: st.DrawFn) -> list[str]:
 @example(argv=["demo", "--heading", "nan"])
 @example(argv=["subscribe", "--count", "-1"])
 @example(argv=["replay", "r\udcff"])
+@example(argv=["view", "--foxglove-port", "9" * 1001])  # OverflowError: an int is no float
 def test_every_flag_parses_or_is_one_line_64(argv: list[str]) -> None:
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):

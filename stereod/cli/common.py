@@ -48,19 +48,20 @@ def number(
     """An argparse type: a finite number in [lo, hi] (lo excluded when ``lo_open``)."""
 
     def parse(text: str) -> float | int:
+        shown = text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"
         try:
             value: float | int = int(text) if integer else float(text)
-        except ValueError:
+        except ValueError:  # also an integer of more than 4300 digits
             kind = "a whole number" if integer else "a number"
-            raise argparse.ArgumentTypeError(f"{text!r} is not {kind}") from None
-        if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number")
+            raise argparse.ArgumentTypeError(f"{shown!r} is not {kind}") from None
+        if isinstance(value, float) and not math.isfinite(value):  # an int always is
+            raise argparse.ArgumentTypeError(f"{shown!r} must be a finite number")
         u = f" {unit}" if unit else ""
         if lo is not None and (value <= lo if lo_open else value < lo):
             rel = ">" if lo_open else ">="
-            raise argparse.ArgumentTypeError(f"{text}: must be {rel} {lo:g}{u}")
+            raise argparse.ArgumentTypeError(f"{shown}: must be {rel} {lo:g}{u}")
         if hi is not None and value > hi:
-            raise argparse.ArgumentTypeError(f"{text}: must be <= {hi:g}{u}")
+            raise argparse.ArgumentTypeError(f"{shown}: must be <= {hi:g}{u}")
         return value
 
     return parse
