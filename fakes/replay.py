@@ -299,6 +299,12 @@ class ReplayDriver(Driver):
                 describe_validation_error(exc, "driver.options", ReplayOptions)
             ) from exc
 
+    def inputs(self) -> list[Path]:
+        """The recording folder (its files with it), or the two videos and their CSVs."""
+        o = self.options
+        found = (o.path, o.left_video, o.right_video, o.left_ts, o.right_ts)
+        return [p for p in found if p is not None]
+
     def open(self) -> ReplaySource:
         o = self.options
         if o.path is not None:

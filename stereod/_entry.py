@@ -11,8 +11,9 @@ import sys
 
 def main() -> int:
     """Run the ``stereod`` command: exit 130 on a Ctrl-C during its imports. SIGHUP is ignored
-    until the command is known: the daemon (``run``, ``replay``) then handles it as a reload
-    once it has read its configuration, any other command ends on it as usual."""
+    until the command is known: the daemon (``run``) then handles it as a reload once it has
+    read its configuration, any other command ends on it as on SIGTERM (see
+    :func:`stereod.cli.one_shot_signals`)."""
     if hasattr(signal, "SIGHUP"):
         signal.signal(signal.SIGHUP, signal.SIG_IGN)
     try:

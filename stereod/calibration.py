@@ -33,6 +33,7 @@ from .errors import (
     StereodError,
     describe_validation_error,
 )
+from .nesting import Syntax, check_depth
 from .output_file import AtomicOutput
 from .paths import read_input_file
 from .versioned import known_format, warn_unknown_fields
@@ -281,6 +282,7 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
         raise MissingInputError(f"{path}: no such calibration file") from exc
     except OSError as exc:
         raise CalibrationError(f"{path}: cannot read calibration file: {exc.strerror}") from exc
+    check_depth(text.decode("utf-8", "replace"), "json", str(path), CalibrationError)
     try:
         cal = Calibration.model_validate_json(text)
     except ValidationError as exc:
@@ -386,6 +388,8 @@ def read_opencv_storage(
             f"{path}: not an OpenCV FileStorage file: it must begin with %YAML, <?xml or {{ "
             f"(expected {what} as OpenCV writes it)"
         )
+    syntax: Syntax = "yaml" if head.startswith("%YAML") else "xml" if head[0] == "<" else "json"
+    check_depth(text, syntax, str(path), error)
     result = _parse_storage(text, read)
     if isinstance(result, OpenCVProblem):
         raise error(f"{path}: {result.text}")

@@ -51,6 +51,7 @@ from .errors import ConfigError, MissingInputError, UsageError, describe_error
 from .geometry.refine import RefineParams
 from .geometry.stereo import MatchParams
 from .grouping import GroupParams
+from .nesting import check_data_depth, check_depth
 from .pairing import DEFAULT_TOLERANCE_NS
 from .paths import TextPath, read_input_file
 from .pipeline import PipelineParams
@@ -517,7 +518,11 @@ class StereodConfig(BaseModel):
 def read_toml(path: Path) -> dict[str, Any]:
     """Parse a TOML config file; errors name the file and what to do."""
     try:
-        return tomllib.loads(read_input_file(path, "a config file", too_large=ConfigError).decode())
+        text = read_input_file(path, "a config file", too_large=ConfigError).decode()
+        check_depth(text, "toml", str(path), ConfigError)
+        data = tomllib.loads(text)
+        check_data_depth(data, str(path), ConfigError)
+        return data
     except FileNotFoundError as exc:
         raise MissingInputError(f"{path}: no such config file (pass --config FILE)") from exc
     except OSError as exc:
@@ -556,6 +561,8 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
             )
         parsed: Any = value
         if len(parts) == 2 and typing.get_origin(fld.annotation) in (list, dict):
+            where = f"environment variable {name}"
+            check_depth(value, "json", where, ConfigError)
             try:
                 parsed = json.loads(value)
             except ValueError:

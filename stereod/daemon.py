@@ -34,7 +34,7 @@ from .images import ImagePublishers, ImageWorker
 from .memory import separate_large_buffers
 from .messages import CanonicalGeometry, DaemonState, StatusMessage, dump
 from .output import Output
-from .output_file import AtomicOutput, check_not_input, give_up_writing
+from .output_file import AtomicOutput, check_outputs, give_up_writing
 from .pairing import Pairer
 from .params import pipeline_params
 from .pipeline import Pipeline
@@ -215,7 +215,7 @@ class Daemon:
             separate_large_buffers(info.width, info.height)
             self.pairer.in_order = not info.live  # a file's frames come merged in time order
             if self.jsonl is not None:
-                check_not_input(self.jsonl, [*info.inputs, *self._inputs], "--jsonl")
+                check_outputs({"--jsonl": self.jsonl}, [*info.inputs, *self._inputs])
             params = pipeline_params(self.cfg, info.width, info.height)
             jsonl = AtomicOutput(self.jsonl) if self.jsonl is not None else None
             try:

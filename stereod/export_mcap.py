@@ -935,6 +935,11 @@ class McapRunWriter:
 # -- offline export -------------------------------------------------------------------------
 
 
+MAX_TRACK_ID = 2**31 - 1
+"""Largest track id exported: a marker's id is an int32 (a daemon numbers its tracks from 1
+and would need 68 years at one new track a second to reach it)."""
+
+
 def _jsonl_messages(path: Path) -> Iterator[tuple[int, ObjectsMessage, str]]:
     """(line number, message, line) of each non-blank line, validated; errors name the line."""
     try:
@@ -961,6 +966,13 @@ def _jsonl_messages(path: Path) -> Iterator[tuple[int, ObjectsMessage, str]]:
                         f"{path} line {n}: not a stereod.objects/1 message (field {loc}: "
                         f"{e['msg']}); regenerate the file with `stereod replay --jsonl`"
                     ) from exc
+                for obj in msg.objects:
+                    if not 0 <= obj.track_id <= MAX_TRACK_ID:
+                        raise InputError(
+                            f"{path} line {n}: track_id {obj.track_id} is outside "
+                            f"0..{MAX_TRACK_ID}, the ids a ROS marker (int32) can carry; "
+                            "regenerate the file with `stereod replay --jsonl`"
+                        )
                 yield n, msg, line
         except UnicodeDecodeError as exc:
             raise InputError(

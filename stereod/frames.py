@@ -241,3 +241,9 @@ class Driver(ABC):
     @abstractmethod
     def open(self) -> StereoSource:
         """Open the source; raise a :class:`stereod.errors.StereodError` naming what failed."""
+
+    def inputs(self) -> list[Path]:
+        """The files the source will read, known from the options before it is opened (a
+        recording folder, videos, timestamp CSVs, device nodes), so that no output of the
+        command is one of them; empty for a source that reads no file."""
+        return []

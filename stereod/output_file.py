@@ -14,7 +14,9 @@ calibration), so that writing an output never destroys what was at its path.
   ``>`` would refuse it, although renaming over it would succeed.
 * Anything else there (a directory, a block device, a socket) is refused in one line.
 
-An output that is one of the run's inputs is refused (:func:`check_not_input`). A run that a
+An output that is one of the files the command reads (its config, calibration, the driver's
+videos, timestamp CSVs and recording folder, a plot's run and truth) is refused before anything
+is written, symbolic and hard links seen through (:func:`check_outputs`, exit 64). A run that a
 signal stopped before its end commits no output; it ends with :class:`Interrupted`.
 
 An output written in place is written only when it can take the bytes without blocking (a
@@ -35,19 +37,19 @@ import stat
 import tempfile
 import time
 import weakref
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
 
-from .errors import Interrupted, OutputError, ReaderGone
-from .paths import file_kind
+from .errors import Interrupted, MissingInputError, OutputError, ReaderGone, UsageError
+from .paths import file_kind, shown
 
 __all__ = [
     "AtomicOutput",
     "Interrupted",
     "ReaderGone",
-    "check_not_input",
+    "check_outputs",
     "follow_links",
     "is_stdout",
     "output_target",
@@ -159,14 +161,62 @@ def written_in_place(path: Path) -> bool:
         return False
 
 
-def check_not_input(output: Path, inputs: list[Path], flag: str) -> None:
-    """Refuse an output path that is one of the inputs (it would destroy it)."""
-    for path in inputs:
-        with contextlib.suppress(OSError):
-            if output.exists() and os.path.samefile(output, path):
-                raise OutputError(
-                    f"{flag} {output}: that is an input of this run ({path}); "
-                    "choose another output file"
+def same_file(a: Path, b: Path) -> bool:
+    """Whether paths ``a`` and ``b`` name one file: the same path once symbolic links are
+    resolved (``realpath``: also for a file not made yet), or the same inode on the same
+    device (``st_dev``/``st_ino``: a hard link, a bind mount)."""
+    try:
+        if os.path.realpath(a) == os.path.realpath(b):
+            return True
+        sa, sb = os.stat(a), os.stat(b)
+    except (OSError, ValueError):
+        return False
+    return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)
+
+
+def _with_contents(inputs: Iterable[Path | str | None]) -> list[Path]:
+    """``inputs`` with each folder's files after it (a recording folder is read whole)."""
+    out: list[Path] = []
+    for item in inputs:
+        if item is None:
+            continue
+        path = Path(item)
+        out.append(path)
+        try:
+            folder = path.is_dir()
+        except OSError:  # cannot even be looked at: its reader says so
+            continue
+        if folder:
+            try:
+                out += sorted(path.iterdir())
+            except OSError as exc:  # an output could be any of its files: none is checked
+                raise MissingInputError(
+                    f"{shown(path)}: cannot list the recording: {exc.strerror}"
+                ) from exc
+    return out
+
+
+def check_outputs(outputs: Mapping[str, Path | None], inputs: Iterable[Path | str | None]) -> None:
+    """The one output rule's check against inputs: refuse (:class:`UsageError`, exit 64)
+    before anything is written when an output (``{flag: path}``; None: not given) is one of
+    the files the command reads (a folder among ``inputs`` stands for itself and its files),
+    or when two outputs are one file. Symbolic links and hard links are seen through."""
+    given = [(flag, Path(path)) for flag, path in outputs.items() if path is not None]
+    if not given:
+        return
+    every = _with_contents(inputs)
+    for i, (flag, out) in enumerate(given):
+        for path in every:
+            if same_file(out, path):
+                raise UsageError(
+                    f"{flag} {shown(out)}: that is an input of this run ({shown(path)}); "
+                    "writing it would destroy it: choose another output file"
+                )
+        for other_flag, other in given[i + 1 :]:
+            if same_file(out, other):
+                raise UsageError(
+                    f"{flag} {shown(out)} and {other_flag} {shown(other)} are the same file; "
+                    "give two names"
                 )
 
 

@@ -147,6 +147,8 @@ def read_truth(path: Path, t0_ns: int) -> list[TruthSeries]:
                     vel = [float(row[c]) for c in ("vx_mps", "vy_mps", "vz_mps")] if has_v else []
                 except (TypeError, ValueError) as exc:
                     raise InputError(f"{path}:{n}: not a number: {exc}") from exc
+                named = zip((*columns[1:], "vx_mps", "vy_mps", "vz_mps"), vals + vel, strict=False)
+                _check_truth_row(path, n, dict(named))
                 per.setdefault(row["object"], []).append(vals + vel)
     except OSError as exc:
         raise _unreadable(path, "truth", exc) from exc
@@ -160,6 +162,25 @@ def read_truth(path: Path, t0_ns: int) -> list[TruthSeries]:
         velocity = a[:, 4:7] if a.shape[1] >= 7 else finite_difference(t_s, pos)
         out.append(TruthSeries(name, t_s, pos, velocity))
     return out
+
+
+MAX_TRUTH_M = 1e6
+"""Largest position (m) or speed (m/s) a truth may give: far beyond any scene a stereo webcam
+sees, well short of what overflows the axes' arithmetic (1e308 does)."""
+MAX_TRUTH_T_NS = 2**62
+"""Largest truth time, ns since the epoch (year 2116)."""
+
+
+def _check_truth_row(path: Path, line: int, values: dict[str, float]) -> None:
+    """Refuse (65) a truth row whose time or values are not finite or out of range, naming
+    the file, line and column."""
+    for name, v in values.items():
+        bound = MAX_TRUTH_T_NS if name == "t_ns" else MAX_TRUTH_M
+        if not math.isfinite(v) or abs(v) > bound:
+            raise InputError(
+                f"{path}:{line}: {name} = {v:g} is out of range (|{name}| <= {bound:g}); "
+                "is it the right truth file?"
+            )
 
 
 def _unreadable(path: Path, what: str, exc: OSError, hint: str = "") -> MissingInputError:
@@ -348,7 +369,7 @@ def plot_run(run: Run, truth: list[TruthSeries], out: Path, *, title: str = "") 
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7, loc="best")
     if title:
-        fig.suptitle(title)
+        fig.suptitle(title, parse_math=False)  # written as given: "$x^{2$" is no formula
     image = io.BytesIO()
     fig.savefig(image, dpi=DPI, format=fmt)
     with AtomicOutput(path) as output:  # the output rule of every command (output_file)

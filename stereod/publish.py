@@ -16,6 +16,7 @@ import re
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from types import TracebackType
 from typing import Any
 
@@ -23,9 +24,10 @@ import zenoh
 
 from . import keys
 from .config import ZenohConfig
-from .errors import ConfigError, UnavailableError
+from .errors import ConfigError, MissingInputError, UnavailableError
 from .messages import OBJECT_SCHEMA, OBJECTS_SCHEMA, STATUS_SCHEMA, encoding_for
-from .paths import check_input_file, text_path
+from .nesting import Syntax, check_depth
+from .paths import read_input_file, shown, text_path
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +55,23 @@ CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 250, "period_increase_f
 """How often an endpoint in ``connect`` that does not answer is tried again (Zenoh's default
 starts at 1 s and grows to 4 s, so a subscriber started before the daemon missed its first
 seconds; a refused TCP connection costs next to nothing)."""
+
+
+def check_zenoh_file(path: Path) -> None:
+    """Refuse a Zenoh config file before Zenoh parses it: missing or unreadable (66, as any
+    input a configuration names), not a regular file (66), too large, or nested too deep for
+    Zenoh's parser (whose stack overflows on it: the process would die by SIGSEGV) (78)."""
+    try:
+        data = read_input_file(path, "a Zenoh config file", too_large=ConfigError)
+    except OSError as exc:
+        reason = "no such file" if isinstance(exc, FileNotFoundError) else exc.strerror
+        raise MissingInputError(
+            f"{shown(path)}: cannot read the Zenoh config file: {reason} (zenoh.config_file)"
+        ) from exc
+    syntax: Syntax = "yaml" if path.suffix in (".yaml", ".yml") else "json5"
+    check_depth(
+        data.decode("utf-8", "replace"), syntax, f"{shown(path)} (zenoh.config_file)", ConfigError
+    )
 
 
 DEFAULT_LISTEN: dict[str, list[str]] = {
@@ -84,8 +103,7 @@ def session_config(cfg: ZenohConfig, *, consumer: bool = False) -> zenoh.Config:
     given = cfg.model_fields_set if cfg.config_file is not None else set(ZenohConfig.model_fields)
     if cfg.config_file is not None:
         name = text_path(cfg.config_file, "Zenoh config", ConfigError)
-        with contextlib.suppress(OSError):  # a file that is not there: Zenoh's words for it
-            check_input_file(name, "a Zenoh config file", too_large=ConfigError)
+        check_zenoh_file(cfg.config_file)
         try:
             zc = zenoh.Config.from_file(name)
         except zenoh.ZError as exc:

@@ -45,12 +45,14 @@ from pydantic import (
 from .calibration import Calibration
 from .errors import (
     InputError,
+    Interrupted,
     MissingInputError,
     OutputError,
     StereodError,
     describe_validation_error,
 )
 from .frames import Eye, Frame
+from .nesting import check_depth
 from .paths import MAX_TIMESTAMP_BYTES, path_problem, read_input_file, text_path
 from .versioned import known_format, warn_unknown_fields
 
@@ -122,6 +124,15 @@ class Manifest(BaseModel):
     def _known_format(cls, v: Any) -> Any:
         return known_format(v, FORMAT)
 
+    @field_validator("color", mode="before")
+    @classmethod
+    def _strict_color(cls, v: Any) -> Any:
+        """true or false only: ``"yes"`` or ``1`` would be taken for colour, and every grey
+        frame then for damage."""
+        if not isinstance(v, bool):
+            raise ValueError("must be true or false (JSON booleans)")
+        return v
+
     @field_validator("calibration")
     @classmethod
     def _valid_calibration(cls, v: dict[str, Any] | None) -> dict[str, Any] | None:
@@ -156,6 +167,7 @@ def read_manifest(directory: Path) -> Manifest:
         ) from exc
     except OSError as exc:
         raise MissingInputError(f"{path}: cannot read the manifest: {exc.strerror}") from exc
+    check_depth(data.decode("utf-8", "replace"), "json", str(path), InputError)
     try:
         man = Manifest.model_validate_json(data)
     except ValidationError as exc:
@@ -378,10 +390,12 @@ class RecordingWriter:
     place when the writer closes, so a recording that fails before its first frame leaves
     nothing behind, and an existing directory is never written into: ``directory`` must not
     exist or be empty. A failure after frames were written still moves them into place (the
-    manifest counts what was written), so what was recorded is kept. A file system running out
-    of space stops the recording with :class:`~stereod.errors.OutputError`, and so does a
-    frame size the video writer cannot store as it is (see :func:`size_problem`), before
-    anything is written.
+    manifest counts what was written), so what was recorded is kept; a signal's
+    :class:`~stereod.errors.Interrupted` drops it instead (a render that ``synth`` did not
+    finish is no recording; ``record`` ends on a signal normally, with its frames). A file
+    system running out of space stops the recording with :class:`~stereod.errors.OutputError`,
+    and so does a frame size the video writer cannot store as it is (see
+    :func:`size_problem`), before anything is written.
 
     ``color`` says whether the videos hold BGR (True) or grey (False) frames; a frame of the
     other kind is converted. ``None`` lets the first frame written decide (BGR stays BGR, grey
@@ -605,7 +619,8 @@ class RecordingWriter:
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
-        if exc_type is None or (self.frames and issubclass(exc_type, StereodError)):
+        failed = exc_type is not None and not issubclass(exc_type, Interrupted)
+        if exc_type is None or (self.frames and failed and issubclass(exc_type, StereodError)):
             self.close()
         else:
             self.discard()

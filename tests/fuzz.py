@@ -114,3 +114,76 @@ def toml_document(tables: dict[str, dict[str, Any]]) -> str:
         out.append(f"[{json.dumps(name)}]")
         out += [f"{json.dumps(k)} = {toml_value(v)}" for k, v in table.items() if v is not None]
     return "\n".join(out) + "\n"
+
+
+depths = st.one_of(st.integers(1, 80), st.integers(500, 3000), st.integers(50_000, 200_000))
+"""How deep a text nests: shallow (accepted), past Python's recursion limit, past the stack
+of a native parser (Zenoh's JSON5, OpenCV's FileStorage: SIGSEGV before the bounds)."""
+
+huge_numbers = st.one_of(
+    st.integers(1001, 6000).map(lambda n: "9" * n),
+    st.integers(-(2**300), 2**300).map(str),
+    st.sampled_from(
+        ["1e308", "-1e308", "1e400", "2147483648", "9223372036854775808", "1" + "0" * 4301]
+    ),
+)
+"""Numbers as text: past int32 and int64, past float64, past Python's 4300-digit limit."""
+
+
+def nested(depth: int, open_: str, close: str, inner: str = "1") -> str:
+    """``inner`` inside ``depth`` pairs of ``open_`` and ``close`` (built without recursion)."""
+    return open_ * depth + inner + close * depth
+
+
+@st.composite
+def deep_toml(draw: st.DrawFn) -> str:
+    """A TOML document nesting ``depths`` deep: arrays, inline tables, dotted keys or a
+    table header, in a field of the config."""
+    n = draw(depths)
+    kind = draw(st.sampled_from(["array", "inline", "dotted", "header"]))
+    if kind == "array":
+        return f"[zenoh]\nconnect = {nested(n, '[', ']', draw(huge_numbers))}\n"
+    if kind == "inline":
+        return f"[driver.options]\na = {nested(n, '{a = ', '}', draw(huge_numbers))}\n"
+    keys = ".".join(["a"] * min(n, 5000))
+    if kind == "dotted":
+        return f"[driver.options]\n{keys} = 1\n"
+    return f"[driver.options.{keys}]\nb = 1\n"
+
+
+@st.composite
+def deep_json(draw: st.DrawFn) -> str:
+    """A JSON (or JSON5) text nesting ``depths`` deep in arrays or objects."""
+    n = draw(depths)
+    inner = draw(huge_numbers)
+    if draw(st.booleans()):
+        return nested(n, "[", "]", inner)
+    return '{"mode": "peer", "a": ' + nested(n, '{"a": ', "}", inner) + "}"
+
+
+@st.composite
+def deep_storage(draw: st.DrawFn) -> tuple[str, str]:
+    """An OpenCV FileStorage text (suffix, text) nesting ``depths`` deep: YAML flow
+    sequences, YAML indentation or ``- - -`` sequences, XML elements or JSON arrays."""
+    n = draw(depths)
+    number = draw(huge_numbers)
+    kind = draw(st.sampled_from(["yaml-flow", "yaml-block", "yaml-dash", "xml", "json"]))
+    if kind == "yaml-flow":
+        return ".yml", f"%YAML:1.0\n---\nM1: {nested(n, '[', ']', number)}\n"
+    if kind == "yaml-block":
+        n = min(n, 3000)  # lines of up to n spaces: the file stays below its size bound
+        body = "".join(" " * i + f"a{i}:\n" for i in range(n))
+        return ".yml", f"%YAML:1.0\n---\nM1:\n{body}{' ' * n}x: {number}\n"
+    if kind == "yaml-dash":
+        return ".yml", f"%YAML:1.0\n---\nM1:\n  {'- ' * n}{number}\n"
+    if kind == "xml":
+        body = nested(n, "<a>", "</a>", number)
+        return ".xml", f'<?xml version="1.0"?>\n<opencv_storage>{body}</opencv_storage>\n'
+    return ".json", '{"M1": ' + nested(n, "[", "]", number) + "}"
+
+
+def not_killed(returncode: int, what: str = "") -> None:
+    """Assert that a process ended by itself: not by a signal (a negative return code from
+    subprocess, or 128 + n from a shell: 139 is SIGSEGV), whatever it was given."""
+    assert returncode >= 0, f"killed by signal {-returncode} {what}"
+    assert not 128 < returncode <= 128 + 64, f"exit {returncode}: a signal's code {what}"

@@ -196,18 +196,18 @@ def _pairs_calibration(*more: str) -> list[str]:
 
 
 def test_an_output_that_cannot_be_written_is_refused_before_calibrating(tmp_path: Path) -> None:
-    """A folder, one of the inputs, or a file in a folder that does not exist as --out: one
-    line and exit 73 before any pair is looked at (nothing on stdout, no report), the input
+    """A folder, one of the inputs (64), or a file in a folder that does not exist as --out
+    (73): one line before any pair is looked at (nothing on stdout, no report), the input
     left as it was and no folder made (as for every output file: --jsonl, --mcap, plot -o)."""
     image = shared_data("opencv_stereo", "left01.jpg")
     before = image.read_bytes()
-    for out, said in (
-        (tmp_path, "is a directory; give the name of a file"),
-        (image, "is an input of this run"),
-        (tmp_path / "no" / "dir" / "c.json", f"folder {tmp_path}/no/dir does not exist; create"),
+    for out, code, said in (
+        (tmp_path, 73, "is a directory; give the name of a file"),
+        (image, 64, "is an input of this run"),
+        (tmp_path / "no" / "dir" / "c.json", 73, f"folder {tmp_path}/no/dir does not exist"),
     ):
         res = stereod(*_pairs_calibration("--out", str(out)))
-        one_line_error(res, 73, f"{out}: .*{said}")
+        one_line_error(res, code, f"{out}: .*{said}")
         assert res.stdout == ""
     assert image.read_bytes() == before
     assert list(tmp_path.iterdir()) == []
@@ -218,9 +218,12 @@ def test_live_output_is_checked_before_collecting(tmp_path: Path) -> None:
     it reads (it used to read the whole stream and then fail, or not even say so)."""
     rec = write_scene(Scene(width_px=64, height_px=48, duration_s=0.4, fps=10), tmp_path / "rec")
     live = ["calibrate", "--live", "--recording", str(rec), "--board", "9x6", "--square", "1"]
-    for out, said in ((rec, "is a directory"), (rec / "left.csv", "is an input of this run")):
+    for out, code, said in (
+        (rec, 73, "is a directory"),
+        (rec / "left.csv", 64, "is an input of this run"),
+    ):
         res = stereod(*live, "--out", str(out))
-        one_line_error(res, 73, f"{out}: .*{said}")
+        one_line_error(res, code, f"{out}: .*{said}")
 
 
 def test_an_image_without_its_partner_is_rejected_by_name(tmp_path: Path) -> None:

@@ -8,14 +8,23 @@ import json
 from pathlib import Path
 
 import numpy as np
-from hypothesis import example, given
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from stereod.calibration import Calibration, canonical, import_opencv, load
 from stereod.errors import StereodError
 from stereod.geometry.rectified import CalibratedRig
 
-from .fuzz import FUZZ, accepted_or_refused, digest, json_values
+from .fuzz import (
+    FUZZ,
+    SYSEXITS,
+    accepted_or_refused,
+    deep_storage,
+    digest,
+    json_values,
+    not_killed,
+)
+from .processes import run_stereod
 
 GOOD = json.loads(canonical(0.06, 60.0, 64, 48).model_dump_json())
 MATRICES = ["K1", "D1", "K2", "D2", "R", "T", "R1", "R2", "P1", "P2", "Q"]
@@ -180,3 +189,29 @@ def test_opencv_import_any_bytes(tmp_path_factory, data: bytes, suffix: str) -> 
     (d / f"extrinsics{suffix}").write_bytes(data)
     result = accepted_or_refused(import_opencv, intr, None, (64, 48))
     assert isinstance(result, StereodError)
+
+
+@settings(FUZZ, max_examples=8, deadline=None)  # whole processes: each takes about a second
+@given(storage=deep_storage(), command=st.sampled_from(["import", "list"]))
+@example(storage=(".yml", "%YAML:1.0\n---\nM1: " + "[" * 100_000 + "]" * 100_000), command="import")
+@example(storage=(".xml", '<?xml version="1.0"?>\n' + "<a>" * 100_000), command="list")
+def test_deeply_nested_storage_in_a_process(
+    tmp_path_factory, storage: tuple[str, str], command: str
+) -> None:
+    """A FileStorage file nesting far deeper than any real one (OpenCV's parser overflowed
+    its stack on it: SIGSEGV), or holding numbers of thousands of digits, as ``calibration
+    import`` and ``calibrate --list`` read it: one line and a sysexits code, never a signal."""
+    suffix, text = storage
+    d = tmp_path_factory.mktemp("deep")
+    path = d / f"intrinsics{suffix}"
+    path.write_text(text)
+    out = str(d / "c.json")
+    if command == "import":
+        argv = ["calibration", "import", str(path), "--size", "64x48", "--out", out]
+    else:
+        argv = ["calibrate", "--list", str(path), "--board", "9x6", "--square", "1", "--out", out]
+    res = run_stereod(*argv, timeout=120, cwd=d)
+    not_killed(res.returncode, res.stderr[-300:])
+    assert res.returncode in SYSEXITS - {70}, res.stderr
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr

@@ -636,3 +636,22 @@ def test_replay_with_calibration_file(scene_dir: tuple[Scene, Path], tmp_path: P
         78,
         "made for 320x240 frames, the stream is 640x480",
     )
+
+
+def test_the_crash_log_holds_arguments_that_are_not_utf8(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An argv with bytes that are not UTF-8 (as a shell passes ``$'caf\\xe9'``) is written
+    to the crash log escaped; the log used to fail on it and stay empty."""
+    from stereod.cli import crash_log
+
+    monkeypatch.setenv("STEREOD_CRASH_DIR", str(tmp_path))
+    monkeypatch.setattr("sys.argv", ["stereod", "plot", "--title", "caf\udce9"])
+    try:
+        raise RuntimeError("a bug")
+    except RuntimeError as exc:
+        path = crash_log(exc)
+    assert path is not None
+    text = path.read_text()
+    assert text.splitlines()[0].endswith(": stereod plot --title caf\\udce9")
+    assert "RuntimeError: a bug" in text

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from stereod.cli import build_parser
 from stereod_fakes.synth import Ball, Scene, write_scene
 
-from .fuzz import EXAMPLES, FUZZ, SYSEXITS, digest
+from .fuzz import EXAMPLES, FUZZ, SYSEXITS, digest, huge_numbers, not_killed
 from .processes import run_stereod
 
 PARSER = build_parser()
@@ -43,6 +43,7 @@ values = st.one_of(
     st.text(max_size=12),
     st.floats(allow_nan=True, allow_infinity=True).map(repr),
     st.integers(-(2**70), 2**70).map(str),
+    huge_numbers,
     st.sampled_from(
         ["nan", "-1", "0", "1e-300", "1e400", "100000x100", "0x0", "r\udcff", "a//b", "heading=nan"]
     ),
@@ -77,6 +78,7 @@ def command_lines(draw: st.DrawFn) -> list[str]:
 @example(argv=["demo", "--heading", "nan"])
 @example(argv=["subscribe", "--count", "-1"])
 @example(argv=["replay", "r\udcff"])
+@example(argv=["view", "--foxglove-port", "9" * 1001])  # OverflowError: an int is no float
 def test_every_flag_parses_or_is_one_line_64(argv: list[str]) -> None:
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
@@ -128,6 +130,7 @@ def test_whole_runs(tmp_path_factory, recording: Path, command: str, flags: list
     except subprocess.TimeoutExpired:
         pytest.fail(f"stereod {' '.join(argv + extra)!r} hung")
     lines = res.stderr.splitlines()
+    not_killed(res.returncode, res.stderr)
     assert res.returncode in {0} | (SYSEXITS - {70}), res.stderr
     assert "Traceback" not in res.stderr, res.stderr
     if res.returncode:

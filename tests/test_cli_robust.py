@@ -193,7 +193,7 @@ ROWS = [
     Row(
         "--jsonl is an input",
         ["replay", "{d}/rec", "--rate", "0", "--jsonl", "{d}/rec/left.csv"],
-        73,
+        64,
         "that is an input of this run",
         recording,
     ),
@@ -415,14 +415,14 @@ ROWS = [
             "--out",
             "{d}/intrinsics.yml",
         ],
-        73,
+        64,
         "--out .*intrinsics.yml: that is an input of this run",
         lambda d: opencv_files(d),
     ),
     Row(
         "calibration export over the calibration",
         ["calibration", "export", "{d}/left.yaml", "--ros", "{d}"],
-        73,
+        64,
         "--ros .*left.yaml: that is an input of this run",
         lambda d: save(canonical(0.06, 60.0, W, H), d / "left.yaml"),
     ),
@@ -437,6 +437,240 @@ ROWS = [
         ),
     ),
 ]
+
+
+def replay_config(d: Path) -> None:
+    """A recording and a config whose replay driver reads it."""
+    recording(d)
+    (d / "c.toml").write_text(f'[driver]\nname = "replay"\n[driver.options]\npath = "{d}/rec"\n')
+
+
+def run_jsonl(d: Path) -> None:
+    """A run's JSONL under a figure's name (r.png), and a truth CSV."""
+    (d / "r.png").write_text('{"schema": "stereod.objects/1"}\n')
+    (d / "truth.csv").write_text("object,t_ns,x_m,y_m,z_m\nb,0,0,0,1\n")
+
+
+def played(d: Path) -> None:
+    """A recording and the JSONL of its replay, r.jsonl."""
+    recording(d)
+    res = run_stereod("replay", str(d / "rec"), "--rate", "0", "-q", "--jsonl", str(d / "r.jsonl"))
+    assert res.returncode == 0, res.stderr
+
+
+def deep_zenoh(d: Path) -> None:
+    n = 100_000
+    (d / "z.json5").write_text("{mode: " + "[" * n + "]" * n + "}")
+    (d / "c.toml").write_text(f'[zenoh]\nconfig_file = "{d}/z.json5"\n')
+
+
+def deep_storage(d: Path, suffix: str) -> None:
+    n = 100_000
+    text = {
+        ".yml": "%YAML:1.0\n---\nM1: " + "[" * n + "]" * n + "\n",
+        ".xml": '<?xml version="1.0"?>\n<opencv_storage>'
+        + "<a>" * n
+        + "</a>" * n
+        + "</opencv_storage>\n",
+        ".json": '{"M1": ' + "[" * n + "]" * n + "}\n",
+    }[suffix]
+    (d / f"intrinsics{suffix}").write_text(text)
+
+
+NESTED_TOML = "a = " + "[" * 520 + "]" * 520 + "\n"
+
+OUTPUT_IS_INPUT = [
+    Row(
+        "record --mcap over the replayed left video",
+        ["record", "{d}/new", "--config", "{d}/c.toml", "--mcap", "{d}/rec/left.mkv"],
+        64,
+        r"--mcap .*rec/left\.mkv: that is an input of this run",
+        replay_config,
+    ),
+    Row(
+        "record --mcap over the replayed right CSV",
+        ["record", "{d}/new", "--config", "{d}/c.toml", "--mcap", "{d}/rec/right.csv"],
+        64,
+        r"--mcap .*rec/right\.csv: that is an input of this run",
+        replay_config,
+    ),
+    Row(
+        "record --mcap over its config",
+        ["record", "{d}/new", "--config", "{d}/c.toml", "--mcap", "{d}/c.toml"],
+        64,
+        r"--mcap .*c\.toml: that is an input of this run",
+        replay_config,
+    ),
+    Row(
+        "plot -o over its run",
+        ["plot", "{d}/r.png", "-o", "{d}/r.png"],
+        64,
+        r"--out .*r\.png: that is an input of this run",
+        run_jsonl,
+    ),
+    Row(
+        "plot -o a hard link to --truth",
+        ["plot", "{d}/r.png", "--truth", "{d}/truth.csv", "-o", "{d}/fig.png"],
+        64,
+        r"--out .*fig\.png: that is an input of this run \(.*truth\.csv\)",
+        lambda d: (run_jsonl(d), os.link(d / "truth.csv", d / "fig.png")),
+    ),
+    Row(
+        "export --mcap a symbolic link to the manifest",
+        ["export", "{d}/rec", "--mcap", "{d}/link.mcap"],
+        64,
+        r"--mcap .*link\.mcap: that is an input of this run \(.*recording\.json\)",
+        lambda d: (recording(d), (d / "link.mcap").symlink_to(d / "rec" / "recording.json")),
+    ),
+    Row(
+        "replay --jsonl a hard link to the config",
+        ["replay", "{d}/rec", "--rate", "0", "--config", "{d}/c.toml", "--jsonl", "{d}/h.jsonl"],
+        64,
+        r"--jsonl .*h\.jsonl: that is an input of this run \(.*c\.toml\)",
+        lambda d: (replay_config(d), os.link(d / "c.toml", d / "h.jsonl")),
+    ),
+    Row(
+        "replay --mcap over a plain video",
+        [
+            "replay",
+            "--left-video",
+            "{d}/rec/left.mkv",
+            "--right-video",
+            "{d}/rec/right.mkv",
+            "--fps",
+            "15",
+            "--mcap",
+            "{d}/rec/right.mkv",
+        ],
+        64,
+        r"--mcap .*right\.mkv: that is an input of this run",
+        recording,
+    ),
+    Row(
+        "calibration import --out a hard link to the extrinsics",
+        ["calibration", "import", "{d}/intrinsics.yml", "--size", "64x48", "--out", "{d}/c.json"],
+        64,
+        r"--out .*c\.json: that is an input of this run \(.*extrinsics\.yml\)",
+        lambda d: (opencv_files(d), os.link(d / "extrinsics.yml", d / "c.json")),
+    ),
+]
+
+PARSERS_BOUNDED = [
+    Row(
+        "Zenoh config file nested 100000 deep",
+        ["run", "--check", "--config", "{d}/c.toml"],
+        78,
+        r"z\.json5 \(zenoh\.config_file\): nested deeper than 64 levels",
+        deep_zenoh,
+    ),
+    Row(
+        "config TOML nested 520 deep",
+        ["run", "--check", "--config", "{d}/c.toml"],
+        78,
+        r"c\.toml: nested deeper than 64 levels",
+        lambda d: (d / "c.toml").write_text(NESTED_TOML),
+    ),
+    Row(
+        "config TOML dotted keys 520 deep",
+        ["run", "--check", "--config", "{d}/c.toml"],
+        78,
+        r"c\.toml: nested deeper than 64 levels",
+        lambda d: (d / "c.toml").write_text("[driver.options]\n" + "a." * 520 + "b = 1\n"),
+    ),
+    Row(
+        "environment JSON nested 520 deep",
+        ["run", "--check"],
+        78,
+        r"environment variable STEREOD_ZENOH__CONNECT: nested deeper than 64 levels",
+        env={"STEREOD_ZENOH__CONNECT": "[" * 520 + "]" * 520},
+    ),
+    Row(
+        "number of 5000 digits in the config",
+        ["run", "--check", "--config", "{d}/c.toml"],
+        78,
+        r"c\.toml: holds a number of more than 1000 digits",
+        lambda d: (d / "c.toml").write_text("[detector]\nbeta = " + "9" * 5000 + "\n"),
+    ),
+    *[
+        Row(
+            f"calibration import of a FileStorage {suffix} nested 100000 deep",
+            [
+                "calibration",
+                "import",
+                f"{{d}}/intrinsics{suffix}",
+                "--size",
+                "64x48",
+                "--out",
+                "{d}/c.json",
+            ],
+            65,
+            rf"intrinsics\{suffix}: nested deeper than 64 levels",
+            lambda d, suffix=suffix: deep_storage(d, suffix),
+        )
+        for suffix in (".yml", ".xml", ".json")
+    ],
+    Row(
+        "calibrate --list of a FileStorage nested 100000 deep",
+        ["calibrate", "--list", "{d}/intrinsics.yml", "--board", "9x6", "--square", "1"],
+        65,
+        r"intrinsics\.yml: nested deeper than 64 levels",
+        lambda d: deep_storage(d, ".yml"),
+    ),
+    Row(
+        "plot --truth of 1e308",
+        ["plot", "{d}/r.jsonl", "--truth", "{d}/t.csv", "-o", "{d}/fig.png"],
+        65,
+        r"t\.csv:2: x_m = 1e\+308 is out of range",
+        lambda d: (
+            played(d),
+            (d / "t.csv").write_text("object,t_ns,x_m,y_m,z_m\nb,0,1e308,1e308,1\n"),
+        ),
+    ),
+]
+
+NOT_UTF8_ARGUMENTS = [
+    Row(
+        "subscribe key expression not UTF-8",
+        ["subscribe", "stereod/\udcff"],
+        64,
+        r"stereod subscribe: keyexpr stereod/\\udcff: not valid UTF-8",
+    ),
+    Row(
+        "plot --title not UTF-8",
+        ["plot", "{d}/r.png", "-o", "{d}/fig.png", "--title", "caf\udce9"],
+        64,
+        r"stereod plot: --title caf\\udce9: not valid UTF-8",
+        run_jsonl,
+    ),
+    Row(
+        "view --host not UTF-8",
+        ["view", "--host", "\udcff"],
+        64,
+        r"stereod view: --host \\udcff: not valid UTF-8",
+    ),
+]
+
+MINOR = [
+    Row(
+        "missing Zenoh config file",
+        ["run", "--check", "--config", "{d}/c.toml"],
+        66,
+        r"nosuch\.json5: cannot read the Zenoh config file: no such file \(zenoh\.config_file\)",
+        lambda d: (d / "c.toml").write_text(f'[zenoh]\nconfig_file = "{d}/nosuch.json5"\n'),
+    ),
+    Row(
+        'manifest "color": "yes"',
+        ["replay", "{d}/rec", "--rate", "0"],
+        65,
+        r"rec/recording\.json: color = 'yes': must be true or false",
+        lambda d: (
+            recording(d),
+            edit(d / "rec" / "recording.json", '"color": false', '"color": "yes"'),
+        ),
+    ),
+]
+
+ROWS += OUTPUT_IS_INPUT + PARSERS_BOUNDED + NOT_UTF8_ARGUMENTS + MINOR
 
 
 def files_in(d: Path) -> dict[Path, str]:

@@ -9,7 +9,7 @@ import os
 from pathlib import Path
 from unittest import mock
 
-from hypothesis import example, given
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from stereod.cli.common import load_checked
@@ -19,7 +19,18 @@ from stereod_fakes.replay import ReplayOptions
 from stereod_fakes.synth import Scene, SynthFlags
 from stereod_v4l2_minoru.driver import MinoruOptions
 
-from .fuzz import FUZZ, accepted_or_refused, digest, toml_document, toml_values
+from .fuzz import (
+    FUZZ,
+    SYSEXITS,
+    accepted_or_refused,
+    deep_json,
+    deep_toml,
+    digest,
+    not_killed,
+    toml_document,
+    toml_values,
+)
+from .processes import run_stereod
 
 SECTIONS = {
     name: sorted(field.annotation.model_fields)  # type: ignore[union-attr]
@@ -113,3 +124,41 @@ def test_environment(env: dict[str, str]) -> None:
         result = accepted_or_refused(load_checked, None, {})
     if not isinstance(result, StereodError):
         assert isinstance(result[0], StereodConfig)
+
+
+@FUZZ
+@given(text=deep_toml())
+@example(text="a = " + "[" * 520 + "]" * 520 + "\n")
+def test_deeply_nested_toml(tmp_path_factory, text: str) -> None:
+    """TOML nesting deeper than any config (tomllib's recursion ran out at ~500 levels: an
+    internal error, 70), or holding numbers of thousands of digits: accepted or one line."""
+    path = tmp_path_factory.mktemp("toml") / "c.toml"
+    path.write_text(text)
+    check_file(path)
+
+
+@FUZZ
+@given(value=deep_json())
+@example(value="[" * 100_000 + "]" * 100_000)
+def test_deeply_nested_environment_json(value: str) -> None:
+    """A list or table variable given as deeply nested JSON: accepted or one line."""
+    clean = {k: v for k, v in os.environ.items() if not k.upper().startswith("STEREOD_")}
+    with mock.patch.dict(os.environ, {**clean, "STEREOD_ZENOH__CONNECT": value}, clear=True):
+        accepted_or_refused(load_checked, None, {})
+
+
+@settings(FUZZ, max_examples=6, deadline=None)  # whole processes: each takes about a second
+@given(text=deep_json())
+@example(text="{mode: " + "[" * 100_000 + "]" * 100_000 + "}")
+def test_deeply_nested_zenoh_file_in_a_process(tmp_path_factory, text: str) -> None:
+    """A Zenoh config file (JSON5) nesting far deeper than any real one, as ``run --check``
+    reads it: Zenoh's parser overflowed its stack on it (SIGSEGV, and a daemon restarted
+    into it for ever); now one line and exit 78, or accepted, never a signal."""
+    d = tmp_path_factory.mktemp("zenoh")
+    (d / "z.json5").write_text(text)
+    (d / "c.toml").write_text(f'[zenoh]\nconfig_file = "{d / "z.json5"}"\n')
+    res = run_stereod("run", "--check", "--config", str(d / "c.toml"), timeout=120, cwd=d)
+    not_killed(res.returncode, res.stderr[-300:])
+    assert res.returncode in {0} | (SYSEXITS - {70}), res.stderr
+    if res.returncode:
+        assert len(res.stderr.splitlines()) == 1, res.stderr

@@ -486,6 +486,27 @@ def test_corrupt_line_leaves_output_untouched(
     assert_untouched(out, before)
 
 
+@pytest.mark.parametrize("track_id", [2**31, 2**40, -1])
+def test_track_id_beyond_int32_is_one_line_65(
+    recorded: Recorded, previous: tuple[Path, bytes], tmp_path: Path, track_id: int
+) -> None:
+    """A track id a ROS marker (int32) cannot carry: exit 65 naming the file, line and id
+    (it was struct.error deep in the CDR writer: an internal error, 70); nothing replaced."""
+    out, before = previous
+    bad = tmp_path / "big.jsonl"
+    messages = [json.loads(x) for x in recorded.lines]
+    n = next(i for i, m in enumerate(messages) if m["objects"])
+    messages[n]["objects"][0]["track_id"] = track_id
+    bad.write_text("".join(json.dumps(m) + "\n" for m in messages))
+    res = stereod("export", "--jsonl", str(bad), "--mcap", str(out), *GEOMETRY)
+    assert res.returncode == 65, res.stderr
+    assert res.stderr.splitlines() == [
+        f"stereod: {bad} line {n + 1}: track_id {track_id} is outside 0..2147483647, the ids "
+        "a ROS marker (int32) can carry; regenerate the file with `stereod replay --jsonl`"
+    ]
+    assert_untouched(out, before)
+
+
 def test_failure_while_writing_removes_the_temporary(
     recorded: Recorded, previous: tuple[Path, bytes], tmp_path: Path
 ) -> None:
@@ -727,7 +748,7 @@ def test_output_that_is_an_input_is_refused(recorded: Recorded) -> None:
         ["replay", str(recorded.rec), "--rate", "0", "--mcap", str(video)],
     ):
         res = stereod(*cmd)
-        assert res.returncode == 73, res.stderr
+        assert res.returncode == 64, res.stderr  # a usage error, as every output that is an input
         assert "--mcap" in res.stderr and "input" in res.stderr
     assert video.read_bytes() == before
 

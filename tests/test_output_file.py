@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from stereod.errors import OutputError, ReaderGone
-from stereod.output_file import AtomicOutput, give_up_writing, output_target
+from stereod.errors import OutputError, ReaderGone, UsageError
+from stereod.output_file import AtomicOutput, check_outputs, give_up_writing, output_target
 
 
 def test_a_regular_file_is_replaced_by_rename_and_a_link_is_written_through(
@@ -135,3 +135,36 @@ def test_a_reader_that_reads_gets_everything() -> None:
 def _drain(fd: int, into: bytearray) -> None:
     while chunk := os.read(fd, 65536):
         into.extend(chunk)
+
+
+def test_an_output_that_is_an_input_is_refused_through_links(tmp_path: Path) -> None:
+    """The one output rule against inputs: the same path, a symbolic link to an input (also
+    one that is not there yet: realpath), a hard link (st_dev/st_ino), a file inside an input
+    folder; one line naming the flag and the input, exit 64, nothing written."""
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    (rec / "left.mkv").write_bytes(b"video")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("")
+    os.link(cfg, tmp_path / "hard.mcap")
+    (tmp_path / "soft.mcap").symlink_to(rec / "left.mkv")
+    (tmp_path / "dangling.mcap").symlink_to(tmp_path / "later.csv")
+    cases = [
+        (tmp_path / "hard.mcap", cfg),
+        (tmp_path / "soft.mcap", rec / "left.mkv"),
+        (rec / "left.mkv", rec / "left.mkv"),
+        (tmp_path / "dangling.mcap", tmp_path / "later.csv"),
+    ]
+    for out, found in cases:
+        with pytest.raises(UsageError) as exc:
+            check_outputs({"--mcap": out}, [cfg, None, rec, tmp_path / "later.csv"])
+        assert exc.value.exit_code == 64
+        assert str(exc.value).startswith(f"--mcap {out}: that is an input of this run ({found})")
+    check_outputs({"--mcap": tmp_path / "new.mcap", "--jsonl": None}, [cfg, rec])
+    assert (rec / "left.mkv").read_bytes() == b"video" and cfg.read_text() == ""
+
+
+def test_two_outputs_that_are_one_file_are_refused(tmp_path: Path) -> None:
+    (tmp_path / "a.jsonl").symlink_to(tmp_path / "b.mcap")
+    with pytest.raises(UsageError, match=r"^--jsonl .*a\.jsonl and --mcap .*b\.mcap are the same"):
+        check_outputs({"--jsonl": tmp_path / "a.jsonl", "--mcap": tmp_path / "b.mcap"}, [])

@@ -258,3 +258,13 @@ def test_a_truth_or_run_that_cannot_be_read_is_one_line_and_exit_66(tmp_path: Pa
         what = "truth" if args else "run"
         assert r.stderr == f"stereod: {folder}: cannot read the {what} file: Is a directory\n"
     assert not (tmp_path / "fig.png").exists()
+
+
+def test_a_title_is_drawn_as_written_not_as_a_formula(tmp_path: Path) -> None:
+    """``--title '$x^{2$'`` (a dollar sign, unbalanced braces) is drawn literally: it was
+    parsed as mathtext and failed with an internal error (70)."""
+    run = _golden_run(tmp_path)
+    fig = tmp_path / "fig.png"
+    r = stereod("plot", str(run), "-o", str(fig), "--title", "$x^{2$ costs $5")
+    assert r.returncode == 0, r.stderr
+    assert _png_size(fig) == (int(FIGSIZE_IN[0] * DPI), int(FIGSIZE_IN[1] * DPI))

@@ -87,6 +87,23 @@ BAD: list[tuple[str, Callable[[Path, str], bytes | None], str]] = [
         "z.json5: invalid Zenoh config file",
     ),
     (
+        "a Zenoh file nested 100000 deep (its parser died by SIGSEGV)",
+        lambda d, e: (
+            (d / "deep.json5").write_text("{mode: " + "[" * 100_000 + "]" * 100_000 + "}"),
+            good(e).replace("[daemon]", f'config_file = "{d}/deep.json5"\n[daemon]').encode(),
+        )[1],
+        "deep.json5 (zenoh.config_file): nested deeper than 64 levels",
+    ),
+    (
+        "TOML nested 520 deep",
+        lambda d, e: (
+            good(e)
+            .replace("[driver.options]\n", "[driver.options]\nx = " + "[" * 520 + "]" * 520 + "\n")
+            .encode()
+        ),
+        "svc.toml: nested deeper than 64 levels",
+    ),
+    (
         "a bad endpoint",
         lambda d, e: good(e).replace(e, "tcp/127.0.0.1:99999").encode(),
         "zenoh.listen.0",

@@ -348,6 +348,11 @@ class MinoruDriver(Driver):
             paths.append(path)
         return paths[0], paths[1]
 
+    def inputs(self) -> list[Path]:
+        """The device nodes named in the options (those found on the bus are not files an
+        output could name by mistake)."""
+        return [Path(p) for p in (self.options.left, self.options.right) if p is not None]
+
     def open(self) -> StereoSource:
         left_path, right_path = self._paths()
         left = CameraEye(Eye.LEFT, self.options, left_path, self.io)

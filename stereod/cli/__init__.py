@@ -25,7 +25,17 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from .. import __version__
-from ..errors import EX_SOFTWARE, EX_USAGE, InternalError, ReaderGone, StereodError, one_line
+from ..errors import (
+    EX_SOFTWARE,
+    EX_USAGE,
+    InternalError,
+    Interrupted,
+    ReaderGone,
+    StereodError,
+    one_line,
+)
+from ..output_file import signal_name
+from ..paths import shown
 from .common import EPILOG_KEYS, quiet_third_party
 
 GROUP = "stereod.commands"
@@ -69,7 +79,33 @@ class Parser(argparse.ArgumentParser):
         parsed, extras = self.parse_known_args(args, namespace)
         if extras:
             self.command_parser(parsed).error(f"unrecognized arguments: {' '.join(extras)}")
+        self._refuse_undecodable(parsed)
         return parsed
+
+    def _refuse_undecodable(self, parsed: argparse.Namespace) -> None:
+        """Refuse (64) an argument that is not valid UTF-8 (bytes a terminal or a script
+        passed as they were, ``$'caf\\xe9'``): a key expression, a title or a host name
+        of such bytes fails deep in Zenoh, matplotlib or asyncio. A path was already refused
+        by its own type, naming it."""
+        for action in self._chosen_actions(parsed):
+            value = getattr(parsed, action.dest, None)
+            for item in value if isinstance(value, list) else [value]:
+                if isinstance(item, str) and not _is_text(item):
+                    flag = "/".join(action.option_strings) or str(action.metavar or action.dest)
+                    self.command_parser(parsed).error(
+                        f"{flag} {shown(item)}: not valid UTF-8 text; give it in UTF-8"
+                    )
+
+    def _chosen_actions(self, parsed: argparse.Namespace) -> list[argparse.Action]:
+        """The actions of this parser and of the (sub)commands ``parsed`` chose."""
+        found: list[argparse.Action] = []
+        for action in self._actions:
+            found.append(action)
+            if isinstance(action, argparse._SubParsersAction):
+                chosen = action.choices.get(getattr(parsed, action.dest, None) or "")
+                if isinstance(chosen, Parser):
+                    found += chosen._chosen_actions(parsed)
+        return found
 
     def command_parser(self, parsed: argparse.Namespace) -> Parser:
         """The parser of the (sub)command ``parsed`` chose, innermost first: this one when it
@@ -80,6 +116,15 @@ class Parser(argparse.ArgumentParser):
                 if isinstance(chosen, Parser):
                     return chosen.command_parser(parsed)
         return self
+
+
+def _is_text(value: str) -> bool:
+    """Whether ``value`` is valid text: no lone surrogates (undecodable bytes of argv)."""
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -112,21 +157,55 @@ def crash_log(exc: BaseException) -> Path | None:
     directory = Path(os.environ.get("STEREOD_CRASH_DIR") or tempfile.gettempdir())
     path = directory / f"stereod-crash-{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}.log"
     try:
-        with path.open("w") as fh:
+        # argv as it is, bytes that are not UTF-8 escaped (\xff): the log is always written
+        with path.open("w", encoding="utf-8", errors="backslashreplace") as fh:
             fh.write(f"stereod {__version__}: {' '.join(sys.argv)}\n")
             traceback.print_exception(exc, file=fh)
-    except OSError:
+    except Exception:  # no folder, a full disk: the one line says the details are lost
         return None
     return path
+
+
+def one_shot_signals(command: str) -> None:
+    """SIGTERM and SIGHUP (a closed terminal, ``kill -HUP``) end a one-shot command (every
+    one but the daemon, whose SIGHUP reloads) as Ctrl-C does: :class:`Interrupted` unwinds
+    it, so an output being written removes its temporary file and a recording being made
+    is finished or removed as its command says (exit 143 or 129). A command that handles
+    SIGTERM itself (``record``'s normal end, ``export``) sees SIGHUP through that same
+    handler, whenever it is installed."""
+
+    def on_term(signum: int, _frame: Any) -> None:
+        raise Interrupted(f"{command} interrupted by {signal_name(signum)}", signum)
+
+    def on_hup(signum: int, frame: Any) -> None:
+        handler = signal.getsignal(signal.SIGTERM)
+        if callable(handler):
+            handler(signum, frame)
+        elif handler != signal.SIG_IGN:
+            on_term(signum, frame)
+
+    if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, on_term)
+    signal.signal(signal.SIGHUP, on_hup)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``stereod`` console script; returns the exit code."""
     quiet_third_party()
+    saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        return _main(argv)
+    finally:  # a caller in this process (a test) gets its own handlers back
+        for signum, handler in saved.items():
+            if handler is not None:
+                signal.signal(signum, handler)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     try:
         args = build_parser().parse_args(argv)
-        if not getattr(args, "reloads_on_sighup", False) and hasattr(signal, "SIGHUP"):
-            signal.signal(signal.SIGHUP, signal.SIG_DFL)  # a closed terminal ends the command
+        if not getattr(args, "reloads_on_sighup", False):
+            one_shot_signals(args.command)
         code: int = args.func(args)
         return code
     except StereodError as exc:

@@ -11,9 +11,16 @@ from ..calibration import MIN_BOARD_CORNERS, Board, create_output, write
 from ..config import load_config
 from ..drivers import load_driver
 from ..frames import merged
-from ..output_file import check_not_input, stopped_by_signals
+from ..output_file import check_outputs, stopped_by_signals
 from ..progress import Progress
-from .common import add_config, add_driver, number, path_arg, recording_arg, size_arg
+from .common import (
+    add_config,
+    add_driver,
+    number,
+    path_arg,
+    recording_arg,
+    size_arg,
+)
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -131,7 +138,7 @@ def run(a: argparse.Namespace) -> int:
     if not a.live:
         pairs = cb.pairs_in_directory(a.pairs) if a.pairs else cb.pairs_from_list(a.list)
         images = [p for pair in pairs for p in pair]
-        check_not_input(a.out, [a.list, *images] if a.list else images, "--out")
+        check_outputs({"--out": a.out}, [a.list, *images])
 
     # The output is made before the work, so that one that cannot be written is refused first;
     # whatever ends the work early (a signal too) removes its temporary file.
@@ -175,13 +182,13 @@ def _live(a: argparse.Namespace, board: Board, limits: cb.Limits) -> cb.Report:
     cfg = load_config(a.config, ov)
     collector = cb.LiveCollector(board)
     driver = load_driver(cfg.driver.name, cfg.driver.options, origin=a.config)
-
+    # Not the config's calibration: this run does not read it, and replacing it is the point.
+    check_outputs({"--out": a.out}, [a.config, *driver.inputs()])
     with (
         driver.open() as source,
         Progress("pairs kept", total=a.wanted, unit="pair") as bar,
     ):
-        inputs = [p for p in (a.config, *source.info.inputs) if p is not None]
-        check_not_input(a.out, inputs, "--out")
+        check_outputs({"--out": a.out}, source.info.inputs)
         cb.collect_live(
             merged(source.left, source.right),
             collector,

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from .. import calibration as cal_mod
 from ..calibrate import Report, format_report
-from ..output_file import check_not_input
+from ..output_file import check_outputs
 from .common import path_arg, size_arg
 
 
@@ -64,13 +64,13 @@ def run(a: argparse.Namespace) -> int:
     if a.calibration_command == "export":
         cal = cal_mod.load(a.file)
         for eye in ("left", "right"):
-            check_not_input(a.ros / f"{eye}.yaml", [a.file], "--ros")
+            check_outputs({"--ros": a.ros / f"{eye}.yaml"}, [a.file])
         for path in cal_mod.export_ros(cal, a.ros):
             print(f"wrote {path}")
         return 0
     cal = cal_mod.import_opencv(a.intrinsics, a.extrinsics, a.size)
     extrinsics = a.extrinsics or a.intrinsics.with_name("extrinsics" + a.intrinsics.suffix)
-    check_not_input(a.out, [a.intrinsics, extrinsics], "--out")
+    check_outputs({"--out": a.out}, [a.intrinsics, extrinsics])
     cal_mod.save(cal, a.out)
     print(f"wrote {a.out} (calibration id {cal.id}, baseline |T| {cal.baseline:.5g})")
     return 0

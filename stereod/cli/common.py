@@ -48,19 +48,20 @@ def number(
     """An argparse type: a finite number in [lo, hi] (lo excluded when ``lo_open``)."""
 
     def parse(text: str) -> float | int:
+        shown = text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"
         try:
             value: float | int = int(text) if integer else float(text)
-        except ValueError:
+        except ValueError:  # also an integer of more than 4300 digits
             kind = "a whole number" if integer else "a number"
-            raise argparse.ArgumentTypeError(f"{text!r} is not {kind}") from None
-        if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number")
+            raise argparse.ArgumentTypeError(f"{shown!r} is not {kind}") from None
+        if isinstance(value, float) and not math.isfinite(value):  # an int always is
+            raise argparse.ArgumentTypeError(f"{shown!r} must be a finite number")
         u = f" {unit}" if unit else ""
         if lo is not None and (value <= lo if lo_open else value < lo):
             rel = ">" if lo_open else ">="
-            raise argparse.ArgumentTypeError(f"{text}: must be {rel} {lo:g}{u}")
+            raise argparse.ArgumentTypeError(f"{shown}: must be {rel} {lo:g}{u}")
         if hi is not None and value > hi:
-            raise argparse.ArgumentTypeError(f"{text}: must be <= {hi:g}{u}")
+            raise argparse.ArgumentTypeError(f"{shown}: must be <= {hi:g}{u}")
         return value
 
     return parse
@@ -271,6 +272,16 @@ def load_checked(path: Path | None, overrides: dict[str, Any]) -> tuple[Any, Any
     return cfg, driver
 
 
+def run_inputs(config: Path | None, cfg: Any, driver: Any = None) -> list[Path]:
+    """Every file a command that runs a configuration reads: the config file, the calibration
+    and Zenoh config file it names, and the driver's files (a recording folder, videos,
+    timestamp CSVs): what no output of the command may be."""
+    found: list[Path | None] = [config, cfg.rig.calibration, cfg.zenoh.config_file]
+    if driver is not None:
+        found += driver.inputs()
+    return [p for p in found if p is not None]
+
+
 def quiet_third_party() -> None:
     """Silence OpenCV's and FFmpeg's own messages on stderr: every problem they report (a
     file that does not open, a truncated video) reaches the user once, in our words."""
@@ -294,15 +305,22 @@ def setup_logging(level: str) -> None:
 
 
 def run_daemon(
-    daemon: Any, *, quiet: bool = False, problems_fail: bool = True, progress: Any = None
+    daemon: Any,
+    *,
+    quiet: bool = False,
+    problems_fail: bool = True,
+    progress: Any = None,
+    reloads: bool = True,
 ) -> int:
-    """Run until the input ends or a signal; SIGHUP reloads. With ``problems_fail`` (replay)
-    a run that hit input problems exits 65 after saying them in one line (notices, such as a
-    reload's or a change of the whole scene, do not count); a daemon exits 0 on
-    a clean stop, its problems having gone to the log and the status key, or 65 when its input
-    ended and was bad (a truncated recording played by the replay driver). A fatal error is
-    raised after the summary (its one line is the caller's to print). ``progress`` (a
-    :class:`~stereod.progress.Progress`) is closed before the summary is printed."""
+    """Run until the input ends or a signal; SIGHUP reloads when ``reloads`` (the daemon),
+    and otherwise ends the run as SIGTERM does (a replay is a one-shot command). With
+    ``problems_fail`` (replay) a run that hit input problems exits 65 after saying them in one
+    line (notices, such as a reload's or a change of the whole scene, do not count); a daemon
+    exits 0 on a clean stop, its problems having gone to the log and the status key, or 65
+    when its input ended and was bad (a truncated recording played by the replay driver). A
+    fatal error is raised after the summary (its one line is the caller's to print).
+    ``progress`` (a :class:`~stereod.progress.Progress`) is closed before the summary is
+    printed."""
     if problems_fail:
         daemon.health.log_problems = False
 
@@ -315,7 +333,7 @@ def run_daemon(
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGHUP, on_hup)
+    signal.signal(signal.SIGHUP, on_hup if reloads else on_signal)
     t0 = time.monotonic()
     try:
         summary = daemon.run()

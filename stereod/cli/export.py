@@ -13,8 +13,7 @@ import sys
 from ..calibration import load
 from ..errors import EX_DATAERR, ConfigError, one_line
 from ..export_mcap import export_run
-from ..output_file import check_not_input, stopped_by_signals
-from ..recording import recording_files
+from ..output_file import check_outputs, stopped_by_signals
 from .common import (
     add_canonical_rig,
     number,
@@ -100,10 +99,7 @@ def _export(a: argparse.Namespace) -> int:
         raise ConfigError(
             "nothing to export: give the run's recording directory and/or --jsonl RUN.jsonl"
         )
-    inputs = [p for p in (a.jsonl, a.calibration) if p is not None]
-    if a.recording is not None and a.recording.is_dir():
-        inputs += recording_files(a.recording)
-    check_not_input(a.mcap, inputs, "--mcap")
+    check_outputs({"--mcap": a.mcap}, [a.jsonl, a.calibration, a.recording])
     cal = load(a.calibration) if a.calibration is not None else None
     summaries_off_stdout(a.mcap)
     summary = export_run(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..output_file import check_outputs
 from ..plot import check_overlap, figure_target, plot_run, read_run, read_truth, summary
 from .common import path_arg
 
@@ -34,12 +35,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="figure to write; its suffix gives the format (png, pdf, svg, ...; .png added "
         "when it has none)",
     )
-    p.add_argument("--title", default="", help="a title above the figure")
+    p.add_argument(
+        "--title", default="", help="a title above the figure, drawn as written (no $math$)"
+    )
     p.set_defaults(func=run)
 
 
 def run(a: argparse.Namespace) -> int:
-    figure_target(a.out)
+    check_outputs({"--out": figure_target(a.out)[0]}, [a.run, a.truth])
     data = read_run(a.run)
     truth = read_truth(a.truth, data.t0_ns) if a.truth is not None else []
     if a.truth is not None:

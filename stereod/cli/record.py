@@ -19,7 +19,7 @@ from ..config import load_config
 from ..drivers import load_driver
 from ..frames import Eye, Frame, SourceInfo
 from ..mcap_run import RunMcap, config_geometry
-from ..output_file import check_not_input, signal_name
+from ..output_file import check_outputs, signal_name
 from ..progress import Progress
 from ..record import record
 from .common import (
@@ -28,6 +28,7 @@ from .common import (
     command_log_level,
     number,
     path_arg,
+    run_inputs,
     setup_logging,
 )
 
@@ -81,10 +82,9 @@ def run(a: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    check_outputs({"--mcap": a.mcap}, run_inputs(a.config, cfg, driver))
     mcap = None
     if a.mcap is not None:
-        inputs = [p for p in (a.config, cfg.rig.calibration) if p is not None]
-        check_not_input(a.mcap, inputs, "--mcap")
         mcap = RunMcap(a.mcap, rig=cfg.rig.name, geometry=config_geometry(cfg))
     with Progress("record", total=a.seconds, unit="s") as bar:
         progress = _RecordProgress(bar) if bar.shown else None

@@ -13,7 +13,6 @@ import contextlib
 import logging
 import signal
 import threading
-from pathlib import Path
 from typing import Any
 
 from ..config import StereodConfig, load_config
@@ -22,10 +21,10 @@ from ..drivers import load_driver
 from ..errors import ConfigError, ReaderGone, StereodError, UsageError
 from ..mcap_run import RunMcap, config_geometry
 from ..messages import DaemonState
-from ..output_file import Interrupted, check_not_input, signal_name, written_in_place
+from ..output_file import Interrupted, check_outputs, signal_name, written_in_place
 from ..progress import Progress
 from ..publish import Publisher
-from ..recording import read_manifest, recording_files
+from ..recording import read_manifest
 from .common import (
     EPILOG_KEYS,
     add_pipeline,
@@ -38,6 +37,7 @@ from .common import (
     pipeline_overrides,
     recording_arg,
     run_daemon,
+    run_inputs,
     say,
     setup_logging,
     stdout_gone,
@@ -111,7 +111,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_wait_subscriber(p, "playing")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary line")
     add_pipeline(p)
-    p.set_defaults(func=run, reloads_on_sighup=True)  # its handler comes with the daemon
+    p.set_defaults(func=run)
 
 
 def driver_options(a: argparse.Namespace) -> dict[str, Any]:
@@ -179,11 +179,13 @@ def run(a: argparse.Namespace) -> int:
     ov["driver"] = {"name": "replay", "options": options}
     cfg = load_config(a.config, ov)
     setup_logging(command_log_level(cfg))
-    mcap = _mcap(a, cfg, options)
+    driver = load_driver("replay", options)
+    check_outputs({"--jsonl": a.jsonl, "--mcap": a.mcap}, run_inputs(a.config, cfg, driver))
+    mcap = _mcap(a, cfg)
     summaries_off_stdout(a.jsonl, a.mcap)
     daemon = (_LoopReplay if a.loop else _Replay)(
         cfg,
-        load_driver("replay", options),
+        driver,
         rate=a.rate,
         jsonl=a.jsonl,
         wait_subscriber_s=a.wait_subscriber,
@@ -205,7 +207,7 @@ def run(a: argparse.Namespace) -> int:
         poll=lambda: (st.pairs, {"frames": sum(st.frames.values())}),
     )
     try:
-        code = run_daemon(daemon, quiet=a.quiet, progress=bar)
+        code = run_daemon(daemon, quiet=a.quiet, progress=bar, reloads=False)
     except Interrupted as exc:
         if mcap is not None:
             mcap.abort()
@@ -230,17 +232,10 @@ def run(a: argparse.Namespace) -> int:
     return code
 
 
-def _mcap(a: argparse.Namespace, cfg: StereodConfig, options: dict[str, Any]) -> RunMcap | None:
-    """The MCAP file of ``--mcap``, refused when it is one of the inputs or the JSONL."""
+def _mcap(a: argparse.Namespace, cfg: StereodConfig) -> RunMcap | None:
+    """The MCAP file of ``--mcap`` (checked against the inputs and the JSONL before)."""
     if a.mcap is None:
         return None
-    if a.jsonl is not None and a.mcap.resolve() == a.jsonl.resolve():
-        raise UsageError(f"--mcap {a.mcap} and --jsonl are the same file; give two names")
-    inputs = [Path(p) for k, p in options.items() if k != "loop" and k != "fps"]
-    inputs += [p for p in (a.config, cfg.rig.calibration) if p is not None]
-    if a.recording is not None and a.recording.is_dir():
-        inputs += recording_files(a.recording)
-    check_not_input(a.mcap, inputs, "--mcap")
     return RunMcap(a.mcap, rig=cfg.rig.name, geometry=config_geometry(cfg))
 
 
@@ -279,7 +274,8 @@ class _Replay(Daemon):
 
         watcher = threading.Thread(target=watch, name="signals", daemon=True)
         watcher.start()
-        previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        signums = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+        previous = {sig: signal.signal(sig, on_signal) for sig in signums}
         try:
             return super().run()
         finally:
