@@ -43,6 +43,18 @@ from pydantic import (
 )
 
 from . import keys
+from .bounds import (
+    ABSORB_S,
+    BASELINE_M,
+    FREEZE_S,
+    HFOV_DEG,
+    IMAGE_RATE_HZ,
+    MAX_COAST_S,
+    STATUS_PERIOD_S,
+    TIME_BASE_S,
+    TOLERANCE_MS,
+    not_bool,
+)
 from .detect import MAX_WARMUP_FRAMES, Centroid, DetectorParams, Luminance, Warmup
 from .errors import ConfigError, MissingInputError, UsageError, describe_error
 from .geometry.refine import RefineParams
@@ -63,6 +75,15 @@ DEFAULT_CONFIG_PATH = Path("/etc/stereod/stereod.toml")
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
+    @field_validator("*", mode="before")
+    @classmethod
+    def _numbers_are_not_bools(cls, v: Any, info: ValidationInfo) -> Any:
+        """A number field refuses true/false, which pydantic's lax mode reads as 1/0."""
+        kind = cls.model_fields[info.field_name or ""].annotation
+        if kind in (int, float) or typing.get_origin(kind) is tuple:
+            return not_bool(v)
+        return v
+
 
 # The defaults of the pipeline's settings are stated once, in its parameter classes.
 _DETECT = DetectorParams()
@@ -80,8 +101,13 @@ class RigConfig(_Section):
     """The stereo rig: its name in key expressions and the canonical geometry (eq. 9)."""
 
     name: str = Field(keys.DEFAULT_RIG, pattern=keys.RIG_PATTERN, description="Rig name in keys")
-    baseline_m: float = Field(0.060, gt=0.0, le=10.0, description="Camera distance B, m")
-    hfov_deg: float = Field(60.0, gt=0.0, lt=180.0, description="Horizontal field of view, deg")
+    # Bounds and their reasons: stereod.bounds (a Minoru's 0.060 m; UVC webcams' lenses).
+    baseline_m: Annotated[float, BASELINE_M.validator()] = Field(
+        0.060, description="Camera distance B, m"
+    )
+    hfov_deg: Annotated[float, HFOV_DEG.validator()] = Field(
+        60.0, description="Horizontal field of view, deg"
+    )
     calibration: TextPath | None = Field(
         None, description="Calibration file (stereod calibrate); without it, the canonical rig"
     )
@@ -129,8 +155,8 @@ class DetectorConfig(_Section):
     hold_margin_px: int = Field(
         _DETECT.hold_margin_px, ge=0, le=50, description="Growth of the held foreground, px"
     )
-    absorb_s: float = Field(
-        _DETECT.absorb_s, gt=0.0, le=3600.0, description="Foreground still this long is learned, s"
+    absorb_s: Annotated[float, ABSORB_S.validator()] = Field(
+        _DETECT.absorb_s, description="Foreground still this long is learned, s"
     )
     fill_holes: bool = Field(_DETECT.fill_holes, description="An object's support is filled")
     convex: bool = Field(_DETECT.convex, description="An object's support is convex")
@@ -174,8 +200,8 @@ class DetectorConfig(_Section):
 class PairingConfig(_Section):
     """How the two eyes are paired by timestamp."""
 
-    tolerance_ms: float = Field(
-        DEFAULT_TOLERANCE_NS / 1e6, gt=0.0, le=1000.0, description="Largest |skew|, ms"
+    tolerance_ms: Annotated[float, TOLERANCE_MS.validator()] = Field(
+        DEFAULT_TOLERANCE_NS / 1e6, description="Largest |skew|, ms"
     )
     max_pending: int = Field(8, ge=2, le=1000, description="Frames one eye may wait, count")
     skew_compensation: bool = Field(
@@ -243,9 +269,11 @@ class TrackingConfig(_Section):
     accel_noise: float = Field(
         _TRACK.accel_noise, gt=0.0, le=1e6, description="White acceleration density, m^2/s^3"
     )
-    time_base_s: float = Field(_TRACK.time_base_s, gt=0.0, le=60.0, description="tau of eq. 21, s")
-    max_coast_s: float = Field(
-        _TRACK.max_coast_s, ge=0.0, le=60.0, description="Track lives unseen, s"
+    time_base_s: Annotated[float, TIME_BASE_S.validator()] = Field(
+        _TRACK.time_base_s, description="tau of eq. 21, s"
+    )
+    max_coast_s: Annotated[float, MAX_COAST_S.validator()] = Field(
+        _TRACK.max_coast_s, description="Track lives unseen, s"
     )
     confirm_hits: int = Field(
         _TRACK.confirm_hits, ge=1, le=1000, description="Observations to confirm a track"
@@ -256,8 +284,8 @@ class TrackingConfig(_Section):
     valid_speed_sigma_rel: float = Field(
         _TRACK.valid_speed_sigma_rel, ge=0.0, le=1.0, description="Or this share of the speed"
     )
-    freeze_s: float = Field(
-        _TRACK.freeze_s, ge=0.0, le=86400.0, description="Stopped object kept out of background, s"
+    freeze_s: Annotated[float, FREEZE_S.validator()] = Field(
+        _TRACK.freeze_s, description="Stopped object kept out of background, s"
     )
     stationary_mps: float = Field(
         _TRACK.stationary_mps, ge=0.0, description="Below this an object is stopped"
@@ -351,15 +379,17 @@ class DaemonConfig(_Section):
 
     queue_size: int = Field(4, ge=1, le=1000, description="Pairs waiting for the pipeline")
     publish_queue_size: int = Field(16, ge=1, le=10000, description="Messages waiting to go out")
-    status_period_s: float = Field(1.0, gt=0.0, le=60.0, description="Status interval, s")
+    status_period_s: Annotated[float, STATUS_PERIOD_S.validator()] = Field(
+        1.0, description="Status interval, s"
+    )
     detect_workers: int = Field(
         2,
         ge=1,
         le=2,
         description="Threads detecting the two eyes (the second from 0.5 Mpx a frame)",
     )
-    image_rate_hz: float = Field(
-        5.0, ge=0.0, le=100.0, description="Images per second while subscribed; 0 never"
+    image_rate_hz: Annotated[float, IMAGE_RATE_HZ.validator()] = Field(
+        5.0, description="Images per second while subscribed; 0 never"
     )
     image_quality: int = Field(80, ge=1, le=100, description="JPEG quality of images, 1-100")
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"

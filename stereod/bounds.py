@@ -1,0 +1,214 @@
+"""Physical bounds of every number a user can give: flags, the TOML config, ``STEREOD_*``
+variables, calibration files and the chessboard.
+
+Each :class:`Bound` holds its range, its unit and why: the reason comes from the physics of the
+rig or from its hardware (a Minoru's baseline is 0.060 m; UVC webcams' lenses; a USB 2.0 bus),
+and a value outside it is refused where it enters, in one line that names the flag, field or
+file, the value, the range and that reason. :data:`BOUNDS` lists them all; the table under
+"Configuration" in README.md is :func:`markdown_table` of it (a test keeps the two equal).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import AfterValidator, BeforeValidator
+
+
+@dataclass(frozen=True)
+class Bound:
+    """A closed range ``lo``..``hi`` in ``unit``; with ``zero_off`` a value of 0 is allowed
+    too (it switches the setting off). ``where`` names the flags, fields and files it holds
+    for; ``why`` is the physical or hardware reason for its ends."""
+
+    where: tuple[str, ...]
+    lo: float
+    hi: float
+    unit: str
+    why: str
+    zero_off: bool = False
+
+    def range_text(self) -> str:
+        """``0.005..10 m`` (with ``0 or`` in front when 0 switches it off)."""
+        unit = f" {self.unit}" if self.unit else ""
+        off = "0 or " if self.zero_off else ""
+        return f"{off}{self.lo:g}..{self.hi:g}{unit}"
+
+    def problem(self, value: float) -> str | None:
+        """Why ``value`` is refused (``must be ...: why``), or None when it is inside."""
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return f"must be a number in {self.range_text()}"
+        if self.zero_off and value == 0:
+            return None
+        if math.isfinite(value) and self.lo <= value <= self.hi:
+            return None
+        return f"must be in {self.range_text()} ({self.why})"
+
+    def check(self, value: Any) -> Any:
+        """``value`` itself when inside; else ValueError with :meth:`problem`."""
+        problem = self.problem(value)
+        if problem is not None:
+            raise ValueError(problem)
+        return value
+
+    def validator(self) -> AfterValidator:
+        """A pydantic validator of a field (after its type is checked)."""
+        return AfterValidator(self.check)
+
+    def arg(self, *, integer: bool = False) -> Callable[[str], Any]:
+        """An argparse type: the number the text writes, refused in one line (exit 64 by the
+        parser) when it is not one or is outside."""
+
+        def parse(text: str) -> float | int:
+            try:
+                value: float | int = int(text) if integer else float(text)
+            except ValueError:
+                kind = "a whole number" if integer else "a number"
+                raise argparse.ArgumentTypeError(f"{text!r} is not {kind}") from None
+            problem = self.problem(value)
+            if problem is not None:
+                raise argparse.ArgumentTypeError(f"{text}: {problem}")
+            return value
+
+        return parse
+
+
+def not_bool(value: Any) -> Any:
+    """Refuse true/false where a number is meant (pydantic would read true as 1): a TOML
+    ``threshold = true`` is a mistake, not a threshold of one grey level."""
+    if isinstance(value, bool):
+        raise ValueError(f"must be a number, not {str(value).lower()}")
+    if isinstance(value, list | tuple) and any(isinstance(v, bool) for v in value):
+        raise ValueError("each component must be a number, not true/false")
+    return value
+
+
+NOT_BOOL = BeforeValidator(not_bool)
+"""The before-validator of :func:`not_bool`, for numeric config fields."""
+
+
+BASELINE_M = Bound(
+    ("rig.baseline_m", "--baseline", "calibration baseline: norm of T, -P2[0][3]/P2[0][0]"),
+    0.005,
+    10.0,
+    "m",
+    "two UVC camera boards cannot sit closer than 5 mm (a Minoru's eyes are 0.060 m apart); "
+    "beyond 10 m the eyes share no view of a room-sized scene; calibration lengths are metres",
+)
+HFOV_DEG = Bound(
+    ("rig.hfov_deg", "--hfov", "calibration K1, K2, P1, P2 focal lengths"),
+    5.0,
+    170.0,
+    "deg",
+    "UVC webcams' lenses span about 20 deg (telephoto) to 170 deg (fisheye); 5 deg leaves "
+    "room for a long lens, and the pinhole model diverges at 180 deg (tan 90 deg)",
+)
+IMAGE_SIDE_PX = Bound(
+    ("calibration image_size",),
+    16.0,
+    8192.0,
+    "px",
+    "no camera mode is smaller than 16 px a side; a UVC webcam's largest mode, 4K "
+    "(3840x2160), fits a USB 2.0 bus only as MJPEG, and 8192 is twice its width",
+)
+SQUARE_M = Bound(
+    ("--square", "calibration board.square"),
+    0.0001,
+    1.0,
+    "m",
+    "a printed square under 0.1 mm cannot be seen by a webcam, and a board with 1 m squares "
+    "cannot be held in front of a rig; the square is in metres, as every length",
+)
+STATUS_PERIOD_S = Bound(
+    ("daemon.status_period_s",),
+    0.05,
+    60.0,
+    "s",
+    "20 status messages a second is faster than anyone reads them (1e-9 s sent 4,400 a "
+    "second at 84 % CPU); a health report more than a minute old is stale",
+)
+IMAGE_RATE_HZ = Bound(
+    ("daemon.image_rate_hz",),
+    0.01,
+    60.0,
+    "Hz",
+    "a UVC webcam on USB 2.0 delivers at most 60 frames a second, so no more images exist; "
+    "under one in 100 s is off in all but name, which is 0",
+    zero_off=True,
+)
+TOLERANCE_MS = Bound(
+    ("pairing.tolerance_ms",),
+    0.1,
+    1000.0,
+    "ms",
+    "two eyes on one USB 2.0 bus are stamped in its 0.125 ms microframes, so less pairs "
+    "nothing; a second spans a whole frame period even at 1 fps",
+)
+ABSORB_S = Bound(
+    ("detector.absorb_s",),
+    0.1,
+    3600.0,
+    "s",
+    "under 0.1 s (3 frames at 30 fps) a moving object is learned as background; an hour is "
+    "longer than lighting stays the same",
+)
+TIME_BASE_S = Bound(
+    ("tracking.time_base_s", "--time-base"),
+    0.01,
+    60.0,
+    "s",
+    "tau of eq. 21 shorter than one frame at 100 fps measures noise, longer than a minute "
+    "averages over a whole flight",
+)
+MAX_COAST_S = Bound(
+    ("tracking.max_coast_s",),
+    0.0,
+    60.0,
+    "s",
+    "0 ends a track at its first miss; a prediction a minute old is a guess",
+)
+FREEZE_S = Bound(
+    ("tracking.freeze_s",),
+    0.0,
+    86400.0,
+    "s",
+    "0 never freezes; longer than a day and a parked object is never learned",
+)
+
+BOUNDS: tuple[Bound, ...] = (
+    BASELINE_M,
+    HFOV_DEG,
+    IMAGE_SIDE_PX,
+    SQUARE_M,
+    STATUS_PERIOD_S,
+    IMAGE_RATE_HZ,
+    TOLERANCE_MS,
+    ABSORB_S,
+    TIME_BASE_S,
+    MAX_COAST_S,
+    FREEZE_S,
+)
+"""Every physical bound, in the order of the README's table."""
+
+
+def focal_range_px(side_px: float) -> tuple[float, float]:
+    """The focal lengths (px) that give a field of view within :data:`HFOV_DEG` over an image
+    ``side_px`` px across: f = side / (2 tan(fov / 2))."""
+
+    def focal(fov_deg: float) -> float:
+        return side_px / (2.0 * math.tan(math.radians(fov_deg) / 2.0))
+
+    return focal(HFOV_DEG.hi), focal(HFOV_DEG.lo)
+
+
+def markdown_table() -> str:
+    """The README's table of :data:`BOUNDS`: where each applies, its range and why."""
+    rows = ["| Flag, field or file | Allowed | Why |", "|---|---|---|"]
+    for b in BOUNDS:
+        where = ", ".join(f"`{w}`" for w in b.where)
+        rows.append(f"| {where} | {b.range_text()} | {b.why} |")
+    return "\n".join(rows) + "\n"
