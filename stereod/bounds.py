@@ -108,7 +108,7 @@ HFOV_DEG = Bound(
     "room for a long lens, and the pinhole model diverges at 180 deg (tan 90 deg)",
 )
 IMAGE_SIDE_PX = Bound(
-    ("calibration image_size",),
+    ("calibration image_size", "calibration import --size"),
     16.0,
     8192.0,
     "px",

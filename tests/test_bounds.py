@@ -285,6 +285,13 @@ def test_a_calibration_image_size_and_board_square_are_bounded(tmp_path: Path) -
         load_calibration(path)
 
 
+def test_an_imported_calibrations_size_is_a_flag(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    argv = ["calibration", "import", str(tmp_path / "i.yml"), "--size", "8x6"]
+    refused(capsys, argv, 64, r"--size: 8x6: each side must be in 16\.\.8192 px \(no camera mode")
+
+
 def test_canonical_rigs_at_the_bounds_are_valid_calibrations() -> None:
     """The ends of the baseline and field of view make calibrations that load and rectify."""
     for b in (BASELINE_M.lo, BASELINE_M.hi):
