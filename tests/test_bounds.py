@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -347,6 +349,28 @@ def test_extreme_numbers_in_any_numeric_field_are_refused_cleanly(
         for b in BOUNDS:
             if where in b.where:
                 assert b.problem(got) is None, (where, got)
+
+
+@FUZZ
+@given(where=st.sampled_from(NUMERIC), value=EXTREMES | st.floats())
+@example(where="daemon.status_period_s", value=1e-9)
+@example(where="detector.threshold", value=True)
+def test_extreme_numbers_in_any_environment_variable_are_refused_cleanly(
+    where: str, value: Any
+) -> None:
+    section, name = where.split(".")
+    variable = f"STEREOD_{section.upper()}__{name.upper()}"
+    text = str(value).lower() if isinstance(value, bool) else repr(value)
+    with mock.patch.dict(os.environ, {variable: text}):
+        result = accepted_or_refused(load_checked, None, {})
+        if isinstance(result, StereodError):
+            assert result.exit_code == 78 and variable in str(result), result
+            return
+    got = getattr(getattr(result[0], section), name)
+    assert math.isfinite(got) and not isinstance(value, bool), (where, text, got)
+    for b in BOUNDS:
+        if where in b.where:
+            assert b.problem(got) is None, (where, got)
 
 
 FLAGS = ["--baseline", "--hfov", "--time-base", "--beta", "--threshold", "--min-area", "--warmup"]
