@@ -179,6 +179,31 @@ FREEZE_S = Bound(
     "0 never freezes; longer than a day and a parked object is never learned",
 )
 
+THRESHOLD_GREY = Bound(
+    ("detector.threshold", "--threshold"),
+    0.5,
+    255.0,
+    "grey levels",
+    "frames are 8-bit: under half a grey level every pixel's rounding is foreground, and no "
+    "difference exceeds 255",
+)
+CENTROID_SIGMA_PX = Bound(
+    ("matching.centroid_sigma_px",),
+    0.001,
+    10.0,
+    "px",
+    "no centroid of a webcam's noisy 8-bit blob is known to a thousandth of a pixel (smaller "
+    "made the covariance singular); an error of 10 px is no measurement",
+)
+MANOEUVRE_CHI2 = Bound(
+    ("tracking.manoeuvre_chi2",),
+    0.35,
+    100.0,
+    "",
+    "chi-square of 3 dof: 0.35 is its 5 % point, below which almost every observation is a "
+    "manoeuvre (1e-300 broke the filter); 100 has a chance under 1e-20, never",
+)
+
 BOUNDS: tuple[Bound, ...] = (
     BASELINE_M,
     HFOV_DEG,
@@ -191,6 +216,9 @@ BOUNDS: tuple[Bound, ...] = (
     TIME_BASE_S,
     MAX_COAST_S,
     FREEZE_S,
+    THRESHOLD_GREY,
+    CENTROID_SIGMA_PX,
+    MANOEUVRE_CHI2,
 )
 """Every physical bound, in the order of the README's table."""
 

@@ -46,11 +46,14 @@ from . import keys
 from .bounds import (
     ABSORB_S,
     BASELINE_M,
+    CENTROID_SIGMA_PX,
     FREEZE_S,
     HFOV_DEG,
     IMAGE_RATE_HZ,
+    MANOEUVRE_CHI2,
     MAX_COAST_S,
     STATUS_PERIOD_S,
+    THRESHOLD_GREY,
     TIME_BASE_S,
     TOLERANCE_MS,
     not_bool,
@@ -127,8 +130,8 @@ class DetectorConfig(_Section):
     beta: float = Field(
         _DETECT.beta, ge=0.0, lt=1.0, description="Background update, eq. 3, per frame"
     )
-    threshold: float = Field(
-        _DETECT.threshold, gt=0.0, le=255.0, description="t of eq. 4, grey levels"
+    threshold: Annotated[float, THRESHOLD_GREY.validator()] = Field(
+        _DETECT.threshold, description="t of eq. 4, grey levels"
     )
     min_area_px: int = Field(_DETECT.min_area_px, ge=1, le=10**7, description="Smallest blob, px")
     warmup_frames: int = Field(
@@ -219,7 +222,10 @@ class MatchingConfig(_Section):
         _MATCH.min_disparity_px, ge=0.0, description="Smallest x_L - x_R, px"
     )
     max_disparity_px: float = Field(
-        _MATCH.max_disparity_px, gt=0.0, description="Largest x_L - x_R, px"
+        _MATCH.max_disparity_px,
+        gt=0.0,
+        validate_default=True,  # checked against min_disparity_px even when left out
+        description="Largest x_L - x_R, px",
     )
     max_area_ratio: float = Field(
         _MATCH.max_area_ratio, ge=1.0, description="Largest blob area ratio"
@@ -230,11 +236,14 @@ class MatchingConfig(_Section):
     def _above_min(cls, v: float, info: ValidationInfo) -> float:
         low = info.data.get("min_disparity_px")
         if low is not None and not v > low:
-            raise ValueError(f"must be larger than min_disparity_px ({low:g}): nothing can match")
+            raise ValueError(
+                f"must be larger than min_disparity_px ({low:g}): nothing can match; lower "
+                "min_disparity_px or raise max_disparity_px"
+            )
         return v
 
-    centroid_sigma_px: float = Field(
-        _pipe("centroid_sigma_px"), gt=0.0, description="Centroid error per axis, px"
+    centroid_sigma_px: Annotated[float, CENTROID_SIGMA_PX.validator()] = Field(
+        _pipe("centroid_sigma_px"), description="Centroid error per axis, px"
     )
     silhouette_depth: bool = Field(
         _pipe("silhouette_depth"),
@@ -257,8 +266,8 @@ class TrackingConfig(_Section):
     max_speed_mps: float = Field(
         _TRACK.max_speed_mps, gt=0.0, le=1000.0, description="Fastest object to follow, m/s"
     )
-    manoeuvre_chi2: float = Field(
-        _TRACK.manoeuvre_chi2, gt=0.0, description="Mahalanobis bound of a manoeuvre, 3 dof"
+    manoeuvre_chi2: Annotated[float, MANOEUVRE_CHI2.validator()] = Field(
+        _TRACK.manoeuvre_chi2, description="Mahalanobis bound of a manoeuvre, 3 dof"
     )
     manoeuvre_sigma_mps: float = Field(
         _TRACK.manoeuvre_sigma_mps,

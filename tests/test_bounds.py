@@ -18,7 +18,7 @@ import pytest
 from hypothesis import example, given
 from hypothesis import strategies as st
 
-from stereod import bounds
+from stereod import Pipeline, StereoPair, bounds
 from stereod.bounds import BASELINE_M, BOUNDS, HFOV_DEG, SQUARE_M, STATUS_PERIOD_S
 from stereod.calibration import Calibration, canonical
 from stereod.calibration import load as load_calibration
@@ -27,6 +27,7 @@ from stereod.cli.common import load_checked
 from stereod.config import StereodConfig, load_config
 from stereod.errors import CalibrationError, ConfigError, StereodError
 from stereod.geometry.rectified import CalibratedRig
+from stereod.params import pipeline_params
 
 from .conftest import ROOT, shared_data
 from .fuzz import FUZZ, accepted_or_refused, toml_document
@@ -209,6 +210,15 @@ def test_every_bounded_config_field_takes_its_ends_and_refuses_beyond(
         assert info.value.exit_code == 78
 
 
+def test_a_smallest_disparity_above_the_default_largest_is_refused(tmp_path: Path) -> None:
+    """max_disparity_px's check ran only when it was given: min_disparity_px = 1e308 alone
+    was accepted, then every pipeline failed to start."""
+    path = tmp_path / "c.toml"
+    path.write_text("[matching]\nmin_disparity_px = 1e308\n")
+    with pytest.raises(ConfigError, match=r"must be larger than min_disparity_px \(1e\+308\)"):
+        load_config(path)
+
+
 def test_every_period_rate_and_duration_in_the_config_is_bounded() -> None:
     """A new ``_s``, ``_ms`` or ``_hz`` field of the config needs its bound and reason."""
     timed = {
@@ -364,13 +374,59 @@ def test_extreme_numbers_in_any_environment_variable_are_refused_cleanly(
     with mock.patch.dict(os.environ, {variable: text}):
         result = accepted_or_refused(load_checked, None, {})
         if isinstance(result, StereodError):
-            assert result.exit_code == 78 and variable in str(result), result
+            assert result.exit_code == 78 and (variable in str(result) or name in str(result))
             return
     got = getattr(getattr(result[0], section), name)
     assert math.isfinite(got) and not isinstance(value, bool), (where, text, got)
     for b in BOUNDS:
         if where in b.where:
             assert b.problem(got) is None, (where, got)
+
+
+WALL = np.random.default_rng(0).integers(0, 200, (48, 64, 3)).astype(np.uint8)
+
+
+def _eye(x: int | None, shift_px: int) -> np.ndarray:
+    """The wall, with a bright 8 px square at column ``x`` less ``shift_px`` (disparity)."""
+    image = WALL.copy()
+    if x is not None:
+        image[20:28, x - shift_px : x - shift_px + 8] = 250
+    return image
+
+
+@FUZZ
+@given(
+    values=st.dictionaries(
+        st.sampled_from(NUMERIC),
+        EXTREMES | st.sampled_from([1e9, 1e-9, 1.0, 1000.0]),
+        min_size=1,
+        max_size=3,
+    )
+)
+@example(values={"matching.centroid_sigma_px": 1e-300})
+@example(values={"tracking.manoeuvre_chi2": 1e-300})
+@example(values={"matching.min_disparity_px": 1e308})
+def test_a_configuration_that_is_accepted_runs(values: dict[str, Any]) -> None:
+    """Whatever extreme numbers the config takes, its pipeline starts and follows a square
+    moving across 64x48 frames without an exception and with finite tracks: a number that
+    would break it is refused where it enters instead."""
+    tables: dict[str, dict[str, Any]] = {}
+    for where, v in values.items():
+        section, name = where.split(".")
+        tables.setdefault(section, {})[name] = v
+    try:
+        cfg = StereodConfig.model_validate(tables)
+    except ValueError:
+        return
+    with Pipeline(pipeline_params(cfg, 64, 48)) as pipe:
+        t = 10**9
+        for k in range(30):
+            x = None if k < 12 else 5 + 2 * (k - 12)
+            t += 33_333_333
+            result = pipe.process(StereoPair.of(_eye(x, 0), _eye(x, 3), t, t, seq=k))
+            for track in result.tracks:
+                assert np.all(np.isfinite(track.position_m)), (values, track)
+                assert np.all(np.isfinite(track.velocity_mps)), (values, track)
 
 
 FLAGS = ["--baseline", "--hfov", "--time-base", "--beta", "--threshold", "--min-area", "--warmup"]

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..bounds import BASELINE_M, HFOV_DEG, TIME_BASE_S
+from ..bounds import BASELINE_M, HFOV_DEG, THRESHOLD_GREY, TIME_BASE_S
 from ..detect import MAX_WARMUP_FRAMES, DetectorParams
 from ..errors import EX_DATAERR, ConfigError, ReaderGone, one_line
 from ..output_file import is_stdout
@@ -184,7 +184,7 @@ def add_pipeline(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--threshold",
-        type=number(0.0, 255.0, lo_open=True),
+        type=THRESHOLD_GREY.arg(),
         metavar="GREY",
         help="difference threshold t of eq. 4, grey levels 0-255 (default 25)",
     )
