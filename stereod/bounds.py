@@ -108,7 +108,11 @@ HFOV_DEG = Bound(
     "room for a long lens, and the pinhole model diverges at 180 deg (tan 90 deg)",
 )
 IMAGE_SIDE_PX = Bound(
-    ("calibration image_size", "calibration import --size"),
+    (
+        "calibration image_size",
+        "calibration import --size",
+        "v4l2_minoru driver.options.width, height",
+    ),
     16.0,
     8192.0,
     "px",
@@ -204,6 +208,39 @@ MANOEUVRE_CHI2 = Bound(
     "manoeuvre (1e-300 broke the filter); 100 has a chance under 1e-20, never",
 )
 
+CAMERA_FPS = Bound(
+    ("v4l2_minoru driver.options.fps",),
+    1.0,
+    120.0,
+    "Hz",
+    "no UVC webcam on USB 2.0 offers a mode slower than a frame a second or faster than 120 "
+    "(a Minoru: 30 at 320x240, 15 at 640x480)",
+)
+CAMERA_RETRY_S = Bound(
+    ("v4l2_minoru driver.options.retry_s, retry_max_s",),
+    0.01,
+    60.0,
+    "s",
+    "a USB device re-enumerates in tens of milliseconds at best, so sooner only spins; a "
+    "camera plugged back in should not wait more than a minute to be used",
+)
+CAMERA_TIMEOUT_S = Bound(
+    ("v4l2_minoru driver.options.read_timeout_s",),
+    0.01,
+    10.0,
+    "s",
+    "a shorter wait for a frame only spins a core; a longer one delays a stop by as much",
+)
+CAMERA_STALL_S = Bound(
+    ("v4l2_minoru driver.options.stall_s",),
+    0.1,
+    600.0,
+    "s",
+    "a frame period at 10 fps, under which a healthy camera is reopened between two frames "
+    "(keep it above the frame period at slower rates); ten minutes without frames is a "
+    "camera that is gone",
+)
+
 BOUNDS: tuple[Bound, ...] = (
     BASELINE_M,
     HFOV_DEG,
@@ -219,6 +256,10 @@ BOUNDS: tuple[Bound, ...] = (
     THRESHOLD_GREY,
     CENTROID_SIGMA_PX,
     MANOEUVRE_CHI2,
+    CAMERA_FPS,
+    CAMERA_RETRY_S,
+    CAMERA_TIMEOUT_S,
+    CAMERA_STALL_S,
 )
 """Every physical bound, in the order of the README's table."""
 

@@ -219,6 +219,41 @@ def test_a_smallest_disparity_above_the_default_largest_is_refused(tmp_path: Pat
         load_config(path)
 
 
+MINORU: list[tuple[str, bounds.Bound]] = [
+    ("width", bounds.IMAGE_SIDE_PX),
+    ("height", bounds.IMAGE_SIDE_PX),
+    ("fps", bounds.CAMERA_FPS),
+    ("retry_s", bounds.CAMERA_RETRY_S),
+    ("retry_max_s", bounds.CAMERA_RETRY_S),
+    ("read_timeout_s", bounds.CAMERA_TIMEOUT_S),
+    ("stall_s", bounds.CAMERA_STALL_S),
+]
+
+
+@pytest.mark.parametrize(("option", "bound"), MINORU, ids=[o for o, _ in MINORU])
+def test_the_camera_drivers_rates_sizes_and_timeouts_are_bounded(
+    tmp_path: Path, option: str, bound: bounds.Bound
+) -> None:
+    """The v4l2_minoru driver's options, checked by ``run --check`` without opening a camera:
+    each end is taken, beyond either is refused naming the option, the range and why, and
+    true/false is no number."""
+    path = tmp_path / "c.toml"
+    head = '[driver]\nname = "v4l2_minoru"\n[driver.options]\n'
+    for inside in (bound.lo, bound.hi):
+        value = int(inside) if option in ("width", "height") else inside
+        path.write_text(f"{head}{option} = {value!r}\n")
+        load_checked(path, {})
+    for outside in (bound.lo * 0.9, bound.hi * 1.1, True):
+        value = int(outside) if option in ("width", "height") and outside is not True else outside
+        text = "true" if value is True else repr(value)
+        path.write_text(f"{head}{option} = {text}\n")
+        with pytest.raises(ConfigError) as info:
+            load_checked(path, {})
+        want = "must be a number" if value is True else f"must be in {bound.range_text()}"
+        assert f"driver.options.{option} = " in str(info.value), str(info.value)
+        assert want in str(info.value), str(info.value)
+
+
 def test_every_period_rate_and_duration_in_the_config_is_bounded() -> None:
     """A new ``_s``, ``_ms`` or ``_hz`` field of the config needs its bound and reason."""
     timed = {
