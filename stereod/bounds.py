@@ -241,6 +241,17 @@ CAMERA_STALL_S = Bound(
     "camera that is gone",
 )
 
+PLAYBACK_RATE = Bound(
+    ("--rate",),
+    0.01,
+    1000.0,
+    "x real time",
+    "0 plays as fast as the pipeline goes; slower than a hundredth of real time a replay "
+    "stands still (1e-300 overflowed the wait for the next frame), and no pipeline keeps up "
+    "with a thousand times",
+    zero_off=True,
+)
+
 BOUNDS: tuple[Bound, ...] = (
     BASELINE_M,
     HFOV_DEG,
@@ -260,6 +271,7 @@ BOUNDS: tuple[Bound, ...] = (
     CAMERA_RETRY_S,
     CAMERA_TIMEOUT_S,
     CAMERA_STALL_S,
+    PLAYBACK_RATE,
 )
 """Every physical bound, in the order of the README's table."""
 

@@ -126,6 +126,19 @@ def test_a_calibration_with_a_vanishing_rectified_baseline_fails_run_check(
     )
 
 
+def test_a_playback_rate_that_stands_still_is_refused_as_a_flag(
+    capsys: pytest.CaptureFixture[str], synthetic: Path
+) -> None:
+    """``replay --rate 1e-300`` overflowed the wait for its second frame: exit 70."""
+    refused(
+        capsys,
+        ["run", "--check", "--config", str(synthetic), "--rate", "1e-300"],
+        64,
+        r"--rate: 1e-300: must be in 0 or 0\.01\.\.1000 x real time \(0 plays as fast",
+    )
+    assert main(["run", "--check", "--config", str(synthetic), "--rate", "0"]) == 0
+
+
 def test_a_status_period_that_floods_the_bus_is_refused(tmp_path: Path) -> None:
     """``status_period_s = 1e-9`` sent 4,400 status messages a second."""
     path = tmp_path / "c.toml"
@@ -465,6 +478,7 @@ def test_a_configuration_that_is_accepted_runs(values: dict[str, Any]) -> None:
 
 
 FLAGS = ["--baseline", "--hfov", "--time-base", "--beta", "--threshold", "--min-area", "--warmup"]
+FLAGS += ["--rate"]
 
 
 @FUZZ

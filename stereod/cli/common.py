@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..bounds import BASELINE_M, HFOV_DEG, THRESHOLD_GREY, TIME_BASE_S
+from ..bounds import BASELINE_M, HFOV_DEG, PLAYBACK_RATE, THRESHOLD_GREY, TIME_BASE_S
 from ..detect import MAX_WARMUP_FRAMES, DetectorParams
 from ..errors import EX_DATAERR, ConfigError, ReaderGone, one_line
 from ..output_file import is_stdout
@@ -88,7 +88,7 @@ def recording_arg(text: str) -> Path:
 
 
 def add_rate(p: argparse.ArgumentParser, help_text: str) -> None:
-    p.add_argument("--rate", type=number(0.0, 1000.0), default=1.0, metavar="X", help=help_text)
+    p.add_argument("--rate", type=PLAYBACK_RATE.arg(), default=1.0, metavar="X", help=help_text)
 
 
 def add_wait_subscriber(p: argparse.ArgumentParser, what: str) -> None:
