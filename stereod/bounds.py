@@ -138,10 +138,10 @@ STATUS_PERIOD_S = Bound(
 IMAGE_RATE_HZ = Bound(
     ("daemon.image_rate_hz",),
     0.01,
-    60.0,
+    120.0,
     "Hz",
-    "a UVC webcam on USB 2.0 delivers at most 60 frames a second, so no more images exist; "
-    "under one in 100 s is off in all but name, which is 0",
+    "a camera delivers at most 120 frames a second (the v4l2_minoru fps bound), so no more "
+    "images exist; under one in 100 s is off in all but name, which is 0",
     zero_off=True,
 )
 TOLERANCE_MS = Bound(
