@@ -69,6 +69,10 @@ class Bound:
             except ValueError:
                 kind = "a whole number" if integer else "a number"
                 raise argparse.ArgumentTypeError(f"{text!r} is not {kind}") from None
+            if not math.isfinite(value):
+                raise argparse.ArgumentTypeError(
+                    f"{text!r} must be a finite number in {self.range_text()} ({self.why})"
+                )
             problem = self.problem(value)
             if problem is not None:
                 raise argparse.ArgumentTypeError(f"{text}: {problem}")
@@ -96,16 +100,16 @@ BASELINE_M = Bound(
     0.005,
     10.0,
     "m",
-    "two UVC camera boards cannot sit closer than 5 mm (a Minoru's eyes are 0.060 m apart); "
-    "beyond 10 m the eyes share no view of a room-sized scene; calibration lengths are metres",
+    "UVC camera boards cannot sit closer than 5 mm (a Minoru's eyes: 0.060 m); beyond 10 "
+    "m two eyes share no view of a room; lengths are metres",
 )
 HFOV_DEG = Bound(
     ("rig.hfov_deg", "--hfov", "calibration K1, K2, P1, P2 focal lengths"),
     5.0,
     170.0,
     "deg",
-    "UVC webcams' lenses span about 20 deg (telephoto) to 170 deg (fisheye); 5 deg leaves "
-    "room for a long lens, and the pinhole model diverges at 180 deg (tan 90 deg)",
+    "UVC webcam lenses span about 20 (telephoto) to 170 deg (fisheye), 5 leaves room for "
+    "a long lens; a pinhole diverges at 180 deg",
 )
 IMAGE_SIDE_PX = Bound(
     (
@@ -116,32 +120,32 @@ IMAGE_SIDE_PX = Bound(
     16.0,
     8192.0,
     "px",
-    "no camera mode is smaller than 16 px a side; a UVC webcam's largest mode, 4K "
-    "(3840x2160), fits a USB 2.0 bus only as MJPEG, and 8192 is twice its width",
+    "no camera mode is under 16 px a side; a UVC webcam's largest, 4K (3840x2160), fits "
+    "USB 2.0 only as MJPEG: 8192 is twice its width",
 )
 SQUARE_M = Bound(
     ("--square", "calibration board.square"),
     0.0001,
     1.0,
     "m",
-    "a printed square under 0.1 mm cannot be seen by a webcam, and a board with 1 m squares "
-    "cannot be held in front of a rig; the square is in metres, as every length",
+    "a webcam cannot see a printed square under 0.1 mm, and no one holds a board of 1 m "
+    "squares in front of a rig; in metres, as every length",
 )
 STATUS_PERIOD_S = Bound(
     ("daemon.status_period_s",),
     0.05,
     60.0,
     "s",
-    "20 status messages a second is faster than anyone reads them (1e-9 s sent 4,400 a "
-    "second at 84 % CPU); a health report more than a minute old is stale",
+    "20 status messages a second is more than anyone reads (1e-9 s sent 4,400 a second at "
+    "84 % CPU); a report a minute old is stale",
 )
 IMAGE_RATE_HZ = Bound(
     ("daemon.image_rate_hz",),
     0.01,
     120.0,
     "Hz",
-    "a camera delivers at most 120 frames a second (the v4l2_minoru fps bound), so no more "
-    "images exist; under one in 100 s is off in all but name, which is 0",
+    "no camera delivers over 120 frames a second (v4l2_minoru fps), so no more images "
+    "exist; under one in 100 s is off, which is 0",
     zero_off=True,
 )
 TOLERANCE_MS = Bound(
@@ -149,8 +153,8 @@ TOLERANCE_MS = Bound(
     0.1,
     1000.0,
     "ms",
-    "two eyes on one USB 2.0 bus are stamped in its 0.125 ms microframes, so less pairs "
-    "nothing; a second spans a whole frame period even at 1 fps",
+    "two eyes on one USB 2.0 bus are stamped in 0.125 ms microframes, so less pairs "
+    "nothing; 1 s spans a frame period even at 1 fps",
 )
 ABSORB_S = Bound(
     ("detector.absorb_s",),
@@ -196,16 +200,16 @@ CENTROID_SIGMA_PX = Bound(
     0.001,
     10.0,
     "px",
-    "no centroid of a webcam's noisy 8-bit blob is known to a thousandth of a pixel (smaller "
-    "made the covariance singular); an error of 10 px is no measurement",
+    "no webcam blob's centroid is known to a thousandth of a pixel (less made the "
+    "covariance singular); a 10 px error is no measurement",
 )
 MANOEUVRE_CHI2 = Bound(
     ("tracking.manoeuvre_chi2",),
     0.35,
     100.0,
     "",
-    "chi-square of 3 dof: 0.35 is its 5 % point, below which almost every observation is a "
-    "manoeuvre (1e-300 broke the filter); 100 has a chance under 1e-20, never",
+    "chi-square of 3 dof: under its 5 % point, 0.35, almost every observation is a "
+    "manoeuvre (1e-300 broke the filter); 100 never happens",
 )
 
 CAMERA_FPS = Bound(
@@ -221,8 +225,8 @@ CAMERA_RETRY_S = Bound(
     0.01,
     60.0,
     "s",
-    "a USB device re-enumerates in tens of milliseconds at best, so sooner only spins; a "
-    "camera plugged back in should not wait more than a minute to be used",
+    "a USB device re-enumerates in tens of ms at best, so sooner only spins; a camera "
+    "plugged back in should not wait over a minute",
 )
 CAMERA_TIMEOUT_S = Bound(
     ("v4l2_minoru driver.options.read_timeout_s",),
@@ -236,9 +240,8 @@ CAMERA_STALL_S = Bound(
     0.1,
     600.0,
     "s",
-    "a frame period at 10 fps, under which a healthy camera is reopened between two frames "
-    "(keep it above the frame period at slower rates); ten minutes without frames is a "
-    "camera that is gone",
+    "a frame period at 10 fps (keep it above the frame period at slower rates); ten "
+    "minutes without frames is a camera that is gone",
 )
 
 PLAYBACK_RATE = Bound(
@@ -246,9 +249,8 @@ PLAYBACK_RATE = Bound(
     0.01,
     1000.0,
     "x real time",
-    "0 plays as fast as the pipeline goes; slower than a hundredth of real time a replay "
-    "stands still (1e-300 overflowed the wait for the next frame), and no pipeline keeps up "
-    "with a thousand times",
+    "0 plays as fast as it can; under 0.01 a replay stands still (1e-300 overflowed the "
+    "wait for a frame); no pipeline keeps up with 1000",
     zero_off=True,
 )
 

@@ -69,7 +69,7 @@ def test_a_vanishing_baseline_flag_is_refused_as_a_flag(
         capsys,
         ["run", "--check", "--config", str(synthetic), "--baseline", "1e-300"],
         64,
-        r"--baseline: 1e-300: must be in 0\.005\.\.10 m \(two UVC camera boards",
+        r"--baseline: 1e-300: must be in 0\.005\.\.10 m \(UVC camera boards",
     )
 
 
@@ -81,7 +81,7 @@ def test_a_vanishing_field_of_view_flag_is_refused_as_a_flag(
         capsys,
         ["run", "--check", "--config", str(synthetic), "--hfov", "1e-300"],
         64,
-        r"--hfov: 1e-300: must be in 5\.\.170 deg \(UVC webcams' lenses",
+        r"--hfov: 1e-300: must be in 5\.\.170 deg \(UVC webcam lenses",
     )
 
 
@@ -89,7 +89,7 @@ def test_a_vanishing_square_is_refused_as_a_flag(capsys: pytest.CaptureFixture[s
     """``stereod calibrate --square 1e-300`` failed an OpenCV assertion, exit 70."""
     pairs = shared_data("opencv_stereo")
     argv = ["calibrate", "--pairs", str(pairs), "--board", "9x6", "--square", "1e-300"]
-    refused(capsys, argv, 64, r"--square: 1e-300: must be in 0\.0001\.\.1 m \(a printed square")
+    refused(capsys, argv, 64, r"--square: 1e-300: must be in 0\.0001\.\.1 m \(a webcam cannot see")
 
 
 def _calibration(tmp_path: Path, edit: Any, name: str = "cal.json") -> Path:
@@ -122,7 +122,7 @@ def test_a_calibration_with_a_vanishing_rectified_baseline_fails_run_check(
         ["run", "--check", "--config", str(cfg)],
         78,
         r"cal\.json: P2: rectified baseline -P2\[0\]\[3\]/P2\[0\]\[0\] = [\d.]+e-30\d: "
-        r"must be in 0\.005\.\.10 m \(two UVC",
+        r"must be in 0\.005\.\.10 m \(UVC camera",
     )
 
 
@@ -191,7 +191,8 @@ def test_a_flag_that_names_a_config_field_is_held_to_its_bound(
         capsys.readouterr()
         for outside in (bound.lo * 0.999, bound.hi * 1.001, math.nan, -0.0):
             argv = ["run", "--check", "--config", str(synthetic), flag, repr(outside)]
-            refused(capsys, argv, 64, rf"{flag}: .*must be in {re.escape(bound.range_text())}")
+            wanted = re.escape(bound.range_text())
+            refused(capsys, argv, 64, rf"{flag}: .*must be (a finite number )?in {wanted}")
     argv = ["run", "--check", "--config", str(synthetic), "--time-base", "0.001"]
     refused(capsys, argv, 64, r"--time-base: 0\.001: must be in 0\.01\.\.60 s \(tau of eq\. 21")
 

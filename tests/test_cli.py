@@ -485,7 +485,7 @@ def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
     one_line_error(
         stereod("replay", str(tmp_path), "--baseline", "-1"),
         64,
-        r"--baseline: -1: must be in 0\.005\.\.10 m \(two UVC",
+        r"--baseline: -1: must be in 0\.005\.\.10 m \(UVC camera",
     )
     env = {"STEREOD_RIG__BASELINE_M": "-1"}
     one_line_error(
