@@ -57,7 +57,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--fps", type=number(0.1, 1000.0, unit="Hz"), default=15.0, help="frame rate, Hz (15)"
     )
-    add_canonical_rig(p, defaults=True, min_hfov_deg=1.0)
+    add_canonical_rig(p, defaults=True)
     p.add_argument(
         "--duration",
         type=number(0.0, 3600.0, lo_open=True, unit="s"),

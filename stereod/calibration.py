@@ -19,12 +19,20 @@ import json
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Final, Literal, TypeVar
+from typing import Annotated, Any, Final, Literal, TypeVar
 
 import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+)
 
+from .bounds import BASELINE_M, HFOV_DEG, IMAGE_SIDE_PX, SQUARE_M, focal_range_px, not_bool
 from .errors import (
     CalibrationError,
     InputError,
@@ -80,7 +88,7 @@ class Board(BaseModel):
     model_config = ConfigDict(extra="ignore")
     cols: int = Field(ge=MIN_BOARD_CORNERS)
     rows: int = Field(ge=MIN_BOARD_CORNERS)
-    square: float = Field(gt=0)
+    square: Annotated[float, BeforeValidator(not_bool), SQUARE_M.validator()]
 
 
 class Quality(BaseModel):
@@ -127,11 +135,18 @@ class Calibration(BaseModel):
     def _known_format(cls, v: Any) -> Any:
         return known_format(v, FORMAT)
 
+    @field_validator("image_size", mode="before")
+    @classmethod
+    def _size_not_bools(cls, v: Any) -> Any:
+        return not_bool(v)
+
     @field_validator("image_size")
     @classmethod
-    def _positive_size(cls, v: tuple[int, int]) -> tuple[int, int]:
-        if v[0] <= 0 or v[1] <= 0:
-            raise ValueError(f"must be positive, got {v[0]}x{v[1]}")
+    def _size_in_bounds(cls, v: tuple[int, int]) -> tuple[int, int]:
+        for side in v:
+            problem = IMAGE_SIDE_PX.problem(side)
+            if problem is not None:
+                raise ValueError(f"{v[0]}x{v[1]}: each side {problem}")
         return v
 
     @field_validator("T", "D1", "D2", mode="before")
@@ -141,6 +156,17 @@ class Calibration(BaseModel):
         as the column (T) or row (D) the file stores."""
         if isinstance(v, list) and v and all(_is_number(x) for x in v):
             return [[x] for x in v] if _SHAPES[info.field_name][1] == 1 else [v]
+        return v
+
+    @field_validator(*_SHAPES, mode="before")
+    @classmethod
+    def _numbers_not_bools(cls, v: Any) -> Any:
+        """true/false is no matrix entry (pydantic would read it as 1/0)."""
+        if isinstance(v, list) and any(
+            isinstance(x, bool) or (isinstance(x, list) and any(isinstance(y, bool) for y in x))
+            for x in v
+        ):
+            raise ValueError("holds true/false where a number is meant")
         return v
 
     @field_validator(*_SHAPES)
@@ -157,7 +183,9 @@ class Calibration(BaseModel):
                 f"holds {np.abs(a).max():g}, beyond any calibration (|x| <= {MAX_ENTRY:g})"
             )
         a = a.reshape(want)
-        problem = _matrix_problem(info.field_name, a)
+        problem = _matrix_problem(info.field_name, a) or _geometry_problem(
+            info.field_name, a, info.data
+        )
         if problem is not None:
             raise ValueError(
                 f"{problem}; the file is damaged or not from a calibration: recalibrate"
@@ -198,8 +226,73 @@ def _matrix_problem(name: str, a: np.ndarray) -> str | None:
     elif name == "T":
         if not np.abs(a).max() > 0:
             return "the baseline |T| is zero: the two cameras cannot be at one place"
-    elif name in ("P1", "P2") and not (a[0, 0] > 0 and a[1, 1] > 0):
-        return f"not a projection matrix: focal lengths {a[0, 0]:g}, {a[1, 1]:g} px must be > 0"
+    elif name in ("P1", "P2"):
+        if not (a[0, 0] > 0 and a[1, 1] > 0):
+            fx, fy = a[0, 0], a[1, 1]
+            return f"not a projection matrix: focal lengths {fx:g}, {fy:g} px must be > 0"
+        if np.abs(a[2] - (0.0, 0.0, 1.0, 0.0)).max() > 1e-6 or abs(a[1, 0]) > 1e-6:
+            return "not a rectified projection matrix: its bottom row must be 0 0 1 0, P[1][0] 0"
+    return None
+
+
+RECTIFIED_REL_TOL = 1e-3
+"""How far (relative) the rectified baseline may differ from |T|, and Q from P1 and P2:
+``stereoRectify`` makes them agree to rounding, and a file written with six significant
+digits still does; a larger difference is an edit of one matrix without the others."""
+
+
+def _close(a: float, b: float) -> bool:
+    return abs(a - b) <= RECTIFIED_REL_TOL * max(abs(a), abs(b), 1e-12)
+
+
+def _geometry_problem(name: str, a: np.ndarray, data: dict[str, Any]) -> str | None:
+    """Why matrix ``name`` is outside what a real rig can be (:mod:`stereod.bounds`), given
+    the fields validated before it (``data``: image_size, then K1 .. Q in file order), or None.
+    Checked: each camera's focal lengths give a field of view within the bounds, its principal
+    point lies in the image, |T| and the rectified baseline are within the baseline's bounds
+    and agree, and Q is the one P1 and P2 make."""
+    size = data.get("image_size")
+    if name in ("K1", "K2", "P1", "P2") and size is not None:
+        w, h = size
+        lo, hi = focal_range_px(w)  # fy too: a webcam's pixels are square to a few per cent
+        for axis, f, c, side in (("x", a[0, 0], a[0, 2], w), ("y", a[1, 1], a[1, 2], h)):
+            if not lo <= f <= hi:
+                return (
+                    f"focal length f{axis} = {f:.6g} px is outside {lo:.4g}..{hi:.4g} px, a "
+                    f"horizontal field of view of {HFOV_DEG.range_text()} over {w} px "
+                    f"({HFOV_DEG.why})"
+                )
+            if not 0.0 <= c <= side:
+                return f"principal point c{axis} = {c:.6g} px is outside the image (0..{side} px)"
+    if name == "T":
+        problem = BASELINE_M.problem(float(np.linalg.norm(a)))
+        if problem is not None:
+            return f"baseline |T| = {float(np.linalg.norm(a)):.6g}: {problem}"
+    if name == "P2" and a[0, 0] > 0:
+        # Its sign says which eye is which: a swapped pair (negative) is the calibrating
+        # command's to report and the rig's to refuse, its size is bounded here.
+        rectified = float(-a[0, 3] / a[0, 0])
+        problem = BASELINE_M.problem(abs(rectified))
+        if problem is not None:
+            return f"rectified baseline -P2[0][3]/P2[0][0] = {rectified:.6g}: {problem}"
+        t = data.get("T")
+        if t is not None and not _close(abs(rectified), float(np.linalg.norm(t))):
+            return (
+                f"rectified baseline -P2[0][3]/P2[0][0] = {rectified:.6g} is not |T| = "
+                f"{float(np.linalg.norm(t)):.6g}"
+            )
+    if name == "Q" and data.get("P1") is not None and data.get("P2") is not None:
+        p1, p2 = np.asarray(data["P1"]), np.asarray(data["P2"])
+        tx = p2[0, 3] / p2[0, 0]
+        want = {
+            "Q[0][3] = -cx": (a[0, 3], -p1[0, 2]),
+            "Q[1][3] = -cy": (a[1, 3], -p1[1, 2]),
+            "Q[2][3] = f": (a[2, 3], p1[0, 0]),
+            "Q[3][2] = -1/Tx": (a[3, 2], -1.0 / tx),
+        }
+        for what, (got, expected) in want.items():
+            if not _close(float(got), float(expected)):
+                return f"{what} of P1 and P2 is {expected:.6g}, the file holds {got:.6g}"
     return None
 
 

@@ -46,6 +46,23 @@ from pydantic import (
 )
 
 from . import keys
+from .bounds import (
+    ABSORB_S,
+    BASELINE_M,
+    CENTROID_SIGMA_PX,
+    HFOV_DEG,
+    HOLD_STILL_S,
+    IMAGE_RATE_HZ,
+    MANOEUVRE_CHI2,
+    MAX_COAST_S,
+    READOUT_S,
+    STATUS_PERIOD_S,
+    STILL_AFTER_S,
+    THRESHOLD_GREY,
+    TIME_BASE_S,
+    TOLERANCE_MS,
+    not_bool,
+)
 from .detect import MAX_WARMUP_FRAMES, Centroid, DetectorParams, Luminance, Warmup
 from .errors import ConfigError, MissingInputError, UsageError, describe_error
 from .geometry.refine import RefineParams
@@ -68,6 +85,15 @@ DEFAULT_CONFIG_PATH = Path("/etc/stereod/stereod.toml")
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
+    @field_validator("*", mode="before")
+    @classmethod
+    def _numbers_are_not_bools(cls, v: Any, info: ValidationInfo) -> Any:
+        """A number field refuses true/false, which pydantic's lax mode reads as 1/0."""
+        kind = cls.model_fields[info.field_name or ""].annotation
+        if kind in (int, float) or typing.get_origin(kind) is tuple:
+            return not_bool(v)
+        return v
+
 
 # The defaults of the pipeline's settings are stated once, in its parameter classes.
 _DETECT = DetectorParams()
@@ -86,15 +112,18 @@ class RigConfig(_Section):
     """The stereo rig: its name in key expressions and the canonical geometry (eq. 9)."""
 
     name: str = Field(keys.DEFAULT_RIG, pattern=keys.RIG_PATTERN, description="Rig name in keys")
-    baseline_m: float = Field(0.060, gt=0.0, le=10.0, description="Camera distance B, m")
-    hfov_deg: float = Field(60.0, gt=0.0, lt=180.0, description="Horizontal field of view, deg")
+    # Bounds and their reasons: stereod.bounds (a Minoru's 0.060 m; UVC webcams' lenses).
+    baseline_m: Annotated[float, BASELINE_M.validator()] = Field(
+        0.060, description="Camera distance B, m"
+    )
+    hfov_deg: Annotated[float, HFOV_DEG.validator()] = Field(
+        60.0, description="Horizontal field of view, deg"
+    )
     calibration: TextPath | None = Field(
         None, description="Calibration file (stereod calibrate); without it, the canonical rig"
     )
-    readout_s: float = Field(
+    readout_s: Annotated[float, READOUT_S.validator()] = Field(
         _pipe("readout_s"),
-        ge=0.0,
-        le=0.1,
         description="Rolling shutter: time from the first image row to the last, s (0: global "
         "shutter); a frame is at most a tenth of a second long at 10 Hz",
     )
@@ -114,8 +143,8 @@ class DetectorConfig(_Section):
     beta: float = Field(
         _DETECT.beta, ge=0.0, lt=1.0, description="Background update, eq. 3, per frame"
     )
-    threshold: float = Field(
-        _DETECT.threshold, gt=0.0, le=255.0, description="t of eq. 4, grey levels"
+    threshold: Annotated[float, THRESHOLD_GREY.validator()] = Field(
+        _DETECT.threshold, description="t of eq. 4, grey levels"
     )
     min_area_px: int = Field(_DETECT.min_area_px, ge=1, le=10**7, description="Smallest blob, px")
     warmup_frames: int = Field(
@@ -142,8 +171,8 @@ class DetectorConfig(_Section):
     hold_margin_px: int = Field(
         _DETECT.hold_margin_px, ge=0, le=50, description="Growth of the held foreground, px"
     )
-    absorb_s: float = Field(
-        _DETECT.absorb_s, gt=0.0, le=3600.0, description="Foreground still this long is learned, s"
+    absorb_s: Annotated[float, ABSORB_S.validator()] = Field(
+        _DETECT.absorb_s, description="Foreground still this long is learned, s"
     )
     fill_holes: bool = Field(_DETECT.fill_holes, description="An object's support is filled")
     convex: bool = Field(_DETECT.convex, description="An object's support is convex")
@@ -207,8 +236,8 @@ class DetectorConfig(_Section):
 class PairingConfig(_Section):
     """How the two eyes are paired by timestamp."""
 
-    tolerance_ms: float = Field(
-        DEFAULT_TOLERANCE_NS / 1e6, gt=0.0, le=1000.0, description="Largest |skew|, ms"
+    tolerance_ms: Annotated[float, TOLERANCE_MS.validator()] = Field(
+        DEFAULT_TOLERANCE_NS / 1e6, description="Largest |skew|, ms"
     )
     max_pending: int = Field(8, ge=2, le=1000, description="Frames one eye may wait, count")
     skew_compensation: bool = Field(
@@ -226,7 +255,10 @@ class MatchingConfig(_Section):
         _MATCH.min_disparity_px, ge=0.0, description="Smallest x_L - x_R, px"
     )
     max_disparity_px: float = Field(
-        _MATCH.max_disparity_px, gt=0.0, description="Largest x_L - x_R, px"
+        _MATCH.max_disparity_px,
+        gt=0.0,
+        validate_default=True,  # checked against min_disparity_px even when left out
+        description="Largest x_L - x_R, px",
     )
     max_area_ratio: float = Field(
         _MATCH.max_area_ratio, ge=1.0, description="Largest blob area ratio"
@@ -237,11 +269,14 @@ class MatchingConfig(_Section):
     def _above_min(cls, v: float, info: ValidationInfo) -> float:
         low = info.data.get("min_disparity_px")
         if low is not None and not v > low:
-            raise ValueError(f"must be larger than min_disparity_px ({low:g}): nothing can match")
+            raise ValueError(
+                f"must be larger than min_disparity_px ({low:g}): nothing can match; lower "
+                "min_disparity_px or raise max_disparity_px"
+            )
         return v
 
-    centroid_sigma_px: float = Field(
-        _pipe("centroid_sigma_px"), gt=0.0, description="Centroid error per axis, px"
+    centroid_sigma_px: Annotated[float, CENTROID_SIGMA_PX.validator()] = Field(
+        _pipe("centroid_sigma_px"), description="Centroid error per axis, px"
     )
     silhouette_depth: bool = Field(
         _pipe("silhouette_depth"),
@@ -264,8 +299,8 @@ class TrackingConfig(_Section):
     max_speed_mps: float = Field(
         _TRACK.max_speed_mps, gt=0.0, le=1000.0, description="Fastest object to follow, m/s"
     )
-    manoeuvre_chi2: float = Field(
-        _TRACK.manoeuvre_chi2, gt=0.0, description="Mahalanobis bound of a manoeuvre, 3 dof"
+    manoeuvre_chi2: Annotated[float, MANOEUVRE_CHI2.validator()] = Field(
+        _TRACK.manoeuvre_chi2, description="Mahalanobis bound of a manoeuvre, 3 dof"
     )
     manoeuvre_sigma_mps: float = Field(
         _TRACK.manoeuvre_sigma_mps,
@@ -276,9 +311,11 @@ class TrackingConfig(_Section):
     accel_noise: float = Field(
         _TRACK.accel_noise, gt=0.0, le=1e6, description="White acceleration density, m^2/s^3"
     )
-    time_base_s: float = Field(_TRACK.time_base_s, gt=0.0, le=60.0, description="tau of eq. 21, s")
-    max_coast_s: float = Field(
-        _TRACK.max_coast_s, ge=0.0, le=60.0, description="Track lives unseen, s"
+    time_base_s: Annotated[float, TIME_BASE_S.validator()] = Field(
+        _TRACK.time_base_s, description="tau of eq. 21, s"
+    )
+    max_coast_s: Annotated[float, MAX_COAST_S.validator()] = Field(
+        _TRACK.max_coast_s, description="Track lives unseen, s"
     )
     confirm_hits: int = Field(
         _TRACK.confirm_hits, ge=1, le=1000, description="Observations to confirm a track"
@@ -289,10 +326,8 @@ class TrackingConfig(_Section):
     valid_speed_sigma_rel: float = Field(
         _TRACK.valid_speed_sigma_rel, ge=0.0, le=1.0, description="Or this share of the speed"
     )
-    hold_still_s: float = Field(
+    hold_still_s: Annotated[float, HOLD_STILL_S.validator()] = Field(
         _TRACK.hold_still_s,
-        ge=0.0,
-        le=86400.0,
         validation_alias=AliasChoices("hold_still_s", "freeze_s"),
         description="A stopped object is held out of the background, keeping its id, this long, s "
         "(freeze_s, its older name, is read too)",
@@ -315,10 +350,8 @@ class TrackingConfig(_Section):
         le=10.0,
         description="... and moving together within this are one object, m/s",
     )
-    still_after_s: float = Field(
+    still_after_s: Annotated[float, STILL_AFTER_S.validator()] = Field(
         _TRACK.still_after_s,
-        gt=0.0,
-        le=3600.0,
         description="Not seen moving this long: the object is stationary, s",
     )
     stationary_mps: float = Field(
@@ -484,15 +517,17 @@ class DaemonConfig(_Section):
 
     queue_size: int = Field(4, ge=1, le=1000, description="Pairs waiting for the pipeline")
     publish_queue_size: int = Field(16, ge=1, le=10000, description="Messages waiting to go out")
-    status_period_s: float = Field(1.0, gt=0.0, le=60.0, description="Status interval, s")
+    status_period_s: Annotated[float, STATUS_PERIOD_S.validator()] = Field(
+        1.0, description="Status interval, s"
+    )
     detect_workers: int = Field(
         2,
         ge=1,
         le=2,
         description="Threads detecting the two eyes (the second from 0.5 Mpx a frame)",
     )
-    image_rate_hz: float = Field(
-        5.0, ge=0.0, le=100.0, description="Images per second while subscribed; 0 never"
+    image_rate_hz: Annotated[float, IMAGE_RATE_HZ.validator()] = Field(
+        5.0, description="Images per second while subscribed; 0 never"
     )
     image_quality: int = Field(80, ge=1, le=100, description="JPEG quality of images, 1-100")
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"

@@ -70,8 +70,8 @@ def test_a_vector_written_flat_is_read_as_the_column_or_row_it_stands_for(
         (lambda d: d.pop("K1"), r"K1: required field is missing"),
         (lambda d: d.update(K1=[[1, 0], [0, 1]]), r"K1: must be 3x3, got shape \(2, 2\)"),
         (lambda d: d["T"].__setitem__(0, ["NaN"]), r"T: contains a non-finite number"),
-        (lambda d: d.update(image_size=[0, 480]), r"image_size: must be positive"),
-        (lambda d: d["P2"][0].__setitem__(3, 12.0), r"field id: .* does not match the numbers"),
+        (lambda d: d.update(image_size=[0, 480]), r"image_size: 0x480: each side must be in 16"),
+        (lambda d: d["D1"][0].__setitem__(0, 0.5), r"field id: .* does not match the numbers"),
     ],
 )
 def test_bad_files_name_the_field(tmp_path: Path, edit, pattern: str) -> None:

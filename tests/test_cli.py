@@ -489,7 +489,9 @@ def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
         r"environment STEREOD_DRIVER__OPTIONS: driver\.options\.width_px = 'abc'",
     )
     one_line_error(
-        stereod("replay", str(tmp_path), "--baseline", "-1"), 64, r"--baseline: -1: must be > 0 m"
+        stereod("replay", str(tmp_path), "--baseline", "-1"),
+        64,
+        r"--baseline: -1: must be in 0\.005\.\.10 m \(UVC camera",
     )
     env = {"STEREOD_RIG__BASELINE_M": "-1"}
     one_line_error(

@@ -332,7 +332,7 @@ ROWS = [
         "run --rate -1",
         ["run", "--rate", "-1", "--driver", "synthetic"],
         64,
-        "--rate: -1: must be >= 0",
+        r"--rate: -1: must be in 0 or 0\.01\.\.1000 x real time",
     ),
     Row(
         "manifest width disagrees with the video",

@@ -77,7 +77,7 @@ def test_bad_values_are_one_line_naming_the_field(tmp_path: Path, toml: str, pat
 def test_bad_environment_value(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("STEREOD_RIG__BASELINE_M", "-1")
     with pytest.raises(
-        ConfigError, match=r"rig\.baseline_m = '-1': Input should be greater than 0"
+        ConfigError, match=r"rig\.baseline_m = '-1': must be in 0\.005\.\.10 m \(UVC camera"
     ):
         load_config()
 

@@ -41,6 +41,15 @@ def singular(d: Path) -> Path:
     return d / "sing.json"
 
 
+def flat(d: Path) -> Path:
+    """A calibration whose rectified baseline -P2[0][3]/P2[0][0] is 1e-300 m in effect."""
+    cal = json.loads(canonical(0.06, 60.0, 160, 120).model_dump_json())
+    cal["P2"][0][3] = -1e-300
+    cal["id"] = ""
+    (d / "flat.json").write_text(json.dumps(cal))
+    return d / "flat.json"
+
+
 BAD: list[tuple[str, Callable[[Path, str], bytes | None], str]] = [
     ("not UTF-8", lambda d, e: b"\xff\xfe[rig]\n", "not a text file"),
     ("not TOML", lambda d, e: b"[rig\nname = 1\n", "invalid TOML"),
@@ -77,6 +86,25 @@ BAD: list[tuple[str, Callable[[Path, str], bytes | None], str]] = [
             .encode()
         ),
         "sing.json: K1: not a camera matrix",
+    ),
+    (
+        "a calibration of a vanishing baseline",
+        lambda d, e: (
+            good(e)
+            .replace('name = "svc"\n', f'name = "svc"\ncalibration = "{flat(d)}"\n', 1)
+            .encode()
+        ),
+        "flat.json: P2: rectified baseline -P2[0][3]/P2[0][0] = ",
+    ),
+    (
+        "a status period that floods the bus",
+        lambda d, e: good(e).replace("status_period_s = 0.5", "status_period_s = 1e-9").encode(),
+        "daemon.status_period_s = 1e-09: must be in 0.05..60 s",
+    ),
+    (
+        "true for a number",
+        lambda d, e: good(e).replace("threshold = 25.0", "threshold = true").encode(),
+        "detector.threshold = True: must be a number",
     ),
     (
         "a Zenoh file that is not one",

@@ -16,10 +16,18 @@ import logging
 import threading
 import time
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from stereod.bounds import (
+    CAMERA_FPS,
+    CAMERA_RETRY_S,
+    CAMERA_STALL_S,
+    CAMERA_TIMEOUT_S,
+    IMAGE_SIDE_PX,
+    NOT_BOOL,
+)
 from stereod.errors import ConfigError, DeviceError, DeviceLost, describe_validation_error
 from stereod.frames import (
     Driver,
@@ -56,10 +64,11 @@ class MinoruOptions(BaseModel):
         None,
         description="Right eye node; default /dev/minoru/right, else the Minoru eye on hub port 2",
     )
-    width: int = Field(640, gt=0)
-    height: int = Field(480, gt=0)
-    fps: float = Field(
-        15.0, gt=0, description="Frame rate, Hz (640x480 YUYV fits USB 2.0 at 15, MJPEG at 30)"
+    # Bounds and their reasons (UVC modes, a USB 2.0 bus): stereod.bounds.
+    width: Annotated[int, NOT_BOOL, IMAGE_SIDE_PX.validator()] = 640
+    height: Annotated[int, NOT_BOOL, IMAGE_SIDE_PX.validator()] = 480
+    fps: Annotated[float, NOT_BOOL, CAMERA_FPS.validator()] = Field(
+        15.0, description="Frame rate, Hz (640x480 YUYV fits USB 2.0 at 15, MJPEG at 30)"
     )
     pixel_format: Literal["yuyv", "mjpeg", "auto"] = Field(
         "auto",
@@ -71,19 +80,22 @@ class MinoruOptions(BaseModel):
         description="Deliver BGR frames, which colour differencing ([detect] color, the "
         "default) needs; false delivers the luma only (cheaper, for [detect] color = false)",
     )
-    buffers: int = Field(4, ge=2, le=32)
+    buffers: Annotated[int, NOT_BOOL] = Field(4, ge=2, le=32)
     manual_exposure: bool = Field(True, description="Lock exposure (exposure_auto = manual)")
     controls: dict[str, int] = Field(
         default_factory=dict,
         description="Controls set on both eyes after every open, by name (exposure_absolute, "
         "gain, white_balance_temperature, ...) or id (0x980913)",
     )
-    retry_s: float = Field(0.5, gt=0, description="First reconnect delay, s (doubles)")
-    retry_max_s: float = Field(5.0, gt=0, description="Longest reconnect delay, s")
-    read_timeout_s: float = Field(0.5, gt=0)
-    stall_s: float = Field(
+    retry_s: Annotated[float, NOT_BOOL, CAMERA_RETRY_S.validator()] = Field(
+        0.5, description="First reconnect delay, s (doubles)"
+    )
+    retry_max_s: Annotated[float, NOT_BOOL, CAMERA_RETRY_S.validator()] = Field(
+        5.0, description="Longest reconnect delay, s"
+    )
+    read_timeout_s: Annotated[float, NOT_BOOL, CAMERA_TIMEOUT_S.validator()] = 0.5
+    stall_s: Annotated[float, NOT_BOOL, CAMERA_STALL_S.validator()] = Field(
         2.0,
-        gt=0,
         description="An eye streaming no frame for this long (s) is closed and reopened, as "
         "after a re-plug (a camera can stop mid-stream and stay open)",
     )

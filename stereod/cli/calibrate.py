@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from .. import calibrate as cb
+from ..bounds import SQUARE_M
 from ..calibration import MIN_BOARD_CORNERS, Board, create_output, write
 from ..config import load_config
 from ..drivers import load_driver
@@ -63,9 +64,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--square",
         required=True,
-        type=number(0.0, 1000.0, lo_open=True, unit="m"),
+        type=SQUARE_M.arg(),
         metavar="M",
-        help="side of one square, m (every length of the result is in this unit)",
+        help=f"side of one square, m, {SQUARE_M.range_text()} (every length of the result is "
+        "in this unit)",
     )
     p.add_argument(
         "--out",

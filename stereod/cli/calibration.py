@@ -6,9 +6,21 @@ import argparse
 from pathlib import Path
 
 from .. import calibration as cal_mod
+from ..bounds import IMAGE_SIDE_PX
 from ..calibrate import Report, format_report
 from ..output_file import check_outputs
 from .common import path_arg, size_arg
+
+
+def image_size_arg(text: str) -> tuple[int, int]:
+    """An argparse type: ``WIDTHxHEIGHT`` of a camera's frames, each side within
+    :data:`~stereod.bounds.IMAGE_SIDE_PX` (a flag error, exit 64, not a calibration's)."""
+    w, h = size_arg(text)
+    for side in (w, h):
+        problem = IMAGE_SIDE_PX.problem(side)
+        if problem is not None:
+            raise argparse.ArgumentTypeError(f"{text}: each side {problem}")
+    return w, h
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -35,9 +47,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     c.add_argument(
         "--size",
         required=True,
-        type=size_arg,
+        type=image_size_arg,
         metavar="WxH",
-        help="image size the calibration was made at, px",
+        help=f"image size the calibration was made at, px, each side {IMAGE_SIDE_PX.range_text()}",
     )
     c.add_argument(
         "--out",

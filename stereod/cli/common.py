@@ -18,6 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from ..bounds import BASELINE_M, HFOV_DEG, PLAYBACK_RATE, THRESHOLD_GREY, TIME_BASE_S
 from ..detect import MAX_WARMUP_FRAMES, DetectorParams
 from ..errors import EX_DATAERR, ConfigError, ReaderGone, one_line
 from ..output_file import is_stdout
@@ -88,7 +89,7 @@ def recording_arg(text: str) -> Path:
 
 
 def add_rate(p: argparse.ArgumentParser, help_text: str) -> None:
-    p.add_argument("--rate", type=number(0.0, 1000.0), default=1.0, metavar="X", help=help_text)
+    p.add_argument("--rate", type=PLAYBACK_RATE.arg(), default=1.0, metavar="X", help=help_text)
 
 
 def add_wait_subscriber(p: argparse.ArgumentParser, what: str) -> None:
@@ -154,22 +155,21 @@ def add_canonical_rig(
     defaults: bool,
     context: str = "",
     hfov_help: str = "",
-    min_hfov_deg: float = 0.0,
 ) -> None:
-    """``--baseline`` (m) and ``--hfov`` (deg) of a canonical rig. With ``defaults`` they
-    default to the Minoru's 0.060 m and 60 deg; without, to None, so a config file's values
-    stand. ``context`` opens both help texts; ``min_hfov_deg`` above 0 is an inclusive bound
-    (a renderer's), 0 an exclusive one."""
+    """``--baseline`` (m) and ``--hfov`` (deg) of a canonical rig, within their physical
+    bounds (:mod:`stereod.bounds`). With ``defaults`` they default to the Minoru's 0.060 m
+    and 60 deg; without, to None, so a config file's values stand. ``context`` opens both
+    help texts."""
     p.add_argument(
         "--baseline",
-        type=number(0.0, 10.0, lo_open=True, unit="m"),
+        type=BASELINE_M.arg(),
         default=0.060 if defaults else None,
         metavar="M",
         help=f"{context}distance between the cameras, m (default 0.060, the Minoru's)",
     )
     p.add_argument(
         "--hfov",
-        type=number(min_hfov_deg, 179.0, lo_open=min_hfov_deg == 0.0, unit="deg"),
+        type=HFOV_DEG.arg(),
         default=60.0 if defaults else None,
         metavar="DEG",
         help=f"{context}horizontal field of view of one eye, deg (default 60){hfov_help}",
@@ -199,7 +199,7 @@ def add_pipeline(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--threshold",
-        type=number(0.0, 255.0, lo_open=True),
+        type=THRESHOLD_GREY.arg(),
         metavar="GREY",
         help="difference threshold t of eq. 4, grey levels 0-255 (default 25)",
     )
@@ -218,7 +218,7 @@ def add_pipeline(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--time-base",
-        type=number(0.0, 60.0, lo_open=True, unit="s"),
+        type=TIME_BASE_S.arg(),
         metavar="S",
         help="time base tau of eq. 21 for velocity, s (default 0.5)",
     )
