@@ -300,3 +300,30 @@ def test_view_command_serves_foxglove(endpoint: str, listener: zenoh.Session) ->
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
+
+
+@pytest.mark.parametrize(
+    ("offered", "chosen"),
+    [
+        (["foxglove.websocket.v1"], "foxglove.websocket.v1"),  # older Foxglove, Lichtblick
+        (["foxglove.sdk.v1"], "foxglove.sdk.v1"),
+        (["foxglove.sdk.v1", "foxglove.websocket.v1"], "foxglove.sdk.v1"),
+    ],
+)
+def test_clients_of_either_protocol_name_are_served(offered: list[str], chosen: str) -> None:
+    """The protocol's older name, which foxglove-sdk alone answers with HTTP 400, gets the same
+    server: its serverInfo and the channels' advertisement."""
+
+    async def talk(port: int) -> tuple[str | None, dict[str, Any], dict[str, Any]]:
+        url = f"ws://127.0.0.1:{port}"
+        async with websockets.connect(url, subprotocols=offered, max_size=None) as ws:
+            info = json.loads(await asyncio.wait_for(ws.recv(), 10))
+            advert = json.loads(await asyncio.wait_for(ws.recv(), 10))
+            return ws.subprotocol, info, advert
+
+    with zenoh.open(zenoh_config()) as session, FoxgloveBridge(session, port=0) as bridge:
+        protocol, info, advert = asyncio.run(talk(bridge.port))
+    assert protocol == chosen
+    assert info["op"] == "serverInfo" and info["name"] == "stereod minoru"
+    assert advert["op"] == "advertise"
+    assert "/tf_static" in {c["topic"] for c in advert["channels"]}
