@@ -327,3 +327,41 @@ def test_clients_of_either_protocol_name_are_served(offered: list[str], chosen: 
     assert info["op"] == "serverInfo" and info["name"] == "stereod minoru"
     assert advert["op"] == "advertise"
     assert "/tf_static" in {c["topic"] for c in advert["channels"]}
+
+
+def test_each_eye_carries_its_own_capture_instant() -> None:
+    """As in the MCAP: with the right eye 5 ms late, the right camera_info is stamped 5 ms
+    after the left one, and the pair's stamp (skew compensation) is the left eye's."""
+    skew_ns = 5_000_000
+    scene = Scene(duration_s=2.0, fps=15.0, balls=[], skew_s=skew_ns * 1e-9)
+    endpoint = free_endpoint()
+
+    async def watch(port: int) -> Client:
+        cfg = load_config(overrides={"zenoh": {"connect": [endpoint]}})
+        daemon = Daemon(cfg, SyntheticDriver(scene.model_dump(mode="json")), rate=1.0)
+        url = f"ws://127.0.0.1:{port}"
+        async with websockets.connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+            client = Client(ws)
+            await asyncio.wait_for(ws.recv(), 10)  # serverInfo
+            await client.receive(10)  # advertise: subscribe to everything
+            thread = threading.Thread(target=daemon.run, name="daemon")
+            thread.start()
+            try:
+                while len(client.messages[f"{RIG}/right/camera_info"]) < 10:
+                    await client.receive(30)
+            finally:
+                daemon.stop()
+                await asyncio.get_running_loop().run_in_executor(None, thread.join)
+        return client
+
+    with (
+        zenoh.open(zenoh_config(listen=[endpoint])) as session,
+        FoxgloveBridge(session, port=0) as bridge,
+    ):
+        client = asyncio.run(watch(bridge.port))
+    stamps = {t for t, _ in client.messages[f"{RIG}/objects"]}
+    left = [stamp_ns(m.header) for _, m in client.decoded(f"{RIG}/left/camera_info")]
+    right = [stamp_ns(m.header) for _, m in client.decoded(f"{RIG}/right/camera_info")]
+    assert len(right) >= 10
+    for lt, rt in zip(left, right, strict=False):
+        assert lt in stamps and rt - lt == skew_ns

@@ -22,13 +22,15 @@ Channels (``<rig>`` as in the export):
 * ``/tf_static``: body frame, rig frame, both cameras; sent once the daemon's geometry is known
   (its ``calibration`` queryable) and again to every client that subscribes (the protocol has
   no latching);
-* ``/stereod/<rig>/{left,right}/camera_info``: with every ``objects`` message, at its stamp,
-  once the geometry is known;
+* ``/stereod/<rig>/{left,right}/camera_info``: with every ``objects`` message, each eye at its
+  own capture instant as in the export (:func:`eye_instants`, from the message's stamp and
+  skew and the daemon's ``pairing.skew_compensation``), once the geometry is known;
 * ``/stereod/<rig>/{left,right}/image/compressed`` and ``/stereod/<rig>/overlay/image/
   compressed`` (the annotated overlay, both eyes side by side; not in the export): the daemon's
-  JPEGs, stamped with their pair's ``stamp_utc_ns``. The view subscribes to an image's Zenoh key
-  only while some Foxglove client subscribes to its channel, since the daemon encodes an image
-  only while someone listens; at most ``daemon.image_rate_hz`` a second;
+  JPEGs, an eye's stamped with that eye's instant, the overlay with the pair's. The view
+  subscribes to an image's Zenoh key only while some Foxglove client subscribes to its channel,
+  since the daemon encodes an image only while someone listens; at most
+  ``daemon.image_rate_hz`` a second;
 * ``/stereod/<rig>/tracks/odom``, ``.../tracks/markers``, ``/stereod/<rig>/objects`` and one
   ``.../tracks/track_<id>/speed_heading`` per track (advertised at the track's first valid
   velocity, withdrawn when the track ends).
@@ -61,6 +63,7 @@ from ..client import (
     Subscription,
     TrackEnded,
     query_calibration,
+    query_config,
     subscribe_images,
     subscribe_objects,
 )
@@ -90,6 +93,7 @@ OLD_PROTOCOL = "foxglove.websocket.v1"
 messages under the protocol's earlier name, which foxglove-sdk refuses with HTTP 400."""
 
 _HEAD_MAX = 65536
+_SKEWS_KEPT = 256
 
 
 def _read_head(conn: socket.socket) -> tuple[bytes, bytes]:
@@ -208,6 +212,17 @@ class _ProtocolFront:
                 conn.shutdown(socket.SHUT_RDWR)
 
 
+def eye_instants(stamp_ns: int, skew_ns: int, compensated: bool) -> tuple[int, int]:
+    """The left and right capture instants (ns) of a pair stamped ``stamp_ns`` with ``skew_ns``
+    (right minus left): the pipeline's instant is the earlier eye's when it brings both eyes to
+    one instant (``pairing.skew_compensation``), else the midpoint ``(left + right) // 2``."""
+    if compensated:
+        left = stamp_ns if skew_ns >= 0 else stamp_ns - skew_ns
+    else:
+        left = stamp_ns - skew_ns // 2
+    return left, left + skew_ns
+
+
 def calibration_of(reply: Calibration | CanonicalGeometry) -> Calibration:
     """The daemon's geometry (its ``calibration`` queryable's reply) as a calibration."""
     if isinstance(reply, CanonicalGeometry):
@@ -266,6 +281,8 @@ class FoxgloveBridge:
         self._image_subs: dict[str, tuple[int, Subscription]] = {}
         self._subs: list[Subscription] = []
         self._alive: bool | None = None
+        self._compensated = True  # the daemon's pairing.skew_compensation, default until asked
+        self._skews: dict[int, int] = {}  # pair seq -> skew_ns, the last _SKEWS_KEPT pairs
 
     @property
     def url(self) -> str:
@@ -411,8 +428,12 @@ class FoxgloveBridge:
     def _on_objects(self, msg: ObjectsMessage) -> None:
         with self._lock:
             messages = self.ros.objects(msg)
-            for eye in Eye:
-                info = self.ros.camera_info(eye, msg.stamp_utc_ns)
+            self._skews[msg.seq] = msg.skew_ns
+            while len(self._skews) > _SKEWS_KEPT:
+                del self._skews[next(iter(self._skews))]
+            stamps = eye_instants(msg.stamp_utc_ns, msg.skew_ns, self._compensated)
+            for eye, stamp in zip(Eye, stamps, strict=True):
+                info = self.ros.camera_info(eye, stamp)
                 if info is not None:
                     messages.append(info)
         for m in messages:
@@ -435,6 +456,10 @@ class FoxgloveBridge:
         try:
             reply = query_calibration(self.session, rig=self.rig, prefix=self.prefix)
             cal = calibration_of(reply)
+            config = query_config(self.session, rig=self.rig, prefix=self.prefix)
+            pairing = config.get("pairing")
+            if isinstance(pairing, dict) and isinstance(pairing.get("skew_compensation"), bool):
+                self._compensated = pairing["skew_compensation"]
             with self._lock:
                 self.ros.set_geometry(cal)
         except (QueryError, zenoh.ZError, StereodError) as exc:
@@ -444,11 +469,14 @@ class FoxgloveBridge:
 
     def _on_image(self, topic: str, frame_id: str, image: Image) -> None:
         try:
-            self._send(
-                self.ros.compressed_image(
-                    topic, frame_id, "jpeg", image.jpeg, image.info.stamp_utc_ns
-                )
-            )
+            stamp = image.info.stamp_utc_ns
+            if image.info.name in ("left", "right"):  # each eye at its own capture instant
+                with self._lock:
+                    skew = self._skews.get(image.info.seq)
+                if skew is not None:
+                    left, right = eye_instants(stamp, skew, self._compensated)
+                    stamp = left if image.info.name == "left" else right
+            self._send(self.ros.compressed_image(topic, frame_id, "jpeg", image.jpeg, stamp))
         except Exception:
             log.exception("foxglove: sending image %s failed", image.info.name)
 
