@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation
 from stereod.config import load_config
 from stereod.daemon import Daemon
 from stereod.errors import UnavailableError
+from stereod.messages import ObjectsMessage
 from stereod.overlay import HEADER_PX
 from stereod.view.foxglove import FoxgloveBridge
 from stereod_fakes.synth import Ball, Scene, SyntheticDriver
@@ -365,3 +366,19 @@ def test_each_eye_carries_its_own_capture_instant() -> None:
     assert len(right) >= 10
     for lt, rt in zip(left, right, strict=False):
         assert lt in stamps and rt - lt == skew_ns
+
+
+def test_speed_heading_channels_are_only_those_of_live_tracks() -> None:
+    """A long run must not pile up one channel per track ever seen: a track's speed_heading
+    channel goes when a message no longer holds the track, even with its end never heard."""
+    golden = ObjectsMessage.model_validate_json(
+        (ROOT / "tests/golden/objects_example.json").read_text()
+    )
+    (state,) = golden.objects
+    valid = state.model_copy(update={"velocity_valid": True, "velocity_sigma_mps": (0.1, 0.1, 0.1)})
+    with zenoh.open(zenoh_config()) as session, FoxgloveBridge(session, port=0) as bridge:
+        for n in range(1, 201):
+            obj = valid.model_copy(update={"track_id": n})
+            bridge._on_event(golden.model_copy(update={"seq": n, "objects": [obj]}))
+        topics = {c for c in bridge._channels if c.endswith("/speed_heading")}
+    assert topics == {f"{RIG}/tracks/track_200/speed_heading"}

@@ -33,7 +33,9 @@ Channels (``<rig>`` as in the export):
   ``daemon.image_rate_hz`` a second;
 * ``/stereod/<rig>/tracks/odom``, ``.../tracks/markers``, ``/stereod/<rig>/objects`` and one
   ``.../tracks/track_<id>/speed_heading`` per track (advertised at the track's first valid
-  velocity, withdrawn when the track ends).
+  velocity, withdrawn as soon as a message no longer holds the track: at most as many of these
+  channels as tracks alive at once, however long the run; a returning Foxglove plot of an
+  ended track keeps the points it has).
 
 A message is encoded only when some client subscribes to its channel. Every message's log time
 is its stamp (the capture instant, UTC).
@@ -426,6 +428,12 @@ class FoxgloveBridge:
             log.exception("foxglove: handling %s failed", type(event).__name__)
 
     def _on_objects(self, msg: ObjectsMessage) -> None:
+        alive = {self.names.speed_heading_topic(o.track_id) for o in msg.objects}
+        with self._lock:
+            gone = [t for t in self._channels if t.endswith("/speed_heading") and t not in alive]
+            closing = [self._channels.pop(t)[0] for t in gone]
+        for ch in closing:
+            ch.close()
         with self._lock:
             messages = self.ros.objects(msg)
             self._skews[msg.seq] = msg.skew_ns
