@@ -6,10 +6,15 @@ way ``rmw_zenoh_cpp`` of ROS 2 **Jazzy** and **Kilted** does, so a ROS 2 machine
 ``RMW_IMPLEMENTATION=rmw_zenoh_cpp`` connected to the same Zenoh router lists and echoes them
 with no stereod package and no bridge. Humble's rmw_zenoh is not supported (no type hashes).
 
-The mapping follows rmw_zenoh's source (github ros2/rmw_zenoh, branches ``jazzy`` and
-``kilted``, read at the releases of 2025 that use Zenoh 1.x and zenoh-cpp's AdvancedPublisher:
-``rmw_zenoh_cpp/src/detail/liveliness_utils.cpp``, ``attachment_helpers.cpp``,
-``rmw_publisher_data.cpp``, ``qos.cpp``):
+The mapping follows rmw_zenoh's source (github ros2/rmw_zenoh, the ``jazzy`` and ``kilted``
+lines since they moved to Zenoh 1.x, 16-byte GIDs, the binary attachment and zenoh-cpp's
+AdvancedPublisher: ``rmw_zenoh_cpp/src/detail/liveliness_utils.cpp`` (``Entity``,
+``TopicInfo``, ``qos_to_keyexpr``, ``mangle_name``), ``attachment_helpers.cpp``
+(``AttachmentData::serialize_to_zbytes``), ``rmw_publisher_data.cpp`` (``PublisherData::make``,
+``publish``; ``SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD`` 500 ms), ``qos.cpp`` (commit 5e10d47b,
+the defaults) and ``docs/design.md`` ("Graph Cache" examples, "Publishers" attachment layout)).
+Earlier rmw_zenoh builds (the rolling branch of October 2024, bfc065f, and before: an attachment
+of named fields, tokens without type hashes or node ids) are not spoken.
 
 * data key: ``<domain_id>/<topic without its leading slash>/<pkg>::msg::dds_::<Type>_/RIHS01_<hex>``
   (``TopicInfo``'s ``topic_keyexpr_``);

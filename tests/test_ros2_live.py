@@ -25,7 +25,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from stereod import ros2_live
 from stereod.calibration import canonical
-from stereod.config import load_config
+from stereod.config import environment, load_config
 from stereod.daemon import Daemon
 from stereod.export_mcap import RosMessages, cdr_encoder
 from stereod.frames import Eye
@@ -245,3 +245,27 @@ def test_a_ros_subscriber_discovers_the_node_and_decodes_its_data(
     info_msg = jazzy.deserialize_cdr(sample.payload.to_bytes(), "sensor_msgs/msg/CameraInfo")
     assert pic is not None and pic.shape[:2] == (info_msg.height, info_msg.width)
     assert daemon.ros2 is not None and daemon.ros2.errors == 0
+
+
+def test_namespace_prefixes_node_and_topics_but_not_tf_static(listener: zenoh.Session) -> None:
+    """``[ros2] namespace``: the node's namespace, mangled in its tokens, and the prefix of
+    stereod's topics; ``/tf_static`` stays at the root, where tf2 reads it."""
+    cal = canonical(0.06, 60.0, 320, 240)
+    with ros2_live.Ros2Live(listener, "minoru", calibration=cal, namespace="lab/bench") as ros:
+        assert ros.node_token_key.endswith("/0/0/NN/%/%lab%bench/stereod_minoru")
+        topics = set(ros.endpoints)
+        assert "/tf_static" in topics and "/lab/bench/stereod/minoru/tracks/odom" in topics
+        odom = ros.endpoints["/lab/bench/stereod/minoru/tracks/odom"]
+        assert odom.key.startswith("0/lab/bench/stereod/minoru/tracks/odom/nav_msgs::")
+        assert "/MP/%/%lab%bench/stereod_minoru/%lab%bench%stereod%minoru%tracks%odom/" in (
+            odom.token_key
+        )
+        replies = list(listener.liveliness().get("@ros2_lv/0/**", timeout=2))
+        assert len(replies) == 1 + len(topics)
+
+
+def test_ros2_section_from_the_environment() -> None:
+    env = {"STEREOD_ROS2__ENABLED": "true", "STEREOD_ROS2__TOPICS": '["odom", "tf_static"]'}
+    cfg = load_config(overrides=environment(env))
+    assert cfg.ros2.enabled and cfg.ros2.topics == ["odom", "tf_static"]
+    assert not load_config().ros2.enabled  # off unless asked for
