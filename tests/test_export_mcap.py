@@ -13,6 +13,7 @@ import errno
 import json
 import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -642,8 +643,19 @@ def test_foxglove_layout_refers_to_exported_topics(run: Run) -> None:
     for cfg in panels.values():
         referenced |= set(cfg.get("topics", {}))
         referenced |= {v for k, v in cfg.get("imageMode", {}).items() if k.endswith("Topic")}
-        referenced |= {p["value"].split(".")[0] for p in cfg.get("paths", [])}
+        referenced |= {p["value"].split(".")[0].split("{")[0] for p in cfg.get("paths", [])}
+    scripts = {}  # the layout's user scripts: output topic -> its inputs
+    for node in layout["userNodes"].values():
+        output = re.search(r'export const output = "([^"]+)";', node["sourceCode"])
+        inputs = re.search(r"export const inputs = \[([^\]]*)\];", node["sourceCode"])
+        assert output and inputs
+        scripts[output.group(1)] = set(re.findall(r'"([^"]+)"', inputs.group(1)))
+    for topic, inputs in scripts.items():
+        referenced = referenced - {topic} | inputs
     assert referenced <= set(run.bag.topics), referenced - set(run.bag.topics)
+    # the plots follow whatever tracks there are: slots, not track ids
+    plots = [p["value"] for k, c in panels.items() if k.startswith("Plot") for p in c["paths"]]
+    assert plots and not any("track_" in p for p in plots)
     assert panels["3D!stereod-scene"]["followTf"] == "stereod_minoru"
 
 

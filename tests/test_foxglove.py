@@ -254,10 +254,26 @@ def test_layout_names_the_live_topics(session_client: Any) -> None:
     for cfg in layout["configById"].values():
         referenced |= set(cfg.get("topics", {}))
         referenced |= {v for k, v in cfg.get("imageMode", {}).items() if k.endswith("Topic")}
-        referenced |= {p["value"].split(".")[0] for p in cfg.get("paths", [])}
+        referenced |= {p["value"].split(".")[0].split("{")[0] for p in cfg.get("paths", [])}
     advertised = {c["topic"] for c in client.channels.values()}
-    # track 2's plot line waits for a second track, which this scene has not
-    assert referenced - advertised == {f"{RIG}/tracks/track_2/speed_heading"}
+    # the plots name the layout's own script (slots that follow whatever tracks there are),
+    # which reads advertised topics
+    scripts = layout_scripts(layout)
+    assert set(scripts) == {"/studio_script/stereod_minoru_tracks"}
+    assert referenced - advertised == set(scripts)
+    assert all(set(inputs) <= advertised for inputs in scripts.values())
+
+
+def layout_scripts(layout: dict[str, Any]) -> dict[str, list[str]]:
+    """The layout's user scripts: output topic -> input topics, read from their source."""
+    out = {}
+    for node in layout.get("userNodes", {}).values():
+        src = node["sourceCode"]
+        output = re.search(r'export const output = "([^"]+)";', src)
+        inputs = re.search(r"export const inputs = \[([^\]]*)\];", src)
+        assert output and inputs, node["name"]
+        out[output.group(1)] = re.findall(r'"([^"]+)"', inputs.group(1))
+    return out
 
 
 def test_port_in_use_is_one_line(session_client: Any) -> None:
