@@ -441,8 +441,9 @@ class Ros2Config(_Section):
     domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID of the ROS machines")
     namespace: str = Field(
         "",
-        pattern=r"^(/?[A-Za-z][A-Za-z0-9_]*)*/?$",
-        description="Node namespace, also prefixed to the stereod topics ('' for none)",
+        pattern=r"^/?([A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*)?/?$",
+        description="Node namespace, also prefixed to the stereod topics ('' for none); ROS "
+        "names: letters, digits, '_', parts split by '/', each starting with a letter",
     )
     topics: list[Ros2Topic] = Field(
         default_factory=lambda: list(_ROS2_TOPICS),
