@@ -165,11 +165,12 @@ def test_a_ros_subscriber_discovers_the_node_and_decodes_its_data(
             "daemon": {"image_rate_hz": 50.0},
         }
     )
-    daemon = Daemon(cfg, SyntheticDriver({"duration_s": 6.0, "fps": 15}), rate=1.0)
+    scene = {"duration_s": 6.0, "fps": 15, "skew_s": 0.005}  # the right eye 5 ms late
+    daemon = Daemon(cfg, SyntheticDriver(scene), rate=1.0)
     out: dict[str, Any] = {}
     thread = threading.Thread(target=lambda: out.setdefault("summary", daemon.run()))
     thread.start()
-    got: dict[str, list[tuple[tuple, Any]]] = {"odom": [], "image": [], "info": []}
+    got: dict[str, list[tuple[tuple, Any]]] = {"odom": [], "image": [], "info": [], "left": []}
     subs: list[Any] = []
     try:
         tokens = _graph(listener, 3, want=8, timeout=15)
@@ -201,6 +202,8 @@ def test_a_ros_subscriber_discovers_the_node_and_decodes_its_data(
         subs.append(listener.declare_subscriber(key(image), collect("image")))
         info = pubs["/stereod/minoru/right/camera_info"]
         subs.append(listener.declare_subscriber(key(info), collect("info")))
+        left_info = pubs["/stereod/minoru/left/camera_info"]
+        subs.append(listener.declare_subscriber(key(left_info), collect("left")))
         # A transient-local subscription joining late: rmw_zenoh's AdvancedSubscriber that
         # detects late publishers and queries their caches.
         statics: list[Any] = []
@@ -244,6 +247,18 @@ def test_a_ros_subscriber_discovers_the_node_and_decodes_its_data(
     (_, _, _, _), sample = got["info"][0]
     info_msg = jazzy.deserialize_cdr(sample.payload.to_bytes(), "sensor_msgs/msg/CameraInfo")
     assert pic is not None and pic.shape[:2] == (info_msg.height, info_msg.width)
+
+    # Each eye at its own capture instant: the right eye's camera_info 5 ms after the left's.
+    def stamps(name: str) -> set[int]:
+        out = set()
+        for _, sample in got[name]:
+            h = jazzy.deserialize_cdr(sample.payload.to_bytes(), "sensor_msgs/msg/CameraInfo")
+            out.add(h.header.stamp.sec * 1_000_000_000 + h.header.stamp.nanosec)
+        return out
+
+    left, right = stamps("left"), stamps("info")
+    assert len(left & {r - 5_000_000 for r in right}) >= 3
+    assert not left & right
     assert daemon.ros2 is not None and daemon.ros2.errors == 0
 
 
