@@ -533,6 +533,27 @@ class DaemonConfig(_Section):
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
 
 
+Ros2Topic = Literal["odom", "markers", "camera_info", "images", "tf_static", "objects"]
+_ROS2_TOPICS: tuple[Ros2Topic, ...] = ("odom", "markers", "camera_info", "images", "tf_static")
+
+
+class Ros2Config(_Section):
+    """ROS 2 live (:mod:`stereod.ros2_live`): the daemon also speaks rmw_zenoh (Jazzy, Kilted)."""
+
+    enabled: bool = Field(False, description="Publish the ROS 2 topics as an rmw_zenoh node")
+    domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID of the ROS machines")
+    namespace: str = Field(
+        "",
+        pattern=r"^/?([A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*)?/?$",
+        description="Node namespace, also prefixed to the stereod topics ('' for none); ROS "
+        "names: letters, digits, '_', parts split by '/', each starting with a letter",
+    )
+    topics: list[Ros2Topic] = Field(
+        default_factory=lambda: list(_ROS2_TOPICS),
+        description="Topic groups to publish",
+    )
+
+
 class StereodConfig(BaseModel):
     """The whole configuration; sections mirror the TOML tables."""
 
@@ -548,6 +569,7 @@ class StereodConfig(BaseModel):
     grouping: GroupingConfig = Field(default_factory=GroupingConfig)
     zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
     daemon: DaemonConfig = Field(default_factory=DaemonConfig)
+    ros2: Ros2Config = Field(default_factory=Ros2Config)
 
 
 def read_toml(path: Path) -> dict[str, Any]:

@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .calibration import canonical
 from .capture import Capture, Queued
 from .config import StereodConfig
 from .errors import InternalError, ReaderGone, StereodError
@@ -42,6 +43,7 @@ from .processing import Outgoing, PipelineWorker
 from .publish import Publisher
 from .queues import BoundedQueue
 from .redact import public_config, public_text
+from .ros2_live import Ros2Live
 from .sdnotify import Notifier
 from .status import Health, geometry_note
 
@@ -152,6 +154,8 @@ class Daemon:
         self.summary = RunSummary()
         self.images: ImageWorker | None = None
         """The image worker of the last run (its counters), None when images were off."""
+        self.ros2: Ros2Live | None = None
+        """The ROS 2 node of the last run (``[ros2] enabled``), kept for its counters."""
 
     # -- control (any thread, signal handlers included) --------------------------------------
 
@@ -300,6 +304,10 @@ class Daemon:
             if images is not None:
                 worker.want_images = images.wanted
                 on_message = _both(images.offer, self._on_message)
+            ros2 = self._ros2(pub)
+            if ros2 is not None:  # frames by reference: each eye's instant, images on demand
+                worker.keep_pairs = True
+                on_message = _both(ros2.offer, on_message)
             output = Output(
                 out,
                 pub,
@@ -326,6 +334,9 @@ class Daemon:
                     for t in threads:
                         if t.ident is not None:
                             t.join()
+                if ros2 is not None:
+                    ros2.close()
+                    self.ros2 = ros2
                 if images is not None and painter is not None:
                     images.close()
                     if painter.ident is not None:
@@ -337,6 +348,32 @@ class Daemon:
             h.state = DaemonState.FINISHED
             pub.status(dump(h.status(1.0)))
             self.summary.objects = worker.objects
+
+    def _ros2(self, pub: Publisher) -> Ros2Live | None:
+        """The ROS 2 node of ``[ros2]`` on the daemon's session, or None when it is off."""
+        r = self.cfg.ros2
+        if not r.enabled:
+            return None
+        assert self._worker is not None
+        rig = self._worker.rig
+        if isinstance(rig, CalibratedRig):
+            cal = rig.calibration
+        else:
+            cal = canonical(rig.baseline_m, rig.hfov_deg, rig.width_px, rig.height_px)
+        d = self.cfg.daemon
+        ros2 = Ros2Live(
+            pub.session,
+            self.cfg.rig.name,
+            calibration=cal,
+            domain_id=r.domain_id,
+            namespace=r.namespace,
+            topics=r.topics,
+            image_rate_hz=d.image_rate_hz,
+            jpeg_quality=d.image_quality,
+            health=self.health,
+        )
+        log.info("ros2: node %s, domain %d", ros2.node, r.domain_id)
+        return ros2
 
     def _image_worker(self, pub: Publisher) -> ImageWorker | None:
         """The image thread's worker, or None when images are off (``image_rate_hz = 0``)."""
@@ -424,6 +461,7 @@ class Daemon:
                 ("driver", new.driver, self.cfg.driver),
                 ("zenoh", new.zenoh, self.cfg.zenoh),
                 ("daemon", new.daemon, self.cfg.daemon),
+                ("ros2", new.ros2, self.cfg.ros2),
                 ("rig.name", new.rig.name, self.cfg.rig.name),
                 ("pairing.tolerance_ms", new.pairing.tolerance_ms, cfg.pairing.tolerance_ms),
                 ("pairing.max_pending", new.pairing.max_pending, cfg.pairing.max_pending),
@@ -464,6 +502,7 @@ class Daemon:
                 "driver": self.cfg.driver,
                 "zenoh": self.cfg.zenoh,
                 "daemon": self.cfg.daemon,
+                "ros2": self.cfg.ros2,
                 "rig": new.rig.model_copy(update={"name": self.cfg.rig.name}),
                 "pairing": new.pairing.model_copy(
                     update={

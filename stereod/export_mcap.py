@@ -51,10 +51,12 @@ Mapping of a ``stereod.objects/1`` message (field names of :mod:`stereod.message
   rig frame (not in the child frame: the numbers are stereod's, unrotated); ``twist.angular`` =
   0 (not estimated). ``pose.covariance`` (6x6 row-major, m^2 and rad^2): ``position_sigma_m``
   squared on the first three diagonal entries, ``radians(heading_sigma_deg)^2`` on entry (4, 4)
-  (rotation about the rig's Y axis, i.e. heading; pi^2 when ``heading_sigma_deg`` is null), 0
-  elsewhere (roll and pitch are fixed by construction). ``twist.covariance``:
-  ``velocity_sigma_mps`` squared on the first three diagonal entries; when it is null (unknown),
-  entry 0 is -1 and the rest 0, the ROS convention for an unknown covariance. The orientation
+  (rotation about the rig's Y axis, i.e. heading; -1, "unknown", while ``heading_valid`` is
+  false or the sigma null), 0 elsewhere (roll and pitch are fixed by construction).
+  ``twist.covariance``: ``velocity_sigma_mps`` squared on the first three diagonal entries and
+  -1 on the angular ones (not estimated); while ``velocity_valid`` is false (or the sigma is
+  null) entry 0 is -1 and the rest 0, the ROS convention for an unknown covariance, so the
+  velocity's validity is explicit in the message itself. The orientation
   encodes the heading: it is the rotation about the rig frame's vertical axis (+Y, down) by
   ``heading_deg`` applied to a body frame (X forward, Y left, Z up) whose X points along the rig's
   +Z; so the child frame's +X points along the horizontal direction of motion, (sin h, 0, cos h)
@@ -563,17 +565,20 @@ class RosMessages:
         pose_cov = [0.0] * 36
         for i, s in enumerate(obj.position_sigma_m):
             pose_cov[7 * i] = float(s) ** 2
+        heading_known = obj.heading_valid and obj.heading_sigma_deg is not None
         pose_cov[7 * 4] = (
             math.radians(obj.heading_sigma_deg) ** 2
-            if obj.heading_sigma_deg is not None
-            else math.pi**2
+            if heading_known and obj.heading_sigma_deg is not None
+            else -1.0  # not estimated: ROS's "unknown"
         )
         twist_cov = [0.0] * 36
-        if obj.velocity_sigma_mps is None:
-            twist_cov[0] = -1.0
+        if obj.velocity_sigma_mps is None or not obj.velocity_valid:
+            twist_cov[0] = -1.0  # no valid velocity: the whole twist is "unknown"
         else:
             for i, s in enumerate(obj.velocity_sigma_mps):
                 twist_cov[7 * i] = float(s) ** 2
+            for i in (3, 4, 5):  # angular rates are not estimated
+                twist_cov[7 * i] = -1.0
         return {
             "header": _header(obj.stamp_utc_ns, names.optical_frame),
             "child_frame_id": names.track_frame(obj.track_id),

@@ -50,6 +50,23 @@ class TrackSeries:
     heading_sigma_deg: np.ndarray
     raw_velocity_mps: np.ndarray
     """(n, 3) the paper's eq. 21 velocity, NaN rows until the track spans the time base."""
+    state: np.ndarray | None = None
+    """(n,) lifecycle of each state (``tentative``, ``confirmed``, ``coasting``,
+    ``stationary``); None: all measured and confirmed."""
+
+    def measured(self) -> np.ndarray:
+        """(n,) whether a state had a measurement: a coasting state is the filter's
+        prediction alone, and its eq. 21 value the last measured one repeated."""
+        if self.state is None:
+            return np.ones(len(self.t_s), dtype=bool)
+        return np.asarray(self.state != "coasting", dtype=bool)
+
+    def trajectory_m(self) -> np.ndarray:
+        """(k, 3) positions to draw as the track's path, m: its states but the tentative
+        ones (a track's first, unconfirmed guesses, which draw a hook at its start)."""
+        if self.state is None:
+            return self.position_m
+        return self.position_m[self.state != "tentative"]
 
 
 @dataclass(frozen=True)
@@ -119,6 +136,7 @@ def read_run(path: Path) -> Run:
                     [o.raw_velocity_mps or (math.nan,) * 3 for o in obs],
                     dtype=float,
                 ),
+                state=np.array([str(getattr(o.state, "value", o.state)) for o in obs]),
             )
         )
     return Run(t0, tracks)
@@ -251,8 +269,9 @@ def speed_heading(velocity_mps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def eq21(track: TrackSeries) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The paper's eq. 21 series of a track: (t_s, speed m/s, heading deg) where it exists."""
-    ok = np.all(np.isfinite(track.raw_velocity_mps), axis=1)
+    """The paper's eq. 21 series of a track: (t_s, speed m/s, heading deg) where it exists and
+    was measured (a coasting state repeats the last value: it is left out, not drawn again)."""
+    ok = np.all(np.isfinite(track.raw_velocity_mps), axis=1) & track.measured()
     speed, heading = speed_heading(track.raw_velocity_mps[ok])
     return track.t_s[ok], speed, heading
 
@@ -319,6 +338,17 @@ def plot_run(run: Run, truth: list[TruthSeries], out: Path, *, title: str = "") 
     """Draw the figure (FIGSIZE_IN at DPI) to ``out`` (PNG, or any format by its suffix: see
     :func:`figure_target`); return the path written."""
     path, fmt = figure_target(out)
+    fig = draw(run, truth, title=title)
+    image = io.BytesIO()
+    fig.savefig(image, dpi=DPI, format=fmt)
+    with AtomicOutput(path) as output:  # the output rule of every command (output_file)
+        output.write(image.getvalue())
+    return path
+
+
+def draw(run: Run, truth: list[TruthSeries], *, title: str = "") -> Any:
+    """The figure (a matplotlib ``Figure``, FIGSIZE_IN at DPI): top view, speed, heading.
+    Legends stand beside or below their panel, never over its data."""
     fig = _figure_class()(figsize=FIGSIZE_IN, dpi=DPI, layout="constrained")
     grid = fig.add_gridspec(2, 2, width_ratios=(1.0, 1.4))
     top = fig.add_subplot(grid[:, 0])
@@ -335,7 +365,8 @@ def plot_run(run: Run, truth: list[TruthSeries], out: Path, *, title: str = "") 
     for k, tr in enumerate(run.tracks):
         c = cycle[k % len(cycle)]
         name = f"#{tr.track_id}"
-        top.plot(tr.position_m[:, 0], tr.position_m[:, 2], ".-", color=c, ms=3, lw=0.8, label=name)
+        path = tr.trajectory_m()
+        top.plot(path[:, 0], path[:, 2], ".-", color=c, ms=3, lw=0.8, label=name)
         v = tr.valid
         if not v.any():
             continue
@@ -366,15 +397,16 @@ def plot_run(run: Run, truth: list[TruthSeries], out: Path, *, title: str = "") 
     hdg.set_xlabel("time (s)")
     for ax in (top, spd, hdg):
         ax.grid(alpha=0.3)
+    if top.get_legend_handles_labels()[0]:  # below the top view
+        top.legend(
+            fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncols=4, borderaxespad=0
+        )
+    for ax in (spd, hdg):  # right of the time series
         if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7, loc="best")
+            ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     if title:
         fig.suptitle(title, parse_math=False)  # written as given: "$x^{2$" is no formula
-    image = io.BytesIO()
-    fig.savefig(image, dpi=DPI, format=fmt)
-    with AtomicOutput(path) as output:  # the output rule of every command (output_file)
-        output.write(image.getvalue())
-    return path
+    return fig
 
 
 def summary(run: Run) -> str:

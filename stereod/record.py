@@ -49,8 +49,9 @@ def record(
     :class:`~stereod.recording.RecordingWriter`).
     ``calibration`` is checked as a run would check it, and stored in the manifest.
     ``on_frame`` sees every frame written (progress), one call at a time; ``on_start`` sees
-    the opened source and the recording's UTC offset (ns, wall clock minus the frames' clock;
-    None when unknown) before the first frame."""
+    the opened source and the recording's UTC offset (ns, wall clock minus the frames' clock)
+    before the first frame is written: for a source without a clock of its own, the wall clock
+    at its first frame, which the manifest keeps too (so a later export stamps as ``--mcap``)."""
     stop = stop or threading.Event()
     out = follow_links(out)
     cal = load_calibration(calibration).model_dump(mode="json") if calibration else None
@@ -59,7 +60,7 @@ def record(
     with driver.open() as source:
         info = source.info
         offset = time.time_ns() - time.monotonic_ns() if info.live else info.utc_offset_ns
-        if on_start is not None:
+        if on_start is not None and offset is not None:
             on_start(info, offset)
         first: list[int] = []
         with RecordingWriter(
@@ -77,6 +78,11 @@ def record(
             def keep(frame_t: int) -> bool:
                 if not first:
                     first.append(frame_t)
+                    if offset is None:  # a source without a clock: the wall clock at its start
+                        start = time.time_ns() - frame_t
+                        writer.set_utc_offset(start)
+                        if on_start is not None:
+                            on_start(info, start)
                 return seconds is None or frame_t - first[0] < seconds * 1e9
 
             if info.live:

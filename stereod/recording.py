@@ -511,6 +511,13 @@ class RecordingWriter:
         self._manifest["color"] = color
         self._frame_bytes = width * height * (3 if color else 1)
 
+    def set_utc_offset(self, utc_offset_ns: int) -> None:
+        """Keep ``utc_offset_ns`` (wall clock minus the frames' clock, ns) in the manifest when
+        the source gave none: the offset an MCAP written alongside stamps frames with, so a
+        later ``stereod export`` of this recording stamps them the same."""
+        if self._manifest.get("utc_offset_ns") is None:
+            self._manifest["utc_offset_ns"] = int(utc_offset_ns)
+
     def write(self, frame: Frame) -> None:
         """Append one frame (its pixels, capture time and sequence number)."""
         img = frame.image

@@ -13,6 +13,7 @@ import errno
 import json
 import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -214,6 +215,7 @@ def test_topics_types_and_counts_match_the_run(run: Run) -> None:
 def test_tracks_equal_the_jsonl(run: Run) -> None:
     odom = {(stamp_ns(m.header), m.child_frame_id): m for m in run.bag.msgs(f"{RIG}/tracks/odom")}
     seen_null_heading_sigma = False
+    seen_invalid_velocity = False
     for m in run.messages:
         for o in m["objects"]:
             od = odom[(o["stamp_utc_ns"], f"stereod_minoru_track_{o['track_id']}")]
@@ -228,13 +230,17 @@ def test_tracks_equal_the_jsonl(run: Run) -> None:
             )
             if o["heading_sigma_deg"] is None:
                 seen_null_heading_sigma = True
-            else:
+            if o["heading_valid"] and o["heading_sigma_deg"] is not None:
                 assert pc[4, 4] == pytest.approx(math.radians(o["heading_sigma_deg"]) ** 2)
-            tc = np.asarray(od.twist.covariance).reshape(6, 6)
-            if o["velocity_sigma_mps"] is None:
-                assert tc[0, 0] == -1.0
             else:
+                assert pc[4, 4] == -1.0  # ROS: not estimated, "unknown"
+            tc = np.asarray(od.twist.covariance).reshape(6, 6)
+            if o["velocity_valid"] and o["velocity_sigma_mps"] is not None:
                 np.testing.assert_allclose(np.diag(tc)[:3], np.square(o["velocity_sigma_mps"]))
+                assert list(np.diag(tc)[3:]) == [-1.0, -1.0, -1.0]  # angular: not estimated
+            else:  # no valid velocity: the whole twist is "unknown", explicitly
+                seen_invalid_velocity = True
+                assert tc[0, 0] == -1.0 and np.count_nonzero(tc) == 1
             # The orientation is the heading: body +X along (sin h, 0, cos h), body +Z up (-Y).
             h = math.radians(o["heading_deg"])
             rot = quat(od.pose.pose.orientation)
@@ -250,6 +256,7 @@ def test_tracks_equal_the_jsonl(run: Run) -> None:
                 heading = math.degrees(math.atan2(vx, vz)) % 360.0
                 assert (heading - o["heading_deg"] + 180) % 360 - 180 == pytest.approx(0, abs=1e-6)
     assert not seen_null_heading_sigma  # the null case is covered by the golden message test
+    assert seen_invalid_velocity  # a track's first states, before its velocity is valid
 
 
 def test_speed_heading_topics(run: Run) -> None:
@@ -668,8 +675,19 @@ def test_foxglove_layout_refers_to_exported_topics(run: Run) -> None:
     for cfg in panels.values():
         referenced |= set(cfg.get("topics", {}))
         referenced |= {v for k, v in cfg.get("imageMode", {}).items() if k.endswith("Topic")}
-        referenced |= {p["value"].split(".")[0] for p in cfg.get("paths", [])}
+        referenced |= {p["value"].split(".")[0].split("{")[0] for p in cfg.get("paths", [])}
+    scripts = {}  # the layout's user scripts: output topic -> its inputs
+    for node in layout["userNodes"].values():
+        output = re.search(r'export const output = "([^"]+)";', node["sourceCode"])
+        inputs = re.search(r"export const inputs = \[([^\]]*)\];", node["sourceCode"])
+        assert output and inputs
+        scripts[output.group(1)] = set(re.findall(r'"([^"]+)"', inputs.group(1)))
+    for topic, inputs in scripts.items():
+        referenced = referenced - {topic} | inputs
     assert referenced <= set(run.bag.topics), referenced - set(run.bag.topics)
+    # the plots follow whatever tracks there are: slots, not track ids
+    plots = [p["value"] for k, c in panels.items() if k.startswith("Plot") for p in c["paths"]]
+    assert plots and not any("track_" in p for p in plots)
     assert panels["3D!stereod-scene"]["followTf"] == "stereod_minoru"
 
 

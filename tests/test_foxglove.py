@@ -28,6 +28,7 @@ from scipy.spatial.transform import Rotation
 from stereod.config import load_config
 from stereod.daemon import Daemon
 from stereod.errors import UnavailableError
+from stereod.messages import ObjectsMessage
 from stereod.overlay import HEADER_PX
 from stereod.view.foxglove import FoxgloveBridge
 from stereod_fakes.synth import Ball, Scene, SyntheticDriver
@@ -287,10 +288,26 @@ def test_layout_names_the_live_topics(session_client: Any) -> None:
     for cfg in layout["configById"].values():
         referenced |= set(cfg.get("topics", {}))
         referenced |= {v for k, v in cfg.get("imageMode", {}).items() if k.endswith("Topic")}
-        referenced |= {p["value"].split(".")[0] for p in cfg.get("paths", [])}
+        referenced |= {p["value"].split(".")[0].split("{")[0] for p in cfg.get("paths", [])}
     advertised = {c["topic"] for c in client.channels.values()}
-    # track 2's plot line waits for a second track, which this scene has not
-    assert referenced - advertised == {f"{RIG}/tracks/track_2/speed_heading"}
+    # the plots name the layout's own script (slots that follow whatever tracks there are),
+    # which reads advertised topics
+    scripts = layout_scripts(layout)
+    assert set(scripts) == {"/studio_script/stereod_minoru_tracks"}
+    assert referenced - advertised == set(scripts)
+    assert all(set(inputs) <= advertised for inputs in scripts.values())
+
+
+def layout_scripts(layout: dict[str, Any]) -> dict[str, list[str]]:
+    """The layout's user scripts: output topic -> input topics, read from their source."""
+    out = {}
+    for node in layout.get("userNodes", {}).values():
+        src = node["sourceCode"]
+        output = re.search(r'export const output = "([^"]+)";', src)
+        inputs = re.search(r"export const inputs = \[([^\]]*)\];", src)
+        assert output and inputs, node["name"]
+        out[output.group(1)] = re.findall(r'"([^"]+)"', inputs.group(1))
+    return out
 
 
 def test_port_in_use_is_one_line(session_client: Any) -> None:
@@ -334,3 +351,84 @@ def test_view_command_serves_foxglove(endpoint: str, listener: zenoh.Session) ->
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
+
+
+@pytest.mark.parametrize(
+    ("offered", "chosen"),
+    [
+        (["foxglove.websocket.v1"], "foxglove.websocket.v1"),  # older Foxglove, Lichtblick
+        (["foxglove.sdk.v1"], "foxglove.sdk.v1"),
+        (["foxglove.sdk.v1", "foxglove.websocket.v1"], "foxglove.sdk.v1"),
+    ],
+)
+def test_clients_of_either_protocol_name_are_served(offered: list[str], chosen: str) -> None:
+    """The protocol's older name, which foxglove-sdk alone answers with HTTP 400, gets the same
+    server: its serverInfo and the channels' advertisement."""
+
+    async def talk(port: int) -> tuple[str | None, dict[str, Any], dict[str, Any]]:
+        url = f"ws://127.0.0.1:{port}"
+        async with websockets.connect(url, subprotocols=offered, max_size=None) as ws:
+            info = json.loads(await asyncio.wait_for(ws.recv(), 10))
+            advert = json.loads(await asyncio.wait_for(ws.recv(), 10))
+            return ws.subprotocol, info, advert
+
+    with zenoh.open(zenoh_config()) as session, FoxgloveBridge(session, port=0) as bridge:
+        protocol, info, advert = asyncio.run(talk(bridge.port))
+    assert protocol == chosen
+    assert info["op"] == "serverInfo" and info["name"] == "stereod minoru"
+    assert advert["op"] == "advertise"
+    assert "/tf_static" in {c["topic"] for c in advert["channels"]}
+
+
+def test_each_eye_carries_its_own_capture_instant() -> None:
+    """As in the MCAP: with the right eye 5 ms late, the right camera_info is stamped 5 ms
+    after the left one, and the pair's stamp (skew compensation) is the left eye's."""
+    skew_ns = 5_000_000
+    scene = Scene(duration_s=2.0, fps=15.0, balls=[], skew_s=skew_ns * 1e-9)
+    endpoint = free_endpoint()
+
+    async def watch(port: int) -> Client:
+        cfg = load_config(overrides={"zenoh": {"connect": [endpoint]}})
+        daemon = Daemon(cfg, SyntheticDriver(scene.model_dump(mode="json")), rate=1.0)
+        url = f"ws://127.0.0.1:{port}"
+        async with websockets.connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+            client = Client(ws)
+            await asyncio.wait_for(ws.recv(), 10)  # serverInfo
+            await client.receive(10)  # advertise: subscribe to everything
+            thread = threading.Thread(target=daemon.run, name="daemon")
+            thread.start()
+            try:
+                while len(client.messages[f"{RIG}/right/camera_info"]) < 10:
+                    await client.receive(30)
+            finally:
+                daemon.stop()
+                await asyncio.get_running_loop().run_in_executor(None, thread.join)
+        return client
+
+    with (
+        zenoh.open(zenoh_config(listen=[endpoint])) as session,
+        FoxgloveBridge(session, port=0) as bridge,
+    ):
+        client = asyncio.run(watch(bridge.port))
+    stamps = {t for t, _ in client.messages[f"{RIG}/objects"]}
+    left = [stamp_ns(m.header) for _, m in client.decoded(f"{RIG}/left/camera_info")]
+    right = [stamp_ns(m.header) for _, m in client.decoded(f"{RIG}/right/camera_info")]
+    assert len(right) >= 10
+    for lt, rt in zip(left, right, strict=False):
+        assert lt in stamps and rt - lt == skew_ns
+
+
+def test_speed_heading_channels_are_only_those_of_live_tracks() -> None:
+    """A long run must not pile up one channel per track ever seen: a track's speed_heading
+    channel goes when a message no longer holds the track, even with its end never heard."""
+    golden = ObjectsMessage.model_validate_json(
+        (ROOT / "tests/golden/objects_example.json").read_text()
+    )
+    (state,) = golden.objects
+    valid = state.model_copy(update={"velocity_valid": True, "velocity_sigma_mps": (0.1, 0.1, 0.1)})
+    with zenoh.open(zenoh_config()) as session, FoxgloveBridge(session, port=0) as bridge:
+        for n in range(1, 201):
+            obj = valid.model_copy(update={"track_id": n})
+            bridge._on_event(golden.model_copy(update={"seq": n, "objects": [obj]}))
+        topics = {c for c in bridge._channels if c.endswith("/speed_heading")}
+    assert topics == {f"{RIG}/tracks/track_200/speed_heading"}

@@ -16,9 +16,11 @@ import pytest
 from stereod.plot import (
     DPI,
     FIGSIZE_IN,
+    Run,
     TrackSeries,
     band,
     display_deg,
+    draw,
     eq21,
     read_run,
     read_truth,
@@ -268,3 +270,61 @@ def test_a_title_is_drawn_as_written_not_as_a_formula(tmp_path: Path) -> None:
     r = stereod("plot", str(run), "-o", str(fig), "--title", "$x^{2$ costs $5")
     assert r.returncode == 0, r.stderr
     assert _png_size(fig) == (int(FIGSIZE_IN[0] * DPI), int(FIGSIZE_IN[1] * DPI))
+
+
+def _moving(track_id: int, states: list[str], heading_deg: float) -> TrackSeries:
+    n = len(states)
+    t = np.arange(n) * 0.1
+    h = math.radians(heading_deg)
+    pos = np.stack([np.sin(h) * t, np.zeros(n), 1.0 + np.cos(h) * t], axis=1)
+    pos[0] += (0.3, 0.0, -0.2)  # a tentative first guess off the path: the "hook"
+    raw = np.tile([math.sin(h), 0.0, math.cos(h)], (n, 1))
+    return TrackSeries(
+        track_id=track_id,
+        t_s=t,
+        position_m=pos,
+        valid=np.ones(n, bool),
+        heading_valid=np.ones(n, bool),
+        speed_mps=np.ones(n),
+        speed_sigma_mps=np.full(n, 0.1),
+        heading_deg=np.full(n, heading_deg),
+        heading_sigma_deg=np.full(n, 2.0),
+        raw_velocity_mps=raw,
+        state=np.array(states),
+    )
+
+
+def test_coasting_states_have_no_eq21_point_and_tentative_ones_no_path() -> None:
+    """A coasting state repeats the last eq. 21 value without a measurement: not drawn as one;
+    a tentative state (the track's unconfirmed start) is not drawn into its path."""
+    states = ["tentative", "confirmed", "confirmed", "coasting", "coasting", "confirmed"]
+    tr = _moving(1, states, 30.0)
+    t, _, _ = eq21(tr)
+    assert np.allclose(t, [0.0, 0.1, 0.2, 0.5])
+    path = tr.trajectory_m()
+    assert len(path) == 5 and np.allclose(path, tr.position_m[1:])
+
+
+def test_read_run_keeps_each_states_lifecycle(tmp_path: Path) -> None:
+    run = read_run(_golden_run(tmp_path))
+    (tr,) = run.tracks
+    assert tr.state is not None and list(tr.state) == ["tentative"]
+    assert len(tr.trajectory_m()) == 0
+
+
+def test_legends_never_cover_the_data() -> None:
+    """Every legend stands outside every panel's plotting area."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    states = ["tentative"] + ["confirmed"] * 30
+    run = Run(0, [_moving(k, states, 40.0 * k) for k in range(1, 6)])
+    fig = draw(run, [], title="legends")
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+    assert len(legends) == 3
+    for legend in legends:
+        box = legend.get_window_extent(renderer)
+        for ax in fig.axes:
+            assert not box.overlaps(ax.get_window_extent(renderer)), ax.get_title()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import itertools
 import json
 import re
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 import stereod.cli.record as record_command
 from stereod.calibration import canonical, save
@@ -365,3 +367,25 @@ def test_ctrl_c_ends_a_recording_normally(tmp_path: Path) -> None:
     frames = json.loads((out / "recording.json").read_text())["left"]["frames"]
     assert int(said.group(1)) == frames
     assert mcap_messages(cams.read_bytes(), "/stereod/minoru/left/camera_info") == frames
+
+
+def _log_times(data: bytes, topic: str) -> list[int]:
+    return [m.log_time for _, _, m in make_reader(io.BytesIO(data)).iter_messages(topics=[topic])]
+
+
+def test_record_mcap_and_a_later_export_stamp_every_frame_alike(tmp_path: Path) -> None:
+    """A synthetic source has no UTC clock: the offset ``--mcap`` stamps frames with is kept in
+    the manifest, so ``stereod export`` of the recording gives the very same stamps."""
+    cfg = synthetic_config(tmp_path / "c.toml", duration_s=0.5, fps=10)
+    rec, cams, later = tmp_path / "rec", tmp_path / "cams.mcap", tmp_path / "later.mcap"
+    res = stereod("record", str(rec), "--config", str(cfg), "--mcap", str(cams))
+    assert res.returncode == 0, res.stderr
+    manifest = json.loads((rec / "recording.json").read_text())
+    assert manifest["utc_offset_ns"] is not None
+    res = stereod("export", str(rec), "--mcap", str(later), "--no-images", "-q")
+    assert res.returncode == 0, res.stderr
+    for eye in ("left", "right"):
+        topic = f"/stereod/minoru/{eye}/camera_info"
+        recorded = _log_times(cams.read_bytes(), topic)
+        assert len(recorded) == 5
+        assert _log_times(later.read_bytes(), topic) == recorded

@@ -1,0 +1,286 @@
+"""ROS 2 live (stereod.ros2_live) checked against rmw_zenoh and rosbags, not against itself.
+
+The literals below are copied from ros2/rmw_zenoh (``docs/design.md`` of the jazzy/kilted
+releases, "Graph Cache" and "Publishers"; ``rmw_zenoh_cpp/src/detail/liveliness_utils.cpp``).
+The live test's subscriber is written from that design: it discovers entities through the
+``@ros2_lv/<domain>/**`` liveliness tokens as rmw_zenoh's graph cache does, builds the data key
+from the token's parts as ``TopicInfo`` does, decodes the attachment by the byte layout the
+design document gives and the payload with rosbags' own Jazzy definitions.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import threading
+import time
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+import zenoh
+import zenoh.ext
+from rosbags.typesys import Stores, get_typestore
+
+from stereod import ros2_live
+from stereod.calibration import canonical
+from stereod.config import environment, load_config
+from stereod.daemon import Daemon
+from stereod.export_mcap import RosMessages, cdr_encoder
+from stereod.frames import Eye
+from stereod_fakes.synth import SyntheticDriver
+
+# docs/design.md, "Graph Cache" examples (demo_nodes_cpp, ROS_DOMAIN_ID=2).
+DESIGN_NN = "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/listener"
+DESIGN_MP = (
+    "@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/"
+    "std_msgs::msg::dds_::String_/"
+    "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18/::,7:,:,:,,"
+)
+# docs/design.md, "Publishers": "8 bytes for the sequence number (int64_t), encoded as a
+# little-endian; 8 bytes for the timestamp (number of ns since UNIX EPOCH as int64_t), encoded
+# as a little-endian; 1 byte for the length of the publisher GID (currently always 16); 16 bytes
+# for the publisher GID".
+DESIGN_ATTACHMENT = struct.Struct("<qqB16s")
+# liveliness_utils.hpp: "... LivelinessDuration: 0s0ns would be "1:2:1,10:0,0:60,3000:1,0,0"";
+# qos.cpp: fields equal to the defaults (reliable, volatile, keep last, depth 42, infinite
+# durations, automatic) are written empty, so rclcpp's default profile (depth 10) is:
+DEFAULT_PROFILE_QOS = "::,10:,:,:,,"
+
+TYPES = [
+    "nav_msgs/msg/Odometry",
+    "visualization_msgs/msg/MarkerArray",
+    "sensor_msgs/msg/CameraInfo",
+    "sensor_msgs/msg/CompressedImage",
+    "tf2_msgs/msg/TFMessage",
+    "std_msgs/msg/String",
+]
+
+
+@pytest.mark.parametrize("store", [Stores.ROS2_JAZZY, Stores.ROS2_KILTED])
+def test_type_hashes_are_those_rosbags_computes(store: Stores) -> None:
+    ts = get_typestore(store)
+    for t in TYPES:
+        assert ros2_live.TYPE_HASHES[t] == ts.hash_rihs01(t), t
+
+
+def test_tokens_and_keys_match_rmw_zenoh_design_examples() -> None:
+    assert ros2_live.node_token(2, "aac3178e146ba6f1fc6e6a4085e77f21", "/", "listener") == (
+        DESIGN_NN
+    )
+    token = ros2_live.publisher_token(
+        2,
+        "8b20917502ee955ac4476e0266340d5c",
+        10,
+        "/",
+        "talker",
+        "/chatter",
+        "std_msgs/msg/String",
+        ros2_live.Qos(depth=7),
+    )
+    assert token == DESIGN_MP
+    assert ros2_live.qos_keyexpr(ros2_live.Qos(depth=10)) == DEFAULT_PROFILE_QOS
+    # TopicInfo: domain, the topic with its slashes stripped, the type, the hash.
+    hash_ = DESIGN_MP.split("/")[-2]
+    assert ros2_live.data_keyexpr(2, "/chatter", "std_msgs/msg/String") == (
+        f"2/chatter/std_msgs::msg::dds_::String_/{hash_}"
+    )
+    # A namespaced node: every '/' of a name becomes '%'.
+    node = ros2_live.node_token(0, "ab", "/lab/robot1", "stereod_minoru")
+    assert node == "@ros2_lv/0/ab/0/0/NN/%/%lab%robot1/stereod_minoru"
+
+
+def test_attachment_is_the_design_layout_and_zenoh_ext_serialization() -> None:
+    gid = bytes(range(16))
+    att = ros2_live.attachment(7, 1_700_000_000_123_456_789, gid)
+    assert len(att) == 33
+    assert DESIGN_ATTACHMENT.unpack(att) == (7, 1_700_000_000_123_456_789, 16, gid)
+    # rmw_zenoh writes it with zenoh-ext's serializer: (int64, int64, byte sequence).
+    ext = zenoh.ext.z_serialize(
+        (zenoh.ext.Int64(7), zenoh.ext.Int64(1_700_000_000_123_456_789), gid)
+    )
+    assert att == ext.to_bytes()
+
+
+def test_payloads_deserialize_with_rosbags_jazzy_definitions() -> None:
+    jazzy = get_typestore(Stores.ROS2_JAZZY)
+    cal = canonical(0.06, 60.0, 320, 240)
+    ros = RosMessages("minoru", calibration=cal)
+    tf = ros.tf_static(1_700_000_000_000_000_000)
+    assert tf is not None
+    info = ros.camera_info(Eye.RIGHT, 1_700_000_000_002_000_000)
+    assert info is not None
+    image = ros.compressed_image("/x", "f", "jpeg", b"\xff\xd8\xff", 5)
+    for m in [tf, info, image]:
+        data = cdr_encoder(m.typename)(m.body)
+        assert data[:4] == b"\x00\x01\x00\x00"  # CDR little-endian encapsulation
+        got = jazzy.deserialize_cdr(data, m.typename)
+        assert got is not None
+    got = jazzy.deserialize_cdr(cdr_encoder(tf.typename)(tf.body), tf.typename)
+    assert [t.child_frame_id for t in got.transforms] == [
+        "stereod_minoru_optical",
+        "stereod_minoru_left_optical",
+        "stereod_minoru_right_optical",
+    ]
+    assert got.transforms[2].transform.translation.x == pytest.approx(0.03)
+    got = jazzy.deserialize_cdr(cdr_encoder(info.typename)(info.body), info.typename)
+    assert (got.width, got.height, got.header.stamp.nanosec) == (320, 240, 2_000_000)
+
+
+# -- the live check: a subscriber written from rmw_zenoh's design ---------------------------
+
+
+def _parse_token(key: str) -> dict[str, Any]:
+    """liveliness_utils.cpp Entity::make(keyexpr): split on '/', demangle '%' to '/'."""
+    parts = key.split("/")
+    names = ["admin", "domain", "zid", "nid", "id", "kind", "enclave", "ns", "node"]
+    names += ["topic", "type", "hash", "qos"]
+    out = dict(zip(names, parts, strict=False))
+    for k in ("enclave", "ns", "node", "topic", "type", "hash"):
+        if k in out:
+            out[k] = out[k].replace("%", "/")
+    return out
+
+
+def _graph(session: zenoh.Session, domain: int, want: int, timeout: float) -> list[dict]:
+    """The graph as rmw_zenoh's context builds it at start: liveliness_get on the domain."""
+    deadline = time.monotonic() + timeout
+    while True:
+        replies = list(session.liveliness().get(f"@ros2_lv/{domain}/**", timeout=2))
+        tokens = [_parse_token(str(r.ok.key_expr)) for r in replies if r.ok is not None]
+        if len(tokens) >= want or time.monotonic() > deadline:
+            return tokens
+        time.sleep(0.2)
+
+
+def test_a_ros_subscriber_discovers_the_node_and_decodes_its_data(
+    endpoint: str, listener: zenoh.Session
+) -> None:
+    jazzy = get_typestore(Stores.ROS2_JAZZY)
+    cfg = load_config(
+        overrides={
+            "zenoh": {"connect": [endpoint]},
+            "ros2": {"enabled": True, "domain_id": 3},
+            "daemon": {"image_rate_hz": 50.0},
+        }
+    )
+    scene = {"duration_s": 6.0, "fps": 15, "skew_s": 0.005}  # the right eye 5 ms late
+    daemon = Daemon(cfg, SyntheticDriver(scene), rate=1.0)
+    out: dict[str, Any] = {}
+    thread = threading.Thread(target=lambda: out.setdefault("summary", daemon.run()))
+    thread.start()
+    got: dict[str, list[tuple[tuple, Any]]] = {"odom": [], "image": [], "info": [], "left": []}
+    subs: list[Any] = []
+    try:
+        tokens = _graph(listener, 3, want=8, timeout=15)
+        nodes = [t for t in tokens if t["kind"] == "NN"]
+        assert [(n["ns"], n["node"], n["nid"], n["id"]) for n in nodes] == [
+            ("/", "stereod_minoru", "0", "0")
+        ]
+        pubs = {t["topic"]: t for t in tokens if t["kind"] == "MP"}
+        odom = pubs["/stereod/minoru/tracks/odom"]
+        assert odom["type"] == "nav_msgs::msg::dds_::Odometry_"
+        assert odom["hash"] == jazzy.hash_rihs01("nav_msgs/msg/Odometry")
+        assert odom["qos"] == DEFAULT_PROFILE_QOS and odom["zid"] == nodes[0]["zid"]
+        tf = pubs["/tf_static"]
+        assert tf["qos"].split(":")[1] == "1"  # transient local
+
+        def key(t: dict[str, Any]) -> str:  # TopicInfo: domain/topic/type/hash
+            return f"{t['domain']}/{t['topic'].strip('/')}/{t['type']}/{t['hash']}"
+
+        def collect(name: str) -> Any:
+            def on(sample: zenoh.Sample) -> None:
+                att = sample.attachment
+                assert att is not None, "rmw_zenoh drops a sample without attachment"
+                got[name].append((DESIGN_ATTACHMENT.unpack(att.to_bytes()), sample))
+
+            return on
+
+        subs.append(listener.declare_subscriber(key(odom), collect("odom")))
+        image = pubs["/stereod/minoru/right/image/compressed"]
+        subs.append(listener.declare_subscriber(key(image), collect("image")))
+        info = pubs["/stereod/minoru/right/camera_info"]
+        subs.append(listener.declare_subscriber(key(info), collect("info")))
+        left_info = pubs["/stereod/minoru/left/camera_info"]
+        subs.append(listener.declare_subscriber(key(left_info), collect("left")))
+        # A transient-local subscription joining late: rmw_zenoh's AdvancedSubscriber that
+        # detects late publishers and queries their caches.
+        statics: list[Any] = []
+        subs.append(
+            zenoh.ext.declare_advanced_subscriber(
+                listener,
+                key(tf),
+                statics.append,
+                history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
+            )
+        )
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and not (
+            len(got["odom"]) >= 3 and got["image"] and got["info"] and statics
+        ):
+            time.sleep(0.1)
+    finally:
+        for s in subs:
+            s.undeclare()
+        daemon.stop()
+        thread.join(20)
+    assert not thread.is_alive()
+    assert statics, "no /tf_static for a late transient-local subscriber"
+    tfm = jazzy.deserialize_cdr(statics[0].payload.to_bytes(), "tf2_msgs/msg/TFMessage")
+    assert len(tfm.transforms) == 3
+    assert len(got["odom"]) >= 3, "no Odometry arrived"
+    seqs = [a[0] for a, _ in got["odom"]]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+    for (seq, ts, n, gid), sample in got["odom"]:
+        assert n == 16 and len(gid) == 16 and seq >= 1
+        assert abs(ts - time.time_ns()) < 120e9
+        msg = jazzy.deserialize_cdr(sample.payload.to_bytes(), "nav_msgs/msg/Odometry")
+        assert msg.header.frame_id == "stereod_minoru_optical"
+        assert msg.child_frame_id.startswith("stereod_minoru_track_")
+        assert all(math.isfinite(v) for v in (msg.pose.pose.position.x, msg.pose.pose.position.z))
+    # Images only once someone subscribed; each is a JPEG of the eye's size.
+    (_, _, _, _), sample = got["image"][0]
+    img = jazzy.deserialize_cdr(sample.payload.to_bytes(), "sensor_msgs/msg/CompressedImage")
+    assert img.format == "jpeg" and img.header.frame_id == "stereod_minoru_right_optical"
+    pic = cv2.imdecode(np.frombuffer(bytes(img.data), np.uint8), cv2.IMREAD_UNCHANGED)
+    (_, _, _, _), sample = got["info"][0]
+    info_msg = jazzy.deserialize_cdr(sample.payload.to_bytes(), "sensor_msgs/msg/CameraInfo")
+    assert pic is not None and pic.shape[:2] == (info_msg.height, info_msg.width)
+
+    # Each eye at its own capture instant: the right eye's camera_info 5 ms after the left's.
+    def stamps(name: str) -> set[int]:
+        out = set()
+        for _, sample in got[name]:
+            h = jazzy.deserialize_cdr(sample.payload.to_bytes(), "sensor_msgs/msg/CameraInfo")
+            out.add(h.header.stamp.sec * 1_000_000_000 + h.header.stamp.nanosec)
+        return out
+
+    left, right = stamps("left"), stamps("info")
+    assert len(left & {r - 5_000_000 for r in right}) >= 3
+    assert not left & right
+    assert daemon.ros2 is not None and daemon.ros2.errors == 0
+
+
+def test_namespace_prefixes_node_and_topics_but_not_tf_static(listener: zenoh.Session) -> None:
+    """``[ros2] namespace``: the node's namespace, mangled in its tokens, and the prefix of
+    stereod's topics; ``/tf_static`` stays at the root, where tf2 reads it."""
+    cal = canonical(0.06, 60.0, 320, 240)
+    with ros2_live.Ros2Live(listener, "minoru", calibration=cal, namespace="lab/bench") as ros:
+        assert ros.node_token_key.endswith("/0/0/NN/%/%lab%bench/stereod_minoru")
+        topics = set(ros.endpoints)
+        assert "/tf_static" in topics and "/lab/bench/stereod/minoru/tracks/odom" in topics
+        odom = ros.endpoints["/lab/bench/stereod/minoru/tracks/odom"]
+        assert odom.key.startswith("0/lab/bench/stereod/minoru/tracks/odom/nav_msgs::")
+        assert "/MP/%/%lab%bench/stereod_minoru/%lab%bench%stereod%minoru%tracks%odom/" in (
+            odom.token_key
+        )
+        replies = list(listener.liveliness().get("@ros2_lv/0/**", timeout=2))
+        assert len(replies) == 1 + len(topics)
+
+
+def test_ros2_section_from_the_environment() -> None:
+    env = {"STEREOD_ROS2__ENABLED": "true", "STEREOD_ROS2__TOPICS": '["odom", "tf_static"]'}
+    cfg = load_config(overrides=environment(env))
+    assert cfg.ros2.enabled and cfg.ros2.topics == ["odom", "tf_static"]
+    assert not load_config().ros2.enabled  # off unless asked for
