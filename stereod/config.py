@@ -226,7 +226,7 @@ class DetectorConfig(_Section):
     @classmethod
     def _ratio_order(cls, v: tuple[float, float]) -> tuple[float, float]:
         if not 0.0 < v[0] < v[1] < 1.0:
-            raise ValueError("must be two shares with 0 < lower < upper < 1, e.g. [0.35, 0.92]")
+            raise ValueError("must be two shares with 0 < lower < upper < 1, e.g. [0.15, 0.92]")
         return v
 
     def params(self) -> DetectorParams:

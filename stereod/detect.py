@@ -188,7 +188,7 @@ class DetectorParams:
     learn_stride: int = 6
     disc_max_px: int = 24
     shadows: bool = True
-    shadow_ratio: tuple[float, float] = (0.35, 0.92)
+    shadow_ratio: tuple[float, float] = (0.15, 0.92)
     near_objects: bool = True
 
 
@@ -299,6 +299,9 @@ class Detector:
         """This frame's foreground bitmap inside ``_roi`` (uint8, 0 or 255): everything of M
         that is not zero, so no whole-frame bitmap is made unless :attr:`mask` is asked for."""
         self._grown: np.ndarray | None = None
+        self._shade: np.ndarray | None = None
+        """This frame's cast shadows inside ``_roi`` (uint8 255), left out of the objects but
+        held out of eq. 3 with them: learned, a passing shadow would leave a bright trail."""
         """``_part`` grown by ``hold_margin_px`` when the closing made it on the way (the
         held foreground, see :meth:`_held`), else ``None``."""
         self._shape: tuple[int, int] | None = None
@@ -420,6 +423,7 @@ class Detector:
     ) -> None:
         self._shape, self._roi, self._part, self._mask = shape, roi, part, None
         self._grown = grown
+        self._shade = None
 
     def find(self, image: np.ndarray, t_ns: int = 0) -> Blobs:
         """Eq. 2, 4 and 5 against the current background at capture instant ``t_ns`` (ns);
@@ -482,12 +486,16 @@ class Detector:
                 count, before = cv2.countNonZero(part), count
                 if count == before:  # nothing weak left within reach
                     break
+        shade = None
         if self.params.shadows:
-            shadow = shadow_mask(frame[y0:y1, x0:x1], b8, part, self.params.shadow_ratio)
-            if shadow is not None:
-                part = cv2.subtract(part, shadow)
-                if cv2.countNonZero(part) == 0:
-                    return self._nothing(shape)
+            shade = shadow_mask(frame[y0:y1, x0:x1], b8, part, self.params.shadow_ratio)
+            if shade is not None:
+                part = cv2.subtract(part, shade)
+                if cv2.countNonZero(part) == 0:  # only shadow: nothing found, all held
+                    self._set_foreground(shape, roi, part)
+                    self._shade = shade
+                    self._saturated_run = 0
+                    return Blobs.empty()
         if self._open is not None and self.params.fill_holes:
             # A pinhole (a pixel the colour of the background behind it, all four neighbours
             # foreground) is foreground: the opening's square would otherwise fit nowhere in
@@ -512,6 +520,7 @@ class Detector:
         if count == 0:
             return self._nothing(shape)
         self._set_foreground(shape, roi, part, grown)
+        self._shade = shade
         if count > self.params.max_foreground * shape[0] * shape[1] and (
             not self.params.near_objects
             or scene_changed(frame[y0:y1, x0:x1], b8, part, (x0, y0), shape)
@@ -722,6 +731,8 @@ class Detector:
         grown = self._grown
         if grown is None:
             grown = cv2.dilate(self._part, self._hold) if self._hold is not None else self._part
+        if self._shade is not None:
+            grown = cv2.bitwise_or(grown, self._shade)
         since = self._since[y0:y1, x0:x1]
         old = None
         if prev is not None:
@@ -800,8 +811,9 @@ class Detector:
         )
 
 
-SHADOW_WINDOW_PX = 7
-"""Side (px) of the window a shadow's texture is compared with the background's over."""
+SHADOW_WINDOW_PX = 5
+"""Side (px) of the window a shadow's texture is compared with the background's over (a long
+shadow cast by a low lamp may be a few pixels thin)."""
 SHADOW_MIN_TEXTURE = 4.0
 """The background's local standard deviation (grey levels) from which its texture can be
 compared: on a flatter background only colour tells a shadow from a dark object."""
@@ -812,8 +824,6 @@ SHADOW_RATIO_SPREAD = 0.08
 """The largest standard deviation of frame / background over the window, as a share of its
 mean, in a shadow's inside (a shadow darkens by one factor; an object's ratio to the texture
 behind it follows that texture)."""
-SHADOW_GROW_STEPS = 2
-"""Steps of ``SHADOW_WINDOW_PX`` by which sure shadow reaches into its edge's candidates."""
 SHADOW_CHROMA = 0.06
 """How far (share of the brightness) a shadowed pixel's colour may stray from the background's
 scaled by the pixel's own ratio."""
@@ -875,19 +885,25 @@ def shadow_mask(
 ) -> np.ndarray | None:
     """The foreground pixels (uint8 255) that are a cast shadow: the background darkened by a
     factor within ``ratio`` with its colour and texture kept (:func:`_relit`), and the
-    candidates next to those (a shadow's edge, where the texture window holds lit floor too).
+    candidates connected to those (a shadow's edge, where the texture window holds lit floor
+    too, and its stretches on flat floor).
     ``frame`` and ``background`` (uint8, the background at the frame's gain) and
     ``foreground`` share one shape; ``None`` when nothing is shadow."""
     found = _relit(frame, background, foreground, ratio)
     if found is None:
         return None
-    cand, shadow = found
-    if cv2.countNonZero(shadow) == 0:
+    cand, core = found
+    if cv2.countNonZero(core) == 0:
         return None
-    grow = cv2.getStructuringElement(cv2.MORPH_RECT, (SHADOW_WINDOW_PX, SHADOW_WINDOW_PX))
-    for _ in range(SHADOW_GROW_STEPS):
-        shadow = cv2.bitwise_and(cand, cv2.dilate(shadow, grow))
-    return shadow
+    # The candidates connected to a sure shadow pixel (8-neighbours), not those across a gap:
+    # a dark stripe on the object beside its shadow is a candidate too, apart from it.
+    n, labels = cv2.connectedComponents(cand, connectivity=8, ltype=cv2.CV_16U)
+    if n <= 1:
+        return None
+    sure = np.zeros(n, np.uint8)
+    sure[np.unique(labels[core > 0])] = 255
+    sure[0] = 0
+    return sure[labels]
 
 
 RELIT_RATIO = (0.2, 5.0)

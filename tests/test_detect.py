@@ -824,3 +824,22 @@ def test_one_side_of_the_room_lit_differently_is_light_not_an_object(
     det = Detector(DetectorParams(warmup_frames=3))
     warm(det, bg, 3)
     assert [len(det.detect(lit)) for _ in range(4)] == [0] * 4
+
+
+def test_a_passing_shadow_leaves_no_trail() -> None:
+    """A shadow is left out of the object but not learned into the background: learned, the
+    floor it darkened would show brighter than the background once it has passed, a trail of
+    foreground behind the object. The disc and its shadow move right 4 px a frame; after 30
+    frames, nothing but the disc is found."""
+    bg = _floor(120, 200)
+    det = Detector(DetectorParams(warmup_frames=3, beta=0.1))
+    warm(det, bg, 3)
+    for k in range(30):
+        img = bg.copy()
+        mask = np.zeros(bg.shape[:2], np.uint8)
+        cv2.ellipse(mask, (48 + 4 * k, 66), (34, 8), 0, 0, 360, 255, -1)
+        img[mask > 0] = (img[mask > 0].astype(np.float32) * 0.4).astype(np.uint8)
+        cv2.circle(img, (20 + 4 * k, 60), 10, (40, 40, 220), -1)
+        blobs = det.detect(img)
+    assert len(blobs) == 1, blobs.bbox_px
+    np.testing.assert_allclose(blobs.centroid_px[0], (20 + 4 * 29, 60), atol=0.6)
