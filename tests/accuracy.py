@@ -21,6 +21,7 @@ Used by ``benchmarks/accuracy.py`` (every combination) and by the accuracy tests
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -79,10 +80,47 @@ class Case:
     """Whether an object's centre is in both eyes' images (and it is not wholly hidden)."""
     objects: list[str]
     fast: bool = False
+    readout_s: float = 0.0
+    """The rolling shutter's readout the scene was rendered with (s), given to the pipeline."""
 
     @property
     def label(self) -> str:
         return f"{self.renderer} {self.mode.name} {self.name} seed {self.seed}"
+
+
+WEBCAM = world.Transport(
+    rolling_shutter=True, readout_s=0.030, yuyv_422=True, mjpeg_quality=75, flicker_depth=0.2
+)
+"""What a cheap USB webcam adds: a 30 ms rolling shutter, 4:2:2 chroma, MJPEG at quality 75,
+and lamps on 50 Hz mains whose light swings by 20 % at 100 Hz (seen through the exposure of
+:data:`WEBCAM_EXPOSURE_S`)."""
+WEBCAM_EXPOSURE_S = 1.0 / 60.0
+"""A webcam's auto exposure indoors (s): the flicker averages over 1.7 of its periods, so each
+row's brightness still swings by about 3 %. (An instantaneous exposure would show the full 20 %
+as bands down the frame, which no camera set for mains lighting does.)"""
+
+
+def world_room(
+    preset: str, mode: RigMode, seed: int, *, webcam: bool = False, **kw: object
+) -> Case:
+    """One of the independent renderer's room scenes (``lamp_ball``, ``person_sit_walk``,
+    ``person_approach``, ``people_crossing``, ``robot_stop_go``, or ``robot_ball`` with a
+    heading and speed), optionally through a webcam's transport (:data:`WEBCAM`), whose
+    rolling shutter's readout the pipeline is then told of."""
+    fn = getattr(world, preset)
+    if webcam:
+        kw = {**kw, "exposure_s": WEBCAM_EXPOSURE_S}
+    scene = fn(
+        mode=(mode.width_px, mode.height_px, mode.fps), hfov_deg=mode.hfov_deg, seed=seed,
+        skew="wander", **kw,
+    )  # fmt: skip
+    if webcam:
+        scene = dataclasses.replace(scene, transport=WEBCAM)
+    shown = {k: v for k, v in kw.items() if k != "exposure_s"}
+    label = preset + "".join(f" {v}" for v in shown.values()) + (" webcam" if webcam else "")
+    case = _world_case(scene, mode, label, seed, False)
+    case.readout_s = WEBCAM.readout_s if webcam else 0.0
+    return case
 
 
 def _world_case(scene: world.Scene, mode: RigMode, name: str, seed: int, fast: bool) -> Case:
@@ -217,7 +255,7 @@ def fast_cases(mode: RigMode, seed: int) -> list[Case]:
 
 def run_case(case: Case, params: PipelineParams | None = None) -> list[PairResult]:
     """Every pair's result for a case (default parameters: what the daemon would use)."""
-    p = params or PipelineParams(case.mode.rig)
+    p = params or PipelineParams(case.mode.rig, readout_s=case.readout_s)
     with Pipeline(p) as pipe:
         return list(pipe.run(case.frames(), int(0.75e9 / case.mode.fps)))
 
