@@ -172,10 +172,19 @@ def _cos_off_axis(point_px: np.ndarray, centre_px: tuple[float, float], focal_px
     return focal_px / math.sqrt(focal_px * focal_px + dx * dx + dy * dy)
 
 
-def _touches_border(bbox: np.ndarray, rig: CanonicalRig | CalibratedRig) -> bool:
-    """Whether a blob's box (x, y, w, h px) reaches the image's edge (part may be cut off)."""
-    x, y, w, h = (int(v) for v in bbox)
-    return x <= 0 or y <= 0 or x + w >= rig.width_px or y + h >= rig.height_px
+def _touches_side(bbox: np.ndarray, rig: CanonicalRig | CalibratedRig) -> bool:
+    """Whether a blob's box (x, y, w, h px) reaches the image's left or right edge: part of
+    the object may be cut off there, differently in each eye, so its disparity is off."""
+    x, _, w, _ = (int(v) for v in bbox)
+    return x <= 0 or x + w >= rig.width_px
+
+
+def _cut_rows(bbox: np.ndarray, rig: CanonicalRig | CalibratedRig) -> bool:
+    """Whether a blob's box (x, y, w, h px) reaches the image's top or bottom edge: a person
+    close to the camera, head or feet out of view. Both eyes lose the same rectified rows, so
+    its disparity holds; only its height is unknown."""
+    _, y, _, h = (int(v) for v in bbox)
+    return y <= 0 or y + h >= rig.height_px
 
 
 class Pipeline:
@@ -543,7 +552,7 @@ class Pipeline:
             return None, None
         tr = self.tracker.track(tid)
         last = tr.last
-        if last.clipped or det.clipped:
+        if last.clipped or det.clipped or last.cut or det.cut:
             return None, None
         rig, max_speed = self.params.rig, self.params.tracker.max_speed_mps
         z_then = float(last.position_m[2])
@@ -612,8 +621,9 @@ class Pipeline:
                     right_bbox_px=rb.bbox_px[j],
                     area_px=int(min(lb.area_px[i], rb.area_px[j])),
                     image_speed_pxps=limit,
-                    clipped=_touches_border(lb.bbox_px[i], p.rig)
-                    or _touches_border(rb.bbox_px[j], p.rig),
+                    clipped=_touches_side(lb.bbox_px[i], p.rig)
+                    or _touches_side(rb.bbox_px[j], p.rig),
+                    cut=_cut_rows(lb.bbox_px[i], p.rig) or _cut_rows(rb.bbox_px[j], p.rig),
                 )
             )
         return out
@@ -653,7 +663,9 @@ class Pipeline:
             width_px = 0.5 * (width_l + width_r)
         area = 0.5 * (area_l + area_r)
         sigma = p.centroid_sigma_px
-        if before is not None and not clipped and not before.clipped:
+        cut = _cut_rows(lb.bbox_px[i], p.rig) or _cut_rows(rb.bbox_px[j], p.rig)
+        whole = not clipped and not cut
+        if before is not None and whole and not before.clipped and not before.cut:
             seg = _segmentation_error_px(lb, rb, i, j, before, width_px, (area_l, area_r), growth)
             sigma = math.hypot(sigma, seg)
         xl, yl = tri_left.tolist()
@@ -667,13 +679,17 @@ class Pipeline:
             sigma = math.hypot(sigma, _row_error_px(row_gap, before.row_gap_px))
         point, cov = p.rig.rectified.triangulate(xl, yl, xr, yr, sigma)
         factor = 1.0
-        if p.silhouette_depth:
+        if p.silhouette_depth and not cut:
             point, cov, factor = centre_depth(point, cov, area, p.rig.focal_px, width_px)
         centre = np.array(point)
+        cov_m2 = sym3(cov)
+        if cut:  # its centre's height is anywhere within its cut box: half its height as sigma
+            h_px = max(int(lb.bbox_px[i, 3]), int(rb.bbox_px[j, 3]))
+            cov_m2[1, 1] += (0.5 * h_px * float(point[2]) / p.rig.focal_px) ** 2
         lo, hi = extent_m(centre, lb.bbox_px[i], rb.bbox_px[j], lb.centroid_px[i], p.rig.focal_px)
         return Observation(
             position_m=centre,
-            cov_m2=sym3(cov),
+            cov_m2=cov_m2,
             left_px=lpx,
             right_px=rpx,
             left_image_px=lb.centroid_px[i],
@@ -686,6 +702,7 @@ class Pipeline:
             size_m=float(width_px * point[2] / p.rig.focal_px),
             exact=exact,
             clipped=clipped,
+            cut=cut,
             depth_factor=factor,
             row_gap_px=row_gap,
             extent_m=(lo - centre, hi - centre),

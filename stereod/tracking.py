@@ -89,8 +89,11 @@ class Detection:
     area_px: int
     image_speed_pxps: float
     clipped: bool = False
-    """A blob touches the image border in either eye: part of the object is out of view and
-    its centroid and disparity are biased."""
+    """A blob touches the image's left or right border in either eye: part of the object is
+    out of view and its centroid and disparity are biased."""
+    cut: bool = False
+    """A blob touches the image's top or bottom border: its height is unknown, its disparity
+    holds (both eyes lose the same rectified rows)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,6 +127,9 @@ class Observation:
     size_m: float
     exact: bool = True
     clipped: bool = False
+    cut: bool = False
+    """Cut by the image's top or bottom edge: its height is unknown (its Y variance says so);
+    its X and depth hold."""
     depth_factor: float = 1.0
     row_gap_px: float | None = None
     extent_m: tuple[np.ndarray, np.ndarray] | None = None
