@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test vm lint bench accuracy clean
+.PHONY: demo test vm vm-load lint bench accuracy clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -19,6 +19,9 @@ test: $(VENV)/.installed
 
 vm: $(VENV)/.installed
 	bash tests/vm/run.sh
+
+vm-load: $(VENV)/.installed
+	bash tests/vm/under_load.sh
 
 lint: $(VENV)/.installed
 	$(BIN)/ruff check stereod fakes drivers tests benchmarks
