@@ -811,9 +811,10 @@ class Detector:
         )
 
 
-SHADOW_WINDOW_PX = 5
-"""Side (px) of the window a shadow's texture is compared with the background's over (a long
-shadow cast by a low lamp may be a few pixels thin)."""
+SHADOW_WINDOW_PX = 7
+"""Side (px) of the window a shadow's texture is compared with the background's over (5 px
+took the shaded side of a cylinder the colour of the wall for shadow; a long thin shadow's
+few sure pixels reach the rest of it through its connected candidates)."""
 SHADOW_MIN_TEXTURE = 4.0
 """The background's local standard deviation (grey levels) from which its texture can be
 compared: on a flatter background only colour tells a shadow from a dark object."""

@@ -200,18 +200,19 @@ def test_pieces_two_tracks_follow_stay_two_objects() -> None:
 
 
 def _vtest_run(grouping: bool) -> tuple[list[int], list[int], dict[int, int]]:
-    """vtest.avi's pedestrians as a stereo pair: the right eye is the left shifted 4 px, so
-    every pixel is 10 m deep (f = 665 px, B = 60 mm: a person 1.7 m tall is then about 110 px,
+    """vtest.avi's pedestrians as a stereo pair: the right eye is the left shifted 12 px, so
+    every pixel is 11 m deep (f = 665 px, B = 0.2 m: a person 1.7 m tall is then about 100 px,
     as in the video). Per frame from the 60th on: MOG2's blobs (DATA.md's settings: default
-    MOG2, 3 x 3 opening, at least 200 px, its shadows left out), stereod's seen objects, and
+    MOG2, 3 x 3 opening, at least 200 px, its shadows left out), stereod's seen objects of at
+    least 200 px, and
     for every confirmed track the frames it was seen in."""
     cap = cv2.VideoCapture(str(shared_data("video", "vtest.avi")))
-    rig = CanonicalRig(0.060, 60.0, 768, 576)
+    rig = CanonicalRig(0.200, 60.0, 768, 576)
     params = PipelineParams(rig, grouping=GroupParams(enabled=grouping))
     mog = cv2.createBackgroundSubtractorMOG2()
     kernel = np.ones((3, 3), np.uint8)
     ours, theirs, life = [], [], {}
-    shift = np.float32([[1, 0, -4], [0, 1, 0]])
+    shift = np.float32([[1, 0, -12], [0, 1, 0]])
     with Pipeline(params) as pipe:
         for k in range(400):
             ok, img = cap.read()
@@ -226,7 +227,7 @@ def _vtest_run(grouping: bool) -> tuple[list[int], list[int], dict[int, int]]:
             _, _, stats, _ = cv2.connectedComponentsWithStats(fg)
             theirs.append(int((stats[1:, cv2.CC_STAT_AREA] >= 200).sum()))
             seen = [s for s in result.tracks if s.lifecycle.value in ("confirmed", "stationary")]
-            ours.append(len(seen))
+            ours.append(sum(s.observation.left_area_px >= 200 for s in seen))
             for s in seen:
                 life[s.track_id] = life.get(s.track_id, 0) + 1
     cap.release()
