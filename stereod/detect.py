@@ -847,12 +847,25 @@ def _relit(
     candidate."""
     lo, hi = ratio
     colour = frame.ndim == 3
-    f = frame.astype(np.float32)
-    b = background.astype(np.float32)
+    # The brightness ratio first, on one channel: most of an object is no candidate, and the
+    # rest of the test runs only around the candidates.
+    fl8 = cv2.transform(frame, _MEAN_RGB) if colour else frame
+    bl8 = cv2.transform(background, _MEAN_RGB) if colour else background
+    r = fl8.astype(np.float32) / (bl8.astype(np.float32) + np.float32(1.0))
+    cand_all = cv2.bitwise_and(cv2.inRange(r, lo, hi), foreground)
+    if cv2.countNonZero(cand_all) == 0:
+        return None
+    x, y, w, h = cv2.boundingRect(cand_all)
+    m = SHADOW_WINDOW_PX
+    x0, y0 = max(x - m, 0), max(y - m, 0)
+    x1, y1 = min(x + w + m, frame.shape[1]), min(y + h + m, frame.shape[0])
+    sl = (slice(y0, y1), slice(x0, x1))
+    f = frame[sl].astype(np.float32)
+    b = background[sl].astype(np.float32)
     fl = cv2.transform(f, _MEAN_RGB) if colour else f
     bl = cv2.transform(b, _MEAN_RGB) if colour else b
     r = fl / (bl + 1.0)
-    cand = cv2.bitwise_and(cv2.inRange(r, lo, hi), foreground)
+    cand = cand_all[sl]
     if colour:
         off = np.abs(f - b * r[..., None]).max(axis=2)
         same_colour = off <= SHADOW_CHROMA * (bl + 1.0) + 3.0
@@ -875,7 +888,12 @@ def _relit(
         & (vf >= 0.25 * gain * gain * vb)
         & (vr <= (SHADOW_RATIO_SPREAD * mr) ** 2)
     )
-    return cand, cv2.bitwise_and(cand, keeps_texture.view(np.uint8) * np.uint8(255))
+    core = cv2.bitwise_and(cand, keeps_texture.view(np.uint8) * np.uint8(255))
+    full_cand = np.zeros_like(cand_all)
+    full_core = np.zeros_like(cand_all)
+    full_cand[sl] = cand
+    full_core[sl] = core
+    return full_cand, full_core
 
 
 def shadow_mask(
