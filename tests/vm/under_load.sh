@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Runs the VM tests (tests/vm/run.sh, arguments passed on) while two busy loops load the host,
-# as colleagues' test runs do on a shared machine; the loops are killed however the run ends.
+# as other jobs do on a shared CI host; the loops are killed however the run ends.
 #
 #   bash tests/vm/under_load.sh        (or: make vm-load)
 set -euo pipefail
