@@ -686,7 +686,12 @@ class Pipeline:
         if cut:  # its centre's height is anywhere within its cut box: half its height as sigma
             h_px = max(int(lb.bbox_px[i, 3]), int(rb.bbox_px[j, 3]))
             cov_m2[1, 1] += (0.5 * h_px * float(point[2]) / p.rig.focal_px) ** 2
-        lo, hi = extent_m(centre, lb.bbox_px[i], rb.bbox_px[j], lb.centroid_px[i], p.rig.focal_px)
+        extent = None
+        if np.all(np.isfinite(centre)):  # (one that is not is refused by _in_range)
+            lo, hi = extent_m(
+                centre, lb.bbox_px[i], rb.bbox_px[j], lb.centroid_px[i], p.rig.focal_px
+            )
+            extent = (lo - centre, hi - centre)
         return Observation(
             position_m=centre,
             cov_m2=cov_m2,
@@ -705,7 +710,7 @@ class Pipeline:
             cut=cut,
             depth_factor=factor,
             row_gap_px=row_gap,
-            extent_m=(lo - centre, hi - centre),
+            extent_m=extent,
         )
 
     def _in_range(self, ob: Observation) -> bool:
