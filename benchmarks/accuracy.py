@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from stereod.progress import Progress
+from stereod.cli.progress import Progress
 from tests import accuracy as acc
 
 HEADING_TARGET_DEG = 1.0
@@ -266,8 +266,8 @@ def figure(cells: list[Cell], path: Path) -> None:
 def trajectory_figure(path: Path) -> None:
     """One run drawn by ``stereod plot``: two balls crossing (independent renderer, 320x240 at
     30 Hz, 42 deg), measured against true."""
-    from stereod.messages import dump, objects_message
-    from stereod.plot import plot_run, read_run, read_truth
+    from stereod.bus.messages import dump, objects_message
+    from stereod.view.plot import plot_run, read_run, read_truth
 
     case = acc.world_preset("crossing", acc.MODES[0], seed=0)
     results = acc.run_case(case)

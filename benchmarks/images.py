@@ -31,14 +31,14 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from stereod import overlay
-from stereod.config import ZenohConfig, load_config
-from stereod.daemon import Daemon
-from stereod.drivers import load_driver
-from stereod.frames import StereoPair
-from stereod.overlay import Annotations, PairImages
+from stereod.bus.publish import session_config
+from stereod.daemon.config import ZenohConfig, load_config
+from stereod.daemon.daemon import Daemon
 from stereod.pipeline import Pipeline, PipelineParams
-from stereod.publish import session_config
+from stereod.sources.drivers import load_driver
+from stereod.sources.frames import StereoPair
+from stereod.view import overlay
+from stereod.view.overlay import Annotations, PairImages
 from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
 
 

@@ -79,7 +79,7 @@ try:
     import tomllib
 except ImportError:  # Python 3.10
     import tomli as tomllib
-import stereod.cli, stereod.daemon
+import stereod.cli, stereod.daemon.daemon
 from stereod_fakes.synth import SyntheticDriver
 def rss_mb():
     return int(re.search(r"VmRSS:\\s+(\\d+)", open("/proc/self/status").read()).group(1)) / 1024

@@ -1,7 +1,7 @@
 """How noisy a ball's blob area is, as the depth ratio at a track's second sight reads it.
 
 The skew stage takes how much a track's depth changed between two frames of one eye from its
-blob's areas (:func:`stereod.skew.size_depth_ratio`: a ball's image area goes as
+blob's areas (:func:`stereod.tracking.skew.size_depth_ratio`: a ball's image area goes as
 1 / (Z^2 cos), cos of its angle off the axis), and only beyond ``SIZE_NOISE / sqrt(A)``. This
 measures that noise where it matters: for each thrown ball of ``make accuracy`` (the
 independent renderer's ``fast_ball``, across the view and towards the rig, 10 and 20 m/s,
@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from stereod import skew
 from stereod.pipeline import Pipeline, PipelineParams
+from stereod.tracking import skew
 from tests import accuracy as acc
 
 

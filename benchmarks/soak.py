@@ -20,8 +20,8 @@ from pathlib import Path
 
 import zenoh
 
-from stereod.config import ZenohConfig
-from stereod.publish import open_session
+from stereod.bus.publish import open_session
+from stereod.daemon.config import ZenohConfig
 from stereod_fakes.synth import Ball, Scene, write_scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))

@@ -24,11 +24,11 @@ from pathlib import Path
 
 import cv2
 
-from stereod.detect import DetectorParams
-from stereod.frames import StereoPair
-from stereod.geometry import Geometry
-from stereod.messages import dump, objects_message
+from stereod.bus.messages import dump, objects_message
 from stereod.pipeline import Pipeline, PipelineParams
+from stereod.sources.frames import StereoPair
+from stereod.vision.detect import DetectorParams
+from stereod.vision.geometry import Geometry
 from stereod_fakes.synth import Ball, Renderer, Scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -76,7 +76,7 @@ def timed(fn: Callable[[StereoPair], object], pairs: list[StereoPair], repeat: i
 
 
 def bench_stereod(pairs: list[StereoPair], w: int, h: int, workers: int, repeat: int) -> float:
-    from stereod.geometry.stereo import CanonicalRig
+    from stereod.vision.geometry.stereo import CanonicalRig
 
     best = 0.0
     for _ in range(repeat):

@@ -20,8 +20,8 @@ from selenium import webdriver
 from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.support.ui import WebDriverWait
 
-from stereod.config import ZenohConfig, load_config
-from stereod.daemon import Daemon
+from stereod.daemon.config import ZenohConfig, load_config
+from stereod.daemon.daemon import Daemon
 from stereod.view.server import ViewServer
 from stereod_fakes.synth import Ball, Scene, SyntheticDriver
 

@@ -13,10 +13,10 @@ from typing import Any
 from pydantic import ValidationError
 
 from stereod.cli.common import add_canonical_rig, number, path_arg, size_arg
-from stereod.detect import DetectorParams
+from stereod.cli.progress import Progress
 from stereod.errors import UsageError, describe_validation_error
-from stereod.progress import Progress
-from stereod.recording import Codec, size_problem
+from stereod.sources.recording import Codec, size_problem
+from stereod.vision.detect import DetectorParams
 
 from .synth import Ball, Scene, write_scene
 

@@ -21,9 +21,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from stereod.errors import ConfigError, InputError, MissingInputError, describe_validation_error
-from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
-from stereod.paths import TextPath, text_path
-from stereod.recording import (
+from stereod.files.paths import TextPath, text_path
+from stereod.sources.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
+from stereod.sources.recording import (
     MANIFEST,
     checksum,
     damaged_frames_problem,

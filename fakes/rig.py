@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from stereod.frames import Eye
+from stereod.sources.frames import Eye
 
 
 class CameraSpec(BaseModel):
@@ -63,9 +63,9 @@ class RigSpec(BaseModel):
         return -self.R @ np.array([self.baseline_m, 0.0, 0.0])
 
     def calibration(self, width: int = 640, height: int = 480, **changes: np.ndarray) -> Any:
-        """This rig's exact calibration (a :class:`stereod.calibration.Calibration`); keyword
+        """This rig's exact calibration (a :class:`stereod.vision.calibration.Calibration`); keyword
         arguments replace matrices (``R=np.eye(3)``) to build deliberately wrong ones."""
-        from stereod.calibration import from_arrays
+        from stereod.vision.calibration import from_arrays
 
         arrays = {
             "K1": self.left.K,
@@ -269,8 +269,8 @@ def write_board_recording(
 ) -> Path:
     """A recording of a chessboard moved from pose to pose in front of the rig, each pose held
     for ``hold_frames`` frames (as a person holding a board would), for live calibration."""
-    from stereod.frames import Frame
-    from stereod.recording import RecordingWriter
+    from stereod.sources.frames import Frame
+    from stereod.sources.recording import RecordingWriter
 
     views = board_views(rig, width, height, cols, rows, square_m, poses, seed=seed)
     with RecordingWriter(out, width, height, fps=fps, settings={"synthetic": "chessboard"}) as w:

@@ -23,9 +23,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from stereod.errors import ConfigError, InputError, MissingInputError, describe_validation_error
-from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
-from stereod.geometry.stereo import CanonicalRig
-from stereod.recording import Codec, RecordingWriter
+from stereod.sources.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
+from stereod.sources.recording import Codec, RecordingWriter
+from stereod.vision.geometry.stereo import CanonicalRig
 
 from .rig import RayCaster, RigSpec
 

@@ -13,28 +13,28 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from .frames import Eye, Frame, StereoPair
-    from .geometry import Geometry
-    from .geometry.rectified import CalibratedRig
-    from .geometry.stereo import CanonicalRig
-    from .pipeline import PairResult, Pipeline, PipelineParams, Timings
-    from .tracking import TrackLifecycle, TrackState
+    from stereod.pipeline import PairResult, Pipeline, PipelineParams, Timings
+    from stereod.sources.frames import Eye, Frame, StereoPair
+    from stereod.tracking.tracker import TrackLifecycle, TrackState
+    from stereod.vision.geometry import Geometry
+    from stereod.vision.geometry.rectified import CalibratedRig
+    from stereod.vision.geometry.stereo import CanonicalRig
 
 __version__ = "0.2.0"
 
 _HOMES = {
-    "Eye": ".frames",
-    "Frame": ".frames",
-    "StereoPair": ".frames",
-    "Geometry": ".geometry",
-    "CalibratedRig": ".geometry.rectified",
-    "CanonicalRig": ".geometry.stereo",
+    "Eye": ".sources.frames",
+    "Frame": ".sources.frames",
+    "StereoPair": ".sources.frames",
+    "Geometry": ".vision.geometry",
+    "CalibratedRig": ".vision.geometry.rectified",
+    "CanonicalRig": ".vision.geometry.stereo",
     "PairResult": ".pipeline",
     "Pipeline": ".pipeline",
     "PipelineParams": ".pipeline",
     "Timings": ".pipeline",
-    "TrackLifecycle": ".tracking",
-    "TrackState": ".tracking",
+    "TrackLifecycle": ".tracking.tracker",
+    "TrackState": ".tracking.tracker",
 }
 """Where each name of the public surface lives. They are imported on first use, so that
 ``import stereod`` (which every command does first) costs nothing until NumPy and OpenCV are

@@ -17,7 +17,7 @@ def main() -> int:
     if hasattr(signal, "SIGHUP"):
         signal.signal(signal.SIGHUP, signal.SIG_IGN)
     try:
-        from .cli import main as command
+        from stereod.cli import main as command
     except KeyboardInterrupt:
         return 130
     return command()

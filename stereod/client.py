@@ -1,7 +1,7 @@
 """A typed client for programs that use a running stereod over Zenoh.
 
-Messages arrive parsed (:class:`~stereod.messages.ObjectsMessage` with its
-:class:`~stereod.messages.ObjectState` objects), together with the end of each track
+Messages arrive parsed (:class:`~stereod.bus.messages.ObjectsMessage` with its
+:class:`~stereod.bus.messages.ObjectState` objects), together with the end of each track
 (:class:`TrackEnded`, from the DELETE on the track's key) and the daemon's liveliness
 (:class:`DaemonAlive`, from its ``alive`` token). Parsing is lenient: a newer daemon's extra
 fields are ignored. A sample that does not parse is counted in ``Subscription.rejected`` and
@@ -30,7 +30,7 @@ or an iterator, which also waits for the daemon before querying it::
             for event in events:
                 ...
 
-Key expressions come from :mod:`stereod.keys` (also available here as ``keys``).
+Key expressions come from :mod:`stereod.bus.keys` (also available here as ``keys``).
 """
 
 from __future__ import annotations
@@ -49,11 +49,8 @@ from typing import Any
 import zenoh
 from pydantic import ValidationError
 
-from . import keys
-from .calibration import Calibration
-from .config import ZenohConfig
-from .errors import ConfigError, describe_validation_error
-from .messages import (
+from stereod.bus import keys
+from stereod.bus.messages import (
     CanonicalGeometry,
     ImageInfo,
     ObjectsMessage,
@@ -61,7 +58,10 @@ from .messages import (
     StatsMessage,
     StatusMessage,
 )
-from .publish import session_config
+from stereod.bus.publish import session_config
+from stereod.daemon.config import ZenohConfig
+from stereod.errors import ConfigError, describe_validation_error
+from stereod.vision.calibration import Calibration
 
 __all__ = [
     "DaemonAlive",
@@ -166,7 +166,7 @@ def parse_payload(payload: bytes) -> ObjectsMessage | ObjectState | StatusMessag
 _MODELS: dict[str, type[ObjectsMessage | ObjectState | StatusMessage | StatsMessage]] = {
     "stereod.objects": ObjectsMessage,
     "stereod.object": ObjectState,
-    "stereod.status": StatusMessage,
+    "stereod.daemon.status": StatusMessage,
     "stereod.stats": StatsMessage,
 }
 

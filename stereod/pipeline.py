@@ -7,7 +7,7 @@ tracked objects, which runs with the next pair's detection, in each eye's worker
 
 The pipeline is pure computation on arrays: no threads of its own beyond an optional two-worker
 pool that detects both eyes at once (OpenCV releases the GIL), no Zenoh, no devices, no wire
-format (:func:`stereod.messages.objects_message` turns a result into the wire message).
+format (:func:`stereod.bus.messages.objects_message` turns a result into the wire message).
 """
 
 from __future__ import annotations
@@ -21,16 +21,28 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import kalman, skew
-from .detect import Blobs, Detector, DetectorParams, Rect
-from .frames import Eye, Frame, StereoPair
-from .geometry import Geometry
-from .geometry.rectified import CalibratedRig
-from .geometry.refine import RefineParams, refine_match
-from .geometry.stereo import CanonicalRig, MatchParams, centre_depth, match_blobs, sym3
-from .grouping import GroupParams, extent_m, group_objects
-from .pairing import DEFAULT_TOLERANCE_NS, DROP_NON_MONOTONIC, DROP_OVERFLOW, Pairer, PairerStats
-from .tracking import Detection, Observation, Tracker, TrackerParams, TrackState
+from stereod.sources.frames import Eye, Frame, StereoPair
+from stereod.sources.pairing import (
+    DEFAULT_TOLERANCE_NS,
+    DROP_NON_MONOTONIC,
+    DROP_OVERFLOW,
+    Pairer,
+    PairerStats,
+)
+from stereod.tracking import kalman, skew
+from stereod.tracking.tracker import Detection, Observation, Tracker, TrackerParams, TrackState
+from stereod.vision.detect import Blobs, Detector, DetectorParams, Rect
+from stereod.vision.geometry import Geometry
+from stereod.vision.geometry.rectified import CalibratedRig
+from stereod.vision.geometry.refine import RefineParams, refine_match
+from stereod.vision.geometry.stereo import (
+    CanonicalRig,
+    MatchParams,
+    centre_depth,
+    match_blobs,
+    sym3,
+)
+from stereod.vision.grouping import GroupParams, extent_m, group_objects
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +82,7 @@ class PipelineParams:
     calling thread alone, which is faster for them.
     ``silhouette_depth``: place each object's depth at its centre, not at the depth its
     silhouettes' centroids triangulate to, which is r^2 / Z nearer for a sphere (see
-    :func:`stereod.geometry.stereo.silhouette_depth_factor`; other convex objects are taken to
+    ``silhouette_depth_factor`` (``vision/geometry/stereo.py``); other convex objects are taken to
     be as deep as they are wide).
     ``skew_compensation``: move both eyes' centroids to one instant before triangulating.
     ``skew_window_s``: how much of an eye's 2D track (s) its image velocity is fitted over, and
@@ -81,7 +93,7 @@ class PipelineParams:
     (a 20 m/s ball 2.5 m away crosses a 42 deg view in a tenth of a second): with the skew, it
     bounds how far an object moves between the eyes' instants, and with no depth known yet,
     between frames.
-    ``grouping``: which matched blob pairs are one object (:mod:`stereod.grouping`).
+    ``grouping``: which matched blob pairs are one object (:mod:`stereod.vision.grouping`).
     ``readout_s``: a rolling shutter's readout time (s), from the first image row to the row
     below the last: each blob is taken at its frame's instant plus its centroid's row times
     ``readout_s / height_px``, wherever an eye's instant is used (association, skew
@@ -156,7 +168,7 @@ class PairResult:
 
 
 Learning = tuple[list[Rect], list[Rect]]
-"""One eye's (frozen, released) rectangles of :meth:`stereod.detect.Detector.learn`."""
+"""One eye's (frozen, released) rectangles of :meth:`stereod.vision.detect.Detector.learn`."""
 
 
 def _grown_box(bbox: np.ndarray) -> Rect:
@@ -281,7 +293,7 @@ class Pipeline:
         """Pair ``frames`` (both eyes, in the order they were captured, as a camera delivers
         them: a frame waits for the other eye's nearest one within ``tolerance_ns`` among at
         most 8 of its eye's, so frames given long before their partners, such as one eye's
-        whole sequence before the other's, are dropped; see :class:`stereod.pairing.Pairer`)
+        whole sequence before the other's, are dropped; see :class:`stereod.sources.pairing.Pairer`)
         and yield each pair's result as soon as
         the pair is formed (a frame that waits for its partner is detected meanwhile, as the
         daemon does: :meth:`detect_ahead`). Tracks still live at the end stay live:
@@ -546,7 +558,7 @@ class Pipeline:
         """How much a track's depth changed since each eye last saw it (Z now over Z then),
         from its blob's areas in that eye (``areas_px`` now, left and right), each seen at
         its angle off that eye's axis, and no faster than ``max_speed_mps`` from its last
-        depth (:func:`stereod.skew.size_depth_ratio`); unknown for a new track, or when
+        depth (:func:`stereod.tracking.skew.size_depth_ratio`); unknown for a new track, or when
         either blob is cut by the image's edge, now or then."""
         if tid is None:
             return None, None
@@ -579,7 +591,7 @@ class Pipeline:
         self, pair: StereoPair, lb: Blobs, idx: np.ndarray, lpx: np.ndarray, rpx: np.ndarray
     ) -> None:
         """Replace each right centroid in ``rpx`` by where the left blob's appearance is found
-        in the right image (:mod:`stereod.geometry.refine`), when it is found confidently."""
+        in the right image (:mod:`stereod.vision.geometry.refine`), when it is found confidently."""
         rig = self.params.rig
         size = (rig.width_px, rig.height_px)
         limg, rimg = pair.left.image, pair.right.image
@@ -821,7 +833,7 @@ def _segmentation_error_px(
     counts from twice the slack (6 %), at half its size. The two areas apart count beyond
     the mean growth. Either counts beyond ``SEGMENTATION_SLACK`` and the areas' own noise,
     2 ``SIZE_NOISE`` / sqrt(A) of the smallest of the four areas A (a difference of two log
-    area ratios, each twice the half-log that :func:`stereod.skew.size_depth_ratio` bounds
+    area ratios, each twice the half-log that :func:`stereod.tracking.skew.size_depth_ratio` bounds
     by ``SIZE_NOISE`` / sqrt(A): a ball 5 px across wobbles by a fifth); the larger, times
     half the blob's width ``width_px``, is added to the centroid error of this observation,
     so the filter leans on its prediction across the loss instead of following it. The two

@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stereod import CanonicalRig, Eye, Frame, PairResult, Pipeline, PipelineParams
-from stereod.motion import angle_diff_deg
-from stereod.tracking import TrackLifecycle
+from stereod.tracking.motion import angle_diff_deg
+from stereod.tracking.tracker import TrackLifecycle
 from stereod_fakes import world
 from stereod_fakes.scenarios import TABLE_I, table_one_scene
 from stereod_fakes.synth import Renderer, Scene

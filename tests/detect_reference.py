@@ -1,7 +1,7 @@
 """A plain float numpy + scipy.ndimage implementation of paper sec. II.
 
 It follows eq. 2-5 literally (float luminance in [0, 255], float background, d >= t) and exists to
-check the fast OpenCV path in :mod:`stereod.detect` and to benchmark against it. It needs scipy
+check the fast OpenCV path in ``vision/detect.py`` and to benchmark against it. It needs scipy
 (a development dependency) and is never used by the daemon.
 """
 
@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from stereod.detect import Blobs, DetectorParams, Luminance
+from stereod.vision.detect import Blobs, DetectorParams, Luminance
 
 
 class ReferenceDetector:
-    """Eq. 2-5 on float64 arrays, with the parameters of :class:`stereod.detect.Detector`."""
+    """Eq. 2-5 on float64 arrays, with the parameters of :class:`stereod.vision.detect.Detector`."""
 
     def __init__(self, params: DetectorParams) -> None:
         from scipy import ndimage

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 
 from stereod import Frame, PairResult, Pipeline, PipelineParams
-from stereod.frames import merged
-from stereod.recording import read_manifest
-from stereod.tracking import TrackLifecycle, TrackState
+from stereod.sources.frames import merged
+from stereod.sources.recording import read_manifest
+from stereod.tracking.tracker import TrackLifecycle, TrackState
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Renderer, Scene
 

@@ -18,16 +18,17 @@ import pytest
 from hypothesis import example, given
 from hypothesis import strategies as st
 
-from stereod import Pipeline, StereoPair, bounds
-from stereod.bounds import BASELINE_M, BOUNDS, HFOV_DEG, SQUARE_M, STATUS_PERIOD_S
-from stereod.calibration import Calibration, canonical
-from stereod.calibration import load as load_calibration
+from stereod import Pipeline, StereoPair
 from stereod.cli import main
 from stereod.cli.common import load_checked
-from stereod.config import StereodConfig, load_config
+from stereod.daemon.config import StereodConfig, load_config
+from stereod.daemon.params import pipeline_params
 from stereod.errors import CalibrationError, ConfigError, StereodError
-from stereod.geometry.rectified import CalibratedRig
-from stereod.params import pipeline_params
+from stereod.files import bounds
+from stereod.files.bounds import BASELINE_M, BOUNDS, HFOV_DEG, SQUARE_M, STATUS_PERIOD_S
+from stereod.vision.calibration import Calibration, canonical
+from stereod.vision.calibration import load as load_calibration
+from stereod.vision.geometry.rectified import CalibratedRig
 
 from .conftest import ROOT, shared_data
 from .fuzz import FUZZ, accepted_or_refused, toml_document
@@ -286,11 +287,11 @@ def test_every_period_rate_and_duration_in_the_config_is_bounded() -> None:
 
 def test_the_readme_table_is_the_codes() -> None:
     """README's table of bounds lists exactly the code's bounds, with the code's numbers and
-    reasons (regenerate it with ``python -c 'from stereod.bounds import markdown_table as t;
+    reasons (regenerate it with ``python -c 'from stereod.files.bounds import markdown_table as t;
     print(t())'``)."""
     readme = (ROOT / "README.md").read_text()
     table = bounds.markdown_table()
-    assert table in readme, "README.md's table of bounds differs from stereod.bounds"
+    assert table in readme, "README.md's table of bounds differs from stereod.files.bounds"
     start = readme.index(table)
     assert readme.rfind("## Configuration", 0, start) > readme.rfind("\n## ", 0, start) - 1
     rows = [line for line in table.splitlines()[2:]]

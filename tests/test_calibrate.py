@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stereod.calibrate import (
+from stereod.errors import InputError, MissingInputError
+from stereod.vision.calibrate import (
     CalibrationRejected,
     LiveCollector,
     calibrate,
@@ -20,8 +21,7 @@ from stereod.calibrate import (
     pairs_from_list,
     pairs_in_directory,
 )
-from stereod.calibration import MIN_BOARD_CORNERS, Board, load, rotation_angle_deg
-from stereod.errors import InputError, MissingInputError
+from stereod.vision.calibration import MIN_BOARD_CORNERS, Board, load, rotation_angle_deg
 from stereod_fakes.rig import board_views, minoru_like, random_board_poses, write_board_recording
 from stereod_fakes.synth import Scene, write_scene
 

@@ -7,9 +7,9 @@ from __future__ import annotations
 from hypothesis import example, given
 from hypothesis import strategies as st
 
-from stereod.calibrate import pairs_from_list
 from stereod.errors import StereodError
-from stereod.paths import path_problem
+from stereod.files.paths import path_problem
+from stereod.vision.calibrate import pairs_from_list
 
 from .fuzz import FUZZ, accepted_or_refused, digest
 

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from stereod.calibrate import calibrate_files, format_report, pairs_from_list
-from stereod.calibration import (
+from stereod.errors import CalibrationError, MissingInputError, OutputError
+from stereod.vision.calibrate import calibrate_files, format_report, pairs_from_list
+from stereod.vision.calibration import (
     Board,
     Calibration,
     export_ros,
@@ -20,8 +21,7 @@ from stereod.calibration import (
     load,
     save,
 )
-from stereod.errors import CalibrationError, MissingInputError, OutputError
-from stereod.geometry.rectified import CalibratedRig
+from stereod.vision.geometry.rectified import CalibratedRig
 from stereod_fakes.rig import minoru_like
 
 from .conftest import shared_data, stereod

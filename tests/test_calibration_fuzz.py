@@ -11,9 +11,9 @@ import numpy as np
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from stereod.calibration import Calibration, canonical, import_opencv, load
 from stereod.errors import StereodError
-from stereod.geometry.rectified import CalibratedRig
+from stereod.vision.calibration import Calibration, canonical, import_opencv, load
+from stereod.vision.geometry.rectified import CalibratedRig
 
 from .fuzz import (
     FUZZ,
@@ -71,7 +71,7 @@ def check_loaded(path: Path) -> None:
 
 def accepted_or_refused_rig(cal: Calibration) -> CalibratedRig | None:
     """The rig, or None when it refuses the geometry with a ValueError (which the daemon
-    turns into a one-line CalibrationError: see stereod.params.make_rig)."""
+    turns into a one-line CalibrationError: see stereod.daemon.params.make_rig)."""
     try:
         return CalibratedRig(cal)
     except ValueError as exc:

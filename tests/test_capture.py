@@ -7,12 +7,12 @@ import threading
 
 import numpy as np
 
-from stereod.capture import Capture
-from stereod.frames import Eye, EyeSource, Frame, SourceInfo, StereoSource
-from stereod.messages import EyeState
-from stereod.pairing import Pairer
-from stereod.queues import BoundedQueue
-from stereod.status import Health
+from stereod.bus.messages import EyeState
+from stereod.daemon.capture import Capture
+from stereod.daemon.status import Health
+from stereod.sources.frames import Eye, EyeSource, Frame, SourceInfo, StereoSource
+from stereod.sources.pairing import Pairer
+from stereod.sources.queues import BoundedQueue
 
 MS = 1_000_000
 IMG = np.zeros((4, 6), np.uint8)

@@ -18,8 +18,8 @@ import pytest
 import zenoh
 
 from stereod.cli import main
-from stereod.motion import angle_diff_deg, circular_median_deg
-from stereod.paths import MAX_TEXT_BYTES, MAX_TIMESTAMP_BYTES
+from stereod.files.paths import MAX_TEXT_BYTES, MAX_TIMESTAMP_BYTES
+from stereod.tracking.motion import angle_diff_deg, circular_median_deg
 from stereod_fakes.synth import Ball, Renderer, Scene, write_scene
 from tests.processes import start_stereod, stereod_command
 
@@ -217,8 +217,8 @@ def test_subscribe_prints_readably(
 def test_subscribe_without_an_endpoint_connects_where_the_demo_listens() -> None:
     """Bare ``stereod subscribe`` looks for a daemon on tcp/127.0.0.1:7447, as ``view``
     does (a peer with no endpoint and no scouting would hear nothing)."""
-    from stereod.config import ZenohConfig
-    from stereod.publish import open_session
+    from stereod.bus.publish import open_session
+    from stereod.daemon.config import ZenohConfig
 
     try:
         session = open_session(ZenohConfig(listen=["tcp/127.0.0.1:7447"]))
@@ -599,7 +599,7 @@ def test_synth_command_writes_recording_and_truth(tmp_path: Path) -> None:
 def test_replay_with_calibration_file(scene_dir: tuple[Scene, Path], tmp_path: Path) -> None:
     """The canonical rig written as a calibration file gives the same positions, now marked
     calibrated with the file's id; a calibration for another image size is refused."""
-    from stereod.calibration import canonical, save
+    from stereod.vision.calibration import canonical, save
 
     scene, rec = scene_dir
     cal = canonical(scene.baseline_m, scene.hfov_deg, 640, 480)

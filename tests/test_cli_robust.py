@@ -18,9 +18,9 @@ import cv2
 import numpy as np
 import pytest
 
-from stereod.calibration import canonical, save
 from stereod.cli import main
-from stereod.recording import Codec
+from stereod.sources.recording import Codec
+from stereod.vision.calibration import canonical, save
 from stereod_fakes.synth import Ball, Scene, write_scene
 
 from .fuzz import digest
@@ -832,8 +832,8 @@ def test_a_replay_under_a_rig_name_already_on_the_bus_is_refused(
 ) -> None:
     """A replay connected to a bus where a daemon already publishes its rig name would mix its
     messages into that rig's: it is refused before it plays (78), its outputs untouched."""
-    from stereod.config import load_config
-    from stereod.daemon import Daemon
+    from stereod.daemon.config import load_config
+    from stereod.daemon.daemon import Daemon
     from stereod_fakes.synth import SyntheticDriver
 
     rec = recording(tmp_path)

@@ -13,7 +13,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from stereod import client, keys
+from stereod import client
+from stereod.bus import keys
+from stereod.bus.messages import CanonicalGeometry, StatusMessage
 from stereod.client import (
     DaemonAlive,
     Event,
@@ -30,9 +32,8 @@ from stereod.client import (
     subscribe_status,
     wait_alive,
 )
-from stereod.config import load_config
-from stereod.daemon import Daemon
-from stereod.messages import CanonicalGeometry, StatusMessage
+from stereod.daemon.config import load_config
+from stereod.daemon.daemon import Daemon
 from stereod_fakes.synth import SyntheticDriver
 from tests.conftest import zenoh_config
 from tests.test_api import readme_examples

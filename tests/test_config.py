@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from stereod.config import load_config
+from stereod.daemon.config import load_config
 from stereod.errors import EX_CONFIG, ConfigError, MissingInputError
 
 

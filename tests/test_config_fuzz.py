@@ -13,7 +13,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from stereod.cli.common import load_checked
-from stereod.config import StereodConfig
+from stereod.daemon.config import StereodConfig
 from stereod.errors import StereodError
 from stereod_fakes.replay import ReplayOptions
 from stereod_fakes.synth import Scene, SynthFlags

@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 import zenoh
 
-from stereod.config import load_config
-from stereod.daemon import Daemon
-from stereod.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
+from stereod.daemon.config import load_config
+from stereod.daemon.daemon import Daemon
+from stereod.sources.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
 from stereod_fakes.synth import SyntheticDriver
 from stereod_fakes.v4l2_kernel import FakeCamera, FakeKernel
 from stereod_v4l2_minoru.driver import MinoruDriver
@@ -370,9 +370,9 @@ def test_status_says_uncalibrated_depths_rest_on_the_field_of_view(endpoint: str
 
 
 def test_a_calibrated_rig_has_no_such_note() -> None:
-    from stereod.calibration import canonical
-    from stereod.geometry.rectified import CalibratedRig
-    from stereod.status import geometry_note
+    from stereod.daemon.status import geometry_note
+    from stereod.vision.calibration import canonical
+    from stereod.vision.geometry.rectified import CalibratedRig
 
     assert geometry_note(CalibratedRig(canonical(0.06, 60.0, 640, 480))) == ""
 

@@ -15,8 +15,8 @@ from pathlib import Path
 import aiohttp
 import pytest
 
-from stereod.demo import DEMO_PORT, free_tcp_port, run_demo
-from stereod.motion import angle_diff_deg
+from stereod.tracking.motion import angle_diff_deg
+from stereod.view.demo import DEMO_PORT, free_tcp_port, run_demo
 from tests.processes import run_stereod, start_stereod
 
 

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stereod.detect import (
+from stereod.vision.detect import (
     PAPER,
     Centroid,
     Detector,

@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stereod.detect import Detector, DetectorParams
-from stereod.disc import coverage, disc_centre, is_round
+from stereod.vision.detect import Detector, DetectorParams
+from stereod.vision.disc import coverage, disc_centre, is_round
 
 SUB = 16
 """Samples per pixel side when integrating a pixel's colour."""

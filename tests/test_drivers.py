@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from stereod.drivers import available, load_driver
 from stereod.errors import ConfigError
+from stereod.sources.drivers import available, load_driver
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import SyntheticDriver
 

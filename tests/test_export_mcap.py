@@ -30,11 +30,11 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
-from stereod.calibration import Calibration, canonical, from_arrays
+from stereod.bus.messages import ObjectsMessage
 from stereod.errors import InputError, MissingInputError, OutputError
-from stereod.export_mcap import ExportSummary, McapRunWriter, export_run
-from stereod.frames import Eye, Frame
-from stereod.messages import ObjectsMessage
+from stereod.ros.export_mcap import ExportSummary, McapRunWriter, export_run
+from stereod.sources.frames import Eye, Frame
+from stereod.vision.calibration import Calibration, canonical, from_arrays
 
 from .conftest import ROOT, stereod
 from .processes import start_stereod

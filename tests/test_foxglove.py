@@ -25,12 +25,12 @@ import zenoh
 from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
-from stereod.config import load_config
-from stereod.daemon import Daemon
+from stereod.bus.messages import ObjectsMessage
+from stereod.daemon.config import load_config
+from stereod.daemon.daemon import Daemon
 from stereod.errors import UnavailableError
-from stereod.messages import ObjectsMessage
-from stereod.overlay import HEADER_PX
-from stereod.view.foxglove import FoxgloveBridge
+from stereod.ros.foxglove import FoxgloveBridge
+from stereod.view.overlay import HEADER_PX
 from stereod_fakes.synth import Ball, Scene, SyntheticDriver
 
 from .conftest import ROOT, free_endpoint, zenoh_config

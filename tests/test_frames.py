@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stereod.frames import Eye, Frame, StereoPair
+from stereod.sources.frames import Eye, Frame, StereoPair
 
 GREY = np.zeros((24, 32), np.uint8)
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from stereod import Pipeline, PipelineParams, StereoPair
-from stereod.detect import Blobs
-from stereod.geometry.stereo import CanonicalRig
-from stereod.grouping import GroupParams, extent_m, group_objects
+from stereod.vision.detect import Blobs
+from stereod.vision.geometry.stereo import CanonicalRig
+from stereod.vision.grouping import GroupParams, extent_m, group_objects
 
 from .conftest import shared_data
 

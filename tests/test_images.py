@@ -12,12 +12,12 @@ import zenoh
 
 from stereod import CanonicalRig, Pipeline, PipelineParams
 from stereod.client import Image, ObjectsMessage, subscribe_images, subscribe_objects
-from stereod.config import load_config
-from stereod.daemon import Daemon
-from stereod.detect import Detector, DetectorParams
-from stereod.frames import Eye, StereoPair
-from stereod.overlay import HEADER_PX, Annotations, PairImages, colour, masks, overlay
-from stereod.tracking import TrackLifecycle
+from stereod.daemon.config import load_config
+from stereod.daemon.daemon import Daemon
+from stereod.sources.frames import Eye, StereoPair
+from stereod.tracking.tracker import TrackLifecycle
+from stereod.view.overlay import HEADER_PX, Annotations, PairImages, colour, masks, overlay
+from stereod.vision.detect import Detector, DetectorParams
 from stereod_fakes.synth import Ball, Renderer, Scene, SyntheticDriver
 
 BALL = Ball(heading_deg=60.0, speed_mps=0.7, centre_m=(0.0, 0.1, 1.8))

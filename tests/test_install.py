@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from stereod.daemon.install import hidden_from_service, plan
 from stereod.errors import EX_CONFIG, EX_DATAERR, EX_NOINPUT, UsageError
-from stereod.install import hidden_from_service, plan
 
 from .conftest import stereod
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import signal
 import threading
 
-from stereod.interrupt import wait_until
+from stereod.cli.interrupt import wait_until
 
 
 def test_a_signal_delivered_to_another_thread_still_runs_its_handler_during_the_wait() -> None:

@@ -8,8 +8,8 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from stereod import kalman, motion
-from stereod.geometry.stereo import triangulate_rectified
+from stereod.tracking import kalman, motion
+from stereod.vision.geometry.stereo import triangulate_rectified
 
 
 def test_transition_and_process_noise_closed_form() -> None:

@@ -10,14 +10,14 @@ import sys
 
 import pytest
 
-from stereod.memory import MIN_MMAP_THRESHOLD, separate_large_buffers
+from stereod.daemon.memory import MIN_MMAP_THRESHOLD, separate_large_buffers
 
 W, H = 640, 480
 
 CHILD = """
 import re, sys
 import numpy as np
-from stereod.memory import separate_large_buffers
+from stereod.daemon.memory import separate_large_buffers
 def rss_kb():
     return int(re.search(r"VmRSS:\\s+(\\d+)", open("/proc/self/status").read()).group(1))
 if sys.argv[1] == "set":

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from stereod.messages import ALL_MESSAGES, ObjectsMessage, ObjectState, dump, dump_objects
+from stereod.bus.messages import ALL_MESSAGES, ObjectsMessage, ObjectState, dump, dump_objects
 
 GOLDEN = Path(__file__).parent / "golden" / "schemas.json"
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from stereod import motion
+from stereod.tracking import motion
 
 
 def test_eq21_finite_difference() -> None:

@@ -1,4 +1,4 @@
-"""The bounds every parser's input passes first (stereod.nesting): deep nesting and long
+"""The bounds every parser's input passes first (stereod.files.nesting): deep nesting and long
 numbers are found by a scan that never recurses, in every syntax stereod reads, and the
 real files of each kind pass."""
 
@@ -9,9 +9,9 @@ from pathlib import Path
 import cv2
 import pytest
 
-from stereod.calibration import canonical
 from stereod.errors import ConfigError
-from stereod.nesting import MAX_DEPTH, check_data_depth, check_depth, depth_problem
+from stereod.files.nesting import MAX_DEPTH, check_data_depth, check_depth, depth_problem
+from stereod.vision.calibration import canonical
 
 ROOT = Path(__file__).resolve().parent.parent
 

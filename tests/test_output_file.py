@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from stereod.errors import OutputError, ReaderGone, UsageError
-from stereod.output_file import AtomicOutput, check_outputs, give_up_writing, output_target
+from stereod.files.output_file import AtomicOutput, check_outputs, give_up_writing, output_target
 
 
 def test_a_regular_file_is_replaced_by_rename_and_a_link_is_written_through(

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stereod.frames import Eye, Frame
-from stereod.pairing import (
+from stereod.sources.frames import Eye, Frame
+from stereod.sources.pairing import (
     DROP_CLOCK_JUMP,
     DROP_NO_PARTNER,
     DROP_NON_MONOTONIC,

@@ -8,11 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from stereod import PipelineParams, pairing, pipeline
-from stereod.detect import Blobs, DetectorParams
-from stereod.motion import circular_median_deg
-from stereod.skew import SIZE_NOISE
-from stereod.tracking import Observation, TrackerParams
+from stereod import PipelineParams, pipeline
+from stereod.sources import pairing
+from stereod.tracking.motion import circular_median_deg
+from stereod.tracking.skew import SIZE_NOISE
+from stereod.tracking.tracker import Observation, TrackerParams
+from stereod.vision.detect import Blobs, DetectorParams
 from stereod_fakes.synth import Ball, Scene
 from tests.scenes import run_recording, run_scene, sigma, states
 
@@ -248,8 +249,8 @@ def test_an_object_cut_by_the_bottom_edge_is_tracked_by_its_x_and_depth() -> Non
 @pytest.fixture(scope="module")
 def recovered_calibration(tmp_path_factory: pytest.TempPathFactory):
     """A calibration recovered from rendered chessboards through the non-canonical rig."""
-    from stereod.calibrate import calibrate, detect_pairs
-    from stereod.calibration import Board, save
+    from stereod.vision.calibrate import calibrate, detect_pairs
+    from stereod.vision.calibration import Board, save
     from stereod_fakes.rig import board_views, minoru_like, random_board_poses
 
     rig = minoru_like()
@@ -270,8 +271,8 @@ def test_non_canonical_rig_with_recovered_calibration(
     """A ball through a distorted, rotated rig with half a frame of skew, measured with the
     calibration recovered from rendered boards: heading within 1 deg, speed within 3 %, as in
     the canonical case. Truth is expressed in the calibration's rig frame (rectified axes)."""
-    from stereod.geometry.rectified import CalibratedRig
-    from stereod.motion import circular_median_deg
+    from stereod.tracking.motion import circular_median_deg
+    from stereod.vision.geometry.rectified import CalibratedRig
     from stereod_fakes.scenarios import table_one_scene
     from stereod_fakes.synth import write_scene
 
@@ -295,8 +296,8 @@ def test_a_reconfigured_pipeline_keeps_the_pending_background_update() -> None:
     """Eq. 3 with a pair's frames runs when the next pair is detected; a reconfiguration in
     between applies it before handing the backgrounds over, so the new pipeline's background
     is the one an unbroken run has (to the last bit)."""
-    from stereod.frames import StereoPair
     from stereod.pipeline import Pipeline
+    from stereod.sources.frames import StereoPair
     from stereod_fakes.synth import Renderer
 
     scene = Scene(duration_s=1.2, balls=[Ball(heading_deg=90.0, speed_mps=0.5)])
@@ -335,8 +336,8 @@ def test_detecting_the_earlier_eye_ahead_finds_what_the_pair_finds() -> None:
     detecting both eyes once the pair is formed (the pairer drops nothing here). Every pair
     after the first two uses it (the pairer knows the frame period from an eye's second
     frame on)."""
-    from stereod.frames import Eye, StereoPair
     from stereod.pipeline import Pipeline
+    from stereod.sources.frames import Eye, StereoPair
     from stereod_fakes.synth import Renderer
 
     scene = Scene(duration_s=2.0, skew_s=1 / 60, balls=[Ball(heading_deg=60, speed_mps=0.7)])
@@ -462,7 +463,7 @@ def test_centroids_on_rows_apart_widen_the_observations_error() -> None:
     covariance is the centroids' variance times a Jacobian of the positions alone). A gap
     that stays (a calibration's row error) or goes back to none widens nothing."""
     from stereod import CanonicalRig, Frame, Pipeline, StereoPair
-    from stereod.frames import Eye
+    from stereod.sources.frames import Eye
 
     rig = CanonicalRig(0.06, 60.0, 320, 180)
     rng = np.random.default_rng(1)
@@ -514,7 +515,7 @@ def test_one_view_in_both_eyes_never_makes_a_track_at_infinity(disparity_px: int
     same object with a real disparity is one track at eq. 9's depth B f / d (within 1 %: the
     flat object is taken to be as deep as wide, 0.3 % here)."""
     from stereod import CanonicalRig, Frame, Pipeline, StereoPair
-    from stereod.frames import Eye
+    from stereod.sources.frames import Eye
 
     rig = CanonicalRig(0.06, 60.0, 320, 180)
     rng = np.random.default_rng(0)
@@ -552,7 +553,7 @@ def test_a_pair_the_pipeline_cannot_use_is_refused_before_anything_changes() -> 
     import math
 
     from stereod import CanonicalRig, Frame, Pipeline, StereoPair
-    from stereod.frames import Eye
+    from stereod.sources.frames import Eye
 
     rig = CanonicalRig(0.06, 60.0, 64, 48)
     rng = np.random.default_rng(3)
@@ -617,7 +618,7 @@ def test_the_wrong_kind_of_argument_is_a_type_error_saying_what_is_wanted() -> N
     """What the README promises the library raises on bad input: TypeError or ValueError
     with a line that says what was wanted, never an AttributeError from deep inside."""
     from stereod import CanonicalRig, Frame, Pipeline
-    from stereod.frames import Eye
+    from stereod.sources.frames import Eye
 
     rig = CanonicalRig(0.06, 60.0, 32, 24)
     image = np.zeros((24, 32), np.uint8)
@@ -640,7 +641,7 @@ def test_run_says_what_it_dropped_when_frames_come_out_of_capture_order(
     most are dropped; run counts them by reason and warns once at the end. Frames in capture
     order are all paired, with nothing to warn about."""
     from stereod import CanonicalRig, Frame, Pipeline
-    from stereod.frames import Eye
+    from stereod.sources.frames import Eye
 
     rig = CanonicalRig(0.06, 60.0, 32, 24)
     grey = np.full((24, 32), 90, np.uint8)

@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from stereod import CanonicalRig, Frame, Pipeline, PipelineParams, StereoPair
-from stereod.frames import Eye
+from stereod.sources.frames import Eye
 from tests.fuzz import FUZZ
 
 RIG = CanonicalRig(0.06, 60.0, 32, 24)

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stereod.plot import (
+from stereod.view.plot import (
     DPI,
     FIGSIZE_IN,
     Run,

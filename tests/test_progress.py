@@ -16,7 +16,7 @@ from pathlib import Path
 
 import cv2
 
-from stereod.progress import Progress, enabled
+from stereod.cli.progress import Progress, enabled
 from stereod_fakes.rig import board_views, minoru_like, random_board_poses
 from tests.processes import ROOT, stereod_command
 

@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from stereod.bus.publish import Publisher, open_session, session_config
 from stereod.client import wait_alive
-from stereod.config import ZenohConfig
+from stereod.daemon.config import ZenohConfig
 from stereod.errors import UnavailableError
-from stereod.publish import Publisher, open_session, session_config
 
 
 def test_objects_tracks_deletes_and_failing_queryable(

@@ -17,11 +17,11 @@ import pytest
 from mcap.reader import make_reader
 
 import stereod.cli.record as record_command
-from stereod.calibration import canonical, save
 from stereod.cli import main
 from stereod.errors import InputError, InternalError, StereodError
-from stereod.frames import Driver, Eye, EyeSource, Frame, StereoSource, merged
-from stereod.record import record
+from stereod.sources.frames import Driver, Eye, EyeSource, Frame, StereoSource, merged
+from stereod.sources.record import record
+from stereod.vision.calibration import canonical, save
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Renderer, Scene, SyntheticDriver
 from stereod_fakes.v4l2_kernel import FakeCamera, FakeKernel

@@ -11,16 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stereod.calibration import canonical
 from stereod.errors import InputError, MissingInputError, OutputError
-from stereod.frames import Eye, Frame
-from stereod.recording import (
+from stereod.sources.frames import Eye, Frame
+from stereod.sources.recording import (
     Codec,
     RecordingWriter,
     read_frame_index,
     read_manifest,
     read_timestamps,
 )
+from stereod.vision.calibration import canonical
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Scene, write_scene
 
@@ -123,7 +123,7 @@ def test_a_column_it_does_not_know_is_named_in_a_warning(
     """A misspelt ``crc32`` would turn the frames' check off: it is said, and ignored."""
     p = tmp_path / "left.csv"
     p.write_text("t_ns,seq,crc\n10,0,123\n")
-    with caplog.at_level("WARNING", logger="stereod.recording"):
+    with caplog.at_level("WARNING", logger="stereod.sources.recording"):
         assert read_frame_index(p)[2] is None
     assert "left.csv: ignoring columns this stereod does not read there: 'crc'" in caplog.text
     for header, named in (
@@ -132,12 +132,12 @@ def test_a_column_it_does_not_know_is_named_in_a_warning(
     ):
         caplog.clear()
         p.write_text(f"{header}\n10,123\n")
-        with caplog.at_level("WARNING", logger="stereod.recording"):
+        with caplog.at_level("WARNING", logger="stereod.sources.recording"):
             assert read_frame_index(p)[2] is None
         assert f"does not read there: {named} (a recording's columns" in caplog.text
     caplog.clear()
     p.write_text("t_ns,seq,crc32\n10,0,123\n")
-    with caplog.at_level("WARNING", logger="stereod.recording"):
+    with caplog.at_level("WARNING", logger="stereod.sources.recording"):
         assert read_frame_index(p)[2] is not None
     assert caplog.text == ""
 

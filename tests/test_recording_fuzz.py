@@ -16,7 +16,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from stereod.errors import StereodError
-from stereod.recording import MANIFEST, read_manifest, read_timestamps
+from stereod.sources.recording import MANIFEST, read_manifest, read_timestamps
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Ball, Scene, write_scene
 

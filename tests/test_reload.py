@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from stereod.calibration import canonical
 from stereod.client import query_config
+from stereod.vision.calibration import canonical
 
 from .conftest import zenoh_config
 from .processes import start_stereod

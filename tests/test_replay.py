@@ -24,8 +24,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from stereod.errors import ConfigError, InputError, MissingInputError
-from stereod.frames import Eye, Frame
-from stereod.recording import Codec, RecordingWriter
+from stereod.sources.frames import Eye, Frame
+from stereod.sources.recording import Codec, RecordingWriter
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Scene, write_scene
 

@@ -1,4 +1,4 @@
-"""ROS 2 live (stereod.ros2_live) checked against rmw_zenoh and rosbags, not against itself.
+"""ROS 2 live (stereod.ros.ros2_live) checked against rmw_zenoh and rosbags, not against itself.
 
 The literals below are copied from ros2/rmw_zenoh (``docs/design.md`` of the jazzy/kilted
 releases, "Graph Cache" and "Publishers"; ``rmw_zenoh_cpp/src/detail/liveliness_utils.cpp``).
@@ -23,12 +23,12 @@ import zenoh
 import zenoh.ext
 from rosbags.typesys import Stores, get_typestore
 
-from stereod import ros2_live
-from stereod.calibration import canonical
-from stereod.config import environment, load_config
-from stereod.daemon import Daemon
-from stereod.export_mcap import RosMessages, cdr_encoder
-from stereod.frames import Eye
+from stereod.daemon.config import environment, load_config
+from stereod.daemon.daemon import Daemon
+from stereod.ros import ros2_live
+from stereod.ros.export_mcap import RosMessages, cdr_encoder
+from stereod.sources.frames import Eye
+from stereod.vision.calibration import canonical
 from stereod_fakes.synth import SyntheticDriver
 
 # docs/design.md, "Graph Cache" examples (demo_nodes_cpp, ROS_DOMAIN_ID=2).

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from stereod import PipelineParams
-from stereod.motion import angle_diff_deg, circular_median_deg
+from stereod.tracking.motion import angle_diff_deg, circular_median_deg
 from stereod_fakes.scenarios import TABLE_I, table_one_scene
 from stereod_fakes.synth import write_scene
 from tests.scenes import run_recording, states

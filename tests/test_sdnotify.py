@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from stereod.calibration import canonical, save
-from stereod.sdnotify import Notifier
+from stereod.daemon.sdnotify import Notifier
+from stereod.vision.calibration import canonical, save
 
 from .conftest import ROOT, zenoh_config
 

@@ -22,8 +22,8 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 
-from stereod.calibration import canonical, save
 from stereod.client import query_config, wait_alive
+from stereod.vision.calibration import canonical, save
 
 from .conftest import free_endpoint
 from .processes import start_stereod

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stereod import skew
 from stereod.pipeline import PipelineParams
+from stereod.tracking import skew
 from stereod_fakes.synth import Ball, Scene
 from tests.scenes import run_scene, states
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import re
 import time
 
-from stereod.frames import Eye
-from stereod.messages import DaemonState, EyeState
-from stereod.pairing import Pairer
-from stereod.status import STALL_S, Health
+from stereod.bus.messages import DaemonState, EyeState
+from stereod.daemon.status import STALL_S, Health
+from stereod.sources.frames import Eye
+from stereod.sources.pairing import Pairer
 
 
 def live_health() -> Health:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from stereod.subscribe import format_sample
+from stereod.bus.subscribe import format_sample
 
 EXAMPLE = Path(__file__).parent / "golden" / "objects_example.json"
 

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stereod.detect import Detector, DetectorParams
 from stereod.errors import MissingInputError
-from stereod.frames import Eye
+from stereod.sources.frames import Eye
+from stereod.vision.detect import Detector, DetectorParams
 from stereod_fakes.synth import (
     Ball,
     Renderer,

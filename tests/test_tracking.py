@@ -8,8 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from stereod.geometry.stereo import CanonicalRig
-from stereod.tracking import (
+from stereod.tracking.tracker import (
     Detection,
     Observation,
     Tracker,
@@ -18,6 +17,7 @@ from stereod.tracking import (
     TrackState,
     _iou,
 )
+from stereod.vision.geometry.stereo import CanonicalRig
 
 DT_NS = 33_333_333
 RIG = CanonicalRig(0.060, 60.0, 640, 480)
@@ -533,7 +533,7 @@ def test_an_object_cut_by_the_image_edge_keeps_its_id() -> None:
 def test_distance_to_a_segment_in_closed_form() -> None:
     """The perpendicular foot when it falls on the segment, else the nearer end; a
     segment of no length is its point."""
-    from stereod.tracking import _to_segment
+    from stereod.tracking.tracker import _to_segment
 
     a, b = np.array([1.0, 1.0]), np.array([5.0, 1.0])
     assert _to_segment(np.array([3.0, 4.0]), a, b) == pytest.approx(3.0)

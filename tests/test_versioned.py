@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
-from stereod.versioned import known_format, unknown_fields, warn_unknown_fields
+from stereod.files.versioned import known_format, unknown_fields, warn_unknown_fields
 
 
 class Inner(BaseModel):

@@ -22,9 +22,9 @@ import pytest
 import zenoh
 
 from stereod.client import ObjectsMessage, subscribe_objects
-from stereod.config import ZenohConfig, load_config
-from stereod.daemon import Daemon
-from stereod.overlay import HEADER_PX
+from stereod.daemon.config import ZenohConfig, load_config
+from stereod.daemon.daemon import Daemon
+from stereod.view.overlay import HEADER_PX
 from stereod.view.server import ViewServer
 from stereod_fakes.synth import Ball, Scene, SyntheticDriver
 from tests.conftest import free_endpoint, zenoh_config

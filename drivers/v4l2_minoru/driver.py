@@ -20,7 +20,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from stereod.bounds import (
+from stereod.errors import ConfigError, DeviceError, DeviceLost, describe_validation_error
+from stereod.files.bounds import (
     CAMERA_FPS,
     CAMERA_RETRY_S,
     CAMERA_STALL_S,
@@ -28,8 +29,7 @@ from stereod.bounds import (
     IMAGE_SIDE_PX,
     NOT_BOOL,
 )
-from stereod.errors import ConfigError, DeviceError, DeviceLost, describe_validation_error
-from stereod.frames import (
+from stereod.sources.frames import (
     Driver,
     Eye,
     EyeCounters,
@@ -64,7 +64,7 @@ class MinoruOptions(BaseModel):
         None,
         description="Right eye node; default /dev/minoru/right, else the Minoru eye on hub port 2",
     )
-    # Bounds and their reasons (UVC modes, a USB 2.0 bus): stereod.bounds.
+    # Bounds and their reasons (UVC modes, a USB 2.0 bus): stereod.files.bounds.
     width: Annotated[int, NOT_BOOL, IMAGE_SIDE_PX.validator()] = 640
     height: Annotated[int, NOT_BOOL, IMAGE_SIDE_PX.validator()] = 480
     fps: Annotated[float, NOT_BOOL, CAMERA_FPS.validator()] = Field(

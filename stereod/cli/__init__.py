@@ -24,8 +24,9 @@ from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, NoReturn
 
-from .. import __version__
-from ..errors import (
+from stereod import __version__
+from stereod.cli.common import EPILOG_KEYS, quiet_third_party
+from stereod.errors import (
     EX_SOFTWARE,
     EX_USAGE,
     InternalError,
@@ -34,9 +35,8 @@ from ..errors import (
     StereodError,
     one_line,
 )
-from ..output_file import signal_name
-from ..paths import shown
-from .common import EPILOG_KEYS, quiet_third_party
+from stereod.files.output_file import signal_name
+from stereod.files.paths import shown
 
 GROUP = "stereod.commands"
 

@@ -2,6 +2,6 @@
 
 import sys
 
-from . import main
+from stereod.cli import main
 
 sys.exit(main())

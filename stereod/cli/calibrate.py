@@ -6,15 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .. import calibrate as cb
-from ..bounds import SQUARE_M
-from ..calibration import MIN_BOARD_CORNERS, Board, create_output, write
-from ..config import load_config
-from ..drivers import load_driver
-from ..frames import merged
-from ..output_file import check_outputs, stopped_by_signals
-from ..progress import Progress
-from .common import (
+from stereod.cli.common import (
     add_config,
     add_driver,
     number,
@@ -22,6 +14,14 @@ from .common import (
     recording_arg,
     size_arg,
 )
+from stereod.cli.progress import Progress
+from stereod.daemon.config import load_config
+from stereod.files.bounds import SQUARE_M
+from stereod.files.output_file import check_outputs, stopped_by_signals
+from stereod.sources.drivers import load_driver
+from stereod.sources.frames import merged
+from stereod.vision import calibrate as cb
+from stereod.vision.calibration import MIN_BOARD_CORNERS, Board, create_output, write
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

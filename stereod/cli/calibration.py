@@ -5,16 +5,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .. import calibration as cal_mod
-from ..bounds import IMAGE_SIDE_PX
-from ..calibrate import Report, format_report
-from ..output_file import check_outputs
-from .common import path_arg, size_arg
+from stereod.cli.common import path_arg, size_arg
+from stereod.files.bounds import IMAGE_SIDE_PX
+from stereod.files.output_file import check_outputs
+from stereod.vision import calibration as cal_mod
+from stereod.vision.calibrate import Report, format_report
 
 
 def image_size_arg(text: str) -> tuple[int, int]:
     """An argparse type: ``WIDTHxHEIGHT`` of a camera's frames, each side within
-    :data:`~stereod.bounds.IMAGE_SIDE_PX` (a flag error, exit 64, not a calibration's)."""
+    :data:`~stereod.files.bounds.IMAGE_SIDE_PX` (a flag error, exit 64, not a calibration's)."""
     w, h = size_arg(text)
     for side in (w, h):
         problem = IMAGE_SIDE_PX.problem(side)

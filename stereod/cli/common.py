@@ -18,10 +18,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..bounds import BASELINE_M, HFOV_DEG, PLAYBACK_RATE, THRESHOLD_GREY, TIME_BASE_S
-from ..detect import MAX_WARMUP_FRAMES, DetectorParams
-from ..errors import EX_DATAERR, ConfigError, ReaderGone, one_line
-from ..output_file import is_stdout
+from stereod.errors import EX_DATAERR, ConfigError, ReaderGone, one_line
+from stereod.files.bounds import BASELINE_M, HFOV_DEG, PLAYBACK_RATE, THRESHOLD_GREY, TIME_BASE_S
+from stereod.files.output_file import is_stdout
+from stereod.vision.detect import MAX_WARMUP_FRAMES, DetectorParams
 
 log = logging.getLogger("stereod")
 
@@ -83,7 +83,7 @@ def path_arg(text: str) -> Path:
 def recording_arg(text: str) -> Path:
     """An argparse type: a recording, named by its folder or by its manifest file
     (``rec/recording.json`` is the recording ``rec``)."""
-    from ..recording import recording_folder
+    from stereod.sources.recording import recording_folder
 
     return recording_folder(path_arg(text))
 
@@ -119,7 +119,7 @@ listens there)."""
 def endpoint_arg(text: str) -> str:
     """An argparse type: a Zenoh endpoint, checked where it is parsed (a malformed one such as
     ``tcp/[::1`` is exit 64 naming the flag, not a session waiting for ever)."""
-    from ..config import check_endpoint
+    from stereod.daemon.config import check_endpoint
 
     try:
         return check_endpoint(text)
@@ -157,7 +157,7 @@ def add_canonical_rig(
     hfov_help: str = "",
 ) -> None:
     """``--baseline`` (m) and ``--hfov`` (deg) of a canonical rig, within their physical
-    bounds (:mod:`stereod.bounds`). With ``defaults`` they default to the Minoru's 0.060 m
+    bounds (:mod:`stereod.files.bounds`). With ``defaults`` they default to the Minoru's 0.060 m
     and 60 deg; without, to None, so a config file's values stand. ``context`` opens both
     help texts."""
     p.add_argument(
@@ -254,10 +254,10 @@ def load_checked(path: Path | None, overrides: dict[str, Any]) -> tuple[Any, Any
     config itself, the driver's options, the Zenoh config file and the calibration file. Used
     alike at start, by ``run --check`` and on every reload, so that a file that passes one
     passes all three."""
-    from ..calibration import load as load_calibration
-    from ..config import load_config, origin
-    from ..drivers import load_driver
-    from ..publish import session_config
+    from stereod.bus.publish import session_config
+    from stereod.daemon.config import load_config, origin
+    from stereod.sources.drivers import load_driver
+    from stereod.vision.calibration import load as load_calibration
 
     cfg = load_config(path, overrides)
     driver = load_driver(
@@ -319,7 +319,7 @@ def run_daemon(
     exits 0 on a clean stop, its problems having gone to the log and the status key, or 65
     when its input ended and was bad (a truncated recording played by the replay driver). A
     fatal error is raised after the summary (its one line is the caller's to print).
-    ``progress`` (a :class:`~stereod.progress.Progress`) is closed before the summary is
+    ``progress`` (a :class:`~stereod.cli.progress.Progress`) is closed before the summary is
     printed."""
     if problems_fail:
         daemon.health.log_problems = False

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ..demo import run_demo
-from .common import add_rate, number, path_arg, setup_logging
+from stereod.cli.common import add_rate, number, path_arg, setup_logging
+from stereod.view.demo import run_demo
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -10,11 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..calibration import load
-from ..errors import EX_DATAERR, ConfigError, one_line
-from ..export_mcap import export_run
-from ..output_file import check_outputs, stopped_by_signals
-from .common import (
+from stereod.cli.common import (
     add_canonical_rig,
     number,
     path_arg,
@@ -23,6 +19,10 @@ from .common import (
     summaries_off_stdout,
     summarise,
 )
+from stereod.errors import EX_DATAERR, ConfigError, one_line
+from stereod.files.output_file import check_outputs, stopped_by_signals
+from stereod.ros.export_mcap import export_run
+from stereod.vision.calibration import load
 
 TOPICS = """\
 topics (<rig> from the messages, e.g. minoru):

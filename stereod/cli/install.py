@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..install import apply, plan
-from .common import path_arg
+from stereod.cli.common import path_arg
+from stereod.daemon.install import apply, plan
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

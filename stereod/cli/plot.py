@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from ..output_file import check_outputs
-from ..plot import check_overlap, figure_target, plot_run, read_run, read_truth, summary
-from .common import path_arg
+from stereod.cli.common import path_arg
+from stereod.files.output_file import check_outputs
+from stereod.view.plot import check_overlap, figure_target, plot_run, read_run, read_truth, summary
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -3,7 +3,7 @@
 Ctrl-C and SIGTERM are how a recording without ``--seconds`` ends, so they end it normally: the
 frames recorded so far are kept, the ``--mcap`` file is written with them, the summary says
 which signal stopped it, and the exit code is 0. A failure of either eye ends it with that
-error instead (:mod:`stereod.record`): no summary, no ``--mcap``, the error's exit code. The
+error instead (:mod:`stereod.sources.record`): no summary, no ``--mcap``, the error's exit code. The
 recording directory is always new, so nothing that was there is replaced.
 """
 
@@ -15,14 +15,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from ..config import load_config
-from ..drivers import load_driver
-from ..frames import Eye, Frame, SourceInfo
-from ..mcap_run import RunMcap, config_geometry
-from ..output_file import check_outputs, signal_name
-from ..progress import Progress
-from ..record import record
-from .common import (
+from stereod.cli.common import (
     add_config,
     add_driver,
     command_log_level,
@@ -31,6 +24,13 @@ from .common import (
     run_inputs,
     setup_logging,
 )
+from stereod.cli.progress import Progress
+from stereod.daemon.config import load_config
+from stereod.files.output_file import check_outputs, signal_name
+from stereod.ros.mcap_run import RunMcap, config_geometry
+from stereod.sources.drivers import load_driver
+from stereod.sources.frames import Eye, Frame, SourceInfo
+from stereod.sources.record import record
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -15,17 +15,9 @@ import signal
 import threading
 from typing import Any
 
-from ..config import StereodConfig, load_config
-from ..daemon import Daemon, RunSummary
-from ..drivers import load_driver
-from ..errors import ConfigError, ReaderGone, StereodError, UsageError
-from ..mcap_run import RunMcap, config_geometry
-from ..messages import DaemonState
-from ..output_file import Interrupted, check_outputs, signal_name, written_in_place
-from ..progress import Progress
-from ..publish import Publisher
-from ..recording import read_manifest
-from .common import (
+from stereod.bus.messages import DaemonState
+from stereod.bus.publish import Publisher
+from stereod.cli.common import (
     EPILOG_KEYS,
     add_pipeline,
     add_rate,
@@ -43,6 +35,14 @@ from .common import (
     stdout_gone,
     summaries_off_stdout,
 )
+from stereod.cli.progress import Progress
+from stereod.daemon.config import StereodConfig, load_config
+from stereod.daemon.daemon import Daemon, RunSummary
+from stereod.errors import ConfigError, ReaderGone, StereodError, UsageError
+from stereod.files.output_file import Interrupted, check_outputs, signal_name, written_in_place
+from stereod.ros.mcap_run import RunMcap, config_geometry
+from stereod.sources.drivers import load_driver
+from stereod.sources.recording import read_manifest
 
 log = logging.getLogger(__name__)
 

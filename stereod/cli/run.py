@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..config import DEFAULT_CONFIG_PATH
-from ..daemon import Daemon
-from .common import (
+from stereod.cli.common import (
     EPILOG_KEYS,
     add_driver,
     add_pipeline,
@@ -17,6 +15,8 @@ from .common import (
     run_daemon,
     setup_logging,
 )
+from stereod.daemon.config import DEFAULT_CONFIG_PATH
+from stereod.daemon.daemon import Daemon
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from ..errors import UsageError
-from ..messages import ALL_MESSAGES
+from stereod.bus.messages import ALL_MESSAGES
+from stereod.errors import UsageError
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

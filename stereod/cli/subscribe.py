@@ -12,12 +12,12 @@ import time
 import zenoh
 from pydantic import ValidationError
 
-from ..config import ZenohConfig
-from ..errors import OutputError, UsageError, describe_validation_error
-from ..interrupt import wait_until
-from ..publish import opened_session, reachable
-from ..subscribe import format_sample
-from .common import DEFAULT_CONNECT, add_zenoh, number, zenoh_overrides
+from stereod.bus.publish import opened_session, reachable
+from stereod.bus.subscribe import format_sample
+from stereod.cli.common import DEFAULT_CONNECT, add_zenoh, number, zenoh_overrides
+from stereod.cli.interrupt import wait_until
+from stereod.daemon.config import ZenohConfig
+from stereod.errors import OutputError, UsageError, describe_validation_error
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -10,11 +10,11 @@ import threading
 
 from pydantic import ValidationError
 
-from ..config import ZenohConfig
-from ..errors import ConfigError, describe_validation_error
-from ..interrupt import wait_until
-from ..keys import DEFAULT_RIG, RIG_PATTERN
-from .common import DEFAULT_CONNECT, add_zenoh, number, setup_logging, zenoh_overrides
+from stereod.bus.keys import DEFAULT_RIG, RIG_PATTERN
+from stereod.cli.common import DEFAULT_CONNECT, add_zenoh, number, setup_logging, zenoh_overrides
+from stereod.cli.interrupt import wait_until
+from stereod.daemon.config import ZenohConfig
+from stereod.errors import ConfigError, describe_validation_error
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -75,7 +75,7 @@ def run(a: argparse.Namespace) -> int:
         raise ConfigError(f"zenoh flags: {describe_validation_error(exc)}") from exc
     if not re.match(RIG_PATTERN, a.rig):
         raise ConfigError(f"--rig {a.rig!r}: use letters, digits, '_' and '-' only")
-    from ..view.server import ViewServer
+    from stereod.view.server import ViewServer
 
     done = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: done.set())
@@ -85,7 +85,7 @@ def run(a: argparse.Namespace) -> int:
         where = ", ".join(zcfg.connect or zcfg.listen)
         also = ""
         if a.foxglove:
-            from ..view.foxglove import FoxgloveBridge
+            from stereod.ros.foxglove import FoxgloveBridge
 
             assert server.session is not None
             bridge = FoxgloveBridge(

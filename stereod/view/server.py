@@ -35,9 +35,10 @@ from typing import Any
 import zenoh
 from aiohttp import WSMsgType, web
 
-from .. import keys
-from ..calibration import Calibration
-from ..client import (
+from stereod.bus import keys
+from stereod.bus.messages import CanonicalGeometry, ObjectState, StatusMessage
+from stereod.bus.publish import close_session, open_session
+from stereod.client import (
     DaemonAlive,
     Event,
     Image,
@@ -49,10 +50,9 @@ from ..client import (
     subscribe_objects,
     subscribe_status,
 )
-from ..config import ZenohConfig
-from ..errors import ConfigError, UnavailableError
-from ..messages import CanonicalGeometry, ObjectState, StatusMessage
-from ..publish import close_session, open_session
+from stereod.daemon.config import ZenohConfig
+from stereod.errors import ConfigError, UnavailableError
+from stereod.vision.calibration import Calibration
 
 log = logging.getLogger(__name__)
 
@@ -299,7 +299,7 @@ class ViewServer:
 
     @property
     def session(self) -> zenoh.Session | None:
-        """The view's Zenoh session while it runs (for :mod:`stereod.view.foxglove`)."""
+        """The view's Zenoh session while it runs (for :mod:`stereod.ros.foxglove`)."""
         return self._session
 
     # -- life ----------------------------------------------------------------------------------

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from stereod.errors import ConfigError, DeviceError, DeviceLost
-from stereod.frames import EyeCounters
+from stereod.sources.frames import EyeCounters
 from stereod_fakes.v4l2_kernel import FakeCamera, FakeKernel
 from stereod_v4l2_minoru import raw
 from stereod_v4l2_minoru.device import V4L2Device

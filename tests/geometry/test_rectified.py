@@ -6,10 +6,10 @@ import cv2
 import numpy as np
 import pytest
 
-from stereod.calibration import canonical
-from stereod.frames import Eye
-from stereod.geometry.rectified import CalibratedRig
-from stereod.geometry.stereo import CanonicalRig, silhouette_depth
+from stereod.sources.frames import Eye
+from stereod.vision.calibration import canonical
+from stereod.vision.geometry.rectified import CalibratedRig
+from stereod.vision.geometry.stereo import CanonicalRig, silhouette_depth
 from stereod_fakes.rig import RigSpec, minoru_like
 
 

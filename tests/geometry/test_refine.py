@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stereod.geometry.refine import RefineParams, refine_match
+from stereod.vision.geometry.refine import RefineParams, refine_match
 
 
 def textured(h: int, w: int, seed: int) -> np.ndarray:

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from stereod.geometry.stereo import (
+from stereod.vision.geometry.stereo import (
     SILHOUETTE_Q_MAX,
     CanonicalRig,
     MatchParams,

@@ -98,7 +98,7 @@ class Pace:
 def measure_pace(nodes: list[str]) -> Pace:
     """Read PACE_FRAMES frames from each of two vivid nodes in turn through the V4L2 driver,
     as the tests do, and time them on the guest's clock."""
-    from stereod.frames import Eye
+    from stereod.sources.frames import Eye
     from stereod_v4l2_minoru.driver import MinoruDriver
 
     opts = {"left": nodes[0], "right": nodes[1], "width": W, "height": H, "fps": FPS}

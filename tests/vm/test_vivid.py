@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import zenoh
 
-from stereod.detect import DetectorParams
-from stereod.frames import Eye
-from stereod.pairing import HYSTERESIS, Pairer
+from stereod.sources.frames import Eye
+from stereod.sources.pairing import HYSTERESIS, Pairer
+from stereod.vision.detect import DetectorParams
 from stereod_fakes.replay import ReplayDriver
 from stereod_v4l2_minoru.device import V4L2Device
 from stereod_v4l2_minoru.driver import MinoruDriver

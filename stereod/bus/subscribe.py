@@ -1,0 +1,54 @@
+"""Human-readable rendering of what stereod publishes (``stereod subscribe``, the demo)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+
+from stereod.bus.messages import ObjectsMessage, ObjectState, StatusMessage
+from stereod.client import parse_payload
+
+
+def _v(vec: Sequence[float] | None, fmt: str = "{:+.3f}") -> str:
+    if vec is None:
+        return "-"
+    return "(" + ", ".join(fmt.format(x) for x in vec) + ")"
+
+
+def format_object(o: ObjectState) -> str:
+    """One object as one line: id, state, position (m), velocity (m/s), speed, heading."""
+    heading = f"{o.heading_deg:6.1f} deg" if o.heading_valid else "(not yet valid)"
+    motion = (
+        f"v {_v(o.velocity_mps)} m/s  |v| {o.speed_mps:.3f} m/s  heading {heading}"
+        if o.velocity_valid
+        else "v (not yet valid)"
+    )
+    return f"  #{o.track_id:<4} {o.state.value:<10} pos {_v(o.position_m)} m  {motion}"
+
+
+def format_sample(key: str, payload: bytes, deleted: bool = False) -> str:
+    """A readable block for one sample on any stereod key."""
+    if deleted:
+        return f"{key}: DELETE (track ended)"
+    msg = parse_payload(payload)
+    if isinstance(msg, ObjectsMessage):
+        head = (
+            f"{key}: seq {msg.seq}  t {msg.t_ns / 1e9:.3f} s  skew {msg.skew_ns / 1e6:+.1f} ms"
+            f"  {len(msg.objects)} object(s)  {msg.latency.pipeline_ms:.1f} ms"
+        )
+        return "\n".join([head] + [format_object(o) for o in msg.objects])
+    if isinstance(msg, ObjectState):
+        return f"{key}:\n" + format_object(msg)
+    if isinstance(msg, StatusMessage):
+        drops = ", ".join(f"{k} {v}" for k, v in msg.drops.items()) or "none"
+        line = (
+            f"{key}: {msg.state.value}  left {msg.left.state.value} {msg.left.fps:.1f} fps  "
+            f"right {msg.right.state.value} {msg.right.fps:.1f} fps  pairs {msg.pairs}  "
+            f"drops {drops}"
+        )
+        if msg.problems:
+            line += f"\n  last problem: {msg.problems[-1]}"
+        return line
+    if msg is None:
+        return f"{key}: {len(payload)} bytes (not JSON)"
+    return f"{key}: {json.dumps(msg)}"

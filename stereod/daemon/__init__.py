@@ -1,0 +1,1 @@
+"""The running service: threads, capture, processing, output, status, reload and systemd."""

@@ -1,0 +1,714 @@
+"""Daemon configuration: one TOML file, ``STEREOD_...`` environment overrides, flags on top.
+
+Precedence, highest first: command-line flags, environment (``STEREOD_DETECTOR__BETA=0.05``:
+section and field joined by a double underscore), the TOML file, the defaults below. The three
+are merged and every value validated once by the pydantic models below (a small layer of our
+own reads the environment: pydantic-settings would cost the daemon 16 MB of memory).
+:func:`load_config` turns a failure into one :class:`~stereod.errors.ConfigError` line naming
+where the value came from, the field, the value and what is allowed.
+
+Example::
+
+    [rig]
+    name = "bench"
+    baseline_m = 0.060     # m, the Minoru's
+    hfov_deg = 60.0        # deg, horizontal field of view of one eye
+
+    [driver]
+    name = "replay"
+    [driver.options]
+    path = "/var/lib/stereod/run1"
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import math
+import os
+import re
+import sys
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    AfterValidator,
+    AliasChoices,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+from stereod.bus import keys
+from stereod.errors import ConfigError, MissingInputError, UsageError, describe_error
+from stereod.files.bounds import (
+    ABSORB_S,
+    BASELINE_M,
+    CENTROID_SIGMA_PX,
+    HFOV_DEG,
+    HOLD_STILL_S,
+    IMAGE_RATE_HZ,
+    MANOEUVRE_CHI2,
+    MAX_COAST_S,
+    READOUT_S,
+    STATUS_PERIOD_S,
+    STILL_AFTER_S,
+    THRESHOLD_GREY,
+    TIME_BASE_S,
+    TOLERANCE_MS,
+    not_bool,
+)
+from stereod.files.nesting import check_data_depth, check_depth
+from stereod.files.paths import TextPath, read_input_file
+from stereod.pipeline import PipelineParams
+from stereod.sources.pairing import DEFAULT_TOLERANCE_NS
+from stereod.tracking.tracker import TrackerParams
+from stereod.vision.detect import MAX_WARMUP_FRAMES, Centroid, DetectorParams, Luminance, Warmup
+from stereod.vision.geometry.refine import RefineParams
+from stereod.vision.geometry.stereo import MatchParams
+from stereod.vision.grouping import GroupParams
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on 3.10 only
+    import tomli as tomllib
+
+DEFAULT_CONFIG_PATH = Path("/etc/stereod/stereod.toml")
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _numbers_are_not_bools(cls, v: Any, info: ValidationInfo) -> Any:
+        """A number field refuses true/false, which pydantic's lax mode reads as 1/0."""
+        kind = cls.model_fields[info.field_name or ""].annotation
+        if kind in (int, float) or typing.get_origin(kind) is tuple:
+            return not_bool(v)
+        return v
+
+
+# The defaults of the pipeline's settings are stated once, in its parameter classes.
+_DETECT = DetectorParams()
+_MATCH = MatchParams()
+_TRACK = TrackerParams()
+_REFINE = RefineParams()
+_GROUP = GroupParams()
+
+
+def _pipe(name: str) -> Any:
+    """The default of one :class:`PipelineParams` field."""
+    return PipelineParams.__dataclass_fields__[name].default
+
+
+class RigConfig(_Section):
+    """The stereo rig: its name in key expressions and the canonical geometry (eq. 9)."""
+
+    name: str = Field(keys.DEFAULT_RIG, pattern=keys.RIG_PATTERN, description="Rig name in keys")
+    # Bounds and their reasons: stereod.files.bounds (a Minoru's 0.060 m; UVC webcams' lenses).
+    baseline_m: Annotated[float, BASELINE_M.validator()] = Field(
+        0.060, description="Camera distance B, m"
+    )
+    hfov_deg: Annotated[float, HFOV_DEG.validator()] = Field(
+        60.0, description="Horizontal field of view, deg"
+    )
+    calibration: TextPath | None = Field(
+        None, description="Calibration file (stereod calibrate); without it, the canonical rig"
+    )
+    readout_s: Annotated[float, READOUT_S.validator()] = Field(
+        _pipe("readout_s"),
+        description="Rolling shutter: time from the first image row to the last, s (0: global "
+        "shutter); a frame is at most a tenth of a second long at 10 Hz",
+    )
+
+
+class DriverConfig(_Section):
+    """Which frame source to open (entry point group ``stereod.drivers``) and its own options."""
+
+    name: str = Field("v4l2_minoru", description="replay, synthetic, v4l2_minoru, or a plug-in")
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class DetectorConfig(_Section):
+    """Paper sec. II parameters and what is added to them (see
+    :class:`stereod.vision.detect.DetectorParams`)."""
+
+    beta: float = Field(
+        _DETECT.beta, ge=0.0, lt=1.0, description="Background update, eq. 3, per frame"
+    )
+    threshold: Annotated[float, THRESHOLD_GREY.validator()] = Field(
+        _DETECT.threshold, description="t of eq. 4, grey levels"
+    )
+    min_area_px: int = Field(_DETECT.min_area_px, ge=1, le=10**7, description="Smallest blob, px")
+    warmup_frames: int = Field(
+        _DETECT.warmup_frames,
+        ge=1,
+        le=MAX_WARMUP_FRAMES,
+        description="Frames in the initial background",
+    )
+    warmup: Warmup = Field(_DETECT.warmup, description="median or mean of the warm-up frames")
+    open_px: int = Field(
+        _DETECT.open_px, ge=0, le=31, description="Opening kernel side, px; 0 disables"
+    )
+    close_px: int = Field(
+        _DETECT.close_px, ge=0, le=31, description="Closing kernel side, px; 0 disables"
+    )
+    luminance: Luminance = Field(_DETECT.luminance, description="bt601 or mean (eq. 2 exactly)")
+    centroid: Centroid = Field(
+        _DETECT.centroid, description="matte, coverage or binary (eq. 5): how edge pixels weigh"
+    )
+    color: bool = Field(_DETECT.color, description="Difference colour frames per channel")
+    hold_foreground: bool = Field(
+        _DETECT.hold_foreground, description="Do not learn the background under foreground"
+    )
+    hold_margin_px: int = Field(
+        _DETECT.hold_margin_px, ge=0, le=50, description="Growth of the held foreground, px"
+    )
+    absorb_s: Annotated[float, ABSORB_S.validator()] = Field(
+        _DETECT.absorb_s, description="Foreground still this long is learned, s"
+    )
+    fill_holes: bool = Field(_DETECT.fill_holes, description="An object's support is filled")
+    convex: bool = Field(_DETECT.convex, description="An object's support is convex")
+    merge_gap: float = Field(
+        _DETECT.merge_gap, ge=0.0, le=10.0, description="Pieces this close are one object"
+    )
+    max_foreground: float = Field(
+        _DETECT.max_foreground,
+        gt=0.0,
+        le=1.0,
+        description="Share of the image above which a frame is saturated (no blobs)",
+    )
+    max_blobs: int = Field(
+        _DETECT.max_blobs, ge=1, le=100000, description="More blobs than this: saturated"
+    )
+    gain: bool = Field(_DETECT.gain, description="Follow a global change of brightness at once")
+    hysteresis: float = Field(
+        _DETECT.hysteresis,
+        ge=0.0,
+        le=1.0,
+        description="Differences down to this share of the threshold join foreground they touch",
+    )
+    grow_px: int = Field(_DETECT.grow_px, ge=0, le=50, description="Hysteresis reach per step, px")
+    learn_stride: int = Field(
+        _DETECT.learn_stride,
+        ge=1,
+        le=16,
+        description="Eq. 3 updates every n-th row each frame, in turn, at the same time constant",
+    )
+    disc_max_px: int = Field(
+        _DETECT.disc_max_px,
+        ge=0,
+        le=256,
+        description="Round blobs up to this size, px, are centred by a disc fitted to them; 0: off",
+    )
+    shadows: bool = Field(
+        _DETECT.shadows, description="Leave cast shadows (darkened background) out of objects"
+    )
+    shadow_ratio: tuple[float, float] = Field(
+        _DETECT.shadow_ratio,
+        description="A shadow darkens the background to between these shares of its brightness",
+    )
+
+    near_objects: bool = Field(
+        _DETECT.near_objects,
+        description="A large foreground is an object unless changed light or a moved camera "
+        "explains it",
+    )
+
+    @field_validator("shadow_ratio")
+    @classmethod
+    def _ratio_order(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not 0.0 < v[0] < v[1] < 1.0:
+            raise ValueError("must be two shares with 0 < lower < upper < 1, e.g. [0.15, 0.92]")
+        return v
+
+    def params(self) -> DetectorParams:
+        return DetectorParams(**self.model_dump())
+
+
+class PairingConfig(_Section):
+    """How the two eyes are paired by timestamp."""
+
+    tolerance_ms: Annotated[float, TOLERANCE_MS.validator()] = Field(
+        DEFAULT_TOLERANCE_NS / 1e6, description="Largest |skew|, ms"
+    )
+    max_pending: int = Field(8, ge=2, le=1000, description="Frames one eye may wait, count")
+    skew_compensation: bool = Field(
+        _pipe("skew_compensation"), description="Bring both eyes to one instant"
+    )
+
+
+class MatchingConfig(_Section):
+    """How blobs are matched between the eyes (``MatchParams`` in ``vision/geometry/stereo.py``)."""
+
+    row_tolerance_px: float = Field(
+        _MATCH.row_tolerance_px, gt=0.0, description="Largest |y_L - y_R|, px"
+    )
+    min_disparity_px: float = Field(
+        _MATCH.min_disparity_px, ge=0.0, description="Smallest x_L - x_R, px"
+    )
+    max_disparity_px: float = Field(
+        _MATCH.max_disparity_px,
+        gt=0.0,
+        validate_default=True,  # checked against min_disparity_px even when left out
+        description="Largest x_L - x_R, px",
+    )
+    max_area_ratio: float = Field(
+        _MATCH.max_area_ratio, ge=1.0, description="Largest blob area ratio"
+    )
+
+    @field_validator("max_disparity_px")
+    @classmethod
+    def _above_min(cls, v: float, info: ValidationInfo) -> float:
+        low = info.data.get("min_disparity_px")
+        if low is not None and not v > low:
+            raise ValueError(
+                f"must be larger than min_disparity_px ({low:g}): nothing can match; lower "
+                "min_disparity_px or raise max_disparity_px"
+            )
+        return v
+
+    centroid_sigma_px: Annotated[float, CENTROID_SIGMA_PX.validator()] = Field(
+        _pipe("centroid_sigma_px"), description="Centroid error per axis, px"
+    )
+    silhouette_depth: bool = Field(
+        _pipe("silhouette_depth"),
+        description="Depth at the object's centre, not where its silhouettes triangulate",
+    )
+
+    def params(self) -> MatchParams:
+        return MatchParams(**self.model_dump(exclude={"centroid_sigma_px", "silhouette_depth"}))
+
+
+class TrackingConfig(_Section):
+    """Association, Kalman filter and lifecycle (``TrackerParams`` in ``tracking/tracker.py``)."""
+
+    gate_px: float = Field(
+        _TRACK.gate_px, gt=0.0, le=1000.0, description="Image gate around a prediction, px"
+    )
+    motion_gate: float = Field(
+        _TRACK.motion_gate, ge=0.0, le=10.0, description="Gate growth per px of image motion"
+    )
+    max_speed_mps: float = Field(
+        _TRACK.max_speed_mps, gt=0.0, le=1000.0, description="Fastest object to follow, m/s"
+    )
+    manoeuvre_chi2: Annotated[float, MANOEUVRE_CHI2.validator()] = Field(
+        _TRACK.manoeuvre_chi2, description="Mahalanobis bound of a manoeuvre, 3 dof"
+    )
+    manoeuvre_sigma_mps: float = Field(
+        _TRACK.manoeuvre_sigma_mps,
+        gt=0.0,
+        le=1000.0,
+        description="Velocity sigma of a track before its filter starts, m/s",
+    )
+    accel_noise: float = Field(
+        _TRACK.accel_noise, gt=0.0, le=1e6, description="White acceleration density, m^2/s^3"
+    )
+    time_base_s: Annotated[float, TIME_BASE_S.validator()] = Field(
+        _TRACK.time_base_s, description="tau of eq. 21, s"
+    )
+    max_coast_s: Annotated[float, MAX_COAST_S.validator()] = Field(
+        _TRACK.max_coast_s, description="Track lives unseen, s"
+    )
+    confirm_hits: int = Field(
+        _TRACK.confirm_hits, ge=1, le=1000, description="Observations to confirm a track"
+    )
+    valid_speed_sigma_mps: float = Field(
+        _TRACK.valid_speed_sigma_mps, gt=0.0, description="Speed sigma for a valid velocity, m/s"
+    )
+    valid_speed_sigma_rel: float = Field(
+        _TRACK.valid_speed_sigma_rel, ge=0.0, le=1.0, description="Or this share of the speed"
+    )
+    hold_still_s: Annotated[float, HOLD_STILL_S.validator()] = Field(
+        _TRACK.hold_still_s,
+        validation_alias=AliasChoices("hold_still_s", "freeze_s"),
+        description="A stopped object is held out of the background, keeping its id, this long, s "
+        "(freeze_s, its older name, is read too)",
+    )
+    size_gate: float = Field(
+        _TRACK.size_gate,
+        ge=0.0,
+        le=5.0,
+        description="A track's gate is at least this share of its blob's size (sqrt of area)",
+    )
+    merge_depth_m: float = Field(
+        _TRACK.merge_depth_m,
+        ge=0.0,
+        le=10.0,
+        description="Tracks one blob holds within this depth of each other ...",
+    )
+    merge_speed_mps: float = Field(
+        _TRACK.merge_speed_mps,
+        ge=0.0,
+        le=10.0,
+        description="... and moving together within this are one object, m/s",
+    )
+    still_after_s: Annotated[float, STILL_AFTER_S.validator()] = Field(
+        _TRACK.still_after_s,
+        description="Not seen moving this long: the object is stationary, s",
+    )
+    stationary_mps: float = Field(
+        _TRACK.stationary_mps, ge=0.0, description="Below this an object is stopped"
+    )
+    gravity_mps2: tuple[float, float, float] = Field(
+        _TRACK.gravity_mps2,
+        description="Gravity in the rig frame (Y down in a level rig), m/s^2; [0, 0, 0]: off",
+    )
+    freeze_background: bool = Field(
+        _pipe("freeze_background"), description="Do not learn background under tracks"
+    )
+
+    @field_validator("gravity_mps2")
+    @classmethod
+    def _gravity_finite(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        if not all(math.isfinite(c) and abs(c) <= 100.0 for c in v):
+            raise ValueError("each component must be finite and at most 100 m/s^2")
+        return v
+
+    def params(self) -> TrackerParams:
+        return TrackerParams(**self.model_dump(exclude={"freeze_background"}))
+
+
+class GroupingConfig(_Section):
+    """Which matched blob pairs are one object (``GroupParams`` in ``vision/grouping.py``)."""
+
+    enabled: bool = Field(_GROUP.enabled, description="Group blob pairs into objects by depth")
+    max_object_size_m: float = Field(
+        _GROUP.max_object_size_m,
+        ge=0.0,
+        le=20.0,
+        description="Largest object's width, height and depth, m (a standing person: 1.8)",
+    )
+    max_gap_m: float = Field(
+        _GROUP.max_gap_m, ge=0.0, le=5.0, description="Largest gap between pieces of one object, m"
+    )
+    disparity_margin_px: float = Field(
+        _GROUP.disparity_margin_px,
+        ge=0.0,
+        le=50.0,
+        description="Pieces' disparities may differ by this beyond their depth, px",
+    )
+
+    def params(self) -> GroupParams:
+        return GroupParams(**self.model_dump())
+
+
+class RefineConfig(_Section):
+    """Disparity by appearance matching (``RefineParams``, ``vision/geometry/refine.py``)."""
+
+    enabled: bool = Field(_REFINE.enabled, description="Match the left patch along the right row")
+    margin_px: int = Field(_REFINE.margin_px, ge=0, le=50, description="Template margin, px")
+    search_px: float = Field(_REFINE.search_px, gt=0.0, le=200.0, description="Search reach, px")
+    search_rel: float = Field(
+        _REFINE.search_rel, ge=0.0, le=5.0, description="Or this share of the blob's width"
+    )
+    rows_px: int = Field(_REFINE.rows_px, ge=0, le=20, description="Rows searched either way")
+    erode_px: int = Field(_REFINE.erode_px, ge=0, le=20, description="Template mask shrink, px")
+    min_score: float = Field(
+        _REFINE.min_score, ge=-1.0, le=1.0, description="Weaker matches keep the centroids"
+    )
+
+    def params(self) -> RefineParams:
+        return RefineParams(**self.model_dump())
+
+
+_IP_LINKS = ("tcp", "udp", "tls", "quic", "ws")
+_OTHER_LINKS = ("unixsock-stream", "unixpipe", "serial", "vsock")
+_HOST_NAME = re.compile(r"[A-Za-z0-9_]([A-Za-z0-9_.-]*[A-Za-z0-9_])?\.?")
+
+
+def _ip_address_ok(host: str) -> bool:
+    """Whether ``host`` is what a Zenoh IP link takes: ``[IPv6]`` (brackets required, an
+    optional ``%scope``), a dotted IPv4 address, or a host name."""
+    if host.startswith("["):
+        if not host.endswith("]"):
+            return False
+        inner = host[1:-1].split("%", 1)[0]
+        try:
+            ipaddress.IPv6Address(inner)
+        except ValueError:
+            return False
+        return True
+    if re.fullmatch(r"[0-9.]+", host):
+        try:
+            ipaddress.IPv4Address(host)
+        except ValueError:
+            return False
+        return True
+    return _HOST_NAME.fullmatch(host) is not None
+
+
+def check_endpoint(value: str) -> str:
+    """A Zenoh endpoint ``<protocol>/<address>``: a protocol Zenoh knows, and for IP links an
+    address ``host:port`` (IPv6 in brackets, port 0-65535), so a typo is refused where it is
+    read instead of leaving a session that waits for a peer that cannot exist."""
+    proto, sep, rest = value.partition("/")
+    address = rest.split("?", 1)[0].split("#", 1)[0]
+    if not (sep and proto and address) or any(c.isspace() for c in value):
+        raise ValueError("an endpoint is <protocol>/<address>, e.g. tcp/127.0.0.1:7447")
+    if proto not in _IP_LINKS + _OTHER_LINKS:
+        raise ValueError(
+            f"unknown protocol {proto!r}: use one of {', '.join(_IP_LINKS + _OTHER_LINKS)}, "
+            "e.g. tcp/127.0.0.1:7447"
+        )
+    if proto in _IP_LINKS:
+        if address.startswith("["):
+            host, bracket, after = address.partition("]")
+            if not bracket:
+                raise ValueError(
+                    f"an IPv6 address is closed by ']' before its port, e.g. {proto}/[::1]:7447"
+                )
+            host, colon, port = host + bracket, after[:1], after[1:]
+            colon = colon if colon == ":" else ""
+        else:
+            host, colon, port = address.rpartition(":")
+        if not (colon and port.isdigit() and int(port) <= 65535):
+            raise ValueError(
+                f"{proto} endpoints end in a port 0-65535, e.g. {proto}/127.0.0.1:7447"
+            )
+        if not _ip_address_ok(host):
+            raise ValueError(
+                f"{host!r} is not an address: an IPv4 address, a host name or an IPv6 "
+                f"address in brackets, e.g. {proto}/127.0.0.1:7447 or {proto}/[::1]:7447"
+            )
+    return value
+
+
+Endpoint = Annotated[str, AfterValidator(check_endpoint)]
+
+
+class ZenohConfig(_Section):
+    """The Zenoh session: key prefix, mode and endpoints (``tcp/127.0.0.1:7447``)."""
+
+    prefix: str = Field(keys.DEFAULT_PREFIX, pattern=keys.PREFIX_PATTERN)
+    mode: Literal["peer", "client", "router"] = "peer"
+    connect: list[Endpoint] = Field(default_factory=list, description="Endpoints to connect to")
+    listen: list[Endpoint] = Field(
+        default_factory=list,
+        description="Endpoints to listen on (none: a daemon on loopback only, a consumer nowhere)",
+    )
+    multicast_scouting: bool = Field(False, description="Find peers by multicast")
+    config_file: TextPath | None = Field(
+        None,
+        description="A Zenoh config file (JSON5: TLS, mTLS, access control); the settings "
+        "above that are given go on top of it",
+    )
+
+    @model_validator(mode="after")
+    def _client_has_a_router(self) -> ZenohConfig:
+        lost = self.mode == "client" and not (self.connect or self.multicast_scouting)
+        if lost and self.config_file is None:  # a Zenoh file of one's own may name it
+            raise ValueError(
+                "mode = 'client' needs a router to connect to: give zenoh.connect (its "
+                "endpoint), or multicast_scouting = true to find one"
+            )
+        return self
+
+
+class DaemonConfig(_Section):
+    """Threads, queues and reporting."""
+
+    queue_size: int = Field(4, ge=1, le=1000, description="Pairs waiting for the pipeline")
+    publish_queue_size: int = Field(16, ge=1, le=10000, description="Messages waiting to go out")
+    status_period_s: Annotated[float, STATUS_PERIOD_S.validator()] = Field(
+        1.0, description="Status interval, s"
+    )
+    detect_workers: int = Field(
+        2,
+        ge=1,
+        le=2,
+        description="Threads detecting the two eyes (the second from 0.5 Mpx a frame)",
+    )
+    image_rate_hz: Annotated[float, IMAGE_RATE_HZ.validator()] = Field(
+        5.0, description="Images per second while subscribed; 0 never"
+    )
+    image_quality: int = Field(80, ge=1, le=100, description="JPEG quality of images, 1-100")
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+
+
+Ros2Topic = Literal["odom", "markers", "camera_info", "images", "tf_static", "objects"]
+_ROS2_TOPICS: tuple[Ros2Topic, ...] = ("odom", "markers", "camera_info", "images", "tf_static")
+
+
+class Ros2Config(_Section):
+    """ROS 2 live (``ros/ros2_live.py``): the daemon also speaks rmw_zenoh (Jazzy, Kilted)."""
+
+    enabled: bool = Field(False, description="Publish the ROS 2 topics as an rmw_zenoh node")
+    domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID of the ROS machines")
+    namespace: str = Field(
+        "",
+        pattern=r"^/?([A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*)?/?$",
+        description="Node namespace, also prefixed to the stereod topics ('' for none); ROS "
+        "names: letters, digits, '_', parts split by '/', each starting with a letter",
+    )
+    topics: list[Ros2Topic] = Field(
+        default_factory=lambda: list(_ROS2_TOPICS),
+        description="Topic groups to publish",
+    )
+
+
+class StereodConfig(BaseModel):
+    """The whole configuration; sections mirror the TOML tables."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    rig: RigConfig = Field(default_factory=RigConfig)
+    driver: DriverConfig = Field(default_factory=DriverConfig)
+    detector: DetectorConfig = Field(default_factory=DetectorConfig)
+    pairing: PairingConfig = Field(default_factory=PairingConfig)
+    matching: MatchingConfig = Field(default_factory=MatchingConfig)
+    tracking: TrackingConfig = Field(default_factory=TrackingConfig)
+    refine: RefineConfig = Field(default_factory=RefineConfig)
+    grouping: GroupingConfig = Field(default_factory=GroupingConfig)
+    zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
+    daemon: DaemonConfig = Field(default_factory=DaemonConfig)
+    ros2: Ros2Config = Field(default_factory=Ros2Config)
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    """Parse a TOML config file; errors name the file and what to do."""
+    try:
+        text = read_input_file(path, "a config file", too_large=ConfigError).decode()
+        check_depth(text, "toml", str(path), ConfigError)
+        data = tomllib.loads(text)
+        check_data_depth(data, str(path), ConfigError)
+        return data
+    except FileNotFoundError as exc:
+        raise MissingInputError(f"{path}: no such config file (pass --config FILE)") from exc
+    except OSError as exc:
+        raise MissingInputError(f"{path}: cannot read config file: {exc.strerror}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{path}: not a text file (byte {exc.start} is not UTF-8); a config is UTF-8 TOML"
+        ) from exc
+
+
+ENV_PREFIX = "STEREOD_"
+ENV_OTHER = ("STEREOD_LOG_LEVEL", "STEREOD_CRASH_DIR")
+"""Variables with the prefix that are not configuration fields."""
+
+
+def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
+    """The configuration that ``STEREOD_<SECTION>__<FIELD>`` variables set, as nested tables
+    (``STEREOD_DRIVER__OPTIONS__FPS`` reaches into the driver's options). A list or table
+    value is JSON; a variable that names no field is refused, as an unknown TOML key is."""
+    env = os.environ if environ is None else environ
+    out: dict[str, Any] = {}
+    for name, value in sorted(env.items()):
+        upper = name.upper()
+        if not upper.startswith(ENV_PREFIX) or upper in ENV_OTHER:
+            continue
+        parts = name[len(ENV_PREFIX) :].lower().split("__")
+        section = StereodConfig.model_fields.get(parts[0])
+        fields = getattr(section.annotation, "model_fields", {}) if section else {}
+        fld = fields.get(parts[1]) if len(parts) > 1 else None
+        if fld is None or (len(parts) > 2 and typing.get_origin(fld.annotation) is not dict):
+            raise ConfigError(
+                f"environment variable {name}: names no configuration field (use "
+                "STEREOD_<SECTION>__<FIELD>, e.g. STEREOD_DETECTOR__BETA; see stereod run --check)"
+            )
+        parsed: Any = value
+        if len(parts) == 2 and typing.get_origin(fld.annotation) in (list, dict):
+            where = f"environment variable {name}"
+            check_depth(value, "json", where, ConfigError)
+            try:
+                parsed = json.loads(value)
+            except ValueError:
+                raise ConfigError(
+                    f"environment variable {name}={value!r}: a list or table is written as JSON, "
+                    "e.g. STEREOD_ZENOH__CONNECT='[\"tcp/127.0.0.1:7447\"]'"
+                ) from None
+        node = out
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(
+                    f"environment variable {name}: another variable sets "
+                    f"{'.'.join(parts[:-1])} as a whole; set the table or its fields, not both"
+                )
+        if isinstance(node.get(parts[-1]), dict):
+            raise ConfigError(
+                f"environment variable {name}: other variables set fields of "
+                f"{'.'.join(parts)}; set the table or its fields, not both"
+            )
+        node[parts[-1]] = parsed
+    return out
+
+
+def _merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
+    """``top`` over ``base``, table by table."""
+    out = dict(base)
+    for k, v in top.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) -> str:
+    """Where the value at ``loc`` (``("driver", "name")``) came from: a flag, the environment
+    (its variable, or one for a part of it), the file, or defaults."""
+    node: Any = overrides
+    for part in loc:
+        if isinstance(node, dict):
+            node = node.get(part)
+        elif isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
+            node = node[part]
+        else:
+            node = None
+    if node is not None:
+        return "command line"
+    names = {k.upper() for k in os.environ}
+    for n in range(len(loc), 1, -1):
+        env = ENV_PREFIX + "__".join(str(p) for p in loc[:n]).upper()
+        if env in names or any(k.startswith(env + "__") for k in names):
+            return f"environment {env}"
+    return str(path) if path is not None else "defaults"
+
+
+def load_config(path: Path | None = None, overrides: dict[str, Any] | None = None) -> StereodConfig:
+    """Build the configuration from ``path`` (TOML), the environment and ``overrides`` (flags),
+    later ones winning, and validate it once.
+
+    ``overrides`` is a nested dict like ``{"detector": {"beta": 0.05}}``; ``None`` values are
+    ignored so unset flags do not mask the file. A flag that names another driver than the
+    file names leaves the file's driver options out (they are that other driver's); a file
+    that names none gives its options to whichever driver runs.
+    """
+    data = read_toml(path) if path is not None else {}
+    flags = _prune(overrides or {})
+    below = _merge(data, environment())
+    named = flags.get("driver", {}).get("name") if isinstance(flags.get("driver"), dict) else None
+    under = below.get("driver")
+    if isinstance(under, dict) and named is not None and under.get("name", named) != named:
+        below = {**below, "driver": {k: v for k, v in under.items() if k != "options"}}
+    try:
+        return StereodConfig.model_validate(_merge(below, flags))
+    except ValidationError as exc:
+        errors = [(origin(tuple(e["loc"]), path, flags), e) for e in exc.errors(include_url=False)]
+        parts = [
+            f"{origin}: invalid config: {describe_error(e, model=StereodConfig)}"
+            for origin, e in errors
+        ]
+        if all(origin == "command line" for origin, _ in errors):
+            raise UsageError("; ".join(parts)) from exc  # a bad flag, exit 64
+        raise ConfigError("; ".join(parts)) from exc
+
+
+def _prune(d: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            sub = _prune(v)
+            if sub:
+                out[k] = sub
+        elif v is not None:
+            out[k] = v
+    return out

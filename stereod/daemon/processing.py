@@ -1,0 +1,202 @@
+"""The pipeline thread: the only thread that ever touches a :class:`~stereod.pipeline.Pipeline`.
+
+It takes pairs from the capture queue, runs them through the pipeline (and a lone frame that
+waits for its partner through its eye's detector, ahead of the pair), turns each result into
+its wire payloads (the ``objects`` message and one state per live track) and queues them for
+the output thread. A reload hands new parameters over with :meth:`PipelineWorker.reconfigure`
+from any thread; the swap happens here, between two pairs, so no pair is processed half by one
+pipeline and half by another, the tracks that end get their DELETE, and ids are never reused.
+A pair that fails to process is counted and skipped; the thread goes on.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from stereod.bus.messages import ObjectsMessage, dump_objects, objects_message
+from stereod.daemon.capture import Queued
+from stereod.daemon.status import Health, geometry_note
+from stereod.pipeline import PairResult, Pipeline, PipelineParams
+from stereod.sources.frames import Frame, StereoPair
+from stereod.sources.queues import BoundedQueue, Closed
+from stereod.view.overlay import PairImages
+from stereod.vision.geometry.rectified import CalibratedRig
+from stereod.vision.geometry.stereo import CanonicalRig
+
+log = logging.getLogger(__name__)
+
+ERROR_PIPELINE = "pipeline_error"
+"""Processing a pair raised an error; the pair was skipped."""
+
+
+@dataclass
+class Outgoing:
+    """What the output thread sends for one pair (``message`` is None for a bare end of tracks).
+
+    ``payload`` the ``objects`` JSON; ``tracks`` (track id, state JSON) per live track;
+    ``ended`` the ids of tracks that ended (a DELETE each); ``images`` references to the
+    pair's frames and masks, kept only while some image is subscribed (:mod:`stereod.bus.images`);
+    ``pair`` the pair itself (its two frames), kept only when the daemon was asked to
+    (``keep_frames``, for an MCAP file written during a replay).
+    """
+
+    message: ObjectsMessage | None
+    payload: bytes = b""
+    tracks: list[tuple[int, bytes]] = field(default_factory=list)
+    ended: list[int] = field(default_factory=list)
+    result: PairResult | None = None
+    images: PairImages | None = None
+    pair: StereoPair | None = None
+
+
+class PipelineWorker:
+    """Runs one pipeline on the pairs of one run (thread target: :meth:`loop`)."""
+
+    def __init__(
+        self,
+        pipeline: Pipeline,
+        pairs: BoundedQueue[Queued],
+        out: BoundedQueue[Outgoing],
+        health: Health,
+        *,
+        rig_name: str,
+        utc_offset_ns: Callable[[], int | None],
+        stop: threading.Event,
+    ) -> None:
+        self.pipeline = pipeline
+        self.pairs = pairs
+        self.out = out
+        self.health = health
+        self.rig_name = rig_name
+        self._utc_offset_ns = utc_offset_ns
+        self._stop = stop
+        self._pending: PipelineParams | None = None
+        self._lock = threading.Lock()
+        self._saturated: dict[str, int] = {}
+        self.keep_pairs = False
+        """Whether each Outgoing keeps a reference to its pair (its frames)."""
+        self.want_images: Callable[[], bool] | None = None
+        """Asked once per pair: whether to keep references to its frames and masks."""
+        self.objects = 0
+        """Object states produced so far."""
+
+    @property
+    def rig(self) -> CanonicalRig | CalibratedRig:
+        """The geometry in force (after a pending reconfiguration, the new one)."""
+        with self._lock:
+            pending = self._pending
+        return (pending or self.pipeline.params).rig
+
+    def reconfigure(self, params: PipelineParams) -> None:
+        """Use ``params`` from the next pair on (any thread; the last call wins)."""
+        with self._lock:
+            self._pending = params
+
+    def _swap(self) -> None:
+        with self._lock:
+            params, self._pending = self._pending, None
+        if params is None:
+            return
+        self.pipeline, ended = self.pipeline.reconfigured(params)
+        rig = params.rig
+        self.health.geometry = rig.geometry
+        self.health.calibration_id = rig.calibration_id
+        self.health.geometry_note = geometry_note(rig)
+        if ended:
+            self.out.put(Outgoing(None, ended=ended), self._stop)
+
+    def loop(self) -> None:
+        try:
+            while True:
+                try:
+                    item = self.pairs.get(timeout=0.25)
+                except Closed:
+                    break
+                self._swap()
+                if item is None:
+                    continue
+                what, queued_at = item
+                if isinstance(what, Frame):
+                    self._ahead(what)
+                    continue
+                pair = what
+                queued_ms = (time.perf_counter_ns() - queued_at) * 1e-6
+                try:
+                    result = self.pipeline.process(pair)
+                    outgoing = self.outgoing(result, queued_ms)
+                except Exception as exc:  # one bad pair must not stop the daemon
+                    self.health.error(ERROR_PIPELINE)
+                    self.health.problem(
+                        f"pair {pair.seq}: processing failed: {exc}", ERROR_PIPELINE
+                    )
+                    log.debug("pair %d failed", pair.seq, exc_info=True)
+                    continue
+                self._count_saturated()
+                self.health.pair_done(
+                    result.timings.pipeline_ms, pair.skew_ns * 1e-6, result.row_residuals_px
+                )
+                self.objects += len(result.tracks)
+                if self.want_images is not None and self.want_images():
+                    outgoing.images = self._images(pair)
+                if self.keep_pairs:
+                    outgoing.pair = pair
+                self.out.put(outgoing, self._stop)
+            self._swap()
+            ended = self.pipeline.finish()
+            if ended:
+                self.out.put(Outgoing(None, ended=ended), self._stop)
+        finally:
+            self.pipeline.close()
+            self.out.close()
+
+    def _ahead(self, frame: Frame) -> None:
+        """Detect a frame whose partner is still to come (its pair is then quicker), unless a
+        pair is already waiting (with two detect workers the pair would detect both eyes at
+        once). A failure is left for the pair to report: it detects the frame again."""
+        if len(self.pairs):
+            return
+        try:
+            self.pipeline.detect_ahead(frame)
+        except Exception:
+            log.debug("%s frame %d failed ahead", frame.eye.value, frame.seq, exc_info=True)
+
+    def _images(self, pair: StereoPair) -> PairImages:
+        """References (no copies) to what the pipeline used for ``pair``: its frames, which
+        no one writes to, and the detectors' masks, which each frame replaces rather than
+        overwrites (see :attr:`stereod.vision.detect.Detector.mask`)."""
+        p = self.pipeline
+        return PairImages(
+            pair.left.image, pair.right.image, p.left.mask, p.right.mask, p.params.rig
+        )
+
+    def _count_saturated(self) -> None:
+        """Report frames the detectors found saturated (all foreground) since the last pair."""
+        for name, det in (("left", self.pipeline.left), ("right", self.pipeline.right)):
+            n = det.saturated - self._saturated.get(name, 0)
+            if n > 0:
+                self.health.error(f"{name}_saturated", n)
+                self.health.problem(
+                    f"{name} eye: the whole scene changed (most of the image is foreground); "
+                    "no objects until the background has learned it again",
+                    f"{name}_saturated",
+                    notice=True,  # the scene's doing, handled: not a fault of the input
+                )
+            self._saturated[name] = det.saturated
+
+    def outgoing(self, result: PairResult, queued_ms: float) -> Outgoing:
+        """The wire payloads of one result, serialised once here."""
+        rig = self.pipeline.params.rig
+        msg = objects_message(
+            result,
+            rig=self.rig_name,
+            geometry=rig.geometry,
+            calibration_id=rig.calibration_id,
+            utc_offset_ns=self._utc_offset_ns() or 0,
+            queue_ms=queued_ms,
+        )
+        payload, tracks = dump_objects(msg)
+        return Outgoing(msg, payload, tracks, result.ended, result)

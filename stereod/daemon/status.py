@@ -1,0 +1,301 @@
+"""The daemon's health: eye states, counters, problems, and the status and stats messages.
+
+Every thread reports here (the capture threads their frames and failures, the pipeline thread
+its timings and errors, the output thread its write failures); the status loop reads it once a
+second and on change. Counters are kept apart by kind: ``drops`` (data lost: frames or pairs),
+``errors`` (data that arrived unusable, or processing that failed) and ``reconnects``.
+Problems are one line each; a repeated kind is logged the 1st, 10th, 100th... time only, so a
+stream of bad frames cannot flood the journal. What goes on the bus has its paths reduced to
+file names (:mod:`stereod.daemon.redact`); the log keeps them whole.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from stereod.bus.messages import DaemonState, EyeState, EyeStatus, StatsMessage, StatusMessage
+from stereod.daemon.redact import public_text
+from stereod.sources.frames import Eye, EyeSource
+from stereod.sources.pairing import Pairer
+from stereod.sources.queues import BoundedQueue
+from stereod.vision.geometry import Geometry
+
+log = logging.getLogger(__name__)
+
+
+def _nonzero(counts: dict[str, int]) -> dict[str, int]:
+    return {k: v for k, v in sorted(counts.items()) if v}
+
+
+class EyeHealth:
+    """One eye's state and frame count (updated by its capture thread)."""
+
+    def __init__(self) -> None:
+        self.state = EyeState.STARTING
+        self.frames = 0
+        self.errors = 0
+        self.last_error: str | None = None
+        self.last_frame_s = 0.0
+        """When (monotonic s) its last frame arrived; 0 before the first."""
+        self._frames_at_last_status = 0
+
+    def fps(self, period_s: float) -> float:
+        """Frames per second since the previous call, over ``period_s`` seconds."""
+        n = self.frames - self._frames_at_last_status
+        self._frames_at_last_status = self.frames
+        return n / period_s if period_s > 0 else 0.0
+
+
+STALL_S = 3.0
+"""A live eye that streamed but has delivered no frame for this long (s) is reported down,
+whatever its driver does about it (the V4L2 driver reopens such an eye after its own
+``stall_s``, 2 s): a camera can stop mid-stream and stay open, and the other eye's frames alone
+make no pair. A Minoru delivers 15 or 30 frames a second."""
+
+
+def geometry_note(rig: object) -> str:
+    """What an uncalibrated run's depths rest on, said plainly; empty when calibrated."""
+    hfov = getattr(rig, "hfov_deg", None)
+    if getattr(rig, "calibration_id", None) is not None or hfov is None:
+        return ""
+    return (
+        f"no calibration: every depth assumes a {hfov:g} deg horizontal field of view and a "
+        f"{getattr(rig, 'baseline_m', 0.06):g} m baseline; a Minoru has been measured at about "
+        "42 deg, and each depth scales with that figure (42 for 60 makes depths 1.5x too "
+        "large): run stereod calibrate"
+    )
+
+
+class Health:
+    """Shared, lock-protected health of one daemon run."""
+
+    def __init__(self, rig: str, driver: str, pairer: Pairer, on_change: Callable[[], None]):
+        self.rig = rig
+        self.driver = driver
+        self.pairer = pairer
+        self.lock = threading.Lock()
+        self.eyes = {Eye.LEFT: EyeHealth(), Eye.RIGHT: EyeHealth()}
+        self.state = DaemonState.STARTING
+        self.live = False
+        self.source_description = ""
+        self.geometry = Geometry.CANONICAL
+        self.calibration_id: str | None = None
+        self.geometry_note = ""
+        self.started_s = time.monotonic()
+        self.last_frame_s = 0.0
+        self.published = 0
+        self.publish_errors = 0
+        self.queue_depth: Callable[[], int] = lambda: 0
+        self.log_problems = True
+        """Log each problem as a warning when it happens (off when the command prints them)."""
+        self._sources: list[EyeSource] = []
+        self._queues: dict[str, BoundedQueue[Any]] = {}
+        self._drops: collections.Counter[str] = collections.Counter()
+        self._errors: collections.Counter[str] = collections.Counter()
+        self._reconnects: collections.Counter[str] = collections.Counter()
+        self._problems: collections.deque[str] = collections.deque(maxlen=20)
+        self._all_problems: list[str] = []
+        self._failing: list[str] = []
+        self._problem_counts: dict[str, int] = {}
+        self._pipeline_ms: collections.deque[float] = collections.deque(maxlen=2000)
+        self._skews_ms: list[float] = []
+        self._residuals: list[float] = []
+        self._on_change = on_change
+
+    def watch(self, *eyes: EyeSource) -> None:
+        """Read these eyes' own counters (sequence gaps, corrupt frames) too."""
+        self._sources = list(eyes)
+
+    def watch_queue(self, reason: str, q: BoundedQueue[Any]) -> None:
+        """Count what ``q`` drops (a live source's queues drop their oldest item) as ``reason``."""
+        self._queues[reason] = q
+
+    # -- reporting ---------------------------------------------------------------------------
+
+    def problem(
+        self, text: str, kind: str | None = None, *, logged: bool = True, notice: bool = False
+    ) -> None:
+        """Record a problem for the status key and the run summary. It is logged as a warning
+        unless ``logged`` is false or :attr:`log_problems` is off (a command that prints its
+        problems at the end says each once). A ``notice`` says what happened to a run that
+        went right (a reload's changes wait for a restart, the scene changed): it is on the
+        status key and in the summary, but is no fault of the input (see :meth:`failing`)."""
+        key = kind or text
+        with self.lock:
+            n = self._problem_counts[key] = self._problem_counts.get(key, 0) + 1
+            self._problems.append(text)
+            if len(self._all_problems) < 1000:
+                self._all_problems.append(text)
+            if not notice and len(self._failing) < 1000:
+                self._failing.append(text)
+        if not (logged and (self.log_problems or notice)):  # a notice is never said later
+            log.debug("problem: %s", text)
+        elif n == 1 or (kind is not None and math.log10(n).is_integer()):
+            log.warning("%s%s", text, f" ({n} times)" if n > 1 else "")
+        self._on_change()
+
+    def resolved(self, prefix: str) -> None:
+        """Take the recent problems that begin with ``prefix`` off the status key: what they
+        said holds no more (a reload refused, then one taken). The run's summary keeps them."""
+        with self.lock:
+            kept = [p for p in self._problems if not p.startswith(prefix)]
+            self._problems.clear()
+            self._problems.extend(kept)
+        self._on_change()
+
+    def drop(self, reason: str, n: int = 1) -> None:
+        with self.lock:
+            self._drops[reason] += n
+
+    def error(self, reason: str, n: int = 1) -> None:
+        with self.lock:
+            self._errors[reason] += n
+
+    def pair_done(self, pipeline_ms: float, skew_ms: float, residuals_px: np.ndarray) -> None:
+        with self.lock:
+            self._pipeline_ms.append(pipeline_ms)
+            self._skews_ms.append(abs(skew_ms))
+            self._residuals.extend(residuals_px.tolist())
+
+    def notes(self) -> list[str]:
+        """Standing conditions of the run (see :func:`geometry_note`)."""
+        return [n for n in (self.geometry_note,) if n]
+
+    def problems(self) -> list[str]:
+        """Every problem so far (at most 1000), oldest first."""
+        with self.lock:
+            return list(self._all_problems)
+
+    def failing(self) -> list[str]:
+        """The problems so far that are not notices (at most 1000), oldest first: what makes
+        a replay of a file exit 65."""
+        with self.lock:
+            return list(self._failing)
+
+    def frames_flowing(self, within_s: float) -> bool:
+        """Frames arrived within the last ``within_s`` seconds (the watchdog's condition: the
+        daemon is not hung; an eye that is down is reported and reopened by its own thread,
+        which a restart would not do better)."""
+        return time.monotonic() - self.last_frame_s < within_s
+
+    def check_stalls(self) -> None:
+        """Report each live eye that is streaming but has had no frame for ``STALL_S``: it is
+        down (its next frame counts as a reconnect) and the daemon is degraded."""
+        if not self.live:
+            return
+        now = time.monotonic()
+        stalled = []
+        with self.lock:
+            for eye, h in self.eyes.items():
+                quiet = now - h.last_frame_s
+                if h.state is EyeState.STREAMING and quiet >= STALL_S:
+                    h.state = EyeState.DOWN
+                    h.last_error = f"no frame for {quiet:.1f} s"
+                    self._errors[f"{eye.value}_stalled"] += 1
+                    stalled.append((eye, h.last_error))
+        for eye, why in stalled:
+            self.problem(f"{eye.value} eye down: {why}; waiting for it", f"{eye.value}_down")
+
+    # -- counters ----------------------------------------------------------------------------
+
+    def counters(self) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
+        """(drops, errors, reconnects) by reason, zeros left out. An eye's own counters (its
+        sequence gaps, corrupt frames) are prefixed with the eye's name."""
+        drops: dict[str, int] = {}
+        errors: dict[str, int] = {}
+        for src in self._sources:
+            c = src.counters()
+            e = src.eye.value
+            drops.update({f"{e}_{k}": v for k, v in c.drops.items()})
+            errors.update({f"{e}_{k}": v for k, v in c.errors.items()})
+        with self.lock:
+            drops.update(self.pairer.stats.drops)
+            drops.update(self._drops)
+            drops.update({reason: q.dropped for reason, q in self._queues.items()})
+            errors.update(self._errors)
+            reconnects = dict(self._reconnects)
+        return _nonzero(drops), _nonzero(errors), _nonzero(reconnects)
+
+    def recovered(self, eye: Eye) -> None:
+        """An eye that was down streams again."""
+        with self.lock:
+            self._reconnects[eye.value] += 1
+
+    # -- messages ----------------------------------------------------------------------------
+
+    def _eye_status(self, eye: Eye, period_s: float) -> EyeStatus:
+        h = self.eyes[eye]
+        return EyeStatus(
+            state=h.state,
+            fps=round(h.fps(period_s), 3),
+            frames=h.frames,
+            errors=h.errors,
+            last_error=public_text(h.last_error) if h.last_error is not None else None,
+        )
+
+    def status(self, period_s: float) -> StatusMessage:
+        """The status message for the last ``period_s`` seconds (resets per-period figures)."""
+        self.check_stalls()
+        with self.lock:
+            skews, self._skews_ms = self._skews_ms, []
+            resid, self._residuals = self._residuals, []
+            problems = list(self._problems)
+        drops, errors, reconnects = self.counters()
+        state = self.state
+        eyes_ok = all(
+            h.state in (EyeState.STARTING, EyeState.STREAMING) for h in self.eyes.values()
+        )
+        if state is DaemonState.RUNNING and self.live and not eyes_ok:
+            state = DaemonState.DEGRADED
+        return StatusMessage(
+            rig=self.rig,
+            state=state,
+            stamp_utc_ns=time.time_ns(),
+            uptime_s=round(time.monotonic() - self.started_s, 3),
+            driver=self.driver,
+            source=public_text(self.source_description),
+            left=self._eye_status(Eye.LEFT, period_s),
+            right=self._eye_status(Eye.RIGHT, period_s),
+            pairs=self.pairer.stats.pairs,
+            pairs_per_s=round(len(skews) / period_s, 3),
+            published=self.published,
+            drops=drops,
+            errors=errors,
+            reconnects=reconnects,
+            skew_ms_mean=round(float(np.mean(skews)), 3) if skews else None,
+            skew_ms_max=round(float(np.max(skews)), 3) if skews else None,
+            queue_depth=self.queue_depth(),
+            geometry=self.geometry,
+            calibration_id=self.calibration_id,
+            epipolar_residual_px=round(float(np.median(resid)), 4) if resid else None,
+            problems=[public_text(p) for p in problems],
+            notes=self.notes(),
+        )
+
+    def stats(self) -> StatsMessage:
+        """Counters since start (the ``stats`` queryable)."""
+        with self.lock:
+            ms = np.array(self._pipeline_ms) if self._pipeline_ms else None
+        drops, errors, reconnects = self.counters()
+        st = self.pairer.stats
+        return StatsMessage(
+            rig=self.rig,
+            frames={e.value: n for e, n in st.frames.items()},
+            pairs=st.pairs,
+            published=self.published,
+            publish_errors=self.publish_errors,
+            drops=drops,
+            errors=errors,
+            reconnects=reconnects,
+            queue_depth=self.queue_depth(),
+            pipeline_ms_p50=float(np.percentile(ms, 50)) if ms is not None else None,
+            pipeline_ms_p99=float(np.percentile(ms, 99)) if ms is not None else None,
+        )
