@@ -32,7 +32,8 @@ from scipy.spatial.transform import Rotation
 
 from stereod.bus.messages import ObjectsMessage
 from stereod.errors import InputError, MissingInputError, OutputError
-from stereod.ros.export_mcap import ExportSummary, McapRunWriter, export_run
+from stereod.ros.export_mcap import export_run
+from stereod.ros.mcap_writer import ExportSummary, McapRunWriter
 from stereod.sources.frames import Eye, Frame
 from stereod.vision.calibration import Calibration, canonical, from_arrays
 

@@ -25,7 +25,6 @@ PIPELINE_MAY_IMPORT = {"errors", "sources", "vision", "tracking"}
 """``pipeline.py`` joins vision and tracking and needs nothing else of the package."""
 
 OVER_600 = {
-    "ros/export_mcap.py",
     "vision/detect.py",
     "tracking/tracker.py",
     "pipeline.py",

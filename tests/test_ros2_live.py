@@ -26,7 +26,8 @@ from rosbags.typesys import Stores, get_typestore
 from stereod.daemon.config import environment, load_config
 from stereod.daemon.daemon import Daemon
 from stereod.ros import ros2_live
-from stereod.ros.export_mcap import RosMessages, cdr_encoder
+from stereod.ros.mapping import RosMessages
+from stereod.ros.names import cdr_encoder
 from stereod.sources.frames import Eye
 from stereod.vision.calibration import canonical
 from stereod_fakes.synth import SyntheticDriver

@@ -71,7 +71,8 @@ from stereod.client import (
     subscribe_objects,
 )
 from stereod.errors import ConfigError, NotInstalledError, StereodError, UnavailableError
-from stereod.ros.export_mcap import RosMessage, RosMessages, cdr_encoder, ros2_msgdef
+from stereod.ros.mapping import RosMessage, RosMessages
+from stereod.ros.names import cdr_encoder, ros2_msgdef
 from stereod.sources.frames import Eye
 from stereod.vision.calibration import Calibration, canonical
 

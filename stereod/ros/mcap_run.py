@@ -3,7 +3,7 @@ camera_info, tf) and ``stereod replay --mcap`` (the same for the frames of every
 plus the tracks).
 
 The file has the topics, types and frames of :mod:`stereod.ros.export_mcap` (it is written by its
-:class:`~stereod.ros.export_mcap.McapRunWriter`). It is opened when the frame size is known (the
+:class:`~stereod.ros.mcap_writer.McapRunWriter`). It is opened when the frame size is known (the
 geometry's camera_info depends on it), and renamed into place only by :meth:`RunMcap.commit`,
 which a command calls once the run has succeeded; :meth:`RunMcap.abort` (a failed or interrupted
 run) leaves a previous file at that path untouched. The path follows the rule of
@@ -29,7 +29,7 @@ from stereod.daemon.config import StereodConfig
 from stereod.daemon.params import make_rig
 from stereod.daemon.processing import Outgoing
 from stereod.files.output_file import output_target
-from stereod.ros.export_mcap import ExportSummary, McapRunWriter
+from stereod.ros.mcap_writer import ExportSummary, McapRunWriter
 from stereod.sources.frames import Eye, Frame, SourceInfo
 from stereod.vision.calibration import Calibration, canonical
 from stereod.vision.geometry.rectified import CalibratedRig

@@ -63,7 +63,8 @@ import zenoh.ext
 
 from stereod.daemon.processing import Outgoing
 from stereod.daemon.status import Health
-from stereod.ros.export_mcap import RosMessage, RosMessages, cdr_encoder
+from stereod.ros.mapping import RosMessage, RosMessages
+from stereod.ros.names import cdr_encoder
 from stereod.sources.frames import Eye
 from stereod.vision.calibration import Calibration
 
