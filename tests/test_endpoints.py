@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from stereod.daemon.config import check_endpoint
+from stereod.bus.endpoints import check_endpoint
 
 GOOD = [
     "tcp/127.0.0.1:7447",

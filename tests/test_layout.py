@@ -28,7 +28,6 @@ OVER_600 = {
     "vision/detect.py",
     "tracking/tracker.py",
     "pipeline.py",
-    "daemon/config.py",
     "vision/calibration.py",
     "sources/recording.py",
 }

@@ -119,7 +119,7 @@ listens there)."""
 def endpoint_arg(text: str) -> str:
     """An argparse type: a Zenoh endpoint, checked where it is parsed (a malformed one such as
     ``tcp/[::1`` is exit 64 naming the flag, not a session waiting for ever)."""
-    from stereod.daemon.config import check_endpoint
+    from stereod.bus.endpoints import check_endpoint
 
     try:
         return check_endpoint(text)
@@ -255,7 +255,8 @@ def load_checked(path: Path | None, overrides: dict[str, Any]) -> tuple[Any, Any
     alike at start, by ``run --check`` and on every reload, so that a file that passes one
     passes all three."""
     from stereod.bus.publish import session_config
-    from stereod.daemon.config import load_config, origin
+    from stereod.daemon.config import load_config
+    from stereod.files.config_input import origin
     from stereod.sources.drivers import load_driver
     from stereod.vision.calibration import load as load_calibration
 

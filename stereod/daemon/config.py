@@ -22,11 +22,9 @@ Example::
 
 from __future__ import annotations
 
-import ipaddress
 import json
 import math
 import os
-import re
 import sys
 import typing
 from collections.abc import Mapping
@@ -34,7 +32,6 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import (
-    AfterValidator,
     AliasChoices,
     BaseModel,
     ConfigDict,
@@ -46,7 +43,8 @@ from pydantic import (
 )
 
 from stereod.bus import keys
-from stereod.errors import ConfigError, MissingInputError, UsageError, describe_error
+from stereod.bus.endpoints import Endpoint
+from stereod.errors import ConfigError, UsageError, describe_error
 from stereod.files.bounds import (
     ABSORB_S,
     BASELINE_M,
@@ -64,8 +62,9 @@ from stereod.files.bounds import (
     TOLERANCE_MS,
     not_bool,
 )
-from stereod.files.nesting import check_data_depth, check_depth
-from stereod.files.paths import TextPath, read_input_file
+from stereod.files.config_input import ENV_OTHER, ENV_PREFIX, merge, origin, prune, read_toml
+from stereod.files.nesting import check_depth
+from stereod.files.paths import TextPath
 from stereod.pipeline import PipelineParams
 from stereod.sources.pairing import DEFAULT_TOLERANCE_NS
 from stereod.tracking.tracker import TrackerParams
@@ -75,9 +74,9 @@ from stereod.vision.geometry.stereo import MatchParams
 from stereod.vision.grouping import GroupParams
 
 if sys.version_info >= (3, 11):
-    import tomllib
+    pass
 else:  # pragma: no cover - exercised on 3.10 only
-    import tomli as tomllib
+    pass
 
 DEFAULT_CONFIG_PATH = Path("/etc/stereod/stereod.toml")
 
@@ -419,71 +418,6 @@ class RefineConfig(_Section):
         return RefineParams(**self.model_dump())
 
 
-_IP_LINKS = ("tcp", "udp", "tls", "quic", "ws")
-_OTHER_LINKS = ("unixsock-stream", "unixpipe", "serial", "vsock")
-_HOST_NAME = re.compile(r"[A-Za-z0-9_]([A-Za-z0-9_.-]*[A-Za-z0-9_])?\.?")
-
-
-def _ip_address_ok(host: str) -> bool:
-    """Whether ``host`` is what a Zenoh IP link takes: ``[IPv6]`` (brackets required, an
-    optional ``%scope``), a dotted IPv4 address, or a host name."""
-    if host.startswith("["):
-        if not host.endswith("]"):
-            return False
-        inner = host[1:-1].split("%", 1)[0]
-        try:
-            ipaddress.IPv6Address(inner)
-        except ValueError:
-            return False
-        return True
-    if re.fullmatch(r"[0-9.]+", host):
-        try:
-            ipaddress.IPv4Address(host)
-        except ValueError:
-            return False
-        return True
-    return _HOST_NAME.fullmatch(host) is not None
-
-
-def check_endpoint(value: str) -> str:
-    """A Zenoh endpoint ``<protocol>/<address>``: a protocol Zenoh knows, and for IP links an
-    address ``host:port`` (IPv6 in brackets, port 0-65535), so a typo is refused where it is
-    read instead of leaving a session that waits for a peer that cannot exist."""
-    proto, sep, rest = value.partition("/")
-    address = rest.split("?", 1)[0].split("#", 1)[0]
-    if not (sep and proto and address) or any(c.isspace() for c in value):
-        raise ValueError("an endpoint is <protocol>/<address>, e.g. tcp/127.0.0.1:7447")
-    if proto not in _IP_LINKS + _OTHER_LINKS:
-        raise ValueError(
-            f"unknown protocol {proto!r}: use one of {', '.join(_IP_LINKS + _OTHER_LINKS)}, "
-            "e.g. tcp/127.0.0.1:7447"
-        )
-    if proto in _IP_LINKS:
-        if address.startswith("["):
-            host, bracket, after = address.partition("]")
-            if not bracket:
-                raise ValueError(
-                    f"an IPv6 address is closed by ']' before its port, e.g. {proto}/[::1]:7447"
-                )
-            host, colon, port = host + bracket, after[:1], after[1:]
-            colon = colon if colon == ":" else ""
-        else:
-            host, colon, port = address.rpartition(":")
-        if not (colon and port.isdigit() and int(port) <= 65535):
-            raise ValueError(
-                f"{proto} endpoints end in a port 0-65535, e.g. {proto}/127.0.0.1:7447"
-            )
-        if not _ip_address_ok(host):
-            raise ValueError(
-                f"{host!r} is not an address: an IPv4 address, a host name or an IPv6 "
-                f"address in brackets, e.g. {proto}/127.0.0.1:7447 or {proto}/[::1]:7447"
-            )
-    return value
-
-
-Endpoint = Annotated[str, AfterValidator(check_endpoint)]
-
-
 class ZenohConfig(_Section):
     """The Zenoh session: key prefix, mode and endpoints (``tcp/127.0.0.1:7447``)."""
 
@@ -572,31 +506,6 @@ class StereodConfig(BaseModel):
     ros2: Ros2Config = Field(default_factory=Ros2Config)
 
 
-def read_toml(path: Path) -> dict[str, Any]:
-    """Parse a TOML config file; errors name the file and what to do."""
-    try:
-        text = read_input_file(path, "a config file", too_large=ConfigError).decode()
-        check_depth(text, "toml", str(path), ConfigError)
-        data = tomllib.loads(text)
-        check_data_depth(data, str(path), ConfigError)
-        return data
-    except FileNotFoundError as exc:
-        raise MissingInputError(f"{path}: no such config file (pass --config FILE)") from exc
-    except OSError as exc:
-        raise MissingInputError(f"{path}: cannot read config file: {exc.strerror}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML: {exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise ConfigError(
-            f"{path}: not a text file (byte {exc.start} is not UTF-8); a config is UTF-8 TOML"
-        ) from exc
-
-
-ENV_PREFIX = "STEREOD_"
-ENV_OTHER = ("STEREOD_LOG_LEVEL", "STEREOD_CRASH_DIR")
-"""Variables with the prefix that are not configuration fields."""
-
-
 def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
     """The configuration that ``STEREOD_<SECTION>__<FIELD>`` variables set, as nested tables
     (``STEREOD_DRIVER__OPTIONS__FPS`` reaches into the driver's options). A list or table
@@ -644,35 +553,6 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
     return out
 
 
-def _merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
-    """``top`` over ``base``, table by table."""
-    out = dict(base)
-    for k, v in top.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
-
-
-def origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) -> str:
-    """Where the value at ``loc`` (``("driver", "name")``) came from: a flag, the environment
-    (its variable, or one for a part of it), the file, or defaults."""
-    node: Any = overrides
-    for part in loc:
-        if isinstance(node, dict):
-            node = node.get(part)
-        elif isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
-            node = node[part]
-        else:
-            node = None
-    if node is not None:
-        return "command line"
-    names = {k.upper() for k in os.environ}
-    for n in range(len(loc), 1, -1):
-        env = ENV_PREFIX + "__".join(str(p) for p in loc[:n]).upper()
-        if env in names or any(k.startswith(env + "__") for k in names):
-            return f"environment {env}"
-    return str(path) if path is not None else "defaults"
-
-
 def load_config(path: Path | None = None, overrides: dict[str, Any] | None = None) -> StereodConfig:
     """Build the configuration from ``path`` (TOML), the environment and ``overrides`` (flags),
     later ones winning, and validate it once.
@@ -683,14 +563,14 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
     that names none gives its options to whichever driver runs.
     """
     data = read_toml(path) if path is not None else {}
-    flags = _prune(overrides or {})
-    below = _merge(data, environment())
+    flags = prune(overrides or {})
+    below = merge(data, environment())
     named = flags.get("driver", {}).get("name") if isinstance(flags.get("driver"), dict) else None
     under = below.get("driver")
     if isinstance(under, dict) and named is not None and under.get("name", named) != named:
         below = {**below, "driver": {k: v for k, v in under.items() if k != "options"}}
     try:
-        return StereodConfig.model_validate(_merge(below, flags))
+        return StereodConfig.model_validate(merge(below, flags))
     except ValidationError as exc:
         errors = [(origin(tuple(e["loc"]), path, flags), e) for e in exc.errors(include_url=False)]
         parts = [
@@ -700,15 +580,3 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
         if all(origin == "command line" for origin, _ in errors):
             raise UsageError("; ".join(parts)) from exc  # a bad flag, exit 64
         raise ConfigError("; ".join(parts)) from exc
-
-
-def _prune(d: dict[str, Any]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            sub = _prune(v)
-            if sub:
-                out[k] = sub
-        elif v is not None:
-            out[k] = v
-    return out
