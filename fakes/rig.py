@@ -270,7 +270,7 @@ def write_board_recording(
     """A recording of a chessboard moved from pose to pose in front of the rig, each pose held
     for ``hold_frames`` frames (as a person holding a board would), for live calibration."""
     from stereod.sources.frames import Frame
-    from stereod.sources.recording import RecordingWriter
+    from stereod.sources.recording_writer import RecordingWriter
 
     views = board_views(rig, width, height, cols, rows, square_m, poses, seed=seed)
     with RecordingWriter(out, width, height, fps=fps, settings={"synthetic": "chessboard"}) as w:

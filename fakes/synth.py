@@ -24,7 +24,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from stereod.errors import ConfigError, InputError, MissingInputError, describe_validation_error
 from stereod.sources.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
-from stereod.sources.recording import Codec, RecordingWriter
+from stereod.sources.recording import Codec
+from stereod.sources.recording_writer import RecordingWriter
 from stereod.vision.geometry.stereo import CanonicalRig
 
 from .rig import RayCaster, RigSpec

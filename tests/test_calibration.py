@@ -15,12 +15,11 @@ from stereod.vision.calibrate import calibrate_files, format_report, pairs_from_
 from stereod.vision.calibration import (
     Board,
     Calibration,
-    export_ros,
     from_arrays,
-    import_opencv,
     load,
     save,
 )
+from stereod.vision.calibration_io import export_ros, import_opencv
 from stereod.vision.geometry.rectified import CalibratedRig
 from stereod_fakes.rig import minoru_like
 

@@ -12,7 +12,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from stereod.errors import StereodError
-from stereod.vision.calibration import Calibration, canonical, import_opencv, load
+from stereod.vision.calibration import Calibration, canonical, load
+from stereod.vision.calibration_io import import_opencv
 from stereod.vision.geometry.rectified import CalibratedRig
 
 from .fuzz import (

@@ -15,11 +15,11 @@ from stereod.errors import InputError, MissingInputError, OutputError
 from stereod.sources.frames import Eye, Frame
 from stereod.sources.recording import (
     Codec,
-    RecordingWriter,
     read_frame_index,
     read_manifest,
     read_timestamps,
 )
+from stereod.sources.recording_writer import RecordingWriter
 from stereod.vision.calibration import canonical
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Scene, write_scene

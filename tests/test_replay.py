@@ -25,7 +25,8 @@ from mcap_ros2.decoder import DecoderFactory
 
 from stereod.errors import ConfigError, InputError, MissingInputError
 from stereod.sources.frames import Eye, Frame
-from stereod.sources.recording import Codec, RecordingWriter
+from stereod.sources.recording import Codec
+from stereod.sources.recording_writer import RecordingWriter
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Scene, write_scene
 

@@ -9,6 +9,7 @@ from stereod.cli.common import path_arg, size_arg
 from stereod.files.bounds import IMAGE_SIDE_PX
 from stereod.files.output_file import check_outputs
 from stereod.vision import calibration as cal_mod
+from stereod.vision import calibration_io
 from stereod.vision.calibrate import Report, format_report
 
 
@@ -77,10 +78,10 @@ def run(a: argparse.Namespace) -> int:
         cal = cal_mod.load(a.file)
         for eye in ("left", "right"):
             check_outputs({"--ros": a.ros / f"{eye}.yaml"}, [a.file])
-        for path in cal_mod.export_ros(cal, a.ros):
+        for path in calibration_io.export_ros(cal, a.ros):
             print(f"wrote {path}")
         return 0
-    cal = cal_mod.import_opencv(a.intrinsics, a.extrinsics, a.size)
+    cal = calibration_io.import_opencv(a.intrinsics, a.extrinsics, a.size)
     extrinsics = a.extrinsics or a.intrinsics.with_name("extrinsics" + a.intrinsics.suffix)
     check_outputs({"--out": a.out}, [a.intrinsics, extrinsics])
     cal_mod.save(cal, a.out)

@@ -23,7 +23,8 @@ from pathlib import Path
 from stereod.errors import DeviceLost, InternalError, StereodError
 from stereod.files.output_file import follow_links
 from stereod.sources.frames import Driver, EyeSource, Frame, SourceInfo, merged
-from stereod.sources.recording import Codec, RecordingWriter
+from stereod.sources.recording import Codec
+from stereod.sources.recording_writer import RecordingWriter
 from stereod.vision.calibration import load as load_calibration
 
 
@@ -46,7 +47,7 @@ def record(
     :class:`~stereod.errors.StereodError` as it is, anything else as an
     :class:`~stereod.errors.InternalError` naming the eye (the original as its cause). The
     frames written before a failure are kept in ``out`` (see
-    :class:`~stereod.sources.recording.RecordingWriter`).
+    :class:`~stereod.sources.recording_writer.RecordingWriter`).
     ``calibration`` is checked as a run would check it, and stored in the manifest.
     ``on_frame`` sees every frame written (progress), one call at a time; ``on_start`` sees
     the opened source and the recording's UTC offset (ns, wall clock minus the frames' clock)

@@ -29,12 +29,11 @@ from stereod.sources.pairing import Pairer
 from stereod.vision.calibration import (
     Board,
     Calibration,
-    OpenCVProblem,
     Quality,
     from_arrays,
-    read_opencv_storage,
     rectify,
 )
+from stereod.vision.calibration_io import OpenCVProblem, read_opencv_storage
 
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 30, 0.01)
 STEREO_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-5)
