@@ -12,8 +12,14 @@ it, as a stereo rig's depth error grows. ``seed`` makes the noise repeatable.
 
 from __future__ import annotations
 
+import json
 import math
+import signal
+import sys
+import threading
+import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -157,3 +163,80 @@ class RigSim:
             size_m=0.4,
             age_s=0.0,
         )
+
+
+def walkers_from_json(text: str) -> list[Walker]:
+    """Walkers from JSON: ``[{"id": 1, "start_m": [x, y, z], "velocity_mps": [...],
+    "t0_ns": T}, ...]`` (room frame, UTC ns)."""
+    return [
+        Walker(
+            int(w["id"]),
+            tuple(w["start_m"]),
+            tuple(w["velocity_mps"]),
+            int(w.get("t0_ns", 0)),
+        )
+        for w in json.loads(text)
+    ]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """One rig's daemon, as message generator: ``python -m stereod_fakes.room_messages ROOM
+    RIG --connect EP --walkers JSON`` publishes that rig's objects of the walkers at ``--fps``
+    (stamped with this machine's UTC clock, plus ``--clock-offset-ms``) through a real
+    Publisher, until SIGTERM or ``--seconds``. Prints ``up`` once publishing."""
+    import argparse
+
+    from stereod.config import ZenohConfig
+    from stereod.fusion.room import load_room
+    from stereod.messages import dump_objects
+    from stereod.publish import Publisher
+
+    p = argparse.ArgumentParser(prog="room_messages")
+    p.add_argument("room", type=Path)
+    p.add_argument("rig")
+    p.add_argument("--connect", action="append", default=[])
+    p.add_argument("--mode", default="peer")
+    p.add_argument("--walkers", required=True)
+    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--seconds", type=float, default=3600.0)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--clock-offset-ms", type=float, default=0.0)
+    p.add_argument(
+        "--t0-from-stdin",
+        action="store_true",
+        help="after 'up', read one line: the walkers' t0_ns (UTC ns), so that processes "
+        "started one after another share one truth",
+    )
+    a = p.parse_args(argv)
+    room = load_room(a.room)
+    pose = room.rig(a.rig)
+    if pose is None:
+        p.error(f"{a.room} has no rig {a.rig!r}")
+    sim = RigSim(pose, seed=a.seed, clock_offset_ns=int(a.clock_offset_ms * 1e6))
+    walkers = walkers_from_json(a.walkers)
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    cfg = ZenohConfig(connect=a.connect, mode=a.mode)
+    period = 1.0 / a.fps
+    with Publisher(cfg, pose.name, {}) as pub:
+        print("up", flush=True)
+        if a.t0_from_stdin:
+            t0 = int(sys.stdin.readline())
+            walkers = [Walker(w.truth_id, w.start_m, w.velocity_mps, t0) for w in walkers]
+        start = time.monotonic()
+        tick = 0
+        live: set[int] = set()
+        while not done.is_set() and time.monotonic() - start < a.seconds:
+            msg = sim.message(walkers, time.time_ns())
+            payload, tracks = dump_objects(msg)
+            ids = {tid for tid, _ in tracks}
+            pub.objects(payload, tracks, sorted(live - ids))
+            live = ids
+            tick += 1
+            done.wait(max(0.0, start + tick * period - time.monotonic()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -188,3 +188,31 @@ def test_the_room_message_is_an_objects_message_in_the_room_frame() -> None:
     assert obj.heading_deg == pytest.approx(90.0, abs=5.0)
     assert obj.speed_mps == pytest.approx(1.0, abs=0.1)
     np.testing.assert_allclose(obj.position_m, walker.position(t), atol=0.1)
+
+
+@pytest.mark.parametrize(("offset_ms", "flagged"), [(40.0, True), (-5.0, False)])
+def test_a_rig_clock_offset_is_estimated_from_shared_objects(
+    offset_ms: float, flagged: bool
+) -> None:
+    """Rig c stamps its messages ``offset_ms`` late or early; objects that a and c both see
+    moving give that offset back (within 5 ms over 200 frames), and one beyond the 20 ms
+    bound is flagged."""
+    from stereod.fusion.clock import ClockWatch
+
+    walkers = [
+        Walker(1, (0.0, 0.0, 3.0), (0.8, 0.0, 0.3)),
+        Walker(2, (1.0, 0.0, 4.0), (-0.2, 0.0, -0.9)),
+    ]
+    offset_ns = int(offset_ms * 1e6)
+    sims = {
+        "a": RigSim(A, depth_sigma_per_m2=0.005, seed=15),
+        "c": RigSim(C, depth_sigma_per_m2=0.005, seed=16, clock_offset_ns=offset_ns),
+    }
+    fuser = Fuser(room(A, C))
+    clock = ClockWatch(["a", "c"], bound_ms=20.0)
+    for _, frame in run(fuser, sims, walkers, 200):
+        clock.observe(frame)
+    est = clock.estimate("c")
+    assert est.offset_ms == pytest.approx(offset_ms, abs=5.0)
+    assert est.off is flagged and est.samples >= 100
+    assert clock.estimate("a").offset_ms == 0.0

@@ -77,6 +77,8 @@ class FusedFrame:
     t_ns: int
     tracks: list[RoomTrack]
     ended: list[int]
+    observed: dict[int, list[RigTrack]] = field(default_factory=dict)
+    """Each room id's rig tracks at ``t_ns`` (room frame), the fused state's inputs."""
 
 
 def fuse_gaussians(
@@ -155,6 +157,14 @@ class Fuser:
             if r in self._rig_last_ns and t_ns - self._rig_last_ns[r] <= timeout_ns
         ]
 
+    def rig_track_count(self, rig: str) -> int:
+        """How many (not tentative) tracks ``rig``'s latest message held."""
+        return len(self._rig_tracks.get(rig, {}))
+
+    def rig_stamp(self, rig: str) -> int | None:
+        """The UTC stamp of ``rig``'s latest message, ns (None before its first)."""
+        return self._rig_last_ns.get(rig)
+
     def latest_ns(self) -> int | None:
         """The newest stamp of any rig's message (UTC ns), or None before the first."""
         return max(self._rig_last_ns.values(), default=None)
@@ -183,7 +193,7 @@ class Fuser:
         ended = self._update(members, t_ns)
         # Copies: the caller may keep a frame while the next steps change the tracks.
         tracks = [replace(tr, members=dict(tr.members)) for _, tr in sorted(self._tracks.items())]
-        return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended)
+        return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, observed=members)
 
     def _estimate(
         self, room_id: int, linked: list[RigTrack], t_ns: int
