@@ -180,11 +180,12 @@ def walkers_from_json(text: str) -> list[Walker]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """One rig's daemon, as message generator: ``python -m stereod_fakes.room_messages ROOM
-    RIG --connect EP --walkers JSON`` publishes that rig's objects of the walkers at ``--fps``
-    (stamped with this machine's UTC clock, plus ``--clock-offset-ms``) through a real
-    Publisher, until SIGTERM or ``--seconds``. Prints ``up`` once publishing."""
+    """Rig daemons, as message generators: ``python -m stereod_fakes.room_messages ROOM RIG
+    [RIG ...] --connect EP --walkers JSON`` publishes each rig's objects of the walkers at
+    ``--fps`` (stamped with this machine's UTC clock, plus ``--clock-offset-ms``) through a
+    real Publisher per rig, until SIGTERM or ``--seconds``. Prints ``up`` once publishing."""
     import argparse
+    import contextlib
 
     from stereod.config import ZenohConfig
     from stereod.fusion.room import load_room
@@ -193,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
 
     p = argparse.ArgumentParser(prog="room_messages")
     p.add_argument("room", type=Path)
-    p.add_argument("rig")
+    p.add_argument("rigs", nargs="+")
     p.add_argument("--connect", action="append", default=[])
     p.add_argument("--mode", default="peer")
     p.add_argument("--walkers", required=True)
@@ -209,30 +210,34 @@ def main(argv: list[str] | None = None) -> int:
     )
     a = p.parse_args(argv)
     room = load_room(a.room)
-    pose = room.rig(a.rig)
-    if pose is None:
-        p.error(f"{a.room} has no rig {a.rig!r}")
-    sim = RigSim(pose, seed=a.seed, clock_offset_ns=int(a.clock_offset_ms * 1e6))
+    sims = []
+    for i, name in enumerate(a.rigs):
+        pose = room.rig(name)
+        if pose is None:
+            p.error(f"{a.room} has no rig {name!r}")
+        offset = int(a.clock_offset_ms * 1e6)
+        sims.append(RigSim(pose, seed=a.seed + i, clock_offset_ns=offset))
     walkers = walkers_from_json(a.walkers)
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     signal.signal(signal.SIGINT, lambda *_: done.set())
     cfg = ZenohConfig(connect=a.connect, mode=a.mode)
     period = 1.0 / a.fps
-    with Publisher(cfg, pose.name, {}) as pub:
+    with contextlib.ExitStack() as stack:
+        pubs = [stack.enter_context(Publisher(cfg, s.pose.name, {})) for s in sims]
         print("up", flush=True)
         if a.t0_from_stdin:
             t0 = int(sys.stdin.readline())
             walkers = [Walker(w.truth_id, w.start_m, w.velocity_mps, t0) for w in walkers]
         start = time.monotonic()
         tick = 0
-        live: set[int] = set()
+        live: list[set[int]] = [set() for _ in sims]
         while not done.is_set() and time.monotonic() - start < a.seconds:
-            msg = sim.message(walkers, time.time_ns())
-            payload, tracks = dump_objects(msg)
-            ids = {tid for tid, _ in tracks}
-            pub.objects(payload, tracks, sorted(live - ids))
-            live = ids
+            for k, (sim, pub) in enumerate(zip(sims, pubs, strict=True)):
+                payload, tracks = dump_objects(sim.message(walkers, time.time_ns()))
+                ids = {tid for tid, _ in tracks}
+                pub.objects(payload, tracks, sorted(live[k] - ids))
+                live[k] = ids
             tick += 1
             done.wait(max(0.0, start + tick * period - time.monotonic()))
     return 0

@@ -21,14 +21,15 @@ the room tracks the other rigs kept alive instead of opening duplicates.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+import copy
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..assignment import min_cost_assignment
-from ..messages import ObjectsMessage
+from ..messages import ObjectsMessage, ObjectState
 from ..tracking import TrackLifecycle
-from .frames import RigTrack, predict, predicted, to_room
+from .frames import RigBatch, RigTrack, batch_to_room, predict_many
 from .room import Room
 
 CHI2_3DOF_999 = 16.27
@@ -64,8 +65,9 @@ class RoomTrack:
     state: TrackLifecycle = TrackLifecycle.CONFIRMED
     members: dict[str, int] = field(default_factory=dict)
     """Rig name -> that rig's track id, for the rig tracks linked to this object."""
-    best: RigTrack | None = None
-    """The member whose position weighed most at the last step (its blobs are reported)."""
+    source: ObjectState | None = None
+    """The message of the member whose position weighed most at the last step (its blobs,
+    disparity and size are reported)."""
     velocity_valid: bool = False
     heading_valid: bool = False
 
@@ -100,16 +102,106 @@ def mahalanobis2(a: np.ndarray, a_cov: np.ndarray, b: np.ndarray, b_cov: np.ndar
     return float(d @ np.linalg.solve(a_cov + b_cov, d))
 
 
+def _group_fusion(
+    group: np.ndarray, k: int, info: np.ndarray, info_mean: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Information-form fusion of rows into ``k`` groups at once: rows with ``group[i] = g``
+    (-1: none) of information matrices ``info`` (n, 3, 3) and ``info_mean`` (n, 3) (``I x``).
+    Returns each group's row count (k,), mean (k, 3) and covariance (k, 3, 3), zero where
+    the group has no row."""
+    ok = group >= 0
+    total = np.zeros((k, 3, 3))
+    total_mean = np.zeros((k, 3))
+    np.add.at(total, group[ok], info[ok])
+    np.add.at(total_mean, group[ok], info_mean[ok])
+    count = np.bincount(group[ok], minlength=k)
+    cov = np.zeros((k, 3, 3))
+    mean = np.zeros((k, 3))
+    has = count > 0
+    if has.any():
+        c = np.linalg.inv(total[has])
+        cov[has] = 0.5 * (c + np.transpose(c, (0, 2, 1)))
+        mean[has] = np.einsum("kij,kj->ki", c, total_mean[has])
+    return count, mean, cov
+
+
+def _snapshot(track: RoomTrack) -> RoomTrack:
+    """A shallow copy of ``track`` with its own members."""
+    out = copy.copy(track)
+    out.members = dict(track.members)
+    return out
+
+
+class _Rows:
+    """Every live rig track predicted to one instant, stacked (the step's working set)."""
+
+    def __init__(self, batches: list[RigBatch], t_ns: int) -> None:
+        self.batches = batches
+        self.t_ns = t_ns
+        self.keys: list[tuple[str, int]] = []
+        self.where: list[tuple[int, int]] = []
+        for b, batch in enumerate(batches):
+            self.keys += [(batch.rig, tid) for tid in batch.ids]
+            self.where += [(b, i) for i in range(len(batch.ids))]
+        self.index = {k: i for i, k in enumerate(self.keys)}
+        n = len(self.keys)
+        if n:
+            stamps = np.concatenate([b.stamps_ns for b in batches])
+            p, pc, v, vc = predict_many(
+                np.concatenate([b.position for b in batches]),
+                np.concatenate([b.position_cov for b in batches]),
+                np.concatenate([b.velocity for b in batches]),
+                np.concatenate([b.velocity_cov for b in batches]),
+                (t_ns - stamps) * 1e-9,
+            )
+        else:
+            p, v = np.zeros((0, 3)), np.zeros((0, 3))
+            pc, vc = np.zeros((0, 3, 3)), np.zeros((0, 3, 3))
+        self.position, self.position_cov, self.velocity, self.velocity_cov = p, pc, v, vc
+        self.info = np.linalg.inv(pc) if n else pc
+        self.info_mean = np.einsum("nij,nj->ni", self.info, p)
+        self.seen = np.array(
+            [
+                self.source(i).state in (TrackLifecycle.CONFIRMED, TrackLifecycle.STATIONARY)
+                for i in range(n)
+            ],
+            dtype=bool,
+        )
+
+    def source(self, i: int) -> ObjectState:
+        b, j = self.where[i]
+        return self.batches[b].sources[j]
+
+    def track(self, i: int) -> RigTrack:
+        """Row ``i`` as a :class:`RigTrack` at the step's instant."""
+        src = self.source(i)
+        return RigTrack(
+            rig=self.keys[i][0],
+            track_id=self.keys[i][1],
+            state=src.state,
+            stamp_utc_ns=self.t_ns,
+            position=self.position[i],
+            position_cov=self.position_cov[i],
+            velocity=self.velocity[i],
+            velocity_cov=self.velocity_cov[i],
+            velocity_valid=src.velocity_valid,
+            heading_valid=src.heading_valid,
+            source=src,
+        )
+
+
 class Fuser:
     """The fusion of one room's rigs; feed it each rig's objects messages with :meth:`ingest`
-    and ask for the room at an instant with :meth:`fuse`. Not thread-safe: one caller."""
+    and ask for the room at an instant with :meth:`fuse`. Every track of every rig is handled
+    in stacked numpy arrays, so a step costs a few array operations, not a Python loop of
+    matrix operations per track. Not thread-safe: one caller."""
 
     def __init__(self, room: Room, params: FuseParams | None = None) -> None:
         self.room = room
         self.params = params or FuseParams()
-        self._poses = {r.name: r for r in room.rigs}
+        self._poses = {r.name: (r.rotation(), r.translation()) for r in room.rigs}
         self._order = [r.name for r in room.rigs]
-        self._rig_tracks: dict[str, dict[int, RigTrack]] = {}
+        self._batches: dict[str, RigBatch] = {}
         self._rig_last_ns: dict[str, int] = {}
         self._rig_seq: dict[str, int] = {}
         self._links: dict[tuple[str, int], int] = {}
@@ -135,13 +227,12 @@ class Fuser:
             self.restarts[msg.rig] = self.restarts.get(msg.rig, 0) + 1
         self._rig_seq[msg.rig] = msg.seq
         self._rig_last_ns[msg.rig] = msg.stamp_utc_ns
-        self._rig_tracks[msg.rig] = {
-            o.track_id: to_room(pose, o) for o in msg.objects if o.state != TrackLifecycle.TENTATIVE
-        }
+        objects = [o for o in msg.objects if o.state != TrackLifecycle.TENTATIVE]
+        self._batches[msg.rig] = batch_to_room(msg.rig, pose[0], pose[1], objects)
         return True
 
     def _forget_rig(self, rig: str) -> None:
-        self._rig_tracks.pop(rig, None)
+        self._batches.pop(rig, None)
         for key in [k for k in self._links if k[0] == rig]:
             room_id = self._links.pop(key)
             track = self._tracks.get(room_id)
@@ -159,7 +250,8 @@ class Fuser:
 
     def rig_track_count(self, rig: str) -> int:
         """How many (not tentative) tracks ``rig``'s latest message held."""
-        return len(self._rig_tracks.get(rig, {}))
+        batch = self._batches.get(rig)
+        return 0 if batch is None else len(batch.ids)
 
     def rig_stamp(self, rig: str) -> int | None:
         """The UTC stamp of ``rig``'s latest message, ns (None before its first)."""
@@ -173,90 +265,103 @@ class Fuser:
         """The room at the UTC instant ``t_ns`` (ns): every rig track predicted there,
         associated, fused; room tracks no rig has seen for ``max_coast_s`` end."""
         live = self.live_rigs(t_ns)
-        for rig in [r for r in self._rig_tracks if r not in live]:
+        for rig in [r for r in self._batches if r not in live]:
             self._forget_rig(rig)
-        current: dict[tuple[str, int], RigTrack] = {
-            (rig, tid): predicted(tr, t_ns)
-            for rig in live
-            for tid, tr in self._rig_tracks.get(rig, {}).items()
-        }
-        for key in [k for k in self._links if k not in current]:
+        rows = _Rows([self._batches[r] for r in live if r in self._batches], t_ns)
+        for key in [k for k in self._links if k not in rows.index]:
             track = self._tracks.get(self._links.pop(key))
             if track is not None and track.members.get(key[0]) == key[1]:
                 del track.members[key[0]]
-        members: dict[int, list[RigTrack]] = {rid: [] for rid in self._tracks}
-        for key, room_id in self._links.items():
-            members[room_id].append(current[key])
-        estimate = {rid: self._estimate(rid, members[rid], t_ns) for rid in self._tracks}
+        members: dict[int, list[int]] = {rid: [] for rid in self._tracks}
+        for key, rid in self._links.items():
+            members[rid].append(rows.index[key])
+        estimate = self._estimates(rows, members, t_ns)
         for rig in live:
-            self._associate(rig, current, members, estimate, t_ns)
-        ended = self._update(members, t_ns)
-        # Copies: the caller may keep a frame while the next steps change the tracks.
-        tracks = [replace(tr, members=dict(tr.members)) for _, tr in sorted(self._tracks.items())]
-        return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, observed=members)
+            self._associate(rig, rows, members, estimate, t_ns)
+        ended = self._update(rows, members, t_ns)
+        observed = {rid: [rows.track(i) for i in ms] for rid, ms in members.items() if len(ms) >= 2}
+        # Copies: the caller may keep a frame while the next steps change the tracks (whose
+        # arrays are replaced, never written into).
+        tracks = [_snapshot(tr) for _, tr in sorted(self._tracks.items())]
+        return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, observed=observed)
 
-    def _estimate(
-        self, room_id: int, linked: list[RigTrack], t_ns: int
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """A room track's position and covariance at ``t_ns``: its linked members' fusion, or
-        its last fused state predicted."""
-        if linked:
-            return fuse_gaussians([m.position for m in linked], [m.position_cov for m in linked])
-        tr = self._tracks[room_id]
-        p, pc, _, _ = predict(
-            tr.position, tr.position_cov, tr.velocity, tr.velocity_cov,
-            (t_ns - tr.stamp_utc_ns) * 1e-9,
-        )  # fmt: skip
-        return p, pc
+    def _estimates(
+        self, rows: _Rows, members: dict[int, list[int]], t_ns: int
+    ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Each room track's position and covariance at ``t_ns``: its linked members'
+        fusion, or its last fused state predicted."""
+        rids = sorted(self._tracks)
+        if not rids:
+            return {}
+        slot = {rid: k for k, rid in enumerate(rids)}
+        group = np.full(len(rows.keys), -1, dtype=np.int64)
+        for rid, ms in members.items():
+            group[ms] = slot[rid]
+        count, mean, cov = _group_fusion(group, len(rids), rows.info, rows.info_mean)
+        alone = [rid for rid in rids if count[slot[rid]] == 0]
+        if alone:
+            trs = [self._tracks[rid] for rid in alone]
+            p, pc, _, _ = predict_many(
+                np.array([t.position for t in trs]),
+                np.array([t.position_cov for t in trs]),
+                np.array([t.velocity for t in trs]),
+                np.array([t.velocity_cov for t in trs]),
+                np.array([(t_ns - t.stamp_utc_ns) * 1e-9 for t in trs]),
+            )
+            for j, rid in enumerate(alone):
+                mean[slot[rid]], cov[slot[rid]] = p[j], pc[j]
+        return {rid: (mean[slot[rid]], cov[slot[rid]]) for rid in rids}
 
     def _associate(
         self,
         rig: str,
-        current: dict[tuple[str, int], RigTrack],
-        members: dict[int, list[RigTrack]],
+        rows: _Rows,
+        members: dict[int, list[int]],
         estimate: dict[int, tuple[np.ndarray, np.ndarray]],
         t_ns: int,
     ) -> None:
         """Link ``rig``'s unlinked tracks to room tracks that have no track of ``rig`` yet (one
         gated assignment); a seen track left over opens a room track."""
-        free = [tr for (r, tid), tr in current.items() if r == rig and (r, tid) not in self._links]
+        free = [i for i, k in enumerate(rows.keys) if k[0] == rig and k not in self._links]
         if not free:
             return
-        taken = {rid for rid, ms in members.items() if any(m.rig == rig for m in ms)}
-        candidates = [rid for rid in sorted(members) if rid not in taken]
-        cost = np.full((len(free), len(candidates)), _FORBIDDEN)
-        for i, tr in enumerate(free):
-            for j, rid in enumerate(candidates):
-                p, pc = estimate[rid]
-                d2 = mahalanobis2(tr.position, tr.position_cov, p, pc)
-                if d2 <= self.params.gate_chi2:
-                    cost[i, j] = d2
+        candidates = [
+            rid for rid in sorted(members) if all(rows.keys[i][0] != rig for i in members[rid])
+        ]
         matched: set[int] = set()
         if candidates:
+            d = rows.position[free][:, None, :] - np.array([estimate[r][0] for r in candidates])
+            s = rows.position_cov[free][:, None] + np.array([estimate[r][1] for r in candidates])
+            d2 = np.einsum("nmi,nmi->nm", d, np.linalg.solve(s, d[..., None])[..., 0])
+            cost = np.where(d2 <= self.params.gate_chi2, d2, _FORBIDDEN)
             for i, j in zip(*min_cost_assignment(cost), strict=True):
                 if cost[i, j] < _FORBIDDEN:
-                    self._link(free[i], candidates[j], members, estimate)
+                    self._link(rows, free[i], candidates[j], members, estimate)
                     matched.add(int(i))
-        for i, tr in enumerate(free):
-            if i not in matched and tr.seen:
-                rid = self._open(tr, t_ns)
+        for i, row in enumerate(free):
+            if i not in matched and rows.seen[row]:
+                rid = self._open(rows, row, t_ns)
                 members[rid] = []
-                self._link(tr, rid, members, estimate)
+                self._link(rows, row, rid, members, estimate)
 
     def _link(
         self,
-        tr: RigTrack,
+        rows: _Rows,
+        row: int,
         room_id: int,
-        members: dict[int, list[RigTrack]],
+        members: dict[int, list[int]],
         estimate: dict[int, tuple[np.ndarray, np.ndarray]],
     ) -> None:
-        self._links[(tr.rig, tr.track_id)] = room_id
-        self._tracks[room_id].members[tr.rig] = tr.track_id
-        members[room_id].append(tr)
+        rig, tid = rows.keys[row]
+        self._links[(rig, tid)] = room_id
+        self._tracks[room_id].members[rig] = tid
+        members[room_id].append(row)
         ms = members[room_id]
-        estimate[room_id] = fuse_gaussians([m.position for m in ms], [m.position_cov for m in ms])
+        estimate[room_id] = fuse_gaussians(
+            [rows.position[i] for i in ms], [rows.position_cov[i] for i in ms]
+        )
 
-    def _open(self, tr: RigTrack, t_ns: int) -> int:
+    def _open(self, rows: _Rows, row: int, t_ns: int) -> int:
         rid = self._next_id
         self._next_id += 1
         self._tracks[rid] = RoomTrack(
@@ -264,41 +369,66 @@ class Fuser:
             stamp_utc_ns=t_ns,
             first_ns=t_ns,
             last_seen_ns=t_ns,
-            position=tr.position.copy(),
-            position_cov=tr.position_cov.copy(),
-            velocity=tr.velocity.copy(),
-            velocity_cov=tr.velocity_cov.copy(),
+            position=rows.position[row].copy(),
+            position_cov=rows.position_cov[row].copy(),
+            velocity=rows.velocity[row].copy(),
+            velocity_cov=rows.velocity_cov[row].copy(),
         )
         return rid
 
-    def _update(self, members: dict[int, list[RigTrack]], t_ns: int) -> list[int]:
-        """Fuse each room track's members at ``t_ns``; coast those with none; end the ones
-        unseen for ``max_coast_s``. Returns the ended ids."""
+    def _update(self, rows: _Rows, members: dict[int, list[int]], t_ns: int) -> list[int]:
+        """Fuse each room track's members at ``t_ns`` (every track in one array operation);
+        coast those with none; end the ones unseen for ``max_coast_s``. Returns the ended
+        ids."""
+        rids = sorted(self._tracks)
+        slot = {rid: k for k, rid in enumerate(rids)}
+        group = np.full(len(rows.keys), -1, dtype=np.int64)
+        for rid, ms in members.items():
+            if rid in slot:
+                group[ms] = slot[rid]
+        k = len(rids)
+        count, pos, pcov = _group_fusion(group, k, rows.info, rows.info_mean)
+        if len(rows.keys):
+            vinfo = np.linalg.inv(rows.velocity_cov)
+            vmean = np.einsum("nij,nj->ni", vinfo, rows.velocity)
+        else:
+            vinfo, vmean = rows.velocity_cov, rows.velocity
+        _, vel, vcov = _group_fusion(group, k, vinfo, vmean)
+        trace = np.trace(rows.position_cov, axis1=1, axis2=2)
+        coasting = [rid for rid in rids if count[slot[rid]] == 0]
+        if coasting:
+            trs = [self._tracks[rid] for rid in coasting]
+            p, pc, v, vc = predict_many(
+                np.array([t.position for t in trs]),
+                np.array([t.position_cov for t in trs]),
+                np.array([t.velocity for t in trs]),
+                np.array([t.velocity_cov for t in trs]),
+                np.array([(t_ns - t.stamp_utc_ns) * 1e-9 for t in trs]),
+            )
+            for j, rid in enumerate(coasting):
+                s = slot[rid]
+                pos[s], pcov[s], vel[s], vcov[s] = p[j], pc[j], v[j], vc[j]
         ended: list[int] = []
         coast_ns = int(self.params.max_coast_s * 1e9)
-        for rid, tr in list(self._tracks.items()):
+        for rid in rids:
+            tr, s = self._tracks[rid], slot[rid]
+            tr.position, tr.position_cov, tr.velocity, tr.velocity_cov = (
+                pos[s].copy(), pcov[s].copy(), vel[s].copy(), vcov[s].copy()
+            )  # fmt: skip
             ms = members.get(rid, [])
             if ms:
-                tr.position, tr.position_cov = fuse_gaussians(
-                    [m.position for m in ms], [m.position_cov for m in ms]
-                )
-                tr.velocity, tr.velocity_cov = fuse_gaussians(
-                    [m.velocity for m in ms], [m.velocity_cov for m in ms]
-                )
-                tr.best = min(ms, key=lambda m: float(np.trace(m.position_cov)))
-                tr.velocity_valid = any(m.velocity_valid for m in ms)
-                tr.heading_valid = any(m.heading_valid for m in ms)
-                if any(m.seen for m in ms):
+                states = [rows.source(i) for i in ms]
+                tr.source = rows.source(ms[int(np.argmin(trace[ms]))])
+                tr.velocity_valid = any(o.velocity_valid for o in states)
+                tr.heading_valid = any(o.heading_valid for o in states)
+                seen = [o.state for o, i in zip(states, ms, strict=True) if rows.seen[i]]
+                if seen:
                     tr.last_seen_ns = t_ns
-                    stationary = all(m.state == TrackLifecycle.STATIONARY for m in ms if m.seen)
-                    tr.state = TrackLifecycle.STATIONARY if stationary else TrackLifecycle.CONFIRMED
+                    still = all(st == TrackLifecycle.STATIONARY for st in seen)
+                    tr.state = TrackLifecycle.STATIONARY if still else TrackLifecycle.CONFIRMED
                 else:
                     tr.state = TrackLifecycle.COASTING
             else:
-                tr.position, tr.position_cov, tr.velocity, tr.velocity_cov = predict(
-                    tr.position, tr.position_cov, tr.velocity, tr.velocity_cov,
-                    (t_ns - tr.stamp_utc_ns) * 1e-9,
-                )  # fmt: skip
                 tr.state = TrackLifecycle.COASTING
             tr.stamp_utc_ns = t_ns
             if t_ns - tr.last_seen_ns > coast_ns:

@@ -20,35 +20,42 @@ from .fuser import FusedFrame, RoomTrack
 
 
 def _vec(a: np.ndarray) -> tuple[float, float, float]:
-    x, y, z = (float(v) for v in a)
+    x, y, z = a.tolist()
     return (x, y, z)
 
 
 def _sigmas(cov: np.ndarray) -> tuple[float, float, float]:
-    x, y, z = (math.sqrt(max(float(v), 0.0)) for v in np.diag(cov))
+    x, y, z = (math.sqrt(max(v, 0.0)) for v in cov.diagonal().tolist())
     return (x, y, z)
+
+
+def _quad(c: list[list[float]], a: tuple[float, float, float]) -> float:
+    """a^T C a for a 3-vector and a (3, 3) covariance given as lists (no numpy call: one
+    track's figures cost a few microseconds)."""
+    return sum(a[i] * c[i][j] * a[j] for i in range(3) for j in range(3))
 
 
 def speed_heading(v: np.ndarray, cov: np.ndarray) -> tuple[float, float, float, float | None]:
     """Speed (m/s), its sigma, heading atan2(vx, vz) in [0, 360) deg and its sigma (None when
     standing still), the sigmas to first order through the velocity's covariance."""
-    speed = float(np.linalg.norm(v))
-    speed_sigma = math.sqrt(max(float(v @ cov @ v), 0.0)) / speed if speed > 1e-9 else 0.0
-    heading = math.degrees(math.atan2(float(v[0]), float(v[2]))) % 360.0
-    ground2 = float(v[0] ** 2 + v[2] ** 2)
+    vx, vy, vz = v.tolist()
+    c = cov.tolist()
+    speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+    speed_sigma = math.sqrt(max(_quad(c, (vx, vy, vz)), 0.0)) / speed if speed > 1e-9 else 0.0
+    heading = math.degrees(math.atan2(vx, vz)) % 360.0
+    ground2 = vx * vx + vz * vz
     if ground2 <= 1e-12:
         return speed, speed_sigma, heading, None
-    g = np.array([v[2], 0.0, -v[0]]) / ground2
-    return speed, speed_sigma, heading, math.degrees(math.sqrt(max(float(g @ cov @ g), 0.0)))
+    g = (vz / ground2, 0.0, -vx / ground2)
+    return speed, speed_sigma, heading, math.degrees(math.sqrt(max(_quad(c, g), 0.0)))
 
 
 def room_state(track: RoomTrack) -> ObjectState | None:
     """One room track as an object state; None for one with no member left to describe it."""
-    best = track.best
-    if best is None:
+    src = track.source
+    if src is None:
         return None
     speed, speed_sigma, heading, heading_sigma = speed_heading(track.velocity, track.velocity_cov)
-    src = best.source
     return ObjectState(
         track_id=track.room_id,
         state=track.state,
