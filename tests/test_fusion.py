@@ -216,3 +216,25 @@ def test_a_rig_clock_offset_is_estimated_from_shared_objects(
     assert est.offset_ms == pytest.approx(offset_ms, abs=5.0)
     assert est.off is flagged and est.samples >= 100
     assert clock.estimate("a").offset_ms == 0.0
+
+
+def test_room_states_match_the_one_track_formulas() -> None:
+    """The stacked speed, heading and sigma figures equal :func:`speed_heading` and the
+    covariance's diagonal track by track."""
+    from stereod.fusion.output import room_states, speed_heading
+
+    walkers = [
+        Walker(i, (0.3 * i, 0.0, 3.0 + 0.2 * i), (0.5 - 0.3 * i, 0.1, 0.2)) for i in range(3)
+    ]
+    sims = {"a": RigSim(A, seed=17), "c": RigSim(C, seed=18)}
+    ((_, frame),) = run(Fuser(room(A, C)), sims, walkers, 1)
+    states = room_states(frame.tracks)
+    assert len(states) == 3
+    for tr, st in zip(frame.tracks, states):
+        speed, speed_sigma, heading, heading_sigma = speed_heading(tr.velocity, tr.velocity_cov)
+        assert st.speed_mps == pytest.approx(speed)
+        assert st.speed_sigma_mps == pytest.approx(speed_sigma)
+        assert st.heading_deg == pytest.approx(heading)
+        assert st.heading_sigma_deg == pytest.approx(heading_sigma)
+        np.testing.assert_allclose(st.position_sigma_m, np.sqrt(np.diag(tr.position_cov)))
+        np.testing.assert_allclose(st.position_m, tr.position)

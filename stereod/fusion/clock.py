@@ -57,14 +57,14 @@ class ClockWatch:
         """Take the shared observations of one fusion step (its room tracks' rig tracks,
         predicted to the step's instant)."""
         for track in frame.tracks:
-            ms = frame.observed.get(track.room_id, [])
+            ms = frame.shared.get(track.room_id, [])
             if len(ms) < 2:
                 continue
             v = track.velocity
             speed2 = float(v @ v)
             if speed2 < self.min_speed_mps**2:
                 continue
-            by_rig = {m.rig: m for m in ms}
+            by_rig = {rig: (p, pc) for rig, p, pc in ms}
             known = {r: self._median(r) for r in by_rig}
             anchor = next((r for r in self.rigs if r in by_rig and known[r] is not None), None)
             if anchor is None:
@@ -72,13 +72,13 @@ class ClockWatch:
                 if anchor != self.rigs[0]:
                     continue
             base_ms = known[anchor] or 0.0
-            ref = by_rig[anchor]
-            for rig, m in by_rig.items():
+            ref_p, ref_c = by_rig[anchor]
+            for rig, (p, pc) in by_rig.items():
                 if rig == anchor:
                     continue
-                s_inv_v = np.linalg.solve(m.position_cov + ref.position_cov, v)
+                s_inv_v = np.linalg.solve(pc + ref_c, v)
                 weight = float(v @ s_inv_v)
-                d_ms = -float((m.position - ref.position) @ s_inv_v) / weight * 1e3
+                d_ms = -float((p - ref_p) @ s_inv_v) / weight * 1e3
                 self._samples[rig].append(((base_ms + d_ms) * weight, weight))
 
     def _median(self, rig: str) -> float | None:

@@ -137,24 +137,6 @@ class RigBatch:
     """(n, 3, 3) (m/s)^2."""
     sources: list[ObjectState]
 
-    def track(self, i: int, position: np.ndarray | None = None, **moved: np.ndarray) -> RigTrack:
-        """Row ``i`` as a :class:`RigTrack` (its arrays replaced by ``position`` and
-        ``moved``'s ``position_cov``, ``velocity``, ``velocity_cov`` when given)."""
-        src = self.sources[i]
-        return RigTrack(
-            rig=self.rig,
-            track_id=self.ids[i],
-            state=src.state,
-            stamp_utc_ns=int(self.stamps_ns[i]),
-            position=self.position[i] if position is None else position,
-            position_cov=moved.get("position_cov", self.position_cov[i]),
-            velocity=moved.get("velocity", self.velocity[i]),
-            velocity_cov=moved.get("velocity_cov", self.velocity_cov[i]),
-            velocity_valid=src.velocity_valid,
-            heading_valid=src.heading_valid,
-            source=src,
-        )
-
 
 def _diag_many(sigmas: np.ndarray) -> np.ndarray:
     """(n, 3, 3) diagonal covariances from (n, 3) sigmas."""

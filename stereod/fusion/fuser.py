@@ -21,7 +21,6 @@ the room tracks the other rigs kept alive instead of opening duplicates.
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,7 +28,7 @@ import numpy as np
 from ..assignment import min_cost_assignment
 from ..messages import ObjectsMessage, ObjectState
 from ..tracking import TrackLifecycle
-from .frames import RigBatch, RigTrack, batch_to_room, predict_many
+from .frames import RigBatch, batch_to_room, predict_many
 from .room import Room
 
 CHI2_3DOF_999 = 16.27
@@ -79,8 +78,10 @@ class FusedFrame:
     t_ns: int
     tracks: list[RoomTrack]
     ended: list[int]
-    observed: dict[int, list[RigTrack]] = field(default_factory=dict)
-    """Each room id's rig tracks at ``t_ns`` (room frame), the fused state's inputs."""
+    shared: dict[int, list[tuple[str, np.ndarray, np.ndarray]]] = field(default_factory=dict)
+    """For each room id that more than one rig sees: each rig's name, position (m) and
+    position covariance (m^2) at ``t_ns`` in the room frame (what clock offsets are
+    estimated from)."""
 
 
 def fuse_gaussians(
@@ -125,11 +126,14 @@ def _group_fusion(
     return count, mean, cov
 
 
-def _snapshot(track: RoomTrack) -> RoomTrack:
-    """A shallow copy of ``track`` with its own members."""
-    out = copy.copy(track)
-    out.members = dict(track.members)
-    return out
+def _snapshot(t: RoomTrack) -> RoomTrack:
+    """A shallow copy of ``t`` with its own members (its arrays are replaced at each step,
+    never written into, so they are shared)."""
+    return RoomTrack(
+        t.room_id, t.stamp_utc_ns, t.first_ns, t.last_seen_ns, t.position, t.position_cov,
+        t.velocity, t.velocity_cov, t.state, dict(t.members), t.source, t.velocity_valid,
+        t.heading_valid,
+    )  # fmt: skip
 
 
 class _Rows:
@@ -139,10 +143,8 @@ class _Rows:
         self.batches = batches
         self.t_ns = t_ns
         self.keys: list[tuple[str, int]] = []
-        self.where: list[tuple[int, int]] = []
-        for b, batch in enumerate(batches):
+        for batch in batches:
             self.keys += [(batch.rig, tid) for tid in batch.ids]
-            self.where += [(b, i) for i in range(len(batch.ids))]
         self.index = {k: i for i, k in enumerate(self.keys)}
         n = len(self.keys)
         if n:
@@ -160,34 +162,20 @@ class _Rows:
         self.position, self.position_cov, self.velocity, self.velocity_cov = p, pc, v, vc
         self.info = np.linalg.inv(pc) if n else pc
         self.info_mean = np.einsum("nij,nj->ni", self.info, p)
+        sources = [src for b in batches for src in b.sources]
+        self.sources = sources
         self.seen = np.array(
-            [
-                self.source(i).state in (TrackLifecycle.CONFIRMED, TrackLifecycle.STATIONARY)
-                for i in range(n)
-            ],
+            [o.state in (TrackLifecycle.CONFIRMED, TrackLifecycle.STATIONARY) for o in sources],
             dtype=bool,
         )
+        self.stationary = np.array(
+            [o.state == TrackLifecycle.STATIONARY for o in sources], dtype=bool
+        )
+        self.velocity_valid = np.array([o.velocity_valid for o in sources], dtype=bool)
+        self.heading_valid = np.array([o.heading_valid for o in sources], dtype=bool)
 
     def source(self, i: int) -> ObjectState:
-        b, j = self.where[i]
-        return self.batches[b].sources[j]
-
-    def track(self, i: int) -> RigTrack:
-        """Row ``i`` as a :class:`RigTrack` at the step's instant."""
-        src = self.source(i)
-        return RigTrack(
-            rig=self.keys[i][0],
-            track_id=self.keys[i][1],
-            state=src.state,
-            stamp_utc_ns=self.t_ns,
-            position=self.position[i],
-            position_cov=self.position_cov[i],
-            velocity=self.velocity[i],
-            velocity_cov=self.velocity_cov[i],
-            velocity_valid=src.velocity_valid,
-            heading_valid=src.heading_valid,
-            source=src,
-        )
+        return self.sources[i]
 
 
 class Fuser:
@@ -279,11 +267,15 @@ class Fuser:
         for rig in live:
             self._associate(rig, rows, members, estimate, t_ns)
         ended = self._update(rows, members, t_ns)
-        observed = {rid: [rows.track(i) for i in ms] for rid, ms in members.items() if len(ms) >= 2}
+        shared = {
+            rid: [(rows.keys[i][0], rows.position[i], rows.position_cov[i]) for i in ms]
+            for rid, ms in members.items()
+            if len(ms) >= 2 and rid in self._tracks
+        }
         # Copies: the caller may keep a frame while the next steps change the tracks (whose
         # arrays are replaced, never written into).
         tracks = [_snapshot(tr) for _, tr in sorted(self._tracks.items())]
-        return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, observed=observed)
+        return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, shared=shared)
 
     def _estimates(
         self, rows: _Rows, members: dict[int, list[int]], t_ns: int
@@ -394,7 +386,6 @@ class Fuser:
         else:
             vinfo, vmean = rows.velocity_cov, rows.velocity
         _, vel, vcov = _group_fusion(group, k, vinfo, vmean)
-        trace = np.trace(rows.position_cov, axis1=1, axis2=2)
         coasting = [rid for rid in rids if count[slot[rid]] == 0]
         if coasting:
             trs = [self._tracks[rid] for rid in coasting]
@@ -408,24 +399,39 @@ class Fuser:
             for j, rid in enumerate(coasting):
                 s = slot[rid]
                 pos[s], pcov[s], vel[s], vcov[s] = p[j], pc[j], v[j], vc[j]
+        # Per room track, from its members' rows at once: any seen, all seen ones stationary,
+        # any velocity (heading) valid, and the member with the smallest position variance.
+        ok = group >= 0
+        g = group[ok]
+
+        def anyof(flags: np.ndarray) -> np.ndarray:
+            return np.bincount(g, weights=flags[ok].astype(np.float64), minlength=k) > 0
+
+        seen = anyof(rows.seen)
+        moving = anyof(rows.seen & ~rows.stationary)
+        vvalid = anyof(rows.velocity_valid)
+        hvalid = anyof(rows.heading_valid)
+        best = np.full(k, -1, dtype=np.int64)
+        if g.size:
+            idx = np.flatnonzero(ok)
+            trace = np.trace(rows.position_cov[idx], axis1=1, axis2=2)
+            order = np.lexsort((trace, g))
+            first = np.ones(order.size, dtype=bool)
+            first[1:] = g[order][1:] != g[order][:-1]
+            best[g[order][first]] = idx[order][first]
         ended: list[int] = []
         coast_ns = int(self.params.max_coast_s * 1e9)
         for rid in rids:
             tr, s = self._tracks[rid], slot[rid]
             tr.position, tr.position_cov, tr.velocity, tr.velocity_cov = (
-                pos[s].copy(), pcov[s].copy(), vel[s].copy(), vcov[s].copy()
+                pos[s], pcov[s], vel[s], vcov[s]
             )  # fmt: skip
-            ms = members.get(rid, [])
-            if ms:
-                states = [rows.source(i) for i in ms]
-                tr.source = rows.source(ms[int(np.argmin(trace[ms]))])
-                tr.velocity_valid = any(o.velocity_valid for o in states)
-                tr.heading_valid = any(o.heading_valid for o in states)
-                seen = [o.state for o, i in zip(states, ms, strict=True) if rows.seen[i]]
-                if seen:
+            if count[s]:
+                tr.source = rows.sources[best[s]]
+                tr.velocity_valid, tr.heading_valid = bool(vvalid[s]), bool(hvalid[s])
+                if seen[s]:
                     tr.last_seen_ns = t_ns
-                    still = all(st == TrackLifecycle.STATIONARY for st in seen)
-                    tr.state = TrackLifecycle.STATIONARY if still else TrackLifecycle.CONFIRMED
+                    tr.state = TrackLifecycle.CONFIRMED if moving[s] else TrackLifecycle.STATIONARY
                 else:
                     tr.state = TrackLifecycle.COASTING
             else:
