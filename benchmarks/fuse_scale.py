@@ -163,7 +163,8 @@ def main() -> int:
         "|---|---|",
         f"| fuse CPU | {cpu * 100:.0f} % of one core |",
         f"| generators' CPU | {gen_cpu * 100:.0f} % of one core |",
-        f"| rig messages received (whole run) | {rig_msgs} |",
+        f"| rig messages received per s (the generators' target {a.rigs * a.fps:g}) | "
+        f"{rig_msgs / status.uptime_s:.0f} |",
         f"| room messages (fusion steps) per s | {len(got) / a.seconds:.1f} |",
         f"| room objects per message, median | {np.median(objects) if len(objects) else 0:.0f} |",
         f"| fusion step, p50 / p99 | {status.fuse_ms_p50 or 0:.1f} / "
