@@ -43,6 +43,7 @@ from .common import (
     add_zenoh,
     number,
     path_arg,
+    say,
     setup_logging,
     stdout_gone,
     summaries_off_stdout,
@@ -396,6 +397,10 @@ def run(a: argparse.Namespace) -> int:
         if jsonl is not None:
             jsonl.commit()
             committed = True
+        say(
+            f"{node.steps} room messages from {sum(node.received.values())} rig messages; "
+            f"{len(fuser.restarts)} rig restarts seen"
+        )
     except ReaderGone as exc:
         if exc.stdout:
             stdout_gone()
