@@ -49,6 +49,14 @@ class ReplayOptions(BaseModel):
     left_ts: TextPath | None = Field(None, description="Left timestamps CSV (t_ns)")
     right_ts: TextPath | None = Field(None, description="Right timestamps CSV (t_ns)")
     loop: bool = Field(False, description="Start again at the end, timestamps continuing")
+    utc_start_ns: int | None = Field(
+        None,
+        ge=0,
+        le=2**63 - 1,
+        description="The first frame's UTC instant, ns: several replays of one scene then "
+        "stamp their messages on one clock (default: the recording's own offset, else the "
+        "wall clock when the first frame plays)",
+    )
 
     @model_validator(mode="after")
     def _one_input(self) -> ReplayOptions:
@@ -312,12 +320,23 @@ class ReplayDriver(Driver):
         assert o.left_video is not None and o.right_video is not None
         return self._open_videos(o.left_video, o.right_video)
 
+    def _utc_offset(self, firsts: list[int], own: int | None) -> int | None:
+        """Wall clock minus the frames' clock (ns): with ``utc_start_ns``, the one that puts
+        the earlier eye's first frame (``firsts``, ns) at that instant; else ``own``."""
+        start = self.options.utc_start_ns
+        if start is None:
+            return own
+        return start - min(firsts, default=0)
+
     def _open_recording(self, directory: Path) -> ReplaySource:
         man = read_manifest(directory)
         eyes = []
         inputs = [directory / MANIFEST]
+        firsts: list[int] = []
         for eye, files in ((Eye.LEFT, man.left), (Eye.RIGHT, man.right)):
             t, seq, crc = read_frame_index(directory / files.timestamps)
+            if len(t):
+                firsts.append(int(t[0]))
             if len(t) != files.frames:
                 raise InputError(
                     f"{directory / files.timestamps}: {len(t)} timestamps, manifest says "
@@ -355,7 +374,7 @@ class ReplayDriver(Driver):
             live=False,
             description=f"recording {directory}",
             settings=dict(man.settings),
-            utc_offset_ns=man.utc_offset_ns,
+            utc_offset_ns=self._utc_offset(firsts, man.utc_offset_ns),
             inputs=inputs,
         )
         return ReplaySource(eyes[0], eyes[1], info)
@@ -426,5 +445,8 @@ class ReplayDriver(Driver):
             live=False,
             description=f"videos {left} + {right}",
             inputs=[p for p in (left, right, o.left_ts, o.right_ts) if p is not None],
+            utc_offset_ns=self._utc_offset(
+                [int(t[0]) if t is not None and len(t) else 0 for t, _, _, _ in stamps], None
+            ),
         )
         return ReplaySource(eyes[0], eyes[1], info)

@@ -73,7 +73,7 @@ def test_a_system_install_refuses_a_stereod_the_service_cannot_see(
     assert hidden_from_service("/usr/local/bin/stereod") is None
 
 
-@pytest.mark.parametrize("unit", ["stereod.service", "stereod@.service"])
+@pytest.mark.parametrize("unit", ["stereod.service", "stereod@.service", "stereod-fuse@.service"])
 def test_the_service_does_not_restart_into_a_bad_or_missing_configuration(
     tmp_path: Path, unit: str
 ) -> None:
@@ -90,7 +90,7 @@ def test_no_reload_under_a_prefix(tmp_path: Path) -> None:
 
 
 @needs_systemd
-@pytest.mark.parametrize("unit", ["stereod.service", "stereod@.service"])
+@pytest.mark.parametrize("unit", ["stereod.service", "stereod@.service", "stereod-fuse@.service"])
 def test_units_verify_clean_and_score_at_most_2(tmp_path: Path, unit: str) -> None:
     units = installed(tmp_path)
     target = units / unit

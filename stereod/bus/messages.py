@@ -182,6 +182,25 @@ class EyeStatus(_Model):
     last_error: str | None = None
 
 
+class ClockDiscipline(_Model):
+    """How the host's clock, which stamps ``stamp_utc_ns``, is kept on UTC (rigs fused in one
+    room need their clocks within milliseconds of each other)."""
+
+    source: Literal["chrony", "ptp", "unknown"] = Field(
+        description="What disciplines it: chrony (chronyc tracking), PTP (linuxptp's pmc), "
+        "or unknown (neither could be read)"
+    )
+    synchronised: bool | None = Field(None, description="Locked to its reference; null unknown")
+    offset_s: float | None = Field(
+        None,
+        description="The clock minus its reference (chrony: system time; PTP: master offset), s",
+    )
+    state: str | None = Field(
+        None, description="The source's own word: chrony's leap status, PTP's port state"
+    )
+    reference: str | None = Field(None, description="The reference (NTP server, grandmaster)")
+
+
 class StatusMessage(_Model):
     """Daemon health, published on ``<prefix>/<rig>/status`` at 1 Hz and on change."""
 
@@ -218,6 +237,9 @@ class StatusMessage(_Model):
         default_factory=list,
         description="Standing conditions that limit what the numbers mean (for example: no "
         "calibration, so depths rest on an assumed field of view)",
+    )
+    clock: ClockDiscipline | None = Field(
+        None, description="How this host's UTC clock is disciplined; null from older daemons"
     )
 
 

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import datetime
 import logging
+import re
 import signal
 import threading
 from typing import Any
@@ -92,6 +94,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="start again at the end, until Ctrl-C or SIGTERM (which then end the run normally)",
     )
     p.add_argument(
+        "--utc-start",
+        type=utc_instant_arg,
+        metavar="T",
+        help="the first frame's UTC instant: ISO 8601 with a zone (2026-03-01T12:00:00Z) or "
+        "integer ns since 1970; replays of one scene's rigs given one T share one clock (for "
+        "`stereod fuse`)",
+    )
+    p.add_argument(
         "--jsonl",
         type=path_arg,
         metavar="FILE",
@@ -148,7 +158,40 @@ def driver_options(a: argparse.Namespace) -> dict[str, Any]:
         )
     if a.loop:
         options["loop"] = True
+    if a.utc_start is not None:
+        options["utc_start_ns"] = a.utc_start
     return options
+
+
+def utc_instant_arg(text: str) -> int:
+    """An argparse type: a UTC instant as integer ns since 1970, or ISO 8601 with a zone
+    (``Z`` or ``+01:00``), to the nanosecond (more digits than 9 after the point refused)."""
+    t = text.strip()
+    if re.fullmatch(r"[0-9]{1,19}", t):
+        ns = int(t)
+        if ns > 2**63 - 1:
+            raise argparse.ArgumentTypeError(f"{text!r}: beyond the year 2262 (int64 ns)")
+        return ns
+    m = re.fullmatch(r"(.+?T\d\d:\d\d:\d\d)(?:\.(\d{1,9}))?(Z|[+-]\d\d:?\d\d)", t)
+    if m is None:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: give an ISO 8601 instant with its zone, e.g. 2026-03-01T12:00:00.5Z, "
+            "or integer ns since 1970"
+        )
+    zone = "+00:00" if m.group(3) == "Z" else m.group(3)
+    if ":" not in zone:
+        zone = f"{zone[:3]}:{zone[3:]}"
+    try:
+        whole = datetime.datetime.fromisoformat(m.group(1) + zone)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
+    epoch = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
+    delta = whole - epoch
+    ns = (delta.days * 86_400 + delta.seconds) * 10**9 + delta.microseconds * 1000
+    ns += int((m.group(2) or "0").ljust(9, "0"))
+    if not 0 <= ns <= 2**63 - 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: outside 1970..2262 (int64 ns)")
+    return ns
 
 
 def plain_video_flags(a: argparse.Namespace) -> None:

@@ -19,7 +19,7 @@ from stereod.errors import OutputError, UsageError
 
 log = logging.getLogger(__name__)
 
-UNITS = ("stereod.service", "stereod@.service")
+UNITS = ("stereod.service", "stereod@.service", "stereod-fuse@.service")
 RULES = "60-stereod-minoru.rules"
 CONFIG = "stereod.toml"
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from stereod.bus.messages import DaemonState, EyeState, EyeStatus, StatsMessage, StatusMessage
 from stereod.daemon.redact import public_text
+from stereod.fusion.discipline import DisciplineCache
 from stereod.sources.frames import Eye, EyeSource
 from stereod.sources.pairing import Pairer
 from stereod.sources.queues import BoundedQueue
@@ -108,6 +109,8 @@ class Health:
         self._pipeline_ms: collections.deque[float] = collections.deque(maxlen=2000)
         self._skews_ms: list[float] = []
         self._residuals: list[float] = []
+        self._clock = DisciplineCache()
+        """How this host's UTC clock is kept (chrony, PTP), for the status key."""
         self._on_change = on_change
 
     def watch(self, *eyes: EyeSource) -> None:
@@ -278,6 +281,7 @@ class Health:
             epipolar_residual_px=round(float(np.median(resid)), 4) if resid else None,
             problems=[public_text(p) for p in problems],
             notes=self.notes(),
+            clock=self._clock.get(),
         )
 
     def stats(self) -> StatsMessage:

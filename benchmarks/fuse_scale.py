@@ -1,0 +1,186 @@
+"""``stereod fuse`` at scale, simulated: 16 rigs x 30 Hz x about 10 objects each, from message
+generators (no rendering), through one Zenoh router into one fusion node.
+
+The rigs stand 3 m apart in a line along the room's X, all looking along +Z (neighbours'
+views overlap, so about a third of the objects are seen by two rigs); 160 walkers stroll
+between 3 and 6 m in front of them. Two generator processes publish eight rigs each (a real
+:class:`~stereod.bus.publish.Publisher` per rig, as a daemon would), all as clients of one router
+process; ``stereod fuse`` and a subscriber to the room are clients of it too, every socket on
+loopback.
+
+Measured over ``--seconds`` after a warm-up: the fusion node's CPU (share of one core, from
+/proc/<pid>/stat), its own added latency (a rig message's arrival in the node to the room
+message that includes it published, p50/p99, from its ``stats`` queryable), the latency from
+a rig's stamp to the room message's arrival at the subscriber (same host, same UTC clock),
+its step rate and what it dropped. Writes ``benchmarks/fuse_scale.md``.
+
+Usage: ``python benchmarks/fuse_scale.py [--rigs 16] [--objects 10] [--fps 30] [--seconds 20]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from stereod.bus.messages import ObjectsMessage  # noqa: E402
+from stereod.fusion.status import FuseStatus  # noqa: E402
+from tests.conftest import free_endpoint, zenoh_config  # noqa: E402
+from tests.processes import start_stereod  # noqa: E402
+from tests.test_router import start_router  # noqa: E402
+
+SPACING_M = 3.0
+
+
+def room_file(rigs: int) -> str:
+    lines = ["[room]", 'name = "hall"']
+    for i in range(rigs):
+        lines += ["[[room.rigs]]", f'name = "r{i}"', f"translation_m = [{i * SPACING_M}, 0.0, 0.0]"]
+    return "\n".join(lines) + "\n"
+
+
+def walkers(rigs: int, per_rig: int, seed: int = 1) -> list[dict[str, object]]:
+    rng = np.random.default_rng(seed)
+    n = rigs * per_rig
+    xs = np.linspace(-1.0, (rigs - 1) * SPACING_M + 1.0, n)
+    return [
+        {
+            "id": i,
+            "start_m": [float(xs[i]), float(rng.uniform(-0.3, 0.3)), float(rng.uniform(3.0, 6.0))],
+            "velocity_mps": [float(rng.uniform(-0.05, 0.05)), 0.0, float(rng.uniform(-0.05, 0.05))],
+        }
+        for i in range(n)
+    ]
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU time of a process so far, s."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--rigs", type=int, default=16)
+    p.add_argument("--objects", type=int, default=10, help="objects per rig")
+    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--seconds", type=float, default=20.0)
+    p.add_argument("--warmup", type=float, default=5.0)
+    p.add_argument("--generators", type=int, default=2)
+    p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "fuse_scale.md")
+    a = p.parse_args()
+    load = os.getloadavg()
+    tmp = Path(tempfile.mkdtemp(prefix="fuse-scale-"))
+    room = tmp / "room.toml"
+    room.write_text(room_file(a.rigs))
+    endpoint = free_endpoint()
+    router = start_router(endpoint)
+    procs: list[subprocess.Popen] = []
+    arrivals: list[tuple[int, int, int]] = []
+    lock = threading.Lock()
+
+    def on_room(sample: zenoh.Sample) -> None:
+        now = time.time_ns()
+        msg = ObjectsMessage.model_validate_json(sample.payload.to_bytes())
+        with lock:
+            arrivals.append((now, msg.stamp_utc_ns, len(msg.objects)))
+
+    try:
+        fuse = start_stereod(
+            "fuse", "--room", str(room), "--connect", endpoint, "--mode", "client",
+            "--log-level", "WARNING", stdout=subprocess.DEVNULL,
+        )  # fmt: skip
+        procs.append(fuse)
+        names = [f"r{i}" for i in range(a.rigs)]
+        groups = [names[i :: a.generators] for i in range(a.generators)]
+        wjson = json.dumps(walkers(a.rigs, a.objects))
+        for g in groups:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "stereod_fakes.room_messages", str(room), *g,
+                 "--connect", endpoint, "--mode", "client", "--walkers", wjson,
+                 "--fps", str(a.fps), "--t0-from-stdin"],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT,
+            )  # fmt: skip
+            procs.append(proc)
+        for proc in procs[1:]:
+            assert proc.stdout is not None and proc.stdout.readline().strip() == "up"
+        t0 = time.time_ns()
+        for proc in procs[1:]:
+            assert proc.stdin is not None
+            proc.stdin.write(f"{t0}\n")
+            proc.stdin.flush()
+        with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as session:
+            sub = session.declare_subscriber("stereod/rooms/hall/objects", on_room)
+            time.sleep(a.warmup)
+            with lock:
+                arrivals.clear()
+            c0, w0 = cpu_s(fuse.pid), time.monotonic()
+            gen_c0 = sum(cpu_s(p.pid) for p in procs[1:])
+            time.sleep(a.seconds)
+            c1, w1 = cpu_s(fuse.pid), time.monotonic()
+            gen_c1 = sum(cpu_s(p.pid) for p in procs[1:])
+            replies = list(session.get("stereod/rooms/hall/stats", timeout=10))
+            status = FuseStatus.model_validate_json(replies[0].ok.payload.to_bytes())
+            sub.undeclare()
+    finally:
+        for proc in reversed(procs):
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        for proc in reversed(procs):
+            proc.communicate(timeout=60)
+        router.terminate()
+        router.communicate(timeout=30)
+    with lock:
+        got = list(arrivals)
+    e2e = np.array([(now - stamp) / 1e6 for now, stamp, _ in got])
+    objects = np.array([n for _, _, n in got])
+    cpu = (c1 - c0) / (w1 - w0)
+    gen_cpu = (gen_c1 - gen_c0) / (w1 - w0)
+    rig_msgs = sum(link.messages for link in status.rigs.values())
+    lines = [
+        "# stereod fuse at scale (benchmarks/fuse_scale.py)",
+        "",
+        f"{a.rigs} rigs x {a.fps:g} Hz, {a.rigs * a.objects} walkers (about {a.objects} per rig), "
+        f"{a.generators} generator processes, one router, all on loopback; "
+        f"{a.seconds:g} s measured after {a.warmup:g} s warm-up; host: {os.cpu_count()} cores, "
+        f"load average {load[0]:.1f} at the start and {os.getloadavg()[0]:.1f} at the end "
+        "(other work shares the cores: CPU shares and latencies are those of a busy host).",
+        "",
+        "| figure | value |",
+        "|---|---|",
+        f"| fuse CPU | {cpu * 100:.0f} % of one core |",
+        f"| generators' CPU | {gen_cpu * 100:.0f} % of one core |",
+        f"| rig messages received per s (the generators' target {a.rigs * a.fps:g}) | "
+        f"{rig_msgs / status.uptime_s:.0f} |",
+        f"| room messages (fusion steps) per s | {len(got) / a.seconds:.1f} |",
+        f"| room objects per message, median | {np.median(objects) if len(objects) else 0:.0f} |",
+        f"| fusion step, p50 / p99 | {status.fuse_ms_p50 or 0:.1f} / "
+        f"{status.fuse_ms_p99 or 0:.1f} ms |",
+        f"| added latency in fuse (arrival to published), p50 / p99 | "
+        f"{status.added_ms_p50 or 0:.1f} / {status.added_ms_p99 or 0:.1f} ms |",
+        f"| rig stamp to room message at a subscriber, p50 / p99 | "
+        f"{np.percentile(e2e, 50) if len(e2e) else 0:.1f} / "
+        f"{np.percentile(e2e, 99) if len(e2e) else 0:.1f} ms |",
+        f"| problems | {'; '.join(status.problems) or 'none'} |",
+    ]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    a.out.write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,194 @@
+"""A rig's track as the fusion sees it: its state moved into the room frame with its
+covariance, and predicted to another instant.
+
+A rig publishes per-axis sigmas (its covariance's diagonal in the rig frame); in the room frame
+that covariance is ``R P R^T``, no longer diagonal when the rig is turned. Prediction to the
+fusion's common instant is constant velocity with a white-acceleration allowance, so that a
+track stamped a few milliseconds before or after that instant lands where the object was then.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from stereod.bus.messages import ObjectState
+from stereod.fusion.room import RigPose
+from stereod.tracking.tracker import TrackLifecycle
+
+UNKNOWN_VELOCITY_SIGMA_MPS = 2.0
+"""Velocity sigma assumed per axis while a rig does not know its track's (a walking pace), m/s."""
+ACCEL_SIGMA_MPS2 = 2.0
+"""Acceleration sigma per axis allowed for between a stamp and the instant it is predicted to
+(a person starting or stopping), m/s^2."""
+
+
+@dataclass(frozen=True)
+class RigTrack:
+    """One rig's track at one instant, in the room frame (m, m/s, UTC ns)."""
+
+    rig: str
+    track_id: int
+    state: TrackLifecycle
+    stamp_utc_ns: int
+    position: np.ndarray
+    """(3,) position in the room frame, m."""
+    position_cov: np.ndarray
+    """(3, 3) position covariance in the room frame, m^2."""
+    velocity: np.ndarray
+    """(3,) velocity in the room frame, m/s."""
+    velocity_cov: np.ndarray
+    """(3, 3) velocity covariance in the room frame, (m/s)^2."""
+    velocity_valid: bool
+    heading_valid: bool
+    source: ObjectState
+    """The rig's message of this track (blobs, disparity, size stay the rig's)."""
+
+    @property
+    def seen(self) -> bool:
+        """Whether the rig measured it in this pair (not coasting, not tentative)."""
+        return self.state in (TrackLifecycle.CONFIRMED, TrackLifecycle.STATIONARY)
+
+
+def _diag(sigmas: tuple[float, float, float] | None, default: float) -> np.ndarray:
+    """A diagonal covariance from per-axis sigmas; ``default`` for a missing or non-finite one."""
+    s = [default if sigmas is None or not math.isfinite(v) else v for v in (sigmas or (0, 0, 0))]
+    return np.diag(np.square(np.asarray(s, dtype=np.float64)))
+
+
+def to_room(rig: RigPose, obj: ObjectState) -> RigTrack:
+    """``obj`` (rig frame) in the room frame: p' = R p + t, v' = R v, P' = R P R^T."""
+    r = rig.rotation()
+    p_cov = _diag(obj.position_sigma_m, 1.0)
+    v_cov = _diag(obj.velocity_sigma_mps, UNKNOWN_VELOCITY_SIGMA_MPS)
+    return RigTrack(
+        rig=rig.name,
+        track_id=obj.track_id,
+        state=obj.state,
+        stamp_utc_ns=obj.stamp_utc_ns,
+        position=r @ np.asarray(obj.position_m, dtype=np.float64) + rig.translation(),
+        position_cov=r @ p_cov @ r.T,
+        velocity=r @ np.asarray(obj.velocity_mps, dtype=np.float64),
+        velocity_cov=r @ v_cov @ r.T,
+        velocity_valid=obj.velocity_valid,
+        heading_valid=obj.heading_valid,
+        source=obj,
+    )
+
+
+def predict(
+    position: np.ndarray,
+    position_cov: np.ndarray,
+    velocity: np.ndarray,
+    velocity_cov: np.ndarray,
+    dt_s: float,
+    accel_sigma_mps2: float = ACCEL_SIGMA_MPS2,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Position, its covariance, velocity and its covariance ``dt_s`` seconds later (or
+    earlier, for a negative one): constant velocity, the velocity's uncertainty and a white
+    acceleration of ``accel_sigma_mps2`` growing the position's by dt^2 V + (a dt^2 / 2)^2."""
+    dt = float(dt_s)
+    q = accel_sigma_mps2**2
+    p = position + velocity * dt
+    p_cov = position_cov + dt * dt * velocity_cov + np.eye(3) * (q * dt**4 / 4.0)
+    v_cov = velocity_cov + np.eye(3) * (q * dt * dt)
+    return p, p_cov, velocity.copy(), v_cov
+
+
+def predicted(track: RigTrack, t_ns: int) -> RigTrack:
+    """``track`` predicted to the UTC instant ``t_ns`` (ns)."""
+    dt = (t_ns - track.stamp_utc_ns) * 1e-9
+    p, pc, v, vc = predict(
+        track.position, track.position_cov, track.velocity, track.velocity_cov, dt
+    )
+    return RigTrack(
+        rig=track.rig,
+        track_id=track.track_id,
+        state=track.state,
+        stamp_utc_ns=t_ns,
+        position=p,
+        position_cov=pc,
+        velocity=v,
+        velocity_cov=vc,
+        velocity_valid=track.velocity_valid,
+        heading_valid=track.heading_valid,
+        source=track.source,
+    )
+
+
+@dataclass(frozen=True)
+class RigBatch:
+    """All of one rig message's (not tentative) tracks in the room frame, as arrays: what the
+    fusion works on, one numpy operation for every track at once (m, m/s, UTC ns)."""
+
+    rig: str
+    ids: list[int]
+    stamps_ns: np.ndarray
+    """(n,) each track's UTC stamp, ns."""
+    position: np.ndarray
+    """(n, 3) m."""
+    position_cov: np.ndarray
+    """(n, 3, 3) m^2."""
+    velocity: np.ndarray
+    """(n, 3) m/s."""
+    velocity_cov: np.ndarray
+    """(n, 3, 3) (m/s)^2."""
+    sources: list[ObjectState]
+
+
+def _diag_many(sigmas: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) diagonal covariances from (n, 3) sigmas."""
+    out = np.zeros((len(sigmas), 3, 3))
+    idx = np.arange(3)
+    out[:, idx, idx] = np.square(sigmas)
+    return out
+
+
+def batch_to_room(
+    rig: str, rotation: np.ndarray, translation: np.ndarray, objects: list[ObjectState]
+) -> RigBatch:
+    """:func:`to_room` of every object at once: p' = R p + t, v' = R v, P' = R P R^T."""
+    n = len(objects)
+    pos = np.array([o.position_m for o in objects], dtype=np.float64).reshape(n, 3)
+    psig = np.array([o.position_sigma_m for o in objects], dtype=np.float64).reshape(n, 3)
+    vel = np.array([o.velocity_mps for o in objects], dtype=np.float64).reshape(n, 3)
+    vsig = np.array(
+        [o.velocity_sigma_mps or (np.nan,) * 3 for o in objects], dtype=np.float64
+    ).reshape(n, 3)
+    psig = np.where(np.isfinite(psig), psig, 1.0)
+    vsig = np.where(np.isfinite(vsig), vsig, UNKNOWN_VELOCITY_SIGMA_MPS)
+    r = rotation
+    return RigBatch(
+        rig=rig,
+        ids=[o.track_id for o in objects],
+        stamps_ns=np.array([o.stamp_utc_ns for o in objects], dtype=np.int64),
+        position=pos @ r.T + translation,
+        position_cov=r @ _diag_many(psig) @ r.T,
+        velocity=vel @ r.T,
+        velocity_cov=r @ _diag_many(vsig) @ r.T,
+        sources=list(objects),
+    )
+
+
+def predict_many(
+    position: np.ndarray,
+    position_cov: np.ndarray,
+    velocity: np.ndarray,
+    velocity_cov: np.ndarray,
+    dt_s: np.ndarray,
+    accel_sigma_mps2: float = ACCEL_SIGMA_MPS2,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`predict` of n states at once, each by its own ``dt_s`` (n,) seconds."""
+    dt = np.asarray(dt_s, dtype=np.float64)
+    q = accel_sigma_mps2**2
+    eye = np.eye(3)
+    p = position + velocity * dt[:, None]
+    p_cov = (
+        position_cov
+        + (dt * dt)[:, None, None] * velocity_cov
+        + (q * dt**4 / 4.0)[:, None, None] * eye
+    )
+    v_cov = velocity_cov + (q * dt * dt)[:, None, None] * eye
+    return p, p_cov, velocity.copy(), v_cov

@@ -1,0 +1,445 @@
+"""Tracks of several rigs as one set of room tracks with one id per object.
+
+Each rig's latest message gives its live tracks (moved into the room frame at arrival). A
+fusion step at a common UTC instant ``T`` predicts every rig track to ``T``, keeps the links
+made before (a rig's track id stays with the room id it was first given), and associates the
+rig tracks not linked yet to the room tracks, rig by rig: the squared Mahalanobis distance of
+a rig track to a room track's estimate at ``T`` (the fusion of its linked members, else its own
+prediction) is gated by a chi-square bound, a room track takes at most one track of each rig,
+and one minimum-cost assignment (``tracking.assignment.min_cost_assignment``) decides. A
+seen rig track left over opens a new room track. The linked members of a room track are then
+fused in information form, ``P = (sum P_i^-1)^-1``, ``x = P sum P_i^-1 x_i``, for position and
+velocity alike (the rigs measure independently, so the fused error is no larger than the best
+member's).
+
+Why ids survive: a handover is a new rig track gated onto the room track another rig still
+sees (or has seen for less than ``max_coast_s``); a rig that stops talking for ``rig_timeout_s``
+(or whose sequence numbers start again: its daemon restarted, its track ids may repeat) loses
+its links, and its tracks, when they come back, are associated like any new ones, so they join
+the room tracks the other rigs kept alive instead of opening duplicates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stereod.bus.messages import ObjectsMessage, ObjectState
+from stereod.fusion.frames import RigBatch, batch_to_room, predict_many
+from stereod.fusion.room import Room
+from stereod.tracking.assignment import min_cost_assignment
+from stereod.tracking.tracker import TrackLifecycle
+
+CHI2_3DOF_999 = 16.27
+"""Squared Mahalanobis distance below which 99.9 % of a 3-D Gaussian's samples fall."""
+_FORBIDDEN = 1e9
+
+
+@dataclass(frozen=True)
+class FuseParams:
+    """How association and track ends are decided (s, dimensionless chi-square bounds)."""
+
+    gate_chi2: float = CHI2_3DOF_999
+    """A rig track further than this squared Mahalanobis distance is not that room track."""
+    rig_timeout_s: float = 1.0
+    """A rig silent this long (by its stamps against the fusion instant) loses its tracks, s."""
+    max_coast_s: float = 2.0
+    """A room track no rig sees for this long ends, s."""
+
+
+@dataclass
+class RoomTrack:
+    """One object in the room: its id, fused state at ``stamp_utc_ns`` and which rig tracks
+    make it (m, m/s, UTC ns)."""
+
+    room_id: int
+    stamp_utc_ns: int
+    first_ns: int
+    last_seen_ns: int
+    position: np.ndarray
+    position_cov: np.ndarray
+    velocity: np.ndarray
+    velocity_cov: np.ndarray
+    state: TrackLifecycle = TrackLifecycle.CONFIRMED
+    members: dict[str, int] = field(default_factory=dict)
+    """Rig name -> that rig's track id, for the rig tracks linked to this object."""
+    source: ObjectState | None = None
+    """The message of the member whose position weighed most at the last step (its blobs,
+    disparity and size are reported)."""
+    velocity_valid: bool = False
+    heading_valid: bool = False
+
+
+@dataclass(frozen=True)
+class FusedFrame:
+    """One fusion step's result: the room tracks at ``t_ns`` and the ids that ended."""
+
+    t_ns: int
+    tracks: list[RoomTrack]
+    ended: list[int]
+    shared: dict[int, list[tuple[str, np.ndarray, np.ndarray]]] = field(default_factory=dict)
+    """For each room id that more than one rig sees: each rig's name, position (m) and
+    position covariance (m^2) at ``t_ns`` in the room frame (what clock offsets are
+    estimated from)."""
+
+
+def fuse_gaussians(
+    means: list[np.ndarray], covs: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The information-form fusion of independent Gaussian estimates of one quantity: the
+    covariance ``(sum C_i^-1)^-1`` and mean ``C sum C_i^-1 m_i``."""
+    if len(means) == 1:
+        return means[0].copy(), covs[0].copy()
+    infos = [np.linalg.inv(c) for c in covs]
+    cov = np.linalg.inv(np.sum(infos, axis=0))
+    mean = cov @ np.sum([i @ m for i, m in zip(infos, means, strict=True)], axis=0)
+    return mean, 0.5 * (cov + cov.T)
+
+
+def mahalanobis2(a: np.ndarray, a_cov: np.ndarray, b: np.ndarray, b_cov: np.ndarray) -> float:
+    """Squared Mahalanobis distance between two independent Gaussian positions."""
+    d = a - b
+    return float(d @ np.linalg.solve(a_cov + b_cov, d))
+
+
+def _group_fusion(
+    group: np.ndarray, k: int, info: np.ndarray, info_mean: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Information-form fusion of rows into ``k`` groups at once: rows with ``group[i] = g``
+    (-1: none) of information matrices ``info`` (n, 3, 3) and ``info_mean`` (n, 3) (``I x``).
+    Returns each group's row count (k,), mean (k, 3) and covariance (k, 3, 3), zero where
+    the group has no row."""
+    ok = group >= 0
+    total = np.zeros((k, 3, 3))
+    total_mean = np.zeros((k, 3))
+    np.add.at(total, group[ok], info[ok])
+    np.add.at(total_mean, group[ok], info_mean[ok])
+    count = np.bincount(group[ok], minlength=k)
+    cov = np.zeros((k, 3, 3))
+    mean = np.zeros((k, 3))
+    has = count > 0
+    if has.any():
+        c = np.linalg.inv(total[has])
+        cov[has] = 0.5 * (c + np.transpose(c, (0, 2, 1)))
+        mean[has] = np.einsum("kij,kj->ki", c, total_mean[has])
+    return count, mean, cov
+
+
+def _snapshot(t: RoomTrack) -> RoomTrack:
+    """A shallow copy of ``t`` with its own members (its arrays are replaced at each step,
+    never written into, so they are shared)."""
+    return RoomTrack(
+        t.room_id, t.stamp_utc_ns, t.first_ns, t.last_seen_ns, t.position, t.position_cov,
+        t.velocity, t.velocity_cov, t.state, dict(t.members), t.source, t.velocity_valid,
+        t.heading_valid,
+    )  # fmt: skip
+
+
+class _Rows:
+    """Every live rig track predicted to one instant, stacked (the step's working set)."""
+
+    def __init__(self, batches: list[RigBatch], t_ns: int) -> None:
+        self.batches = batches
+        self.t_ns = t_ns
+        self.keys: list[tuple[str, int]] = []
+        for batch in batches:
+            self.keys += [(batch.rig, tid) for tid in batch.ids]
+        self.index = {k: i for i, k in enumerate(self.keys)}
+        n = len(self.keys)
+        if n:
+            stamps = np.concatenate([b.stamps_ns for b in batches])
+            p, pc, v, vc = predict_many(
+                np.concatenate([b.position for b in batches]),
+                np.concatenate([b.position_cov for b in batches]),
+                np.concatenate([b.velocity for b in batches]),
+                np.concatenate([b.velocity_cov for b in batches]),
+                (t_ns - stamps) * 1e-9,
+            )
+        else:
+            p, v = np.zeros((0, 3)), np.zeros((0, 3))
+            pc, vc = np.zeros((0, 3, 3)), np.zeros((0, 3, 3))
+        self.position, self.position_cov, self.velocity, self.velocity_cov = p, pc, v, vc
+        self.info = np.linalg.inv(pc) if n else pc
+        self.info_mean = np.einsum("nij,nj->ni", self.info, p)
+        sources = [src for b in batches for src in b.sources]
+        self.sources = sources
+        self.seen = np.array(
+            [o.state in (TrackLifecycle.CONFIRMED, TrackLifecycle.STATIONARY) for o in sources],
+            dtype=bool,
+        )
+        self.stationary = np.array(
+            [o.state == TrackLifecycle.STATIONARY for o in sources], dtype=bool
+        )
+        self.velocity_valid = np.array([o.velocity_valid for o in sources], dtype=bool)
+        self.heading_valid = np.array([o.heading_valid for o in sources], dtype=bool)
+
+    def source(self, i: int) -> ObjectState:
+        return self.sources[i]
+
+
+class Fuser:
+    """The fusion of one room's rigs; feed it each rig's objects messages with :meth:`ingest`
+    and ask for the room at an instant with :meth:`fuse`. Every track of every rig is handled
+    in stacked numpy arrays, so a step costs a few array operations, not a Python loop of
+    matrix operations per track. Not thread-safe: one caller."""
+
+    def __init__(self, room: Room, params: FuseParams | None = None) -> None:
+        self.room = room
+        self.params = params or FuseParams()
+        self._poses = {r.name: (r.rotation(), r.translation()) for r in room.rigs}
+        self._order = [r.name for r in room.rigs]
+        self._batches: dict[str, RigBatch] = {}
+        self._rig_last_ns: dict[str, int] = {}
+        self._rig_seq: dict[str, int] = {}
+        self._links: dict[tuple[str, int], int] = {}
+        self._tracks: dict[int, RoomTrack] = {}
+        self._next_id = 1
+        self.restarts: dict[str, int] = {}
+        """Times each rig's sequence numbers started again (its daemon restarted)."""
+
+    def knows(self, rig: str) -> bool:
+        """Whether ``rig`` is one of the room's rigs."""
+        return rig in self._poses
+
+    def ingest(self, msg: ObjectsMessage) -> bool:
+        """Take a rig's objects message (a rig not in the room is ignored: False). Its tracks
+        replace that rig's previous ones; a sequence number lower than the last one means the
+        daemon restarted, and its old links are forgotten."""
+        pose = self._poses.get(msg.rig)
+        if pose is None:
+            return False
+        last = self._rig_seq.get(msg.rig)
+        if last is not None and msg.seq < last:
+            self._forget_rig(msg.rig)
+            self.restarts[msg.rig] = self.restarts.get(msg.rig, 0) + 1
+        self._rig_seq[msg.rig] = msg.seq
+        self._rig_last_ns[msg.rig] = msg.stamp_utc_ns
+        objects = [o for o in msg.objects if o.state != TrackLifecycle.TENTATIVE]
+        self._batches[msg.rig] = batch_to_room(msg.rig, pose[0], pose[1], objects)
+        return True
+
+    def _forget_rig(self, rig: str) -> None:
+        self._batches.pop(rig, None)
+        for key in [k for k in self._links if k[0] == rig]:
+            room_id = self._links.pop(key)
+            track = self._tracks.get(room_id)
+            if track is not None:
+                track.members.pop(rig, None)
+
+    def live_rigs(self, t_ns: int) -> list[str]:
+        """The rigs heard from within ``rig_timeout_s`` of ``t_ns``, in the room file's order."""
+        timeout_ns = int(self.params.rig_timeout_s * 1e9)
+        return [
+            r
+            for r in self._order
+            if r in self._rig_last_ns and t_ns - self._rig_last_ns[r] <= timeout_ns
+        ]
+
+    def rig_track_count(self, rig: str) -> int:
+        """How many (not tentative) tracks ``rig``'s latest message held."""
+        batch = self._batches.get(rig)
+        return 0 if batch is None else len(batch.ids)
+
+    def rig_stamp(self, rig: str) -> int | None:
+        """The UTC stamp of ``rig``'s latest message, ns (None before its first)."""
+        return self._rig_last_ns.get(rig)
+
+    def latest_ns(self) -> int | None:
+        """The newest stamp of any rig's message (UTC ns), or None before the first."""
+        return max(self._rig_last_ns.values(), default=None)
+
+    def fuse(self, t_ns: int) -> FusedFrame:
+        """The room at the UTC instant ``t_ns`` (ns): every rig track predicted there,
+        associated, fused; room tracks no rig has seen for ``max_coast_s`` end."""
+        live = self.live_rigs(t_ns)
+        for rig in [r for r in self._batches if r not in live]:
+            self._forget_rig(rig)
+        rows = _Rows([self._batches[r] for r in live if r in self._batches], t_ns)
+        for key in [k for k in self._links if k not in rows.index]:
+            track = self._tracks.get(self._links.pop(key))
+            if track is not None and track.members.get(key[0]) == key[1]:
+                del track.members[key[0]]
+        members: dict[int, list[int]] = {rid: [] for rid in self._tracks}
+        for key, rid in self._links.items():
+            members[rid].append(rows.index[key])
+        estimate = self._estimates(rows, members, t_ns)
+        for rig in live:
+            self._associate(rig, rows, members, estimate, t_ns)
+        ended = self._update(rows, members, t_ns)
+        shared = {
+            rid: [(rows.keys[i][0], rows.position[i], rows.position_cov[i]) for i in ms]
+            for rid, ms in members.items()
+            if len(ms) >= 2 and rid in self._tracks
+        }
+        # Copies: the caller may keep a frame while the next steps change the tracks (whose
+        # arrays are replaced, never written into).
+        tracks = [_snapshot(tr) for _, tr in sorted(self._tracks.items())]
+        return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, shared=shared)
+
+    def _estimates(
+        self, rows: _Rows, members: dict[int, list[int]], t_ns: int
+    ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Each room track's position and covariance at ``t_ns``: its linked members'
+        fusion, or its last fused state predicted."""
+        rids = sorted(self._tracks)
+        if not rids:
+            return {}
+        slot = {rid: k for k, rid in enumerate(rids)}
+        group = np.full(len(rows.keys), -1, dtype=np.int64)
+        for rid, ms in members.items():
+            group[ms] = slot[rid]
+        count, mean, cov = _group_fusion(group, len(rids), rows.info, rows.info_mean)
+        alone = [rid for rid in rids if count[slot[rid]] == 0]
+        if alone:
+            trs = [self._tracks[rid] for rid in alone]
+            p, pc, _, _ = predict_many(
+                np.array([t.position for t in trs]),
+                np.array([t.position_cov for t in trs]),
+                np.array([t.velocity for t in trs]),
+                np.array([t.velocity_cov for t in trs]),
+                np.array([(t_ns - t.stamp_utc_ns) * 1e-9 for t in trs]),
+            )
+            for j, rid in enumerate(alone):
+                mean[slot[rid]], cov[slot[rid]] = p[j], pc[j]
+        return {rid: (mean[slot[rid]], cov[slot[rid]]) for rid in rids}
+
+    def _associate(
+        self,
+        rig: str,
+        rows: _Rows,
+        members: dict[int, list[int]],
+        estimate: dict[int, tuple[np.ndarray, np.ndarray]],
+        t_ns: int,
+    ) -> None:
+        """Link ``rig``'s unlinked tracks to room tracks that have no track of ``rig`` yet (one
+        gated assignment); a seen track left over opens a room track."""
+        free = [i for i, k in enumerate(rows.keys) if k[0] == rig and k not in self._links]
+        if not free:
+            return
+        candidates = [
+            rid for rid in sorted(members) if all(rows.keys[i][0] != rig for i in members[rid])
+        ]
+        matched: set[int] = set()
+        if candidates:
+            d = rows.position[free][:, None, :] - np.array([estimate[r][0] for r in candidates])
+            s = rows.position_cov[free][:, None] + np.array([estimate[r][1] for r in candidates])
+            d2 = np.einsum("nmi,nmi->nm", d, np.linalg.solve(s, d[..., None])[..., 0])
+            cost = np.where(d2 <= self.params.gate_chi2, d2, _FORBIDDEN)
+            for i, j in zip(*min_cost_assignment(cost), strict=True):
+                if cost[i, j] < _FORBIDDEN:
+                    self._link(rows, free[i], candidates[j], members, estimate)
+                    matched.add(int(i))
+        for i, row in enumerate(free):
+            if i not in matched and rows.seen[row]:
+                rid = self._open(rows, row, t_ns)
+                members[rid] = []
+                self._link(rows, row, rid, members, estimate)
+
+    def _link(
+        self,
+        rows: _Rows,
+        row: int,
+        room_id: int,
+        members: dict[int, list[int]],
+        estimate: dict[int, tuple[np.ndarray, np.ndarray]],
+    ) -> None:
+        rig, tid = rows.keys[row]
+        self._links[(rig, tid)] = room_id
+        self._tracks[room_id].members[rig] = tid
+        members[room_id].append(row)
+        ms = members[room_id]
+        estimate[room_id] = fuse_gaussians(
+            [rows.position[i] for i in ms], [rows.position_cov[i] for i in ms]
+        )
+
+    def _open(self, rows: _Rows, row: int, t_ns: int) -> int:
+        rid = self._next_id
+        self._next_id += 1
+        self._tracks[rid] = RoomTrack(
+            room_id=rid,
+            stamp_utc_ns=t_ns,
+            first_ns=t_ns,
+            last_seen_ns=t_ns,
+            position=rows.position[row].copy(),
+            position_cov=rows.position_cov[row].copy(),
+            velocity=rows.velocity[row].copy(),
+            velocity_cov=rows.velocity_cov[row].copy(),
+        )
+        return rid
+
+    def _update(self, rows: _Rows, members: dict[int, list[int]], t_ns: int) -> list[int]:
+        """Fuse each room track's members at ``t_ns`` (every track in one array operation);
+        coast those with none; end the ones unseen for ``max_coast_s``. Returns the ended
+        ids."""
+        rids = sorted(self._tracks)
+        slot = {rid: k for k, rid in enumerate(rids)}
+        group = np.full(len(rows.keys), -1, dtype=np.int64)
+        for rid, ms in members.items():
+            if rid in slot:
+                group[ms] = slot[rid]
+        k = len(rids)
+        count, pos, pcov = _group_fusion(group, k, rows.info, rows.info_mean)
+        if len(rows.keys):
+            vinfo = np.linalg.inv(rows.velocity_cov)
+            vmean = np.einsum("nij,nj->ni", vinfo, rows.velocity)
+        else:
+            vinfo, vmean = rows.velocity_cov, rows.velocity
+        _, vel, vcov = _group_fusion(group, k, vinfo, vmean)
+        coasting = [rid for rid in rids if count[slot[rid]] == 0]
+        if coasting:
+            trs = [self._tracks[rid] for rid in coasting]
+            p, pc, v, vc = predict_many(
+                np.array([t.position for t in trs]),
+                np.array([t.position_cov for t in trs]),
+                np.array([t.velocity for t in trs]),
+                np.array([t.velocity_cov for t in trs]),
+                np.array([(t_ns - t.stamp_utc_ns) * 1e-9 for t in trs]),
+            )
+            for j, rid in enumerate(coasting):
+                s = slot[rid]
+                pos[s], pcov[s], vel[s], vcov[s] = p[j], pc[j], v[j], vc[j]
+        # Per room track, from its members' rows at once: any seen, all seen ones stationary,
+        # any velocity (heading) valid, and the member with the smallest position variance.
+        ok = group >= 0
+        g = group[ok]
+
+        def anyof(flags: np.ndarray) -> np.ndarray:
+            return np.bincount(g, weights=flags[ok].astype(np.float64), minlength=k) > 0
+
+        seen = anyof(rows.seen)
+        moving = anyof(rows.seen & ~rows.stationary)
+        vvalid = anyof(rows.velocity_valid)
+        hvalid = anyof(rows.heading_valid)
+        best = np.full(k, -1, dtype=np.int64)
+        if g.size:
+            idx = np.flatnonzero(ok)
+            trace = np.trace(rows.position_cov[idx], axis1=1, axis2=2)
+            order = np.lexsort((trace, g))
+            first = np.ones(order.size, dtype=bool)
+            first[1:] = g[order][1:] != g[order][:-1]
+            best[g[order][first]] = idx[order][first]
+        ended: list[int] = []
+        coast_ns = int(self.params.max_coast_s * 1e9)
+        for rid in rids:
+            tr, s = self._tracks[rid], slot[rid]
+            tr.position, tr.position_cov, tr.velocity, tr.velocity_cov = (
+                pos[s], pcov[s], vel[s], vcov[s]
+            )  # fmt: skip
+            if count[s]:
+                tr.source = rows.sources[best[s]]
+                tr.velocity_valid, tr.heading_valid = bool(vvalid[s]), bool(hvalid[s])
+                if seen[s]:
+                    tr.last_seen_ns = t_ns
+                    tr.state = TrackLifecycle.CONFIRMED if moving[s] else TrackLifecycle.STATIONARY
+                else:
+                    tr.state = TrackLifecycle.COASTING
+            else:
+                tr.state = TrackLifecycle.COASTING
+            tr.stamp_utc_ns = t_ns
+            if t_ns - tr.last_seen_ns > coast_ns:
+                ended.append(rid)
+                del self._tracks[rid]
+                for rig, tid in tr.members.items():
+                    self._links.pop((rig, tid), None)
+        return ended

@@ -1,0 +1,145 @@
+"""Room tracks in the objects message format (``stereod.objects/1``), in the room frame.
+
+The message is the rigs' own, so every program that reads a rig's objects reads a room's:
+``rig`` is the room's name, ``seq`` counts fusion steps, ``t_ns`` and ``stamp_utc_ns`` are both
+the step's UTC instant (the rigs share no monotonic clock), positions and velocities are in
+the room frame. What only a rig can say about an object (its blobs in each eye, disparity,
+size) is that of the member rig whose position weighed most; ``latency`` holds the fusion's
+own time in ``track_ms`` and ``pipeline_ms``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stereod.bus.messages import Latency, ObjectsMessage, ObjectState
+from stereod.fusion.fuser import FusedFrame, RoomTrack
+from stereod.vision.geometry import Geometry
+
+
+def _vec(a: np.ndarray) -> tuple[float, float, float]:
+    x, y, z = a.tolist()
+    return (x, y, z)
+
+
+def _sigmas(cov: np.ndarray) -> tuple[float, float, float]:
+    x, y, z = (math.sqrt(max(v, 0.0)) for v in cov.diagonal().tolist())
+    return (x, y, z)
+
+
+def _quad(c: list[list[float]], a: tuple[float, float, float]) -> float:
+    """a^T C a for a 3-vector and a (3, 3) covariance given as lists (no numpy call: one
+    track's figures cost a few microseconds)."""
+    return sum(a[i] * c[i][j] * a[j] for i in range(3) for j in range(3))
+
+
+def speed_heading(v: np.ndarray, cov: np.ndarray) -> tuple[float, float, float, float | None]:
+    """Speed (m/s), its sigma, heading atan2(vx, vz) in [0, 360) deg and its sigma (None when
+    standing still), the sigmas to first order through the velocity's covariance."""
+    vx, vy, vz = v.tolist()
+    c = cov.tolist()
+    speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+    speed_sigma = math.sqrt(max(_quad(c, (vx, vy, vz)), 0.0)) / speed if speed > 1e-9 else 0.0
+    heading = math.degrees(math.atan2(vx, vz)) % 360.0
+    ground2 = vx * vx + vz * vz
+    if ground2 <= 1e-12:
+        return speed, speed_sigma, heading, None
+    g = (vz / ground2, 0.0, -vx / ground2)
+    return speed, speed_sigma, heading, math.degrees(math.sqrt(max(_quad(c, g), 0.0)))
+
+
+def room_state(track: RoomTrack) -> ObjectState | None:
+    """One room track as an object state; None for one with no member left to describe it."""
+    states = room_states([track])
+    return states[0] if states else None
+
+
+def room_states(tracks: list[RoomTrack]) -> list[ObjectState]:
+    """The room tracks that have a member to describe them, as object states: sigmas, speed
+    and heading with their sigmas computed for all of them at once (to first order through
+    the velocity's covariance, as :func:`speed_heading` does for one)."""
+    tracks = [t for t in tracks if t.source is not None]
+    if not tracks:
+        return []
+    p = np.array([t.position for t in tracks])
+    pc = np.array([t.position_cov for t in tracks])
+    v = np.array([t.velocity for t in tracks])
+    vc = np.array([t.velocity_cov for t in tracks])
+    psig = np.sqrt(np.maximum(np.diagonal(pc, axis1=1, axis2=2), 0.0))
+    vsig = np.sqrt(np.maximum(np.diagonal(vc, axis1=1, axis2=2), 0.0))
+    speed = np.linalg.norm(v, axis=1)
+    var_along = np.einsum("ki,kij,kj->k", v, vc, v)
+    moving = speed > 1e-9
+    speed_sigma = np.where(
+        moving, np.sqrt(np.maximum(var_along, 0.0)) / np.where(moving, speed, 1.0), 0.0
+    )
+    heading = np.degrees(np.arctan2(v[:, 0], v[:, 2])) % 360.0
+    ground2 = v[:, 0] ** 2 + v[:, 2] ** 2
+    on_ground = ground2 > 1e-12
+    g = (
+        np.stack([v[:, 2], np.zeros(len(v)), -v[:, 0]], axis=1)
+        / np.where(on_ground, ground2, 1.0)[:, None]
+    )
+    heading_sigma = np.degrees(np.sqrt(np.maximum(np.einsum("ki,kij,kj->k", g, vc, g), 0.0)))
+    out = []
+    rows = zip(
+        tracks, p.tolist(), psig.tolist(), v.tolist(), vsig.tolist(), speed.tolist(),
+        speed_sigma.tolist(), heading.tolist(), heading_sigma.tolist(), on_ground.tolist(),
+        strict=True,
+    )  # fmt: skip
+    for t, pos, ps, vel, vs, sp, sps, hd, hds, ground in rows:
+        src = t.source
+        assert src is not None
+        # Built without validation (most of a step's time with 160 objects otherwise):
+        # every field is of its type, from finite float arrays or the member's own
+        # validated blobs; the tests read the room's messages back through the model.
+        out.append(
+            ObjectState.model_construct(
+                track_id=t.room_id,
+                state=t.state,
+                t_ns=t.stamp_utc_ns,
+                stamp_utc_ns=t.stamp_utc_ns,
+                skew_ns=src.skew_ns,
+                position_m=tuple(pos),
+                position_sigma_m=tuple(ps),
+                velocity_mps=tuple(vel),
+                velocity_sigma_mps=tuple(vs),
+                velocity_valid=t.velocity_valid,
+                heading_valid=t.heading_valid,
+                speed_mps=sp,
+                speed_sigma_mps=sps,
+                heading_deg=hd,
+                heading_sigma_deg=hds if ground else None,
+                raw_velocity_mps=None,
+                left=src.left,
+                right=src.right,
+                disparity_px=src.disparity_px,
+                size_m=src.size_m,
+                age_s=(t.stamp_utc_ns - t.first_ns) * 1e-9,
+            )
+        )
+    return out
+
+
+def room_message(
+    room: str, seq: int, frame: FusedFrame, geometry: Geometry, fuse_ms: float
+) -> ObjectsMessage:
+    """The objects message of one fusion step of ``room`` (``fuse_ms``: that step's time, ms)."""
+    objects = room_states(frame.tracks)
+    return ObjectsMessage(
+        rig=room,
+        seq=seq,
+        t_ns=frame.t_ns,
+        stamp_utc_ns=frame.t_ns,
+        skew_ns=0,
+        left_seq=seq,
+        right_seq=seq,
+        geometry=geometry,
+        calibration_id=None,
+        latency=Latency(
+            detect_ms=0.0, geometry_ms=0.0, track_ms=fuse_ms, pipeline_ms=fuse_ms, queue_ms=0.0
+        ),
+        objects=objects,
+    )

@@ -1,0 +1,55 @@
+"""What the fusion node says about itself on ``<prefix>/rooms/<room>/status`` and replies on
+its ``stats`` queryable (``stereod.fuse_status/1``): each rig's link, the room's tracks, and
+where the fusion's time goes."""
+
+from __future__ import annotations
+
+from typing import Final, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+FUSE_STATUS_SCHEMA: Final = "stereod.fuse_status/1"
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="ignore", frozen=True, populate_by_name=True)
+
+
+class RigLink(_Model):
+    """One rig as the fusion node hears it."""
+
+    live: bool = Field(description="A message arrived within the rig timeout")
+    messages: int = Field(description="Objects messages received since start")
+    tracks: int = Field(description="The rig's tracks in its latest message (not tentative)")
+    last_stamp_utc_ns: int | None = Field(description="Its latest message's UTC stamp, ns")
+    restarts: int = Field(description="Times its sequence numbers started again")
+    clock_offset_ms: float | None = Field(
+        None,
+        description="Its clock minus the reference rig's, from objects both saw, ms; null "
+        "until enough shared observations",
+    )
+    clock_samples: int = Field(0, description="Shared observations behind clock_offset_ms")
+    clock_off: bool = Field(False, description="|clock_offset_ms| is beyond the bound")
+
+
+class FuseStatus(_Model):
+    """The fusion node's health, at the status period and on a subscriber's arrival."""
+
+    schema_: Literal["stereod.fuse_status/1"] = Field(FUSE_STATUS_SCHEMA, alias="schema")
+    room: str
+    state: Literal["running", "stopping"]
+    stamp_utc_ns: int
+    uptime_s: float
+    rigs: dict[str, RigLink]
+    tracks: int = Field(description="Room tracks at the last step")
+    steps: int = Field(description="Fusion steps (room messages) since start")
+    published: int
+    steps_per_s: float
+    fuse_ms_p50: float | None = Field(description="One step's own time, median, ms")
+    fuse_ms_p99: float | None
+    added_ms_p50: float | None = Field(
+        description="Rig message received to room message published, median over the last steps, ms"
+    )
+    added_ms_p99: float | None
+    clock_bound_ms: float = Field(description="A rig clock off by more is flagged, ms")
+    problems: list[str] = Field(description="Standing problems, one line each")

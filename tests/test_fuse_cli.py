@@ -1,0 +1,189 @@
+"""``stereod fuse`` end to end over real Zenoh sessions on loopback: three rig message
+generators (separate processes, real Publishers) and the fusion node as a subprocess, all
+through one router; a subscriber checks the room's ids and positions against the truth."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from stereod.bus.messages import ObjectsMessage
+from stereod.fusion.status import FuseStatus
+from stereod_fakes.room_messages import Walker, walkers_from_json
+from tests.processes import start_stereod
+
+from .conftest import ROOT, free_endpoint, stereod, zenoh_config
+from .test_router import start_router
+
+pytestmark = pytest.mark.slow
+
+ROOM = """\
+[room]
+name = "lab"
+[[room.rigs]]
+name = "a"
+[[room.rigs]]
+name = "b"
+translation_m = [4.0, 0.0, 10.0]
+rotation_deg = [0.0, 180.0, 0.0]
+[[room.rigs]]
+name = "c"
+translation_m = [4.0, 0.0, 4.0]
+rotation_deg = [0.0, -90.0, 0.0]
+"""
+
+
+def generator(room: Path, rig: str, endpoint: str, walkers: str, seed: int) -> subprocess.Popen:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "stereod_fakes.room_messages", str(room), rig,
+         "--connect", endpoint, "--walkers", walkers, "--seed", str(seed), "--t0-from-stdin"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=ROOT,
+    )  # fmt: skip
+    return proc
+
+
+def wait_up(proc: subprocess.Popen) -> None:
+    """Wait for the generator's ``up`` (its session is open)."""
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "up", proc.stderr
+
+
+def go(proc: subprocess.Popen, t0: int) -> None:
+    """Give the generator the walkers' t0 (UTC ns): it publishes from now on."""
+    assert proc.stdin is not None
+    proc.stdin.write(f"{t0}\n")
+    proc.stdin.flush()
+
+
+def stop(proc: subprocess.Popen) -> None:
+    proc.send_signal(signal.SIGTERM)
+    proc.communicate(timeout=30)
+
+
+def test_three_rigs_through_a_router_make_one_id_per_object(tmp_path: Path) -> None:
+    """Object 1 stands in a and c's overlap; object 2 walks from a's view into b's. Rig c's
+    generator is killed and started again (its ids start over) while they are watched. The
+    room has exactly two ids, each always at its own object's true position."""
+    room = tmp_path / "room.toml"
+    room.write_text(ROOM)
+    walkers = json.dumps(
+        [
+            {
+                "id": 1,
+                "start_m": [0.6, 0.0, 3.0],
+                "velocity_mps": [0.0, 0.0, 0.05],
+            },
+            {
+                "id": 2,
+                "start_m": [2.5, 0.0, 6.0],
+                "velocity_mps": [1.0, 0.0, 0.0],
+            },
+        ]
+    )
+    endpoint = free_endpoint()
+    router = start_router(endpoint)
+    procs: list[subprocess.Popen] = []
+    messages: list[ObjectsMessage] = []
+    jsonl = tmp_path / "room.jsonl"
+    try:
+        fuse = start_stereod(
+            "fuse", "--room", str(room), "--connect", endpoint, "--mode", "client",
+            "--jsonl", str(jsonl),
+        )  # fmt: skip
+        procs.append(fuse)
+        with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as session:
+            sub = session.declare_subscriber(
+                "stereod/rooms/lab/objects",
+                lambda s: messages.append(ObjectsMessage.model_validate_json(s.payload.to_bytes())),
+            )
+            gens = {
+                rig: generator(room, rig, endpoint, walkers, seed)
+                for seed, rig in enumerate(("a", "b", "c"))
+            }
+            procs += gens.values()
+            for g in gens.values():
+                wait_up(g)
+            t0 = time.time_ns()
+            for g in gens.values():
+                go(g, t0)
+            truth = [
+                Walker(w.truth_id, w.start_m, w.velocity_mps, t0)
+                for w in walkers_from_json(walkers)
+            ]
+            end = t0 + 2_600_000_000
+            restarted = False
+            deadline = time.monotonic() + 120  # a guard against a hang, not a measurement
+            while time.monotonic() < deadline:
+                last = messages[-1].stamp_utc_ns if messages else 0
+                if last > end:
+                    break
+                if not restarted and last > t0 + 1_000_000_000:
+                    stop(gens["c"])
+                    gens["c"] = generator(room, "c", endpoint, walkers, 9)
+                    wait_up(gens["c"])
+                    go(gens["c"], t0)
+                    end = max(end, time.time_ns() + 1_500_000_000)
+                    procs.append(gens["c"])
+                    restarted = True
+                time.sleep(0.05)
+            assert restarted and messages and messages[-1].stamp_utc_ns > end
+            # Garbage on a rig's key (nested far too deep for a recursive parser) is counted
+            # and refused; the node runs on. (A rig's next message supersedes it unread when
+            # both wait for one step, so it is sent until one was read.)
+            while time.monotonic() < deadline:
+                session.put("stereod/a/objects", b"[" * 100_000 + b"]" * 100_000)
+                replies = list(session.get("stereod/rooms/lab/stats", timeout=10))
+                status = FuseStatus.model_validate_json(replies[0].ok.payload.to_bytes())
+                if any("that were not objects" in p for p in status.problems):
+                    break
+                time.sleep(0.1)
+            alive = list(session.liveliness().get("stereod/rooms/lab/alive", timeout=5))
+            sub.undeclare()
+    finally:
+        for p in reversed(procs):
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        outs = [p.communicate(timeout=30) for p in reversed(procs)]
+        router.terminate()
+        router.communicate(timeout=30)
+    assert fuse.returncode == 0, outs[-1]
+    assert len(alive) == 1 and alive[0].ok is not None
+    assert set(status.rigs) == {"a", "b", "c"} and all(r.messages for r in status.rigs.values())
+    assert status.rigs["c"].restarts == 1 and status.steps > 0
+    assert any(
+        p.startswith("samples on a rig's objects key that were not") for p in status.problems
+    )
+    watched = [m for m in messages if m.stamp_utc_ns > t0 - 1_000_000_000]
+    ids: dict[int, int] = {}
+    for m in watched:
+        assert len(m.objects) <= 2
+        for o in m.objects:
+            d = [float(np.linalg.norm(np.array(o.position_m) - w.position(m.stamp_utc_ns)))
+                 for w in truth]  # fmt: skip
+            nearest = int(np.argmin(d))
+            assert ids.setdefault(o.track_id, nearest) == nearest, "an id switched objects"
+            err = np.abs(np.array(o.position_m) - truth[nearest].position(m.stamp_utc_ns))
+            assert np.all(err < 4 * np.array(o.position_sigma_m) + 0.02), (o, err)
+    assert sorted(ids.values()) == [0, 1], ids  # one id per object, none twice
+    assert all(len(m.objects) == 2 for m in watched[-10:])
+    lines = jsonl.read_text().splitlines()
+    assert len(lines) >= len(watched) and json.loads(lines[-1])["rig"] == "lab"
+
+
+def test_a_bad_room_file_is_one_line_and_exit_78(tmp_path: Path) -> None:
+    room = tmp_path / "room.toml"
+    room.write_text(ROOM.replace('name = "c"', 'name = "a"'))
+    res = stereod("fuse", "--room", str(room))
+    assert res.returncode == 78
+    assert res.stderr.count("\n") == 1 and "rig 'a' is listed twice" in res.stderr
+    assert str(room) in res.stderr
+    missing = stereod("fuse", "--room", str(tmp_path / "none.toml"))
+    assert missing.returncode == 66 and "no such room file" in missing.stderr

@@ -1,0 +1,258 @@
+"""The fusion core: rig tracks moved into the room, associated across rigs and fused, against
+message generators whose 3D truth is known in closed form (:mod:`stereod_fakes.room_messages`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stereod.fusion.frames import predicted, to_room
+from stereod.fusion.fuser import FusedFrame, Fuser, fuse_gaussians
+from stereod.fusion.room import RigPose, Room
+from stereod_fakes.room_messages import RigSim, Walker
+
+FRAME_NS = 33_333_333
+"""30 Hz."""
+
+
+def room(*rigs: RigPose) -> Room:
+    return Room(name="lab", rigs=list(rigs))
+
+
+A = RigPose(name="a")
+"""At the room's origin, looking along +Z."""
+C = RigPose(name="c", translation_m=(4.0, 0.0, 4.0), rotation_deg=(0.0, -90.0, 0.0))
+"""At (4, 0, 4), looking along -X: at right angles to a, so its depth is a's across."""
+B = RigPose(name="b", translation_m=(4.0, 0.0, 10.0), rotation_deg=(0.0, 180.0, 0.0))
+"""At (4, 0, 10) looking along -Z, towards a: at z = 6 a sees |x| < 3.46 m, b 1.69..6.31 m."""
+
+
+def run(
+    fuser: Fuser,
+    sims: dict[str, RigSim],
+    walkers: list[Walker],
+    frames: int,
+    *,
+    start: int = 0,
+    lag_ns: dict[str, int] | None = None,
+    silent: dict[str, range] | None = None,
+) -> list[tuple[int, FusedFrame]]:
+    """Feed ``frames`` ticks of every rig's message (rig r's capture ``lag_ns[r]`` after the
+    tick; no message while its tick is in ``silent[r]``) and fuse at the newest stamp."""
+    out = []
+    for k in range(start, start + frames):
+        tick = k * FRAME_NS
+        for name, sim in sims.items():
+            if silent and k in silent.get(name, range(0)):
+                continue
+            fuser.ingest(sim.message(walkers, tick + (lag_ns or {}).get(name, 0)))
+        t = fuser.latest_ns()
+        assert t is not None
+        out.append((t, fuser.fuse(t)))
+    return out
+
+
+def test_a_track_moved_into_the_room_keeps_its_covariance_rotated() -> None:
+    """P' = R P R^T: rig c's depth (its Z) is the room's X, so its large sigma lands there."""
+    sim = RigSim(C, seed=1)
+    w = Walker(1, (1.0, 0.0, 4.0), (0.0, 0.0, 0.5))
+    obj = sim.message([w], 0).objects[0]
+    tr = to_room(C, obj)
+    depth_var = obj.position_sigma_m[2] ** 2
+    assert tr.position_cov[0, 0] == pytest.approx(depth_var)
+    assert tr.position_cov[2, 2] == pytest.approx(obj.position_sigma_m[0] ** 2)
+    np.testing.assert_allclose(tr.velocity, [0.0, 0.0, 0.5], atol=0.3)
+    later = predicted(tr, 500_000_000)
+    np.testing.assert_allclose(later.position - tr.position, tr.velocity * 0.5, atol=1e-12)
+    assert np.all(np.diag(later.position_cov) > np.diag(tr.position_cov))
+
+
+def test_information_fusion_of_two_estimates_matches_the_closed_form() -> None:
+    """Two scalar-per-axis estimates: the inverse-variance weighted mean and 1/(1/a + 1/b)."""
+    m, c = fuse_gaussians(
+        [np.array([0.0, 0.0, 0.0]), np.array([1.0, 2.0, 3.0])],
+        [np.diag([1.0, 4.0, 9.0]), np.diag([1.0, 1.0, 1.0])],
+    )
+    np.testing.assert_allclose(m, [0.5, 2 * 4 / 5, 3 * 9 / 10])
+    np.testing.assert_allclose(np.diag(c), [0.5, 4 / 5, 9 / 10])
+
+
+def test_handover_keeps_the_id() -> None:
+    """An object walking from a's view into b's: one room id throughout, both rigs' tracks
+    linked to it in the overlap, and its position within 4 sigma of the truth."""
+    walker = Walker(7, (0.0, 0.0, 6.0), (1.0, 0.0, 0.0))
+    sims = {"a": RigSim(A, depth_sigma_per_m2=0.005, seed=2), "b": RigSim(B, seed=3)}
+    fuser = Fuser(room(A, B))
+    frames = run(fuser, sims, [walker], 150, lag_ns={"b": 11_000_000})  # 0 .. 5 m
+    ids = {tr.room_id for _, f in frames for tr in f.tracks}
+    assert ids == {1}
+    seen_by = [set(f.tracks[0].members) for _, f in frames]
+    assert seen_by[0] == {"a"} and {"a", "b"} in seen_by and seen_by[-1] == {"b"}
+    for t, f in frames:
+        (tr,) = f.tracks
+        err = tr.position - walker.position(t)
+        assert float(err @ np.linalg.solve(tr.position_cov, err)) < 4.0**2 * 3
+
+
+def test_fused_position_in_an_overlap_is_no_worse_than_the_better_rig() -> None:
+    """Rigs a and c look at right angles: each one's depth error is the other's lateral one.
+    Over 300 frames the fused error (against the truth) is below the better rig's."""
+    walker = Walker(1, (0.8, 0.0, 3.5), (0.0, 0.0, 0.2))
+    sims = {"a": RigSim(A, seed=4), "c": RigSim(C, seed=5)}
+    fuser = Fuser(room(A, C))
+    errors: dict[str, list[float]] = {"a": [], "c": [], "fused": []}
+    for k in range(300):
+        t = k * FRAME_NS
+        truth = walker.position(t)
+        for name, sim in sims.items():
+            msg = sim.message([walker], t)
+            fuser.ingest(msg)
+            pose = A if name == "a" else C
+            errors[name].append(
+                float(np.linalg.norm(to_room(pose, msg.objects[0]).position - truth))
+            )
+        (tr,) = fuser.fuse(t).tracks
+        errors["fused"].append(float(np.linalg.norm(tr.position - truth)))
+    rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in errors.items()}
+    assert rms["fused"] <= min(rms["a"], rms["c"]), rms
+    assert rms["fused"] < 0.5 * min(rms["a"], rms["c"]), rms  # crossing views: far better
+
+
+def test_a_rig_lost_and_back_makes_no_duplicate_ids() -> None:
+    """Two objects in a and c's overlap; c goes silent for 2 s, then its daemon restarts
+    (sequence from 0, track ids from 1, handed out in the other order). Each object keeps
+    its one room id, always nearest its own truth; c's new tracks join them."""
+    w1 = Walker(1, (0.6, 0.0, 3.0), (0.0, 0.0, 0.1))
+    w2 = Walker(2, (-0.4, 0.0, 4.5), (0.0, 0.0, -0.1))
+    sims = {"a": RigSim(A, seed=6), "c": RigSim(C, seed=7)}
+    fuser = Fuser(room(A, C))
+    frames = run(fuser, sims, [w1, w2], 60)
+    frames += run(fuser, sims, [w1, w2], 60, start=60, silent={"c": range(60, 120)})
+    sims["c"] = RigSim(C, seed=8)
+    frames += run(fuser, {"a": sims["a"], "c": sims["c"]}, [w2, w1], 60, start=120)
+    ids = {tr.room_id for _, f in frames for tr in f.tracks}
+    assert ids == {1, 2}
+    for t, f in frames:
+        assert len(f.tracks) == 2 and not f.ended
+        for tr in f.tracks:
+            d = [float(np.linalg.norm(tr.position - w.position(t))) for w in (w1, w2)]
+            assert int(np.argmin(d)) == tr.room_id - 1
+    assert all(set(tr.members) == {"a", "c"} for tr in frames[-1][1].tracks)
+    assert all(set(tr.members) == {"a"} for tr in frames[100][1].tracks)
+
+
+def test_a_restart_without_a_pause_does_not_mix_the_old_links() -> None:
+    """c's daemon restarts at once and hands its ids out in the other order: the old link
+    (c, 1) -> object 1 must not carry over to c's new track 1 (object 2)."""
+    w1 = Walker(1, (0.6, 0.0, 3.0), (0.0, 0.0, 0.0))
+    w2 = Walker(2, (-0.4, 0.0, 4.5), (0.0, 0.0, 0.0))
+    sims = {"a": RigSim(A, seed=9), "c": RigSim(C, seed=10)}
+    fuser = Fuser(room(A, C))
+    run(fuser, sims, [w1, w2], 30)
+    sims["c"] = RigSim(C, seed=11)
+    frames = run(fuser, sims, [w2, w1], 30, start=30)
+    assert fuser.restarts == {"c": 1}
+    for t, f in frames:
+        assert [tr.room_id for tr in f.tracks] == [1, 2]
+        for tr, w in zip(f.tracks, (w1, w2)):
+            assert float(np.linalg.norm(tr.position - w.position(t))) < 0.2
+
+
+def test_an_object_no_rig_sees_ends_after_the_coast() -> None:
+    walker = Walker(1, (0.0, 0.0, 3.0), (0.0, 0.0, 0.0))
+    gone = Walker(1, (0.0, 0.0, -30.0), (0.0, 0.0, 0.0))
+    sims = {"a": RigSim(A, seed=12)}
+    fuser = Fuser(room(A))
+    run(fuser, sims, [walker], 10)
+    frames = run(fuser, sims, [gone], 90, start=10)
+    ended = [rid for _, f in frames for rid in f.ended]
+    assert ended == [1] and frames[-1][1].tracks == []
+
+
+def test_the_room_message_is_an_objects_message_in_the_room_frame() -> None:
+    """Speed and heading come from the fused room-frame velocity: a walker going along the
+    room's +X heads 90 deg at 1 m/s, whichever way the rigs that see it look."""
+    from stereod.bus.messages import ObjectsMessage, dump
+    from stereod.fusion.output import room_message
+    from stereod.vision.geometry import Geometry
+
+    walker = Walker(1, (0.8, 0.0, 3.5), (1.0, 0.0, 0.0))
+    sims = {"a": RigSim(A, seed=13), "c": RigSim(C, seed=14)}
+    fuser = Fuser(room(A, C))
+    ((t, frame),) = run(fuser, sims, [walker], 1)
+    msg = ObjectsMessage.model_validate_json(
+        dump(room_message("lab", 0, frame, Geometry.CANONICAL, 0.1))
+    )
+    (obj,) = msg.objects
+    assert msg.rig == "lab" and obj.track_id == 1 and msg.stamp_utc_ns == t
+    assert obj.heading_deg == pytest.approx(90.0, abs=5.0)
+    assert obj.speed_mps == pytest.approx(1.0, abs=0.1)
+    np.testing.assert_allclose(obj.position_m, walker.position(t), atol=0.1)
+
+
+@pytest.mark.parametrize(("offset_ms", "flagged"), [(40.0, True), (-5.0, False)])
+def test_a_rig_clock_offset_is_estimated_from_shared_objects(
+    offset_ms: float, flagged: bool
+) -> None:
+    """Rig c stamps its messages ``offset_ms`` late or early; objects that a and c both see
+    moving give that offset back (within 5 ms over 200 frames), and one beyond the 20 ms
+    bound is flagged."""
+    from stereod.fusion.clock import ClockWatch
+
+    walkers = [
+        Walker(1, (0.0, 0.0, 3.0), (0.8, 0.0, 0.3)),
+        Walker(2, (1.0, 0.0, 4.0), (-0.2, 0.0, -0.9)),
+    ]
+    offset_ns = int(offset_ms * 1e6)
+    sims = {
+        "a": RigSim(A, depth_sigma_per_m2=0.005, seed=15),
+        "c": RigSim(C, depth_sigma_per_m2=0.005, seed=16, clock_offset_ns=offset_ns),
+    }
+    fuser = Fuser(room(A, C))
+    clock = ClockWatch(["a", "c"], bound_ms=20.0)
+    for _, frame in run(fuser, sims, walkers, 200):
+        clock.observe(frame)
+    est = clock.estimate("c")
+    assert est.offset_ms == pytest.approx(offset_ms, abs=5.0)
+    assert est.off is flagged and est.samples >= 100
+    assert clock.estimate("a").offset_ms == 0.0
+
+
+def test_room_states_match_the_one_track_formulas() -> None:
+    """The stacked speed, heading and sigma figures equal :func:`speed_heading` and the
+    covariance's diagonal track by track."""
+    from stereod.fusion.output import room_states, speed_heading
+
+    walkers = [
+        Walker(i, (0.3 * i, 0.0, 3.0 + 0.2 * i), (0.5 - 0.3 * i, 0.1, 0.2)) for i in range(3)
+    ]
+    sims = {"a": RigSim(A, seed=17), "c": RigSim(C, seed=18)}
+    ((_, frame),) = run(Fuser(room(A, C)), sims, walkers, 1)
+    states = room_states(frame.tracks)
+    assert len(states) == 3
+    for tr, st in zip(frame.tracks, states):
+        speed, speed_sigma, heading, heading_sigma = speed_heading(tr.velocity, tr.velocity_cov)
+        assert st.speed_mps == pytest.approx(speed)
+        assert st.speed_sigma_mps == pytest.approx(speed_sigma)
+        assert st.heading_deg == pytest.approx(heading)
+        assert st.heading_sigma_deg == pytest.approx(heading_sigma)
+        np.testing.assert_allclose(st.position_sigma_m, np.sqrt(np.diag(tr.position_cov)))
+        np.testing.assert_allclose(st.position_m, tr.position)
+
+
+def test_fused_heading_and_speed_in_the_room_frame_match_the_truth() -> None:
+    """A walker crossing a and c's overlap at 1.2 m/s, heading 60 deg in the room frame (rig
+    c sees it at 150 deg in its own): the room's median heading is within 1 deg of the truth
+    and its median speed within 3 %."""
+    import math
+
+    from stereod.fusion.output import room_states
+
+    h = math.radians(60.0)
+    walker = Walker(1, (0.0, 0.0, 3.0), (1.2 * math.sin(h), 0.0, 1.2 * math.cos(h)))
+    sims = {"a": RigSim(A, seed=19), "c": RigSim(C, seed=20)}
+    frames = run(Fuser(room(A, C)), sims, [walker], 30)
+    states = [room_states(f.tracks)[0] for _, f in frames]
+    assert {s.track_id for s in states} == {1}
+    assert float(np.median([s.heading_deg for s in states])) == pytest.approx(60.0, abs=1.0)
+    assert float(np.median([s.speed_mps for s in states])) == pytest.approx(1.2, rel=0.03)
