@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test vm vm-load lint bench accuracy clean
+.PHONY: demo test vm vm-load lint bench accuracy docs clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,12 +28,22 @@ lint: $(VENV)/.installed
 	$(BIN)/ruff format --check stereod fakes drivers tests benchmarks
 	$(BIN)/mypy
 
+# Each benchmark writes its tables (and figures) into docs/bench/, which the site includes.
 bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/throughput.py
+	$(BIN)/python benchmarks/throughput.py --color
 	$(BIN)/python benchmarks/images.py
 
 accuracy: $(VENV)/.installed
 	$(BIN)/python benchmarks/accuracy.py
 
+# The site, with the reference pages generated from the code, into site/; any warning fails.
+$(VENV)/.docs: $(VENV)/.installed
+	$(BIN)/python -m pip install --quiet -e '.[docs]'
+	touch $@
+
+docs: $(VENV)/.docs
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
+
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) site build *.egg-info .pytest_cache .mypy_cache .ruff_cache

@@ -13,9 +13,10 @@ endpoint, for each case:
 The cases take turns, ``--repeat`` rounds, and each keeps its best pairs/s (the machine's other
 load only ever slows a run down). Prints pairs/s, images received by the subscriber, and the
 image thread's time per pictured pair, and the process's CPU time per pair (all threads; less
-sensitive than pairs/s to what else the machine runs).
+sensitive than pairs/s to what else the machine runs), and writes both tables, with the host,
+to ``docs/bench/images.md``, which the documentation's Performance page includes.
 
-Usage: ``python benchmarks/images.py [--pairs N] [--size WxH] [--repeat R]``.
+Usage: ``python benchmarks/images.py [--pairs N] [--size WxH] [--repeat R] [--out DIR]``.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import report
 import zenoh
 
 from stereod.bus.publish import session_config
@@ -100,7 +102,14 @@ def main() -> None:
     ap.add_argument("--pairs", type=int, default=300, help="pairs in the scene (default 300)")
     ap.add_argument("--size", default="640x480", help="image size WxH (default 640x480)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per case; best kept (3)")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=report.DOCS_BENCH,
+        help="folder of the markdown tables (default docs/bench)",
+    )
     a = ap.parse_args()
+    host = report.host()
     w, h = (int(x) for x in a.size.split("x"))
     fps = 15.0
     n = a.pairs
@@ -163,16 +172,39 @@ def main() -> None:
                         pictured = max(worker.encoded.values()) if worker else 0
                         if worker and pictured:
                             per_ms[k] = worker.encode_s / pictured * 1e3
+            rows = [
+                "| case | pairs/s | vs off | CPU ms per pair (all threads) | images received "
+                "| ms per pictured pair |",
+                "|---|---|---|---|---|---|",
+            ]
             for k, (name, _, _) in enumerate(cases):
                 per = f"{per_ms[k]:.1f}" if per_ms[k] == per_ms[k] else "-"
                 print(
                     f"{name:<34}{best[k]:9.0f}{best[k] / best[0]:8.2f}{cpu[k]:13.2f}"
                     f"{images[k]:8d}{per:>22}"
                 )
+                rows.append(
+                    f"| {name} | {best[k]:.0f} | {best[k] / best[0]:.2f} | {cpu[k]:.2f} "
+                    f"| {images[k]} | {per} |"
+                )
     print(
         "pictured pair = left + right + overlay + mask drawn and JPEG-encoded (quality 80) on "
         "the image thread; the pipeline and output threads never wait for it."
     )
+    encode_rows = ["| image | ms (median, one thread) |", "|---|---|"]
+    encode_rows += [f"| {k} | {v:.1f} |" for k, v in costs.items()]
+    encode_rows.append(f"| all four | {sum(costs.values()):.1f} |")
+    text = "\n\n".join(
+        [
+            f"{host} {w}x{h}, {n} pairs, best of {a.repeat} rounds (`make bench`).",
+            f"Drawing and JPEG-encoding the images of one {w}x{h} pair with a track:",
+            "\n".join(encode_rows),
+            "The real daemon replaying a recording as fast as it can, publishing on loopback, "
+            "the cases taking turns:",
+            "\n".join(rows),
+        ]
+    )
+    print(f"wrote {report.write('images.md', text, a.out)}")
 
 
 if __name__ == "__main__":

@@ -13,7 +13,8 @@ instant measured from; the measurement's own age at arrival is that plus the ske
 
 It reports the p50, p99 and largest latency, the daemon's CPU (share of one core, from
 /proc/<pid>/stat over the measured window) and its resident memory (VmRSS and its peak, VmHWM),
-and writes them to ``benchmarks/latency.md``. Targets: p99 <= 5 ms, CPU <= 10 % of one core,
+and writes them, with the host, to ``docs/bench/latency.md``, which the documentation's
+Performance page includes. Targets: p99 <= 5 ms, CPU <= 10 % of one core,
 RSS <= 110 MB.
 
 The synthetic camera lives inside the daemon's process, and its prerendered scene with it
@@ -40,6 +41,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import report
 import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -148,7 +150,9 @@ def main() -> int:
         help="how late the right eye is, in frames (0.5: the most two free-running eyes are "
         "apart; the earlier eye is detected while the later is awaited)",
     )
-    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "latency.md")
+    ap.add_argument(
+        "--out", type=Path, default=report.DOCS_BENCH / "latency.md", help="the table's file"
+    )
     ap.add_argument(
         "--grey",
         action="store_true",
@@ -156,6 +160,7 @@ def main() -> int:
     )
     ap.add_argument("--breakdown", action="store_true", help="also the daemon's own timings")
     a = ap.parse_args()
+    host = report.host()
     width, height = (int(v) for v in a.size.split("x"))
     endpoint = free_endpoint()
     latencies_ms: list[float] = []
@@ -228,7 +233,8 @@ def main() -> int:
             v = np.array([b[k] for b in breakdown])
             print(f"{k}: p50 {np.percentile(v, 50):.2f} ms, p99 {np.percentile(v, 99):.2f} ms")
         print(f"pairs missing (seq gaps): {int(np.sum(np.diff(seqs) - 1))}")
-    a.out.write_text(table + "\n")
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(f"{host} {a.seconds:g} s measured (`benchmarks/latency.py`).\n\n{table}\n")
     return 0 if ok else 1
 
 

@@ -10,8 +10,10 @@ sensor noise), then times on the same pairs:
 - MOG2: OpenCV's Gaussian-mixture background subtractor on both eyes plus connected components.
 
 Each is timed in steady state: the pairs that make the detectors' initial background (a
-one-time cost at start) are fed before the clock starts. Prints pairs/s and
-the ratios. Usage: ``python benchmarks/throughput.py [--pairs N] [--sizes ...]``.
+one-time cost at start) are fed before the clock starts. Prints pairs/s and the ratios, and
+writes them as a table, with the host, to ``docs/bench/throughput-grey.md`` (or
+``throughput-bgr.md`` with ``--color``), which the documentation's Performance page includes.
+Usage: ``python benchmarks/throughput.py [--pairs N] [--sizes ...] [--color] [--out DIR]``.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import cv2
+import report
 
 from stereod.bus.messages import dump, objects_message
 from stereod.pipeline import Pipeline, PipelineParams
@@ -145,7 +148,14 @@ def main() -> None:
         default=None,
         help="cv2.setNumThreads (default: OpenCV's own choice)",
     )
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=report.DOCS_BENCH,
+        help="folder of the markdown table (default docs/bench)",
+    )
     a = ap.parse_args()
+    host = report.host()
     if a.opencv_threads is not None:
         cv2.setNumThreads(a.opencv_threads)
     print(
@@ -158,6 +168,12 @@ def main() -> None:
     )
     print(header)
     print("-" * len(header))
+    frames = "BGR" if a.color else "grey"
+    rows = [
+        "| size | frames | stereod, 1 detect worker | stereod, 2 workers | naive numpy "
+        "| MOG2 + CC | vs naive | vs MOG2 |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for name in a.sizes:
         w, h = SIZES[name]
         pairs = render_pairs(w, h, a.pairs, a.color)
@@ -171,10 +187,22 @@ def main() -> None:
             f"{best / naive:8.1f}x {best / mog:7.1f}x",
             flush=True,
         )
+        rows.append(
+            f"| {name} | {frames} | {one:.0f} pairs/s | {two:.0f} pairs/s | {naive:.0f} pairs/s "
+            f"| {mog:.0f} pairs/s | {best / naive:.1f}x | {best / mog:.1f}x |"
+        )
     print(
         "p/s = stereo pairs per second; stereod includes matching, triangulation, tracking "
         "and JSON payloads; the baselines only detect."
     )
+    text = "\n\n".join(
+        [
+            f"{host} OpenCV threads: {cv2.getNumThreads()}; {a.pairs} {frames} pairs per size, "
+            f"best of {a.repeat} (`make bench`).",
+            "\n".join(rows),
+        ]
+    )
+    print(f"wrote {report.write(f'throughput-{frames.lower()}.md', text, a.out)}")
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
 """The public surface: what ``import stereod`` and ``stereod.client`` export is pinned, the
-package is typed, and the README's two library examples run."""
+package is typed, and the documentation's two library examples run."""
 
 from __future__ import annotations
 
@@ -68,8 +68,9 @@ def test_package_is_typed() -> None:
 
 
 def readme_examples() -> dict[str, str]:
-    """The README's Python blocks that start with a ``# example: NAME`` line."""
-    text = (ROOT / "README.md").read_text()
+    """The Python blocks of the README and of the Python API page that start with a
+    ``# example: NAME`` line."""
+    text = "\n".join((ROOT / name).read_text() for name in ("README.md", "docs/python-api.md"))
     blocks = re.findall(r"```python\n(# example: (\S+)\n.*?)```", text, flags=re.S)
     return {name: code for code, name in blocks}
 

@@ -263,11 +263,12 @@ def test_the_bus_learns_no_paths_and_nothing_from_the_zenoh_file(
 
 
 def test_the_readme_zenoh_file_is_one_zenoh_accepts() -> None:
-    """The README's example of a secured Zenoh file parses with the installed Zenoh, and its
-    ACL has the shape the tests above run (read and serve for listed certificate names)."""
-    text = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    """The Deployment page's example of a secured Zenoh file parses with the installed Zenoh,
+    and its ACL has the shape the tests above run (read and serve for listed certificate
+    names)."""
+    text = (Path(__file__).resolve().parent.parent / "docs" / "deployment.md").read_text()
     block = re.search(r"```json5\n(.*?)```", text, re.S)
-    assert block, "no json5 block in the README"
+    assert block, "no json5 block in docs/deployment.md"
     zenoh.Config.from_json5(block.group(1))
     for word in ('default_permission: "deny"', "enable_mtls: true", "cert_common_names"):
         assert word in block.group(1)

@@ -5,7 +5,7 @@ Each :class:`Bound` holds its range, its unit and why: the reason comes from the
 rig or from its hardware (a Minoru's baseline is 0.060 m; UVC webcams' lenses; a USB 2.0 bus),
 and a value outside it is refused where it enters, in one line that names the flag, field or
 file, the value, the range and that reason. :data:`BOUNDS` lists them all; the table under
-"Configuration" in README.md is :func:`markdown_table` of it (a test keeps the two equal).
+"Bounds" in the documentation's configuration reference is :func:`markdown_table` of it.
 """
 
 from __future__ import annotations
@@ -293,7 +293,7 @@ BOUNDS: tuple[Bound, ...] = (
     CAMERA_STALL_S,
     PLAYBACK_RATE,
 )
-"""Every physical bound, in the order of the README's table."""
+"""Every physical bound, in the order of the configuration reference's table."""
 
 
 def focal_range_px(side_px: float) -> tuple[float, float]:
@@ -307,7 +307,8 @@ def focal_range_px(side_px: float) -> tuple[float, float]:
 
 
 def markdown_table() -> str:
-    """The README's table of :data:`BOUNDS`: where each applies, its range and why."""
+    """The table of :data:`BOUNDS` (where each applies, its range and why), as the
+    configuration reference shows it."""
     rows = ["| Flag, field or file | Allowed | Why |", "|---|---|---|"]
     for b in BOUNDS:
         where = ", ".join(f"`{w}`" for w in b.where)
