@@ -286,6 +286,7 @@ class Daemon:
             stop=self._stop,
         )
         worker.keep_pairs = self._keep_frames
+        worker.detect = cfg.daemon.detect
         self._worker = worker
         queryables = {
             "config": lambda: json.dumps(public_config(self.cfg)).encode(),
