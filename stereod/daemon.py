@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .calibration import canonical
 from .capture import Capture, Queued
@@ -43,9 +44,11 @@ from .processing import Outgoing, PipelineWorker
 from .publish import Publisher
 from .queues import BoundedQueue
 from .redact import public_config, public_text
-from .ros2_live import Ros2Live
 from .sdnotify import Notifier
 from .status import Health, geometry_note
+
+if TYPE_CHECKING:
+    from .ros2_live import Ros2Live
 
 log = logging.getLogger(__name__)
 
@@ -362,6 +365,8 @@ class Daemon:
         else:
             cal = canonical(rig.baseline_m, rig.hfov_deg, rig.width_px, rig.height_px)
         d = self.cfg.daemon
+        from .ros2_live import Ros2Live  # with its CDR encoders: only when [ros2] is on
+
         ros2 = Ros2Live(
             pub.session,
             self.cfg.rig.name,
