@@ -115,13 +115,14 @@ def config(
     color: bool,
     skew: float = 0.5,
     detect: bool = True,
+    rig: str = "bench",
 ) -> str:
     """The daemon's TOML: a live, prerendered, looping synthetic scene of 1.2 s, in colour
     (BGR, as the V4L2 driver delivers by default) or grey, the right eye ``skew`` frames
-    late; ``detect = false`` for the floor."""
+    late; ``detect = false`` for the floor; the rig named ``rig``."""
     return f"""
 [rig]
-name = "bench"
+name = "{rig}"
 [driver]
 name = "synthetic"
 [driver.options]
@@ -305,6 +306,10 @@ def main() -> int:
             )
         verdicts.append(f"- {verdict}: {'met' if size_ok else 'MISSED'}.")
         ok = ok and size_ok
+    verdicts.append(
+        f"- The host's load average over the last 5 minutes: {os.getloadavg()[1]:.1f} "
+        f"({os.cpu_count()} cores)."
+    )
     table = "\n".join([*rows, "", *verdicts])
     print(table)
     a.out.write_text(table + "\n")
