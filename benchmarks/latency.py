@@ -81,6 +81,34 @@ def proc_mem_mb(pid: int) -> tuple[float, float]:
     return got["VmRSS"], got["VmHWM"]
 
 
+def stats(session: zenoh.Session, rig: str, wait_s: float = 5.0) -> dict:
+    """A daemon's ``stats`` queryable's reply, asked again until ``wait_s`` s have passed
+    (a daemon starting on a busy host takes seconds to declare its keys)."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        replies = list(session.get(f"stereod/{rig}/stats", timeout=5))
+        if replies and replies[0].ok is not None:
+            return dict(json.loads(replies[0].ok.payload.to_bytes()))
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"rig {rig}: no reply on stereod/{rig}/stats")
+        time.sleep(0.5)
+
+
+def proc_code_mb(pid: int) -> float:
+    """Resident memory (MB) of a process's mapped files (its libraries' code and data, shared
+    with every process that maps them and dropped by the kernel under pressure): how much of
+    OpenCV's, NumPy's and Zenoh's libraries stay resident varies from run to run."""
+    total_kb = 0
+    mapped_file = False
+    for line in Path(f"/proc/{pid}/smaps").read_text().splitlines():
+        head = line.split(None, 5)
+        if "-" in head[0] and len(head) >= 5 and ":" in head[3]:  # a mapping's first line
+            mapped_file = len(head) == 6 and head[5].startswith("/")
+        elif line.startswith("Rss:") and mapped_file:
+            total_kb += int(line.split()[1])
+    return total_kb / 1024
+
+
 CAMERA_PROBE = """
 import re, sys
 try:
@@ -161,6 +189,7 @@ class Run:
     rss_mb: float
     hwm_mb: float
     camera_mb: float
+    code_mb: float
     breakdown: list[dict[str, float]]
     seqs: list[int]
 
@@ -212,6 +241,7 @@ def measure(
             time.sleep(0.5)
             with zenoh.open(conf) as session:
                 sub = session.declare_subscriber("stereod/bench/objects", on_objects)
+                stats(session, "bench", wait_s=60.0)  # up (seconds on a busy host)
                 time.sleep(warmup)
                 if proc.poll() is not None:
                     print("the daemon ended early", file=sys.stderr)
@@ -222,6 +252,7 @@ def measure(
                 measuring.clear()
                 cpu = (proc_cpu_s(proc.pid) - cpu0) / (time.monotonic() - wall0)
                 rss, hwm = proc_mem_mb(proc.pid)
+                code = proc_code_mb(proc.pid)
                 sub.undeclare()
         finally:
             proc.terminate()
@@ -230,7 +261,7 @@ def measure(
     if not latencies_ms:
         print("no message arrived", file=sys.stderr)
         return None
-    return Run(np.array(latencies_ms), cpu, rss, hwm, camera, breakdown, seqs)
+    return Run(np.array(latencies_ms), cpu, rss, hwm, camera, code, breakdown, seqs)
 
 
 def main() -> int:
@@ -262,8 +293,8 @@ def main() -> int:
     a = ap.parse_args()
     rows = [
         "| size | rate | frames | daemon | messages | p50 latency | p99 latency | max latency "
-        "| CPU (one core) | RSS (peak) | synthetic camera | own RSS |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| CPU (one core) | RSS (peak) | synthetic camera | own RSS | of it, mapped files |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     verdicts: list[str] = []
     ok = True
@@ -282,7 +313,7 @@ def main() -> int:
                 f"| {run.latencies_ms.size} of {expected:.0f} | {run.p(50):.2f} ms "
                 f"| {run.p(99):.2f} ms | {run.latencies_ms.max():.2f} ms | {run.cpu * 100:.1f} % "
                 f"| {run.rss_mb:.0f} MB ({run.hwm_mb:.0f} MB) | {run.camera_mb:.0f} MB "
-                f"| {run.own_mb:.0f} MB |"
+                f"| {run.own_mb:.0f} MB | {run.code_mb:.0f} MB |"
             )
             if a.breakdown:
                 for k in run.breakdown[0]:

@@ -37,25 +37,12 @@ import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from latency import camera_mb, config, free_endpoint, proc_cpu_s, proc_mem_mb
+from latency import camera_mb, config, free_endpoint, proc_cpu_s, proc_mem_mb, stats
 
 from tests.processes import start_stereod
 
 TARGET_P99_MS = 10.0
 """Each daemon's p99 latency (ms) at most this."""
-
-
-def stats(session: zenoh.Session, rig: str, wait_s: float = 5.0) -> dict:
-    """A daemon's ``stats`` queryable's reply, asked again until ``wait_s`` s have passed
-    (four daemons starting at once on two cores take seconds to declare their keys)."""
-    deadline = time.monotonic() + wait_s
-    while True:
-        replies = list(session.get(f"stereod/{rig}/stats", timeout=5))
-        if replies and replies[0].ok is not None:
-            return dict(json.loads(replies[0].ok.payload.to_bytes()))
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"rig {rig}: no reply on stereod/{rig}/stats")
-        time.sleep(0.5)
 
 
 BEHIND = ("pipeline_behind", "publish_behind")
