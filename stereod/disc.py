@@ -17,6 +17,7 @@ from __future__ import annotations
 import functools
 import math
 
+import cv2
 import numpy as np
 
 PAD_PX = 2
@@ -73,13 +74,13 @@ def _grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _least_squares(a: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The x that minimises |a x - y| (columns of ``y`` apart): through the normal equations,
-    a tenth of an SVD's time on the fit's well-posed systems, and by SVD where they are
-    singular."""
-    try:
-        return np.linalg.solve(a.T @ a, a.T @ y)
-    except np.linalg.LinAlgError:
-        return np.linalg.lstsq(a, y, rcond=None)[0]
+    """The x that minimises |a x - y| (columns of ``y`` apart): through the normal equations
+    (OpenCV's LU), a fraction of an SVD's time on the fit's well-posed systems, and by SVD where
+    they are singular."""
+    solved, x = cv2.solve(a.T @ a, a.T @ y)
+    if solved:
+        return np.asarray(x)
+    return np.linalg.lstsq(a, y, rcond=None)[0]
 
 
 def is_round(support: np.ndarray, area: int) -> bool:
@@ -139,7 +140,7 @@ def disc_centre(
     grad = jac[:, :g].reshape(n, channels, 3)
     normal = np.zeros((3 + k * channels,) * 2)
     edge = np.empty((n, 3))
-    rhs = np.empty(3 + k * channels)
+    rhs = np.empty((3 + k * channels, 1))
     for _ in range(_ITERATIONS):
         dx, dy = xs - theta[0], ys - theta[1]
         dist = np.hypot(dx, dy)
@@ -165,7 +166,7 @@ def disc_centre(
         right = jac.T @ residual
         if channels == 1:
             normal[:] = full
-            rhs[:] = right[:, 0]
+            rhs[:] = right
         else:
             normal[:3, :3] = 0.0
             rhs[:3] = 0.0
@@ -177,12 +178,12 @@ def disc_centre(
                 normal[:3, cols] = full[rows, g:]
                 normal[cols, :3] = full[g:, rows]
                 normal[cols, cols] = own
-                rhs[:3] += right[rows, c]
-                rhs[cols] = right[g:, c]
-        try:
-            step = np.linalg.solve(normal, rhs)
-        except np.linalg.LinAlgError:
+                rhs[:3, 0] += right[rows, c]
+                rhs[cols, 0] = right[g:, c]
+        solved, step = cv2.solve(normal, rhs)  # OpenCV's LU: a quarter of numpy's call
+        if not solved:  # singular
             return None
+        step = step[:, 0]
         if not np.isfinite(step).all():
             return None
         theta += step[:3]
