@@ -12,7 +12,7 @@ Measured over ``--seconds`` after a warm-up: the fusion node's CPU (share of one
 /proc/<pid>/stat), its own added latency (a rig message's arrival in the node to the room
 message that includes it published, p50/p99, from its ``stats`` queryable), the latency from
 a rig's stamp to the room message's arrival at the subscriber (same host, same UTC clock),
-its step rate and what it dropped. Writes ``benchmarks/fuse_scale.md``.
+its step rate and what it dropped. Writes ``docs/bench/fuse_scale.md``.
 
 Usage: ``python benchmarks/fuse_scale.py [--rigs 16] [--objects 10] [--fps 30] [--seconds 20]``.
 """
@@ -80,7 +80,7 @@ def main() -> int:
     p.add_argument("--seconds", type=float, default=20.0)
     p.add_argument("--warmup", type=float, default=5.0)
     p.add_argument("--generators", type=int, default=2)
-    p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "fuse_scale.md")
+    p.add_argument("--out", type=Path, default=ROOT / "docs" / "bench" / "fuse_scale.md")
     a = p.parse_args()
     load = os.getloadavg()
     tmp = Path(tempfile.mkdtemp(prefix="fuse-scale-"))

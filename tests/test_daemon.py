@@ -507,3 +507,28 @@ def test_a_looping_replay_stopped_in_its_first_lap_still_names_its_damaged_frame
     problems = out["summary"].input_problems
     assert any("left.mkv: frame 1 decoded" in p for p in problems), problems
     assert not any("timestamps disagree" in p for p in problems), problems
+
+
+def test_detection_off_publishes_one_empty_message_per_pair(
+    endpoint: str, listener: zenoh.Session
+) -> None:
+    """``[daemon] detect = false``, a benchmark's floor: the same capture, pairing and
+    publishing, an objects message per pair at the pipeline's instant, and no objects, where
+    the same scene with detection on has its ball tracked."""
+    got: dict[bool, list[dict]] = {True: [], False: []}
+    for detect in (True, False):
+        sub = listener.declare_subscriber(
+            "stereod/minoru/objects",
+            lambda s, d=detect: got[d].append(json.loads(s.payload.to_bytes())),
+        )
+        driver = SyntheticDriver({"duration_s": 2.0, "fps": 15, "skew_s": 0.01})
+        summary = Daemon(config(endpoint, detect=detect), driver).run()
+        time.sleep(0.3)
+        sub.undeclare()
+        assert summary.error is None and summary.pairs == 30
+        assert summary.published == 30 and len(got[detect]) == 30
+    assert any(m["objects"] for m in got[True])
+    assert not any(m["objects"] for m in got[False])
+    # Both at the earlier eye's capture (the left here), pair by pair.
+    assert [m["t_ns"] for m in got[False]] == [m["t_ns"] for m in got[True]]
+    assert all(m["skew_ns"] == 10_000_000 for m in got[False])

@@ -465,6 +465,11 @@ class DaemonConfig(_Section):
     )
     image_quality: int = Field(80, ge=1, le=100, description="JPEG quality of images, 1-100")
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+    detect: bool = Field(
+        True,
+        description="Detect and track objects; false publishes an empty objects message per "
+        "pair (a benchmark's floor: capture, pairing and publishing alone)",
+    )
 
 
 Ros2Topic = Literal["odom", "markers", "camera_info", "images", "tf_static", "objects"]

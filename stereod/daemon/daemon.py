@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from stereod.bus.images import ImagePublishers, ImageWorker
 from stereod.bus.messages import CanonicalGeometry, DaemonState, StatusMessage, dump
@@ -40,12 +41,14 @@ from stereod.daemon.status import Health, geometry_note
 from stereod.errors import InternalError, ReaderGone, StereodError
 from stereod.files.output_file import AtomicOutput, check_outputs, give_up_writing
 from stereod.pipeline import Pipeline
-from stereod.ros.ros2_live import Ros2Live
 from stereod.sources.frames import Driver, Eye, StereoSource
 from stereod.sources.pairing import Pairer
 from stereod.sources.queues import BoundedQueue
 from stereod.vision.calibration import canonical
 from stereod.vision.geometry.rectified import CalibratedRig
+
+if TYPE_CHECKING:
+    from stereod.ros.ros2_live import Ros2Live
 
 log = logging.getLogger(__name__)
 
@@ -286,6 +289,7 @@ class Daemon:
             stop=self._stop,
         )
         worker.keep_pairs = self._keep_frames
+        worker.detect = cfg.daemon.detect
         self._worker = worker
         queryables = {
             "config": lambda: json.dumps(public_config(self.cfg)).encode(),
@@ -361,6 +365,8 @@ class Daemon:
         else:
             cal = canonical(rig.baseline_m, rig.hfov_deg, rig.width_px, rig.height_px)
         d = self.cfg.daemon
+        from stereod.ros.ros2_live import Ros2Live  # with its CDR encoders: only when [ros2] is on
+
         ros2 = Ros2Live(
             pub.session,
             self.cfg.rig.name,

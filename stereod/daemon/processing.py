@@ -20,10 +20,11 @@ from dataclasses import dataclass, field
 from stereod.bus.messages import ObjectsMessage, dump_objects, objects_message
 from stereod.daemon.capture import Queued
 from stereod.daemon.status import Health, geometry_note
-from stereod.pipeline import PairResult, Pipeline, PipelineParams
+from stereod.pipeline import PairResult, Pipeline, PipelineParams, Timings
 from stereod.sources.frames import Frame, StereoPair
 from stereod.sources.queues import BoundedQueue, Closed
 from stereod.view.overlay import PairImages
+from stereod.vision.detect import Blobs
 from stereod.vision.geometry.rectified import CalibratedRig
 from stereod.vision.geometry.stereo import CanonicalRig
 
@@ -51,6 +52,26 @@ class Outgoing:
     result: PairResult | None = None
     images: PairImages | None = None
     pair: StereoPair | None = None
+
+
+def _empty(pair: StereoPair) -> PairResult:
+    """A result with no blobs and no tracks for ``pair``, at the instant the pipeline would
+    give it (the earlier eye's capture): what the daemon publishes with detection off."""
+    t0 = time.perf_counter_ns()
+    nothing = Blobs.empty()
+    ms = (time.perf_counter_ns() - t0) * 1e-6
+    return PairResult(
+        seq=pair.seq,
+        t_ns=min(pair.left.t_ns, pair.right.t_ns),
+        skew_ns=pair.skew_ns,
+        left_seq=pair.left.seq,
+        right_seq=pair.right.seq,
+        tracks=[],
+        ended=[],
+        left=nothing,
+        right=nothing,
+        timings=Timings(0.0, 0.0, 0.0, ms),
+    )
 
 
 class PipelineWorker:
@@ -83,6 +104,9 @@ class PipelineWorker:
         """Asked once per pair: whether to keep references to its frames and masks."""
         self.objects = 0
         """Object states produced so far."""
+        self.detect = True
+        """Whether pairs go through the pipeline; False publishes an empty result per pair
+        (``[daemon] detect = false``: the floor a benchmark compares the daemon with)."""
 
     @property
     def rig(self) -> CanonicalRig | CalibratedRig:
@@ -126,7 +150,7 @@ class PipelineWorker:
                 pair = what
                 queued_ms = (time.perf_counter_ns() - queued_at) * 1e-6
                 try:
-                    result = self.pipeline.process(pair)
+                    result = self.pipeline.process(pair) if self.detect else _empty(pair)
                     outgoing = self.outgoing(result, queued_ms)
                 except Exception as exc:  # one bad pair must not stop the daemon
                     self.health.error(ERROR_PIPELINE)
@@ -157,7 +181,7 @@ class PipelineWorker:
         """Detect a frame whose partner is still to come (its pair is then quicker), unless a
         pair is already waiting (with two detect workers the pair would detect both eyes at
         once). A failure is left for the pair to report: it detects the frame again."""
-        if len(self.pairs):
+        if len(self.pairs) or not self.detect:
             return
         try:
             self.pipeline.detect_ahead(frame)

@@ -229,7 +229,18 @@ class Blobs:
 
     @staticmethod
     def empty() -> Blobs:
-        return Blobs(np.zeros((0, 2)), np.zeros((0, 4), np.int32), np.zeros(0, np.int32))
+        """No blobs: one shared instance (its arrays are empty and read only)."""
+        return _NO_BLOBS
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+_NO_BLOBS = Blobs(
+    _frozen(np.zeros((0, 2))), _frozen(np.zeros((0, 4), np.int32)), _frozen(np.zeros(0, np.int32))
+)
 
 
 _MEAN_RGB = np.full((1, 3), 1.0 / 3.0, dtype=np.float32)

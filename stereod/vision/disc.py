@@ -14,8 +14,10 @@ its outline that can be seen, in both eyes alike.
 
 from __future__ import annotations
 
+import functools
 import math
 
+import cv2
 import numpy as np
 
 PAD_PX = 2
@@ -53,12 +55,32 @@ def coverage(s: np.ndarray, nx: np.ndarray, ny: np.ndarray) -> tuple[np.ndarray,
     ax, ay, d = np.abs(nx), np.abs(ny), np.abs(s)
     a, b = np.maximum(ax, ay), np.minimum(ax, ay)
     linear = d <= (a - b) / 2
-    corner = np.clip((a + b) / 2 - d, 0.0, None)
+    corner = np.maximum((a + b) / 2 - d, 0.0)
     ab = np.maximum(a * b, 1e-9)
     tail = corner * corner / (2 * ab)
     share = np.where(linear, 0.5 + s / a, np.where(s > 0, 1.0 - tail, tail))
     slope = np.where(linear, 1.0 / a, corner / ab)
     return share, slope
+
+
+@functools.lru_cache(maxsize=64)
+def _grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Column and row (px) of each pixel of a (height, width) window, row by row: the same
+    few window sizes come back frame after frame (read only)."""
+    ys, xs = np.divmod(np.arange(width * height, dtype=np.float64), float(width))
+    xs.setflags(write=False)
+    ys.setflags(write=False)
+    return xs, ys
+
+
+def _least_squares(a: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The x that minimises |a x - y| (columns of ``y`` apart): through the normal equations
+    (OpenCV's LU), a fraction of an SVD's time on the fit's well-posed systems, and by SVD where
+    they are singular."""
+    solved, x = cv2.solve(a.T @ a, a.T @ y)
+    if solved:
+        return np.asarray(x)
+    return np.linalg.lstsq(a, y, rcond=None)[0]
 
 
 def is_round(support: np.ndarray, area: int) -> bool:
@@ -93,53 +115,76 @@ def disc_centre(
     x0, y0, x1, y1 = x - PAD_PX, y - PAD_PX, x + w + PAD_PX, y + h + PAD_PX
     if x0 < 0 or y0 < 0 or x1 > width or y1 > height:
         return None
-    f = frame[y0:y1, x0:x1].reshape((y1 - y0) * (x1 - x0), -1).astype(np.float64)
+    n = (y1 - y0) * (x1 - x0)
+    f = frame[y0:y1, x0:x1].reshape(n, -1).astype(np.float64)
     b = background[y0:y1, x0:x1].reshape(f.shape).astype(np.float64)
     channels = f.shape[1]
-    ys, xs = np.divmod(np.arange(f.shape[0], dtype=np.float64), float(x1 - x0))
+    xs, ys = _grid(x1 - x0, y1 - y0)
     r0 = math.sqrt(area / math.pi)
     cx0, cy0 = centre[0] - x0, centre[1] - y0
     u, v = (xs - cx0) / r0, (ys - cy0) / r0
-    rim = np.sqrt(np.clip(1.0 - u * u - v * v, 0.0, None))
-    basis = np.stack([np.ones_like(u), u, v, rim, u * u, v * v, u * v], axis=1)
-    k = basis.shape[1]
+    k = 7
+    basis = np.empty((n, k))
+    basis[:, 0] = 1.0
+    basis[:, 1], basis[:, 2] = u, v
+    np.sqrt(np.maximum(1.0 - u * u - v * v, 0.0), out=basis[:, 3])  # the sphere's shading
+    basis[:, 4], basis[:, 5], basis[:, 6] = u * u, v * v, u * v
     diff = f - b
     theta = np.array([cx0, cy0, r0])
     beta: np.ndarray | None = None
-    grad = np.empty((len(xs), 3))
-    normal = np.empty((3 + k * channels,) * 2)
-    normal[3:, 3:] = 0.0
-    rhs = np.empty(3 + k * channels)
+    # The Jacobian's columns that differ between channels: d model / d theta per channel (the
+    # edge's motion times that channel's contrast), then d model / d beta, the same for all;
+    # one product gives every block of the normal equations.
+    g = 3 * channels
+    jac = np.empty((n, g + k))
+    grad = jac[:, :g].reshape(n, channels, 3)
+    normal = np.zeros((3 + k * channels,) * 2)
+    edge = np.empty((n, 3))
+    rhs = np.empty((3 + k * channels, 1))
     for _ in range(_ITERATIONS):
         dx, dy = xs - theta[0], ys - theta[1]
         dist = np.hypot(dx, dy)
         centred = dist < 1e-9  # a pixel at the centre (a small blob's start): any normal will do
-        safe = np.where(centred, 1.0, dist)
-        nx, ny = np.where(centred, 1.0, dx / safe), dy / safe
+        if centred.any():
+            safe = np.where(centred, 1.0, dist)
+            nx, ny = np.where(centred, 1.0, dx / safe), dy / safe
+        else:
+            nx, ny = dx / dist, dy / dist
         share, slope = coverage(theta[2] - dist, nx, ny)
-        covered = share[:, None] * basis
+        covered = np.multiply(share[:, None], basis, out=jac[:, g:])
         if beta is None:  # the colour that best explains the pixels for the starting disc
-            beta = np.linalg.lstsq(covered, diff + share[:, None] * b, rcond=None)[0]
+            beta = _least_squares(covered, diff + share[:, None] * b)
         contrast = basis @ beta - b
         residual = diff - share[:, None] * contrast
-        grad[:, 0], grad[:, 1], grad[:, 2] = nx * slope, ny * slope, slope
+        np.multiply(nx, slope, out=edge[:, 0])
+        np.multiply(ny, slope, out=edge[:, 1])
+        edge[:, 2] = slope
+        np.multiply(contrast[:, :, None], edge[:, None, :], out=grad)
         # normal equations of the Jacobian [d model / d theta, d model / d beta] by blocks:
         # theta couples to every channel, each channel's beta only to its own pixels
-        normal[:3, :3] = grad.T @ (grad * np.einsum("nc,nc->n", contrast, contrast)[:, None])
-        rhs[:3] = grad.T @ np.einsum("nc,nc->n", contrast, residual)
-        cross = (grad[:, :, None] * contrast[:, None, :]).reshape(len(xs), 3 * channels).T @ covered
-        rhs[3:] = (covered.T @ residual).T.reshape(-1)
-        own = covered.T @ covered
-        for c in range(channels):
-            cols = slice(3 + c * k, 3 + (c + 1) * k)
-            normal[:3, cols] = cross[c::channels]
-            normal[cols, :3] = cross[c::channels].T
-            normal[cols, cols] = own
-        try:
-            step = np.linalg.solve(normal, rhs)
-        except np.linalg.LinAlgError:
+        full = jac.T @ jac
+        right = jac.T @ residual
+        if channels == 1:
+            normal[:] = full
+            rhs[:] = right
+        else:
+            normal[:3, :3] = 0.0
+            rhs[:3] = 0.0
+            own = full[g:, g:]
+            for c in range(channels):
+                rows = slice(3 * c, 3 * c + 3)
+                cols = slice(3 + c * k, 3 + (c + 1) * k)
+                normal[:3, :3] += full[rows, rows]
+                normal[:3, cols] = full[rows, g:]
+                normal[cols, :3] = full[g:, rows]
+                normal[cols, cols] = own
+                rhs[:3, 0] += right[rows, c]
+                rhs[cols, 0] = right[g:, c]
+        solved, step = cv2.solve(normal, rhs)  # OpenCV's LU: a quarter of numpy's call
+        if not solved:  # singular
             return None
-        if not np.all(np.isfinite(step)):
+        step = step[:, 0]
+        if not np.isfinite(step).all():
             return None
         theta += step[:3]
         beta = beta + step[3:].reshape(channels, k).T

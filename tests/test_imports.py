@@ -1,0 +1,77 @@
+"""What the daemon's process imports: only what ``stereod run`` needs on every start.
+
+Each module a command needs only sometimes (plotting, MCAP and ROS 2 encoding, browsers for
+the viewer's tests, the recorder) stays out of the daemon's memory until it is used. Checked
+in a fresh interpreter, which imports the daemon's modules as ``stereod run`` does."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+DAEMON_MODULES = (
+    "stereod.cli",
+    "stereod.cli.run",
+    "stereod.daemon.daemon",
+    "stereod.daemon.processing",
+)
+"""What ``stereod run`` imports before it reads its configuration."""
+
+NOT_IN_THE_DAEMON = (
+    "matplotlib",
+    "mcap",
+    "selenium",
+    "scipy",
+    "foxglove",
+    "websockets",
+    "yaml",
+    "stereod.ros.export_mcap",
+    "stereod.ros.mapping",
+    "stereod.ros.mcap_writer",
+    "stereod.ros.mcap_run",
+    "stereod.sources.recording",
+    "stereod.sources.recording_writer",
+    "stereod.sources.record",
+    "stereod.ros.ros2_live",
+    "stereod.view.plot",
+    "stereod.view.server",
+    "stereod.view.demo",
+    "stereod.ros.foxglove",
+    "stereod.vision.calibrate",
+)
+"""Packages and modules only some commands or settings need (``[ros2] enabled`` loads the
+ROS 2 encoders when the daemon starts its node)."""
+
+
+def imported_by(modules: tuple[str, ...]) -> set[str]:
+    """Every module a fresh interpreter holds after importing ``modules``."""
+    code = (
+        "import importlib, json, sys\n"
+        f"for m in {list(modules)!r}:\n"
+        "    importlib.import_module(m)\n"
+        "print(json.dumps(sorted(sys.modules)))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
+    )
+    return set(json.loads(out.stdout))
+
+
+@pytest.fixture(scope="module")
+def daemon_imports() -> set[str]:
+    return imported_by(DAEMON_MODULES)
+
+
+@pytest.mark.parametrize("name", NOT_IN_THE_DAEMON)
+def test_the_daemon_does_not_import(name: str, daemon_imports: set[str]) -> None:
+    loaded = sorted(m for m in daemon_imports if m == name or m.startswith(name + "."))
+    assert not loaded, f"importing the daemon loads {loaded}"
+
+
+def test_the_check_sees_what_a_module_imports() -> None:
+    """The same check finds the ROS 2 encoders where they are imported: it can fail."""
+    got = imported_by(("stereod.ros.ros2_live",))
+    assert "stereod.ros.mapping" in got and "stereod.ros.ros2_live" in got
