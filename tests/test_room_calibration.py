@@ -105,8 +105,11 @@ def board_poses(n: int) -> list[tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def write_views(tmp: Path, n: int, rigs: dict[str, tuple]) -> list[str]:
-    """Each rig's calibration file and its folder of rendered left-eye views; --rig args."""
+def write_views(
+    tmp: Path, n: int, rigs: dict[str, tuple], keep: dict[str, set[int]] | None = None
+) -> list[str]:
+    """Each rig's calibration file and its folder of rendered left-eye views (those of
+    ``keep[rig]`` when given); --rig args."""
     args = []
     poses = board_poses(n)
     for idx, (name, (t, angles)) in enumerate(rigs.items()):
@@ -118,6 +121,8 @@ def write_views(tmp: Path, n: int, rigs: dict[str, tuple]) -> list[str]:
         folder = tmp / f"views_{name}"
         folder.mkdir()
         for v, (br, bt) in enumerate(poses):
+            if keep is not None and v not in keep[name]:
+                continue
             img = render(br, bt, cam_r, cam_t, arrays["K1"], arrays["D1"])
             cv2.imwrite(str(folder / f"view{v:02d}.png"), img)
         args += ["--rig", f"{name}={tmp / f'cal_{name}.json'}:{folder}"]
@@ -151,6 +156,59 @@ def test_room_poses_from_three_rigs_match_the_truth(tmp_path: Path) -> None:
     mm = float(loop.split("closure error ")[1].split()[0])
     deg = float(loop.split("mm, ")[1].split()[0])
     assert mm < 3.0 and deg < 0.1, loop
+
+
+def run_room(tmp: Path, args: list[str]) -> tuple[str, dict[str, object]]:
+    """Run ``calibrate --room``; its stdout and the written rigs by name."""
+    out = tmp / "room.toml"
+    res = stereod("calibrate", "--room", str(out), *args, "--board", "9x6", "--square", "0.05")
+    assert res.returncode == 0, res.stderr
+    return res.stdout, {r.name: r for r in load_room(out).rigs}
+
+
+def check_poses(rigs: dict[str, object], mm: float, deg: float) -> None:
+    """Each rig's pose within ``mm`` and ``deg`` of the truth (per component)."""
+    for name, rig in rigs.items():
+        t, angles = RIGS[name]
+        got_t, got_r = rig.translation_m, rig.rotation_deg  # type: ignore[attr-defined]
+        assert np.abs(np.subtract(got_t, t)).max() < mm / 1000, (name, rig)
+        assert np.abs(np.subtract(got_r, angles)).max() < deg, (name, rig)
+
+
+def test_a_rig_chained_through_another(tmp_path: Path) -> None:
+    """Rig c shares four views with b only: its pose is chained a -> b -> c, within 5 mm and
+    0.25 deg (two links of four views each: their errors add); with no pair outside the
+    chain there is no loop to close."""
+    keep = {"a": {0, 1, 2, 3}, "b": set(range(8)), "c": {4, 5, 6, 7}}
+    stdout, rigs = run_room(tmp_path, write_views(tmp_path, 8, RIGS, keep))
+    check_poses(rigs, 5.0, 0.25)
+    assert "no loop" in stdout and "loop b-c" not in stdout
+
+
+def test_a_loop_of_separate_views_closes(tmp_path: Path) -> None:
+    """Each pair of rigs shares its own four views (a-b, b-c, a-c): poses within 5 mm and
+    0.25 deg; the loop b-c, measured apart from the chain a-b, a-c, closes within 8 mm and
+    0.4 deg (three links' errors), and is not exactly 0 (independent views)."""
+    keep = {"a": {0, 1, 2, 3, 8, 9, 10, 11}, "b": set(range(8)), "c": set(range(4, 12))}
+    stdout, rigs = run_room(tmp_path, write_views(tmp_path, 12, RIGS, keep))
+    check_poses(rigs, 5.0, 0.25)
+    loop = next(x for x in stdout.splitlines() if x.startswith("loop b-c"))
+    mm = float(loop.split("closure error ")[1].split()[0])
+    deg = float(loop.split("mm, ")[1].split()[0])
+    assert 0.0 < mm < 8.0 and deg < 0.4, loop
+
+
+def test_views_of_different_instants_are_refused(tmp_path: Path) -> None:
+    """Rig b's images of two views swapped (not of one instant): exit 78, the view named."""
+    args = write_views(tmp_path, 3, {k: RIGS[k] for k in "ab"})
+    b = tmp_path / "views_b"
+    (b / "view00.png").rename(b / "tmp.png")
+    (b / "view01.png").rename(b / "view00.png")
+    (b / "tmp.png").rename(b / "view01.png")
+    out = tmp_path / "room.toml"
+    res = stereod("calibrate", "--room", str(out), *args, "--board", "9x6", "--square", "0.05")
+    one_line_error(res, 78, r"view view0[01]\.png: rigs a and b disagree")
+    assert not out.exists()
 
 
 def test_a_rig_without_a_shared_view_is_one_line(tmp_path: Path) -> None:

@@ -32,6 +32,10 @@ from stereod.vision.calibration import Board, Calibration, rotation_angle_deg
 
 MIN_SHARED_VIEWS = 1
 """Fewest views two rigs must share for their transform to be used."""
+MAX_VIEW_DISAGREEMENT_DEG = 5.0
+"""Most one view's rig-to-rig rotation may differ from the pair's mean, deg: a few tenths is
+noise; more is a board whose corners one rig numbered from the other end (a board turned
+upside down for it), or images of different instants."""
 
 
 @dataclass(frozen=True)
@@ -193,6 +197,14 @@ def calibrate_room(rigs: Sequence[RigViews], board: Board) -> RoomReport:
                 continue
             rel = [poses[a][v] @ poses[b][v].inverse() for v in shared]
             ab = Pose(mean_rotation([p.r for p in rel]), np.mean([p.t for p in rel], axis=0))
+            for v, p in zip(shared, rel, strict=True):
+                off = rotation_angle_deg(ab.r.T @ p.r)
+                if off > MAX_VIEW_DISAGREEMENT_DEG:
+                    raise CalibrationError(
+                        f"view {v}: rigs {a} and {b} disagree with their other shared views by "
+                        f"{off:.1f} deg (a board seen upside down, its corners numbered from "
+                        "the other end, or images not taken at one instant): leave it out"
+                    )
             edges[(a, b)], edges[(b, a)] = ab, ab.inverse()
 
     room: dict[str, Pose] = {names[0]: Pose(np.eye(3), np.zeros(3))}
