@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stereod.fusion.room import load_room
-from stereod.vision.calibration import from_arrays, save
+from stereod.fusion.room import RigPose, load_room
+from stereod.vision.calibration import Calibration, from_arrays, save
 
 from .conftest import stereod
 from .test_cli import one_line_error
@@ -34,7 +34,7 @@ def rot(rx: float, ry: float, rz: float) -> np.ndarray:
     return mz @ my @ mx
 
 
-def rig_calibration(k1: float, small_turn_deg: float) -> tuple[dict[str, np.ndarray], object]:
+def rig_calibration(k1: float, small_turn_deg: float) -> tuple[dict[str, np.ndarray], Calibration]:
     """A non-canonical rig: distortion and a slight turn between the eyes (R1 is no identity)."""
     k = np.array([[600.0, 0, 322.0], [0, 598.0, 241.0], [0, 0, 1]])
     r = cv2.Rodrigues(np.array([0.0, math.radians(small_turn_deg), 0.01]))[0]
@@ -114,9 +114,9 @@ def write_views(
     poses = board_poses(n)
     for idx, (name, (t, angles)) in enumerate(rigs.items()):
         arrays, cal = rig_calibration(-0.05 - 0.02 * idx, 0.5 + 0.3 * idx)
-        save(cal, tmp / f"cal_{name}.json")  # type: ignore[arg-type]
+        save(cal, tmp / f"cal_{name}.json")
         rr, rt = rot(*angles), np.asarray(t)
-        lr, lt = left_in_rig(arrays, np.asarray(cal.R1))  # type: ignore[attr-defined]
+        lr, lt = left_in_rig(arrays, cal.array("R1"))
         cam_r, cam_t = rr @ lr, rr @ lt + rt
         folder = tmp / f"views_{name}"
         folder.mkdir()
@@ -158,7 +158,7 @@ def test_room_poses_from_three_rigs_match_the_truth(tmp_path: Path) -> None:
     assert mm < 3.0 and deg < 0.1, loop
 
 
-def run_room(tmp: Path, args: list[str]) -> tuple[str, dict[str, object]]:
+def run_room(tmp: Path, args: list[str]) -> tuple[str, dict[str, RigPose]]:
     """Run ``calibrate --room``; its stdout and the written rigs by name."""
     out = tmp / "room.toml"
     res = stereod("calibrate", "--room", str(out), *args, "--board", "9x6", "--square", "0.05")
@@ -166,11 +166,11 @@ def run_room(tmp: Path, args: list[str]) -> tuple[str, dict[str, object]]:
     return res.stdout, {r.name: r for r in load_room(out).rigs}
 
 
-def check_poses(rigs: dict[str, object], mm: float, deg: float) -> None:
+def check_poses(rigs: dict[str, RigPose], mm: float, deg: float) -> None:
     """Each rig's pose within ``mm`` and ``deg`` of the truth (per component)."""
     for name, rig in rigs.items():
         t, angles = RIGS[name]
-        got_t, got_r = rig.translation_m, rig.rotation_deg  # type: ignore[attr-defined]
+        got_t, got_r = rig.translation_m, rig.rotation_deg
         assert np.abs(np.subtract(got_t, t)).max() < mm / 1000, (name, rig)
         assert np.abs(np.subtract(got_r, angles)).max() < deg, (name, rig)
 
@@ -196,6 +196,20 @@ def test_a_loop_of_separate_views_closes(tmp_path: Path) -> None:
     mm = float(loop.split("closure error ")[1].split()[0])
     deg = float(loop.split("mm, ")[1].split()[0])
     assert 0.0 < mm < 8.0 and deg < 0.4, loop
+
+
+def test_a_rig_mounted_upside_down(tmp_path: Path) -> None:
+    """Rig b rolled 180 deg sees the board upside down: its corners are still numbered from
+    the board's own corner (9x6 has an odd number of squares one way), so its pose comes out
+    right: within 3 mm and 0.1 deg of (0.3, 0, 0) m, (0, -3, 180) deg."""
+    rigs = {"a": RIGS["a"], "b": ((0.3, 0.0, 0.0), (0.0, -3.0, 180.0))}
+    _, got = run_room(tmp_path, write_views(tmp_path, 6, rigs))
+    b = got["b"]
+    assert np.abs(np.subtract(b.translation_m, (0.3, 0.0, 0.0))).max() < 0.003
+    rz = b.rotation_deg[2] % 360.0
+    assert (
+        abs(rz - 180.0) < 0.1 and np.abs(np.subtract(b.rotation_deg[:2], (0.0, -3.0))).max() < 0.1
+    )
 
 
 def test_views_of_different_instants_are_refused(tmp_path: Path) -> None:
