@@ -18,8 +18,8 @@ import pytest
 import zenoh
 
 from stereod.bus.messages import ObjectsMessage
-from stereod_fakes.world import Scene, write_scene
-from stereod_fakes.world.rooms import RigPlacement, rig_scene, room_toml, three_rig_room
+from stereod_fakes.world import Scene
+from stereod_fakes.world.rooms import RigPlacement, three_rig_room, write_room
 from tests.processes import start_stereod
 
 from .conftest import free_endpoint, zenoh_config
@@ -35,11 +35,7 @@ NEAR_M = 0.35
 def rendered(tmp_path_factory: pytest.TempPathFactory) -> tuple[Scene, list[RigPlacement], Path]:
     """The room scene, its rigs and a folder with each rig's rendered views (``<rig>/``)."""
     scene, rigs = three_rig_room()
-    out = tmp_path_factory.mktemp("rooms")
-    for rig in rigs:
-        write_scene(rig_scene(scene, rig), out / rig.name)
-    (out / "room.toml").write_text(room_toml("lab", rigs))
-    return scene, rigs, out
+    return scene, rigs, write_room(scene, rigs, tmp_path_factory.mktemp("rooms"), "lab")
 
 
 def replay(folder: Path, rig: str, endpoint: str, utc_start: int) -> subprocess.Popen:

@@ -15,11 +15,13 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from ._base import F64, Vec3
 from .camera import Clock, Rig
+from .files import write_scene
 from .motion import Motion, Trajectory, Waypoints
 from .scene import Scene
 from .shapes import Sphere
@@ -88,6 +90,18 @@ def rig_scene(room_scene: Scene, placement: RigPlacement) -> Scene:
 def room_toml(name: str, placements: list[RigPlacement]) -> str:
     """A room file (TOML) of the placements."""
     return f'[room]\nname = "{name}"\n\n' + "\n".join(p.toml() for p in placements)
+
+
+def write_room(
+    room_scene: Scene, placements: list[RigPlacement], out_dir: str | Path, name: str = "lab"
+) -> Path:
+    """Render the room from every placement into ``out_dir/<rig>/`` (as :func:`write_scene`)
+    and write ``out_dir/room.toml``; returns ``out_dir``."""
+    out = Path(out_dir)
+    for pl in placements:
+        write_scene(rig_scene(room_scene, pl), out / pl.name)
+    (out / "room.toml").write_text(room_toml(name, placements))
+    return out
 
 
 THREE_RIGS = [
