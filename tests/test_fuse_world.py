@@ -38,12 +38,15 @@ def rendered(tmp_path_factory: pytest.TempPathFactory) -> tuple[Scene, list[RigP
     return scene, rigs, write_room(scene, rigs, tmp_path_factory.mktemp("rooms"), "lab")
 
 
-def replay(folder: Path, rig: str, endpoint: str, utc_start: int) -> subprocess.Popen:
+def replay(folder: Path, rig: str, endpoint: str, utc_start: int, jsonl: Path) -> subprocess.Popen:
+    """The rig's daemon replaying its views; it waits for a subscriber before it plays, so
+    that the fusion node's subscriptions start all rigs at once."""
     return start_stereod(
         "replay", "--left-video", str(folder / "left.mkv"), "--right-video",
         str(folder / "right.mkv"), "--left-ts", str(folder / "left.csv"), "--right-ts",
         str(folder / "right.csv"), "--rig", rig, "--utc-start", str(utc_start), "--connect",
-        endpoint, "--mode", "client", "--rate", "1", "-q",
+        endpoint, "--mode", "client", "--rate", "1", "-q", "--wait-subscriber", "120",
+        "--jsonl", str(jsonl),
     )  # fmt: skip
 
 
@@ -59,26 +62,32 @@ def test_one_id_per_ball_across_three_rendered_rigs(
     router = start_router(endpoint)
     procs: list[subprocess.Popen] = []
     messages: list[ObjectsMessage] = []
-    seen_by: list[ObjectsMessage] = []
     try:
-        fuse = start_stereod(
-            "fuse", "--room", str(folder / "room.toml"), "--connect", endpoint, "--mode",
-            "client",
-        )  # fmt: skip
-        procs.append(fuse)
         with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as session:
             session.declare_subscriber(
                 "stereod/rooms/lab/objects",
                 lambda s: messages.append(ObjectsMessage.model_validate_json(s.payload.to_bytes())),
             )
-            session.declare_subscriber(
-                "stereod/*/objects",
-                lambda s: seen_by.append(ObjectsMessage.model_validate_json(s.payload.to_bytes())),
-            )
-            time.sleep(1.0)  # the fusion node's subscriptions reach the router
-            utc_start = time.time_ns() + 2_000_000_000
-            players = [replay(folder / r.name, r.name, endpoint, utc_start) for r in rigs]
+            utc_start = time.time_ns()
+            players = [
+                replay(folder / r.name, r.name, endpoint, utc_start, folder / f"{r.name}.jsonl")
+                for r in rigs
+            ]
             procs += players
+            # All rigs' daemons up (their alive tokens on the bus) and waiting for a subscriber:
+            # the fusion node's subscriptions then start them together.
+            deadline = time.monotonic() + 120  # a guard against a hang, not a measurement
+            alive: set[str] = set()
+            while len(alive) < len(rigs) and time.monotonic() < deadline:
+                tokens = session.liveliness().get("stereod/*/alive", timeout=5)
+                alive = {str(r.ok.key_expr).split("/")[1] for r in tokens if r.ok}
+                time.sleep(0.1)
+            assert alive == {r.name for r in rigs}, alive
+            fuse = start_stereod(
+                "fuse", "--room", str(folder / "room.toml"), "--connect", endpoint, "--mode",
+                "client",
+            )  # fmt: skip
+            procs.append(fuse)
             for p in players:
                 _, err = p.communicate(timeout=300)
                 assert p.returncode == 0, err
@@ -90,6 +99,11 @@ def test_one_id_per_ball_across_three_rendered_rigs(
                 p.communicate(timeout=30)
         router.terminate()
         router.communicate(timeout=30)
+    seen_by = [
+        ObjectsMessage.model_validate_json(line)
+        for r in rigs
+        for line in (folder / f"{r.name}.jsonl").read_text().splitlines()
+    ]
     first = scene.frame_times("left")[0]
     balls = {o.name: o.trajectory for o in scene.objects}
 
