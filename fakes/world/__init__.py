@@ -97,7 +97,8 @@ trades exactness for time).
 Modules: ``scene`` (Scene, timing, truth, rendering), ``files`` (write_scene, load_scene),
 ``shapes``, ``motion``, ``people``, ``light``, ``background`` (wall, floor, shadows),
 ``raycast`` (object regions), ``camera`` (rig, clocks, photometry, quality), ``textures``,
-``transport``, ``presets`` and ``presets_room``, ``cli``.
+``transport``, ``presets`` and ``presets_room``, ``rooms`` (one room seen by several
+rigs, each from its pose), ``cli``.
 """
 
 from __future__ import annotations

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
+from stereod.bus import keys
 from stereod.cli.common import (
     add_config,
     add_driver,
@@ -16,12 +18,14 @@ from stereod.cli.common import (
 )
 from stereod.cli.progress import Progress
 from stereod.daemon.config import load_config
+from stereod.errors import UsageError
 from stereod.files.bounds import SQUARE_M
 from stereod.files.output_file import check_outputs, stopped_by_signals
 from stereod.sources.drivers import load_driver
 from stereod.sources.frames import merged
 from stereod.vision import calibrate as cb
-from stereod.vision.calibration import MIN_BOARD_CORNERS, Board, create_output, write
+from stereod.vision import room_calibration as room_cal
+from stereod.vision.calibration import MIN_BOARD_CORNERS, Board, create_output, load, write
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -53,6 +57,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         action="store_true",
         help="collect pairs from the configured driver (--config, --driver, "
         "--recording) while the board is moved in front of the rig",
+    )
+    src.add_argument(
+        "--room",
+        type=path_arg,
+        metavar="OUT",
+        help="write a room file (TOML): each --rig's pose in the first rig's frame, from "
+        "board views that the rigs took at the same instants (same file name in each folder)",
     )
     p.add_argument(
         "--board",
@@ -100,6 +111,24 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="half window of the sub-pixel corner refinement, px (default: adapted "
         "to the squares' size in the image; OpenCV's stereo_calib sample uses 11)",
     )
+    room = p.add_argument_group("room calibration (--room)")
+    room.add_argument(
+        "--rig",
+        action="append",
+        type=rig_arg,
+        default=[],
+        metavar="NAME=CAL:DIR",
+        help="a rig: its name, calibration file and folder of left-eye board images "
+        "(or a calibration pairs folder with left/ or leftNN files); twice or more, the first "
+        "is the reference whose frame is the room's",
+    )
+    room.add_argument(
+        "--room-name",
+        default="room",
+        type=room_name_arg,
+        metavar="NAME",
+        help="the room's name in the file (default room)",
+    )
     live = p.add_argument_group("live collection")
     live.add_argument(
         "--wanted",
@@ -132,9 +161,30 @@ def board_arg(text: str) -> tuple[int, int]:
     return cols, rows
 
 
+def rig_arg(text: str) -> tuple[str, Path, Path]:
+    """An argparse type: ``NAME=CAL:DIR``, a rig's name, calibration file and image folder."""
+    name, eq, rest = text.partition("=")
+    cal, colon, folder = rest.partition(":")
+    if not (eq and colon and cal and folder and re.match(keys.RIG_PATTERN, name)):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected NAME=CAL:DIR, e.g. a=cal_a.json:views_a (NAME of letters, "
+            "digits, _ and -)"
+        )
+    return name, path_arg(cal), path_arg(folder)
+
+
+def room_name_arg(text: str) -> str:
+    """An argparse type: a room's name, one Zenoh key chunk."""
+    if not re.match(keys.RIG_PATTERN, text):
+        raise argparse.ArgumentTypeError(f"{text!r}: a room's name is letters, digits, _ and -")
+    return text
+
+
 def run(a: argparse.Namespace) -> int:
     cols, rows = a.board
     board = Board(cols=cols, rows=rows, square=a.square)
+    if a.room is not None or a.rig:
+        return _room(a, board)
     limits = cb.Limits(min_pairs=a.min_pairs, max_rms_px=a.max_rms)
     pairs = None
     if not a.live:
@@ -159,6 +209,28 @@ def run(a: argparse.Namespace) -> int:
             print(f"stereod: {bad}; written anyway (--force)", file=sys.stderr)
         write(report.calibration, out)
     print(f"wrote {a.out} (calibration id {report.calibration.id})")
+    return 0
+
+
+def _room(a: argparse.Namespace, board: Board) -> int:
+    """``--room``: the rigs' poses from their shared board views, written as a room file."""
+    if a.room is None:
+        raise UsageError("--rig is for --room: add --room OUT.toml")
+    names = [name for name, _, _ in a.rig]
+    if len(names) < 2:
+        raise UsageError("--room needs two --rig NAME=CAL:DIR or more")
+    if len(set(names)) != len(names):
+        raise UsageError(f"--rig: a name is given twice ({names}); give each rig one name")
+    rigs = []
+    for name, cal_path, folder in a.rig:
+        images = room_cal.left_images(folder)
+        check_outputs({"--room": a.room}, [cal_path, *images.values()])
+        rigs.append(room_cal.RigViews(name, load(cal_path), images))
+    with stopped_by_signals("calibrate", a.room), create_output(a.room) as out:
+        report = room_cal.calibrate_room(rigs, board)
+        print(room_cal.format_report(report))
+        out.write(room_cal.room_toml(a.room_name, report).encode())
+    print(f"wrote {a.room} (room {a.room_name!r}, {len(rigs)} rigs)")
     return 0
 
 

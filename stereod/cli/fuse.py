@@ -44,6 +44,7 @@ from stereod.errors import ConfigError, ReaderGone
 from stereod.files.output_file import AtomicOutput, check_outputs
 from stereod.fusion.clock import ClockWatch
 from stereod.fusion.fuser import FuseParams, Fuser
+from stereod.fusion.mcap import RoomMcapWriter
 from stereod.fusion.output import room_message
 from stereod.fusion.room import Room, load_room
 from stereod.fusion.status import FUSE_STATUS_SCHEMA, FuseStatus, RigLink
@@ -75,6 +76,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="FILE",
         help="also write every room objects message, one per line (replaced at a clean stop; a "
         "device or FIFO written in place; /dev/stdout sends the summary to stderr)",
+    )
+    p.add_argument(
+        "--mcap",
+        type=path_arg,
+        metavar="FILE",
+        help="also write the room's tracks as ROS 2 messages (Odometry, markers, JSON) in the "
+        "room frame, with /tf_static placing every rig's frame in the room (replaced at a "
+        "clean stop)",
     )
     p.add_argument(
         "--gate",
@@ -121,12 +130,14 @@ class FuseNode:
         publisher: Publisher,
         jsonl: AtomicOutput | None,
         prefix: str,
+        mcap: RoomMcapWriter | None = None,
     ) -> None:
         self.room = room
         self.fuser = fuser
         self.clock = clock
         self.pub = publisher
         self.jsonl = jsonl
+        self.mcap = mcap
         self.inbox: queue.Queue[tuple[float, str, bytes]] = queue.Queue(QUEUE_SIZE)
         self.prefix = prefix
         self.done = threading.Event()
@@ -218,6 +229,8 @@ class FuseNode:
         done = time.monotonic()
         if self.jsonl is not None:
             self.jsonl.write(payload + b"\n")
+        if self.mcap is not None:
+            self.mcap.write_objects(msg, raw_json=payload.decode())
         with self.lock:
             self.steps += 1
             self.tracks = len(msg.objects)
@@ -309,8 +322,8 @@ def run(a: argparse.Namespace) -> int:
     cfg = load_config(a.config, {"zenoh": zenoh_overrides(a)})
     setup_logging(a.log_level)
     inputs = [a.room, a.config, cfg.zenoh.config_file]
-    check_outputs({"--jsonl": a.jsonl}, inputs)
-    summaries_off_stdout(a.jsonl)
+    check_outputs({"--jsonl": a.jsonl, "--mcap": a.mcap}, inputs)
+    summaries_off_stdout(a.jsonl, a.mcap)
     params = FuseParams(gate_chi2=a.gate, rig_timeout_s=a.rig_timeout, max_coast_s=a.max_coast)
     fuser = Fuser(room, params)
     clock = ClockWatch([r.name for r in room.rigs], bound_ms=a.clock_bound)
@@ -338,7 +351,13 @@ def run(a: argparse.Namespace) -> int:
     status_now = threading.Event()
     publisher = Publisher(zcfg, room.name, queryables, on_status_subscriber=status_now.set)
     jsonl = AtomicOutput(a.jsonl) if a.jsonl is not None else None
-    node = FuseNode(room, fuser, clock, publisher, jsonl, prefix)
+    try:
+        mcap = RoomMcapWriter(a.mcap, room) if a.mcap is not None else None
+    except BaseException:
+        if jsonl is not None:
+            jsonl.discard()
+        raise
+    node = FuseNode(room, fuser, clock, publisher, jsonl, prefix, mcap)
     notifier = Notifier()
     committed = False
     try:
@@ -393,7 +412,9 @@ def run(a: argparse.Namespace) -> int:
             raise node.error
         if jsonl is not None:
             jsonl.commit()
-            committed = True
+        if mcap is not None:
+            mcap.close()
+        committed = True
         say(
             f"{node.steps} room messages from {sum(node.received.values())} rig messages; "
             f"{len(fuser.restarts)} rig restarts seen"
@@ -406,5 +427,7 @@ def run(a: argparse.Namespace) -> int:
     finally:
         if jsonl is not None and not committed:
             jsonl.discard()
+        if mcap is not None and not committed:
+            mcap.abort()
         notifier.close()
     return 0

@@ -6,6 +6,7 @@ Modules by job: :mod:`.room` (the room file and each rig's pose), :mod:`.frames`
 tracks moved into the room frame and predicted to an instant), :mod:`.fuser` (association
 across rigs, the information-form fusion and the room's ids), :mod:`.clock` (each rig's clock
 offset from shared observations), :mod:`.output` (room tracks as an objects message),
-:mod:`.status` (the fusion node's status message) and :mod:`.discipline` (how a host's clock
-is kept on UTC, for a daemon's status).
+:mod:`.status` (the fusion node's status message), :mod:`.mcap` (room tracks and every rig's
+frame as ROS 2 messages in MCAP) and :mod:`.discipline` (how a host's clock is kept on UTC, for
+a daemon's status).
 """

@@ -6,7 +6,7 @@
     name = "lab"
     [[room.rigs]]
     name = "a"
-    translation_m = [0.0, 0.0, 0.0]   # the rig's origin (left eye's centre) in the room, m
+    translation_m = [0.0, 0.0, 0.0]   # the rig's origin (its baseline's midpoint) in the room, m
     rotation_deg = [0.0, 0.0, 0.0]    # about X, Y, Z of the rig frame, deg
 
 A point ``p`` in a rig's frame (X right, Y down, Z forward, m) is ``R p + t`` in the room, with
