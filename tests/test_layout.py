@@ -17,7 +17,7 @@ FORBIDDEN = {
     "tracking": {"daemon", "bus", "ros", "view", "cli", "client", "pipeline"},
     "sources": {"daemon", "bus", "ros", "view", "cli", "client"},
     "files": {"daemon", "bus", "ros", "view", "cli", "client", "pipeline"},
-    "fusion": {"daemon", "ros", "view", "cli", "client", "pipeline"},
+    "fusion": {"daemon", "view", "cli", "client", "pipeline"},
 }
 """Which top-level parts of ``stereod`` a sub-package may not import, directly or inside a
 function: the image and tracking code knows nothing of the service, the wire or ROS."""
