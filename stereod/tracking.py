@@ -873,7 +873,10 @@ class Tracker:
         # VALID_HEADING_SIGMA_DEG (the speed's absolute floor would otherwise give anything
         # slow on the ground, or falling, a "known" direction).
         heading_valid = valid and across <= bound and heading_sigma <= VALID_HEADING_SIGMA_DEG
-        if valid and spd > max(p.stationary_mps, 3.0 * spd_sigma):
+        # Seen moving: confirmed, and its speed clearly above nil (three sigmas), even where
+        # the velocity is too uncertain to publish as valid (a walking person's centre jumps
+        # as arms and legs swing, and their speed's sigma stays above the valid bound).
+        if started and confirmed and spd > max(p.stationary_mps, 3.0 * spd_sigma):
             tr.last_moving_ns = t_ns
         still_for = None if tr.last_moving_ns is None else (t_ns - tr.last_moving_ns) * 1e-9
         if still_for is not None and still_for >= p.hold_still_s:
