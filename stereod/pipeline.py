@@ -42,7 +42,13 @@ from stereod.vision.geometry.stereo import (
     match_blobs,
     sym3,
 )
-from stereod.vision.grouping import GroupParams, extent_m, group_objects
+from stereod.vision.grouping import (
+    EDGE_SIGMA_PX,
+    GroupParams,
+    edge_disparity_px,
+    extent_m,
+    group_objects,
+)
 
 log = logging.getLogger(__name__)
 
@@ -682,6 +688,16 @@ class Pipeline:
             sigma = math.hypot(sigma, seg)
         xl, yl = tri_left.tolist()
         xr, yr = tri_right.tolist()
+        edge = None
+        if clipped:  # cut by one side of the image: the depth from its other side's edges
+            edge = edge_disparity_px(
+                lb.bbox_px[i], rb.bbox_px[j], xl - float(lb.centroid_px[i, 0]),
+                xr - float(rb.centroid_px[j, 0]), p.rig.width_px,
+            )  # fmt: skip
+            if edge is not None:
+                mid = 0.5 * (xl + xr)
+                xl, xr = mid + 0.5 * edge, mid - 0.5 * edge
+                sigma = math.hypot(sigma, EDGE_SIGMA_PX)
         # The rows' gap says how the two segmentations disagree only where both centroids
         # are at one instant and segmented (not placed on one row by appearance matching).
         # An outline cut by the image's edge counts too: its gap is as much a sign that its
@@ -691,13 +707,15 @@ class Pipeline:
             sigma = math.hypot(sigma, _row_error_px(row_gap, before.row_gap_px))
         point, cov = p.rig.rectified.triangulate(xl, yl, xr, yr, sigma)
         factor = 1.0
-        if p.silhouette_depth and not cut:
+        if p.silhouette_depth and not cut and edge is None:
             point, cov, factor = centre_depth(point, cov, area, p.rig.focal_px, width_px)
         centre = np.array(point)
         cov_m2 = sym3(cov)
         if cut:  # its centre's height is anywhere within its cut box: half its height as sigma
             h_px = max(int(lb.bbox_px[i, 3]), int(rb.bbox_px[j, 3]))
             cov_m2[1, 1] += (0.5 * h_px * float(point[2]) / p.rig.focal_px) ** 2
+        if edge is not None:  # its centre lies anywhere across what is seen of it
+            cov_m2[0, 0] += (0.5 * width_px * float(point[2]) / p.rig.focal_px) ** 2
         extent = None
         if np.all(np.isfinite(centre)):  # (one that is not is refused by _in_range)
             lo, hi = extent_m(
@@ -721,6 +739,7 @@ class Pipeline:
             clipped=clipped,
             cut=cut,
             depth_factor=factor,
+            edge_depth=edge is not None,
             row_gap_px=row_gap,
             extent_m=extent,
         )

@@ -22,9 +22,14 @@ Used by ``benchmarks/accuracy.py`` (every combination) and by the accuracy tests
 from __future__ import annotations
 
 import dataclasses
+import functools
+import hashlib
+import json
 import math
+import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -123,18 +128,84 @@ def world_room(
     return case
 
 
+CACHE_ENV = "STEREOD_WORLD_CACHE"
+"""A directory to keep rendered scenes in (set it to iterate on the tracker in seconds; a
+person scene takes minutes to render at 320x240). Unset, every run renders afresh."""
+
+
+def _cache_dir(scene: world.Scene) -> Path | None:
+    """Where a scene's frames are kept: the cache directory, a digest of everything the
+    scene is made of (so any change of parameters renders afresh), or None without a cache."""
+    root = os.environ.get(CACHE_ENV)
+    if not root:
+        return None
+    text = json.dumps(scene.to_dict(), sort_keys=True, default=str)
+    return Path(root) / hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+def world_frames(scene: world.Scene) -> Iterator[Frame]:
+    """A scene's frames in capture order, read from the cache (:data:`CACHE_ENV`) if they
+    were rendered before, else rendered (and stored there, if set)."""
+    where = _cache_dir(scene)
+    if where is not None and (where / "meta.npy").exists():
+        meta = np.load(where / "meta.npy")
+        images = np.load(where / "images.npy", mmap_mode="r")
+        for (eye, t_ns, seq), image in zip(meta.tolist(), images, strict=True):
+            yield Frame(Eye(("left", "right")[eye]), np.array(image), int(t_ns), int(seq))
+        return
+    kept: list[tuple[int, int, int]] = []
+    images_out = None
+    n = len(scene.frame_times("left")) + len(scene.frame_times("right"))
+    for f in scene.frames():
+        if where is not None:
+            if images_out is None:
+                where.mkdir(parents=True, exist_ok=True)
+                images_out = np.lib.format.open_memmap(
+                    where / f"images.{os.getpid()}.npy", "w+", np.uint8, (n, *f.image.shape)
+                )
+            images_out[len(kept)] = f.image
+            kept.append((0 if f.eye == "left" else 1, f.t_ns, f.seq))
+        yield Frame(Eye(f.eye), f.image, f.t_ns, f.seq)
+    if where is not None and images_out is not None and len(kept) == n:
+        images_out.flush()
+        del images_out
+        (where / f"images.{os.getpid()}.npy").replace(where / "images.npy")
+        np.save(where / f"meta.{os.getpid()}.npy", np.array(kept, np.int64))
+        (where / f"meta.{os.getpid()}.npy").replace(where / "meta.npy")
+
+
 def _world_case(scene: world.Scene, mode: RigMode, name: str, seed: int, fast: bool) -> Case:
     def frames() -> Iterator[Frame]:
-        for f in scene.frames():
-            yield Frame(Eye(f.eye), f.image, f.t_ns, f.seq)
+        return world_frames(scene)
 
     rig = mode.rig
 
+    @functools.cache
+    def truth(t_ns: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        return scene.truth(t_ns)
+
+    # Whether an object shows at all, ray cast on a coarse grid with one ray per pixel (the
+    # full image's supersampled cast of a person near the rig takes seconds), once an instant.
+    coarse = dataclasses.replace(
+        scene,
+        rig=dataclasses.replace(
+            scene.rig, width_px=max(scene.rig.width_px // 4, 2),
+            height_px=max(scene.rig.height_px // 4, 2),
+        ),
+        quality=world.Quality(1, 1, 1, 1, 1, 1),
+    )  # fmt: skip
+
+    @functools.cache
+    def coverage(eye: str, t_ns: int) -> dict[str, float]:
+        return coarse.coverage(eye, t_ns)
+
     def in_view(obj: str, t_ns: int) -> bool:
-        got = scene.truth(t_ns).get(obj)
+        got = truth(t_ns).get(obj)
         if got is None or got[0][2] <= 0.1:
             return False
-        if not (scene.visible(obj, "left", t_ns) and scene.visible(obj, "right", t_ns)):
+        if not (
+            coverage("left", t_ns).get(obj, 0.0) > 0 and coverage("right", t_ns).get(obj, 0.0) > 0
+        ):
             return False
         left, right = rig.project(got[0][None, :])
         return all(
@@ -148,7 +219,7 @@ def _world_case(scene: world.Scene, mode: RigMode, name: str, seed: int, fast: b
         name,
         seed,
         frames,
-        scene.truth,
+        truth,
         in_view,
         [o.name for o in scene.objects],
         fast,
@@ -283,6 +354,15 @@ class ObjectScore:
     """The first of its frames in view with a valid velocity on it."""
     valid_estimates: int = 0
     """States scored for the heading (the fewer: a heading is valid only with the speed)."""
+    frames_tracked: int = 0
+    """Its frames in view with a confirmed track state on it (moving or stopped)."""
+    closest_tracked_m: float = math.nan
+    """The smallest true depth (m) at which a confirmed track state was on it."""
+
+    @property
+    def tracked_share(self) -> float:
+        """The share of its frames in view in which a confirmed track was on it."""
+        return self.frames_tracked / self.frames_in_view if self.frames_in_view else math.nan
 
 
 @dataclass
@@ -291,10 +371,17 @@ class CaseScore:
     objects: list[ObjectScore]
     ghosts: list[int]
     """Confirmed track ids that followed no object."""
+    ghost_life_s: dict[int, float] = field(default_factory=dict)
+    """How long (s) each ghost was reported confirmed or stationary (first to last such
+    state)."""
 
 
 SEEN = (TrackLifecycle.CONFIRMED, TrackLifecycle.STATIONARY)
 """The states of a confirmed track seen in its pair (moving, or stopped)."""
+
+
+STILL_MPS = 0.05
+"""Below this true speed (m/s) an object is stopped: its heading and speed are not scored."""
 
 
 def _gate_m(rig: CanonicalRig, depth_m: float) -> float:
@@ -302,8 +389,11 @@ def _gate_m(rig: CanonicalRig, depth_m: float) -> float:
     return max(0.2, 3.0 * float(rig.depth_error_one_px_m(depth_m)))
 
 
-def score(case: Case, results: list[PairResult]) -> CaseScore:
-    """Score a run of ``case`` (see the module docstring)."""
+def score(case: Case, results: list[PairResult], gate_m: float | None = None) -> CaseScore:
+    """Score a run of ``case`` (see the module docstring). ``gate_m``: the largest distance
+    (m) of a track state from an object's true centre to be on it (default: three times eq.
+    12's one-pixel error at its depth, at least 0.2 m; a person's centre, what their silhouettes
+    show of them, is a looser thing)."""
     rig = case.mode.rig
     # Which object each (pair, track) state is on, if any.
     on: dict[int, list[str | None]] = {}
@@ -318,7 +408,8 @@ def score(case: Case, results: list[PairResult]) -> CaseScore:
             best, best_d = None, math.inf
             for n, (p, _) in visible.items():
                 d = float(np.linalg.norm(s.position_m - p))
-                if d < best_d and d <= _gate_m(rig, float(p[2])):
+                gate = gate_m if gate_m is not None else _gate_m(rig, float(p[2]))
+                if d < best_d and d <= gate:
                     best, best_d = n, d
             on.setdefault(s.track_id, []).append(best)
             rows.append((k, s, best))
@@ -329,6 +420,11 @@ def score(case: Case, results: list[PairResult]) -> CaseScore:
         follows[tid] = max(set(named), key=named.count) if named else None
     confirmed = {s.track_id for _, s, _ in rows if s.lifecycle in SEEN}
     ghosts = sorted(t for t in confirmed if follows[t] is None)
+    life: dict[int, list[int]] = {}
+    for _, s, _ in rows:
+        if s.track_id in ghosts and s.lifecycle in SEEN:
+            life.setdefault(s.track_id, []).append(s.t_ns)
+    ghost_life = {t: (max(ts) - min(ts)) * 1e-9 for t, ts in life.items()}
     scores = []
     for name in case.objects:
         o = ObjectScore(name)
@@ -342,7 +438,14 @@ def score(case: Case, results: list[PairResult]) -> CaseScore:
         lo = frames[0] + 0.2 * (frames[-1] - frames[0])
         hi = frames[-1] - 0.2 * (frames[-1] - frames[0])
         dh, ds, dp, ratio = [], [], [], []
+        tracked: set[int] = set()
         for k, s, n in rows:
+            if n == name and k in order and s.lifecycle in SEEN:
+                tracked.add(k)
+                z = float(case.truth(s.t_ns)[name][0][2])
+                o.closest_tracked_m = (
+                    z if math.isnan(o.closest_tracked_m) else min(o.closest_tracked_m, z)
+                )
             if n != name or follows.get(s.track_id) != name:
                 continue
             if k in order:
@@ -356,12 +459,15 @@ def score(case: Case, results: list[PairResult]) -> CaseScore:
             err = float(np.linalg.norm(s.position_m - p))
             dp.append(err)
             ratio.append(err / float(rig.depth_error_one_px_m(float(p[2]))))
+            speed = float(np.linalg.norm(v))
+            if speed < STILL_MPS:  # stopped: no heading, and no speed to be a share of
+                continue
             if s.heading_valid:
                 dh.append(angle_diff_deg(s.heading_deg, math.degrees(math.atan2(v[0], v[2]))))
             if s.velocity_valid:
-                speed = float(np.linalg.norm(v))
                 ds.append((s.speed_mps - speed) / speed)
         o.valid_estimates = len(dh)
+        o.frames_tracked = len(tracked)
         if dh:
             o.heading_err_deg = float(np.median(dh))
             o.heading_p90_deg = float(np.percentile(np.abs(dh), 90))
@@ -371,4 +477,4 @@ def score(case: Case, results: list[PairResult]) -> CaseScore:
             o.position_err_m = float(np.median(dp))
             o.position_ratio = float(np.median(ratio))
         scores.append(o)
-    return CaseScore(case, scores, ghosts)
+    return CaseScore(case, scores, ghosts, ghost_life)

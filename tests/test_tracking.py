@@ -629,3 +629,28 @@ def test_a_confirmed_track_takes_a_detection_that_overlaps_it_beyond_its_gate() 
     states, ended = step(tracker, t, [jumped], size_m=0.5)
     assert ended == [] and [s.track_id for s in states] == [1]
     assert states[0].lifecycle is TrackLifecycle.CONFIRMED
+
+
+def test_a_walker_whose_speed_is_never_valid_is_held_when_they_stop() -> None:
+    """A person's centre jumps by several centimetres a frame as arms and legs swing: the
+    speed's sigma stays above the valid bound while they walk at 1.2 m/s, yet they clearly
+    move (the speed is many sigmas above nil). Once they stop, they are ``stationary`` and
+    held out of the background, so they keep their id through a stop."""
+    rng = np.random.default_rng(3)
+    walk = line([-0.8, 0.0, 3.0], [1.2, 0.0, 0.0])
+    tracker = Tracker(TrackerParams())
+    states: list[TrackState] = []
+    walked = []
+    for k in range(30):
+        t = k * DT_NS
+        p = walk(t * 1e-9) + rng.normal(0.0, 0.06, 3) * [1.0, 1.0, 0.3]
+        states, _ = step(tracker, t, [p], size_m=0.5)
+        walked += states
+    assert not any(s.velocity_valid for s in walked), "the walk's speed was valid"
+    stop = walk(29 * DT_NS * 1e-9)
+    for k in range(30, 30 + 150):
+        t = k * DT_NS
+        states, _ = step(tracker, t, [stop + rng.normal(0.0, 0.005, 3)], size_m=0.5)
+    (s,) = states
+    assert s.lifecycle is TrackLifecycle.STATIONARY, s.lifecycle
+    assert s.freeze_background

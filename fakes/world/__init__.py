@@ -117,6 +117,7 @@ from .presets_room import (
     people_crossing,
     person_approach,
     person_sit_walk,
+    robot_push_box,
     robot_stop_go,
 )
 from .scene import Scene
@@ -162,6 +163,7 @@ __all__ = [
     "robot_ball",
     "robot_box",
     "robot_cylinder",
+    "robot_push_box",
     "robot_stop_go",
     "write_scene",
 ]

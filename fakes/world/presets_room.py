@@ -252,6 +252,64 @@ def robot_stop_go(
     )  # fmt: skip
 
 
+BOX_BGR = (60.0, 150.0, 200.0)
+
+
+def robot_push_box(
+    push_m: float = 0.6,
+    *,
+    mode: Mode = MODE_320x240_30,
+    hfov_deg: float = 60.0,
+    seed: int = 0,
+    skew: Skew = 0.0,
+    lead_in_s: float = 1.2,
+    speed_mps: float = 0.5,
+    distance_m: float = 1.8,
+    after_s: float = 7.0,
+    exposure_s: float = 0.0,
+    photometry: Photometry | None = None,
+) -> Scene:
+    """A box stands on the floor at x = -0.3 m, ``distance_m`` in front of the rig, from the
+    start; the round robot of :func:`robot_stop_go` drives in from the left, pushes it
+    ``push_m`` to the right, backs out of the view the way it came, and the scene goes on for
+    ``after_s`` with the box at its new place: where the box stood, the floor it hid is seen
+    again (what a moved object leaves behind)."""
+    room = Room()
+    floor = room.floor_height_m if room.floor_height_m is not None else 0.35
+    r, height = 0.10, 0.15
+    half = (0.12, 0.08, 0.12)
+    y_robot, y_box = floor - 0.5 * height, floor - half[1]
+    box_x = -0.3
+    contact = box_x - half[0] - r  # the robot's centre when it touches the box
+    edge = distance_m * 0.6 + 0.5
+    t_touch = lead_in_s + (contact + edge) / speed_mps
+    t_pushed = t_touch + push_m / speed_mps
+    t_out = t_pushed + (contact + push_m + edge) / speed_mps
+    robot = Cylinder(
+        name="robot",
+        trajectory=Waypoints(
+            ((-edge, y_robot, distance_m), (contact, y_robot, distance_m),
+             (contact + push_m, y_robot, distance_m), (-edge, y_robot, distance_m)),
+            (lead_in_s, t_touch, t_pushed, t_out),
+        ),
+        radius_m=r, height_m=height, colour_bgr=ROBOT_BGR, stripe_bgr=(40.0, 60.0, 200.0),
+        stripe_half_width_m=0.015,
+    )  # fmt: skip
+    box = Box(
+        name="box",
+        trajectory=Waypoints(
+            ((box_x, y_box, distance_m), (box_x, y_box, distance_m),
+             (box_x + push_m, y_box, distance_m)),
+            (0.0, t_touch, t_pushed), hold=True,
+        ),
+        half_size_m=half, colour_bgr=BOX_BGR,
+    )  # fmt: skip
+    return _room(
+        "robot_push_box", mode, hfov_deg, skew, t_out + after_s, [robot, box], seed, room,
+        exposure_s, photometry, None,
+    )  # fmt: skip
+
+
 PRESETS: dict[str, Callable[..., Scene]] = {
     **_BASE_PRESETS,
     "lamp_ball": lamp_ball,
@@ -260,4 +318,5 @@ PRESETS: dict[str, Callable[..., Scene]] = {
     "person_approach": person_approach,
     "people_crossing": people_crossing,
     "robot_stop_go": robot_stop_go,
+    "robot_push_box": robot_push_box,
 }

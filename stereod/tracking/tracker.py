@@ -131,6 +131,10 @@ class Observation:
     """Cut by the image's top or bottom edge: its height is unknown (its Y variance says so);
     its X and depth hold."""
     depth_factor: float = 1.0
+    edge_depth: bool = False
+    """Clipped on one side only, its depth taken from the disparity of its outline's other
+    side (:func:`stereod.pipeline.edge_disparity_px`): the filter takes it, its lateral
+    position loosely."""
     row_gap_px: float | None = None
     extent_m: tuple[np.ndarray, np.ndarray] | None = None
     """The object's 3D box (min and max corners, m) relative to ``position_m``
@@ -632,7 +636,7 @@ class Tracker:
                 tr = self._tracks[tid]
                 if not tr.started:
                     self._begin(tr, t_ns, ob)
-                elif ob.clipped:  # part of it out of view: its position is predicted
+                elif ob.clipped and not ob.edge_depth:  # part of it out of view: predicted
                     self._predict(tr, t_ns)
                 else:
                     self._filter(tr, t_ns, ob)
@@ -704,7 +708,8 @@ class Tracker:
         itself: the prediction's covariance is widened by as much as it takes to bring the
         innovation back to that bound (a fading memory), so the update leans on the
         measurement as much as the surprise calls for, and no more."""
-        self._learn_noise(tr, t_ns, ob)
+        if not ob.clipped:  # a clipped outline's centroid moves with the cut, not the object
+            self._learn_noise(tr, t_ns, ob)
         r = ob.cov_m2 * tr.noise_scale
         q = self._q(tr)
         tr.kf, ll = self._step(tr.kf, t_ns, ob, r, q, self._accel(tr.falling))
@@ -868,7 +873,10 @@ class Tracker:
         # VALID_HEADING_SIGMA_DEG (the speed's absolute floor would otherwise give anything
         # slow on the ground, or falling, a "known" direction).
         heading_valid = valid and across <= bound and heading_sigma <= VALID_HEADING_SIGMA_DEG
-        if valid and spd > max(p.stationary_mps, 3.0 * spd_sigma):
+        # Seen moving: confirmed, and its speed clearly above nil (three sigmas), even where
+        # the velocity is too uncertain to publish as valid (a walking person's centre jumps
+        # as arms and legs swing, and their speed's sigma stays above the valid bound).
+        if started and confirmed and spd > max(p.stationary_mps, 3.0 * spd_sigma):
             tr.last_moving_ns = t_ns
         still_for = None if tr.last_moving_ns is None else (t_ns - tr.last_moving_ns) * 1e-9
         if still_for is not None and still_for >= p.hold_still_s:

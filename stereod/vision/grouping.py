@@ -25,7 +25,7 @@ import numpy as np
 
 from stereod.vision.detect import Blobs
 
-__all__ = ["GroupParams", "Grouped", "extent_m", "group_objects"]
+__all__ = ["GroupParams", "Grouped", "edge_disparity_px", "extent_m", "group_objects"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -392,3 +392,35 @@ def extent_m(
     lo = np.array([position_m[0] - left_m, position_m[1] - top_m, z - 0.5 * w * s])
     hi = np.array([lo[0] + w * s, lo[1] + h * s, z + 0.5 * w * s])
     return lo, hi
+
+
+EDGE_SIGMA_PX = 1.0
+"""The noise (px) of a disparity read between two outlines' edges: each edge is a whole pixel
+of a segmentation, not an area's mean."""
+
+
+def edge_disparity_px(
+    left_bbox_px: np.ndarray,
+    right_bbox_px: np.ndarray,
+    left_shift_px: float,
+    right_shift_px: float,
+    width_px: int,
+) -> float | None:
+    """The disparity (px) of an object cut by one side of the image, read between its
+    outlines' other sides: an object near the rig that reaches past the image's right edge
+    shows each eye a different part of itself, so its centroids' disparity is off, but its
+    left edge is one surface point seen by both eyes. The boxes are x, y, w, h image px;
+    ``*_shift_px`` move an eye's x into the coordinates the centroids are triangulated in
+    (rectified, at one instant). ``None`` when it is cut by neither side or by both (wider
+    than the view: no edge is seen by both eyes), or the edges give no positive disparity."""
+    lx, _, lw, _ = (int(v) for v in left_bbox_px)
+    rx, _, rw, _ = (int(v) for v in right_bbox_px)
+    cut_left = lx <= 0 or rx <= 0
+    cut_right = lx + lw >= width_px or rx + rw >= width_px
+    if cut_left == cut_right:
+        return None
+    if cut_right:
+        d = (lx + left_shift_px) - (rx + right_shift_px)
+    else:
+        d = (lx + lw + left_shift_px) - (rx + rw + right_shift_px)
+    return d if d > 0 else None

@@ -1,0 +1,49 @@
+"""People and robots in a room, from the independent renderer (fakes/world/), scored against
+its truth: one id per person or robot while in view (stops included), no ghost track living
+longer than the detector's ``absorb_s``, and a person walking up to 0.8 m from the rig tracked
+all the way. 320x240 at 30 Hz, 42 deg (the Minoru's small mode); ``make accuracy`` measures
+every mode (the people rows)."""
+
+from __future__ import annotations
+
+import pytest
+
+from stereod.vision.detect import DetectorParams
+from tests import accuracy as acc
+
+pytestmark = pytest.mark.slow
+
+MODE = acc.MODES[0]
+GATE_M = 0.5
+"""A confirmed track within this distance (m) of a person's truth centre is on them."""
+
+
+def test_a_person_walking_up_to_the_rig_is_tracked_to_0_8_m() -> None:
+    """Nearer than about 1.1 m the person reaches past the image's right edge: each eye sees a
+    different part of them, and their centroids' disparity is off. Read between the outlines'
+    left edges, the depth holds, and one track follows them to where they stop."""
+    case = acc.world_room("person_approach", MODE, seed=0, start_m=1.8, lead_in_s=0.5, hold_s=0.5)
+    score = acc.score(case, acc.run_case(case), gate_m=GATE_M)
+    (person,) = score.objects
+    assert score.ghosts == [], f"ghost tracks {score.ghosts}"
+    assert len(person.track_ids) == 1, f"tracks {person.track_ids}"
+    assert person.closest_tracked_m <= 0.85, f"tracked to {person.closest_tracked_m:.2f} m"
+    # (its first frames in view, before the track is confirmed, are most of what is left)
+    assert person.tracked_share >= 0.8, f"tracked in {person.tracked_share:.0%} of frames"
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="a known miss: the floor where the box stood, in one eye, is matched with the box "
+    "at its new place in the other (the same rows and size, 140 px more disparity): a track "
+    "0.16 m from the rig that holds the background under it",
+)
+def test_what_a_pushed_box_leaves_behind_is_no_ghost_for_longer_than_absorb_s() -> None:
+    """A robot pushes a box 0.6 m and backs away: where the box stood the floor shows again,
+    unlike the background learned there. That is foreground never seen moving, learned after
+    ``absorb_s``: no ghost track may live longer."""
+    case = acc.world_room("robot_push_box", MODE, seed=0, lead_in_s=0.5, after_s=6.0)
+    score = acc.score(case, acc.run_case(case))
+    absorb_s = DetectorParams().absorb_s
+    for tid, life in score.ghost_life_s.items():
+        assert life <= absorb_s, f"ghost track {tid} lived {life:.1f} s"
