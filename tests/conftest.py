@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import socket
 import subprocess
 from collections.abc import Iterator
@@ -15,6 +16,17 @@ from tests.processes import run_stereod
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED_DATA = ROOT.parent / "shared" / "data"
+
+
+@pytest.fixture(autouse=True)
+def _no_handler_outlives_its_test() -> Iterator[None]:
+    """A command run in-process sets up logging on the stderr pytest captured for that test;
+    the handler goes with the test, so later tests' log records never reach a closed stream."""
+    before = set(logging.root.handlers)
+    yield
+    for handler in list(logging.root.handlers):
+        if handler not in before and type(handler) is logging.StreamHandler:
+            logging.root.removeHandler(handler)
 
 
 def shared_data(*parts: str) -> Path:
