@@ -25,7 +25,7 @@ import numpy as np
 
 from stereod.bus.messages import EyeBlob, Latency, ObjectsMessage, ObjectState
 from stereod.fusion.room import RigPose
-from stereod.tracking.tracker import TrackLifecycle
+from stereod.tracking.types import TrackLifecycle
 from stereod.vision.geometry import Geometry
 
 FOCAL_PX = 554.3

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from stereod.pipeline import PairResult, Pipeline, PipelineParams, Timings
     from stereod.sources.frames import Eye, Frame, StereoPair
-    from stereod.tracking.tracker import TrackLifecycle, TrackState
+    from stereod.tracking.types import TrackLifecycle, TrackState
     from stereod.vision.geometry import Geometry
     from stereod.vision.geometry.rectified import CalibratedRig
     from stereod.vision.geometry.stereo import CanonicalRig
@@ -33,8 +33,8 @@ _HOMES = {
     "Pipeline": ".pipeline",
     "PipelineParams": ".pipeline",
     "Timings": ".pipeline",
-    "TrackLifecycle": ".tracking.tracker",
-    "TrackState": ".tracking.tracker",
+    "TrackLifecycle": ".tracking.types",
+    "TrackState": ".tracking.types",
 }
 """Where each name of the public surface lives. They are imported on first use, so that
 ``import stereod`` (which every command does first) costs nothing until NumPy and OpenCV are

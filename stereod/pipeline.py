@@ -30,7 +30,8 @@ from stereod.sources.pairing import (
     PairerStats,
 )
 from stereod.tracking import kalman, skew
-from stereod.tracking.tracker import Detection, Observation, Tracker, TrackerParams, TrackState
+from stereod.tracking.tracker import Tracker
+from stereod.tracking.types import Detection, Observation, TrackerParams, TrackState
 from stereod.vision.detect import Blobs, Detector, DetectorParams, Rect
 from stereod.vision.geometry import Geometry
 from stereod.vision.geometry.rectified import CalibratedRig

@@ -35,7 +35,7 @@ import numpy as np
 
 from stereod import CanonicalRig, Eye, Frame, PairResult, Pipeline, PipelineParams
 from stereod.tracking.motion import angle_diff_deg
-from stereod.tracking.tracker import TrackLifecycle
+from stereod.tracking.types import TrackLifecycle
 from stereod_fakes import world
 from stereod_fakes.scenarios import TABLE_I, table_one_scene
 from stereod_fakes.synth import Renderer, Scene

@@ -10,7 +10,7 @@ import numpy as np
 from stereod import Frame, PairResult, Pipeline, PipelineParams
 from stereod.sources.frames import merged
 from stereod.sources.recording import read_manifest
-from stereod.tracking.tracker import TrackLifecycle, TrackState
+from stereod.tracking.types import TrackLifecycle, TrackState
 from stereod_fakes.replay import ReplayDriver
 from stereod_fakes.synth import Renderer, Scene
 

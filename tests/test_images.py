@@ -15,7 +15,7 @@ from stereod.client import Image, ObjectsMessage, subscribe_images, subscribe_ob
 from stereod.daemon.config import load_config
 from stereod.daemon.daemon import Daemon
 from stereod.sources.frames import Eye, StereoPair
-from stereod.tracking.tracker import TrackLifecycle
+from stereod.tracking.types import TrackLifecycle
 from stereod.view.overlay import HEADER_PX, Annotations, PairImages, colour, masks, overlay
 from stereod.vision.detect import Detector, DetectorParams
 from stereod_fakes.synth import Ball, Renderer, Scene, SyntheticDriver

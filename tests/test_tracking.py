@@ -8,14 +8,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from stereod.tracking.tracker import (
+from stereod.tracking.association import _iou
+from stereod.tracking.tracker import Tracker
+from stereod.tracking.types import (
     Detection,
     Observation,
-    Tracker,
     TrackerParams,
     TrackLifecycle,
     TrackState,
-    _iou,
 )
 from stereod.vision.geometry.stereo import CanonicalRig
 
@@ -533,7 +533,7 @@ def test_an_object_cut_by_the_image_edge_keeps_its_id() -> None:
 def test_distance_to_a_segment_in_closed_form() -> None:
     """The perpendicular foot when it falls on the segment, else the nearer end; a
     segment of no length is its point."""
-    from stereod.tracking.tracker import _to_segment
+    from stereod.tracking.association import _to_segment
 
     a, b = np.array([1.0, 1.0]), np.array([5.0, 1.0])
     assert _to_segment(np.array([3.0, 4.0]), a, b) == pytest.approx(3.0)

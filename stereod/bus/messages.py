@@ -19,12 +19,12 @@ from typing import TYPE_CHECKING, Final, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from stereod.tracking.tracker import TrackLifecycle
+from stereod.tracking.types import TrackLifecycle
 from stereod.vision.geometry import Geometry
 
 if TYPE_CHECKING:
     from stereod.pipeline import PairResult
-    from stereod.tracking.tracker import TrackState
+    from stereod.tracking.types import TrackState
 
 OBJECTS_SCHEMA: Final = "stereod.objects/1"
 OBJECT_SCHEMA: Final = "stereod.object/1"

@@ -67,7 +67,7 @@ from stereod.files.nesting import check_depth
 from stereod.files.paths import TextPath
 from stereod.pipeline import PipelineParams
 from stereod.sources.pairing import DEFAULT_TOLERANCE_NS
-from stereod.tracking.tracker import TrackerParams
+from stereod.tracking.types import TrackerParams
 from stereod.vision.detect import MAX_WARMUP_FRAMES, Centroid, DetectorParams, Luminance, Warmup
 from stereod.vision.geometry.refine import RefineParams
 from stereod.vision.geometry.stereo import MatchParams
@@ -287,7 +287,7 @@ class MatchingConfig(_Section):
 
 
 class TrackingConfig(_Section):
-    """Association, Kalman filter and lifecycle (``TrackerParams`` in ``tracking/tracker.py``)."""
+    """Association, Kalman filter and lifecycle (``TrackerParams`` in ``tracking/types.py``)."""
 
     gate_px: float = Field(
         _TRACK.gate_px, gt=0.0, le=1000.0, description="Image gate around a prediction, px"

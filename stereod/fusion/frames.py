@@ -16,7 +16,7 @@ import numpy as np
 
 from stereod.bus.messages import ObjectState
 from stereod.fusion.room import RigPose
-from stereod.tracking.tracker import TrackLifecycle
+from stereod.tracking.types import TrackLifecycle
 
 UNKNOWN_VELOCITY_SIGMA_MPS = 2.0
 """Velocity sigma assumed per axis while a rig does not know its track's (a walking pace), m/s."""

@@ -29,7 +29,7 @@ from stereod.bus.messages import ObjectsMessage, ObjectState
 from stereod.fusion.frames import RigBatch, batch_to_room, predict_many
 from stereod.fusion.room import Room
 from stereod.tracking.assignment import min_cost_assignment
-from stereod.tracking.tracker import TrackLifecycle
+from stereod.tracking.types import TrackLifecycle
 
 CHI2_3DOF_999 = 16.27
 """Squared Mahalanobis distance below which 99.9 % of a 3-D Gaussian's samples fall."""

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from stereod.tracking.tracker import TrackLifecycle, TrackState
+from stereod.tracking.types import TrackLifecycle, TrackState
 from stereod.vision.detect import Blobs
 from stereod.vision.geometry.rectified import CalibratedRig
 from stereod.vision.geometry.stereo import CanonicalRig

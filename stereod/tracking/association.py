@@ -1,0 +1,314 @@
+"""Association in the images: where each track should be seen in each eye, the gate and cost
+of each detection to each track, pieces and crossings, and the assignment (confirmed tracks
+first)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from stereod.tracking import kalman
+from stereod.tracking.assignment import min_cost_assignment
+from stereod.tracking.skew import image_velocity, shift_to
+from stereod.tracking.track import Track, TrackFilters
+from stereod.tracking.types import Detection, EyeHistory, Observation
+
+Projector = Callable[[float, float, float, bool], tuple[float, float]]
+"""A rig-frame point (x, y, z m) to rectified px (x, y) of the left eye (True) or the right
+(False), as :meth:`stereod.vision.geometry.stereo.Rectified.project` does."""
+
+
+def predict_px(history: EyeHistory, t_ns: int, window_ns: int) -> tuple[np.ndarray, float]:
+    """Where one eye's 2D track puts the object at ``t_ns`` (px), and how far (px) it moved
+    in the image since its last centroid (0 without a velocity)."""
+    t_last, last = history[-1]
+    v = image_velocity(history, window_ns)
+    if v is None:
+        return last, 0.0
+    moved = shift_to(last, t_last, v, t_ns)
+    return moved, _dist(moved, last)
+
+
+@dataclass(frozen=True, slots=True)
+class Prediction:
+    """Where a track should be seen in each eye (px): at ``left`` or anywhere on the segment
+    to ``left_far`` (likewise right), and how far that is from where each eye last saw it."""
+
+    left: np.ndarray
+    left_far: np.ndarray
+    right: np.ndarray
+    right_far: np.ndarray
+    left_motion: float
+    right_motion: float
+
+
+def _dist(a: np.ndarray, b: np.ndarray) -> float:
+    """Distance (px) between two image points (2,) (math on two floats: numpy's per-call
+    cost is most of the work on a pair of coordinates)."""
+    return math.hypot(float(a[0]) - float(b[0]), float(a[1]) - float(b[1]))
+
+
+def _motion(a: np.ndarray, b: np.ndarray, last: np.ndarray) -> float:
+    """The larger distance (px) of two predictions from the last centroid."""
+    return max(_dist(a, last), _dist(b, last))
+
+
+def _to_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """Distance (px) from a point to the segment a-b (a point when a == b)."""
+    ax, ay, px, py = float(a[0]), float(a[1]), float(point[0]), float(point[1])
+    dx, dy = float(b[0]) - ax, float(b[1]) - ay
+    n2 = dx * dx + dy * dy
+    t = 0.0 if n2 == 0.0 else min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / n2))
+    return math.hypot(px - (ax + t * dx), py - (ay + t * dy))
+
+
+def _inside(point: np.ndarray, bbox: np.ndarray, grow: float) -> bool:
+    x, y, w, h = (float(v) for v in bbox)
+    mx, my = grow * w, grow * h
+    return bool(x - mx <= point[0] <= x + w + mx and y - my <= point[1] <= y + h + my)
+
+
+def _moved(bbox: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """A box (x, y, w, h) moved by ``shift`` (2,) px."""
+    return np.array([bbox[0] + shift[0], bbox[1] + shift[1], bbox[2], bbox[3]], np.float64)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two boxes (x, y, w, h)."""
+    ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    union = float(a[2] * a[3] + b[2] * b[3]) - inter
+    return inter / union if union > 0 else 0.0
+
+
+def _piece(
+    d: Detection, detections: list[Detection], owners: list[int | None], tracks: list[Track]
+) -> bool:
+    """Whether a detection lies within a larger one of this pair, or within the box of a
+    track that was found this pair, in both eyes: a piece of that object, not another."""
+    for other in detections:
+        if (
+            other is not d
+            and other.area_px > d.area_px
+            and (
+                _inside(d.left_px, other.left_bbox_px, 0.0)
+                and _inside(d.right_px, other.right_bbox_px, 0.0)
+            )
+        ):
+            return True
+    found = {tid for tid in owners if tid is not None}
+    return any(
+        _inside(d.left_px, tr.last.left_bbox_px, 0.25)
+        and _inside(d.right_px, tr.last.right_bbox_px, 0.25)
+        for tr in tracks
+        if tr.track_id in found
+    )
+
+
+RESUME_COST = 0.99
+"""The association cost (of at most 1, the gate's edge) of a stationary track and a
+detection it did not predict that overlaps where it stood (:func:`_resumes`): the worst
+acceptable, so any detection the track's prediction explains is preferred."""
+RESUME_IOU = 0.3
+"""How much a detection's box must overlap a stationary track's last box, in each eye, to be
+that object moving on (a person or robot starting off moves a fraction of its size in a
+frame; a ball 17 px across that sets off at 0.4 m/s, 7 px a frame, keeps 0.4)."""
+
+
+def _resumes(d: Detection, last: Observation) -> bool:
+    """Whether a detection overlaps a stationary track's last boxes in both eyes enough to be
+    the object setting off again: it stood still, so its filter predicts it where it was, and
+    the first step of a start can lie outside the gate of an object at rest."""
+    return (
+        _iou(d.left_bbox_px, last.left_bbox_px) >= RESUME_IOU
+        and _iou(d.right_bbox_px, last.right_bbox_px) >= RESUME_IOU
+    )
+
+
+class Association(TrackFilters):
+    """The tracker's work across tracks in one pair: :meth:`associate` detections to tracks."""
+
+    _project: Projector | None
+    _merging: dict[int, int]
+    line_ns: float
+    _tracks: dict[int, Track]
+
+    WINDOW_NS = 150_000_000
+    """How much of an eye's 2D track its image velocity is fitted over (ns)."""
+
+    def associate(
+        self, detections: list[Detection], eye_times_ns: tuple[int, int]
+    ) -> tuple[list[int | None], list[bool]]:
+        """The track each detection belongs to (``None``: none), and whether a detection
+        without a track may start one (not a piece of a live object, not two objects merged)."""
+        p = self.params
+        n = len(detections)
+        out: list[int | None] = [None] * n
+        may_start = [True] * n
+        tracks = list(self._tracks.values())
+        self._merging = {}
+        if not detections:
+            return out, may_start
+        if not tracks:
+            return out, [not _piece(d, detections, out, []) for d in detections]
+        cost = np.full((n, len(tracks)), np.inf)
+        inside = np.zeros((2, n, len(tracks)), bool)
+        confirmed_j = [self._confirmed(tr) for tr in tracks]
+        boxes = []
+        for j, tr in enumerate(tracks):
+            t_left, t_right = self._row_instants(tr, eye_times_ns)
+            pred = self._predict_px(tr, t_left, t_right)
+            pl, pr, ml, mr = pred.left, pred.right, pred.left_motion, pred.right_motion
+            boxes.append(
+                (
+                    _moved(tr.last.left_bbox_px, pl - tr.left_history[-1][1]),
+                    _moved(tr.last.right_bbox_px, pr - tr.right_history[-1][1]),
+                )
+            )
+            if len(tr.left_history) >= 2 and len(tr.right_history) >= 2:
+                gate = p.gate_px + p.motion_gate * max(ml, mr)
+            else:
+                dt = max(t_left - tr.left_history[-1][0], t_right - tr.right_history[-1][0])
+                gate = p.gate_px + tr.image_speed_pxps * dt * 1e-9
+            gate = max(gate, p.size_gate * math.sqrt(tr.area_px))
+            for i, d in enumerate(detections):
+                dist = max(
+                    _to_segment(d.left_px, pl, pred.left_far),
+                    _to_segment(d.right_px, pr, pred.right_far),
+                )
+                if dist <= gate:
+                    cost[i, j] = dist / gate
+                elif confirmed_j[j] and _resumes(d, tr.last):
+                    cost[i, j] = RESUME_COST
+                inside[0, i, j] = _inside(pl, d.left_bbox_px, 0.0)
+                inside[1, i, j] = _inside(pr, d.right_bbox_px, 0.0)
+        confirmed = np.array([self._confirmed(tr) for tr in tracks])
+        for i, d in enumerate(detections):
+            in_left, in_right = inside[0, i] & confirmed, inside[1, i] & confirmed
+            if in_left.sum() < 2 and in_right.sum() < 2:
+                continue
+            hosts = np.flatnonzero(in_left | in_right)
+            if self._one_object([tracks[j] for j in hosts]):
+                # Pieces of one object that were followed apart (an arm, a torso) now seen
+                # whole: the longest-followed track takes it, the others end into it.
+                held = [int(h) for h in hosts]
+                keeper = max(held, key=lambda h: (tracks[h].hits, -tracks[h].track_id))
+                keep = min(cost[i, keeper], RESUME_COST)
+                cost[i, :] = np.inf
+                cost[i, keeper] = keep
+                for h in held:
+                    if h != keeper:
+                        self._merging[tracks[h].track_id] = tracks[keeper].track_id
+                may_start[i] = False
+                continue
+            # Two objects in one blob, in one eye or both. It is one of them (the other hidden
+            # behind it) only if it looks like that one alone: its box where that one's box
+            # should be, in both eyes; else a centroid is a blend of both, and both coast
+            # until they part in both eyes.
+            alone = [
+                j
+                for j in hosts
+                if np.isfinite(cost[i, j])
+                and _iou(d.left_bbox_px, boxes[j][0]) >= 0.9
+                and _iou(d.right_bbox_px, boxes[j][1]) >= 0.9
+            ]
+            keep = cost[i, alone[0]] if len(alone) == 1 else np.inf
+            cost[i, :] = np.inf
+            if len(alone) == 1:
+                cost[i, alone[0]] = keep
+            may_start[i] = False
+        # Confirmed tracks choose first, then tentative ones among what is left: a tentative
+        # track seen once has a gate as wide as max_speed_mps allows, so its cost (distance
+        # over gate) is small, and it would take a confirmed object's detection from it.
+        for group in (confirmed, ~confirmed):
+            cols_in = np.flatnonzero(group)
+            rows_in = np.array([i for i in range(n) if out[i] is None], np.intp)
+            sub = cost[np.ix_(rows_in, cols_in)]
+            feasible = np.isfinite(sub)
+            if not feasible.any():
+                continue
+            rows, cols = min_cost_assignment(np.where(feasible, sub, 1e9))
+            for i, j in zip(rows, cols, strict=True):
+                if feasible[i, j]:
+                    out[rows_in[i]] = tracks[cols_in[j]].track_id
+        for i, d in enumerate(detections):
+            if out[i] is None and may_start[i]:
+                may_start[i] = not _piece(d, detections, out, tracks)
+        return out, may_start
+
+    def _one_object(self, tracks: list[Track]) -> bool:
+        """Whether confirmed tracks that one detection holds are pieces of one object: at one
+        depth (within ``merge_depth_m``) and moving together (velocities within
+        ``merge_speed_mps``). Two balls crossing at different depths, or two people crossing
+        each other's path, are not."""
+        p = self.params
+        if len(tracks) < 2 or not all(tr.started for tr in tracks):
+            return False
+        for a in range(len(tracks)):
+            for b in range(a + 1, len(tracks)):
+                ka, kb = tracks[a].kf, tracks[b].kf
+                if abs(float(ka.position_m[2] - kb.position_m[2])) > p.merge_depth_m:
+                    return False
+                if float(np.linalg.norm(ka.velocity_mps - kb.velocity_mps)) > p.merge_speed_mps:
+                    return False
+        return True
+
+    def _row_instants(self, tr: Track, eye_times_ns: tuple[int, int]) -> tuple[int, int]:
+        """When each eye's rolling shutter reads the rows a track was last seen on (ns): the
+        frame's instant plus that row times ``line_ns``."""
+        if self.line_ns <= 0.0:
+            return eye_times_ns
+        rows = (float(tr.last.left_image_px[1]), float(tr.last.right_image_px[1]))
+        return (
+            eye_times_ns[0] + round(max(rows[0], 0.0) * self.line_ns),
+            eye_times_ns[1] + round(max(rows[1], 0.0) * self.line_ns),
+        )
+
+    def _predict_px(self, tr: Track, t_left: int, t_right: int) -> Prediction:
+        """Where each eye should see a track at its capture instant (px), and how far that is
+        from where it last saw it (px). A track whose filter runs: the filter's prediction
+        projected. Before that: its image velocity's lead, and with two positions, also the
+        line through them projected (a fast object's image motion speeds up, but its first
+        position may be off by the eyes' skew): it may be anywhere between the two. A track
+        last seen cut by the image's edge (its filter only predicted, its centroid moving with
+        the cut) may be anywhere between its filter's projection and its image velocity's
+        lead."""
+        last_l, last_r = tr.left_history[-1][1], tr.right_history[-1][1]
+        far: tuple[np.ndarray, np.ndarray] | None = None
+        if self._project is not None and tr.started:
+            accel = self._accel(tr.falling)
+            at = [kalman.position_at(tr.kf, t, accel) for t in (t_left, t_right)]
+            far = self._projected(at[0], at[1], tr.last.depth_factor)
+            if far is not None and not tr.last.clipped:
+                pl, pr = far
+                return Prediction(pl, pl, pr, pr, _motion(pl, pl, last_l), _motion(pr, pr, last_r))
+        elif self._project is not None and len(tr.positions) >= 2:
+            (t0, p0), (t1, p1) = tr.positions[-2], tr.positions[-1]
+            v = (p1 - p0) / ((t1 - t0) * 1e-9)
+            at_l, at_r = (p1 + v * ((t - t1) * 1e-9) for t in (t_left, t_right))
+            far = self._projected(at_l, at_r, tr.last.depth_factor)
+        pl, ml = predict_px(tr.left_history, t_left, self.WINDOW_NS)
+        pr, mr = predict_px(tr.right_history, t_right, self.WINDOW_NS)
+        pl2, pr2 = far if far is not None else (pl, pr)
+        return Prediction(
+            pl, pl2, pr, pr2, max(ml, _motion(pl2, pl2, last_l)), max(mr, _motion(pr2, pr2, last_r))
+        )
+
+    def _projected(
+        self, at_left: np.ndarray, at_right: np.ndarray, depth_factor: float
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Where each eye sees the silhouette's centroid (px) of an object centred at rig-frame
+        positions (3,) m at that eye's instant: the centre projected from ``depth_factor``
+        times nearer (a 10 cm ball at 1 m, at the edge of a 640 px wide image, is seen 3 px
+        further out than its centre projects); ``None`` behind the cameras."""
+        xl, yl, zl = at_left.tolist()
+        xr, yr, zr = at_right.tolist()
+        if self._project is None or zl <= 0 or zr <= 0:
+            return None
+        left = self._project(xl, yl, zl / depth_factor, True)
+        right = self._project(xr, yr, zr / depth_factor, False)
+        return np.array(left), np.array(right)
