@@ -30,7 +30,7 @@ import report
 from stereod.bus.messages import dump, objects_message
 from stereod.pipeline import Pipeline, PipelineParams
 from stereod.sources.frames import StereoPair
-from stereod.vision.detect import DetectorParams
+from stereod.vision.detect_params import DetectorParams
 from stereod.vision.geometry import Geometry
 from stereod_fakes.synth import Ball, Renderer, Scene
 

@@ -16,7 +16,7 @@ from stereod.cli.common import add_canonical_rig, number, path_arg, size_arg
 from stereod.cli.progress import Progress
 from stereod.errors import UsageError, describe_validation_error
 from stereod.sources.recording import Codec, size_problem
-from stereod.vision.detect import DetectorParams
+from stereod.vision.detect_params import DetectorParams
 
 from .synth import Ball, Scene, write_scene
 

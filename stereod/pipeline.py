@@ -32,7 +32,9 @@ from stereod.sources.pairing import (
 from stereod.tracking import kalman, skew
 from stereod.tracking.tracker import Tracker
 from stereod.tracking.types import Detection, Observation, TrackerParams, TrackState
-from stereod.vision.detect import Blobs, Detector, DetectorParams, Rect
+from stereod.vision.blobs import Blobs
+from stereod.vision.detect import Detector
+from stereod.vision.detect_params import DetectorParams
 from stereod.vision.geometry import Geometry
 from stereod.vision.geometry.rectified import CalibratedRig
 from stereod.vision.geometry.refine import RefineParams, refine_match
@@ -50,6 +52,7 @@ from stereod.vision.grouping import (
     extent_m,
     group_objects,
 )
+from stereod.vision.rects import Rect
 
 log = logging.getLogger(__name__)
 

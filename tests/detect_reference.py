@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from stereod.vision.detect import Blobs, DetectorParams, Luminance
+from stereod.vision.blobs import Blobs
+from stereod.vision.detect_params import DetectorParams, Luminance
 
 
 class ReferenceDetector:

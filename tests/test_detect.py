@@ -8,16 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from stereod.vision.detect import (
-    PAPER,
-    Centroid,
-    Detector,
-    DetectorParams,
-    Luminance,
-    coverage_centroid,
-    luminance,
-    matte_centroid,
-)
+from stereod.vision.centroids import coverage_centroid, matte_centroid
+from stereod.vision.detect import Detector
+from stereod.vision.detect_params import PAPER, Centroid, DetectorParams, Luminance
+from stereod.vision.luminance import luminance
 from tests.detect_reference import ReferenceDetector
 
 from .conftest import shared_data

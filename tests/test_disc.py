@@ -8,7 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stereod.vision.detect import Detector, DetectorParams
+from stereod.vision.detect import Detector
+from stereod.vision.detect_params import DetectorParams
 from stereod.vision.disc import coverage, disc_centre, is_round
 
 SUB = 16

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from stereod import Pipeline, PipelineParams, StereoPair
-from stereod.vision.detect import Blobs
+from stereod.vision.blobs import Blobs
 from stereod.vision.geometry.stereo import CanonicalRig
 from stereod.vision.grouping import GroupParams, extent_m, group_objects
 

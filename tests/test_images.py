@@ -17,7 +17,8 @@ from stereod.daemon.daemon import Daemon
 from stereod.sources.frames import Eye, StereoPair
 from stereod.tracking.types import TrackLifecycle
 from stereod.view.overlay import HEADER_PX, Annotations, PairImages, colour, masks, overlay
-from stereod.vision.detect import Detector, DetectorParams
+from stereod.vision.detect import Detector
+from stereod.vision.detect_params import DetectorParams
 from stereod_fakes.synth import Ball, Renderer, Scene, SyntheticDriver
 
 BALL = Ball(heading_deg=60.0, speed_mps=0.7, centre_m=(0.0, 0.1, 1.8))

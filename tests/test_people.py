@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from stereod.vision.detect import DetectorParams
+from stereod.vision.detect_params import DetectorParams
 from tests import accuracy as acc
 
 pytestmark = pytest.mark.slow

@@ -13,7 +13,8 @@ from stereod.sources import pairing
 from stereod.tracking.motion import circular_median_deg
 from stereod.tracking.skew import SIZE_NOISE
 from stereod.tracking.types import Observation, TrackerParams
-from stereod.vision.detect import Blobs, DetectorParams
+from stereod.vision.blobs import Blobs
+from stereod.vision.detect_params import DetectorParams
 from stereod_fakes.synth import Ball, Scene
 from tests.scenes import run_recording, run_scene, sigma, states
 

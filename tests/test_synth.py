@@ -9,7 +9,8 @@ import pytest
 
 from stereod.errors import MissingInputError
 from stereod.sources.frames import Eye
-from stereod.vision.detect import Detector, DetectorParams
+from stereod.vision.detect import Detector
+from stereod.vision.detect_params import DetectorParams
 from stereod_fakes.synth import (
     Ball,
     Renderer,

@@ -21,7 +21,7 @@ from typing import Any
 from stereod.errors import EX_DATAERR, ConfigError, ReaderGone, one_line
 from stereod.files.bounds import BASELINE_M, HFOV_DEG, PLAYBACK_RATE, THRESHOLD_GREY, TIME_BASE_S
 from stereod.files.output_file import is_stdout
-from stereod.vision.detect import MAX_WARMUP_FRAMES, DetectorParams
+from stereod.vision.detect_params import MAX_WARMUP_FRAMES, DetectorParams
 
 log = logging.getLogger("stereod")
 

@@ -68,7 +68,13 @@ from stereod.files.paths import TextPath
 from stereod.pipeline import PipelineParams
 from stereod.sources.pairing import DEFAULT_TOLERANCE_NS
 from stereod.tracking.types import TrackerParams
-from stereod.vision.detect import MAX_WARMUP_FRAMES, Centroid, DetectorParams, Luminance, Warmup
+from stereod.vision.detect_params import (
+    MAX_WARMUP_FRAMES,
+    Centroid,
+    DetectorParams,
+    Luminance,
+    Warmup,
+)
 from stereod.vision.geometry.refine import RefineParams
 from stereod.vision.geometry.stereo import MatchParams
 from stereod.vision.grouping import GroupParams
@@ -137,7 +143,7 @@ class DriverConfig(_Section):
 
 class DetectorConfig(_Section):
     """Paper sec. II parameters and what is added to them (see
-    :class:`stereod.vision.detect.DetectorParams`)."""
+    :class:`stereod.vision.detect_params.DetectorParams`)."""
 
     beta: float = Field(
         _DETECT.beta, ge=0.0, lt=1.0, description="Background update, eq. 3, per frame"

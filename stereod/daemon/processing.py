@@ -24,7 +24,7 @@ from stereod.pipeline import PairResult, Pipeline, PipelineParams, Timings
 from stereod.sources.frames import Frame, StereoPair
 from stereod.sources.queues import BoundedQueue, Closed
 from stereod.view.overlay import PairImages
-from stereod.vision.detect import Blobs
+from stereod.vision.blobs import Blobs
 from stereod.vision.geometry.rectified import CalibratedRig
 from stereod.vision.geometry.stereo import CanonicalRig
 

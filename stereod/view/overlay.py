@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from stereod.tracking.types import TrackLifecycle, TrackState
-from stereod.vision.detect import Blobs
+from stereod.vision.blobs import Blobs
 from stereod.vision.geometry.rectified import CalibratedRig
 from stereod.vision.geometry.stereo import CanonicalRig
 

@@ -2,8 +2,8 @@
 
 A ball a few pixels across is where eq. 5's centroid errs most: where part of the ball is as
 bright and coloured as the background behind it, the thresholded support (eq. 4) loses that
-part, and so does the centroid of :func:`stereod.vision.detect.matte_centroid`, by 0.1-0.3 px, and
-differently in each eye (each sees the ball against another patch of background), which is
+part, and so does the centroid of :func:`stereod.vision.centroids.matte_centroid`, by 0.1-0.3 px,
+and differently in each eye (each sees the ball against another patch of background), which is
 0.2 px of disparity and centimetres of depth. A disc is fitted instead to every pixel around
 the blob: each pixel is modelled as a f = a o + (1 - a) b, with a the share of it a disc of
 centre c and radius r covers, b the stored background and o the object's colour, a smooth

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stereod.vision.detect import Blobs
+from stereod.vision.blobs import Blobs
 
 __all__ = ["GroupParams", "Grouped", "edge_disparity_px", "extent_m", "group_objects"]
 

@@ -18,7 +18,7 @@ import zenoh
 
 from stereod.sources.frames import Eye
 from stereod.sources.pairing import HYSTERESIS, Pairer
-from stereod.vision.detect import DetectorParams
+from stereod.vision.detect_params import DetectorParams
 from stereod_fakes.replay import ReplayDriver
 from stereod_v4l2_minoru.device import V4L2Device
 from stereod_v4l2_minoru.driver import MinoruDriver

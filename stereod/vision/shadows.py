@@ -1,0 +1,156 @@
+"""Cast shadows and a changed scene: foreground that is the background under other light (its
+colour and texture kept), left out of the objects or taken for a change of light or view."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from stereod.vision.luminance import MEAN_RGB
+
+SHADOW_WINDOW_PX = 7
+"""Side (px) of the window a shadow's texture is compared with the background's over (5 px
+took the shaded side of a cylinder the colour of the wall for shadow; a long thin shadow's
+few sure pixels reach the rest of it through its connected candidates)."""
+SHADOW_MIN_TEXTURE = 4.0
+"""The background's local standard deviation (grey levels) from which its texture can be
+compared: on a flatter background only colour tells a shadow from a dark object."""
+SHADOW_MIN_NCC = 0.6
+"""The smallest normalised cross-correlation of frame and background over the window for the
+texture to count as the background's (a shadow keeps it; an object hides it)."""
+SHADOW_RATIO_SPREAD = 0.08
+"""The largest standard deviation of frame / background over the window, as a share of its
+mean, in a shadow's inside (a shadow darkens by one factor; an object's ratio to the texture
+behind it follows that texture)."""
+SHADOW_CHROMA = 0.06
+"""How far (share of the brightness) a shadowed pixel's colour may stray from the background's
+scaled by the pixel's own ratio."""
+
+
+def _relit(
+    frame: np.ndarray,
+    background: np.ndarray,
+    foreground: np.ndarray,
+    ratio: tuple[float, float],
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where the foreground is the background under other light: the candidates (uint8 255;
+    brightness times a factor within ``ratio``, lower and upper, and in colour each channel
+    the background's times that factor within ``SHADOW_CHROMA``: Cucchiara et al.'s V, H and
+    S tests without leaving BGR) and, among them, the sure ones, whose window (side
+    ``SHADOW_WINDOW_PX``) keeps the background's texture (normalised cross-correlation at
+    least ``SHADOW_MIN_NCC``, as much texture as the factor leaves, one factor across it
+    within ``SHADOW_RATIO_SPREAD``). Only a textured background can tell: on a flat one a
+    darker object of its colour (a shaded side) looks the same. ``None`` when no pixel is a
+    candidate."""
+    lo, hi = ratio
+    colour = frame.ndim == 3
+    # The brightness ratio first, on one channel: most of an object is no candidate, and the
+    # rest of the test runs only around the candidates.
+    fl8 = cv2.transform(frame, MEAN_RGB) if colour else frame
+    bl8 = cv2.transform(background, MEAN_RGB) if colour else background
+    r = fl8.astype(np.float32) / (bl8.astype(np.float32) + np.float32(1.0))
+    cand_all = cv2.bitwise_and(cv2.inRange(r, lo, hi), foreground)
+    if cv2.countNonZero(cand_all) == 0:
+        return None
+    x, y, w, h = cv2.boundingRect(cand_all)
+    m = SHADOW_WINDOW_PX
+    x0, y0 = max(x - m, 0), max(y - m, 0)
+    x1, y1 = min(x + w + m, frame.shape[1]), min(y + h + m, frame.shape[0])
+    sl = (slice(y0, y1), slice(x0, x1))
+    f = frame[sl].astype(np.float32)
+    b = background[sl].astype(np.float32)
+    fl = cv2.transform(f, MEAN_RGB) if colour else f
+    bl = cv2.transform(b, MEAN_RGB) if colour else b
+    r = fl / (bl + 1.0)
+    cand = cand_all[sl]
+    if colour:
+        off = np.abs(f - b * r[..., None]).max(axis=2)
+        same_colour = off <= SHADOW_CHROMA * (bl + 1.0) + 3.0
+        cand = cv2.bitwise_and(cand, same_colour.view(np.uint8) * np.uint8(255))
+    if cv2.countNonZero(cand) == 0:
+        return None
+    k = (SHADOW_WINDOW_PX, SHADOW_WINDOW_PX)
+    mf, mb = cv2.blur(fl, k), cv2.blur(bl, k)
+    vf = cv2.blur(fl * fl, k) - mf * mf
+    vb = cv2.blur(bl * bl, k) - mb * mb
+    cov = cv2.blur(fl * bl, k) - mf * mb
+    textured = vb >= SHADOW_MIN_TEXTURE * SHADOW_MIN_TEXTURE
+    ncc = cov / np.sqrt(np.maximum(vf * vb, 1e-6))
+    gain = mf / (mb + 1.0)  # the window's factor: its texture is the background's times it
+    mr = cv2.blur(r, k)
+    vr = cv2.blur(r * r, k) - mr * mr  # other light changes its whole window alike
+    keeps_texture = (
+        textured
+        & (ncc >= SHADOW_MIN_NCC)
+        & (vf >= 0.25 * gain * gain * vb)
+        & (vr <= (SHADOW_RATIO_SPREAD * mr) ** 2)
+    )
+    core = cv2.bitwise_and(cand, keeps_texture.view(np.uint8) * np.uint8(255))
+    full_cand = np.zeros_like(cand_all)
+    full_core = np.zeros_like(cand_all)
+    full_cand[sl] = cand
+    full_core[sl] = core
+    return full_cand, full_core
+
+
+def shadow_mask(
+    frame: np.ndarray,
+    background: np.ndarray,
+    foreground: np.ndarray,
+    ratio: tuple[float, float],
+) -> np.ndarray | None:
+    """The foreground pixels (uint8 255) that are a cast shadow: the background darkened by a
+    factor within ``ratio`` with its colour and texture kept (:func:`_relit`), and the
+    candidates connected to those (a shadow's edge, where the texture window holds lit floor
+    too, and its stretches on flat floor).
+    ``frame`` and ``background`` (uint8, the background at the frame's gain) and
+    ``foreground`` share one shape; ``None`` when nothing is shadow."""
+    found = _relit(frame, background, foreground, ratio)
+    if found is None:
+        return None
+    cand, core = found
+    if cv2.countNonZero(core) == 0:
+        return None
+    # The candidates connected to a sure shadow pixel (8-neighbours), not those across a gap:
+    # a dark stripe on the object beside its shadow is a candidate too, apart from it.
+    n, labels = cv2.connectedComponents(cand, connectivity=8, ltype=cv2.CV_16U)
+    if n <= 1:
+        return None
+    sure = np.zeros(n, np.uint8)
+    sure[np.unique(labels[core > 0])] = 255
+    sure[0] = 0
+    return sure[labels]
+
+
+RELIT_RATIO = (0.2, 5.0)
+"""The factors (lower, upper) by which light that changed may darken or brighten the scene."""
+SCENE_CHANGE_RELIT = 0.5
+"""A large foreground at least this share of which is the background under other light
+(:func:`_relit`) is the light that changed, not an object."""
+SCENE_CHANGE_COVER = 0.8
+"""A large foreground that covers at least this share of the image and reaches all four of its
+edges is the scene that changed (the camera knocked, the view blocked), not an object."""
+
+
+def scene_changed(
+    frame: np.ndarray,
+    background: np.ndarray,
+    foreground: np.ndarray,
+    origin: tuple[int, int],
+    shape: tuple[int, int],
+) -> bool:
+    """Whether a large foreground (uint8 255, ``frame`` and ``background`` around it, at
+    ``origin`` (x, y px) of an image of ``shape`` (h, w px)) is what the photometric model
+    explains (light that changed: most of it the background under another factor) or the whole
+    scene changing (it covers nearly all the image, edge to edge), rather than an object close
+    to the camera. A person
+    at 0.8 m fills most of a 42 deg view but leaves some of it, and hides the background's
+    texture."""
+    count = cv2.countNonZero(foreground)
+    x, y, w, h = cv2.boundingRect(foreground)
+    x, y = x + origin[0], y + origin[1]
+    edges = x == 0 and y == 0 and x + w == shape[1] and y + h == shape[0]
+    if edges and count >= SCENE_CHANGE_COVER * shape[0] * shape[1]:
+        return True
+    found = _relit(frame, background, foreground, RELIT_RATIO)
+    return found is not None and cv2.countNonZero(found[1]) >= SCENE_CHANGE_RELIT * count
