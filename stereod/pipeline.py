@@ -1,9 +1,10 @@
 """One stereo pair in, the state of every track out (design sec. 1).
 
-detect both eyes (eq. 2-5) -> match blobs by row, disparity and size -> triangulate (eq. 9) ->
-associate with tracks -> skew compensation (each eye's centroid moved to one instant along its
-2D track) and triangulate again -> Kalman update -> background learning (eq. 3), frozen under
-tracked objects, which runs with the next pair's detection, in each eye's worker.
+The stages of :meth:`Pipeline.process`: detect both eyes (eq. 2-5) -> match blobs by row,
+disparity and size, pieces of one object grouped -> associate with tracks -> skew (each eye's
+centroid moved to one instant along its 2D track) -> triangulate (eq. 9, 12) -> track (Kalman
+update, eq. 21-23) -> learn the background (eq. 3), frozen under tracked objects, which runs
+with the next pair's detection, in each eye's worker.
 
 The pipeline is pure computation on arrays: no threads of its own beyond an optional two-worker
 pool that detects both eyes at once (OpenCV releases the GIL), no Zenoh, no devices, no wire
@@ -29,29 +30,23 @@ from stereod.sources.pairing import (
     Pairer,
     PairerStats,
 )
-from stereod.tracking import kalman, skew
+from stereod.tracking import measure, skew
 from stereod.tracking.tracker import Tracker
 from stereod.tracking.types import Detection, Observation, TrackerParams, TrackState
 from stereod.vision.blobs import Blobs
 from stereod.vision.detect import Detector
 from stereod.vision.detect_params import DetectorParams
-from stereod.vision.geometry import Geometry
 from stereod.vision.geometry.rectified import CalibratedRig
-from stereod.vision.geometry.refine import RefineParams, refine_match
-from stereod.vision.geometry.stereo import (
-    CanonicalRig,
-    MatchParams,
-    centre_depth,
-    match_blobs,
-    sym3,
+from stereod.vision.geometry.refine import RefineParams
+from stereod.vision.geometry.stereo import CanonicalRig, MatchParams, match_blobs
+from stereod.vision.geometry.triangulate import (
+    Matched,
+    blob_instants,
+    in_range,
+    refine_rights,
+    triangulate_object,
 )
-from stereod.vision.grouping import (
-    EDGE_SIGMA_PX,
-    GroupParams,
-    edge_disparity_px,
-    extent_m,
-    group_objects,
-)
+from stereod.vision.grouping import GroupParams, group_objects
 from stereod.vision.rects import Rect
 
 log = logging.getLogger(__name__)
@@ -85,8 +80,8 @@ class PipelineParams:
     (0.15: the matte centroid errs by 0.01 to 0.2 px on the independent renderer; each track
     learns a scale of it from its own positions). An observation whose two centroids lie on
     different rectified rows, or whose areas say one eye lost part of the object, has it
-    widened by that evidence (:func:`_row_error_px`, :func:`_segmentation_error_px`) once
-    the track has an earlier observation to compare with.
+    widened by that evidence (:mod:`stereod.vision.geometry.errors`) once the track has an
+    earlier observation to compare with.
     ``detect_workers``: 2 detects the two eyes on two threads (OpenCV releases the GIL) when
     a frame has at least ``PARALLEL_MIN_PX`` pixels; smaller frames are detected on the
     calling thread alone, which is faster for them.
@@ -186,27 +181,6 @@ def _grown_box(bbox: np.ndarray) -> Rect:
     x, y, w, h = (int(v) for v in bbox)
     m = FREEZE_MARGIN_PX
     return (x - m, y - m, x + w + m + 1, y + h + m + 1)
-
-
-def _cos_off_axis(point_px: np.ndarray, centre_px: tuple[float, float], focal_px: float) -> float:
-    """Cosine of the angle between an eye's optical axis and the ray through a point (px)."""
-    dx, dy = float(point_px[0]) - centre_px[0], float(point_px[1]) - centre_px[1]
-    return focal_px / math.sqrt(focal_px * focal_px + dx * dx + dy * dy)
-
-
-def _touches_side(bbox: np.ndarray, rig: CanonicalRig | CalibratedRig) -> bool:
-    """Whether a blob's box (x, y, w, h px) reaches the image's left or right edge: part of
-    the object may be cut off there, differently in each eye, so its disparity is off."""
-    x, _, w, _ = (int(v) for v in bbox)
-    return x <= 0 or x + w >= rig.width_px
-
-
-def _cut_rows(bbox: np.ndarray, rig: CanonicalRig | CalibratedRig) -> bool:
-    """Whether a blob's box (x, y, w, h px) reaches the image's top or bottom edge: a person
-    close to the camera, head or feet out of view. Both eyes lose the same rectified rows, so
-    its disparity holds; only its height is unknown."""
-    _, y, _, h = (int(v) for v in bbox)
-    return y <= 0 or y + h >= rig.height_px
 
 
 class Pipeline:
@@ -418,81 +392,38 @@ class Pipeline:
         return ahead[2]
 
     def process(self, pair: StereoPair) -> PairResult:
-        """Run one pair through eq. 2-5, 9, 12 and 21-23. A pair the pipeline cannot use (an
-        eye's frame not the rig's size, or not at least ``MIN_FRAME_INTERVAL_NS`` later than
-        that eye's frame in the last pair) raises ValueError before anything is changed."""
+        """Run one pair through eq. 2-5, 9, 12 and 21-23, stage by stage: :meth:`_detect`,
+        :meth:`_match`, :meth:`_associate`, then for each detection :meth:`_skew` (when skew is
+        compensated) and :meth:`_triangulate`, then :meth:`_track` and :meth:`_learn`. A pair
+        the pipeline cannot use (an eye's frame not the rig's size, or not at least
+        ``MIN_FRAME_INTERVAL_NS`` later than that eye's frame in the last pair) raises
+        ValueError before anything is changed."""
         p = self.params
         self._check(pair)
         t0 = time.perf_counter_ns()
-        lb, rb = self._detected(0, pair.left), self._detected(1, pair.right)
-        if lb is None and rb is None and self._pool is not None:
-            fut = self._pool.submit(self._eye, 1, pair.right.image, pair.right.t_ns)
-            try:
-                lb = self._eye(0, pair.left.image, pair.left.t_ns)
-            finally:  # never leave the right eye's detector running into the next pair
-                rb = fut.result()
-        if lb is None:
-            lb = self._eye(0, pair.left.image, pair.left.t_ns)
-        if rb is None:
-            rb = self._eye(1, pair.right.image, pair.right.t_ns)
-        self._last = [(pair.left.seq, pair.left.t_ns), (pair.right.seq, pair.right.t_ns)]
+        lb, rb = self._detect(pair)
         t1 = time.perf_counter_ns()
         t_left, t_right = pair.left.t_ns, pair.right.t_ns
         eye_times = (t_left, t_right)
         compensate = p.skew_compensation and (t_left != t_right or self._line_ns > 0.0)
         t_ns = skew.common_instant(t_left, t_right) if compensate else pair.t_ns
-        # Matching, association, compensation and triangulation work in rectified coordinates
-        # (identical to image coordinates for the canonical rig); messages report the image ones.
-        lrect = p.rig.rectify_left(lb.centroid_px)
-        rrect = p.rig.rectify_right(rb.centroid_px)
-        image_speed = p.max_image_speed_wps * p.rig.width_px
-        slack = abs(t_right - t_left) * 1e-9 * image_speed
-        idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack)
-        lpx = lrect[idx[:, 0]]
-        rpx = rrect[idx[:, 1]]
-        if p.grouping.enabled and len(lb) + len(rb) > 2:
-            owners = None
-            if len(idx) > 1:  # which live track each pair is, before they are merged
-                pieces = self._detections(lb, rb, idx, lpx, rpx)
-                owners = self.tracker.associate(pieces, eye_times)[0]
-            grouped = group_objects(
-                lb, rb, idx, lpx, rpx, lrect, rrect, p.rig.focal_px, p.rig.baseline_m,
-                p.grouping, owners,
-            )  # fmt: skip
-            if grouped is not None:  # pieces of one object, one detection
-                lb, rb, idx = grouped.left, grouped.right, grouped.index
-                lpx, rpx = grouped.left_px, grouped.right_px
-        if p.refine.enabled:
-            self._refine(pair, lb, idx, lpx, rpx)
-        detections = self._detections(lb, rb, idx, lpx, rpx)
-        assignment, may_start = self.tracker.associate(detections, eye_times)
-        blob_times = self._blob_times(lb, rb, idx, eye_times)
-        window = int(p.skew_window_s * 1e9)
+        m = self._match(pair, lb, rb, eye_times)
+        detections, assignment, may_start = self._associate(m, eye_times)
+        blob_times = blob_instants(m.left, m.right, m.matches, eye_times, self._line_ns)
         observations: list[Observation | None] = []
         for k, tid in enumerate(assignment):
             if tid is None and not may_start[k]:
                 observations.append(None)
                 continue
-            histories = self.tracker.histories(tid)
-            times = blob_times[k]
+            det, times = detections[k], blob_times[k]
             if compensate:
-                areas = (int(lb.area_px[idx[k, 0]]), int(rb.area_px[idx[k, 1]]))
-                ratios = self._depth_ratios(tid, detections[k], times, areas)
-                lc, rc, exact = skew.compensate(
-                    histories, lpx[k], rpx[k], times, t_ns, window, ratios
-                )
+                lc, rc, exact = self._skew(m, k, tid, det, times, t_ns)
             else:
-                lc, rc, exact = lpx[k], rpx[k], True
-            clipped = detections[k].clipped
-            before = self.tracker.track(tid).last if tid is not None else None
-            growth = self._expected_growth(tid, times)
+                lc, rc, exact = m.left_px[k], m.right_px[k], True
             at_once = exact and (compensate or times[0] == times[1])
-            ob = self._observe(
-                lb, rb, idx[k], lpx[k], rpx[k], lc, rc, exact, clipped, before, growth, at_once
-            )
-            observations.append(ob if self._in_range(ob) else None)
+            observations.append(self._triangulate(m, k, tid, det, times, (lc, rc, exact), at_once))
         t2 = time.perf_counter_ns()
-        states, ended = self.tracker.update(
+        states, ended = self._track(
             t_ns, observations, assignment, eye_times, detections, blob_times
         )
         self._learn(states)
@@ -511,261 +442,132 @@ class Pipeline:
             right_seq=pair.right.seq,
             tracks=states,
             ended=ended,
-            left=lb,
-            right=rb,
+            left=m.left,
+            right=m.right,
             timings=timings,
-            row_residuals_px=np.abs(lpx[:, 1] - rpx[:, 1]),
+            row_residuals_px=np.abs(m.left_px[:, 1] - m.right_px[:, 1]),
         )
 
-    def _blob_times(
-        self, lb: Blobs, rb: Blobs, idx: np.ndarray, eye_times_ns: tuple[int, int]
-    ) -> list[tuple[int, int]]:
-        """Each matched pair's capture instants (ns), left and right: its frame's instant plus
-        its centroid's image row times the rolling shutter's time per row (``readout_s``)."""
-        if self._line_ns <= 0.0:
-            return [eye_times_ns] * len(idx)
-        t_left, t_right = eye_times_ns
-        line = self._line_ns
-        return [
-            (
-                t_left + round(max(float(lb.centroid_px[i, 1]), 0.0) * line),
-                t_right + round(max(float(rb.centroid_px[j, 1]), 0.0) * line),
-            )
-            for i, j in idx.tolist()
-        ]
+    def _detect(self, pair: StereoPair) -> tuple[Blobs, Blobs]:
+        """The detect stage: each eye's blobs (image px; eq. 2-5, after eq. 3 with that eye's
+        last frame), from :meth:`detect_ahead` where that eye's frame was detected before its
+        pair formed, else detected now, the two eyes on two threads with two workers."""
+        lb, rb = self._detected(0, pair.left), self._detected(1, pair.right)
+        if lb is None and rb is None and self._pool is not None:
+            fut = self._pool.submit(self._eye, 1, pair.right.image, pair.right.t_ns)
+            try:
+                lb = self._eye(0, pair.left.image, pair.left.t_ns)
+            finally:  # never leave the right eye's detector running into the next pair
+                rb = fut.result()
+        if lb is None:
+            lb = self._eye(0, pair.left.image, pair.left.t_ns)
+        if rb is None:
+            rb = self._eye(1, pair.right.image, pair.right.t_ns)
+        self._last = [(pair.left.seq, pair.left.t_ns), (pair.right.seq, pair.right.t_ns)]
+        return lb, rb
 
-    def _expected_growth(
-        self, tid: int | None, eye_times_ns: tuple[int, int]
-    ) -> tuple[float, float] | None:
-        """How much a track's blob should have grown in each eye since that eye last saw it,
-        as the log of the area ratio: 2 log(Z then / Z now), with Z at that eye's two instants
-        from the track's filter (so the eyes' skew is allowed for exactly, whatever it is);
-        ``None`` before the filter runs (a track's first two observations)."""
-        if tid is None:
-            return None
-        tr = self.tracker.track(tid)
-        if not tr.started:
-            return None
-        out: list[float] = []
-        for history, t_now in (
-            (tr.left_history, eye_times_ns[0]),
-            (tr.right_history, eye_times_ns[1]),
-        ):
-            z_then = float(kalman.position_at(tr.kf, history[-1][0])[2])
-            z_now = float(kalman.position_at(tr.kf, t_now)[2])
-            if z_then <= 0 or z_now <= 0:
-                return None
-            out.append(2.0 * math.log(z_then / z_now))
-        return out[0], out[1]
-
-    def _depth_ratios(
-        self,
-        tid: int | None,
-        det: Detection,
-        eye_times_ns: tuple[int, int],
-        areas_px: tuple[int, int],
-    ) -> tuple[float | None, float | None]:
-        """How much a track's depth changed since each eye last saw it (Z now over Z then),
-        from its blob's areas in that eye (``areas_px`` now, left and right), each seen at
-        its angle off that eye's axis, and no faster than ``max_speed_mps`` from its last
-        depth (:func:`stereod.tracking.skew.size_depth_ratio`); unknown for a new track, or when
-        either blob is cut by the image's edge, now or then."""
-        if tid is None:
-            return None, None
-        tr = self.tracker.track(tid)
-        last = tr.last
-        if last.clipped or det.clipped or last.cut or det.cut:
-            return None, None
-        rig, max_speed = self.params.rig, self.params.tracker.max_speed_mps
-        z_then = float(last.position_m[2])
-        out: list[float | None] = []
-        for e, (then_px, now_px, area_then) in enumerate(
-            ((last.left_px, det.left_px, last.left_area_px),
-             (last.right_px, det.right_px, last.right_area_px))
-        ):  # fmt: skip
-            history = tr.right_history if e else tr.left_history
-            dt_s = (eye_times_ns[e] - history[-1][0]) * 1e-9
-            centre = rig.principal_point_px(e == 0)
-            out.append(
-                skew.size_depth_ratio(
-                    area_then,
-                    areas_px[e],
-                    _cos_off_axis(then_px, centre, rig.focal_px),
-                    _cos_off_axis(now_px, centre, rig.focal_px),
-                    max_speed * dt_s / z_then if z_then > 0 else math.inf,
-                )
-            )
-        return out[0], out[1]
-
-    def _refine(
-        self, pair: StereoPair, lb: Blobs, idx: np.ndarray, lpx: np.ndarray, rpx: np.ndarray
-    ) -> None:
-        """Replace each right centroid in ``rpx`` by where the left blob's appearance is found
-        in the right image (:mod:`stereod.vision.geometry.refine`), when it is found confidently."""
-        rig = self.params.rig
-        size = (rig.width_px, rig.height_px)
-        limg, rimg = pair.left.image, pair.right.image
-
-        def left(x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
-            return rig.rectified_patch(limg, True, x0, y0, x1, y1)
-
-        def right(x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
-            return rig.rectified_patch(rimg, False, x0, y0, x1, y1)
-
-        for k, i in enumerate(idx[:, 0]):
-            if not lb.support:
-                return
-            box, support = rig.rectified_support(True, lb.bbox_px[i], lb.support[i])
-            rpx[k], _ = refine_match(
-                left, right, size, box, support, lpx[k], rpx[k], self.params.refine
-            )
-
-    def _detections(
-        self, lb: Blobs, rb: Blobs, idx: np.ndarray, lpx: np.ndarray, rpx: np.ndarray
-    ) -> list[Detection]:
-        """Matched blob pairs as the tracker's detections (rectified px), each with the fastest
-        image motion it can have: ``max_speed_mps`` at its depth (f / Z = disparity / B pixels
-        per metre), or the fastest image motion at all when its disparity is too small to say
-        (a skewed first sight of a fast object)."""
+    def _match(self, pair: StereoPair, lb: Blobs, rb: Blobs, eye_times: tuple[int, int]) -> Matched:
+        """The match stage: both eyes' centroids rectified, blobs paired on one rectified row
+        with a disparity in range (widened by how far ``max_image_speed_wps`` moves an object
+        between the eyes' instants ``eye_times``, ns) and a similar area, the pairs that are
+        pieces of one object grouped into one (:mod:`stereod.vision.grouping`, after asking
+        the tracker which track each piece is) and, with ``refine``, the right centroids placed
+        by appearance. Gives the (grouped) blobs, the pairs' indices and rectified centroids."""
         p = self.params
-        ceiling = p.max_image_speed_wps * p.rig.width_px
-        out = []
-        for k, (i, j) in enumerate(idx):
-            d = float(lpx[k, 0] - rpx[k, 0])
-            limit = (
-                min(p.tracker.max_speed_mps * d / p.rig.baseline_m, ceiling) if d >= 2 else ceiling
-            )
-            out.append(
-                Detection(
-                    left_px=lpx[k],
-                    right_px=rpx[k],
-                    left_bbox_px=lb.bbox_px[i],
-                    right_bbox_px=rb.bbox_px[j],
-                    area_px=int(min(lb.area_px[i], rb.area_px[j])),
-                    image_speed_pxps=limit,
-                    clipped=_touches_side(lb.bbox_px[i], p.rig)
-                    or _touches_side(rb.bbox_px[j], p.rig),
-                    cut=_cut_rows(lb.bbox_px[i], p.rig) or _cut_rows(rb.bbox_px[j], p.rig),
-                )
-            )
-        return out
-
-    def _observe(
-        self,
-        lb: Blobs,
-        rb: Blobs,
-        ij: np.ndarray,
-        lpx: np.ndarray,
-        rpx: np.ndarray,
-        tri_left: np.ndarray,
-        tri_right: np.ndarray,
-        exact: bool,
-        clipped: bool,
-        before: Observation | None = None,
-        growth: tuple[float, float] | None = None,
-        one_instant: bool = True,
-    ) -> Observation:
-        """The observation of one matched pair of blobs; ``tri_*`` are the centroids to
-        triangulate (moved to one instant when skew is compensated; ``one_instant`` whether
-        they are at one), ``before`` the track's last observation and ``growth`` how much its
-        blob should have grown in each eye since (see :func:`_segmentation_error_px`)."""
-        p = self.params
-        i, j = int(ij[0]), int(ij[1])
-        width_px = 0.5 * (int(lb.bbox_px[i, 2]) + int(rb.bbox_px[j, 2]))
-        area_l, area_r = float(lb.area_px[i]), float(rb.area_px[j])
-        if p.rig.geometry is Geometry.CALIBRATED and lb.support and rb.support:
-            # Outlines in rectified px: a distorted image's blob is stretched and bent.
-            area_l, width_l, shift_l = p.rig.rectified_silhouette(
-                True, lb.bbox_px[i], lb.support[i]
-            )
-            area_r, width_r, shift_r = p.rig.rectified_silhouette(
-                False, rb.bbox_px[j], rb.support[j]
-            )
-            tri_left, tri_right = tri_left + shift_l, tri_right + shift_r
-            width_px = 0.5 * (width_l + width_r)
-        area = 0.5 * (area_l + area_r)
-        sigma = p.centroid_sigma_px
-        cut = _cut_rows(lb.bbox_px[i], p.rig) or _cut_rows(rb.bbox_px[j], p.rig)
-        whole = not clipped and not cut
-        if before is not None and whole and not before.clipped and not before.cut:
-            seg = _segmentation_error_px(lb, rb, i, j, before, width_px, (area_l, area_r), growth)
-            sigma = math.hypot(sigma, seg)
-        xl, yl = tri_left.tolist()
-        xr, yr = tri_right.tolist()
-        edge = None
-        if clipped:  # cut by one side of the image: the depth from its other side's edges
-            edge = edge_disparity_px(
-                lb.bbox_px[i], rb.bbox_px[j], xl - float(lb.centroid_px[i, 0]),
-                xr - float(rb.centroid_px[j, 0]), p.rig.width_px,
+        # Matching, association, compensation and triangulation work in rectified coordinates
+        # (identical to image coordinates for the canonical rig); messages report the image ones.
+        lrect = p.rig.rectify_left(lb.centroid_px)
+        rrect = p.rig.rectify_right(rb.centroid_px)
+        image_speed = p.max_image_speed_wps * p.rig.width_px
+        slack = abs(eye_times[1] - eye_times[0]) * 1e-9 * image_speed
+        idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack)
+        lpx = lrect[idx[:, 0]]
+        rpx = rrect[idx[:, 1]]
+        if p.grouping.enabled and len(lb) + len(rb) > 2:
+            owners = None
+            if len(idx) > 1:  # which live track each pair is, before they are merged
+                owners = self._associate(Matched(lb, rb, idx, lpx, rpx), eye_times)[1]
+            grouped = group_objects(
+                lb, rb, idx, lpx, rpx, lrect, rrect, p.rig.focal_px, p.rig.baseline_m,
+                p.grouping, owners,
             )  # fmt: skip
-            if edge is not None:
-                mid = 0.5 * (xl + xr)
-                xl, xr = mid + 0.5 * edge, mid - 0.5 * edge
-                sigma = math.hypot(sigma, EDGE_SIGMA_PX)
-        # The rows' gap says how the two segmentations disagree only where both centroids
-        # are at one instant and segmented (not placed on one row by appearance matching).
-        # An outline cut by the image's edge counts too: its gap is as much a sign that its
-        # centroids are off, and the smaller of the gap and its change bounds what it adds.
-        row_gap = yl - yr if one_instant and not p.refine.enabled else None
-        if row_gap is not None and before is not None and before.row_gap_px is not None:
-            sigma = math.hypot(sigma, _row_error_px(row_gap, before.row_gap_px))
-        point, cov = p.rig.rectified.triangulate(xl, yl, xr, yr, sigma)
-        factor = 1.0
-        if p.silhouette_depth and not cut and edge is None:
-            point, cov, factor = centre_depth(point, cov, area, p.rig.focal_px, width_px)
-        centre = np.array(point)
-        cov_m2 = sym3(cov)
-        if cut:  # its centre's height is anywhere within its cut box: half its height as sigma
-            h_px = max(int(lb.bbox_px[i, 3]), int(rb.bbox_px[j, 3]))
-            cov_m2[1, 1] += (0.5 * h_px * float(point[2]) / p.rig.focal_px) ** 2
-        if edge is not None:  # its centre lies anywhere across what is seen of it
-            cov_m2[0, 0] += (0.5 * width_px * float(point[2]) / p.rig.focal_px) ** 2
-        extent = None
-        if np.all(np.isfinite(centre)):  # (one that is not is refused by _in_range)
-            lo, hi = extent_m(
-                centre, lb.bbox_px[i], rb.bbox_px[j], lb.centroid_px[i], p.rig.focal_px
-            )
-            extent = (lo - centre, hi - centre)
-        return Observation(
-            position_m=centre,
-            cov_m2=cov_m2,
-            left_px=lpx,
-            right_px=rpx,
-            left_image_px=lb.centroid_px[i],
-            right_image_px=rb.centroid_px[j],
-            left_bbox_px=lb.bbox_px[i],
-            right_bbox_px=rb.bbox_px[j],
-            left_area_px=int(lb.area_px[i]),
-            right_area_px=int(rb.area_px[j]),
-            disparity_px=float(tri_left[0] - tri_right[0]),
-            size_m=float(width_px * point[2] / p.rig.focal_px),
-            exact=exact,
-            clipped=clipped,
-            cut=cut,
-            depth_factor=factor,
-            edge_depth=edge is not None,
-            row_gap_px=row_gap,
-            extent_m=extent,
-        )
+            if grouped is not None:  # pieces of one object, one detection
+                lb, rb, idx = grouped.left, grouped.right, grouped.index
+                lpx, rpx = grouped.left_px, grouped.right_px
+        if p.refine.enabled:
+            refine_rights(p.rig, (pair.left.image, pair.right.image), lb, idx, lpx, rpx, p.refine)
+        return Matched(lb, rb, idx, lpx, rpx)
 
-    def _in_range(self, ob: Observation) -> bool:
-        """Whether a triangulated position can be used: finite, and, once both eyes are
-        brought to one instant, in front of the rig and no further than the matcher's
-        smallest disparity allows. Blobs are matched with room for the eyes' skew, so two
-        views of one object at the same image position in both eyes (no parallax: far away,
-        or not a stereo view at all) can be matched, and at one instant their disparity is
-        nil or negative: such a position is at infinity or behind the rig, and would poison a
-        track. (A track's first sight, not brought to one instant, only places it, and a fast
-        object's may well lie behind the rig.) With skew compensation off every observation is
-        taken as at one instant, so a fast object whose skewed disparity falls out of range
-        is dropped for that pair rather than placed far off or behind the rig."""
+    def _associate(
+        self, m: Matched, eye_times: tuple[int, int]
+    ) -> tuple[list[Detection], list[int | None], list[bool]]:
+        """The associate stage: the matched pairs as the tracker's detections, each with the
+        fastest image motion it can have (:func:`measure.detections`), each given to a track
+        in the images, each eye at its own instant (``eye_times``, ns, plus the rolling
+        shutter's delay to the track's rows). Gives the detections, each one's track id
+        (None: none) and whether one without a track may start one."""
         p = self.params
-        if not (np.all(np.isfinite(ob.position_m)) and np.all(np.isfinite(ob.cov_m2))):
-            return False
-        if not ob.exact:
-            return True
-        far = p.rig.baseline_m * p.rig.focal_px / max(p.matching.min_disparity_px, 1e-3)
-        return 0.0 < float(ob.position_m[2]) <= far
+        detections = measure.detections(
+            m.left, m.right, m.matches, m.left_px, m.right_px, p.rig,
+            p.tracker.max_speed_mps, p.max_image_speed_wps,
+        )  # fmt: skip
+        assignment, may_start = self.tracker.associate(detections, eye_times)
+        return detections, assignment, may_start
+
+    def _skew(
+        self, m: Matched, k: int, tid: int | None, det: Detection, times: tuple[int, int], t_ns: int
+    ) -> tuple[np.ndarray, np.ndarray, bool]:
+        """The skew stage, for matched pair ``k`` (detection ``det`` of track ``tid``, None for
+        none, its blobs seen at ``times``, ns): both rectified centroids (px) moved to the
+        instant ``t_ns`` along the projection of a steady 3D motion, from each eye's 2D track
+        over ``skew_window_s`` and the depth change its blobs' areas say
+        (:func:`stereod.tracking.measure.depth_ratios`, :func:`stereod.tracking.skew.compensate`).
+        Gives the two centroids and whether they are now at one instant."""
+        p = self.params
+        histories = self.tracker.histories(tid)
+        areas = (int(m.left.area_px[m.matches[k, 0]]), int(m.right.area_px[m.matches[k, 1]]))
+        track = self.tracker.track(tid) if tid is not None else None
+        ratios = measure.depth_ratios(track, det, times, areas, p.rig, p.tracker.max_speed_mps)
+        window = int(p.skew_window_s * 1e9)
+        return skew.compensate(histories, m.left_px[k], m.right_px[k], times, t_ns, window, ratios)
+
+    def _triangulate(
+        self, m: Matched, k: int, tid: int | None, det: Detection, times: tuple[int, int],
+        centroids: tuple[np.ndarray, np.ndarray, bool], one_instant: bool,
+    ) -> Observation | None:  # fmt: skip
+        """The triangulate stage, for matched pair ``k`` (detection ``det`` of track ``tid``,
+        its blobs seen at ``times``, ns): its ``centroids`` (left, right, rectified px, and
+        whether both were brought to one instant; ``one_instant``: they are at one) to a
+        position (m, rig frame) by eq. 9, with a covariance from the centroid error (eq. 12)
+        widened against the track's last observation and the growth its filter expects
+        (:func:`stereod.vision.geometry.triangulate.triangulate_object`). Gives the
+        observation, or None when its position cannot be used (:func:`in_range`)."""
+        p = self.params
+        lb, rb, (tri_left, tri_right, exact) = m.left, m.right, centroids
+        i, j, clipped = int(m.matches[k, 0]), int(m.matches[k, 1]), det.clipped
+        track = self.tracker.track(tid) if tid is not None else None
+        before = track.last if track is not None else None
+        growth = measure.expected_growth(track, times)
+        t = triangulate_object(
+            p.rig, lb, rb, i, j, tri_left, tri_right, p.centroid_sigma_px, clipped, before,
+            growth, one_instant, silhouette_depth=p.silhouette_depth, refined=p.refine.enabled,
+            size_noise=skew.SIZE_NOISE,
+        )  # fmt: skip
+        ob = measure.observation(t, lb, rb, i, j, m.left_px[k], m.right_px[k], exact, clipped)
+        usable = in_range(t.position_m, t.cov_m2, exact, p.rig, p.matching.min_disparity_px)
+        return ob if usable else None
+
+    def _track(
+        self, t_ns: int, observations: list[Observation | None], assignment: list[int | None],
+        eye_times: tuple[int, int], detections: list[Detection], blob_times: list[tuple[int, int]],
+    ) -> tuple[list[TrackState], list[int]]:  # fmt: skip
+        """The track stage: each track's two Kalman filters updated with its observation at
+        ``t_ns`` (or coasting), tracks started and ended, ids given, and speed and heading
+        (eq. 21-23) from the likelier filter (:meth:`stereod.tracking.tracker.Tracker.update`).
+        Gives every live track's state at ``t_ns`` and the ids of the tracks that ended."""
+        return self.tracker.update(
+            t_ns, observations, assignment, eye_times, detections, blob_times
+        )
 
     def _learn(self, states: list[TrackState]) -> None:
         """Where eq. 3 may learn in each eye, applied when the next pair is detected: not under
@@ -799,79 +601,3 @@ class Pipeline:
             pending, self._pending[e] = self._pending[e], None
             if pending is not None:
                 det.learn(*pending)
-
-
-_SQRT_HALF = math.sqrt(0.5)
-
-
-def _row_error_px(gap: float, gap_before: float) -> float:
-    """How far (px, one sigma, per centroid) the two eyes' centroids of one object may be
-    off across the rows, from how far apart their rows are now and were at the track's last
-    observation (``gap``, ``gap_before``: y_L - y_R in rectified px, each at one instant). A
-    rectified pair sees a point on one row in both eyes, so a gap is the two segmentations
-    disagreeing: one eye took in or lost a part of the object that the other did not (the
-    colour of the background behind it in that eye only), which moves its centroid across as
-    much as along, and the disparity (eq. 9) is then as likely off by as much as the rows
-    are apart: each centroid's error is that over sqrt(2). What counts is the smaller of the
-    gap and its change since the last observation: a gap that stays (a calibration's row
-    error, or the skew interpolation's on an object whose image motion speeds up) is no
-    segmentation's doing. A robot cylinder at 1.6 m, 640x480 and 42 deg (eq. 12: 5 cm of
-    depth a px of disparity), has its rows 0.5 to 1 px apart on about one frame in eight,
-    and its depth 1.5 to 3 cm off there (0.3 to 0.6 px of disparity)."""
-    return min(abs(gap), abs(gap - gap_before)) * _SQRT_HALF
-
-
-SEGMENTATION_SLACK = 0.03
-"""How far (as a share) an object's two blob areas may differ, or their ratio change from
-one observation to the next, before its centroids are trusted less: noise, the object's own
-turning and the side of a box that one eye sees more of than the other change it by a few
-percent."""
-
-
-def _segmentation_error_px(
-    lb: Blobs,
-    rb: Blobs,
-    i: int,
-    j: int,
-    before: Observation,
-    width_px: float,
-    areas: tuple[float, float] | None = None,
-    growth: tuple[float, float] | None = None,
-) -> float:
-    """How far (px, one sigma) the centroids may have moved because the two eyes segmented
-    the object differently. Where part of an object is the colour of what is behind it, each
-    eye loses or regains that part on its own frame (each sees another patch of background),
-    and the eye that lost a share ``s`` of the object's area has its centroid moved by up to
-    ``s`` times half the object's width: the disparity, so the depth, is off for as long as
-    the loss lasts. Two signs tell it apart: the two eyes' area changes since ``before``
-    (logs) differ by ``s`` on the frame it happens, and the two areas themselves differ by
-    ``s`` for every frame it lasts (the eyes of a canonical rig see the same outline to a
-    few percent). An object coming closer or going away grows in both, and differently
-    through the eyes' skew alone. With the track's filter running, ``growth`` gives what
-    each eye's change should be (:meth:`Pipeline._expected_growth`), and the two changes
-    count by how far their difference is from the expected one: a loss in one eye counts in
-    full on its first frame, and a thrown ball's skewed growth not at all. Before that, what
-    counts is the excess over the mean growth (by at most half a frame's growth apart
-    through the skew); the mean holds half of a loss in one eye alone, so such a loss then
-    counts from twice the slack (6 %), at half its size. The two areas apart count beyond
-    the mean growth. Either counts beyond ``SEGMENTATION_SLACK`` and the areas' own noise,
-    2 ``SIZE_NOISE`` / sqrt(A) of the smallest of the four areas A (a difference of two log
-    area ratios, each twice the half-log that :func:`stereod.tracking.skew.size_depth_ratio` bounds
-    by ``SIZE_NOISE`` / sqrt(A): a ball 5 px across wobbles by a fifth); the larger, times
-    half the blob's width ``width_px``, is added to the centroid error of this observation,
-    so the filter leans on its prediction across the loss instead of following it. The two
-    areas are compared as ``areas`` (left, right) gives them, in rectified px where lens
-    distortion scales the two eyes' images differently (the images' areas when None)."""
-    area_l, area_r = max(int(lb.area_px[i]), 1), max(int(rb.area_px[j]), 1)
-    then_l, then_r = max(before.left_area_px, 1), max(before.right_area_px, 1)
-    left = math.log(area_l / then_l)
-    right = math.log(area_r / then_r)
-    grew = abs(left + right) / 2.0
-    rect_l, rect_r = areas if areas is not None else (area_l, area_r)
-    apart = abs(math.log(max(rect_l, 1.0) / max(rect_r, 1.0))) - grew
-    if growth is None:
-        changed = abs(left - right) - grew
-    else:
-        changed = abs((left - right) - (growth[0] - growth[1]))
-    noise = 2.0 * skew.SIZE_NOISE / math.sqrt(min(area_l, area_r, then_l, then_r))
-    return max(max(changed, apart) - SEGMENTATION_SLACK - noise, 0.0) * 0.5 * width_px

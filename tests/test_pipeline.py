@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from functools import partial
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from stereod.tracking.skew import SIZE_NOISE
 from stereod.tracking.types import Observation, TrackerParams
 from stereod.vision.blobs import Blobs
 from stereod.vision.detect_params import DetectorParams
+from stereod.vision.geometry.errors import SEGMENTATION_SLACK, segmentation_error_px
 from stereod_fakes.synth import Ball, Scene
 from tests.scenes import run_recording, run_scene, sigma, states
 
@@ -401,12 +403,12 @@ def test_a_part_of_an_object_lost_in_one_eye_only_widens_that_observations_error
     (s - slack - s / 2 - noise) times half the blob's width (s / 2 is the pair's mean
     growth, which the eyes' skew alone can split; the noise is the areas' own). While the
     loss lasts, the two areas still differ by s: (s - slack - noise) times half the width."""
-    seg = pipeline._segmentation_error_px
+    seg = partial(segmentation_error_px, size_noise=SIZE_NOISE)
     before = _seen(2440, 2440)
     lost = seg(_blobs(2440), _blobs(1950), 0, 0, before, 54.0)
     s = np.log(2440 / 1950)
     noise = _noise(1950)
-    assert lost == pytest.approx((s - pipeline.SEGMENTATION_SLACK - s / 2 - noise) * 27.0)
+    assert lost == pytest.approx((s - SEGMENTATION_SLACK - s / 2 - noise) * 27.0)
     assert lost > 0.7
     # both eyes lost the same share (the object turned, or left the light): no jump
     assert seg(_blobs(1950), _blobs(1950), 0, 0, before, 54.0) == 0.0
@@ -418,7 +420,7 @@ def test_a_part_of_an_object_lost_in_one_eye_only_widens_that_observations_error
     # still holds a share s less of the object than the other, so its centroid is still off
     lasting = _seen(2440, 1950)
     still = seg(_blobs(2440), _blobs(1950), 0, 0, lasting, 54.0)
-    assert still == pytest.approx((s - pipeline.SEGMENTATION_SLACK - noise) * 27.0)
+    assert still == pytest.approx((s - SEGMENTATION_SLACK - noise) * 27.0)
     # the same two blobs of a calibrated rig whose lenses scale the eyes' images differently:
     # the areas compared are the rectified ones, and those agree
     assert seg(_blobs(2440), _blobs(1950), 0, 0, lasting, 54.0, (2300.0, 2300.0)) == 0.0
@@ -436,17 +438,17 @@ def test_with_the_filter_running_a_loss_counts_against_the_growth_each_eye_shoul
     (s - slack - noise), not half of it. An object coming closer loses the same share in
     one eye: the mean growth no longer hides it. A ball thrown at the rig, whose later eye
     grew less for being seen sooner: exactly what the skew explains, nothing counts."""
-    seg = pipeline._segmentation_error_px
+    seg = partial(segmentation_error_px, size_noise=SIZE_NOISE)
     before = _seen(2440, 2440)
     s = np.log(2440 / 1950)
     noise = _noise(1950)
     still = seg(_blobs(2440), _blobs(1950), 0, 0, before, 54.0, None, (0.0, 0.0))
-    assert still == pytest.approx((s - pipeline.SEGMENTATION_SLACK - noise) * 27.0)
+    assert still == pytest.approx((s - SEGMENTATION_SLACK - noise) * 27.0)
     assert still > 2 * seg(_blobs(2440), _blobs(1950), 0, 0, before, 54.0)
     near_l, near_r = int(2440 * 1.5), int(2440 * 1.5 / 1.25)  # grew 1.5 in both, one lost 0.2
     closer = seg(_blobs(near_l), _blobs(near_r), 0, 0, before, 54.0, None, (0.405, 0.405))
     assert closer == pytest.approx(
-        (np.log(1.25) - pipeline.SEGMENTATION_SLACK - _noise(2440)) * 27.0, rel=1e-3
+        (np.log(1.25) - SEGMENTATION_SLACK - _noise(2440)) * 27.0, rel=1e-3
     )
     assert seg(_blobs(near_l), _blobs(near_r), 0, 0, before, 54.0) == 0.0  # as it was
     thrown = _seen(400, 400)

@@ -99,7 +99,8 @@ percentile of 0.38 to 0.73 by mode, the most at 320x240, 60 deg, where a ball is
 across (largest 1.15). A depth change is taken from sizes only beyond ``SIZE_NOISE /
 sqrt(A)`` (0.13 for a 56 px blob): at 0.75 a ball crossing at 20 m/s was read as coming 10 %
 closer between two frames, and placed 0.5 m short. The pipeline's test for a part of an
-object lost in one eye allows the same noise (:func:`stereod.pipeline._segmentation_error_px`)."""
+object lost in one eye allows the same noise
+(:func:`stereod.vision.geometry.errors.segmentation_error_px`)."""
 
 
 def size_depth_ratio(

@@ -1,0 +1,152 @@
+"""A matched pair of blobs measured for the tracker: its detection (the fastest image motion
+it can have, whether an image edge cuts it), how much its depth changed since each eye last
+saw it from its blobs' sizes (for skew compensation), how much its blobs should have grown by
+its track's filter, and its observation from its triangulation (eq. 9, 12)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stereod.tracking import kalman, skew
+from stereod.tracking.track import Track
+from stereod.tracking.types import Detection, Observation
+from stereod.vision.blobs import Blobs
+from stereod.vision.geometry.errors import cos_off_axis, cut_rows, touches_side
+from stereod.vision.geometry.rectified import CalibratedRig
+from stereod.vision.geometry.stereo import CanonicalRig
+from stereod.vision.geometry.triangulate import Triangulated
+
+
+def detections(
+    lb: Blobs,
+    rb: Blobs,
+    idx: np.ndarray,
+    lpx: np.ndarray,
+    rpx: np.ndarray,
+    rig: CanonicalRig | CalibratedRig,
+    max_speed_mps: float,
+    max_image_speed_wps: float,
+) -> list[Detection]:
+    """Matched blob pairs as the tracker's detections (rectified px), each with the fastest
+    image motion it can have: ``max_speed_mps`` at its depth (f / Z = disparity / B pixels
+    per metre), or the fastest image motion at all (``max_image_speed_wps`` image widths a
+    second) when its disparity is too small to say (a skewed first sight of a fast object)."""
+    ceiling = max_image_speed_wps * rig.width_px
+    out = []
+    for k, (i, j) in enumerate(idx):
+        d = float(lpx[k, 0] - rpx[k, 0])
+        limit = min(max_speed_mps * d / rig.baseline_m, ceiling) if d >= 2 else ceiling
+        out.append(
+            Detection(
+                left_px=lpx[k],
+                right_px=rpx[k],
+                left_bbox_px=lb.bbox_px[i],
+                right_bbox_px=rb.bbox_px[j],
+                area_px=int(min(lb.area_px[i], rb.area_px[j])),
+                image_speed_pxps=limit,
+                clipped=touches_side(lb.bbox_px[i], rig) or touches_side(rb.bbox_px[j], rig),
+                cut=cut_rows(lb.bbox_px[i], rig) or cut_rows(rb.bbox_px[j], rig),
+            )
+        )
+    return out
+
+
+def expected_growth(tr: Track | None, eye_times_ns: tuple[int, int]) -> tuple[float, float] | None:
+    """How much a track's blob should have grown in each eye since that eye last saw it,
+    as the log of the area ratio: 2 log(Z then / Z now), with Z at that eye's two instants
+    (``eye_times_ns``, left and right) from the track's filter (so the eyes' skew is allowed
+    for exactly, whatever it is); ``None`` for no track, or before the filter runs (a track's
+    first two observations)."""
+    if tr is None:
+        return None
+    if not tr.started:
+        return None
+    out: list[float] = []
+    for history, t_now in (
+        (tr.left_history, eye_times_ns[0]),
+        (tr.right_history, eye_times_ns[1]),
+    ):
+        z_then = float(kalman.position_at(tr.kf, history[-1][0])[2])
+        z_now = float(kalman.position_at(tr.kf, t_now)[2])
+        if z_then <= 0 or z_now <= 0:
+            return None
+        out.append(2.0 * math.log(z_then / z_now))
+    return out[0], out[1]
+
+
+def depth_ratios(
+    tr: Track | None,
+    det: Detection,
+    eye_times_ns: tuple[int, int],
+    areas_px: tuple[int, int],
+    rig: CanonicalRig | CalibratedRig,
+    max_speed: float,
+) -> tuple[float | None, float | None]:
+    """How much a track's depth changed since each eye last saw it (Z now over Z then),
+    from its blob's areas in that eye (``areas_px`` now, left and right), each seen at
+    its angle off that eye's axis, and no faster than ``max_speed`` (m/s) from its last
+    depth (:func:`stereod.tracking.skew.size_depth_ratio`); unknown for a new track (None),
+    or when either blob is cut by the image's edge, now or then."""
+    if tr is None:
+        return None, None
+    last = tr.last
+    if last.clipped or det.clipped or last.cut or det.cut:
+        return None, None
+    z_then = float(last.position_m[2])
+    out: list[float | None] = []
+    for e, (then_px, now_px, area_then) in enumerate(
+        ((last.left_px, det.left_px, last.left_area_px),
+         (last.right_px, det.right_px, last.right_area_px))
+    ):  # fmt: skip
+        history = tr.right_history if e else tr.left_history
+        dt_s = (eye_times_ns[e] - history[-1][0]) * 1e-9
+        centre = rig.principal_point_px(e == 0)
+        out.append(
+            skew.size_depth_ratio(
+                area_then,
+                areas_px[e],
+                cos_off_axis(then_px, centre, rig.focal_px),
+                cos_off_axis(now_px, centre, rig.focal_px),
+                max_speed * dt_s / z_then if z_then > 0 else math.inf,
+            )
+        )
+    return out[0], out[1]
+
+
+def observation(
+    t: Triangulated,
+    lb: Blobs,
+    rb: Blobs,
+    i: int,
+    j: int,
+    left_px: np.ndarray,
+    right_px: np.ndarray,
+    exact: bool,
+    clipped: bool,
+) -> Observation:
+    """The tracker's observation of left blob ``i`` and right blob ``j``, matched at the
+    rectified centroids ``left_px``, ``right_px`` and triangulated as ``t``; ``exact``: both
+    eyes brought to one instant, ``clipped``: cut by one side of the image."""
+    return Observation(
+        position_m=t.position_m,
+        cov_m2=t.cov_m2,
+        left_px=left_px,
+        right_px=right_px,
+        left_image_px=lb.centroid_px[i],
+        right_image_px=rb.centroid_px[j],
+        left_bbox_px=lb.bbox_px[i],
+        right_bbox_px=rb.bbox_px[j],
+        left_area_px=int(lb.area_px[i]),
+        right_area_px=int(rb.area_px[j]),
+        disparity_px=t.disparity_px,
+        size_m=t.size_m,
+        exact=exact,
+        clipped=clipped,
+        cut=t.cut,
+        depth_factor=t.depth_factor,
+        edge_depth=t.edge_depth,
+        row_gap_px=t.row_gap_px,
+        extent_m=t.extent_m,
+    )
