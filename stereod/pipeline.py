@@ -6,9 +6,8 @@ centroid moved to one instant along its 2D track) -> triangulate (eq. 9, 12) -> 
 update, eq. 21-23) -> learn the background (eq. 3), frozen under tracked objects, which runs
 with the next pair's detection, in each eye's worker.
 
-The pipeline is pure computation on arrays: no threads of its own beyond an optional two-worker
-pool that detects both eyes at once (OpenCV releases the GIL), no Zenoh, no devices, no wire
-format (:func:`stereod.bus.messages.objects_message` turns a result into the wire message).
+Pure computation on arrays: no threads beyond an optional pool detecting both eyes at once
+(OpenCV releases the GIL), no Zenoh, no devices, no wire format (``bus.messages`` makes that).
 """
 
 from __future__ import annotations
@@ -55,11 +54,9 @@ FREEZE_MARGIN_PX = 4
 """Margin (px) around a tracked blob's box where the background is not learned either."""
 PARALLEL_MIN_PX = 500_000
 """The smallest frame (px) whose two eyes are worth detecting on two threads. Handing an eye
-to another thread and back costs about 60 us a pair on two cores, and the two threads then
-contend for the interpreter lock between OpenCV calls; measured with
-``benchmarks/throughput.py``, that costs more than the overlap saves at 640x480 (0.31 Mpx) and
-gains 14-17 % at 1280x720 (0.92 Mpx)."""
-
+to another thread and back costs about 60 us a pair on two cores, and the threads contend for
+the interpreter lock between OpenCV calls; by ``benchmarks/throughput.py``, that costs more
+than the overlap saves at 640x480 (0.31 Mpx) and gains 14-17 % at 1280x720 (0.92 Mpx)."""
 
 _DISORDER = (DROP_OVERFLOW, DROP_NON_MONOTONIC)
 """Pairing drops that mean :meth:`Pipeline.run` was given frames out of capture order."""
