@@ -4,6 +4,7 @@ short modules, and the entry points users and plug-ins rely on."""
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -130,3 +131,15 @@ def test_entry_points_are_pinned() -> None:
         "synth",
         "devices",
     }
+
+
+def test_architecture_names_every_module() -> None:
+    """ARCHITECTURE.md's picture of the folders names every module in them."""
+    text = (ROOT / "ARCHITECTURE.md").read_text()
+    tree = text[text.index("stereod/\n") :]
+    missing = [
+        str(p.relative_to(PACKAGE))
+        for p in _modules()
+        if p.stem not in ("__init__", "__main__") and not re.search(rf"\b{p.stem}\b", tree)
+    ]
+    assert not missing, missing
