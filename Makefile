@@ -24,8 +24,8 @@ vm-load: $(VENV)/.installed
 	bash tests/vm/under_load.sh
 
 lint: $(VENV)/.installed
-	$(BIN)/ruff check stereod fakes drivers tests benchmarks
-	$(BIN)/ruff format --check stereod fakes drivers tests benchmarks
+	$(BIN)/ruff check stereod fakes drivers tests benchmarks docs
+	$(BIN)/ruff format --check stereod fakes drivers tests benchmarks docs
 	$(BIN)/mypy
 
 # Each benchmark writes its tables (and figures) into docs/bench/, which the site includes.
