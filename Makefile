@@ -15,7 +15,7 @@ demo: $(VENV)/.installed
 	$(BIN)/stereod demo
 
 test: $(VENV)/.installed
-	$(BIN)/python -m pytest -q -n auto --maxprocesses 4
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadgroup
 
 vm: $(VENV)/.installed
 	bash tests/vm/run.sh

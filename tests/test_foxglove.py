@@ -14,6 +14,7 @@ import re
 import signal
 import struct
 import threading
+import time
 from collections import defaultdict
 from typing import Any
 
@@ -49,6 +50,8 @@ BALL = Ball(
 SCENE = Scene(duration_s=7.0, fps=15.0, balls=[BALL])
 VALID_WANTED = 15
 RIG = "/stereod/minoru"
+# one worker plays the scene once for the whole module, not once per worker that gets a test
+pytestmark = pytest.mark.xdist_group("foxglove")
 # foxglove-sdk 0.30 names the protocol foxglove.sdk.v1; older servers foxglove.websocket.v1.
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 
@@ -138,14 +141,30 @@ async def play(bridge: FoxgloveBridge, endpoint: str) -> Client:
         await client.receive(10)  # the advertisement of the channels there are from the start
         advertised = {c["topic"] for c in client.channels.values()}
         assert wanted_topics() - advertised == {f"{RIG}/tracks/track_1/speed_heading"}
-        thread = threading.Thread(target=daemon.run, name="daemon")
+        failure: list[BaseException] = []
+
+        def run() -> None:
+            try:
+                daemon.run()
+            except BaseException as exc:  # handed to the test below, not lost with the thread
+                failure.append(exc)
+
+        thread = threading.Thread(target=run, name="daemon")
         thread.start()
+        deadline = time.monotonic() + 90.0
         try:
-            while not client.done():
-                await client.receive(30)
+            while not client.done() and time.monotonic() < deadline:
+                with contextlib.suppress(TimeoutError):
+                    await client.receive(2)
+                if not thread.is_alive() and not client.done():
+                    break  # the scene is over (or the daemon failed): nothing more will come
         finally:
             daemon.stop()
             await asyncio.get_running_loop().run_in_executor(None, thread.join)
+        if failure:
+            raise RuntimeError("the daemon's thread failed") from failure[0]
+        counts = {t: len(m) for t, m in client.messages.items()}
+        assert client.done(), f"the scene ended before every channel had data: {counts}"
         # The daemon stopped mid-track: its token went away, the markers must be cleared.
         with contextlib.suppress(TimeoutError):
             while not client.cleared():
