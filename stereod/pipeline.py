@@ -32,6 +32,7 @@ from stereod.sources.pairing import (
 from stereod.tracking import measure, skew
 from stereod.tracking.tracker import Tracker
 from stereod.tracking.types import Detection, Observation, TrackerParams, TrackState
+from stereod.vision.agreement import eye_agreement
 from stereod.vision.blobs import Blobs
 from stereod.vision.detect import Detector
 from stereod.vision.detect_params import DetectorParams
@@ -46,7 +47,7 @@ from stereod.vision.geometry.triangulate import (
     triangulate_object,
 )
 from stereod.vision.grouping import GroupParams, group_objects
-from stereod.vision.rects import Rect
+from stereod.vision.rects import Rect, box_rect
 
 log = logging.getLogger(__name__)
 
@@ -171,13 +172,6 @@ class PairResult:
 
 Learning = tuple[list[Rect], list[Rect]]
 """One eye's (frozen, released) rectangles of :meth:`stereod.vision.detect.Detector.learn`."""
-
-
-def _grown_box(bbox: np.ndarray) -> Rect:
-    """A blob's box (x, y, w, h px) grown by ``FREEZE_MARGIN_PX`` as (x0, y0, x1, y1)."""
-    x, y, w, h = (int(v) for v in bbox)
-    m = FREEZE_MARGIN_PX
-    return (x - m, y - m, x + w + m + 1, y + h + m + 1)
 
 
 class Pipeline:
@@ -477,7 +471,9 @@ class Pipeline:
         rrect = p.rig.rectify_right(rb.centroid_px)
         image_speed = p.max_image_speed_wps * p.rig.width_px
         slack = abs(eye_times[1] - eye_times[0]) * 1e-9 * image_speed
-        idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack)
+        images = pair.left.image, pair.right.image
+        agree = lambda i, j: eye_agreement(*images, lb.bbox_px[i], rb.bbox_px[j])  # noqa: E731
+        idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack, agree)
         lpx = lrect[idx[:, 0]]
         rpx = rrect[idx[:, 1]]
         if p.grouping.enabled and len(lb) + len(rb) > 2:
@@ -578,8 +574,8 @@ class Pipeline:
                 if s.freeze_background or s.release_background:
                     ob = s.observation
                     into = frozen if s.freeze_background else released
-                    into[0].append(_grown_box(ob.left_bbox_px))
-                    into[1].append(_grown_box(ob.right_bbox_px))
+                    into[0].append(box_rect(ob.left_bbox_px, FREEZE_MARGIN_PX))
+                    into[1].append(box_rect(ob.right_bbox_px, FREEZE_MARGIN_PX))
         self._pending = [(frozen[0], released[0]), (frozen[1], released[1])]
 
     def _eye(self, e: int, image: np.ndarray, t_ns: int) -> Blobs:

@@ -32,16 +32,12 @@ def test_a_person_walking_up_to_the_rig_is_tracked_to_0_8_m() -> None:
     assert person.tracked_share >= 0.8, f"tracked in {person.tracked_share:.0%} of frames"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="a known miss: the floor where the box stood, in one eye, is matched with the box "
-    "at its new place in the other (the same rows and size, 140 px more disparity): a track "
-    "0.16 m from the rig that holds the background under it",
-)
 def test_what_a_pushed_box_leaves_behind_is_no_ghost_for_longer_than_absorb_s() -> None:
     """A robot pushes a box 0.6 m and backs away: where the box stood the floor shows again,
     unlike the background learned there. That is foreground never seen moving, learned after
-    ``absorb_s``: no ghost track may live longer."""
+    ``absorb_s``: no ghost track may live longer. (The uncovered floor in one eye is the size
+    of the box in the other, on the same rows: matched by size alone they made a track 0.16 m
+    from the rig that held the background under it for as long as the run lasted.)"""
     case = acc.world_room("robot_push_box", MODE, seed=0, lead_in_s=0.5, after_s=6.0)
     score = acc.score(case, acc.run_case(case))
     absorb_s = DetectorParams().absorb_s

@@ -77,3 +77,9 @@ def grown_rect(rect: Sequence[int], margin: int, shape: tuple[int, ...]) -> Rect
         min(x + w + margin, shape[1]),
         min(y + h + margin, shape[0]),
     )
+
+
+def box_rect(bbox: Sequence[int] | np.ndarray, margin: int) -> Rect:
+    """A blob's box (x, y, w, h px) grown by ``margin`` px each way, as (x0, y0, x1, y1)."""
+    x, y, w, h = (int(v) for v in bbox)
+    return (x - margin, y - margin, x + w + margin + 1, y + h + margin + 1)

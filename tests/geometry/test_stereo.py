@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from stereod.vision.agreement import eye_agreement
 from stereod.vision.geometry.stereo import (
     SILHOUETTE_Q_MAX,
     CanonicalRig,
@@ -242,6 +243,30 @@ def test_matching_uses_each_blob_once_and_prefers_the_closer_row() -> None:
     right = np.array([[250.0, 103.0]])
     idx = match_blobs(left, np.array([100, 100]), right, np.array([100]), MatchParams())
     assert idx.tolist() == [[1, 0]]
+
+
+def test_an_ambiguous_blob_takes_the_partner_that_looks_like_it() -> None:
+    """A robot pushed a box: each eye sees the box at its new place and the floor it uncovered,
+    all four blobs on one row and about one size. By size the uncovered floor on the left
+    (blob 0) pairs best with the box on the right (blob 0), 157 px apart, a point 0.16 m from
+    the rig; the two eyes' images say it is the other right blob."""
+    rng = np.random.default_rng(5)
+    floor = rng.integers(0, 256, (46, 67), np.uint8)
+    box = rng.integers(0, 256, (46, 67), np.uint8)
+    left_img, right_img = np.zeros((240, 320), np.uint8), np.zeros((240, 320), np.uint8)
+    left_img[161:207, 205:272], left_img[161:207, 63:130] = floor, box
+    right_img[161:207, 192:259], right_img[161:207, 48:115] = floor, box
+    lbox = np.array([[205, 161, 67, 46], [63, 161, 67, 46]])
+    rbox = np.array([[48, 161, 67, 46], [192, 161, 64, 46]])  # the floor cut by 3 px
+    centre = lambda b: b[:, :2] + b[:, 2:] / 2.0  # noqa: E731
+    area = lambda b: b[:, 2] * b[:, 3]  # noqa: E731
+    args = (centre(lbox), area(lbox), centre(rbox), area(rbox), MatchParams())
+    assert match_blobs(*args).tolist() == [[0, 0]]  # by size and row alone
+
+    def agree(i: int, j: int) -> float:
+        return eye_agreement(left_img, right_img, lbox[i], rbox[j])
+
+    assert sorted(match_blobs(*args, agreement=agree).tolist()) == [[0, 1], [1, 0]]
 
 
 def test_a_row_tolerance_of_zero_is_refused() -> None:

@@ -9,8 +9,9 @@ principal point at the image centre ((w - 1) / 2, (h - 1) / 2) in OpenCV pixel c
 from __future__ import annotations
 
 import bisect
+import collections
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import cv2
@@ -407,6 +408,11 @@ class MatchParams:
             )
 
 
+AGREEMENT_WEIGHT = 2.0
+"""What full disagreement between the eyes' images adds to an ambiguous candidate pair's cost:
+two row tolerances, more than any pair within the row and size gates differs by otherwise."""
+
+
 def match_blobs(
     left_px: np.ndarray,
     left_area: np.ndarray,
@@ -414,6 +420,7 @@ def match_blobs(
     right_area: np.ndarray,
     params: MatchParams,
     slack_px: float = 0.0,
+    agreement: Callable[[int, int], float] | None = None,
 ) -> np.ndarray:
     """Match blobs by row, disparity range and size; return (m, 2) int index pairs (left, right).
 
@@ -427,6 +434,12 @@ def match_blobs(
     within the row tolerance of a left blob are looked at (by bisection on their rows), one
     pair at a time in Python floats: a scene has a few blobs, and a saturated one a few per
     row.
+
+    Where a blob could pair with more than one blob of the other eye, size and row alone may
+    pick the wrong one (the floor a pushed box uncovered, in one eye, is the size of the box
+    at its new place in the other). Given ``agreement`` (left index, right index -> how alike
+    the two eyes' images of the pair are, at most 1: :func:`stereod.vision.agreement.
+    eye_agreement`), such candidates cost ``AGREEMENT_WEIGHT`` times their disagreement more.
     """
     nl, nr = len(left_px), len(right_px)
     if nl == 0 or nr == 0:
@@ -454,6 +467,15 @@ def match_blobs(
             if slack_px > 0:
                 cost += (max(lo - disp, 0.0) + max(disp - hi, 0.0)) / slack_px
             candidates.append((cost, i, j))
+    if agreement is not None and candidates:
+        per_l = collections.Counter(i for _, i, _ in candidates)
+        per_r = collections.Counter(j for _, _, j in candidates)
+        candidates = [
+            (c + AGREEMENT_WEIGHT * max(1.0 - agreement(i, j), 0.0), i, j)
+            if per_l[i] > 1 or per_r[j] > 1
+            else (c, i, j)
+            for c, i, j in candidates
+        ]
     candidates.sort()
     used_l, used_r = [False] * nl, [False] * nr
     out = []
