@@ -245,6 +245,8 @@ def attachment(sequence_number: int, source_timestamp_ns: int, gid: bytes) -> by
     # attachment_helpers.cpp, AttachmentData::serialize_to_zbytes: serialize(int64_t seq),
     # serialize(int64_t timestamp), serialize(std::array<uint8_t, 16> gid); docs/design.md,
     # "Publishers": 8 + 8 bytes little-endian, 1 byte for the GID's length (16), 16 bytes.
+    # zenoh-cpp (ext/serialization.hxx) writes a std::array as a sequence, its LEB128 length
+    # then each element, and its deserializer refuses a length other than 16.
     if len(gid) != _GID_SIZE:
         raise ValueError(f"a GID is {_GID_SIZE} bytes, got {len(gid)}")
     return struct.pack("<qqB", sequence_number, source_timestamp_ns, _GID_SIZE) + gid
