@@ -35,6 +35,8 @@ from stereod.sources.frames import Eye
 from stereod.vision.calibration import canonical
 from stereod_fakes.synth import SyntheticDriver
 
+from .conftest import zenoh_config
+
 STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
 # docs/design.md of 0.2.10 / 0.6.7 (blob f3b127990f4b), "Topic and Service name mapping to
 # Zenoh key expressions", examples using demo_nodes_cpp:
@@ -395,3 +397,48 @@ def test_ros2_section_from_the_environment() -> None:
     cfg = load_config(overrides=environment(env))
     assert cfg.ros2.enabled and cfg.ros2.topics == ["odom", "tf_static"]
     assert not load_config().ros2.enabled  # off unless asked for
+
+
+# zenoh_security_tools/src/config_generator.cpp of 0.2.10 and 0.6.7 (the same functions):
+# the key expressions rmw_zenoh's access-control generator allows for a topic ``name`` (its
+# leading '/' removed, check_name) in domain ``d``: to_key_exprs, to_adv_pub_queryable_key_exprs
+# and the liveliness tokens' "@ros2_lv/" + domain + "/**".
+ACL_DATA = "{d}/{name}/*/*"
+ACL_ADV_PUB = "{d}/{name}/*/*/@adv/pub/*/*/_"
+ACL_LIVELINESS = "@ros2_lv/{d}/**"
+
+
+def test_keys_fall_within_what_rmw_zenohs_access_control_allows(
+    endpoint: str, listener: zenoh.Session
+) -> None:
+    """A lab that generates its Zenoh access control with zenoh_security_tools lets stereod's
+    publications, tokens and the transient-local cache through: every key stereod declares
+    lies within the patterns generated for its topics."""
+    cal = canonical(0.06, 60.0, 320, 240)
+    with (
+        zenoh.open(zenoh_config(connect=[endpoint])) as session,
+        ros2_live.Ros2Live(session, "minoru", calibration=cal, domain_id=5) as ros,
+    ):
+        for topic, end in ros.endpoints.items():
+            name = topic.removeprefix("/")
+            assert zenoh.KeyExpr(ACL_DATA.format(d=5, name=name)).includes(zenoh.KeyExpr(end.key))
+            allowed = zenoh.KeyExpr(ACL_LIVELINESS.format(d=5))
+            assert allowed.includes(zenoh.KeyExpr(end.token_key))
+        assert zenoh.KeyExpr(ACL_LIVELINESS.format(d=5)).includes(zenoh.KeyExpr(ros.node_token_key))
+        # The AdvancedPublisher of /tf_static: its detection token and its cache's queryable.
+        pattern = ACL_ADV_PUB.format(d=5, name="tf_static")
+        deadline = time.monotonic() + 10
+        tokens: list[Any] = []
+        while not tokens and time.monotonic() < deadline:
+            tokens = [r.ok for r in listener.liveliness().get(pattern, timeout=2) if r.ok]
+        assert tokens, f"no AdvancedPublisher token within {pattern}"
+        assert all(zenoh.KeyExpr(pattern).includes(s.key_expr) for s in tokens)
+        # The cache answers a query on that pattern (as an AdvancedSubscriber's history query,
+        # which accepts replies on the data key) with the latched sample.
+        replies = listener.get(pattern, timeout=5, accept_replies=zenoh.ReplyKeyExpr.ANY)
+        cached = [r.ok for r in replies if r.ok is not None]
+        assert cached and {str(s.key_expr) for s in cached} == {ros.endpoints["/tf_static"].key}
+        tfm = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(
+            cached[0].payload.to_bytes(), "tf2_msgs/msg/TFMessage"
+        )
+        assert len(tfm.transforms) == 3
