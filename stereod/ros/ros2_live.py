@@ -6,35 +6,50 @@ way ``rmw_zenoh_cpp`` of ROS 2 **Jazzy** and **Kilted** does, so a ROS 2 machine
 ``RMW_IMPLEMENTATION=rmw_zenoh_cpp`` connected to the same Zenoh router lists and echoes them
 with no stereod package and no bridge. Humble's rmw_zenoh is not supported (no type hashes).
 
-The mapping follows rmw_zenoh's source (github ros2/rmw_zenoh, the ``jazzy`` and ``kilted``
-lines since they moved to Zenoh 1.x, 16-byte GIDs, the binary attachment and zenoh-cpp's
-AdvancedPublisher: ``rmw_zenoh_cpp/src/detail/liveliness_utils.cpp`` (``Entity``,
-``TopicInfo``, ``qos_to_keyexpr``, ``mangle_name``), ``attachment_helpers.cpp``
-(``AttachmentData::serialize_to_zbytes``), ``rmw_publisher_data.cpp`` (``PublisherData::make``,
-``publish``; ``SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD`` 500 ms), ``qos.cpp`` (commit 5e10d47b,
-the defaults) and ``docs/design.md`` ("Graph Cache" examples, "Publishers" attachment layout)).
-Earlier rmw_zenoh builds (the rolling branch of October 2024, bfc065f, and before: an attachment
-of named fields, tokens without type hashes or node ids) are not spoken.
+What it follows (read in rmw_zenoh's own source; paths under ``rmw_zenoh_cpp/src/detail/``
+unless said): the releases ``0.2.10`` (Jazzy) and ``0.6.7`` (Kilted) of github ros2/rmw_zenoh,
+as the ROS build farm imported them into ros2-gbp/rmw_zenoh-release (commits ``70d15597``
+and ``a6ea04f6``, tags ``upstream/0.2.10`` and ``upstream/0.6.7``). Every file cited below is
+the same blob in both; ``docs/ros2-foxglove.md`` lists the blob ids. The wire format is
+unchanged from Jazzy 0.2.4 and Kilted 0.6.0 on: Jazzy 0.2.0 to 0.2.3 wrote an attachment of
+named fields (``"sequence_number"``, ...), and 0.2.0 to 0.2.2 had transient local as the
+default durability, so they are not spoken (nor are Humble's 0.1.x, nor the Zenoh 0.11 builds
+of 2024 such as rolling ``bfc065f``).
 
-* data key: ``<domain_id>/<topic without its leading slash>/<pkg>::msg::dds_::<Type>_/RIHS01_<hex>``
-  (``TopicInfo``'s ``topic_keyexpr_``);
-* payload: CDR with its 4-byte encapsulation header (little-endian, ``00 01 00 00``);
-* attachment (``AttachmentData::serialize_to_zbytes``, zenoh-ext serialization): sequence
-  number (int64 LE, from 1 per publisher), source timestamp (int64 LE, ns, the wall clock at
-  the put), source GID (the length 16 as a LEB128 byte, then 16 bytes) = 33 bytes;
-* GID of an entity: XXH3-128 of its liveliness key expression, low 64 bits then high 64 bits,
-  each little-endian (``Entity::Entity``);
-* liveliness tokens: ``@ros2_lv/<domain>/<zid>/<nid>/<id>/<NN|MP>/<enclave>/<namespace>/<node>``
-  and, for a publisher, ``/<topic>/<type>/<hash>/<qos>``, every ``/`` inside a name replaced by
-  ``%`` (so the root namespace and enclave are ``%``); ``<zid>`` the session id as Zenoh prints
-  it, ``<nid>`` 0 (the node), ``<id>`` 1, 2, ... (the publishers);
-* QoS string ``<rel>:<dur>:<hist>,<depth>:<dl.s>,<dl.ns>:<ls.s>,<ls.ns>:<lv>,<lv.s>,<lv.ns>``,
-  each field empty when it equals rmw_zenoh's default (reliable, volatile, keep last, depth 42,
-  infinite durations, automatic liveliness): data topics are reliable, volatile, keep last 10
+* data key ``<domain_id>/<topic without its leading slash>/<pkg>::msg::dds_::<Type>_/RIHS01_<hex>``
+  (``liveliness_utils.cpp``, ``TopicInfo::TopicInfo``; the type name from
+  ``type_support_common.cpp``, ``_create_type_name``; the hash is rosidl's RIHS01 string);
+* payload: CDR with its 4-byte encapsulation header, little-endian ``00 01 00 00``
+  (``type_support.cpp``, ``serialize_encapsulation``);
+* attachment (``attachment_helpers.cpp``, ``AttachmentData::serialize_to_zbytes``; the layout
+  in ``docs/design.md``, "Publishers"): sequence number (int64 LE, from 1 per publisher),
+  source timestamp (int64 LE, ns of the system clock at the put), then the GID as zenoh-ext
+  serializes a ``std::array<uint8_t, 16>``: its length 16 in one byte, then the 16 bytes;
+  33 bytes in all (``rmw_publisher_data.cpp``, ``PublisherData::publish``);
+* GID: XXH3-128 (seed 0) of the entity's liveliness key expression, its low 64 bits then its
+  high 64 bits, each little-endian (``liveliness_utils.cpp``, ``Entity::Entity``, with
+  ``simplified_xxhash3.cpp``);
+* liveliness tokens (``liveliness_utils.cpp``, ``Entity::Entity``):
+  ``@ros2_lv/<domain>/<zid>/<nid>/<id>/NN/<enclave>/<namespace>/<node>`` for the node and, for
+  a publisher, ``MP`` and ``/<topic>/<type>/<hash>/<qos>`` after the node; ``mangle_name``
+  turns every ``/`` in the enclave, namespace, node, topic, type and hash into ``%`` (so the
+  default enclave ``/`` and the root namespace are ``%``); ``<zid>`` is the session id as
+  Zenoh prints it; ``<nid>`` and ``<id>`` come from one counter per session that starts at 0
+  (``rmw_context_impl_s.cpp``, ``get_next_entity_id``): the node is 0/0 (``rmw_node_data.cpp``)
+  and its publishers 0/1, 0/2, ...;
+* QoS chunk ``<rel>:<dur>:<hist>,<depth>:<dl.s>,<dl.ns>:<ls.s>,<ls.ns>:<lv>,<lv.s>,<lv.ns>``
+  (``qos_to_keyexpr``; ``rmw/types.h`` enum values), each field empty when it equals
+  rmw_zenoh's default (``qos.cpp``: reliable, volatile, keep last, depth 42, infinite
+  durations, automatic liveliness): data topics are reliable, volatile, keep last 10
   (``::,10:,:,:,,``), ``/tf_static`` transient local, keep last 1 (``:1:,1:,:,:,,``);
-* transient local (``/tf_static``): a zenoh-ext AdvancedPublisher with a cache of ``depth``
-  samples and publisher detection, which rmw_zenoh's transient-local subscriptions (an
-  AdvancedSubscriber that detects late publishers) query when they join.
+* publishers (``rmw_publisher_data.cpp``, ``PublisherData::make``): congestion control DROP,
+  reliable; a transient-local one is a zenoh-ext AdvancedPublisher with a cache of ``depth``
+  samples, publisher detection, and (being reliable) sample-miss detection with a sporadic
+  heartbeat every 500 ms, which rmw_zenoh's transient-local subscriptions (an
+  AdvancedSubscriber that detects late publishers, ``rmw_subscription_data.cpp``) query when
+  they join. rmw_zenoh declares its volatile publishers as AdvancedPublishers with no option
+  set, which put exactly as a plain publisher does; stereod uses a plain one for its matching
+  listener.
 
 Topics (``[ros2] topics``): ``odom`` (``nav_msgs/msg/Odometry`` per track state), ``markers``
 (``visualization_msgs/msg/MarkerArray`` per message), ``camera_info`` (both eyes, each at its
@@ -102,7 +117,15 @@ TYPE_HASHES: Final[dict[str, str]] = {
 """RIHS01 type hashes (REP 2011) of the published types in Jazzy and Kilted (the two agree for
 these types); tests compare them with rosbags' ``hash_rihs01``."""
 
-_GID_SIZE: Final = 16  # RMW_GID_STORAGE_SIZE since Iron
+RMW_ZENOH_RELEASES: Final[dict[str, tuple[str, str]]] = {
+    "jazzy": ("0.2.4", "0.2.10"),
+    "kilted": ("0.6.0", "0.6.7"),
+}
+"""Per distribution, the first and the last rmw_zenoh_cpp release whose wire format this module
+was checked against (the same format from the first to the last)."""
+
+_GID_SIZE: Final = 16  # RMW_GID_STORAGE_SIZE (rmw/types.h) since Iron
+# rmw_publisher_data.cpp: SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD, 500 ms.
 _HEARTBEAT_S: Final = 0.5
 
 
@@ -130,17 +153,23 @@ LATCHED_QOS: Final = Qos(durability=1, depth=1)
 
 def dds_type_name(typename: str) -> str:
     """``pkg/msg/Type`` as rmw_zenoh's type support names it: ``pkg::msg::dds_::Type_``."""
+    # type_support_common.cpp, _create_type_name: message_namespace_ ("pkg::msg") + "::dds_::"
+    # + message_name_ + "_".
     pkg, kind, name = typename.split("/")
     return f"{pkg}::{kind}::dds_::{name}_"
 
 
 def mangle(name: str) -> str:
     """A ROS name as one key chunk: every ``/`` becomes ``%`` (rmw_zenoh's ``mangle_name``)."""
+    # liveliness_utils.cpp, mangle_name: SLASH_REPLACEMENT '%', nothing else is escaped.
     return name.replace("/", "%")
 
 
 def qos_keyexpr(qos: Qos) -> str:
     """The QoS chunk of a token (``qos_to_keyexpr``): each field empty at its default."""
+    # liveliness_utils.cpp, qos_to_keyexpr: ':' between policies, ',' inside one; a field equal
+    # to QoS::default_qos() (qos.cpp) is left empty. Deadline, lifespan and lease duration are
+    # stereod's defaults, which best_available_qos turns into rmw_zenoh's (infinite): empty.
     d = RMW_ZENOH_DEFAULT_QOS
 
     def f(value: int, default: int) -> str:
@@ -154,11 +183,16 @@ def qos_keyexpr(qos: Qos) -> str:
 
 def data_keyexpr(domain_id: int, topic: str, typename: str) -> str:
     """The key a topic's samples are put on: ``<domain>/<topic>/<dds type>/<type hash>``."""
+    # liveliness_utils.cpp, TopicInfo::TopicInfo: domain "/" strip_slashes(name) "/" type "/"
+    # hash (strip_slashes drops one leading and one trailing '/'; a ROS name has no other).
     return f"{domain_id}/{topic.strip('/')}/{dds_type_name(typename)}/{TYPE_HASHES[typename]}"
 
 
 def node_token(domain_id: int, zid: str, namespace: str, node: str, enclave: str = "/") -> str:
     """The liveliness token of a node (entity ``NN``, node id and entity id 0)."""
+    # liveliness_utils.cpp, Entity::Entity: the chunks joined by '/', enclave, namespace and
+    # name mangled; rmw_node_data.cpp, NodeData::make: nid = id = the session's next entity id,
+    # 0 for its first node (rmw_context_impl_s.cpp, next_entity_id_ starts at 0).
     return (
         f"{ADMIN_SPACE}/{domain_id}/{zid}/0/0/NN/{mangle(enclave)}/{mangle(namespace)}/"
         f"{mangle(node)}"
@@ -177,6 +211,9 @@ def publisher_token(
     enclave: str = "/",
 ) -> str:
     """The liveliness token of a publisher (entity ``MP``) of node 0."""
+    # rmw_publisher_data.cpp, PublisherData::make: Entity::make(zid, node id, publisher id,
+    # Publisher, node info, TopicInfo{domain, topic, type name, hash, adapted QoS}); Entity::
+    # Entity appends mangle_name(topic), mangle_name(type), mangle_name(hash), qos_to_keyexpr.
     return (
         f"{ADMIN_SPACE}/{domain_id}/{zid}/0/{entity_id}/MP/{mangle(enclave)}/{mangle(namespace)}/"
         f"{mangle(node)}/{mangle(topic)}/{dds_type_name(typename)}/{TYPE_HASHES[typename]}/"
@@ -184,18 +221,32 @@ def publisher_token(
     )
 
 
-def entity_gid(token: str) -> bytes:
-    """The 16-byte GID rmw_zenoh derives from an entity's token: XXH3-128 of its text, the low
-    64 bits then the high 64 bits, each little-endian."""
+def xxh3_gid(data: bytes) -> bytes:
+    """16 bytes of XXH3-128 (seed 0, default secret) of ``data``: the low 64 bits then the
+    high 64 bits, each little-endian, as rmw_zenoh lays out a GID."""
+    # liveliness_utils.cpp, Entity::Entity: memcpy(gid, &low64, 8); memcpy(gid + 8, &high64, 8)
+    # of simplified_XXH3_128bits (simplified_xxhash3.cpp: xxHash's XXH3_128bits, portable code);
+    # memcpy of a uint64_t is little-endian on every platform ROS 2 supports.
     import xxhash
 
-    value = xxhash.xxh3_128_intdigest(token.encode())
+    value = xxhash.xxh3_128_intdigest(data)
     return (value & (2**64 - 1)).to_bytes(8, "little") + (value >> 64).to_bytes(8, "little")
+
+
+def entity_gid(token: str) -> bytes:
+    """The 16-byte GID rmw_zenoh gives an entity: :func:`xxh3_gid` of its liveliness token's
+    key expression (UTF-8), the same in Jazzy and Kilted; it is the attachment's source GID."""
+    return xxh3_gid(token.encode())
 
 
 def attachment(sequence_number: int, source_timestamp_ns: int, gid: bytes) -> bytes:
     """rmw_zenoh's attachment of a sample: int64 sequence number, int64 source timestamp (ns),
     then the GID as a length-prefixed byte sequence (zenoh-ext serialization, little-endian)."""
+    # attachment_helpers.cpp, AttachmentData::serialize_to_zbytes: serialize(int64_t seq),
+    # serialize(int64_t timestamp), serialize(std::array<uint8_t, 16> gid); docs/design.md,
+    # "Publishers": 8 + 8 bytes little-endian, 1 byte for the GID's length (16), 16 bytes.
+    # zenoh-cpp (ext/serialization.hxx) writes a std::array as a sequence, its LEB128 length
+    # then each element, and its deserializer refuses a length other than 16.
     if len(gid) != _GID_SIZE:
         raise ValueError(f"a GID is {_GID_SIZE} bytes, got {len(gid)}")
     return struct.pack("<qqB", sequence_number, source_timestamp_ns, _GID_SIZE) + gid
@@ -236,31 +287,40 @@ class _Endpoint:
         )
         self.gid = entity_gid(self.token_key)
         self.encode = cdr_encoder(typename)
-        self.sequence = 1
+        self.sequence = 1  # PublisherData: sequence_number_(1), post-incremented at each put
         self.matching = False
         self._listener: Any = None
-        reliability = zenoh.Reliability.RELIABLE if qos.reliability == 1 else None
+        # rmw_publisher_data.cpp, PublisherData::make: congestion control DROP, but BLOCK for
+        # reliable + keep all; reliability RELIABLE or BEST_EFFORT, always set explicitly.
+        reliable = qos.reliability == 1
+        reliability = zenoh.Reliability.RELIABLE if reliable else zenoh.Reliability.BEST_EFFORT
+        congestion = (
+            zenoh.CongestionControl.BLOCK
+            if reliable and qos.history == 2
+            else zenoh.CongestionControl.DROP
+        )
         self._pub: Any
         if qos.durability == 1:
+            # Transient local: publisher detection and a cache of `depth` samples; reliable,
+            # also sample-miss detection with a sporadic heartbeat (500 ms) so subscribers
+            # recover missed samples from the cache (no timestamping needed on the session).
+            miss = (
+                zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=_HEARTBEAT_S)
+                if reliable
+                else None
+            )
             self._pub = zenoh.ext.declare_advanced_publisher(
                 session,
                 self.key,
-                congestion_control=zenoh.CongestionControl.DROP,
+                congestion_control=congestion,
                 reliability=reliability,
                 cache=zenoh.ext.CacheConfig(max_samples=qos.depth),
-                # reliable + transient local: sequence numbers and a sporadic heartbeat
-                # (SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD, 500 ms) so subscribers recover
-                # missed samples from the cache; this needs no timestamping on the session.
-                sample_miss_detection=zenoh.ext.MissDetectionConfig(  # type: ignore[call-arg]
-                    sporadic_heartbeat=_HEARTBEAT_S
-                ),
+                sample_miss_detection=miss,
                 publisher_detection=True,
             )
         else:
             pub = session.declare_publisher(
-                self.key,
-                congestion_control=zenoh.CongestionControl.DROP,
-                reliability=reliability,
+                self.key, congestion_control=congestion, reliability=reliability
             )
             self._pub = pub
             self._listener = pub.declare_matching_listener(self._on_matching)
@@ -273,6 +333,8 @@ class _Endpoint:
 
     def put(self, body: dict[str, Any]) -> None:
         """CDR-encode ``body`` and put it with rmw_zenoh's attachment."""
+        # PublisherData::publish: source timestamp = get_system_time_in_ns() (zenoh_utils.cpp,
+        # std::chrono::system_clock), taken just before the put.
         att = attachment(self.sequence, time.time_ns(), self.gid)
         self.sequence += 1
         self._pub.put(self.encode(body), attachment=att)
