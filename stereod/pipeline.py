@@ -414,8 +414,9 @@ class Pipeline:
             at_once = exact and (compensate or times[0] == times[1])
             observations.append(self._triangulate(m, k, tid, det, times, (lc, rc, exact), at_once))
         t2 = time.perf_counter_ns()
+        boxes = (m.left.bbox_px, m.right.bbox_px)
         states, ended = self._track(
-            t_ns, observations, assignment, eye_times, detections, blob_times
+            t_ns, observations, assignment, eye_times, detections, blob_times, boxes
         )
         self._learn(states)
         t3 = time.perf_counter_ns()
@@ -553,13 +554,14 @@ class Pipeline:
     def _track(
         self, t_ns: int, observations: list[Observation | None], assignment: list[int | None],
         eye_times: tuple[int, int], detections: list[Detection], blob_times: list[tuple[int, int]],
+        boxes: tuple[np.ndarray, np.ndarray],
     ) -> tuple[list[TrackState], list[int]]:  # fmt: skip
         """The track stage: each track's two Kalman filters updated with its observation at
         ``t_ns`` (or coasting), tracks started and ended, ids given, and speed and heading
         (eq. 21-23) from the likelier filter (:meth:`stereod.tracking.tracker.Tracker.update`).
         Gives every live track's state at ``t_ns`` and the ids of the tracks that ended."""
         return self.tracker.update(
-            t_ns, observations, assignment, eye_times, detections, blob_times
+            t_ns, observations, assignment, eye_times, detections, blob_times, boxes
         )
 
     def _learn(self, states: list[TrackState]) -> None:

@@ -134,6 +134,34 @@ def test_coasting_then_ended_and_ids_never_reused() -> None:
     assert [s.track_id for s in states] == [2]
 
 
+def test_a_track_hidden_in_a_blob_outlives_max_coast_s_and_keeps_its_id() -> None:
+    """A person at 3 m walks behind a nearer one for 1.2 s (more than ``max_coast_s``, 0.5 s):
+    each eye sees one wide blob, the nearer person's, where the hidden one should be. Their
+    track coasts on through it, and keeps its id when it comes out; with nothing in view where
+    it should be it ends after ``max_coast_s`` as before."""
+    path = line([-0.6, 0.0, 3.0], [0.5, 0.0, 0.0])
+    hidden = range(30, 66)  # 1.2 s at 30 Hz
+    cover = np.array([[0.0, 0.0, 640.0, 480.0]])  # the nearer person's blob, in each eye
+    for boxes in ((cover, cover), (cover[:0], cover[:0])):
+        tracker = Tracker(TrackerParams())
+        ids, ended_at = set(), None
+        for k in range(90):
+            t = k * DT_NS
+            if k in hidden:
+                states, ended = tracker.update(t, [], [], (t, t), [], None, boxes)
+                if ended and ended_at is None:
+                    ended_at = k
+            else:
+                states, ended = step(tracker, t, [path(t * 1e-9)])
+            ids |= {s.track_id for s in states}
+        if len(boxes[0]):
+            assert ended_at is None and ids == {1}
+        else:
+            assert ended_at is not None and ended_at < hidden[-1]  # last seen at hidden[0] - 1
+            assert (ended_at - hidden[0] + 1) * DT_NS * 1e-9 > TrackerParams().max_coast_s
+            assert ids == {1, 2}
+
+
 def test_a_track_seen_once_waits_one_missed_pair_then_ends() -> None:
     """Unseen for one pair, a track seen once waits, reported still tentative (a message
     lists a track from its first pair to its last, with no gap); unseen for two, it ends."""

@@ -54,6 +54,7 @@ from stereod.files.bounds import (
     IMAGE_RATE_HZ,
     MANOEUVRE_CHI2,
     MAX_COAST_S,
+    MAX_HIDDEN_S,
     READOUT_S,
     STATUS_PERIOD_S,
     STILL_AFTER_S,
@@ -321,6 +322,11 @@ class TrackingConfig(_Section):
     )
     max_coast_s: Annotated[float, MAX_COAST_S.validator()] = Field(
         _TRACK.max_coast_s, description="Track lives unseen, s"
+    )
+    max_hidden_s: Annotated[float, MAX_HIDDEN_S.validator()] = Field(
+        _TRACK.max_hidden_s,
+        description="Track lives unseen this long while both eyes see a blob where it should "
+        "be (behind another object), s",
     )
     confirm_hits: int = Field(
         _TRACK.confirm_hits, ge=1, le=1000, description="Observations to confirm a track"

@@ -179,6 +179,13 @@ MAX_COAST_S = Bound(
     "s",
     "0 ends a track at its first miss; a prediction a minute old is a guess",
 )
+MAX_HIDDEN_S = Bound(
+    ("tracking.max_hidden_s",),
+    0.0,
+    60.0,
+    "s",
+    "0 ends a hidden track like any other; an object a minute behind another is gone",
+)
 HOLD_STILL_S = Bound(
     ("tracking.hold_still_s",),
     0.0,
@@ -281,6 +288,7 @@ BOUNDS: tuple[Bound, ...] = (
     ABSORB_S,
     TIME_BASE_S,
     MAX_COAST_S,
+    MAX_HIDDEN_S,
     HOLD_STILL_S,
     STILL_AFTER_S,
     READOUT_S,

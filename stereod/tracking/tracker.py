@@ -49,7 +49,7 @@ from __future__ import annotations
 import numpy as np
 
 from stereod.tracking import kalman
-from stereod.tracking.association import Association, Projector
+from stereod.tracking.association import Association, Projector, _inside
 from stereod.tracking.track import Track, behind
 from stereod.tracking.types import (
     Detection,
@@ -103,11 +103,15 @@ class Tracker(Association):
         eye_times_ns: tuple[int, int],
         detections: list[Detection],
         blob_times_ns: list[tuple[int, int]] | None = None,
+        blob_boxes_px: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[list[TrackState], list[int]]:
         """Fold in one pair's observations at ``t_ns`` (``None`` in ``observations`` is a
         detection that neither joins nor starts a track); ``eye_times_ns`` are the left and
         right capture instants of the frames, and ``blob_times_ns`` each detection's own (a
-        rolling shutter reads its rows later; default: the frames'). Returns the state of
+        rolling shutter reads its rows later; default: the frames'), and ``blob_boxes_px``
+        every blob's box in each eye ((n, 4) x, y, w, h; default: the detections'), matched
+        or not: a confirmed track unseen for longer than ``max_coast_s`` lives on, up to
+        ``max_hidden_s``, while both eyes see a blob where it should be. Returns the state of
         every live track (observed or coasting) and the ids of the tracks that ended. A track
         whose filter puts it behind the rig (Z <= 0, where no camera sees) ends there: its
         filter has lost the object, and what it would publish means nothing."""
@@ -160,6 +164,11 @@ class Tracker(Association):
             elif tr.started or tr.whole:  # a track seen only cut by the image's edge is quiet
                 states.append(self._state(tr, t_ns, observed=True))
         coast_ns = int(p.max_coast_s * 1e9)
+        hidden_ns = int(max(p.max_hidden_s, p.max_coast_s) * 1e9)
+        boxes = blob_boxes_px or (
+            np.array([d.left_bbox_px for d in detections]).reshape(-1, 4),
+            np.array([d.right_bbox_px for d in detections]).reshape(-1, 4),
+        )
         for tid, keeper in self._merging.items():
             if tid in self._tracks and tid not in seen and keeper in seen:
                 ended.append(tid)  # a piece of the keeper's object, now seen whole
@@ -178,7 +187,9 @@ class Tracker(Association):
                     del self._tracks[tid]
                 elif tr.started or tr.whole:
                     states.append(self._state(tr, t_ns, observed=False))
-            elif t_ns - tr.last_seen_ns > coast_ns:
+            elif t_ns - tr.last_seen_ns > coast_ns and not (
+                t_ns - tr.last_seen_ns <= hidden_ns and self._hidden(tr, eye_times_ns, boxes)
+            ):
                 ended.append(tid)
                 del self._tracks[tid]
             else:
@@ -189,6 +200,16 @@ class Tracker(Association):
                 elif tr.started or tr.whole:
                     states.append(self._state(tr, t_ns, observed=False))
         return states, ended
+
+    def _hidden(
+        self, tr: Track, eye_times_ns: tuple[int, int], boxes: tuple[np.ndarray, np.ndarray]
+    ) -> bool:
+        """Whether a track unseen in this pair is where, in both eyes, a blob was seen (``boxes``:
+        each eye's, x, y, w, h px): hidden behind another object, or in one blob with it."""
+        pred = self._predict_px(tr, *self._row_instants(tr, eye_times_ns))
+        return any(_inside(pred.left_far, b, 0.0) for b in boxes[0]) and any(
+            _inside(pred.right_far, b, 0.0) for b in boxes[1]
+        )
 
     def continue_after(self, other: Tracker) -> None:
         """Number new tracks after ``other``'s, so ids are never reused while running."""

@@ -100,31 +100,32 @@ class Observation:
 class TrackerParams:
     """Tracker settings, SI units.
 
-    ``gate_px``: image distance (px, per eye) within which a detection always may join a
-    track's prediction; a track that has a velocity adds ``motion_gate`` times how far it
-    moved in the image since it was last seen. ``max_speed_mps``: the fastest object to
-    follow (m/s); it sets the gate of a track with one observation. ``manoeuvre_chi2``: an
-    observation whose squared Mahalanobis distance from the filter's prediction exceeds this
-    (3 dof; 16.3 is 99.9 %) widens the prediction until it does not (a fading memory).
-    ``accel_noise``: spectral density q of the white acceleration (m^2/s^3).
-    ``manoeuvre_sigma_mps``: the velocity sigma of a track before its filter starts.
-    ``time_base_s``: tau of eq. 21 (s). ``max_coast_s``: how long (s) a confirmed track lives
-    unseen. ``confirm_hits``: observations to confirm. ``valid_speed_sigma_mps``,
-    ``valid_speed_sigma_rel``: a velocity is valid once the speed's sigma is below the larger
-    of these (m/s; share of the speed), its heading once the sigma across it on the ground is
-    too and the heading's within ``VALID_HEADING_SIGMA_DEG``. ``hold_still_s``: how long (s)
-    after it was last seen moving an object keeps the background held under it (it stays
-    seen, ``stationary``, and keeps its id); after that it is part of the scene.
-    ``still_after_s``: an object not seen moving for this long (s) is ``stationary``.
-    ``stationary_mps``: below this speed an object is not moving. ``size_gate``: a track's
-    gate is at least this share of its blob's size (the square root of its area, px): the
-    centre of a person, whose arms and legs swing, wanders by a fifth of their size from one
-    frame to the next. ``merge_depth_m``, ``merge_speed_mps``: confirmed tracks that one
-    detection holds, at one depth and moving together within these, are pieces of one object
-    followed apart, and the longest-followed one takes it. ``gravity_mps2``: gravity
-    in the rig frame (m/s^2; Y points down in a level rig); every moving track is filtered
-    both as moving straight and as falling freely, and follows the likelier (a thrown ball
-    falls 5 mm in one frame at 30 Hz, and a straight-line filter bends its depth to explain
+    ``gate_px``: image distance (px, per eye) within which a detection always may join a track's
+    prediction; a track that has a velocity adds ``motion_gate`` times how far it moved in the
+    image since it was last seen. ``max_speed_mps``: the fastest object to follow (m/s); it sets
+    the gate of a track with one observation. ``manoeuvre_chi2``: an observation whose squared
+    Mahalanobis distance from the filter's prediction exceeds this (3 dof; 16.3 is 99.9 %)
+    widens the prediction until it does not (a fading memory). ``accel_noise``: spectral density
+    q of the white acceleration (m^2/s^3). ``manoeuvre_sigma_mps``: the velocity sigma of a
+    track before its filter starts. ``time_base_s``: tau of eq. 21 (s). ``max_coast_s``: how
+    long (s) a confirmed track lives unseen. ``max_hidden_s``: how long (s) it lives unseen
+    while each eye sees a blob where it should be (a person walking behind another, or in one
+    blob with them through a crossing); at least ``max_coast_s``. ``confirm_hits``: observations
+    to confirm. ``valid_speed_sigma_mps``, ``valid_speed_sigma_rel``: a velocity is valid once
+    the speed's sigma is below the larger of these (m/s; share of the speed), its heading once
+    the sigma across it on the ground is too and the heading's within
+    ``VALID_HEADING_SIGMA_DEG``. ``hold_still_s``: how long (s) after it was last seen moving an
+    object keeps the background held under it (it stays seen, ``stationary``, and keeps its id);
+    after that it is part of the scene. ``still_after_s``: an object not seen moving for this
+    long (s) is ``stationary``. ``stationary_mps``: below this speed an object is not moving.
+    ``size_gate``: a track's gate is at least this share of its blob's size (the square root of
+    its area, px): the centre of a person, whose arms and legs swing, wanders by a fifth of
+    their size from one frame to the next. ``merge_depth_m``, ``merge_speed_mps``: confirmed
+    tracks that one detection holds, at one depth and moving together within these, are pieces
+    of one object followed apart, and the longest-followed one takes it. ``gravity_mps2``:
+    gravity in the rig frame (m/s^2; Y points down in a level rig); every moving track is
+    filtered both as moving straight and as falling freely, and follows the likelier (a thrown
+    ball falls 5 mm in one frame at 30 Hz, and a straight-line filter bends its depth to explain
     that); (0, 0, 0) turns this off.
     """
 
@@ -136,6 +137,7 @@ class TrackerParams:
     accel_noise: float = 0.02
     time_base_s: float = 0.5
     max_coast_s: float = 0.5
+    max_hidden_s: float = 2.0
     confirm_hits: int = 3
     valid_speed_sigma_mps: float = 0.1
     valid_speed_sigma_rel: float = 0.1
