@@ -162,6 +162,38 @@ def test_a_track_hidden_in_a_blob_outlives_max_coast_s_and_keeps_its_id() -> Non
             assert ids == {1, 2}
 
 
+def test_a_blob_that_holds_an_unseen_track_starts_no_track_of_its_own() -> None:
+    """A ball rolls past a low lamp: for 10 frames its long shadow joins its blob in both eyes,
+    whose centroid then lies 40 px off the ball's, beyond any gate. The blob holds where the
+    ball should be: it is the ball disturbed, not a new object, and once the shadow parts the
+    ball's track goes on with its id."""
+    path = line([-0.5, 0.0, 2.0], [0.4, 0.0, 0.0])
+    tracker = Tracker(TrackerParams())
+    ids = set()
+    for k in range(60):
+        t = k * DT_NS
+        det, ob = seen(path(t * 1e-9))
+        if 20 <= k < 30:  # the shadow: 80 px more to the right in each eye
+            shift = np.array([40.0, 0.0])
+            grow = np.array([0.0, 0.0, 80.0, 0.0])
+            det = dataclasses.replace(
+                det,
+                left_px=det.left_px + shift,
+                right_px=det.right_px + shift,
+                left_bbox_px=det.left_bbox_px + grow,
+                right_bbox_px=det.right_bbox_px + grow,
+            )
+            ob = dataclasses.replace(
+                ob, left_px=det.left_px, right_px=det.right_px, left_bbox_px=det.left_bbox_px,
+                right_bbox_px=det.right_bbox_px,
+            )  # fmt: skip
+        assignment, may_start = tracker.associate([det], (t, t))
+        observations = [ob if assignment[0] is not None or may_start[0] else None]
+        states, _ = tracker.update(t, observations, assignment, (t, t), [det])
+        ids |= {s.track_id for s in states}
+    assert ids == {1}
+
+
 def test_a_track_seen_once_waits_one_missed_pair_then_ends() -> None:
     """Unseen for one pair, a track seen once waits, reported still tentative (a message
     lists a track from its first pair to its last, with no gap); unseen for two, it ends."""

@@ -235,9 +235,15 @@ class Association(TrackFilters):
             for i, j in zip(rows, cols, strict=True):
                 if feasible[i, j]:
                     out[rows_in[i]] = tracks[cols_in[j]].track_id
+        # A blob that holds, in both eyes, where a confirmed track left unmatched should be is
+        # that object disturbed (joined by a shadow the detector did not leave out, or by
+        # another object): it starts no track of its own while that one lives on, hidden.
+        taken = {t for t in out if t is not None}
+        unseen = [j for j, tr in enumerate(tracks) if confirmed[j] and tr.track_id not in taken]
         for i, d in enumerate(detections):
             if out[i] is None and may_start[i]:
-                may_start[i] = not _piece(d, detections, out, tracks)
+                holds = any(inside[0, i, j] and inside[1, i, j] for j in unseen)
+                may_start[i] = not holds and not _piece(d, detections, out, tracks)
         return out, may_start
 
     def _one_object(self, tracks: list[Track]) -> bool:
