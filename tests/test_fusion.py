@@ -190,6 +190,39 @@ def test_the_room_message_is_an_objects_message_in_the_room_frame() -> None:
     np.testing.assert_allclose(obj.position_m, walker.position(t), atol=0.1)
 
 
+def test_the_room_payload_written_from_arrays_is_the_room_message() -> None:
+    """The node's payload, written from the step's arrays, parses to the message built through
+    the model (every field, each object's blobs those of its best member), and each object's
+    own payload to that object; three walkers, two seen by both rigs."""
+    from stereod.bus.messages import ObjectsMessage, ObjectState
+    from stereod.fusion.output import room_message, room_payload
+    from stereod.vision.geometry import Geometry
+
+    walkers = [
+        Walker(1, (0.8, 0.0, 3.5), (1.0, 0.0, 0.0)),
+        Walker(2, (1.6, 0.0, 2.5), (0.0, 0.0, 0.5)),
+        Walker(3, (-1.0, 0.0, 3.0), (0.3, 0.0, 0.2)),
+    ]
+    sims = {"a": RigSim(A, seed=23), "c": RigSim(C, seed=24)}
+    fuser = Fuser(room(A, C))
+    run(fuser, sims, walkers, 9)
+    last = [sim.message(walkers, 9 * FRAME_NS) for sim in sims.values()]
+    for m in last:
+        fuser.ingest(m)
+    frame = fuser.fuse(9 * FRAME_NS)
+    payload, tracks = room_payload("lab", 9, frame, Geometry.CANONICAL, 0.7)
+    msg = room_message("lab", 9, frame, Geometry.CANONICAL, 0.7)
+    assert ObjectsMessage.model_validate_json(payload) == msg
+    assert len(msg.objects) == 3
+    assert [tid for tid, _ in tracks] == [o.track_id for o in msg.objects]
+    for (_, body), obj in zip(tracks, msg.objects, strict=True):
+        assert ObjectState.model_validate_json(body) == obj
+    seen = {(m.rig, o.track_id): o for m in last for o in m.objects}
+    for tr, obj in zip(frame.tracks, msg.objects, strict=True):
+        members = [seen[(rig, tid)] for rig, tid in tr.members.items()]
+        assert (obj.left, obj.right) in [(o.left, o.right) for o in members]
+
+
 @pytest.mark.parametrize(("offset_ms", "flagged"), [(40.0, True), (-5.0, False)])
 def test_a_rig_clock_offset_is_estimated_from_shared_objects(
     offset_ms: float, flagged: bool

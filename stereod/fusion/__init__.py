@@ -2,7 +2,8 @@
 and fused by their covariances (issue 38). Nothing here imports Zenoh or the daemon: the
 ``stereod fuse`` command (:mod:`stereod.cli.fuse`) feeds it messages and publishes its output.
 
-Modules by job: :mod:`.room` (the room file and each rig's pose), :mod:`.frames` (a rig's
+Modules by job: :mod:`.room` (the room file and each rig's pose), :mod:`.wire` (a rig's
+message as one array per field), :mod:`.frames` (a rig's
 tracks moved into the room frame and predicted to an instant), :mod:`.fuser` (association
 across rigs, the information-form fusion and the room's ids), :mod:`.clock` (each rig's clock
 offset from shared observations), :mod:`.output` (room tracks as an objects message),

@@ -25,9 +25,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stereod.bus.messages import ObjectsMessage, ObjectState
+from stereod.bus.messages import ObjectsMessage
 from stereod.fusion.frames import RigBatch, batch_to_room, predict_many
 from stereod.fusion.room import Room
+from stereod.fusion.wire import EXTRA, RigWire, from_message
 from stereod.tracking.assignment import min_cost_assignment
 from stereod.tracking.types import TrackLifecycle
 
@@ -64,9 +65,9 @@ class RoomTrack:
     state: TrackLifecycle = TrackLifecycle.CONFIRMED
     members: dict[str, int] = field(default_factory=dict)
     """Rig name -> that rig's track id, for the rig tracks linked to this object."""
-    source: ObjectState | None = None
-    """The message of the member whose position weighed most at the last step (its blobs,
-    disparity and size are reported)."""
+    extra: np.ndarray | None = None
+    """What the member whose position weighed most at the last step passes on (its skew,
+    blobs, disparity and size: the columns of ``wire.EXTRA``); None before any member."""
     velocity_valid: bool = False
     heading_valid: bool = False
 
@@ -131,7 +132,7 @@ def _snapshot(t: RoomTrack) -> RoomTrack:
     never written into, so they are shared)."""
     return RoomTrack(
         t.room_id, t.stamp_utc_ns, t.first_ns, t.last_seen_ns, t.position, t.position_cov,
-        t.velocity, t.velocity_cov, t.state, dict(t.members), t.source, t.velocity_valid,
+        t.velocity, t.velocity_cov, t.state, dict(t.members), t.extra, t.velocity_valid,
         t.heading_valid,
     )  # fmt: skip
 
@@ -162,20 +163,16 @@ class _Rows:
         self.position, self.position_cov, self.velocity, self.velocity_cov = p, pc, v, vc
         self.info = np.linalg.inv(pc) if n else pc
         self.info_mean = np.einsum("nij,nj->ni", self.info, p)
-        sources = [src for b in batches for src in b.sources]
-        self.sources = sources
-        self.seen = np.array(
-            [o.state in (TrackLifecycle.CONFIRMED, TrackLifecycle.STATIONARY) for o in sources],
-            dtype=bool,
-        )
-        self.stationary = np.array(
-            [o.state == TrackLifecycle.STATIONARY for o in sources], dtype=bool
-        )
-        self.velocity_valid = np.array([o.velocity_valid for o in sources], dtype=bool)
-        self.heading_valid = np.array([o.heading_valid for o in sources], dtype=bool)
 
-    def source(self, i: int) -> ObjectState:
-        return self.sources[i]
+        def stack(name: str, empty: np.ndarray) -> np.ndarray:
+            return np.concatenate([getattr(b, name) for b in batches]) if n else empty
+
+        none = np.zeros(0, dtype=bool)
+        self.seen = stack("seen", none)
+        self.stationary = stack("stationary", none)
+        self.velocity_valid = stack("velocity_valid", none)
+        self.heading_valid = stack("heading_valid", none)
+        self.extra = stack("extra", np.zeros((0, len(EXTRA))))
 
 
 class Fuser:
@@ -206,6 +203,10 @@ class Fuser:
         """Take a rig's objects message (a rig not in the room is ignored: False). Its tracks
         replace that rig's previous ones; a sequence number lower than the last one means the
         daemon restarted, and its old links are forgotten."""
+        return self.ingest_wire(from_message(msg))
+
+    def ingest_wire(self, msg: RigWire) -> bool:
+        """:meth:`ingest` of a message read as arrays (``wire.decode``)."""
         pose = self._poses.get(msg.rig)
         if pose is None:
             return False
@@ -215,8 +216,7 @@ class Fuser:
             self.restarts[msg.rig] = self.restarts.get(msg.rig, 0) + 1
         self._rig_seq[msg.rig] = msg.seq
         self._rig_last_ns[msg.rig] = msg.stamp_utc_ns
-        objects = [o for o in msg.objects if o.state != TrackLifecycle.TENTATIVE]
-        self._batches[msg.rig] = batch_to_room(msg.rig, pose[0], pose[1], objects)
+        self._batches[msg.rig] = batch_to_room(msg, pose[0], pose[1])
         return True
 
     def _forget_rig(self, rig: str) -> None:
@@ -427,7 +427,7 @@ class Fuser:
                 pos[s], pcov[s], vel[s], vcov[s]
             )  # fmt: skip
             if count[s]:
-                tr.source = rows.sources[best[s]]
+                tr.extra = rows.extra[best[s]]
                 tr.velocity_valid, tr.heading_valid = bool(vvalid[s]), bool(hvalid[s])
                 if seen[s]:
                     tr.last_seen_ns = t_ns
