@@ -19,6 +19,7 @@ import signal
 import threading
 import time
 from collections import deque
+from pathlib import Path
 
 import numpy as np
 import zenoh
@@ -39,8 +40,9 @@ from stereod.cli.common import (
 )
 from stereod.daemon.config import load_config
 from stereod.daemon.sdnotify import Notifier
-from stereod.errors import ConfigError, ReaderGone
+from stereod.errors import ConfigError, ReaderGone, StereodError
 from stereod.files.output_file import AtomicOutput, check_outputs
+from stereod.files.paths import shown
 from stereod.fusion.clock import ClockWatch
 from stereod.fusion.fuser import FuseParams, Fuser
 from stereod.fusion.mcap import RoomMcapWriter
@@ -65,7 +67,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="fuse several rigs' tracks into one room",
         description="Subscribe to the objects of every rig a room file lists, move them into "
         "the room frame, associate and fuse them, and publish the room's tracks (one id per "
-        "object) on <prefix>/rooms/<room>/objects. Runs until SIGINT or SIGTERM.",
+        "object) on <prefix>/rooms/<room>/objects. Runs until SIGINT or SIGTERM; SIGHUP reads "
+        "the room file again (a bad one is reported and the room kept).",
     )
     p.add_argument("--room", type=path_arg, required=True, metavar="FILE", help="room file (TOML)")
     add_config(p, " (its [zenoh] section: endpoints, mode, TLS through config_file)")
@@ -155,6 +158,10 @@ class FuseNode:
         self.added_ms: deque[float] = deque(maxlen=WINDOW)
         self._steps_at = (self.start, 0)
         self._rig_of: dict[str, str] = {}
+        self.pending_room: Room | None = None
+        """A room file read again, for the fusion thread to take before its next step."""
+        self.reload_problem: str | None = None
+        """Why the last reload was refused (on the status until a reload is taken)."""
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         """Zenoh's callback: queue the payload with its arrival time (never blocks the
@@ -201,6 +208,7 @@ class FuseNode:
         last_rx: float | None = None
         try:
             while not self.done.is_set():
+                self._take_room()
                 batch = self._drain()
                 newest = {key: payload for _, key, payload in batch}
                 for payload in newest.values():
@@ -230,6 +238,30 @@ class FuseNode:
         except BaseException as exc:  # a fatal error ends the run with its own line
             self.error = exc
             self.done.set()
+
+    def room_next(self) -> Room:
+        """The room the next step fuses: one read again and not yet taken, else the running
+        one."""
+        with self.lock:
+            return self.pending_room or self.room
+
+    def _take_room(self) -> None:
+        """Swap in a room file read again (fusion thread, between two steps)."""
+        with self.lock:
+            room, self.pending_room = self.pending_room, None
+        if room is None:
+            return
+        with self.lock:  # the status reads the room, the rigs' clocks and links together
+            changed = self.fuser.set_room(room)
+            self.clock.set_rigs([r.name for r in room.rigs], changed)
+            self.room = room
+            for r in room.rigs:
+                self.received.setdefault(r.name, 0)
+        log.info(
+            "room file reloaded: %d rigs, %s",
+            len(room.rigs),
+            f"moved or gone: {', '.join(changed)}" if changed else "no rig moved",
+        )
 
     def _step(self, t_ns: int, received: list[float]) -> None:
         t0 = time.monotonic()
@@ -283,6 +315,8 @@ class FuseNode:
             if link.clock_off and link.clock_offset_ms is not None
         ]
         problems += [f"rig {n}: no message yet" for n, link in rigs.items() if not link.messages]
+        if self.reload_problem is not None:
+            problems.append(self.reload_problem)
         if dropped:
             problems.append(f"rig messages dropped, the fusion fell behind: {dropped}")
         if rejected:
@@ -328,9 +362,54 @@ def _calibration(room: Room) -> bytes:
     ).encode()
 
 
+RELOAD_REFUSED = "room file reload refused, keeping the room loaded before"
+"""How a refused reload's problem begins (on the status until a reload is taken)."""
+
+
+def _reload(
+    path: Path,
+    node: FuseNode,
+    session: zenoh.Session,
+    subs: dict[str, zenoh.Subscriber],
+    prefix: str,
+    notifier: Notifier,
+) -> None:
+    """SIGHUP: read the room file again. A valid one (the same room's name) is handed to the
+    fusion thread, subscriptions follow its rigs; anything else is one line on the status and
+    in the log, and the room runs on as it was."""
+    notifier.notify(RELOADING=1)
+    try:
+        room = load_room(path)
+        old = node.room_next().name
+        if room.name != old:
+            raise ConfigError(
+                f"{shown(path)}: the room's name changed from {old!r} to {room.name!r}; its keys "
+                "follow the name, so restart stereod fuse to rename the room"
+            )
+    except Exception as exc:  # nothing in a new file may stop a running node
+        reason = str(exc) if isinstance(exc, StereodError) else f"{type(exc).__name__}: {exc}"
+        node.reload_problem = f"{RELOAD_REFUSED}: {reason}"
+        log.error("%s", node.reload_problem)
+        notifier.notify(READY=1)
+        return
+    names = {r.name for r in room.rigs}
+    for r in room.rigs:
+        if r.name not in subs:
+            subs[r.name] = session.declare_subscriber(
+                keys.objects(r.name, prefix=prefix), node.on_sample
+            )
+    for name in [n for n in subs if n not in names]:
+        subs.pop(name).undeclare()
+    with node.lock:
+        node.pending_room = room
+    node.reload_problem = None
+    notifier.notify(READY=1)
+
+
 def run(a: argparse.Namespace) -> int:
-    """Fuse the room until SIGINT, SIGTERM or SIGHUP (exit 0); a bad room file or
-    configuration is one line and 78, a missing one 66, an unreachable router 69."""
+    """Fuse the room until SIGINT or SIGTERM (exit 0), reading the room file again on SIGHUP;
+    a bad room file or configuration at start is one line and 78, a missing one 66, an
+    unreachable router 69 (a bad one at a reload is reported, and the room kept)."""
     room = load_room(a.room)
     cfg = load_config(a.config, {"zenoh": zenoh_overrides(a)})
     setup_logging(a.log_level)
@@ -356,9 +435,12 @@ def run(a: argparse.Namespace) -> int:
     def stats() -> bytes:
         return node.status().model_dump_json(by_alias=True).encode()
 
+    def calibration() -> bytes:
+        return _calibration(node.room)
+
     queryables = {
         "config": lambda: json.dumps(config).encode(),
-        "calibration": lambda: _calibration(room),
+        "calibration": calibration,
         "stats": stats,
     }
     status_now = threading.Event()
@@ -386,14 +468,27 @@ def run(a: argparse.Namespace) -> int:
                 encoding=zenoh.Encoding(encoding_for(FUSE_STATUS_SCHEMA)),
                 congestion_control=zenoh.CongestionControl.DROP,
             )
-            subs = [
-                session.declare_subscriber(keys.objects(r.name, prefix=prefix), node.on_sample)
+            subs = {
+                r.name: session.declare_subscriber(
+                    keys.objects(r.name, prefix=prefix), node.on_sample
+                )
                 for r in room.rigs
-            ]
+            }
             worker = threading.Thread(target=node.loop, name="fuse", daemon=True)
             worker.start()
-            for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-                signal.signal(signum, lambda *_: node.done.set())
+            reload_now = threading.Event()
+
+            def hangup(*_: object) -> None:
+                reload_now.set()
+                status_now.set()
+
+            def stop(*_: object) -> None:
+                node.done.set()
+                status_now.set()
+
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(signum, stop)
+            signal.signal(signal.SIGHUP, hangup)
             notifier.notify(READY=1, STATUS=f"fusing room {room.name}")
             log.info(
                 "fusing %d rigs into %s",
@@ -404,6 +499,10 @@ def run(a: argparse.Namespace) -> int:
             last = 0.0
             while not node.done.is_set():
                 status_now.wait(min(period, 0.25))
+                if reload_now.is_set():
+                    reload_now.clear()
+                    _reload(a.room, node, session, subs, prefix, notifier)
+                    config["room"] = node.room_next().model_dump(mode="json")
                 now = time.monotonic()
                 if status_now.is_set() or now - last >= period:
                     status_now.clear()
@@ -417,7 +516,7 @@ def run(a: argparse.Namespace) -> int:
                     last = now
             notifier.notify(STOPPING=1)
             worker.join()
-            for s in subs:
+            for s in subs.values():
                 s.undeclare()
             status_pub.put(node.status("stopping").model_dump_json(by_alias=True).encode())
             status_pub.undeclare()

@@ -53,6 +53,19 @@ class ClockWatch:
         """Per rig, (numerator, weight) of each observation: its offset estimate (ms) times
         its weight v^T S^-1 v (s^-2), and that weight."""
 
+    def set_rigs(self, rigs: list[str], changed: list[str]) -> None:
+        """A room file read again: ``rigs`` in its order, ``changed`` those whose pose moved
+        (their observations were made in the old pose and are dropped). A new reference rig
+        (the first) drops every rig's observations: they were offsets from the old one."""
+        window = next(iter(self._samples.values())).maxlen if self._samples else 300
+        keep = rigs[:1] == self.rigs[:1]
+        self._samples = {
+            r: self._samples[r] if keep and r in self._samples and r not in changed else
+            deque(maxlen=window)
+            for r in rigs
+        }  # fmt: skip
+        self.rigs = rigs
+
     def observe(self, frame: FusedFrame) -> None:
         """Take the shared observations of one fusion step (its room tracks' rig tracks,
         predicted to the step's instant)."""

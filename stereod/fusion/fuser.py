@@ -195,6 +195,28 @@ class Fuser:
         self.restarts: dict[str, int] = {}
         """Times each rig's sequence numbers started again (its daemon restarted)."""
 
+    def set_room(self, room: Room) -> list[str]:
+        """Take a room file read again (the same room, its rigs' poses changed, rigs added or
+        gone). A rig whose pose changed or that left loses its tracks and links: at its next
+        message its tracks are associated like new ones (gated onto the room tracks the other
+        rigs kept, as after a restart), now in the new pose. Returns the rigs that changed."""
+        poses = {r.name: (r.rotation(), r.translation()) for r in room.rigs}
+        changed = [
+            name
+            for name, (rot, t) in self._poses.items()
+            if name not in poses
+            or not (np.array_equal(rot, poses[name][0]) and np.array_equal(t, poses[name][1]))
+        ]
+        for name in changed:
+            self._forget_rig(name)
+            if name not in poses:
+                self._rig_last_ns.pop(name, None)
+                self._rig_seq.pop(name, None)
+        self.room = room
+        self._poses = poses
+        self._order = [r.name for r in room.rigs]
+        return changed
+
     def knows(self, rig: str) -> bool:
         """Whether ``rig`` is one of the room's rigs."""
         return rig in self._poses
