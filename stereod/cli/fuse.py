@@ -267,6 +267,7 @@ class FuseNode:
         t0 = time.monotonic()
         frame = self.fuser.fuse(t_ns)
         self.clock.observe(frame)
+        self.fuser.clock_corrections_ns = dict(self.clock.corrections_ns)
         fuse_ms = (time.monotonic() - t0) * 1e3
         payload, tracks = room_payload(self.room.name, self.steps, frame, self.geometry, fuse_ms)
         self.pub.objects(payload, tracks, frame.ended)
@@ -300,6 +301,8 @@ class FuseNode:
                     clock_offset_ms=est.offset_ms,
                     clock_samples=est.samples,
                     clock_off=est.off,
+                    clock_sigma_ms=est.sigma_ms,
+                    clock_correction_ms=est.correction_ms,
                 )
             t_prev, n_prev = self._steps_at
             rate = (self.steps - n_prev) / max(now - t_prev, 1e-3)

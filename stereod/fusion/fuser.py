@@ -21,6 +21,7 @@ the room tracks the other rigs kept alive instead of opening duplicates.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -194,6 +195,9 @@ class Fuser:
         self._next_id = 1
         self.restarts: dict[str, int] = {}
         """Times each rig's sequence numbers started again (its daemon restarted)."""
+        self.clock_corrections_ns: dict[str, int] = {}
+        """Per rig, its clock's offset from the reference rig's, subtracted from its stamps
+        at :meth:`ingest` (``clock.ClockWatch.corrections_ns``), ns."""
 
     def set_room(self, room: Room) -> list[str]:
         """Take a room file read again (the same room, its rigs' poses changed, rigs added or
@@ -237,6 +241,11 @@ class Fuser:
             self._forget_rig(msg.rig)
             self.restarts[msg.rig] = self.restarts.get(msg.rig, 0) + 1
         self._rig_seq[msg.rig] = msg.seq
+        shift = self.clock_corrections_ns.get(msg.rig, 0)
+        if shift:
+            msg = dataclasses.replace(
+                msg, stamp_utc_ns=msg.stamp_utc_ns - shift, stamps_ns=msg.stamps_ns - shift
+            )
         self._rig_last_ns[msg.rig] = msg.stamp_utc_ns
         self._batches[msg.rig] = batch_to_room(msg, pose[0], pose[1])
         return True
