@@ -4,19 +4,22 @@ A rig whose clock reads ``d`` seconds ahead stamps a measurement made at ``t`` w
 predicted to the fusion instant from there, its position lags the object's by ``v d`` (``v``
 its velocity). So for a moving object two rigs see, the difference of their positions along
 the velocity is rig ``r``'s clock minus rig ``a``'s. Weighted by what each observation can say
-(the difference's covariance ``S = P_r + P_a``), the offset over the last observations is the
-least-squares ``d = -sum v^T S^-1 e / sum v^T S^-1 v`` (``e = x_r - x_a``), chained from the
+(the difference's covariance ``S = P_r + P_a``), each observation gives
+``d = -v^T S^-1 e / v^T S^-1 v`` (``e = x_r - x_a``) with weight ``v^T S^-1 v``; the offset is
+the weighted mean of the last observations within three robust sigmas of their weighted median
+(a plain mean would follow a rig's stray track), chained from the
 room file's first rig (the reference, offset 0) through rigs that share objects with one
 already known. Only objects faster than ``min_speed_mps`` count: a slow one says nothing of
 time.
 
 Correction: a rig's offset is trusted once it rests on at least :data:`MIN_SAMPLES` shared
-observations and its standard error (the observations' weighted spread over the square root of
-their number) is within :data:`CONFIDENT_SIGMA_MS`; from then on that rig's stamps are moved by
-it onto the reference rig's clock before they are fused (:attr:`ClockWatch.corrections_ns`). The
-correction follows the estimate while it stays trusted and is held while it is not. Observations
-made on corrected stamps measure what is left, so each one adds the correction in force back: the
-estimate stays the clock's whole offset, corrected or not.
+observations and its standard error (the kept observations' weighted spread over the square
+root of their number) is within :data:`CONFIDENT_SIGMA_MS`; from then on that
+rig's stamps are moved by it onto the reference rig's clock before they are fused
+(:attr:`ClockWatch.corrections_ns`). The correction follows the estimate while it stays trusted
+and is held while it is not. Observations made on corrected stamps measure what is left, so
+each one adds the correction in force back: the estimate stays the clock's whole offset,
+corrected or not.
 """
 
 from __future__ import annotations
@@ -33,6 +36,13 @@ MIN_SAMPLES = 20
 CONFIDENT_SIGMA_MS = 5.0
 """A rig's offset whose standard error is within this (a quarter of the default 20 ms bound)
 corrects its stamps, ms."""
+
+
+def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
+    """The value below which half of the total weight ``w`` of the values ``x`` lies."""
+    order = np.argsort(x)
+    cum = np.cumsum(w[order])
+    return float(x[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
 @dataclass(frozen=True)
@@ -130,8 +140,12 @@ class ClockWatch:
         return self._mean(rig)[0]
 
     def _mean(self, rig: str) -> tuple[float | None, float | None]:
-        """The weighted mean offset (ms) and its standard error (ms) of ``rig``'s
-        observations; None, None with fewer than :data:`MIN_SAMPLES`."""
+        """``rig``'s offset (ms) and its standard error (ms): the weighted mean of its
+        observations within three robust sigmas (1.4826 x their weighted median absolute
+        deviation) of their weighted median, and that spread over the root of their number.
+        Robust: a stretch of observations from a rig's stray track (a mismeasured object fused
+        with the other rig's for a second) is left out. None, None with fewer than
+        :data:`MIN_SAMPLES`."""
         if rig == self.rigs[0]:
             return 0.0, 0.0
         s = self._samples[rig]
@@ -139,9 +153,13 @@ class ClockWatch:
             return None, None
         x = np.array([v for v, _ in s])
         w = np.array([w for _, w in s])
+        mid = _weighted_median(x, w)
+        sigma = 1.4826 * _weighted_median(np.abs(x - mid), w)
+        keep = np.abs(x - mid) <= 3.0 * sigma if sigma > 0 else np.ones(len(x), dtype=bool)
+        x, w = x[keep], w[keep]
         mean = float(np.average(x, weights=w))
         spread = float(np.average((x - mean) ** 2, weights=w))
-        return mean, float(np.sqrt(spread / len(s)))
+        return mean, float(np.sqrt(spread / len(x)))
 
     def estimate(self, rig: str) -> ClockEstimate:
         """``rig``'s clock minus the reference rig's, ms (None until enough observations),
