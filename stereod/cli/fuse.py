@@ -13,6 +13,7 @@ since the last one, so that rigs that all stopped end their tracks.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import signal
@@ -20,6 +21,7 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import zenoh
@@ -51,6 +53,9 @@ from stereod.fusion.room import Room, load_room
 from stereod.fusion.status import FUSE_STATUS_SCHEMA, FuseStatus, RigLink
 from stereod.vision.geometry import Geometry
 
+if TYPE_CHECKING:
+    from stereod.fusion.foxglove import RoomFoxgloveBridge
+
 log = logging.getLogger("stereod.fuse")
 
 IDLE_STEP_S = 0.1
@@ -58,6 +63,8 @@ IDLE_STEP_S = 0.1
 QUEUE_SIZE = 4096
 """Rig messages waiting for the fusion thread; beyond, the newest are dropped and counted."""
 WINDOW = 1000
+FOXGLOVE_PORT = 8767
+"""The room's Foxglove WebSocket port (the rig view's is 8766, so both can run on one host)."""
 """Steps whose timings make the status's percentiles."""
 
 
@@ -115,6 +122,25 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         default=20.0,
         metavar="MS",
         help="flag a rig whose clock is off the reference rig's by more, ms (default %(default)s)",
+    )
+    g = p.add_argument_group("Foxglove (the topics and frames of --mcap, live)")
+    g.add_argument(
+        "--foxglove",
+        action="store_true",
+        help="also serve the room to the Foxglove app over its WebSocket protocol",
+    )
+    g.add_argument(
+        "--foxglove-port",
+        type=number(0, 65535, integer=True),
+        default=FOXGLOVE_PORT,
+        metavar="N",
+        help="TCP port of the Foxglove WebSocket (default %(default)s; 0: any free port)",
+    )
+    g.add_argument(
+        "--foxglove-host",
+        default="127.0.0.1",
+        metavar="ADDR",
+        help="address of the Foxglove WebSocket (default 127.0.0.1: this machine only)",
     )
     p.add_argument("--log-level", choices=["DEBUG", "INFO", "WARNING", "ERROR"], default="INFO")
     add_zenoh(p)
@@ -376,6 +402,7 @@ def _reload(
     subs: dict[str, zenoh.Subscriber],
     prefix: str,
     notifier: Notifier,
+    bridge: RoomFoxgloveBridge | None = None,
 ) -> None:
     """SIGHUP: read the room file again. A valid one (the same room's name) is handed to the
     fusion thread, subscriptions follow its rigs; anything else is one line on the status and
@@ -406,6 +433,8 @@ def _reload(
     with node.lock:
         node.pending_room = room
     node.reload_problem = None
+    if bridge is not None:
+        bridge.set_room(room)
     notifier.notify(READY=1)
 
 
@@ -459,7 +488,8 @@ def run(a: argparse.Namespace) -> int:
     notifier = Notifier()
     committed = False
     try:
-        with publisher:
+        with publisher, contextlib.ExitStack() as stack:
+            bridge: RoomFoxgloveBridge | None = None
             if publisher.rig_taken:
                 raise ConfigError(
                     f"another stereod fuse already publishes room {room.name!r} under "
@@ -477,6 +507,14 @@ def run(a: argparse.Namespace) -> int:
                 )
                 for r in room.rigs
             }
+            if a.foxglove:
+                from stereod.fusion.foxglove import RoomFoxgloveBridge
+
+                bridge = RoomFoxgloveBridge(
+                    session, room, prefix=prefix, host=a.foxglove_host, port=a.foxglove_port
+                )
+                stack.enter_context(bridge)
+                log.info("foxglove: serving room %s at %s", room.name, bridge.url)
             worker = threading.Thread(target=node.loop, name="fuse", daemon=True)
             worker.start()
             reload_now = threading.Event()
@@ -504,7 +542,7 @@ def run(a: argparse.Namespace) -> int:
                 status_now.wait(min(period, 0.25))
                 if reload_now.is_set():
                     reload_now.clear()
-                    _reload(a.room, node, session, subs, prefix, notifier)
+                    _reload(a.room, node, session, subs, prefix, notifier, bridge)
                     config["room"] = node.room_next().model_dump(mode="json")
                 now = time.monotonic()
                 if status_now.is_set() or now - last >= period:
