@@ -149,8 +149,8 @@ class RigBatch:
 
 
 def _rotated_diag(r: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) ``R diag(s^2) R^T`` for (n, 3) sigmas, in one operation."""
-    return np.einsum("ij,nj,kj->nik", r, np.square(sigmas), r)
+    """(n, 3, 3) ``R diag(s^2) R^T`` for (n, 3) sigmas: (R scaled by each row) @ R^T."""
+    return (r[None, :, :] * np.square(sigmas)[:, None, :]) @ r.T
 
 
 def batch_to_room(wire: RigWire, rotation: np.ndarray, translation: np.ndarray) -> RigBatch:

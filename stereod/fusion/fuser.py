@@ -145,7 +145,10 @@ class _Rows:
         self.batches = batches
         self.t_ns = t_ns
         self.keys: list[tuple[str, int]] = []
+        self.span: dict[str, range] = {}
+        """Each rig's rows (a batch's rows are consecutive)."""
         for batch in batches:
+            self.span[batch.rig] = range(len(self.keys), len(self.keys) + len(batch.ids))
             self.keys += [(batch.rig, tid) for tid in batch.ids]
         self.index = {k: i for i, k in enumerate(self.keys)}
         n = len(self.keys)
@@ -345,7 +348,7 @@ class Fuser:
     ) -> None:
         """Link ``rig``'s unlinked tracks to room tracks that have no track of ``rig`` yet (one
         gated assignment); a seen track left over opens a room track."""
-        free = [i for i, k in enumerate(rows.keys) if k[0] == rig and k not in self._links]
+        free = [i for i in rows.span.get(rig, ()) if rows.keys[i] not in self._links]
         if not free:
             return
         candidates = [

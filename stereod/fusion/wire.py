@@ -33,7 +33,6 @@ STATES = (
     TrackLifecycle.STATIONARY,
 )
 """Lifecycle states by their code in :attr:`RigWire.state`."""
-_CODE = {s.value: k for k, s in enumerate(STATES)}
 TENTATIVE, CONFIRMED, COASTING, STATIONARY = range(4)
 
 
@@ -76,32 +75,41 @@ class RigWire:
         )  # fmt: skip
 
 
+_CODE_OF = {s: k for k, s in enumerate(STATES)}
+_NAN3 = (float("nan"),) * 3
+
+
 def from_message(msg: ObjectsMessage) -> RigWire:
-    """A validated message's objects as :class:`RigWire` arrays (rig frame)."""
+    """A validated message's objects as :class:`RigWire` arrays (rig frame): one row of
+    numbers per object, made into one array at once (a numpy call per field would cost more
+    than the fields)."""
     objs = msg.objects
     n = len(objs)
-    extra = [
-        [o.skew_ns, *o.left.centroid_px, *o.left.bbox_px, o.left.area_px,
-         *o.right.centroid_px, *o.right.bbox_px, o.right.area_px, o.disparity_px, o.size_m]
+    rows = [
+        (o.track_id, _CODE_OF[o.state], o.stamp_utc_ns, *o.position_m, *o.position_sigma_m,
+         *o.velocity_mps, *(o.velocity_sigma_mps or _NAN3), o.velocity_valid, o.heading_valid,
+         o.skew_ns, *o.left.centroid_px, *o.left.bbox_px, o.left.area_px,
+         *o.right.centroid_px, *o.right.bbox_px, o.right.area_px, o.disparity_px, o.size_m)
         for o in objs
     ]  # fmt: skip
+    # Integers (ids, stamps) exactly in their own array; the rest as floats.
+    ints = np.array([r[:3] for r in rows], dtype=np.int64).reshape(n, 3)
+    f = np.array([r[3:] for r in rows], dtype=np.float64).reshape(n, 14 + len(EXTRA))
     wire = RigWire(
         rig=msg.rig,
         seq=msg.seq,
         stamp_utc_ns=msg.stamp_utc_ns,
         geometry=msg.geometry,
-        ids=np.array([o.track_id for o in objs], dtype=np.int64),
-        state=np.array([_CODE[o.state.value] for o in objs], dtype=np.int8),
-        stamps_ns=np.array([o.stamp_utc_ns for o in objs], dtype=np.int64),
-        position=np.array([o.position_m for o in objs], dtype=np.float64).reshape(n, 3),
-        position_sigma=np.array([o.position_sigma_m for o in objs], dtype=np.float64).reshape(n, 3),
-        velocity=np.array([o.velocity_mps for o in objs], dtype=np.float64).reshape(n, 3),
-        velocity_sigma=np.array(
-            [o.velocity_sigma_mps or (np.nan,) * 3 for o in objs], dtype=np.float64
-        ).reshape(n, 3),
-        velocity_valid=np.array([o.velocity_valid for o in objs], dtype=bool),
-        heading_valid=np.array([o.heading_valid for o in objs], dtype=bool),
-        extra=np.array(extra, dtype=np.float64).reshape(n, len(EXTRA)),
+        ids=ints[:, 0],
+        state=ints[:, 1].astype(np.int8),
+        stamps_ns=ints[:, 2],
+        position=f[:, 0:3],
+        position_sigma=f[:, 3:6],
+        velocity=f[:, 6:9],
+        velocity_sigma=f[:, 9:12],
+        velocity_valid=f[:, 12] != 0,
+        heading_valid=f[:, 13] != 0,
+        extra=f[:, 14:],
     )
     finite = np.isfinite(wire.position).all(axis=1) & np.isfinite(wire.velocity).all(axis=1)
     return wire if finite.all() else wire.select(finite)
