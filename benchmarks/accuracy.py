@@ -59,6 +59,7 @@ import numpy as np
 from stereod import CanonicalRig, Pipeline, PipelineParams
 from stereod.bus.messages import ObjectsMessage, ObjectState, objects_message
 from stereod.cli.progress import Progress
+from stereod.fusion.clock import ClockWatch
 from stereod.fusion.fuser import Fuser
 from stereod.fusion.output import room_states
 from stereod.fusion.room import RigPose, Room
@@ -404,6 +405,7 @@ def fusion_rows(name: str, build: RoomBuilder) -> list[FusionRow]:
     )
     msgs = sorted(_room_messages(scene, placements), key=lambda m: m.stamp_utc_ns)
     fuser = Fuser(room)
+    clock = ClockWatch([r.name for r in room.rigs])
     seen: list[Sighting] = []
     extra: dict[tuple[str, str], set[int]] = {}
 
@@ -438,6 +440,8 @@ def fusion_rows(name: str, build: RoomBuilder) -> list[FusionRow]:
         if k + 1 < len(msgs) and msgs[k + 1].stamp_utc_ns == m.stamp_utc_ns:
             continue
         frame = fuser.fuse(m.stamp_utc_ns)
+        clock.observe(frame)  # and a trusted clock offset corrected, as the node does
+        fuser.clock_corrections_ns = dict(clock.corrections_ns)
         score("fused", frame.t_ns, room_states(frame.tracks), np.eye(3), np.zeros(3))
     rows = []
     for obj in (o.name for o in scene.objects):

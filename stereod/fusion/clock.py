@@ -12,7 +12,7 @@ room file's first rig (the reference, offset 0) through rigs that share objects 
 already known. Only objects faster than ``min_speed_mps`` count: a slow one says nothing of
 time.
 
-Correction: a rig's offset is trusted once it rests on at least :data:`MIN_SAMPLES` shared
+Correction: a rig's offset is trusted once it rests on at least :data:`TRUSTED_SAMPLES` shared
 observations and its standard error (the kept observations' weighted spread over the square
 root of their number) is within :data:`CONFIDENT_SIGMA_MS`; from then on that
 rig's stamps are moved by it onto the reference rig's clock before they are fused
@@ -33,6 +33,10 @@ from stereod.fusion.fuser import FusedFrame
 
 MIN_SAMPLES = 20
 """Shared observations needed before a rig's offset is given."""
+TRUSTED_SAMPLES = 60
+"""Shared observations needed before a rig's offset corrects its stamps (two seconds of one
+object both rigs see at 30 Hz: fewer, taken one after another, are too alike to trust their
+spread)."""
 CONFIDENT_SIGMA_MS = 5.0
 """A rig's offset whose standard error is within this (a quarter of the default 20 ms bound)
 corrects its stamps, ms."""
@@ -133,7 +137,12 @@ class ClockWatch:
         if self.correct:
             for rig in touched:
                 offset, sigma = self._mean(rig)
-                if offset is not None and sigma is not None and sigma <= CONFIDENT_SIGMA_MS:
+                if (
+                    offset is not None
+                    and sigma is not None
+                    and sigma <= CONFIDENT_SIGMA_MS
+                    and len(self._samples[rig]) >= TRUSTED_SAMPLES
+                ):
                     self.corrections_ns[rig] = round(offset * 1e6)
 
     def _median(self, rig: str) -> float | None:

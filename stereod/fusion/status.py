@@ -36,7 +36,7 @@ class RigLink(_Model):
     clock_correction_ms: float = Field(
         0.0,
         description="What its stamps are corrected by before fusion: its offset once the "
-        "standard error is within 2 ms over 20 observations or more, held since, else 0, ms",
+        "standard error is within 5 ms over 60 observations or more, held since, else 0, ms",
     )
 
 
