@@ -326,3 +326,25 @@ def test_fused_heading_and_speed_in_the_room_frame_match_the_truth() -> None:
     assert {s.track_id for s in states} == {1}
     assert float(np.median([s.heading_deg for s in states])) == pytest.approx(60.0, abs=1.0)
     assert float(np.median([s.speed_mps for s in states])) == pytest.approx(1.2, rel=0.03)
+
+
+def test_a_message_as_arrays_keeps_its_fields_and_leaves_out_a_non_finite_object() -> None:
+    """``wire.from_message``: every field of every object in its column, in order; an
+    object whose position is not finite is left out (the fusion would spread its NaN)."""
+    from stereod.fusion.wire import EXTRA, STATES, from_message
+
+    walkers = [Walker(1, (0.5, 0.0, 3.0), (0.2, 0.0, 0.1)), Walker(2, (-0.5, 0.0, 4.0), (0.0,) * 3)]
+    msg = RigSim(A, seed=27).message(walkers, 0)
+    wire = from_message(msg)
+    for k, o in enumerate(msg.objects):
+        assert wire.ids[k] == o.track_id and STATES[wire.state[k]] == o.state
+        assert wire.stamps_ns[k] == o.stamp_utc_ns
+        np.testing.assert_array_equal(wire.position[k], o.position_m)
+        np.testing.assert_array_equal(wire.velocity_sigma[k], o.velocity_sigma_mps or (np.nan,) * 3)
+        row = dict(zip(EXTRA, wire.extra[k], strict=True))
+        assert (row["left_cx"], row["left_cy"]) == o.left.centroid_px
+        assert (row["right_bw"], row["right_area"]) == (o.right.bbox_px[2], o.right.area_px)
+        assert (row["disparity_px"], row["size_m"]) == (o.disparity_px, o.size_m)
+    bad = msg.objects[0].model_copy(update={"position_m": (float("nan"), 0.0, 3.0)})
+    wire = from_message(msg.model_copy(update={"objects": [bad, msg.objects[1]]}))
+    assert wire.ids.tolist() == [msg.objects[1].track_id]
