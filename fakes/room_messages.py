@@ -204,6 +204,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--clock-offset-ms", type=float, default=0.0)
     p.add_argument(
+        "--depth-sigma-per-m2", type=float, default=0.02, help="depth sigma per squared depth"
+    )
+    p.add_argument(
         "--t0-from-stdin",
         action="store_true",
         help="after 'up', read one line: the walkers' t0_ns (UTC ns), so that processes "
@@ -217,7 +220,14 @@ def main(argv: list[str] | None = None) -> int:
         if pose is None:
             p.error(f"{a.room} has no rig {name!r}")
         offset = int(a.clock_offset_ms * 1e6)
-        sims.append(RigSim(pose, seed=a.seed + i, clock_offset_ns=offset))
+        sims.append(
+            RigSim(
+                pose,
+                seed=a.seed + i,
+                clock_offset_ns=offset,
+                depth_sigma_per_m2=a.depth_sigma_per_m2,
+            )
+        )
     walkers = walkers_from_json(a.walkers)
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())

@@ -4,6 +4,8 @@ replay``, one UTC start for all), all through a router on loopback into ``stereo
 
 Truth: the balls' motion in the room frame. A ball walks from rig a's view through a and b's
 overlap into b's alone (a handover); another rolls in c's view only (disjoint from the others).
+A second room, two rigs at right angles with two balls through their overlap, is replayed with
+one rig's clock 40 ms ahead (its ``--utc-start``): the shift is the truth of its offset.
 """
 
 from __future__ import annotations
@@ -18,8 +20,9 @@ import pytest
 import zenoh
 
 from stereod.bus.messages import ObjectsMessage
+from stereod.fusion.status import FuseStatus
 from stereod_fakes.world import Scene
-from stereod_fakes.world.rooms import RigPlacement, three_rig_room, write_room
+from stereod_fakes.world.rooms import RigPlacement, crossing_room, three_rig_room, write_room
 from tests.processes import start_stereod
 
 from .conftest import free_endpoint, zenoh_config
@@ -56,7 +59,8 @@ def test_one_id_per_ball_across_three_rendered_rigs(
     """Every room track near a ball stays that ball's (no id switch), each ball has one id once
     confirmed; the walker's id is the same where only rig a sees it and where only rig b
     does (the handover), and rigs a and b each tracked it (their tracks, moved into the room
-    by the placements, within 0.35 m of it)."""
+    by the placements, within 0.35 m of it). Where both see it, the room's median position
+    error is no larger than the better rig's alone."""
     scene, rigs, folder = rendered
     endpoint = free_endpoint()
     router = start_router(endpoint)
@@ -112,6 +116,8 @@ def test_one_id_per_ball_across_three_rendered_rigs(
 
     poses = {r.name: r for r in rigs}
     rig_saw: dict[str, set[str]] = {r.name: set() for r in rigs}
+    # Each rig's error on the walker (m) at each of its stamps, its track moved into the room.
+    walker_err: dict[str, dict[int, float]] = {"a": {}, "b": {}, "fused": {}}
     for m in seen_by:
         if m.rig not in poses:
             continue
@@ -119,8 +125,11 @@ def test_one_id_per_ball_across_three_rendered_rigs(
         for o in m.objects:
             p = pose.rotation() @ np.array(o.position_m) + np.array(pose.translation_m)
             for n, tr in balls.items():
-                if o.state.value == "confirmed" and np.linalg.norm(p - tr.position(t_s)) < NEAR_M:
+                err = float(np.linalg.norm(p - tr.position(t_s)))
+                if o.state.value == "confirmed" and err < NEAR_M:
                     rig_saw[m.rig].add(n)
+                    if n == "walker":
+                        walker_err[m.rig][m.stamp_utc_ns] = err
     assert rig_saw == {"a": {"walker"}, "b": {"walker"}, "c": {"lone"}}, rig_saw
 
     ids: dict[int, str] = {}
@@ -139,7 +148,92 @@ def test_one_id_per_ball_across_three_rendered_rigs(
                 confirmed[near].add(o.track_id)
                 if near == "walker":
                     walker_x.setdefault(o.track_id, []).append(float(balls[near].position(t_s)[0]))
+                    walker_err["fused"][m.stamp_utc_ns] = d[near]
     assert all(len(v) == 1 for v in confirmed.values()), confirmed
     (xs,) = walker_x.values()
     # a alone sees x < 0.9 m, b alone x > 1.75 m (3 m ahead; see THREE_RIGS).
     assert min(xs) < 0.5 and max(xs) > 2.2, (min(xs), max(xs))
+    # Where a and b both see the walker, the room's position (each room message stamped at a
+    # rig's capture instant) is no further from the truth than the better rig's alone.
+    both = sorted(set(walker_err["a"]) & set(walker_err["b"]) & set(walker_err["fused"]))
+    assert len(both) >= 5, both
+    median = {k: float(np.median([v[t] for t in both])) for k, v in walker_err.items()}
+    assert median["fused"] <= min(median["a"], median["b"]), median
+
+
+SHIFT_NS = 40_000_000
+"""Rig b's clock, ahead of rig a's in the shifted replay, ns."""
+
+
+@pytest.fixture(scope="module")
+def crossing(tmp_path_factory: pytest.TempPathFactory) -> tuple[Scene, list[RigPlacement], Path]:
+    """Two rigs at right angles and two balls through their overlap, rendered."""
+    scene, rigs = crossing_room()
+    return scene, rigs, write_room(scene, rigs, tmp_path_factory.mktemp("crossing"), "lab")
+
+
+def test_a_replay_whose_clock_is_40_ms_ahead_is_found_and_corrected(
+    crossing: tuple[Scene, list[RigPlacement], Path],
+) -> None:
+    """Rig b's views replayed with its first frame stamped 40 ms later than rig a's first
+    (``--utc-start``), though both were captured at once: the fusion node finds b 40 ms
+    ahead (within 8 ms), flags it and corrects b's stamps by it; over the last second the
+    room's balls are within 2 cm of the truth at each room message's instant."""
+    scene, rigs, folder = crossing
+    endpoint = free_endpoint()
+    router = start_router(endpoint)
+    procs: list[subprocess.Popen] = []
+    messages: list[ObjectsMessage] = []
+    try:
+        with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as session:
+            session.declare_subscriber(
+                "stereod/rooms/lab/objects",
+                lambda s: messages.append(ObjectsMessage.model_validate_json(s.payload.to_bytes())),
+            )
+            utc_start = time.time_ns()
+            shift = {"a": 0, "b": SHIFT_NS}
+            players = [
+                replay(folder / r.name, r.name, endpoint, utc_start + shift[r.name],
+                       folder / f"{r.name}.jsonl")
+                for r in rigs
+            ]  # fmt: skip
+            procs += players
+            deadline = time.monotonic() + 120  # a guard against a hang, not a measurement
+            alive: set[str] = set()
+            while len(alive) < len(rigs) and time.monotonic() < deadline:
+                tokens = session.liveliness().get("stereod/*/alive", timeout=5)
+                alive = {str(r.ok.key_expr).split("/")[1] for r in tokens if r.ok}
+                time.sleep(0.1)
+            assert alive == {r.name for r in rigs}, alive
+            fuse = start_stereod(
+                "fuse", "--room", str(folder / "room.toml"), "--connect", endpoint, "--mode",
+                "client",
+            )  # fmt: skip
+            procs.append(fuse)
+            for p in players:
+                _, err = p.communicate(timeout=300)
+                assert p.returncode == 0, err
+            replies = list(session.get("stereod/rooms/lab/stats", timeout=10))
+            status = FuseStatus.model_validate_json(replies[0].ok.payload.to_bytes())
+    finally:
+        for p in reversed(procs):
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+                p.communicate(timeout=30)
+        router.terminate()
+        router.communicate(timeout=30)
+    b = status.rigs["b"]
+    assert b.clock_offset_ms == pytest.approx(SHIFT_NS / 1e6, abs=8.0), b
+    assert b.clock_correction_ms == pytest.approx(SHIFT_NS / 1e6, abs=8.0) and b.clock_off, b
+    first = scene.frame_times("left")[0]
+    end = max(m.stamp_utc_ns for m in messages)
+    errors = []
+    for m in messages:
+        if m.stamp_utc_ns < end - 1_000_000_000:
+            continue
+        truth = scene.truth(first + (m.stamp_utc_ns - utc_start))
+        for o in m.objects:
+            if o.state.value == "confirmed":
+                d = [float(np.linalg.norm(np.array(o.position_m) - p)) for p, _ in truth.values()]
+                errors.append(min(d))
+    assert len(errors) > 20 and float(np.median(errors)) < 0.02, np.median(errors)

@@ -157,3 +157,49 @@ def three_rig_room(
         name="three_rigs",
     )
     return scene, list(THREE_RIGS)
+
+
+CROSSING_RIGS = [
+    RigPlacement("a"),
+    RigPlacement("b", (4.0, 0.0, 4.0), (0.0, -90.0, 0.0)),
+]
+"""Rig a at the origin looking along +Z, rig b at (4, 0, 4) m looking along -X: views at right
+angles, each one's depth the other's across (the overlap holds the balls of
+:func:`crossing_room`)."""
+
+
+def crossing_room(
+    *, duration_s: float = 5.0, lead_in_s: float = 0.8, fps: float = 15.0, seed: int = 0
+) -> tuple[Scene, list[RigPlacement]]:
+    """Two rigs at right angles (:data:`CROSSING_RIGS`) and two balls rolling side by side at
+    0.7 m/s through the overlap of their views for the whole scene after ``lead_in_s``: what a
+    clock offset between the rigs is measured from. Room frame: rig a's."""
+    room = Room(wall_distance_m=8.0)
+    assert room.floor_height_m is not None
+    radius = 0.1
+    y = room.floor_height_m - radius
+    v = (0.55, 0.0, 0.44)
+    balls = tuple(
+        Sphere(
+            name=name,
+            trajectory=Trajectory(start, v, t_ref_s=lead_in_s, t_start_s=lead_in_s),
+            radius_m=radius,
+            colour_bgr=colour,
+        )
+        for name, start, colour in (
+            ("near", (0.0, y, 2.5), (45.0, 125.0, 215.0)),
+            ("far", (-0.5, y, 3.125), (200.0, 120.0, 50.0)),
+        )
+    )
+    clock = Clock(period_s=1.0 / fps)
+    scene = Scene(
+        rig=Rig(320, 240, 60.0, 0.06),
+        left_clock=clock,
+        right_clock=clock,
+        objects=balls,
+        room=room,
+        seed=seed,
+        duration_s=duration_s,
+        name="crossing_rigs",
+    )
+    return scene, list(CROSSING_RIGS)

@@ -4,11 +4,22 @@ A rig whose clock reads ``d`` seconds ahead stamps a measurement made at ``t`` w
 predicted to the fusion instant from there, its position lags the object's by ``v d`` (``v``
 its velocity). So for a moving object two rigs see, the difference of their positions along
 the velocity is rig ``r``'s clock minus rig ``a``'s. Weighted by what each observation can say
-(the difference's covariance ``S = P_r + P_a``), the offset over the last observations is the
-least-squares ``d = -sum v^T S^-1 e / sum v^T S^-1 v`` (``e = x_r - x_a``), chained from the
+(the difference's covariance ``S = P_r + P_a``), each observation gives
+``d = -v^T S^-1 e / v^T S^-1 v`` (``e = x_r - x_a``) with weight ``v^T S^-1 v``; the offset is
+the weighted mean of the last observations within three robust sigmas of their weighted median
+(a plain mean would follow a rig's stray track), chained from the
 room file's first rig (the reference, offset 0) through rigs that share objects with one
 already known. Only objects faster than ``min_speed_mps`` count: a slow one says nothing of
 time.
+
+Correction: a rig's offset is trusted once it rests on at least :data:`TRUSTED_SAMPLES` shared
+observations and its standard error (the kept observations' weighted spread over the square
+root of their number) is within :data:`CONFIDENT_SIGMA_MS`; from then on that
+rig's stamps are moved by it onto the reference rig's clock before they are fused
+(:attr:`ClockWatch.corrections_ns`). The correction follows the estimate while it stays trusted
+and is held while it is not. Observations made on corrected stamps measure what is left, so
+each one adds the correction in force back: the estimate stays the clock's whole offset,
+corrected or not.
 """
 
 from __future__ import annotations
@@ -22,6 +33,20 @@ from stereod.fusion.fuser import FusedFrame
 
 MIN_SAMPLES = 20
 """Shared observations needed before a rig's offset is given."""
+TRUSTED_SAMPLES = 60
+"""Shared observations needed before a rig's offset corrects its stamps (two seconds of one
+object both rigs see at 30 Hz: fewer, taken one after another, are too alike to trust their
+spread)."""
+CONFIDENT_SIGMA_MS = 5.0
+"""A rig's offset whose standard error is within this (a quarter of the default 20 ms bound)
+corrects its stamps, ms."""
+
+
+def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
+    """The value below which half of the total weight ``w`` of the values ``x`` lies."""
+    order = np.argsort(x)
+    cum = np.cumsum(w[order])
+    return float(x[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
 @dataclass(frozen=True)
@@ -31,6 +56,10 @@ class ClockEstimate:
     offset_ms: float | None
     samples: int
     off: bool
+    sigma_ms: float | None = None
+    """The offset's standard error, ms (None until enough observations)."""
+    correction_ms: float = 0.0
+    """What the rig's stamps are corrected by (its trusted offset, else 0), ms."""
 
 
 class ClockWatch:
@@ -43,19 +72,42 @@ class ClockWatch:
         bound_ms: float = 20.0,
         min_speed_mps: float = 0.3,
         window: int = 300,
+        correct: bool = True,
     ) -> None:
         self.rigs = rigs
         self.bound_ms = bound_ms
         self.min_speed_mps = min_speed_mps
+        self.correct = correct
+        self.corrections_ns: dict[str, int] = {}
+        """Per rig, what its stamps are to be corrected by (subtracted), ns: its offset once
+        trusted (none for the reference rig, nor with ``correct`` False)."""
         self._samples: dict[str, deque[tuple[float, float]]] = {
             r: deque(maxlen=window) for r in rigs
         }
-        """Per rig, (numerator, weight) of each observation: its offset estimate (ms) times
-        its weight v^T S^-1 v (s^-2), and that weight."""
+        """Per rig, each observation's offset estimate (ms) and its weight v^T S^-1 v
+        (s^-2)."""
+
+    def set_rigs(self, rigs: list[str], changed: list[str]) -> None:
+        """A room file read again: ``rigs`` in its order, ``changed`` those whose pose moved
+        (their observations were made in the old pose and are dropped). A new reference rig
+        (the first) drops every rig's observations: they were offsets from the old one."""
+        window = next(iter(self._samples.values())).maxlen if self._samples else 300
+        keep = rigs[:1] == self.rigs[:1]
+        if not keep:
+            self.corrections_ns = {}
+        self._samples = {
+            r: self._samples[r] if keep and r in self._samples and r not in changed else
+            deque(maxlen=window)
+            for r in rigs
+        }  # fmt: skip
+        self.rigs = rigs
 
     def observe(self, frame: FusedFrame) -> None:
         """Take the shared observations of one fusion step (its room tracks' rig tracks,
-        predicted to the step's instant)."""
+        predicted to the step's instant, their stamps corrected by :attr:`corrections_ns`),
+        then update the corrections."""
+        applied = {r: c * 1e-6 for r, c in self.corrections_ns.items()}
+        touched: set[str] = set()
         for track in frame.tracks:
             ms = frame.shared.get(track.room_id, [])
             if len(ms) < 2:
@@ -79,20 +131,56 @@ class ClockWatch:
                 s_inv_v = np.linalg.solve(pc + ref_c, v)
                 weight = float(v @ s_inv_v)
                 d_ms = -float((p - ref_p) @ s_inv_v) / weight * 1e3
-                self._samples[rig].append(((base_ms + d_ms) * weight, weight))
+                total = base_ms + d_ms + applied.get(rig, 0.0) - applied.get(anchor, 0.0)
+                self._samples[rig].append((total, weight))
+                touched.add(rig)
+        if self.correct:
+            for rig in touched:
+                offset, sigma = self._mean(rig)
+                if (
+                    offset is not None
+                    and sigma is not None
+                    and sigma <= CONFIDENT_SIGMA_MS
+                    and len(self._samples[rig]) >= TRUSTED_SAMPLES
+                ):
+                    self.corrections_ns[rig] = round(offset * 1e6)
 
     def _median(self, rig: str) -> float | None:
+        return self._mean(rig)[0]
+
+    def _mean(self, rig: str) -> tuple[float | None, float | None]:
+        """``rig``'s offset (ms) and its standard error (ms): the weighted mean of its
+        observations within three robust sigmas (1.4826 x their weighted median absolute
+        deviation) of their weighted median, and that spread over the root of their number.
+        Robust: a stretch of observations from a rig's stray track (a mismeasured object fused
+        with the other rig's for a second) is left out. None, None with fewer than
+        :data:`MIN_SAMPLES`."""
         if rig == self.rigs[0]:
-            return 0.0
+            return 0.0, 0.0
         s = self._samples[rig]
         if len(s) < MIN_SAMPLES:
-            return None
-        return sum(n for n, _ in s) / sum(w for _, w in s)
+            return None, None
+        x = np.array([v for v, _ in s])
+        w = np.array([w for _, w in s])
+        mid = _weighted_median(x, w)
+        sigma = 1.4826 * _weighted_median(np.abs(x - mid), w)
+        keep = np.abs(x - mid) <= 3.0 * sigma if sigma > 0 else np.ones(len(x), dtype=bool)
+        x, w = x[keep], w[keep]
+        mean = float(np.average(x, weights=w))
+        spread = float(np.average((x - mean) ** 2, weights=w))
+        return mean, float(np.sqrt(spread / len(x)))
 
     def estimate(self, rig: str) -> ClockEstimate:
-        """``rig``'s clock minus the reference rig's, ms (None until enough observations)."""
-        offset = self._median(rig)
+        """``rig``'s clock minus the reference rig's, ms (None until enough observations),
+        its standard error and the correction in force."""
+        offset, sigma = self._mean(rig)
         n = len(self._samples[rig])
         if rig == self.rigs[0]:
-            return ClockEstimate(0.0, n, False)
-        return ClockEstimate(offset, n, offset is not None and abs(offset) > self.bound_ms)
+            return ClockEstimate(0.0, n, False, 0.0, 0.0)
+        return ClockEstimate(
+            offset,
+            n,
+            offset is not None and abs(offset) > self.bound_ms,
+            sigma,
+            self.corrections_ns.get(rig, 0) * 1e-6,
+        )

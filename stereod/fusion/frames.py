@@ -16,6 +16,7 @@ import numpy as np
 
 from stereod.bus.messages import ObjectState
 from stereod.fusion.room import RigPose
+from stereod.fusion.wire import CONFIRMED, STATIONARY, TENTATIVE, RigWire
 from stereod.tracking.types import TrackLifecycle
 
 UNKNOWN_VELOCITY_SIGMA_MPS = 2.0
@@ -135,40 +136,43 @@ class RigBatch:
     """(n, 3) m/s."""
     velocity_cov: np.ndarray
     """(n, 3, 3) (m/s)^2."""
-    sources: list[ObjectState]
+    seen: np.ndarray
+    """(n,) measured in this pair (confirmed or stationary)."""
+    stationary: np.ndarray
+    """(n,) bool."""
+    velocity_valid: np.ndarray
+    """(n,) bool."""
+    heading_valid: np.ndarray
+    """(n,) bool."""
+    extra: np.ndarray
+    """(n, len(wire.EXTRA)) what the room's message repeats of a member (blobs and the like)."""
 
 
-def _diag_many(sigmas: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) diagonal covariances from (n, 3) sigmas."""
-    out = np.zeros((len(sigmas), 3, 3))
-    idx = np.arange(3)
-    out[:, idx, idx] = np.square(sigmas)
-    return out
+def _rotated_diag(r: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) ``R diag(s^2) R^T`` for (n, 3) sigmas: (R scaled by each row) @ R^T."""
+    return (r[None, :, :] * np.square(sigmas)[:, None, :]) @ r.T
 
 
-def batch_to_room(
-    rig: str, rotation: np.ndarray, translation: np.ndarray, objects: list[ObjectState]
-) -> RigBatch:
-    """:func:`to_room` of every object at once: p' = R p + t, v' = R v, P' = R P R^T."""
-    n = len(objects)
-    pos = np.array([o.position_m for o in objects], dtype=np.float64).reshape(n, 3)
-    psig = np.array([o.position_sigma_m for o in objects], dtype=np.float64).reshape(n, 3)
-    vel = np.array([o.velocity_mps for o in objects], dtype=np.float64).reshape(n, 3)
-    vsig = np.array(
-        [o.velocity_sigma_mps or (np.nan,) * 3 for o in objects], dtype=np.float64
-    ).reshape(n, 3)
-    psig = np.where(np.isfinite(psig), psig, 1.0)
-    vsig = np.where(np.isfinite(vsig), vsig, UNKNOWN_VELOCITY_SIGMA_MPS)
+def batch_to_room(wire: RigWire, rotation: np.ndarray, translation: np.ndarray) -> RigBatch:
+    """:func:`to_room` of every not tentative object of a message at once: p' = R p + t,
+    v' = R v, P' = R P R^T (a missing or non-finite sigma as :func:`to_room` takes it)."""
+    w = wire if not (wire.state == TENTATIVE).any() else wire.select(wire.state != TENTATIVE)
+    psig = np.where(np.isfinite(w.position_sigma), w.position_sigma, 1.0)
+    vsig = np.where(np.isfinite(w.velocity_sigma), w.velocity_sigma, UNKNOWN_VELOCITY_SIGMA_MPS)
     r = rotation
     return RigBatch(
-        rig=rig,
-        ids=[o.track_id for o in objects],
-        stamps_ns=np.array([o.stamp_utc_ns for o in objects], dtype=np.int64),
-        position=pos @ r.T + translation,
-        position_cov=r @ _diag_many(psig) @ r.T,
-        velocity=vel @ r.T,
-        velocity_cov=r @ _diag_many(vsig) @ r.T,
-        sources=list(objects),
+        rig=w.rig,
+        ids=w.ids.tolist(),
+        stamps_ns=w.stamps_ns,
+        position=w.position @ r.T + translation,
+        position_cov=_rotated_diag(r, psig),
+        velocity=w.velocity @ r.T,
+        velocity_cov=_rotated_diag(r, vsig),
+        seen=(w.state == CONFIRMED) | (w.state == STATIONARY),
+        stationary=w.state == STATIONARY,
+        velocity_valid=w.velocity_valid,
+        heading_valid=w.heading_valid,
+        extra=w.extra,
     )
 
 

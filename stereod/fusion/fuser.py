@@ -21,13 +21,15 @@ the room tracks the other rigs kept alive instead of opening duplicates.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from stereod.bus.messages import ObjectsMessage, ObjectState
+from stereod.bus.messages import ObjectsMessage
 from stereod.fusion.frames import RigBatch, batch_to_room, predict_many
 from stereod.fusion.room import Room
+from stereod.fusion.wire import EXTRA, RigWire, from_message
 from stereod.tracking.assignment import min_cost_assignment
 from stereod.tracking.types import TrackLifecycle
 
@@ -64,9 +66,9 @@ class RoomTrack:
     state: TrackLifecycle = TrackLifecycle.CONFIRMED
     members: dict[str, int] = field(default_factory=dict)
     """Rig name -> that rig's track id, for the rig tracks linked to this object."""
-    source: ObjectState | None = None
-    """The message of the member whose position weighed most at the last step (its blobs,
-    disparity and size are reported)."""
+    extra: np.ndarray | None = None
+    """What the member whose position weighed most at the last step passes on (its skew,
+    blobs, disparity and size: the columns of ``wire.EXTRA``); None before any member."""
     velocity_valid: bool = False
     heading_valid: bool = False
 
@@ -131,7 +133,7 @@ def _snapshot(t: RoomTrack) -> RoomTrack:
     never written into, so they are shared)."""
     return RoomTrack(
         t.room_id, t.stamp_utc_ns, t.first_ns, t.last_seen_ns, t.position, t.position_cov,
-        t.velocity, t.velocity_cov, t.state, dict(t.members), t.source, t.velocity_valid,
+        t.velocity, t.velocity_cov, t.state, dict(t.members), t.extra, t.velocity_valid,
         t.heading_valid,
     )  # fmt: skip
 
@@ -143,7 +145,10 @@ class _Rows:
         self.batches = batches
         self.t_ns = t_ns
         self.keys: list[tuple[str, int]] = []
+        self.span: dict[str, range] = {}
+        """Each rig's rows (a batch's rows are consecutive)."""
         for batch in batches:
+            self.span[batch.rig] = range(len(self.keys), len(self.keys) + len(batch.ids))
             self.keys += [(batch.rig, tid) for tid in batch.ids]
         self.index = {k: i for i, k in enumerate(self.keys)}
         n = len(self.keys)
@@ -162,20 +167,16 @@ class _Rows:
         self.position, self.position_cov, self.velocity, self.velocity_cov = p, pc, v, vc
         self.info = np.linalg.inv(pc) if n else pc
         self.info_mean = np.einsum("nij,nj->ni", self.info, p)
-        sources = [src for b in batches for src in b.sources]
-        self.sources = sources
-        self.seen = np.array(
-            [o.state in (TrackLifecycle.CONFIRMED, TrackLifecycle.STATIONARY) for o in sources],
-            dtype=bool,
-        )
-        self.stationary = np.array(
-            [o.state == TrackLifecycle.STATIONARY for o in sources], dtype=bool
-        )
-        self.velocity_valid = np.array([o.velocity_valid for o in sources], dtype=bool)
-        self.heading_valid = np.array([o.heading_valid for o in sources], dtype=bool)
 
-    def source(self, i: int) -> ObjectState:
-        return self.sources[i]
+        def stack(name: str, empty: np.ndarray) -> np.ndarray:
+            return np.concatenate([getattr(b, name) for b in batches]) if n else empty
+
+        none = np.zeros(0, dtype=bool)
+        self.seen = stack("seen", none)
+        self.stationary = stack("stationary", none)
+        self.velocity_valid = stack("velocity_valid", none)
+        self.heading_valid = stack("heading_valid", none)
+        self.extra = stack("extra", np.zeros((0, len(EXTRA))))
 
 
 class Fuser:
@@ -197,6 +198,31 @@ class Fuser:
         self._next_id = 1
         self.restarts: dict[str, int] = {}
         """Times each rig's sequence numbers started again (its daemon restarted)."""
+        self.clock_corrections_ns: dict[str, int] = {}
+        """Per rig, its clock's offset from the reference rig's, subtracted from its stamps
+        at :meth:`ingest` (``clock.ClockWatch.corrections_ns``), ns."""
+
+    def set_room(self, room: Room) -> list[str]:
+        """Take a room file read again (the same room, its rigs' poses changed, rigs added or
+        gone). A rig whose pose changed or that left loses its tracks and links: at its next
+        message its tracks are associated like new ones (gated onto the room tracks the other
+        rigs kept, as after a restart), now in the new pose. Returns the rigs that changed."""
+        poses = {r.name: (r.rotation(), r.translation()) for r in room.rigs}
+        changed = [
+            name
+            for name, (rot, t) in self._poses.items()
+            if name not in poses
+            or not (np.array_equal(rot, poses[name][0]) and np.array_equal(t, poses[name][1]))
+        ]
+        for name in changed:
+            self._forget_rig(name)
+            if name not in poses:
+                self._rig_last_ns.pop(name, None)
+                self._rig_seq.pop(name, None)
+        self.room = room
+        self._poses = poses
+        self._order = [r.name for r in room.rigs]
+        return changed
 
     def knows(self, rig: str) -> bool:
         """Whether ``rig`` is one of the room's rigs."""
@@ -206,6 +232,10 @@ class Fuser:
         """Take a rig's objects message (a rig not in the room is ignored: False). Its tracks
         replace that rig's previous ones; a sequence number lower than the last one means the
         daemon restarted, and its old links are forgotten."""
+        return self.ingest_wire(from_message(msg))
+
+    def ingest_wire(self, msg: RigWire) -> bool:
+        """:meth:`ingest` of a message read as arrays (``wire.decode``)."""
         pose = self._poses.get(msg.rig)
         if pose is None:
             return False
@@ -214,9 +244,13 @@ class Fuser:
             self._forget_rig(msg.rig)
             self.restarts[msg.rig] = self.restarts.get(msg.rig, 0) + 1
         self._rig_seq[msg.rig] = msg.seq
+        shift = self.clock_corrections_ns.get(msg.rig, 0)
+        if shift:
+            msg = dataclasses.replace(
+                msg, stamp_utc_ns=msg.stamp_utc_ns - shift, stamps_ns=msg.stamps_ns - shift
+            )
         self._rig_last_ns[msg.rig] = msg.stamp_utc_ns
-        objects = [o for o in msg.objects if o.state != TrackLifecycle.TENTATIVE]
-        self._batches[msg.rig] = batch_to_room(msg.rig, pose[0], pose[1], objects)
+        self._batches[msg.rig] = batch_to_room(msg, pose[0], pose[1])
         return True
 
     def _forget_rig(self, rig: str) -> None:
@@ -314,7 +348,7 @@ class Fuser:
     ) -> None:
         """Link ``rig``'s unlinked tracks to room tracks that have no track of ``rig`` yet (one
         gated assignment); a seen track left over opens a room track."""
-        free = [i for i, k in enumerate(rows.keys) if k[0] == rig and k not in self._links]
+        free = [i for i in rows.span.get(rig, ()) if rows.keys[i] not in self._links]
         if not free:
             return
         candidates = [
@@ -427,7 +461,7 @@ class Fuser:
                 pos[s], pcov[s], vel[s], vcov[s]
             )  # fmt: skip
             if count[s]:
-                tr.source = rows.sources[best[s]]
+                tr.extra = rows.extra[best[s]]
                 tr.velocity_valid, tr.heading_valid = bool(vvalid[s]), bool(hvalid[s])
                 if seen[s]:
                     tr.last_seen_ns = t_ns
