@@ -393,17 +393,21 @@ def score(case: Case, results: list[PairResult], gate_m: float | None = None) ->
     """Score a run of ``case`` (see the module docstring). ``gate_m``: the largest distance
     (m) of a track state from an object's true centre to be on it (default: three times eq.
     12's one-pixel error at its depth, at least 0.2 m; a person's centre, what their silhouettes
-    show of them, is a looser thing)."""
+    show of them, is a looser thing). An object in view that never moves (a stool) is scenery,
+    which background subtraction rightly never reports: it is not scored."""
     rig = case.mode.rig
     # Which object each (pair, track) state is on, if any.
     on: dict[int, list[str | None]] = {}
     in_view_at: dict[str, list[int]] = {name: [] for name in case.objects}
+    moved: set[str] = set()  # objects seen moving: one that never does (a stool) is scenery
     rows = []
     for k, r in enumerate(results):
         truth = case.truth(r.t_ns)
         visible = {n: truth[n] for n in truth if case.in_view(n, r.t_ns)}
         for n in visible:
             in_view_at[n].append(k)
+            if float(np.linalg.norm(visible[n][1])) >= STILL_MPS:
+                moved.add(n)
         for s in r.tracks:
             best, best_d = None, math.inf
             for n, (p, _) in visible.items():
@@ -427,6 +431,8 @@ def score(case: Case, results: list[PairResult], gate_m: float | None = None) ->
     ghost_life = {t: (max(ts) - min(ts)) * 1e-9 for t, ts in life.items()}
     scores = []
     for name in case.objects:
+        if name not in moved and in_view_at[name]:
+            continue
         o = ObjectScore(name)
         frames = in_view_at[name]
         o.frames_in_view = len(frames)

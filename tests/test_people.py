@@ -43,3 +43,18 @@ def test_what_a_pushed_box_leaves_behind_is_no_ghost_for_longer_than_absorb_s() 
     absorb_s = DetectorParams().absorb_s
     for tid, life in score.ghost_life_s.items():
         assert life <= absorb_s, f"ghost track {tid} lived {life:.1f} s"
+
+
+def test_two_people_crossing_keep_one_id_each() -> None:
+    """Two people cross at 2.2 m and 3 m: for about 0.7 s each eye sees one blob of the two,
+    longer than ``max_coast_s``. The far one, hidden behind the near one, coasts through it on
+    ``max_hidden_s`` and comes out with the id it went in with (two ids before); no person
+    has two."""
+    case = acc.world_room("people_crossing", MODE, seed=0)
+    score = acc.score(case, acc.run_case(case), gate_m=GATE_M)
+    people = {o.name: o for o in score.objects}
+    assert all(len(o.track_ids) <= 1 for o in people.values()), {
+        n: o.track_ids for n, o in people.items()
+    }
+    far = people["far"]
+    assert len(far.track_ids) == 1 and far.tracked_share >= 0.5, (far.track_ids, far.tracked_share)

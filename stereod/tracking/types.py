@@ -116,17 +116,18 @@ class TrackerParams:
     the sigma across it on the ground is too and the heading's within
     ``VALID_HEADING_SIGMA_DEG``. ``hold_still_s``: how long (s) after it was last seen moving an
     object keeps the background held under it (it stays seen, ``stationary``, and keeps its id);
-    after that it is part of the scene. ``still_after_s``: an object not seen moving for this
-    long (s) is ``stationary``. ``stationary_mps``: below this speed an object is not moving.
-    ``size_gate``: a track's gate is at least this share of its blob's size (the square root of
-    its area, px): the centre of a person, whose arms and legs swing, wanders by a fifth of
-    their size from one frame to the next. ``merge_depth_m``, ``merge_speed_mps``: confirmed
-    tracks that one detection holds, at one depth and moving together within these, are pieces
-    of one object followed apart, and the longest-followed one takes it. ``gravity_mps2``:
-    gravity in the rig frame (m/s^2; Y points down in a level rig); every moving track is
-    filtered both as moving straight and as falling freely, and follows the likelier (a thrown
-    ball falls 5 mm in one frame at 30 Hz, and a straight-line filter bends its depth to explain
-    that); (0, 0, 0) turns this off.
+    after that it is part of the scene (120 s: twice the longest stop the people scenes make, so
+    a person who stands a minute leaves no ghost of the floor behind them). ``still_after_s``:
+    an object not seen moving for this long (s) is ``stationary``. ``stationary_mps``: below
+    this speed an object is not moving. ``size_gate``: a track's gate is at least this share of
+    its blob's size (the square root of its area, px): the centre of a person, whose arms and
+    legs swing, wanders by a fifth of their size from one frame to the next. ``merge_depth_m``,
+    ``merge_speed_mps``: confirmed tracks that one detection holds, at one depth and moving
+    together within these, are pieces of one object followed apart, and the longest-followed one
+    takes it. ``gravity_mps2``: gravity in the rig frame (m/s^2; Y points down in a level rig);
+    every moving track is filtered both as moving straight and as falling freely, and follows
+    the likelier (a thrown ball falls 5 mm in one frame at 30 Hz, and a straight-line filter
+    bends its depth to explain that); (0, 0, 0) turns this off.
     """
 
     gate_px: float = 6.0
@@ -141,7 +142,7 @@ class TrackerParams:
     confirm_hits: int = 3
     valid_speed_sigma_mps: float = 0.1
     valid_speed_sigma_rel: float = 0.1
-    hold_still_s: float = 60.0
+    hold_still_s: float = 120.0
     still_after_s: float = 1.0
     size_gate: float = 0.25
     merge_depth_m: float = 0.5
