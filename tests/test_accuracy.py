@@ -104,14 +104,13 @@ def test_a_ball_thrown_at_20_mps_from_five_metres_at_60_deg(seed: int) -> None:
     check(acc.score(case, acc.run_case(case)))
 
 
-@pytest.mark.parametrize("webcam", [False, True], ids=["global shutter", "webcam"])
-def test_a_ball_under_a_low_side_lamp_is_measured_without_its_long_shadow(webcam: bool) -> None:
+def test_a_ball_under_a_low_side_lamp_is_measured_without_its_long_shadow() -> None:
     """A lamp 0.8 m above the floor, 2.5 m to the left, casts a shadow about 0.55 m long
     behind the rolling ball. Left in, the shadow drags the centroid: the speed reads 8 % off
-    and the position 1.6 of eq. 12. Left out, the targets hold. Through a webcam's transport
-    the shadow joins the ball's blob for a few frames: the ball's track coasts through them
-    with its id, and no second track starts on the blob."""
-    case = acc.world_room("lamp_ball", MODE, seed=0, lamp="side", webcam=webcam)
+    and the position 1.6 of eq. 12. Left out, the targets hold. (Through a webcam's transport
+    the shadow joins the ball's blob for a few frames; `make accuracy` measures that row,
+    whose rolling shutter takes minutes to render.)"""
+    case = acc.world_room("lamp_ball", MODE, seed=0, lamp="side")
     check(acc.score(case, acc.run_case(case)))
 
 
