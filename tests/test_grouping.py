@@ -214,7 +214,7 @@ def _vtest_run(grouping: bool) -> tuple[list[int], list[int], dict[int, int]]:
     ours, theirs, life = [], [], {}
     shift = np.float32([[1, 0, -12], [0, 1, 0]])
     with Pipeline(params) as pipe:
-        for k in range(240):
+        for k in range(180):
             ok, img = cap.read()
             assert ok, f"vtest.avi frame {k} did not decode"
             right = cv2.warpAffine(img, shift, (768, 576), borderMode=cv2.BORDER_REPLICATE)
