@@ -69,7 +69,7 @@ from stereod.vision.background import GAIN_RESCALE, BackgroundModel, negligible
 from stereod.vision.blobs import Blobs, groups
 from stereod.vision.centroids import coverage_centroid, matte_centroid
 from stereod.vision.detect_params import Centroid, DetectorParams
-from stereod.vision.disc import disc_centre, is_round
+from stereod.vision.disc import Candidate, disc_centres, is_round
 from stereod.vision.luminance import luminance, mean_channels
 from stereod.vision.rects import Rect, above_any, grown_rect
 from stereod.vision.shadows import scene_changed, shadow_mask
@@ -333,7 +333,9 @@ class Detector(BackgroundModel):
         inside the foreground's rectangle, at ``origin`` (x, y px) of the image, and
         ``frame`` and ``background`` (uint8, at the frame's gain) there when matting."""
         p = self.params
-        centres, boxes, areas, supports = [], [], [], []
+        centres: list[tuple[float, float]] = []
+        boxes, areas, supports = [], [], []
+        fits: list[tuple[int, Candidate]] = []  # the round blobs' disc fits, all in one batch
         for group in groups(contours, p.merge_gap):
             points = group[0] if len(group) == 1 else np.concatenate(group)
             x, y, bw, bh = cv2.boundingRect(points)
@@ -353,9 +355,9 @@ class Detector(BackgroundModel):
                 cx, cy = matte_centroid(own, frame, background, diff, at, p.threshold)
                 centre = (cx + origin[0], cy + origin[1])
                 if max(bw, bh) <= p.disc_max_px and is_round(own, area):
-                    fit = disc_centre(frame, background, (*at, bw, bh), (cx, cy), area)
-                    if fit is not None:
-                        centre = (fit[0] + origin[0], fit[1] + origin[1])
+                    fits.append(
+                        (len(centres), Candidate(frame, background, (*at, bw, bh), (cx, cy), area))
+                    )
             elif p.centroid is not Centroid.BINARY:
                 cx, cy = coverage_centroid(own, diff, (x - origin[0], y - origin[1]), p.threshold)
                 centre = (cx + origin[0], cy + origin[1])
@@ -368,6 +370,10 @@ class Detector(BackgroundModel):
             supports.append(own)
         if not centres:
             return Blobs.empty()
+        if fits:
+            for (k, _), fit in zip(fits, disc_centres([c for _, c in fits]), strict=True):
+                if fit is not None:
+                    centres[k] = (fit[0] + origin[0], fit[1] + origin[1])
         return Blobs(
             centroid_px=np.asarray(centres, np.float64),
             bbox_px=np.asarray(boxes, np.int32),
