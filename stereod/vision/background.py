@@ -30,6 +30,17 @@ _ROW_STEPS = (1, 2, 3, 4, 6)
 """Row steps of eq. 4's first pass: divisors of ``_GAIN_STEP``, so the gain's points lie on
 its rows."""
 _THIRDS = np.full(3, 1.0 / 3.0, dtype=np.float32)
+QUIET_LEVELS = 10
+"""A frame whose first pass differs from T by at most this (grey levels), and by at most half
+the level it looks for, and whose mean is T's within ``GAIN_RESCALE``, is idle: sensor
+noise's largest excursion over the first pass's grid is 7-9 levels at a noise of 2 levels."""
+IDLE_AFTER = 30
+"""Idle frames in a row (a second at 30 Hz) before eq. 3 slows to :data:`IDLE_EVERY`."""
+IDLE_EVERY = 2
+"""On an idle frame (:data:`QUIET_LEVELS`) with nothing frozen, after ``IDLE_AFTER`` in a row,
+eq. 3 runs on one such frame in this many: each row is then learned every ``IDLE_EVERY *
+learn_stride`` frames, with the weight of that many frames, so T keeps eq. 3's time constant
+(its noise is 0.35 of one frame's instead of 0.25 at ``beta`` 0.02 and stride 6)."""
 
 
 def negligible(gain: float) -> bool:
@@ -50,6 +61,8 @@ class BackgroundModel:
     _grown: np.ndarray | None
     _shade: np.ndarray | None
     _hold: np.ndarray | None
+    _quiet_frame: bool
+    """Whether the last frame was idle (see :data:`QUIET_LEVELS`)."""
 
     def __init__(self, params: DetectorParams) -> None:
         if not 0.0 <= params.beta < 1.0:
@@ -64,6 +77,8 @@ class BackgroundModel:
         T is replaced (a new background, a rescale, a stride whose rows are not the first
         pass's) until taken again."""
         self._coarse_version = 0
+        self._coarse_mean = (-1, 0.0)
+        """The version of ``_coarse`` and its mean (the channels' means summed)."""
         """Counts the changes to ``_coarse``: what the gain keeps of it is of this version."""
         self._over_range = False
         """Whether T may exceed 255.5 somewhere (a rescale brightened it past what a frame can
@@ -76,6 +91,14 @@ class BackgroundModel:
         self._learned = 0
         """Frames eq. 3 has learned (after the warm-up): which rows the next one updates."""
         self._beta = 1.0 - (1.0 - params.beta) ** params.learn_stride
+        self._quiet_frame = False
+        self._ticks = 0
+        """Frames eq. 3 was given (after the warm-up), learned or skipped as idle."""
+        self._last = list(range(-params.learn_stride, 0))
+        """For each phase of the rows, the tick it was last learned at: the weight of its
+        next update is that of the frames since."""
+        self._idle = 0
+        """Frames in a row with nothing foreground and nothing frozen."""
         self._frame: np.ndarray | None = None
         self._warm: list[np.ndarray] = []
         self._seen = 0
@@ -125,6 +148,15 @@ class BackgroundModel:
             self._coarse_version += 1
         return self._coarse
 
+    def _steady(self, grid: np.ndarray, grid8: np.ndarray) -> bool:
+        """Whether the mean of the frame on the first pass's rows (``grid``) is that of T there
+        (``grid8``, rounded) within ``GAIN_RESCALE``: no change of light the gain would
+        rescale T for."""
+        if self._coarse_mean[0] != self._coarse_version:
+            self._coarse_mean = (self._coarse_version, sum(cv2.mean(grid8)))
+        mean = self._coarse_mean[1]
+        return abs(sum(cv2.mean(grid)) - mean) <= GAIN_RESCALE * mean
+
     def _gain(self, grid: np.ndarray, grid8: np.ndarray, shape: tuple[int, int]) -> float:
         """Median of frame / background over every ``_gain_step``-th pixel each way that was
         background in the last frame and is not dark: the global gain, 1.0 when unknown.
@@ -171,8 +203,10 @@ class BackgroundModel:
         ``frozen`` rectangles (objects the tracker freezes), and not on held foreground unless
         in a ``released`` one (an object the tracker knows has stopped for good). Rectangles
         are (x0, y0, x1, y1) px, end exclusive. Eq. 3 runs on every ``learn_stride``-th row, in
-        turn, in one call; what it must not have changed there (:meth:`_kept`: the learned rows
-        under the frozen and held rectangles' union) is copied before and put back after."""
+        turn, in one call (on one idle frame in ``IDLE_EVERY``, weighted for the frames since
+        those rows were last learned); what it must not have changed there (:meth:`_kept`: the
+        learned rows under the frozen and held rectangles' union) is copied before and put back
+        after."""
         frame = self._frame
         if frame is None:
             return
@@ -185,12 +219,22 @@ class BackgroundModel:
         assert bg is not None
         h, w = bg.shape[:2]
         held = self._held() if p.hold_foreground else None
+        tick = self._ticks
+        self._ticks += 1
+        if self._quiet_frame and not frozen and p.learn_stride > 1:
+            self._idle += 1
+            if self._idle > IDLE_AFTER and self._idle % IDLE_EVERY:
+                return  # idle: its rows are learned with the next one's weight
+        else:
+            self._idle = 0
         boxes = [r for r in (clipped(b, w, h) for b in frozen) if r is not None]
         phase = self._learned % p.learn_stride
         self._learned += 1
+        frames, self._last[phase] = tick - self._last[phase], tick
+        beta = self._beta if frames == p.learn_stride else 1.0 - (1.0 - p.beta) ** frames
         rows = slice(phase, None, p.learn_stride)
         kept = self._kept(bg, phase, held, boxes, released)
-        cv2.accumulateWeighted(frame[rows], bg[rows], self._beta)
+        cv2.accumulateWeighted(frame[rows], bg[rows], beta)
         if kept is not None:
             region, before, keep = kept
             cv2.copyTo(before, keep, region)  # in place: ``region`` is a view of T

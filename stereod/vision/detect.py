@@ -65,11 +65,11 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from stereod.vision.background import GAIN_RESCALE, BackgroundModel, negligible
+from stereod.vision.background import GAIN_RESCALE, QUIET_LEVELS, BackgroundModel, negligible
 from stereod.vision.blobs import Blobs, groups
 from stereod.vision.centroids import coverage_centroid, matte_centroid
 from stereod.vision.detect_params import Centroid, DetectorParams
-from stereod.vision.disc import disc_centre, is_round
+from stereod.vision.disc import Candidate, disc_centres, is_round
 from stereod.vision.luminance import luminance, mean_channels
 from stereod.vision.rects import Rect, above_any, grown_rect
 from stereod.vision.shadows import scene_changed, shadow_mask
@@ -120,6 +120,8 @@ class Detector(BackgroundModel):
         self._thresh_u8 = float(math.ceil(params.threshold) - 1)
         """d >= t on integer grey levels is d > ceil(t) - 1 (THRESH_BINARY is strict)."""
         self._find_u8 = self._low_u8 if self._grow is not None else self._thresh_u8
+        self._quiet = min(self._find_u8 // 2, QUIET_LEVELS)
+        """The first pass's largest difference (grey levels) in a frame that is idle."""
         self.saturated = 0
         """Frames that were saturated (see the module docstring) and reported empty."""
         self._saturated_run = 0
@@ -148,6 +150,12 @@ class Detector(BackgroundModel):
             self._coarse = None
             self._over_range = other._over_range
             self._learned = other._learned  # the rows' turn goes on where it was
+            self._ticks, self._idle = other._ticks, other._idle
+            if self.params.learn_stride == other.params.learn_stride:
+                self._last = list(other._last)
+            else:
+                stride = self.params.learn_stride
+                self._last = [self._ticks - stride] * stride
             self._seen = self.params.warmup_frames
             self._t0_ns = other._t0_ns
             if other._since is not None:
@@ -162,6 +170,8 @@ class Detector(BackgroundModel):
         self._coarse = None
         self._over_range = False
         self._learned = 0
+        self._ticks, self._idle = 0, 0
+        self._last = list(range(-self.params.learn_stride, 0))
         self._warm = []
         self._seen = 0
         self._since = None
@@ -195,6 +205,7 @@ class Detector(BackgroundModel):
         self._shape, self._roi, self._part, self._mask = shape, roi, part, None
         self._grown = grown
         self._shade = None
+        self._quiet_frame = False
 
     def find(self, image: np.ndarray, t_ns: int = 0) -> Blobs:
         """Eq. 2, 4 and 5 against the current background at capture instant ``t_ns`` (ns);
@@ -222,6 +233,13 @@ class Detector(BackgroundModel):
         grid = frame[::step]
         coarse = cv2.absdiff(grid, bg8)
         level = self._find_u8
+        if cv2.minMaxLoc(coarse.reshape(coarse.shape[0], -1))[1] <= self._quiet and (
+            not self.params.gain or self._steady(grid, bg8)
+        ):
+            # nothing differs from T as learned by more than noise, nor by half the level,
+            # and the frame's mean is T's within the gain's rescale: no gain to estimate (a
+            # light that drifts slower is learned by eq. 3)
+            return self._nothing(shape, idle=True)
         g = self._gain(grid, bg8, shape) if self.params.gain else 1.0
         if negligible(g):
             g = 1.0
@@ -307,9 +325,11 @@ class Detector(BackgroundModel):
             return self._blobs(contours, part, (x0, y0), diff, frame[y0:y1, x0:x1], b8)
         return self._blobs(contours, part, (x0, y0), diff)
 
-    def _nothing(self, shape: tuple[int, int]) -> Blobs:
-        """No foreground in this frame (of ``shape`` (h, w) px)."""
+    def _nothing(self, shape: tuple[int, int], idle: bool = False) -> Blobs:
+        """No foreground in this frame (of ``shape`` (h, w) px); ``idle``: nothing differs
+        from T by more than noise (eq. 3 may then learn at its idle cadence)."""
         self._set_foreground(shape, None, None)
+        self._quiet_frame = idle
         self._saturated_run = 0
         return Blobs.empty()
 
@@ -333,7 +353,9 @@ class Detector(BackgroundModel):
         inside the foreground's rectangle, at ``origin`` (x, y px) of the image, and
         ``frame`` and ``background`` (uint8, at the frame's gain) there when matting."""
         p = self.params
-        centres, boxes, areas, supports = [], [], [], []
+        centres: list[tuple[float, float]] = []
+        boxes, areas, supports = [], [], []
+        fits: list[tuple[int, Candidate]] = []  # the round blobs' disc fits, all in one batch
         for group in groups(contours, p.merge_gap):
             points = group[0] if len(group) == 1 else np.concatenate(group)
             x, y, bw, bh = cv2.boundingRect(points)
@@ -353,9 +375,9 @@ class Detector(BackgroundModel):
                 cx, cy = matte_centroid(own, frame, background, diff, at, p.threshold)
                 centre = (cx + origin[0], cy + origin[1])
                 if max(bw, bh) <= p.disc_max_px and is_round(own, area):
-                    fit = disc_centre(frame, background, (*at, bw, bh), (cx, cy), area)
-                    if fit is not None:
-                        centre = (fit[0] + origin[0], fit[1] + origin[1])
+                    fits.append(
+                        (len(centres), Candidate(frame, background, (*at, bw, bh), (cx, cy), area))
+                    )
             elif p.centroid is not Centroid.BINARY:
                 cx, cy = coverage_centroid(own, diff, (x - origin[0], y - origin[1]), p.threshold)
                 centre = (cx + origin[0], cy + origin[1])
@@ -368,6 +390,10 @@ class Detector(BackgroundModel):
             supports.append(own)
         if not centres:
             return Blobs.empty()
+        if fits:
+            for (k, _), fit in zip(fits, disc_centres([c for _, c in fits]), strict=True):
+                if fit is not None:
+                    centres[k] = (fit[0] + origin[0], fit[1] + origin[1])
         return Blobs(
             centroid_px=np.asarray(centres, np.float64),
             bbox_px=np.asarray(boxes, np.int32),

@@ -68,7 +68,7 @@ class DetectorParams:
     nearly the colour of the wall behind it is kept; 0 turns this off.
     ``learn_stride``: eq. 3 updates every ``learn_stride``-th row each frame, in turn (1: all).
     ``disc_max_px``: a round blob (:func:`stereod.vision.disc.is_round`) at most this wide and high
-    (px) is centred by fitting a disc to the image (:func:`stereod.vision.disc.disc_centre`) when
+    (px) is centred by fitting a disc to the image (:func:`stereod.vision.disc.disc_centres`) when
     matting; 0 turns this off.
     ``shadows``: foreground that is the background darkened (its brightness times a factor
     within ``shadow_ratio``, its colour's proportions and its texture kept) is a cast shadow,

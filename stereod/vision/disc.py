@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -73,16 +75,6 @@ def _grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     return xs, ys
 
 
-def _least_squares(a: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The x that minimises |a x - y| (columns of ``y`` apart): through the normal equations
-    (OpenCV's LU), a fraction of an SVD's time on the fit's well-posed systems, and by SVD where
-    they are singular."""
-    solved, x = cv2.solve(a.T @ a, a.T @ y)
-    if solved:
-        return np.asarray(x)
-    return np.linalg.lstsq(a, y, rcond=None)[0]
-
-
 def is_round(support: np.ndarray, area: int) -> bool:
     """Whether a blob's support (h, w) of ``area`` px is shaped like a disc: its box nearly
     square and filled about pi/4 (a box or an upright cylinder fills its box, and so does a
@@ -106,93 +98,191 @@ def disc_centre(
     """Centre (x, y px) of the disc that best explains the (H, W[, 3]) uint8 ``frame`` around
     a blob's ``box`` (x, y, w, h px) against the ``background`` (at the frame's gain), started
     from the blob's ``centre`` and the radius of a disc of ``area`` px; None where the box
-    with its margin leaves the image or the fit is not to be trusted (it moved more than a
-    pixel, or its radius is not the blob's). Gauss-Newton over the centre, the radius and the
-    object's colour (per channel: a quadratic in position plus the sphere's sqrt(1 - rho^2),
-    which holds a Lambertian ball's shading)."""
-    x, y, w, h = box
-    height, width = frame.shape[:2]
-    x0, y0, x1, y1 = x - PAD_PX, y - PAD_PX, x + w + PAD_PX, y + h + PAD_PX
-    if x0 < 0 or y0 < 0 or x1 > width or y1 > height:
-        return None
-    n = (y1 - y0) * (x1 - x0)
-    f = frame[y0:y1, x0:x1].reshape(n, -1).astype(np.float64)
-    b = background[y0:y1, x0:x1].reshape(f.shape).astype(np.float64)
-    channels = f.shape[1]
-    xs, ys = _grid(x1 - x0, y1 - y0)
-    r0 = math.sqrt(area / math.pi)
-    cx0, cy0 = centre[0] - x0, centre[1] - y0
-    u, v = (xs - cx0) / r0, (ys - cy0) / r0
+    with its margin leaves the image or the fit is not to be trusted. One blob of
+    :func:`disc_centres`."""
+    return disc_centres([Candidate(frame, background, box, centre, area)])[0]
+
+
+class Candidate(NamedTuple):
+    """A blob to centre by :func:`disc_centres`: its eye's (H, W[, 3]) uint8 ``frame`` and
+    ``background`` (at the frame's gain), its ``box`` (x, y, w, h px) in them, its starting
+    ``centre`` (x, y px) and its ``area`` (px)."""
+
+    frame: np.ndarray
+    background: np.ndarray
+    box: tuple[int, int, int, int]
+    centre: tuple[float, float]
+    area: int
+
+
+def disc_centres(blobs: Sequence[Candidate]) -> list[tuple[float, float] | None]:
+    """Centre (x, y px) of the disc that best explains each blob's frame around its box
+    against its background, started from its centre and the radius of a disc of its area;
+    None where the box with its margin leaves the image or the fit is not to be trusted (it
+    moved more than a pixel, or its radius is not the blob's). Gauss-Newton over the centre,
+    the radius and the object's colour (per channel: a quadratic in position plus the
+    sphere's sqrt(1 - rho^2), which holds a Lambertian ball's shading), every blob's fit in
+    the same few whole-array calls (blobs of both eyes alike: all frames must have the same
+    channels). Each window is padded with zeros to the largest; a padded pixel has a zero
+    Jacobian and a zero residual, so it changes no fit."""
+    out: list[tuple[float, float] | None] = [None] * len(blobs)
+    windows: list[tuple[int, int, int, int, int]] = []  # index, x0, y0, width, height
+    for i, (frame, _, (x, y, w, h), _, _) in enumerate(blobs):
+        height, width = frame.shape[:2]
+        x0, y0, x1, y1 = x - PAD_PX, y - PAD_PX, x + w + PAD_PX, y + h + PAD_PX
+        if x0 >= 0 and y0 >= 0 and x1 <= width and y1 <= height:
+            windows.append((i, x0, y0, x1 - x0, y1 - y0))
+    if not windows:
+        return out
+    nb = len(windows)
+    channels = 1 if blobs[windows[0][0]].frame.ndim == 2 else blobs[windows[0][0]].frame.shape[2]
+    n = max(ww * wh for _, _, _, ww, wh in windows)
     k = 7
-    basis = np.empty((n, k))
-    basis[:, 0] = 1.0
+    # Every array has its pixels last: numpy's loops then run along them, not along a
+    # channel's or the edge's few values.
+    f = np.zeros((nb, channels, n))
+    b = np.zeros((nb, channels, n))
+    xs = np.zeros((nb, n))
+    ys = np.zeros((nb, n))
+    inside = np.zeros((nb, n))
+    start = np.empty((nb, 3))
+    for j, (i, x0, y0, ww, wh) in enumerate(windows):
+        blob, m = blobs[i], ww * wh
+        f[j, :, :m] = blob.frame[y0 : y0 + wh, x0 : x0 + ww].reshape(m, channels).T
+        b[j, :, :m] = blob.background[y0 : y0 + wh, x0 : x0 + ww].reshape(m, channels).T
+        xs[j, :m], ys[j, :m] = _grid(ww, wh)
+        inside[j, :m] = 1.0
+        start[j] = blob.centre[0] - x0, blob.centre[1] - y0, math.sqrt(blob.area / math.pi)
+    r0 = start[:, 2:3]
+    u, v = (xs - start[:, 0:1]) / r0, (ys - start[:, 1:2]) / r0
+    basis = np.empty((nb, k, n))
+    basis[:, 0] = inside
     basis[:, 1], basis[:, 2] = u, v
     np.sqrt(np.maximum(1.0 - u * u - v * v, 0.0), out=basis[:, 3])  # the sphere's shading
     basis[:, 4], basis[:, 5], basis[:, 6] = u * u, v * v, u * v
+    basis *= inside[:, None]  # a padded pixel: a zero column
     diff = f - b
-    theta = np.array([cx0, cy0, r0])
-    beta: np.ndarray | None = None
-    # The Jacobian's columns that differ between channels: d model / d theta per channel (the
-    # edge's motion times that channel's contrast), then d model / d beta, the same for all;
-    # one product gives every block of the normal equations.
+    theta = start.copy()
+    # The Jacobian's rows (one per unknown, pixels along) that differ between channels:
+    # d model / d theta per channel (the edge's motion times that channel's contrast), then
+    # d model / d beta, the same for all; then a row of zeros and the residuals per channel.
+    # One product per blob gives every block of the normal equations and of their right side,
+    # gathered by ``_blocks``. (One product of the whole stacked Jacobian would be 2.3 times
+    # as large, and large enough for a BLAS to split it over threads, which costs more than
+    # it saves on a busy host.)
     g = 3 * channels
-    jac = np.empty((n, g + k))
-    grad = jac[:, :g].reshape(n, channels, 3)
-    normal = np.zeros((3 + k * channels,) * 2)
-    edge = np.empty((n, 3))
-    rhs = np.empty((3 + k * channels, 1))
+    rows = np.zeros((nb, g + k + 1 + channels, n))
+    jac = rows[:, : g + k]
+    residual = rows[:, g + k + 1 :]
+    rows_t = rows.transpose(0, 2, 1)
+    grad = rows[:, :g].reshape(nb, channels, 3, n)
+    edge = np.empty((nb, 1, 3, n))
+    pick = _blocks(channels, k)
+    p = 3 + k * channels
+    todo = list(range(nb))  # the blobs still fitted: not converged, not failed
+    failed: set[int] = set()
+    beta: np.ndarray | None = None  # (blob, channel, k)
     for _ in range(_ITERATIONS):
-        dx, dy = xs - theta[0], ys - theta[1]
-        dist = np.hypot(dx, dy)
-        centred = dist < 1e-9  # a pixel at the centre (a small blob's start): any normal will do
-        if centred.any():
+        dx, dy = xs - theta[:, :1], ys - theta[:, 1:2]
+        dist = np.sqrt(dx * dx + dy * dy)
+        if dist.min() < 1e-9:  # a pixel at the centre (a small blob's start): any normal will do
+            centred = dist < 1e-9
             safe = np.where(centred, 1.0, dist)
             nx, ny = np.where(centred, 1.0, dx / safe), dy / safe
         else:
             nx, ny = dx / dist, dy / dist
-        share, slope = coverage(theta[2] - dist, nx, ny)
-        covered = np.multiply(share[:, None], basis, out=jac[:, g:])
+        share, slope = coverage(theta[:, 2:3] - dist, nx, ny)
+        share_c = share[:, None]
+        covered = np.multiply(share_c, basis, out=jac[:, g:])
         if beta is None:  # the colour that best explains the pixels for the starting disc
-            beta = _least_squares(covered, diff + share[:, None] * b)
-        contrast = basis @ beta - b
-        residual = diff - share[:, None] * contrast
-        np.multiply(nx, slope, out=edge[:, 0])
-        np.multiply(ny, slope, out=edge[:, 1])
-        edge[:, 2] = slope
-        np.multiply(contrast[:, :, None], edge[:, None, :], out=grad)
-        # normal equations of the Jacobian [d model / d theta, d model / d beta] by blocks:
-        # theta couples to every channel, each channel's beta only to its own pixels
-        full = jac.T @ jac
-        right = jac.T @ residual
-        if channels == 1:
-            normal[:] = full
-            rhs[:] = right
-        else:
-            normal[:3, :3] = 0.0
-            rhs[:3] = 0.0
-            own = full[g:, g:]
-            for c in range(channels):
-                rows = slice(3 * c, 3 * c + 3)
-                cols = slice(3 + c * k, 3 + (c + 1) * k)
-                normal[:3, :3] += full[rows, rows]
-                normal[:3, cols] = full[rows, g:]
-                normal[cols, :3] = full[g:, rows]
-                normal[cols, cols] = own
-                rhs[:3, 0] += right[rows, c]
-                rhs[cols, 0] = right[g:, c]
-        solved, step = cv2.solve(normal, rhs)  # OpenCV's LU: a quarter of numpy's call
-        if not solved:  # singular
-            return None
-        step = step[:, 0]
-        if not np.isfinite(step).all():
-            return None
-        theta += step[:3]
-        beta = beta + step[3:].reshape(channels, k).T
-        if abs(step[0]) < _CONVERGED_PX and abs(step[1]) < _CONVERGED_PX:
+            beta = _least_squares(covered, diff + share_c * b)
+        contrast = beta @ basis - b
+        np.subtract(diff, share_c * contrast, out=residual)
+        np.multiply(nx, slope, out=edge[:, 0, 0])
+        np.multiply(ny, slope, out=edge[:, 0, 1])
+        edge[:, 0, 2] = slope
+        np.multiply(contrast[:, :, None], edge, out=grad)
+        # normal equations by blocks: theta couples to every channel, each channel's beta
+        # only to its own pixels
+        blocks = (rows @ rows_t).reshape(nb, -1)[:, pick]
+        system = blocks[:, : p * (p + 1)].reshape(nb, p, p + 1)
+        if channels > 1:
+            system[:, :3, [0, 1, 2, p]] = (
+                blocks[:, p * (p + 1) :].reshape(nb, channels, 3, 4).sum(1)
+            )
+        for j in list(todo):
+            solved, step = cv2.solve(system[j, :, :p], system[j, :, p:])
+            if not solved or not cv2.checkRange(step):  # singular
+                failed.add(j)
+                todo.remove(j)
+                continue
+            theta[j] += step[:3, 0]
+            beta[j] += step[3:, 0].reshape(channels, k)
+            if abs(step[0, 0]) < _CONVERGED_PX and abs(step[1, 0]) < _CONVERGED_PX:
+                todo.remove(j)
+        if not todo:
             break
-    cx, cy, r = float(theta[0]) + x0, float(theta[1]) + y0, float(theta[2])
-    if math.hypot(cx - centre[0], cy - centre[1]) > _MAX_SHIFT_PX:
-        return None
-    if abs(r - r0) > _RADIUS_TOLERANCE * r0 + 0.5:
-        return None
-    return cx, cy
+    for j, (i, x0, y0, _, _) in enumerate(windows):
+        if j in failed:
+            continue
+        cx, cy, r = float(theta[j, 0]) + x0, float(theta[j, 1]) + y0, float(theta[j, 2])
+        centre, r0j = blobs[i].centre, float(start[j, 2])
+        if math.hypot(cx - centre[0], cy - centre[1]) > _MAX_SHIFT_PX:
+            continue
+        if abs(r - r0j) > _RADIUS_TOLERANCE * r0j + 0.5:
+            continue
+        out[i] = cx, cy
+    return out
+
+
+def _least_squares(a: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Per blob, the x (channel, k) that minimises |x a - y| (``a`` (blob, k, pixel), ``y``
+    (blob, channel, pixel)): through the normal equations (OpenCV's LU), and by SVD where
+    they are singular."""
+    at = a.transpose(0, 2, 1)
+    normal, right = a @ at, a @ y.transpose(0, 2, 1)
+    x = np.empty((a.shape[0], y.shape[1], a.shape[1]))
+    for j in range(a.shape[0]):
+        solved, xj = cv2.solve(normal[j], right[j])
+        x[j] = xj.T if solved else np.linalg.lstsq(at[j], y[j].T, rcond=None)[0].T
+    return x
+
+
+@functools.lru_cache(maxsize=4)
+def _blocks(channels: int, k: int) -> np.ndarray:
+    """Where each entry of the normal equations (centre, radius, then each channel's ``k``
+    colour terms) beside their right side, then the ``channels`` centre-radius blocks and
+    right sides summed into the top ones, are in the flattened product of the rows of
+    :func:`disc_centres` (``3 channels + k`` Jacobian rows, a zero row, ``channels``
+    residual rows) with themselves. One channel's colour terms do not meet another's: those
+    entries are the zero row's."""
+    g = 3 * channels
+    m = g + k + 1 + channels
+    zero, p = g + k, 3 + k * channels
+
+    def row(i: int, c: int) -> int:
+        """The Jacobian row of unknown ``i`` on channel ``c``'s pixels."""
+        return 3 * c + i if i < 3 else g + (i - 3) % k
+
+    def channel(i: int) -> int:
+        return -1 if i < 3 else (i - 3) // k
+
+    pick = np.zeros((p, p + 1), np.intp)
+    for i in range(p):
+        for j in range(p + 1):
+            ci, cj = channel(i), (channel(j) if j < p else -2)
+            if cj == -2:  # the right side: unknown i against its channel's residuals
+                pick[i, j] = row(i, max(ci, 0)) * m + g + k + 1 + max(ci, 0)
+            elif ci >= 0 and cj >= 0 and ci != cj:
+                pick[i, j] = row(i, ci) * m + zero
+            else:
+                c = max(ci, cj, 0)
+                pick[i, j] = row(i, c) * m + row(j, c)
+    sums = [
+        [
+            [(3 * c + i) * m + (3 * c + j if j < 3 else g + k + 1 + c) for j in range(4)]
+            for i in range(3)
+        ]
+        for c in range(channels)
+    ]
+    return np.concatenate([pick.ravel(), np.ravel(sums)])
