@@ -50,7 +50,7 @@ def test_two_people_crossing_keep_one_id_each() -> None:
     longer than ``max_coast_s``. The far one, hidden behind the near one, coasts through it on
     ``max_hidden_s`` and comes out with the id it went in with (two ids before); no person
     has two."""
-    case = acc.world_room("people_crossing", MODE, seed=0)
+    case = acc.world_room("people_crossing", MODE, seed=0, lead_in_s=0.5)
     score = acc.score(case, acc.run_case(case), gate_m=GATE_M)
     people = {o.name: o for o in score.objects}
     assert all(len(o.track_ids) <= 1 for o in people.values()), {
