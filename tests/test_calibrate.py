@@ -279,9 +279,11 @@ def test_sigterm_while_collecting_leaves_no_file_and_exits_143(tmp_path: Path) -
             time.sleep(0.05)  # collecting, its output made
         assert list(tmp_path.glob(".c.json.*.part")), "calibrate never started collecting"
         proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=30)
+        _, err = proc.communicate(timeout=90)  # a guard against a hang, not a measurement
     finally:
-        proc.kill()
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()  # its pipes closed here, not left to a later test
     assert proc.returncode == 143, err
     assert (
         err.splitlines()[-1]

@@ -20,6 +20,9 @@ import pytest
 import zenoh
 
 from stereod.bus.messages import ObjectsMessage
+from stereod.fusion.fuser import Fuser
+from stereod.fusion.output import room_states
+from stereod.fusion.room import load_room
 from stereod.fusion.status import FuseStatus
 from stereod_fakes.world import Scene
 from stereod_fakes.world.rooms import RigPlacement, crossing_room, three_rig_room, write_room
@@ -153,9 +156,28 @@ def test_one_id_per_ball_across_three_rendered_rigs(
     (xs,) = walker_x.values()
     # a alone sees x < 0.9 m, b alone x > 1.75 m (3 m ahead; see THREE_RIGS).
     assert min(xs) < 0.5 and max(xs) > 2.2, (min(xs), max(xs))
-    # Where a and b both see the walker, the room's position (each room message stamped at a
-    # rig's capture instant) is no further from the truth than the better rig's alone.
-    both = sorted(set(walker_err["a"]) & set(walker_err["b"]) & set(walker_err["fused"]))
+    # Where a and b both see the walker, the room's position is no further from the truth than
+    # the better rig's alone. The live node fuses whichever rigs' messages have arrived when it
+    # steps, which a loaded host changes from run to run; here the same rig messages are fused
+    # in stamp order, each instant once every rig's message of it is in, as a node whose rigs
+    # all keep up does.
+    fuser = Fuser(load_room(folder / "room.toml"))
+    fused_err: dict[int, float] = {}
+    ordered = sorted(seen_by, key=lambda m: m.stamp_utc_ns)
+    for k, m in enumerate(ordered):
+        fuser.ingest(m)
+        if k + 1 < len(ordered) and ordered[k + 1].stamp_utc_ns == m.stamp_utc_ns:
+            continue
+        walker = balls["walker"].position(scene_s(m.stamp_utc_ns))
+        errs = [
+            float(np.linalg.norm(np.array(o.position_m) - walker))
+            for o in room_states(fuser.fuse(m.stamp_utc_ns).tracks)
+            if o.state.value in ("confirmed", "stationary")
+        ]
+        if errs and min(errs) < NEAR_M:
+            fused_err[m.stamp_utc_ns] = min(errs)
+    walker_err["fused"] = fused_err
+    both = sorted(set(walker_err["a"]) & set(walker_err["b"]) & set(fused_err))
     assert len(both) >= 5, both
     median = {k: float(np.median([v[t] for t in both])) for k, v in walker_err.items()}
     assert median["fused"] <= min(median["a"], median["b"]), median
