@@ -56,7 +56,12 @@ def test_demo_with_view_plays_once_a_page_is_open_and_serves_it_after() -> None:
             lines.append(proc.stdout.readline())
         url = re.search(r"view: open (http://127\.0\.0\.1:\d+/) ", lines[-1])
         assert url, lines
-        headings = asyncio.run(_page_headings(url.group(1)))
+        try:
+            headings = asyncio.run(_page_headings(url.group(1)))
+        except ConnectionError as exc:  # the view went away: the demo says why on stderr
+            proc.send_signal(signal.SIGINT)
+            _, err = proc.communicate(timeout=30)
+            raise AssertionError(f"{exc}; the demo exited {proc.returncode}: {err}") from exc
         rest = []
         for line in proc.stdout:
             rest.append(line)
@@ -128,7 +133,10 @@ async def _page_headings(url: str) -> list[float]:
     headings: list[float] = []
     async with aiohttp.ClientSession() as http, http.ws_connect(url + "ws") as ws:
         while True:
-            msg = json.loads((await ws.receive(timeout=60)).data)
+            frame = await ws.receive(timeout=60)
+            if frame.type != aiohttp.WSMsgType.TEXT:
+                raise ConnectionError(f"the page got {frame.type.name} {frame.data} first")
+            msg = json.loads(frame.data)
             if msg["type"] == "objects":
                 headings += [o["heading"] for o in msg["objects"] if o["valid"]]
             elif msg["type"] == "alive" and not msg["alive"]:
