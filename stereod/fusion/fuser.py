@@ -165,8 +165,6 @@ class _Rows:
             p, v = np.zeros((0, 3)), np.zeros((0, 3))
             pc, vc = np.zeros((0, 3, 3)), np.zeros((0, 3, 3))
         self.position, self.position_cov, self.velocity, self.velocity_cov = p, pc, v, vc
-        self.info = np.linalg.inv(pc) if n else pc
-        self.info_mean = np.einsum("nij,nj->ni", self.info, p)
 
         def stack(name: str, empty: np.ndarray) -> np.ndarray:
             return np.concatenate([getattr(b, name) for b in batches]) if n else empty
@@ -253,13 +251,17 @@ class Fuser:
         self._batches[msg.rig] = batch_to_room(msg, pose[0], pose[1])
         return True
 
-    def _forget_rig(self, rig: str) -> None:
+    def _forget_rig(self, rig: str) -> set[int]:
+        """Drop ``rig``'s tracks and links; returns the room tracks that lost a member."""
         self._batches.pop(rig, None)
+        lost = set()
         for key in [k for k in self._links if k[0] == rig]:
             room_id = self._links.pop(key)
             track = self._tracks.get(room_id)
             if track is not None:
                 track.members.pop(rig, None)
+                lost.add(room_id)
+        return lost
 
     def live_rigs(self, t_ns: int) -> list[str]:
         """The rigs heard from within ``rig_timeout_s`` of ``t_ns``, in the room file's order."""
@@ -283,33 +285,60 @@ class Fuser:
         """The newest stamp of any rig's message (UTC ns), or None before the first."""
         return max(self._rig_last_ns.values(), default=None)
 
-    def fuse(self, t_ns: int) -> FusedFrame:
+    def fuse(self, t_ns: int, rigs: list[str] | None = None) -> FusedFrame:
         """The room at the UTC instant ``t_ns`` (ns): every rig track predicted there,
-        associated, fused; room tracks no rig has seen for ``max_coast_s`` end."""
+        associated, fused; room tracks no rig has seen for ``max_coast_s`` end.
+
+        With ``rigs`` (event-driven: the rigs whose messages just came in, ``t_ns`` their
+        stamp), only those rigs' tracks are associated, and only the room tracks they have a
+        member in (or that just lost one, or have none: coasting) are fused at ``t_ns`` and
+        returned: the others keep their last state and stamp. A step then costs one message's
+        tracks, not the room's."""
         live = self.live_rigs(t_ns)
+        lost: set[int] = set()
         for rig in [r for r in self._batches if r not in live]:
-            self._forget_rig(rig)
+            lost |= self._forget_rig(rig)
         rows = _Rows([self._batches[r] for r in live if r in self._batches], t_ns)
         for key in [k for k in self._links if k not in rows.index]:
-            track = self._tracks.get(self._links.pop(key))
+            rid = self._links.pop(key)
+            track = self._tracks.get(rid)
             if track is not None and track.members.get(key[0]) == key[1]:
                 del track.members[key[0]]
+                lost.add(rid)
         members: dict[int, list[int]] = {rid: [] for rid in self._tracks}
         for key, rid in self._links.items():
             members[rid].append(rows.index[key])
-        estimate = self._estimates(rows, members, t_ns)
-        for rig in live:
-            self._associate(rig, rows, members, estimate, t_ns)
-        ended = self._update(rows, members, t_ns)
+        assoc = live if rigs is None else [r for r in live if r in rigs]
+        if any(rows.keys[i] not in self._links for r in assoc for i in rows.span.get(r, ())):
+            estimate = self._estimates(rows, members, t_ns)
+            for rig in assoc:
+                self._associate(rig, rows, members, estimate, t_ns)
+        if rigs is None:
+            touched = set(self._tracks)
+        else:
+            # Those tracks, those that just lost a member, and those with none (coasting: a
+            # step predicts them on, as a full step does, so that they gate as they would).
+            touched = {rid for rid in lost if rid in self._tracks}
+            touched.update(rid for rid, tr in self._tracks.items() if not tr.members)
+            for rig in assoc:
+                for i in rows.span.get(rig, ()):
+                    linked = self._links.get(rows.keys[i])
+                    if linked is not None:
+                        touched.add(linked)
+        ended = self._update(rows, members, t_ns, touched)
         shared = {
             rid: [(rows.keys[i][0], rows.position[i], rows.position_cov[i]) for i in ms]
             for rid, ms in members.items()
-            if len(ms) >= 2 and rid in self._tracks
+            if len(ms) >= 2 and rid in self._tracks and rid in touched
         }
         # Copies: the caller may keep a frame while the next steps change the tracks (whose
         # arrays are replaced, never written into).
-        tracks = [_snapshot(tr) for _, tr in sorted(self._tracks.items())]
+        tracks = [_snapshot(self._tracks[rid]) for rid in sorted(touched) if rid in self._tracks]
         return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, shared=shared)
+
+    def tracks(self) -> list[RoomTrack]:
+        """Every room track now, each at its own last stamp (copies), by id."""
+        return [_snapshot(tr) for _, tr in sorted(self._tracks.items())]
 
     def _estimates(
         self, rows: _Rows, members: dict[int, list[int]], t_ns: int
@@ -323,7 +352,9 @@ class Fuser:
         group = np.full(len(rows.keys), -1, dtype=np.int64)
         for rid, ms in members.items():
             group[ms] = slot[rid]
-        count, mean, cov = _group_fusion(group, len(rids), rows.info, rows.info_mean)
+        info = np.linalg.inv(rows.position_cov) if len(rows.keys) else rows.position_cov
+        info_mean = np.einsum("nij,nj->ni", info, rows.position)
+        count, mean, cov = _group_fusion(group, len(rids), info, info_mean)
         alone = [rid for rid in rids if count[slot[rid]] == 0]
         if alone:
             trs = [self._tracks[rid] for rid in alone]
@@ -402,24 +433,24 @@ class Fuser:
         )
         return rid
 
-    def _update(self, rows: _Rows, members: dict[int, list[int]], t_ns: int) -> list[int]:
-        """Fuse each room track's members at ``t_ns`` (every track in one array operation);
-        coast those with none; end the ones unseen for ``max_coast_s``. Returns the ended
-        ids."""
-        rids = sorted(self._tracks)
+    def _update(
+        self, rows: _Rows, members: dict[int, list[int]], t_ns: int, touched: set[int]
+    ) -> list[int]:
+        """Fuse each ``touched`` room track's members at ``t_ns`` (every track in one array
+        operation); coast those with none; end any unseen for ``max_coast_s``. Returns the
+        ended ids."""
+        rids = sorted(touched)
         slot = {rid: k for k, rid in enumerate(rids)}
-        group = np.full(len(rows.keys), -1, dtype=np.int64)
-        for rid, ms in members.items():
-            if rid in slot:
-                group[ms] = slot[rid]
+        # The member rows of the touched tracks only (a rig's message touches a few).
+        idx = np.array([i for rid in rids for i in members[rid]], dtype=np.int64)
+        g = np.array([slot[rid] for rid in rids for _ in members[rid]], dtype=np.int64)
         k = len(rids)
-        count, pos, pcov = _group_fusion(group, k, rows.info, rows.info_mean)
-        if len(rows.keys):
-            vinfo = np.linalg.inv(rows.velocity_cov)
-            vmean = np.einsum("nij,nj->ni", vinfo, rows.velocity)
-        else:
-            vinfo, vmean = rows.velocity_cov, rows.velocity
-        _, vel, vcov = _group_fusion(group, k, vinfo, vmean)
+        pinfo = np.linalg.inv(rows.position_cov[idx]) if idx.size else np.zeros((0, 3, 3))
+        pmean = np.einsum("nij,nj->ni", pinfo, rows.position[idx])
+        count, pos, pcov = _group_fusion(g, k, pinfo, pmean)
+        vinfo = np.linalg.inv(rows.velocity_cov[idx]) if idx.size else np.zeros((0, 3, 3))
+        vmean = np.einsum("nij,nj->ni", vinfo, rows.velocity[idx])
+        _, vel, vcov = _group_fusion(g, k, vinfo, vmean)
         coasting = [rid for rid in rids if count[slot[rid]] == 0]
         if coasting:
             trs = [self._tracks[rid] for rid in coasting]
@@ -433,13 +464,11 @@ class Fuser:
             for j, rid in enumerate(coasting):
                 s = slot[rid]
                 pos[s], pcov[s], vel[s], vcov[s] = p[j], pc[j], v[j], vc[j]
+
         # Per room track, from its members' rows at once: any seen, all seen ones stationary,
         # any velocity (heading) valid, and the member with the smallest position variance.
-        ok = group >= 0
-        g = group[ok]
-
         def anyof(flags: np.ndarray) -> np.ndarray:
-            return np.bincount(g, weights=flags[ok].astype(np.float64), minlength=k) > 0
+            return np.bincount(g, weights=flags[idx].astype(np.float64), minlength=k) > 0
 
         seen = anyof(rows.seen)
         moving = anyof(rows.seen & ~rows.stationary)
@@ -447,7 +476,6 @@ class Fuser:
         hvalid = anyof(rows.heading_valid)
         best = np.full(k, -1, dtype=np.int64)
         if g.size:
-            idx = np.flatnonzero(ok)
             trace = np.trace(rows.position_cov[idx], axis1=1, axis2=2)
             order = np.lexsort((trace, g))
             first = np.ones(order.size, dtype=bool)
@@ -455,6 +483,9 @@ class Fuser:
             best[g[order][first]] = idx[order][first]
         ended: list[int] = []
         coast_ns = int(self.params.max_coast_s * 1e9)
+        for rid, tr in list(self._tracks.items()):
+            if rid not in touched and t_ns - tr.last_seen_ns > coast_ns:
+                ended.append(self._end(rid))
         for rid in rids:
             tr, s = self._tracks[rid], slot[rid]
             tr.position, tr.position_cov, tr.velocity, tr.velocity_cov = (
@@ -472,8 +503,12 @@ class Fuser:
                 tr.state = TrackLifecycle.COASTING
             tr.stamp_utc_ns = t_ns
             if t_ns - tr.last_seen_ns > coast_ns:
-                ended.append(rid)
-                del self._tracks[rid]
-                for rig, tid in tr.members.items():
-                    self._links.pop((rig, tid), None)
+                ended.append(self._end(rid))
         return ended
+
+    def _end(self, rid: int) -> int:
+        """End room track ``rid`` and drop its links; returns ``rid``."""
+        tr = self._tracks.pop(rid)
+        for rig, tid in tr.members.items():
+            self._links.pop((rig, tid), None)
+        return rid
