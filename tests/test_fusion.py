@@ -6,10 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from stereod.bus.messages import ObjectsMessage
 from stereod.fusion.clock import ClockWatch
 from stereod.fusion.frames import predicted, to_room
 from stereod.fusion.fuser import FusedFrame, Fuser, fuse_gaussians
 from stereod.fusion.room import RigPose, Room
+from stereod.tracking.types import TrackLifecycle
 from stereod_fakes.room_messages import RigSim, Walker
 
 FRAME_NS = 33_333_333
@@ -348,3 +350,47 @@ def test_a_message_as_arrays_keeps_its_fields_and_leaves_out_a_non_finite_object
     bad = msg.objects[0].model_copy(update={"position_m": (float("nan"), 0.0, 3.0)})
     wire = from_message(msg.model_copy(update={"objects": [bad, msg.objects[1]]}))
     assert wire.ids.tolist() == [msg.objects[1].track_id]
+
+
+def _with_tracks(
+    msg: ObjectsMessage, coast: bool, extra: list[tuple[int, tuple[float, float, float]]]
+) -> ObjectsMessage:
+    """``msg`` (one object) with its track marked coasting if ``coast``, and confirmed tracks
+    of ``extra`` (id, rig-frame offset m from the object) added."""
+    (o,) = msg.objects
+    first = o.model_copy(update={"state": TrackLifecycle.COASTING}) if coast else o
+    x, y, z = o.position_m
+    objs = [
+        o.model_copy(update={"track_id": tid, "position_m": (x + dx, y + dy, z + dz)})
+        for tid, (dx, dy, dz) in extra
+    ]
+    return msg.model_copy(update={"objects": [first, *objs]})
+
+
+def test_a_rigs_new_track_of_an_object_and_a_short_stray_open_no_second_room_id() -> None:
+    """Rigs a and c see one walker (a and c at right angles). From frame 40 rig a's track of
+    it coasts for 20 frames while a new one of a (id 900) measures it, then only the new one
+    goes on, as a rig's tracker does after losing a blob in a crossing; at frames 100-105 rig
+    a also reports a stray (id 901) 0.2 m behind it in depth, inside the gate. The room keeps
+    one id throughout."""
+    walker = Walker(1, (0.8, 0.0, 3.5), (0.0, 0.0, 0.2))
+    sims = {"a": RigSim(A, seed=6), "c": RigSim(C, seed=7)}
+    fuser = Fuser(room(A, C))
+    ids: set[int] = set()
+    for k in range(160):
+        t = k * FRAME_NS
+        for name, sim in sims.items():
+            msg = sim.message([walker], t)
+            if name == "a" and 40 <= k < 60:
+                msg = _with_tracks(msg, True, [(900, (0.0, 0.0, 0.0))])
+            elif name == "a" and k >= 60:
+                o = msg.objects[0].model_copy(update={"track_id": 900})
+                stray = [(901, (0.0, 0.0, 0.2))] if 100 <= k < 106 else []
+                msg = _with_tracks(msg.model_copy(update={"objects": [o]}), False, stray)
+            fuser.ingest(msg)
+        frame = fuser.fuse(t)
+        ids |= {tr.room_id for tr in frame.tracks}
+        if k in (59, 80, 159):
+            (tr,) = frame.tracks
+            assert tr.members == {"a": 900, "c": 1}, (k, tr.members)
+    assert ids == {1}, ids

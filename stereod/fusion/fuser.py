@@ -48,6 +48,9 @@ class FuseParams:
     """A rig silent this long (by its stamps against the fusion instant) loses its tracks, s."""
     max_coast_s: float = 2.0
     """A room track no rig sees for this long ends, s."""
+    birth_s: float = 0.5
+    """A rig track within the gate of a room track that it cannot join (that room track has
+    its rig's track already) opens a room track of its own once seen this long, s."""
 
 
 @dataclass
@@ -192,6 +195,8 @@ class Fuser:
         self._rig_last_ns: dict[str, int] = {}
         self._rig_seq: dict[str, int] = {}
         self._links: dict[tuple[str, int], int] = {}
+        self._since: dict[tuple[str, int], int] = {}
+        """Rig tracks waiting to open a room track (``birth_s``): when first seen waiting, ns."""
         self._tracks: dict[int, RoomTrack] = {}
         self._next_id = 1
         self.restarts: dict[str, int] = {}
@@ -299,6 +304,8 @@ class Fuser:
         for rig in [r for r in self._batches if r not in live]:
             lost |= self._forget_rig(rig)
         rows = _Rows([self._batches[r] for r in live if r in self._batches], t_ns)
+        for key in [k for k in self._since if k not in rows.index or k in self._links]:
+            del self._since[key]
         for key in [k for k in self._links if k not in rows.index]:
             rid = self._links.pop(key)
             track = self._tracks.get(rid)
@@ -377,29 +384,91 @@ class Fuser:
         estimate: dict[int, tuple[np.ndarray, np.ndarray]],
         t_ns: int,
     ) -> None:
-        """Link ``rig``'s unlinked tracks to room tracks that have no track of ``rig`` yet (one
-        gated assignment); a seen track left over opens a room track."""
+        """Link ``rig``'s unlinked tracks to room tracks that have no track of ``rig`` yet, or
+        only one it no longer sees (coasting: a seen track of that rig there replaces it, so
+        that a rig's new track of an object joins its room track instead of opening a second
+        id beside it), in one gated assignment; a seen track left over opens a room track."""
         free = [i for i in rows.span.get(rig, ()) if rows.keys[i] not in self._links]
         if not free:
             return
-        candidates = [
-            rid for rid in sorted(members) if all(rows.keys[i][0] != rig for i in members[rid])
-        ]
+        candidates: list[int] = []
+        stale: dict[int, int] = {}
+        """Room track -> its member row of ``rig`` that ``rig`` does not see now."""
+        for rid in sorted(members):
+            mine = [i for i in members[rid] if rows.keys[i][0] == rig]
+            if not mine:
+                candidates.append(rid)
+            elif not rows.seen[mine[0]]:
+                candidates.append(rid)
+                stale[rid] = mine[0]
         matched: set[int] = set()
         if candidates:
-            d = rows.position[free][:, None, :] - np.array([estimate[r][0] for r in candidates])
-            s = rows.position_cov[free][:, None] + np.array([estimate[r][1] for r in candidates])
+            means, covs = [], []
+            for r in candidates:
+                others = [i for i in members[r] if i != stale.get(r)]
+                if r in stale and others:
+                    m, c = fuse_gaussians(
+                        [rows.position[i] for i in others], [rows.position_cov[i] for i in others]
+                    )
+                else:
+                    m, c = estimate[r]
+                means.append(m)
+                covs.append(c)
+            d = rows.position[free][:, None, :] - np.array(means)
+            s = rows.position_cov[free][:, None] + np.array(covs)
             d2 = np.einsum("nmi,nmi->nm", d, np.linalg.solve(s, d[..., None])[..., 0])
             cost = np.where(d2 <= self.params.gate_chi2, d2, _FORBIDDEN)
+            # Only a seen track replaces a coasting one.
+            replaceable = np.array([r in stale for r in candidates])
+            cost[np.ix_(~rows.seen[free], replaceable)] = _FORBIDDEN
             for i, j in zip(*min_cost_assignment(cost), strict=True):
                 if cost[i, j] < _FORBIDDEN:
-                    self._link(rows, free[i], candidates[j], members, estimate)
+                    rid = candidates[j]
+                    if rid in stale:
+                        self._unlink(rows, stale[rid], rid, members)
+                    self._link(rows, free[i], rid, members, estimate)
                     matched.add(int(i))
-        for i, row in enumerate(free):
-            if i not in matched and rows.seen[row]:
-                rid = self._open(rows, row, t_ns)
-                members[rid] = []
-                self._link(rows, row, rid, members, estimate)
+        left = [row for i, row in enumerate(free) if i not in matched and rows.seen[row]]
+        for row in self._born(rows, left, estimate, t_ns):
+            rid = self._open(rows, row, t_ns)
+            members[rid] = []
+            self._link(rows, row, rid, members, estimate)
+
+    def _born(
+        self,
+        rows: _Rows,
+        left: list[int],
+        estimate: dict[int, tuple[np.ndarray, np.ndarray]],
+        t_ns: int,
+    ) -> list[int]:
+        """Of the seen rig tracks no room track took, those that open one now: any not within
+        the gate of a room track, and one within it (it contradicts a room track that has its
+        rig's track already: a split blob, a stray) once it has been seen for ``birth_s``, so
+        that a short-lived stray opens no second id beside the object's."""
+        if not left or not estimate:
+            return left
+        rids = list(estimate)
+        d = rows.position[left][:, None, :] - np.array([estimate[r][0] for r in rids])
+        s = rows.position_cov[left][:, None] + np.array([estimate[r][1] for r in rids])
+        d2 = np.einsum("nmi,nmi->nm", d, np.linalg.solve(s, d[..., None])[..., 0])
+        near = (d2 <= self.params.gate_chi2).any(axis=1)
+        born = []
+        for row, contradicts in zip(left, near.tolist(), strict=True):
+            if not contradicts:
+                born.append(row)
+                continue
+            since = self._since.setdefault(rows.keys[row], t_ns)
+            if t_ns - since >= self.params.birth_s * 1e9:
+                born.append(row)
+        return born
+
+    def _unlink(self, rows: _Rows, row: int, room_id: int, members: dict[int, list[int]]) -> None:
+        """Take rig track ``row`` out of room track ``room_id`` (another of its rig replaces
+        it); it stays free, and opens nothing while its rig does not see it."""
+        rig, _ = key = rows.keys[row]
+        self._links.pop(key, None)
+        self._tracks[room_id].members.pop(rig, None)
+        members[room_id].remove(row)
 
     def _link(
         self,
