@@ -83,10 +83,11 @@ class FusedFrame:
     t_ns: int
     tracks: list[RoomTrack]
     ended: list[int]
-    shared: dict[int, list[tuple[str, np.ndarray, np.ndarray]]] = field(default_factory=dict)
-    """For each room id that more than one rig sees: each rig's name, position (m) and
-    position covariance (m^2) at ``t_ns`` in the room frame (what clock offsets are
-    estimated from)."""
+    shared: dict[int, list[tuple[str, int, np.ndarray, np.ndarray]]] = field(default_factory=dict)
+    """For each room id fused at this step that more than one rig sees: each rig's name and
+    its track's own stamp (UTC ns, as corrected), position (m) and position covariance (m^2)
+    there, in the room frame, not predicted (what clock offsets are estimated from: capture
+    stamps only)."""
 
 
 def fuse_gaussians(
@@ -156,17 +157,20 @@ class _Rows:
         self.index = {k: i for i, k in enumerate(self.keys)}
         n = len(self.keys)
         if n:
-            stamps = np.concatenate([b.stamps_ns for b in batches])
+            self.stamps = np.concatenate([b.stamps_ns for b in batches])
+            self.raw_position = np.concatenate([b.position for b in batches])
+            self.raw_cov = np.concatenate([b.position_cov for b in batches])
             p, pc, v, vc = predict_many(
-                np.concatenate([b.position for b in batches]),
-                np.concatenate([b.position_cov for b in batches]),
+                self.raw_position,
+                self.raw_cov,
                 np.concatenate([b.velocity for b in batches]),
                 np.concatenate([b.velocity_cov for b in batches]),
-                (t_ns - stamps) * 1e-9,
+                (t_ns - self.stamps) * 1e-9,
             )
         else:
             p, v = np.zeros((0, 3)), np.zeros((0, 3))
             pc, vc = np.zeros((0, 3, 3)), np.zeros((0, 3, 3))
+            self.stamps, self.raw_position, self.raw_cov = np.zeros(0, dtype=np.int64), p, pc
         self.position, self.position_cov, self.velocity, self.velocity_cov = p, pc, v, vc
 
         def stack(name: str, empty: np.ndarray) -> np.ndarray:
@@ -333,8 +337,9 @@ class Fuser:
                     if linked is not None:
                         touched.add(linked)
         ended = self._update(rows, members, t_ns, touched)
+        raw = (rows.stamps.tolist(), rows.raw_position, rows.raw_cov)
         shared = {
-            rid: [(rows.keys[i][0], rows.position[i], rows.position_cov[i]) for i in ms]
+            rid: [(rows.keys[i][0], raw[0][i], raw[1][i], raw[2][i]) for i in ms]
             for rid, ms in members.items()
             if len(ms) >= 2 and rid in self._tracks and rid in touched
         }
