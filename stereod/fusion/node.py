@@ -194,7 +194,7 @@ class FuseNode:
                     last_rx = max(rx for rx, _, _ in batch)
                 if stamp is not None:
                     self._step(stamp, rigs, [rx for rx, _, _ in batch])
-                elif not batch and last_rx is not None:
+                elif last_rx is not None and time.monotonic() - last_rx >= IDLE_STEP_S:
                     # idle: step on by the time since the last message, to end tracks
                     self._step(latest + int((time.monotonic() - last_rx) * 1e9), [], [])
                 if self._room_due and time.monotonic() - self._room_at >= self.min_period_s:
