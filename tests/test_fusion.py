@@ -440,3 +440,27 @@ def test_a_clock_offset_rests_on_capture_stamps_not_on_when_messages_arrive() ->
         late = _clock_with_arrivals(delay_ms, seed).estimate("c")
         assert late.offset_ms == pytest.approx(40.0, abs=1.5), (delay_ms, late)
         assert late.offset_ms == pytest.approx(ordered.offset_ms, abs=1.5), (delay_ms, late)
+
+
+def test_a_rig_message_fuses_only_the_room_tracks_it_touches() -> None:
+    """Rigs a and b see a walker each, far apart (b's from z = 10 m). Fusing rig a's message
+    alone at its stamp (as the node does on its arrival) returns a's room track only, at a's
+    stamp and within 4 sigma of the truth there; b's keeps the stamp of b's last message. A
+    full step then returns both."""
+    wa = Walker(1, (0.0, 0.0, 4.0), (0.3, 0.0, 0.0))
+    wb = Walker(2, (4.0, 0.0, 6.0), (0.0, 0.0, 0.3))
+    sims = {"a": RigSim(A, seed=41), "b": RigSim(B, seed=42)}
+    fuser = Fuser(room(A, B))
+    run(fuser, sims, [wa, wb], 10)
+    fuser.ingest(sims["b"].message([wa, wb], 10 * FRAME_NS))
+    fuser.fuse(10 * FRAME_NS, ["b"])
+    t = 10 * FRAME_NS + 5_000_000
+    fuser.ingest(sims["a"].message([wa, wb], t))
+    frame = fuser.fuse(t, ["a"])
+    (tr,) = frame.tracks
+    assert tr.members == {"a": 1} and tr.stamp_utc_ns == t
+    err = tr.position - wa.position(t)
+    assert float(err @ np.linalg.solve(tr.position_cov, err)) < 4.0**2 * 3
+    stamps = {next(iter(x.members)): x.stamp_utc_ns for x in fuser.tracks()}
+    assert stamps == {"a": t, "b": 10 * FRAME_NS}
+    assert len(fuser.fuse(t).tracks) == 2
