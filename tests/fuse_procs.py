@@ -10,6 +10,7 @@ newest first, and the router after them, whatever the test did.
 from __future__ import annotations
 
 import contextlib
+import json
 import signal
 import subprocess
 import sys
@@ -21,7 +22,6 @@ from pathlib import Path
 from tests.processes import start_stereod
 
 from .conftest import ROOT, free_endpoint
-from .test_router import start_router
 
 ROOM = """\
 [room]
@@ -41,12 +41,19 @@ rotation_deg = [0.0, -90.0, 0.0]
 
 
 def generator(
-    room: Path, rig: str, endpoint: str, walkers: str, seed: int, *extra: str
+    room: Path,
+    rig: str,
+    endpoint: str,
+    walkers: str,
+    seed: int,
+    *extra: str,
+    wrap: tuple[str, ...] = (),
 ) -> subprocess.Popen:
     """A rig message generator for ``rig`` of ``room`` publishing ``walkers`` (JSON) through
-    ``endpoint``, once given its t0 (:func:`go`); ``extra``: more of its options."""
+    ``endpoint``, once given its t0 (:func:`go`); ``extra``: more of its options; ``wrap``: a
+    command it runs under (``("unshare", "-rn")``: its own network namespace)."""
     return subprocess.Popen(
-        [sys.executable, "-m", "stereod_fakes.room_messages", str(room), rig,
+        [*wrap, sys.executable, "-m", "stereod_fakes.room_messages", str(room), rig,
          "--connect", endpoint, "--walkers", walkers, "--seed", str(seed), "--t0-from-stdin",
          *extra],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -94,10 +101,19 @@ class FuseProcs:
         return fuse
 
     def generator(
-        self, room: Path, rig: str, walkers: str, seed: int, *extra: str
+        self,
+        room: Path,
+        rig: str,
+        walkers: str,
+        seed: int,
+        *extra: str,
+        endpoint: str | None = None,
+        wrap: tuple[str, ...] = (),
     ) -> subprocess.Popen:
-        """A rig message generator through the router (:func:`generator`), up."""
-        proc = self.add(generator(room, rig, self.endpoint, walkers, seed, *extra))
+        """A rig message generator through the router (:func:`generator`; at ``endpoint``
+        if given, else :attr:`endpoint`), up."""
+        at = self.endpoint if endpoint is None else endpoint
+        proc = self.add(generator(room, rig, at, walkers, seed, *extra, wrap=wrap))
         wait_up(proc)
         return proc
 
@@ -109,12 +125,38 @@ class FuseProcs:
         return t0
 
 
+ROUTER = """
+import json, signal, sys, threading, zenoh
+cfg = zenoh.Config()
+cfg.insert_json5("mode", '"router"')
+cfg.insert_json5("scouting", '{"delay": 0, "multicast": {"enabled": false}}')
+cfg.insert_json5("listen/endpoints", sys.argv[1])
+done = threading.Event()
+signal.signal(signal.SIGTERM, lambda *_: done.set())
+with zenoh.open(cfg):
+    print("up", flush=True)
+    done.wait()
+"""
+"""A Zenoh router listening on every endpoint of its JSON argument."""
+
+
+def start_router(endpoints: list[str]) -> subprocess.Popen[str]:
+    """A router process listening on ``endpoints``, up."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", ROUTER, json.dumps(endpoints)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "up", proc.stderr
+    return proc
+
+
 @contextlib.contextmanager
-def fuse_procs() -> Iterator[FuseProcs]:
-    """A router on a free loopback port and, at the end, every process started through the
-    returned :class:`FuseProcs` stopped (newest first), then the router."""
+def fuse_procs(*listen: str) -> Iterator[FuseProcs]:
+    """A router on a free loopback port (and on ``listen``'s endpoints too) and, at the end,
+    every process started through the returned :class:`FuseProcs` stopped (newest first),
+    then the router."""
     endpoint = free_endpoint()
-    router = start_router(endpoint)
+    router = start_router([endpoint, *listen])
     run = FuseProcs(endpoint)
     try:
         yield run
