@@ -10,11 +10,13 @@ loopback.
 
 Measured over ``--seconds`` after a warm-up: the fusion node's CPU (share of one core, from
 /proc/<pid>/stat), its own added latency (a rig message's arrival in the node to the room
-message that includes it published, p50/p99, from its ``stats`` queryable), the latency from
-a rig's stamp to the room message's arrival at the subscriber (same host, same UTC clock),
-its step rate and what it dropped. Writes ``docs/bench/fuse_scale.md``.
+tracks it changed published on their own keys, p50/p99, from its ``stats`` queryable), the
+latency from a rig's stamp to a room track's arrival at a subscriber on ``objects/*`` and to
+the room's whole message (at most ``--max-rate`` a second) at one on ``objects`` (same host,
+same UTC clock), its step rate and what it dropped. Writes ``docs/bench/fuse_scale.md``.
 
-Usage: ``python benchmarks/fuse_scale.py [--rigs 16] [--objects 10] [--fps 30] [--seconds 20]``.
+Usage: ``python benchmarks/fuse_scale.py [--rigs 16] [--objects 10] [--fps 30] [--seconds 20]
+[--max-rate 30]``.
 """
 
 from __future__ import annotations
@@ -36,8 +38,13 @@ import zenoh
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from stereod.bus.messages import ObjectsMessage  # noqa: E402
+from stereod.bus.messages import ObjectsMessage, dump_objects  # noqa: E402
+from stereod.fusion.clock import ClockWatch  # noqa: E402
+from stereod.fusion.fuser import Fuser  # noqa: E402
+from stereod.fusion.output import join_room, object_payloads  # noqa: E402
+from stereod.fusion.room import load_room  # noqa: E402
 from stereod.fusion.status import FuseStatus  # noqa: E402
+from stereod_fakes.room_messages import RigSim, Walker, walkers_from_json  # noqa: E402
 from tests.conftest import free_endpoint, zenoh_config  # noqa: E402
 from tests.processes import start_stereod  # noqa: E402
 from tests.test_router import start_router  # noqa: E402
@@ -72,6 +79,50 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def message_cost(rigs: int, per_rig: int, ticks: int = 90) -> tuple[float, float]:
+    """The fusion node's own work for one rig message, in this process with no bus: parse,
+    ingest, fuse that rig at its stamp, clock, its tracks' JSON and the room's message
+    joined; thread CPU time a message, p50 and p99 over the last two thirds, ms (the
+    messages of ``ticks`` frames of every rig, as the generators make them)."""
+    tmp = Path(tempfile.mkdtemp(prefix="fuse-cost-")) / "room.toml"
+    tmp.write_text(room_file(rigs))
+    room = load_room(tmp)
+    t0 = 1_700_000_000_000_000_000
+    walk = [
+        Walker(w.truth_id, w.start_m, w.velocity_mps, t0)
+        for w in walkers_from_json(json.dumps(walkers(rigs, per_rig)))
+    ]
+    sims = [RigSim(r, seed=k) for k, r in enumerate(room.rigs)]
+    payloads = [
+        dump_objects(sim.message(walk, t0 + k * 33_333_333 + j * 100_000))[0]
+        for k in range(ticks)
+        for j, sim in enumerate(sims)
+    ]
+    fuser, clock = Fuser(room), ClockWatch([r.name for r in room.rigs])
+    states: dict[int, bytes] = {}
+    cpu = []
+    for k, payload in enumerate(payloads):
+        c0 = time.thread_time()
+        msg = ObjectsMessage.model_validate_json(payload)
+        fuser.ingest(msg)
+        frame = fuser.fuse(msg.stamp_utc_ns, [msg.rig])
+        clock.observe(frame)
+        fuser.clock_corrections_ns = dict(clock.corrections_ns)
+        states.update(object_payloads(frame.tracks))
+        for rid in frame.ended:
+            states.pop(rid, None)
+        join_room(room.name, k, msg.stamp_utc_ns, msg.geometry, 0.0, list(states.values()))
+        cpu.append((time.thread_time() - c0) * 1e3)
+    tail = np.array(cpu[len(cpu) // 3 :])
+    return float(np.percentile(tail, 50)), float(np.percentile(tail, 99))
+
+
+def fuse_status(session: zenoh.Session) -> FuseStatus:
+    """The fusion node's status, from its ``stats`` queryable."""
+    replies = list(session.get("stereod/rooms/hall/stats", timeout=10))
+    return FuseStatus.model_validate_json(replies[0].ok.payload.to_bytes())
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--rigs", type=int, default=16)
@@ -80,6 +131,7 @@ def main() -> int:
     p.add_argument("--seconds", type=float, default=20.0)
     p.add_argument("--warmup", type=float, default=5.0)
     p.add_argument("--generators", type=int, default=2)
+    p.add_argument("--max-rate", type=float, default=30.0, help="fuse's --max-rate, Hz")
     p.add_argument("--out", type=Path, default=ROOT / "docs" / "bench" / "fuse_scale.md")
     a = p.parse_args()
     load = os.getloadavg()
@@ -90,18 +142,27 @@ def main() -> int:
     router = start_router(endpoint)
     procs: list[subprocess.Popen] = []
     arrivals: list[tuple[int, int, int]] = []
+    track_arrivals: list[tuple[int, int]] = []
     lock = threading.Lock()
 
     def on_room(sample: zenoh.Sample) -> None:
         now = time.time_ns()
-        msg = ObjectsMessage.model_validate_json(sample.payload.to_bytes())
+        msg = json.loads(sample.payload.to_bytes())  # json alone: the subscriber costs less
         with lock:
-            arrivals.append((now, msg.stamp_utc_ns, len(msg.objects)))
+            arrivals.append((now, msg["stamp_utc_ns"], len(msg["objects"])))
+
+    def on_track(sample: zenoh.Sample) -> None:
+        now = time.time_ns()
+        if sample.kind != zenoh.SampleKind.PUT:
+            return
+        obj = json.loads(sample.payload.to_bytes())
+        with lock:
+            track_arrivals.append((now, obj["stamp_utc_ns"]))
 
     try:
         fuse = start_stereod(
             "fuse", "--room", str(room), "--connect", endpoint, "--mode", "client",
-            "--log-level", "WARNING", stdout=subprocess.DEVNULL,
+            "--log-level", "WARNING", "--max-rate", str(a.max_rate), stdout=subprocess.DEVNULL,
         )  # fmt: skip
         procs.append(fuse)
         names = [f"r{i}" for i in range(a.rigs)]
@@ -124,17 +185,20 @@ def main() -> int:
             proc.stdin.flush()
         with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as session:
             sub = session.declare_subscriber("stereod/rooms/hall/objects", on_room)
+            tsub = session.declare_subscriber("stereod/rooms/hall/objects/*", on_track)
             time.sleep(a.warmup)
             with lock:
                 arrivals.clear()
+                track_arrivals.clear()
+            s0 = fuse_status(session)
             c0, w0 = cpu_s(fuse.pid), time.monotonic()
             gen_c0 = sum(cpu_s(p.pid) for p in procs[1:])
             time.sleep(a.seconds)
             c1, w1 = cpu_s(fuse.pid), time.monotonic()
             gen_c1 = sum(cpu_s(p.pid) for p in procs[1:])
-            replies = list(session.get("stereod/rooms/hall/stats", timeout=10))
-            status = FuseStatus.model_validate_json(replies[0].ok.payload.to_bytes())
+            status = fuse_status(session)
             sub.undeclare()
+            tsub.undeclare()
     finally:
         for proc in reversed(procs):
             if proc.poll() is None:
@@ -145,7 +209,13 @@ def main() -> int:
         router.communicate(timeout=30)
     with lock:
         got = list(arrivals)
+        got_tracks = list(track_arrivals)
     e2e = np.array([(now - stamp) / 1e6 for now, stamp, _ in got])
+    e2e_track = np.array([(now - stamp) / 1e6 for now, stamp in got_tracks])
+
+    def p50_99(x: np.ndarray) -> str:
+        return f"{np.percentile(x, 50):.1f} / {np.percentile(x, 99):.1f} ms" if len(x) else "-"
+
     objects = np.array([n for _, _, n in got])
     cpu = (c1 - c0) / (w1 - w0)
     gen_cpu = (gen_c1 - gen_c0) / (w1 - w0)
@@ -165,17 +235,24 @@ def main() -> int:
         f"| generators' CPU | {gen_cpu * 100:.0f} % of one core |",
         f"| rig messages received per s (the generators' target {a.rigs * a.fps:g}) | "
         f"{rig_msgs / status.uptime_s:.0f} |",
-        f"| room messages (fusion steps) per s | {len(got) / a.seconds:.1f} |",
+        f"| fusion steps per s | {(status.steps - s0.steps) / (w1 - w0):.1f} |",
+        f"| room messages per s (--max-rate {a.max_rate:g}) | {len(got) / a.seconds:.1f} |",
         f"| room objects per message, median | {np.median(objects) if len(objects) else 0:.0f} |",
-        f"| fusion step, p50 / p99 | {status.fuse_ms_p50 or 0:.1f} / "
+        f"| fusion step (one or more rig messages), p50 / p99 | {status.fuse_ms_p50 or 0:.1f} / "
         f"{status.fuse_ms_p99 or 0:.1f} ms |",
-        f"| added latency in fuse (arrival to published), p50 / p99 | "
+        f"| added latency in fuse (arrival to its tracks published), p50 / p99 | "
         f"{status.added_ms_p50 or 0:.1f} / {status.added_ms_p99 or 0:.1f} ms |",
-        f"| rig stamp to room message at a subscriber, p50 / p99 | "
-        f"{np.percentile(e2e, 50) if len(e2e) else 0:.1f} / "
-        f"{np.percentile(e2e, 99) if len(e2e) else 0:.1f} ms |",
+        f"| rig stamp to a room track (objects/<id>) at a subscriber, p50 / p99 | "
+        f"{p50_99(e2e_track)} |",
+        f"| rig stamp to the room message at a subscriber, p50 / p99 | {p50_99(e2e)} |",
         f"| problems | {'; '.join(status.problems) or 'none'} |",
     ]
+    cost = message_cost(a.rigs, a.objects)
+    lines.insert(
+        -1,
+        f"| one rig message's work in fuse, no bus (thread CPU), p50 / p99 | "
+        f"{cost[0]:.2f} / {cost[1]:.2f} ms |",
+    )
     text = "\n".join(lines) + "\n"
     print(text)
     a.out.write_text(text)

@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import json
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -18,54 +16,11 @@ import zenoh
 from stereod.bus.messages import ObjectsMessage
 from stereod.fusion.status import FuseStatus
 from stereod_fakes.room_messages import Walker, walkers_from_json
-from tests.processes import start_stereod
 
-from .conftest import ROOT, free_endpoint, stereod, zenoh_config
-from .test_router import start_router
+from .conftest import stereod, zenoh_config
+from .fuse_procs import ROOM, fuse_procs, stop
 
 pytestmark = pytest.mark.slow
-
-ROOM = """\
-[room]
-name = "lab"
-[[room.rigs]]
-name = "a"
-[[room.rigs]]
-name = "b"
-translation_m = [4.0, 0.0, 10.0]
-rotation_deg = [0.0, 180.0, 0.0]
-[[room.rigs]]
-name = "c"
-translation_m = [4.0, 0.0, 4.0]
-rotation_deg = [0.0, -90.0, 0.0]
-"""
-
-
-def generator(room: Path, rig: str, endpoint: str, walkers: str, seed: int) -> subprocess.Popen:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "stereod_fakes.room_messages", str(room), rig,
-         "--connect", endpoint, "--walkers", walkers, "--seed", str(seed), "--t0-from-stdin"],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        cwd=ROOT,
-    )  # fmt: skip
-    return proc
-
-
-def wait_up(proc: subprocess.Popen) -> None:
-    """Wait for the generator's ``up`` (its session is open)."""
-    assert proc.stdout is not None and proc.stdout.readline().strip() == "up", proc.stderr
-
-
-def go(proc: subprocess.Popen, t0: int) -> None:
-    """Give the generator the walkers' t0 (UTC ns): it publishes from now on."""
-    assert proc.stdin is not None
-    proc.stdin.write(f"{t0}\n")
-    proc.stdin.flush()
-
-
-def stop(proc: subprocess.Popen) -> None:
-    proc.send_signal(signal.SIGTERM)
-    proc.communicate(timeout=30)
 
 
 def test_three_rigs_through_a_router_make_one_id_per_object(tmp_path: Path) -> None:
@@ -88,32 +43,20 @@ def test_three_rigs_through_a_router_make_one_id_per_object(tmp_path: Path) -> N
             },
         ]
     )
-    endpoint = free_endpoint()
-    router = start_router(endpoint)
-    procs: list[subprocess.Popen] = []
     messages: list[ObjectsMessage] = []
     jsonl = tmp_path / "room.jsonl"
-    try:
-        fuse = start_stereod(
-            "fuse", "--room", str(room), "--connect", endpoint, "--mode", "client",
-            "--jsonl", str(jsonl),
-        )  # fmt: skip
-        procs.append(fuse)
-        with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as session:
+    with fuse_procs() as run:
+        fuse = run.start_fuse(room, "--jsonl", str(jsonl))
+        with zenoh.open(zenoh_config(connect=[run.endpoint], mode="client")) as session:
             sub = session.declare_subscriber(
                 "stereod/rooms/lab/objects",
                 lambda s: messages.append(ObjectsMessage.model_validate_json(s.payload.to_bytes())),
             )
             gens = {
-                rig: generator(room, rig, endpoint, walkers, seed)
+                rig: run.generator(room, rig, walkers, seed)
                 for seed, rig in enumerate(("a", "b", "c"))
             }
-            procs += gens.values()
-            for g in gens.values():
-                wait_up(g)
-            t0 = time.time_ns()
-            for g in gens.values():
-                go(g, t0)
+            t0 = run.go(list(gens.values()))
             truth = [
                 Walker(w.truth_id, w.start_m, w.velocity_mps, t0)
                 for w in walkers_from_json(walkers)
@@ -127,11 +70,9 @@ def test_three_rigs_through_a_router_make_one_id_per_object(tmp_path: Path) -> N
                     break
                 if not restarted and last > t0 + 1_000_000_000:
                     stop(gens["c"])
-                    gens["c"] = generator(room, "c", endpoint, walkers, 9)
-                    wait_up(gens["c"])
-                    go(gens["c"], t0)
+                    gens["c"] = run.generator(room, "c", walkers, 9)
+                    run.go([gens["c"]], t0)  # the same walkers, where they are now
                     end = max(end, time.time_ns() + 1_500_000_000)
-                    procs.append(gens["c"])
                     restarted = True
                 time.sleep(0.05)
             assert restarted and messages and messages[-1].stamp_utc_ns > end
@@ -147,14 +88,11 @@ def test_three_rigs_through_a_router_make_one_id_per_object(tmp_path: Path) -> N
                 time.sleep(0.1)
             alive = list(session.liveliness().get("stereod/rooms/lab/alive", timeout=5))
             sub.undeclare()
-    finally:
-        for p in reversed(procs):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        outs = [p.communicate(timeout=30) for p in reversed(procs)]
-        router.terminate()
-        router.communicate(timeout=30)
-    assert fuse.returncode == 0, outs[-1]
+        for g in gens.values():
+            stop(g)
+        fuse.send_signal(signal.SIGTERM)
+        out = fuse.communicate(timeout=30)
+    assert fuse.returncode == 0, out
     assert len(alive) == 1 and alive[0].ok is not None
     assert set(status.rigs) == {"a", "b", "c"} and all(r.messages for r in status.rigs.values())
     assert status.rigs["c"].restarts == 1 and status.steps > 0
@@ -166,11 +104,11 @@ def test_three_rigs_through_a_router_make_one_id_per_object(tmp_path: Path) -> N
     for m in watched:
         assert len(m.objects) <= 2
         for o in m.objects:
-            d = [float(np.linalg.norm(np.array(o.position_m) - w.position(m.stamp_utc_ns)))
+            d = [float(np.linalg.norm(np.array(o.position_m) - w.position(o.stamp_utc_ns)))
                  for w in truth]  # fmt: skip
             nearest = int(np.argmin(d))
             assert ids.setdefault(o.track_id, nearest) == nearest, "an id switched objects"
-            err = np.abs(np.array(o.position_m) - truth[nearest].position(m.stamp_utc_ns))
+            err = np.abs(np.array(o.position_m) - truth[nearest].position(o.stamp_utc_ns))
             assert np.all(err < 4 * np.array(o.position_sigma_m) + 0.02), (o, err)
     assert sorted(ids.values()) == [0, 1], ids  # one id per object, none twice
     assert all(len(m.objects) == 2 for m in watched[-10:])

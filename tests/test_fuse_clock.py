@@ -8,9 +8,6 @@ Truth: the generators' closed-form walkers and the offset they were given."""
 from __future__ import annotations
 
 import json
-import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -21,11 +18,9 @@ import zenoh
 from stereod.bus.messages import ObjectsMessage
 from stereod.fusion.status import FuseStatus
 from stereod_fakes.room_messages import Walker, walkers_from_json
-from tests.processes import start_stereod
 
-from .conftest import ROOT, free_endpoint, zenoh_config
-from .test_fuse_cli import ROOM, go, stop, wait_up
-from .test_router import start_router
+from .conftest import zenoh_config
+from .fuse_procs import ROOM, fuse_procs, stop
 
 pytestmark = pytest.mark.slow
 
@@ -39,45 +34,25 @@ WALKERS = json.dumps(
 OFFSET_MS = 40.0
 
 
-def generator(room: Path, rig: str, endpoint: str, seed: int, offset_ms: float) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "stereod_fakes.room_messages", str(room), rig,
-         "--connect", endpoint, "--walkers", WALKERS, "--seed", str(seed), "--t0-from-stdin",
-         "--clock-offset-ms", str(offset_ms), "--depth-sigma-per-m2", "0.005"],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        cwd=ROOT,
-    )  # fmt: skip
-
-
 def test_a_rig_clock_40_ms_ahead_is_found_and_its_stamps_corrected(tmp_path: Path) -> None:
     """The fusion node finds rig c 40 ms ahead (within 8 ms), flags it and corrects c's
     stamps by it; the room's last second of the crossing is at the walkers' true places."""
     room = tmp_path / "room.toml"
     room.write_text(ROOM)
-    endpoint = free_endpoint()
-    router = start_router(endpoint)
-    procs: list[subprocess.Popen] = []
     messages: list[ObjectsMessage] = []
-    try:
-        fuse = start_stereod(
-            "fuse", "--room", str(room), "--connect", endpoint, "--mode", "client",
-        )  # fmt: skip
-        procs.append(fuse)
-        with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as session:
+    with fuse_procs() as run:
+        run.start_fuse(room)
+        with zenoh.open(zenoh_config(connect=[run.endpoint], mode="client")) as session:
             session.declare_subscriber(
                 "stereod/rooms/lab/objects",
                 lambda s: messages.append(ObjectsMessage.model_validate_json(s.payload.to_bytes())),
             )
+            clock = ("--depth-sigma-per-m2", "0.005", "--clock-offset-ms")
             gens = [
-                generator(room, "a", endpoint, 31, 0.0),
-                generator(room, "c", endpoint, 32, OFFSET_MS),
+                run.generator(room, "a", WALKERS, 31, *clock, "0.0"),
+                run.generator(room, "c", WALKERS, 32, *clock, str(OFFSET_MS)),
             ]
-            procs += gens
-            for g in gens:
-                wait_up(g)
-            t0 = time.time_ns()
-            for g in gens:
-                go(g, t0)
+            t0 = run.go(gens)
             truth = [
                 Walker(w.truth_id, w.start_m, w.velocity_mps, t0)
                 for w in walkers_from_json(WALKERS)
@@ -87,13 +62,6 @@ def test_a_rig_clock_40_ms_ahead_is_found_and_its_stamps_corrected(tmp_path: Pat
             status = FuseStatus.model_validate_json(replies[0].ok.payload.to_bytes())
             for g in gens:
                 stop(g)
-    finally:
-        for p in reversed(procs):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                p.communicate(timeout=30)
-        router.terminate()
-        router.communicate(timeout=30)
     c = status.rigs["c"]
     assert c.clock_correction_ms == pytest.approx(OFFSET_MS, abs=8.0), c
     assert c.clock_offset_ms is not None and c.clock_off, c
@@ -102,7 +70,7 @@ def test_a_rig_clock_40_ms_ahead_is_found_and_its_stamps_corrected(tmp_path: Pat
     end = max(m.stamp_utc_ns for m in messages)
     errors = [
         min(
-            float(np.linalg.norm(np.array(o.position_m) - w.position(m.stamp_utc_ns)))
+            float(np.linalg.norm(np.array(o.position_m) - w.position(o.stamp_utc_ns)))
             for w in truth
         )
         for m in messages

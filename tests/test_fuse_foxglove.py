@@ -10,7 +10,6 @@ import asyncio
 import contextlib
 import json
 import re
-import signal
 import subprocess
 import time
 from pathlib import Path
@@ -22,12 +21,9 @@ from scipy.spatial.transform import Rotation
 
 from stereod.fusion.room import load_room
 from stereod_fakes.room_messages import Walker
-from tests.processes import start_stereod
 
-from .conftest import free_endpoint
+from .fuse_procs import ROOM, fuse_procs, stop
 from .test_foxglove import SUBPROTOCOLS, Client, stamp_ns, xyz
-from .test_fuse_cli import ROOM, generator, go, stop, wait_up
-from .test_router import start_router
 
 pytestmark = pytest.mark.slow
 
@@ -71,30 +67,13 @@ def test_fuse_serves_the_room_to_foxglove_with_every_rig_in_tf(tmp_path: Path) -
     rotation; the room's odometry is at the walker's true place, in the room frame."""
     room = tmp_path / "room.toml"
     room.write_text(ROOM)
-    endpoint = free_endpoint()
-    router = start_router(endpoint)
-    procs: list[subprocess.Popen] = []
-    try:
-        fuse = start_stereod(
-            "fuse", "--room", str(room), "--connect", endpoint, "--mode", "client",
-            "--foxglove", "--foxglove-port", "0",
-        )  # fmt: skip
-        procs.append(fuse)
+    with fuse_procs() as run:
+        fuse = run.start_fuse(room, "--foxglove", "--foxglove-port", "0")
         port = served_port(fuse)
-        gen = generator(room, "a", endpoint, json.dumps([WALKER]), 5)
-        procs.append(gen)
-        wait_up(gen)
-        t0 = time.time_ns()
-        go(gen, t0)
+        gen = run.generator(room, "a", json.dumps([WALKER]), 5)
+        t0 = run.go([gen])
         client = asyncio.run(watch(port, 20))
         stop(gen)
-    finally:
-        for p in reversed(procs):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                p.communicate(timeout=30)
-        router.terminate()
-        router.communicate(timeout=30)
     assert set(client.messages) >= ROOM_TOPICS, set(client.messages)
     (_, tf), *_ = client.decoded("/tf_static")
     placed = {t.child_frame_id: t for t in tf.transforms}

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import signal
-import subprocess
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -22,12 +21,9 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from stereod_fakes.room_messages import Walker, walkers_from_json
-from tests.processes import start_stereod
 
-from .conftest import free_endpoint
-from .test_fuse_cli import ROOM, generator, go, stop, wait_up
+from .fuse_procs import ROOM, fuse_procs, stop
 from .test_room_calibration import rot
-from .test_router import start_router
 
 pytestmark = pytest.mark.slow
 
@@ -57,23 +53,11 @@ def test_room_tracks_and_rig_frames_in_the_mcap(tmp_path: Path) -> None:
     room = tmp_path / "room.toml"
     room.write_text(ROOM)
     walkers = json.dumps([{"id": 1, "start_m": [0.6, 0.0, 3.0], "velocity_mps": [0.0, 0.0, 0.05]}])
-    endpoint = free_endpoint()
-    router = start_router(endpoint)
-    procs: list[subprocess.Popen] = []
     out, jsonl = tmp_path / "room.mcap", tmp_path / "room.jsonl"
-    try:
-        fuse = start_stereod(
-            "fuse", "--room", str(room), "--connect", endpoint, "--mode", "client",
-            "--mcap", str(out), "--jsonl", str(jsonl),
-        )  # fmt: skip
-        procs.append(fuse)
-        gens = [generator(room, rig, endpoint, walkers, seed) for seed, rig in enumerate("ac")]
-        procs += gens
-        for g in gens:
-            wait_up(g)
-        t0 = time.time_ns()
-        for g in gens:
-            go(g, t0)
+    with fuse_procs() as run:
+        fuse = run.start_fuse(room, "--mcap", str(out), "--jsonl", str(jsonl))
+        gens = [run.generator(room, rig, walkers, seed) for seed, rig in enumerate("ac")]
+        t0 = run.go(gens)
         deadline = time.monotonic() + 120  # a guard against a hang, not a measurement
         while time.monotonic() < deadline and time.time_ns() < t0 + 2_000_000_000:
             time.sleep(0.1)
@@ -81,13 +65,6 @@ def test_room_tracks_and_rig_frames_in_the_mcap(tmp_path: Path) -> None:
             stop(g)
         fuse.send_signal(signal.SIGTERM)
         _, err = fuse.communicate(timeout=60)
-    finally:
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                p.communicate(timeout=30)
-        router.terminate()
-        router.communicate(timeout=30)
     assert fuse.returncode == 0, err
     truth = [Walker(w.truth_id, w.start_m, w.velocity_mps, t0) for w in walkers_from_json(walkers)]
 

@@ -11,23 +11,22 @@ from __future__ import annotations
 
 import json
 import signal
-import subprocess
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 import zenoh
+from rosbags.highlevel import AnyReader
 
 from stereod.bus.messages import ObjectsMessage
 from stereod.cli.fuse import RELOAD_REFUSED
 from stereod.fusion.status import FuseStatus
 from stereod_fakes.room_messages import Walker
-from tests.processes import start_stereod
 
-from .conftest import free_endpoint, zenoh_config
-from .test_fuse_cli import ROOM, generator, go, stop, wait_up
-from .test_router import start_router
+from .conftest import zenoh_config
+from .fuse_procs import ROOM, fuse_procs, stop
+from .test_fuse_mcap import TYPESTORE
 
 pytestmark = pytest.mark.slow
 
@@ -53,17 +52,12 @@ def test_sighup_reads_the_room_file_again_and_a_bad_one_is_refused(tmp_path: Pat
     room, moved = tmp_path / "room.toml", tmp_path / "moved.toml"
     room.write_text(ROOM)
     moved.write_text(MOVED)
-    endpoint = free_endpoint()
-    router = start_router(endpoint)
-    procs: list[subprocess.Popen] = []
     messages: list[ObjectsMessage] = []
     statuses: list[FuseStatus] = []
-    try:
-        fuse = start_stereod(
-            "fuse", "--room", str(room), "--connect", endpoint, "--mode", "client",
-        )  # fmt: skip
-        procs.append(fuse)
-        with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as session:
+    mcap = tmp_path / "room.mcap"
+    with fuse_procs() as run:
+        fuse = run.start_fuse(room, "--mcap", str(mcap))
+        with zenoh.open(zenoh_config(connect=[run.endpoint], mode="client")) as session:
 
             def query(name: str) -> bytes | None:
                 for r in session.get(f"stereod/rooms/lab/{name}", timeout=5):
@@ -84,18 +78,15 @@ def test_sighup_reads_the_room_file_again_and_a_bad_one_is_refused(tmp_path: Pat
                 lambda s: statuses.append(FuseStatus.model_validate_json(s.payload.to_bytes())),
             )
             wait_for(lambda: rig_b_x() == 4.0, "the fusion node never answered")
-            gen = generator(moved, "b", endpoint, json.dumps([WALKER]), 3)
-            procs.append(gen)
-            wait_up(gen)
-            t0 = time.time_ns()
-            go(gen, t0)
+            gen = run.generator(moved, "b", json.dumps([WALKER]), 3)
+            t0 = run.go([gen])
             walker = Walker(1, tuple(WALKER["start_m"]), tuple(WALKER["velocity_mps"]), t0)  # type: ignore[arg-type]
 
             def errors(since: int) -> list[float]:
                 """Each room object's offset from the walker along X, in the messages after
                 ``since`` (m)."""
                 return [
-                    o.position_m[0] - float(walker.position(m.stamp_utc_ns)[0])
+                    o.position_m[0] - float(walker.position(o.stamp_utc_ns)[0])
                     for m in list(messages)[since:]
                     for o in m.objects
                 ]
@@ -142,13 +133,21 @@ def test_sighup_reads_the_room_file_again_and_a_bad_one_is_refused(tmp_path: Pat
             fuse.send_signal(signal.SIGTERM)
             _, err = fuse.communicate(timeout=30)
             assert fuse.returncode == 0, err
-    finally:
-        for p in reversed(procs):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                p.communicate(timeout=30)
-        router.terminate()
-        router.communicate(timeout=30)
     assert "room file reloaded: 3 rigs, moved or gone: b" in err, err
     (line,) = [ln for ln in err.splitlines() if RELOAD_REFUSED in ln]
     assert "rig 'a' is listed twice" in line and str(room) in line
+    # The MCAP's /tf_static (latched: its last message is the tree) follows the reload: rig b
+    # where the moved file puts it, 1 m further along X than at the start.
+    with AnyReader([mcap]) as reader:
+        statics = [
+            TYPESTORE.deserialize_cdr(raw, c.msgtype)
+            for c, _, raw in reader.messages()
+            if c.topic == "/tf_static"
+        ]
+    b_x = [
+        t.transform.translation.x
+        for st in statics
+        for t in st.transforms
+        if t.child_frame_id == "stereod_b"
+    ]
+    assert b_x[0] == 4.0 and b_x[-1] == 5.0, b_x

@@ -10,7 +10,6 @@ one rig's clock 40 ms ahead (its ``--utc-start``): the shift is the truth of its
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import time
 from pathlib import Path
@@ -29,8 +28,8 @@ from stereod_fakes.world import Scene
 from stereod_fakes.world.rooms import RigPlacement, crossing_room, three_rig_room, write_room
 from tests.processes import start_stereod
 
-from .conftest import free_endpoint, zenoh_config
-from .test_router import start_router
+from .conftest import zenoh_config
+from .fuse_procs import fuse_procs
 
 pytestmark = pytest.mark.slow
 
@@ -66,11 +65,9 @@ def test_one_id_per_ball_across_three_rendered_rigs(
     by the placements, within 0.35 m of it). Where both see it, the room's median position
     error is no larger than the better rig's alone."""
     scene, rigs, folder = rendered
-    endpoint = free_endpoint()
-    router = start_router(endpoint)
-    procs: list[subprocess.Popen] = []
     messages: list[ObjectsMessage] = []
-    try:
+    with fuse_procs() as run:
+        endpoint = run.endpoint
         with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as session:
             session.declare_subscriber(
                 "stereod/rooms/lab/objects",
@@ -81,7 +78,8 @@ def test_one_id_per_ball_across_three_rendered_rigs(
                 replay(folder / r.name, r.name, endpoint, utc_start, folder / f"{r.name}.jsonl")
                 for r in rigs
             ]
-            procs += players
+            for p in players:
+                run.add(p)
             # All rigs' daemons up (their alive tokens on the bus) and waiting for a subscriber:
             # the fusion node's subscriptions then start them together.
             deadline = time.monotonic() + 120  # a guard against a hang, not a measurement
@@ -91,22 +89,11 @@ def test_one_id_per_ball_across_three_rendered_rigs(
                 alive = {str(r.ok.key_expr).split("/")[1] for r in tokens if r.ok}
                 time.sleep(0.1)
             assert alive == {r.name for r in rigs}, alive
-            fuse = start_stereod(
-                "fuse", "--room", str(folder / "room.toml"), "--connect", endpoint, "--mode",
-                "client",
-            )  # fmt: skip
-            procs.append(fuse)
+            run.start_fuse(folder / "room.toml")
             for p in players:
                 _, err = p.communicate(timeout=300)
                 assert p.returncode == 0, err
             time.sleep(1.0)
-    finally:
-        for p in reversed(procs):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                p.communicate(timeout=30)
-        router.terminate()
-        router.communicate(timeout=30)
     seen_by = [
         ObjectsMessage.model_validate_json(line)
         for r in rigs
@@ -140,8 +127,8 @@ def test_one_id_per_ball_across_three_rendered_rigs(
     confirmed: dict[str, set[int]] = {name: set() for name in balls}
     walker_x: dict[int, list[float]] = {}
     for m in messages:
-        t_s = scene_s(m.stamp_utc_ns)
         for o in m.objects:
+            t_s = scene_s(o.stamp_utc_ns)  # each room track at its own last fused instant
             d = {n: float(np.linalg.norm(np.array(o.position_m) - tr.position(t_s)))
                  for n, tr in balls.items() if tr.present(t_s)}  # fmt: skip
             near = min(d, key=d.__getitem__) if d else None
@@ -152,7 +139,7 @@ def test_one_id_per_ball_across_three_rendered_rigs(
                 confirmed[near].add(o.track_id)
                 if near == "walker":
                     walker_x.setdefault(o.track_id, []).append(float(balls[near].position(t_s)[0]))
-                    walker_err["fused"][m.stamp_utc_ns] = d[near]
+                    walker_err["fused"][o.stamp_utc_ns] = d[near]
     assert all(len(v) == 1 for v in confirmed.values()), confirmed
     (xs,) = walker_x.values()
     # a alone sees x < 0.9 m, b alone x > 1.75 m (3 m ahead; see THREE_RIGS).
@@ -201,13 +188,11 @@ def test_a_replay_whose_clock_is_40_ms_ahead_is_found_and_corrected(
     """Rig b's views replayed with its first frame stamped 40 ms later than rig a's first
     (``--utc-start``), though both were captured at once: the fusion node finds b 40 ms
     ahead (within 8 ms), flags it and corrects b's stamps by it; over the last second the
-    room's balls are within 2 cm of the truth at each room message's instant."""
+    room's balls are within 2 cm of the truth at each room track's own instant."""
     scene, rigs, folder = crossing
-    endpoint = free_endpoint()
-    router = start_router(endpoint)
-    procs: list[subprocess.Popen] = []
     messages: list[ObjectsMessage] = []
-    try:
+    with fuse_procs() as run:
+        endpoint = run.endpoint
         with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as session:
             session.declare_subscriber(
                 "stereod/rooms/lab/objects",
@@ -220,7 +205,8 @@ def test_a_replay_whose_clock_is_40_ms_ahead_is_found_and_corrected(
                        folder / f"{r.name}.jsonl")
                 for r in rigs
             ]  # fmt: skip
-            procs += players
+            for p in players:
+                run.add(p)
             deadline = time.monotonic() + 120  # a guard against a hang, not a measurement
             alive: set[str] = set()
             while len(alive) < len(rigs) and time.monotonic() < deadline:
@@ -228,23 +214,12 @@ def test_a_replay_whose_clock_is_40_ms_ahead_is_found_and_corrected(
                 alive = {str(r.ok.key_expr).split("/")[1] for r in tokens if r.ok}
                 time.sleep(0.1)
             assert alive == {r.name for r in rigs}, alive
-            fuse = start_stereod(
-                "fuse", "--room", str(folder / "room.toml"), "--connect", endpoint, "--mode",
-                "client",
-            )  # fmt: skip
-            procs.append(fuse)
+            run.start_fuse(folder / "room.toml")
             for p in players:
                 _, err = p.communicate(timeout=300)
                 assert p.returncode == 0, err
             replies = list(session.get("stereod/rooms/lab/stats", timeout=10))
             status = FuseStatus.model_validate_json(replies[0].ok.payload.to_bytes())
-    finally:
-        for p in reversed(procs):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                p.communicate(timeout=30)
-        router.terminate()
-        router.communicate(timeout=30)
     # The node ran, heard both rigs and judged b's clock. Its estimate rests on which rigs'
     # messages it fused together, which a loaded host changes from run to run; the estimate
     # itself is judged on the same rig messages fused in stamp order, each instant once every
@@ -275,8 +250,8 @@ def test_a_replay_whose_clock_is_40_ms_ahead_is_found_and_corrected(
     for m in messages:
         if m.stamp_utc_ns < end - 1_000_000_000:
             continue
-        truth = scene.truth(first + (m.stamp_utc_ns - utc_start))
         for o in m.objects:
+            truth = scene.truth(first + (o.stamp_utc_ns - utc_start))
             if o.state.value == "confirmed":
                 d = [float(np.linalg.norm(np.array(o.position_m) - p)) for p, _ in truth.values()]
                 errors.append(min(d))

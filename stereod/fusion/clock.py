@@ -1,16 +1,19 @@
 """Each rig's clock offset, estimated from the objects several rigs see at once.
 
-A rig whose clock reads ``d`` seconds ahead stamps a measurement made at ``t`` with ``t + d``;
-predicted to the fusion instant from there, its position lags the object's by ``v d`` (``v``
-its velocity). So for a moving object two rigs see, the difference of their positions along
-the velocity is rig ``r``'s clock minus rig ``a``'s. Weighted by what each observation can say
-(the difference's covariance ``S = P_r + P_a``), each observation gives
-``d = -v^T S^-1 e / v^T S^-1 v`` (``e = x_r - x_a``) with weight ``v^T S^-1 v``; the offset is
-the weighted mean of the last observations within three robust sigmas of their weighted median
-(a plain mean would follow a rig's stray track), chained from the
-room file's first rig (the reference, offset 0) through rigs that share objects with one
-already known. Only objects faster than ``min_speed_mps`` count: a slow one says nothing of
-time.
+A rig whose clock reads ``d`` seconds ahead stamps a measurement made at ``t`` with ``t + d``.
+So for a moving object two rigs see, rig ``r``'s position at its stamp ``s`` lies behind rig
+``a``'s position at ``a``'s stamp ``s`` by ``v d`` (``v`` its velocity): the difference along
+the velocity is rig ``r``'s clock minus rig ``a``'s. Rig ``a``'s position at ``s`` is
+interpolated between its two measurements whose stamps bracket ``s``, so an observation rests
+on capture stamps and measured positions only, never on when messages arrived nor on a
+prediction: it is made once ``a``'s measurements on both sides of ``s`` are in, whatever the
+order they came in. Weighted by what each observation can say (the difference's covariance
+``S = P_r + P_a``), each gives ``d = -v^T S^-1 e / v^T S^-1 v`` (``e = x_r - x_a(s)``) with
+weight ``v^T S^-1 v``; the offset is the weighted mean of the last observations within three
+robust sigmas of their weighted median (a plain mean would follow a rig's stray track),
+chained from the room file's first rig (the reference, offset 0) through rigs that share
+objects with one already known. Only objects faster than ``min_speed_mps`` count: a slow one
+says nothing of time.
 
 Correction: a rig's offset is trusted once it rests on at least :data:`TRUSTED_SAMPLES` shared
 observations and its standard error (the kept observations' weighted spread over the square
@@ -25,7 +28,7 @@ corrected or not.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,6 +43,23 @@ spread)."""
 CONFIDENT_SIGMA_MS = 5.0
 """A rig's offset whose standard error is within this (a quarter of the default 20 ms bound)
 corrects its stamps, ms."""
+
+
+BRACKET_NS = 150_000_000
+"""Rig ``a``'s two measurements around a stamp are interpolated only when this close, ns (a few
+frames: across a longer gap an object may have turned)."""
+HISTORY = 12
+"""Measurements kept per rig and room track (0.4 s at 30 Hz), to interpolate between."""
+
+
+@dataclass
+class _Shared:
+    """One room track's measurements by each rig that shares it: (the rig's own stamp ns,
+    uncorrected; position m; covariance m^2), oldest first, and per rig the measurements not
+    yet observed against the anchor rig."""
+
+    seen: dict[str, deque[tuple[int, np.ndarray, np.ndarray]]] = field(default_factory=dict)
+    waiting: dict[str, list[tuple[int, np.ndarray, np.ndarray]]] = field(default_factory=dict)
 
 
 def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
@@ -84,6 +104,8 @@ class ClockWatch:
         self._samples: dict[str, deque[tuple[float, float]]] = {
             r: deque(maxlen=window) for r in rigs
         }
+        self._shared: dict[int, _Shared] = {}
+        """Per room id, the rigs' measurements of it (what observations are made from)."""
         """Per rig, each observation's offset estimate (ms) and its weight v^T S^-1 v
         (s^-2)."""
 
@@ -101,39 +123,33 @@ class ClockWatch:
             for r in rigs
         }  # fmt: skip
         self.rigs = rigs
+        self._shared = {}  # measurements made in the poses before
 
     def observe(self, frame: FusedFrame) -> None:
-        """Take the shared observations of one fusion step (its room tracks' rig tracks,
-        predicted to the step's instant, their stamps corrected by :attr:`corrections_ns`),
-        then update the corrections."""
-        applied = {r: c * 1e-6 for r, c in self.corrections_ns.items()}
+        """Take the shared measurements of one fusion step (each at its own stamp, corrected
+        by :attr:`corrections_ns`), make every observation they complete, then update the
+        corrections."""
+        for rid in frame.ended:
+            self._shared.pop(rid, None)
+        velocity = {t.room_id: t.velocity for t in frame.tracks}
         touched: set[str] = set()
-        for track in frame.tracks:
-            ms = frame.shared.get(track.room_id, [])
-            if len(ms) < 2:
-                continue
-            v = track.velocity
-            speed2 = float(v @ v)
-            if speed2 < self.min_speed_mps**2:
-                continue
-            by_rig = {rig: (p, pc) for rig, p, pc in ms}
-            known = {r: self._median(r) for r in by_rig}
-            anchor = next((r for r in self.rigs if r in by_rig and known[r] is not None), None)
-            if anchor is None:
-                anchor = next(r for r in self.rigs if r in by_rig)
-                if anchor != self.rigs[0]:
-                    continue
-            base_ms = known[anchor] or 0.0
-            ref_p, ref_c = by_rig[anchor]
-            for rig, (p, pc) in by_rig.items():
-                if rig == anchor:
-                    continue
-                s_inv_v = np.linalg.solve(pc + ref_c, v)
-                weight = float(v @ s_inv_v)
-                d_ms = -float((p - ref_p) @ s_inv_v) / weight * 1e3
-                total = base_ms + d_ms + applied.get(rig, 0.0) - applied.get(anchor, 0.0)
-                self._samples[rig].append((total, weight))
-                touched.add(rig)
+        for rid, ms in frame.shared.items():
+            sh = self._shared.setdefault(rid, _Shared())
+            for rig, stamp, p, pc in ms:
+                # The rig's own stamp, the correction in force taken off again: the pairs
+                # observed are then the same whenever the correction came in.
+                raw = stamp + self.corrections_ns.get(rig, 0)
+                hist = sh.seen.setdefault(rig, deque(maxlen=HISTORY))
+                if hist and hist[-1][0] >= raw:
+                    continue  # this measurement is in already (a step of another rig)
+                entry = (raw, p, pc)
+                hist.append(entry)
+                sh.waiting.setdefault(rig, []).append(entry)
+            v = velocity.get(rid)
+            if v is not None and float(v @ v) >= self.min_speed_mps**2:
+                touched |= self._observe(sh, v)
+            else:
+                sh.waiting.clear()
         if self.correct:
             for rig in touched:
                 offset, sigma = self._mean(rig)
@@ -144,6 +160,44 @@ class ClockWatch:
                     and len(self._samples[rig]) >= TRUSTED_SAMPLES
                 ):
                     self.corrections_ns[rig] = round(offset * 1e6)
+
+    def _observe(self, sh: _Shared, v: np.ndarray) -> set[str]:
+        """Every waiting measurement of one room track that the anchor rig's (the first rig
+        with a known offset among those that measured it) now brackets, observed against
+        the anchor's interpolated at its stamp; returns the rigs observed."""
+        known = {r: self._median(r) for r in sh.seen}
+        anchor = next((r for r in self.rigs if r in sh.seen and known[r] is not None), None)
+        if anchor is None:
+            return set()
+        base_ms = known[anchor] or 0.0
+        ref = sh.seen[anchor]
+        stamps = np.array([e[0] for e in ref], dtype=np.int64)
+        done: set[str] = set()
+        for rig, waiting in sh.waiting.items():
+            if rig == anchor:
+                continue
+            keep = []
+            for stamp, p, pc in waiting:
+                k = int(np.searchsorted(stamps, stamp))
+                if k >= len(stamps):
+                    keep.append((stamp, p, pc))  # a's measurement after it: not yet
+                    continue
+                if k == 0 and stamps[0] != stamp:
+                    continue  # before a's first kept measurement: never bracketed
+                s0, p0, c0 = ref[max(k - 1, 0)]
+                s1, p1, c1 = ref[k]
+                if s1 - s0 > BRACKET_NS:
+                    continue
+                w = 0.0 if s1 == s0 else (stamp - s0) / (s1 - s0)
+                pa, ca = (1 - w) * p0 + w * p1, (1 - w) * c0 + w * c1
+                s_inv_v = np.linalg.solve(pc + ca, v)
+                weight = float(v @ s_inv_v)
+                d_ms = -float((p - pa) @ s_inv_v) / weight * 1e3
+                self._samples[rig].append((base_ms + d_ms, weight))
+                done.add(rig)
+            sh.waiting[rig] = keep
+        sh.waiting[anchor] = []
+        return done
 
     def _median(self, rig: str) -> float | None:
         return self._mean(rig)[0]

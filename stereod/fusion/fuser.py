@@ -48,6 +48,9 @@ class FuseParams:
     """A rig silent this long (by its stamps against the fusion instant) loses its tracks, s."""
     max_coast_s: float = 2.0
     """A room track no rig sees for this long ends, s."""
+    birth_s: float = 0.5
+    """A rig track within the gate of a room track that it cannot join (that room track has
+    its rig's track already) opens a room track of its own once seen this long, s."""
 
 
 @dataclass
@@ -80,10 +83,11 @@ class FusedFrame:
     t_ns: int
     tracks: list[RoomTrack]
     ended: list[int]
-    shared: dict[int, list[tuple[str, np.ndarray, np.ndarray]]] = field(default_factory=dict)
-    """For each room id that more than one rig sees: each rig's name, position (m) and
-    position covariance (m^2) at ``t_ns`` in the room frame (what clock offsets are
-    estimated from)."""
+    shared: dict[int, list[tuple[str, int, np.ndarray, np.ndarray]]] = field(default_factory=dict)
+    """For each room id fused at this step that more than one rig sees: each rig's name and
+    its track's own stamp (UTC ns, as corrected), position (m) and position covariance (m^2)
+    there, in the room frame, not predicted (what clock offsets are estimated from: capture
+    stamps only)."""
 
 
 def fuse_gaussians(
@@ -153,20 +157,21 @@ class _Rows:
         self.index = {k: i for i, k in enumerate(self.keys)}
         n = len(self.keys)
         if n:
-            stamps = np.concatenate([b.stamps_ns for b in batches])
+            self.stamps = np.concatenate([b.stamps_ns for b in batches])
+            self.raw_position = np.concatenate([b.position for b in batches])
+            self.raw_cov = np.concatenate([b.position_cov for b in batches])
             p, pc, v, vc = predict_many(
-                np.concatenate([b.position for b in batches]),
-                np.concatenate([b.position_cov for b in batches]),
+                self.raw_position,
+                self.raw_cov,
                 np.concatenate([b.velocity for b in batches]),
                 np.concatenate([b.velocity_cov for b in batches]),
-                (t_ns - stamps) * 1e-9,
+                (t_ns - self.stamps) * 1e-9,
             )
         else:
             p, v = np.zeros((0, 3)), np.zeros((0, 3))
             pc, vc = np.zeros((0, 3, 3)), np.zeros((0, 3, 3))
+            self.stamps, self.raw_position, self.raw_cov = np.zeros(0, dtype=np.int64), p, pc
         self.position, self.position_cov, self.velocity, self.velocity_cov = p, pc, v, vc
-        self.info = np.linalg.inv(pc) if n else pc
-        self.info_mean = np.einsum("nij,nj->ni", self.info, p)
 
         def stack(name: str, empty: np.ndarray) -> np.ndarray:
             return np.concatenate([getattr(b, name) for b in batches]) if n else empty
@@ -194,6 +199,8 @@ class Fuser:
         self._rig_last_ns: dict[str, int] = {}
         self._rig_seq: dict[str, int] = {}
         self._links: dict[tuple[str, int], int] = {}
+        self._since: dict[tuple[str, int], int] = {}
+        """Rig tracks waiting to open a room track (``birth_s``): when first seen waiting, ns."""
         self._tracks: dict[int, RoomTrack] = {}
         self._next_id = 1
         self.restarts: dict[str, int] = {}
@@ -253,13 +260,17 @@ class Fuser:
         self._batches[msg.rig] = batch_to_room(msg, pose[0], pose[1])
         return True
 
-    def _forget_rig(self, rig: str) -> None:
+    def _forget_rig(self, rig: str) -> set[int]:
+        """Drop ``rig``'s tracks and links; returns the room tracks that lost a member."""
         self._batches.pop(rig, None)
+        lost = set()
         for key in [k for k in self._links if k[0] == rig]:
             room_id = self._links.pop(key)
             track = self._tracks.get(room_id)
             if track is not None:
                 track.members.pop(rig, None)
+                lost.add(room_id)
+        return lost
 
     def live_rigs(self, t_ns: int) -> list[str]:
         """The rigs heard from within ``rig_timeout_s`` of ``t_ns``, in the room file's order."""
@@ -283,33 +294,63 @@ class Fuser:
         """The newest stamp of any rig's message (UTC ns), or None before the first."""
         return max(self._rig_last_ns.values(), default=None)
 
-    def fuse(self, t_ns: int) -> FusedFrame:
+    def fuse(self, t_ns: int, rigs: list[str] | None = None) -> FusedFrame:
         """The room at the UTC instant ``t_ns`` (ns): every rig track predicted there,
-        associated, fused; room tracks no rig has seen for ``max_coast_s`` end."""
+        associated, fused; room tracks no rig has seen for ``max_coast_s`` end.
+
+        With ``rigs`` (event-driven: the rigs whose messages just came in, ``t_ns`` their
+        stamp), only those rigs' tracks are associated, and only the room tracks they have a
+        member in (or that just lost one, or have none: coasting) are fused at ``t_ns`` and
+        returned: the others keep their last state and stamp. A step then costs one message's
+        tracks, not the room's."""
         live = self.live_rigs(t_ns)
+        lost: set[int] = set()
         for rig in [r for r in self._batches if r not in live]:
-            self._forget_rig(rig)
+            lost |= self._forget_rig(rig)
         rows = _Rows([self._batches[r] for r in live if r in self._batches], t_ns)
+        for key in [k for k in self._since if k not in rows.index or k in self._links]:
+            del self._since[key]
         for key in [k for k in self._links if k not in rows.index]:
-            track = self._tracks.get(self._links.pop(key))
+            rid = self._links.pop(key)
+            track = self._tracks.get(rid)
             if track is not None and track.members.get(key[0]) == key[1]:
                 del track.members[key[0]]
+                lost.add(rid)
         members: dict[int, list[int]] = {rid: [] for rid in self._tracks}
         for key, rid in self._links.items():
             members[rid].append(rows.index[key])
-        estimate = self._estimates(rows, members, t_ns)
-        for rig in live:
-            self._associate(rig, rows, members, estimate, t_ns)
-        ended = self._update(rows, members, t_ns)
+        assoc = live if rigs is None else [r for r in live if r in rigs]
+        if any(rows.keys[i] not in self._links for r in assoc for i in rows.span.get(r, ())):
+            estimate = self._estimates(rows, members, t_ns)
+            for rig in assoc:
+                self._associate(rig, rows, members, estimate, t_ns)
+        if rigs is None:
+            touched = set(self._tracks)
+        else:
+            # Those tracks, those that just lost a member, and those with none (coasting: a
+            # step predicts them on, as a full step does, so that they gate as they would).
+            touched = {rid for rid in lost if rid in self._tracks}
+            touched.update(rid for rid, tr in self._tracks.items() if not tr.members)
+            for rig in assoc:
+                for i in rows.span.get(rig, ()):
+                    linked = self._links.get(rows.keys[i])
+                    if linked is not None:
+                        touched.add(linked)
+        ended = self._update(rows, members, t_ns, touched)
+        raw = (rows.stamps.tolist(), rows.raw_position, rows.raw_cov)
         shared = {
-            rid: [(rows.keys[i][0], rows.position[i], rows.position_cov[i]) for i in ms]
+            rid: [(rows.keys[i][0], raw[0][i], raw[1][i], raw[2][i]) for i in ms]
             for rid, ms in members.items()
-            if len(ms) >= 2 and rid in self._tracks
+            if len(ms) >= 2 and rid in self._tracks and rid in touched
         }
         # Copies: the caller may keep a frame while the next steps change the tracks (whose
         # arrays are replaced, never written into).
-        tracks = [_snapshot(tr) for _, tr in sorted(self._tracks.items())]
+        tracks = [_snapshot(self._tracks[rid]) for rid in sorted(touched) if rid in self._tracks]
         return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, shared=shared)
+
+    def tracks(self) -> list[RoomTrack]:
+        """Every room track now, each at its own last stamp (copies), by id."""
+        return [_snapshot(tr) for _, tr in sorted(self._tracks.items())]
 
     def _estimates(
         self, rows: _Rows, members: dict[int, list[int]], t_ns: int
@@ -323,7 +364,9 @@ class Fuser:
         group = np.full(len(rows.keys), -1, dtype=np.int64)
         for rid, ms in members.items():
             group[ms] = slot[rid]
-        count, mean, cov = _group_fusion(group, len(rids), rows.info, rows.info_mean)
+        info = np.linalg.inv(rows.position_cov) if len(rows.keys) else rows.position_cov
+        info_mean = np.einsum("nij,nj->ni", info, rows.position)
+        count, mean, cov = _group_fusion(group, len(rids), info, info_mean)
         alone = [rid for rid in rids if count[slot[rid]] == 0]
         if alone:
             trs = [self._tracks[rid] for rid in alone]
@@ -346,29 +389,91 @@ class Fuser:
         estimate: dict[int, tuple[np.ndarray, np.ndarray]],
         t_ns: int,
     ) -> None:
-        """Link ``rig``'s unlinked tracks to room tracks that have no track of ``rig`` yet (one
-        gated assignment); a seen track left over opens a room track."""
+        """Link ``rig``'s unlinked tracks to room tracks that have no track of ``rig`` yet, or
+        only one it no longer sees (coasting: a seen track of that rig there replaces it, so
+        that a rig's new track of an object joins its room track instead of opening a second
+        id beside it), in one gated assignment; a seen track left over opens a room track."""
         free = [i for i in rows.span.get(rig, ()) if rows.keys[i] not in self._links]
         if not free:
             return
-        candidates = [
-            rid for rid in sorted(members) if all(rows.keys[i][0] != rig for i in members[rid])
-        ]
+        candidates: list[int] = []
+        stale: dict[int, int] = {}
+        """Room track -> its member row of ``rig`` that ``rig`` does not see now."""
+        for rid in sorted(members):
+            mine = [i for i in members[rid] if rows.keys[i][0] == rig]
+            if not mine:
+                candidates.append(rid)
+            elif not rows.seen[mine[0]]:
+                candidates.append(rid)
+                stale[rid] = mine[0]
         matched: set[int] = set()
         if candidates:
-            d = rows.position[free][:, None, :] - np.array([estimate[r][0] for r in candidates])
-            s = rows.position_cov[free][:, None] + np.array([estimate[r][1] for r in candidates])
+            means, covs = [], []
+            for r in candidates:
+                others = [i for i in members[r] if i != stale.get(r)]
+                if r in stale and others:
+                    m, c = fuse_gaussians(
+                        [rows.position[i] for i in others], [rows.position_cov[i] for i in others]
+                    )
+                else:
+                    m, c = estimate[r]
+                means.append(m)
+                covs.append(c)
+            d = rows.position[free][:, None, :] - np.array(means)
+            s = rows.position_cov[free][:, None] + np.array(covs)
             d2 = np.einsum("nmi,nmi->nm", d, np.linalg.solve(s, d[..., None])[..., 0])
             cost = np.where(d2 <= self.params.gate_chi2, d2, _FORBIDDEN)
+            # Only a seen track replaces a coasting one.
+            replaceable = np.array([r in stale for r in candidates])
+            cost[np.ix_(~rows.seen[free], replaceable)] = _FORBIDDEN
             for i, j in zip(*min_cost_assignment(cost), strict=True):
                 if cost[i, j] < _FORBIDDEN:
-                    self._link(rows, free[i], candidates[j], members, estimate)
+                    rid = candidates[j]
+                    if rid in stale:
+                        self._unlink(rows, stale[rid], rid, members)
+                    self._link(rows, free[i], rid, members, estimate)
                     matched.add(int(i))
-        for i, row in enumerate(free):
-            if i not in matched and rows.seen[row]:
-                rid = self._open(rows, row, t_ns)
-                members[rid] = []
-                self._link(rows, row, rid, members, estimate)
+        left = [row for i, row in enumerate(free) if i not in matched and rows.seen[row]]
+        for row in self._born(rows, left, estimate, t_ns):
+            rid = self._open(rows, row, t_ns)
+            members[rid] = []
+            self._link(rows, row, rid, members, estimate)
+
+    def _born(
+        self,
+        rows: _Rows,
+        left: list[int],
+        estimate: dict[int, tuple[np.ndarray, np.ndarray]],
+        t_ns: int,
+    ) -> list[int]:
+        """Of the seen rig tracks no room track took, those that open one now: any not within
+        the gate of a room track, and one within it (it contradicts a room track that has its
+        rig's track already: a split blob, a stray) once it has been seen for ``birth_s``, so
+        that a short-lived stray opens no second id beside the object's."""
+        if not left or not estimate:
+            return left
+        rids = list(estimate)
+        d = rows.position[left][:, None, :] - np.array([estimate[r][0] for r in rids])
+        s = rows.position_cov[left][:, None] + np.array([estimate[r][1] for r in rids])
+        d2 = np.einsum("nmi,nmi->nm", d, np.linalg.solve(s, d[..., None])[..., 0])
+        near = (d2 <= self.params.gate_chi2).any(axis=1)
+        born = []
+        for row, contradicts in zip(left, near.tolist(), strict=True):
+            if not contradicts:
+                born.append(row)
+                continue
+            since = self._since.setdefault(rows.keys[row], t_ns)
+            if t_ns - since >= self.params.birth_s * 1e9:
+                born.append(row)
+        return born
+
+    def _unlink(self, rows: _Rows, row: int, room_id: int, members: dict[int, list[int]]) -> None:
+        """Take rig track ``row`` out of room track ``room_id`` (another of its rig replaces
+        it); it stays free, and opens nothing while its rig does not see it."""
+        rig, _ = key = rows.keys[row]
+        self._links.pop(key, None)
+        self._tracks[room_id].members.pop(rig, None)
+        members[room_id].remove(row)
 
     def _link(
         self,
@@ -402,24 +507,24 @@ class Fuser:
         )
         return rid
 
-    def _update(self, rows: _Rows, members: dict[int, list[int]], t_ns: int) -> list[int]:
-        """Fuse each room track's members at ``t_ns`` (every track in one array operation);
-        coast those with none; end the ones unseen for ``max_coast_s``. Returns the ended
-        ids."""
-        rids = sorted(self._tracks)
+    def _update(
+        self, rows: _Rows, members: dict[int, list[int]], t_ns: int, touched: set[int]
+    ) -> list[int]:
+        """Fuse each ``touched`` room track's members at ``t_ns`` (every track in one array
+        operation); coast those with none; end any unseen for ``max_coast_s``. Returns the
+        ended ids."""
+        rids = sorted(touched)
         slot = {rid: k for k, rid in enumerate(rids)}
-        group = np.full(len(rows.keys), -1, dtype=np.int64)
-        for rid, ms in members.items():
-            if rid in slot:
-                group[ms] = slot[rid]
+        # The member rows of the touched tracks only (a rig's message touches a few).
+        idx = np.array([i for rid in rids for i in members[rid]], dtype=np.int64)
+        g = np.array([slot[rid] for rid in rids for _ in members[rid]], dtype=np.int64)
         k = len(rids)
-        count, pos, pcov = _group_fusion(group, k, rows.info, rows.info_mean)
-        if len(rows.keys):
-            vinfo = np.linalg.inv(rows.velocity_cov)
-            vmean = np.einsum("nij,nj->ni", vinfo, rows.velocity)
-        else:
-            vinfo, vmean = rows.velocity_cov, rows.velocity
-        _, vel, vcov = _group_fusion(group, k, vinfo, vmean)
+        pinfo = np.linalg.inv(rows.position_cov[idx]) if idx.size else np.zeros((0, 3, 3))
+        pmean = np.einsum("nij,nj->ni", pinfo, rows.position[idx])
+        count, pos, pcov = _group_fusion(g, k, pinfo, pmean)
+        vinfo = np.linalg.inv(rows.velocity_cov[idx]) if idx.size else np.zeros((0, 3, 3))
+        vmean = np.einsum("nij,nj->ni", vinfo, rows.velocity[idx])
+        _, vel, vcov = _group_fusion(g, k, vinfo, vmean)
         coasting = [rid for rid in rids if count[slot[rid]] == 0]
         if coasting:
             trs = [self._tracks[rid] for rid in coasting]
@@ -433,13 +538,11 @@ class Fuser:
             for j, rid in enumerate(coasting):
                 s = slot[rid]
                 pos[s], pcov[s], vel[s], vcov[s] = p[j], pc[j], v[j], vc[j]
+
         # Per room track, from its members' rows at once: any seen, all seen ones stationary,
         # any velocity (heading) valid, and the member with the smallest position variance.
-        ok = group >= 0
-        g = group[ok]
-
         def anyof(flags: np.ndarray) -> np.ndarray:
-            return np.bincount(g, weights=flags[ok].astype(np.float64), minlength=k) > 0
+            return np.bincount(g, weights=flags[idx].astype(np.float64), minlength=k) > 0
 
         seen = anyof(rows.seen)
         moving = anyof(rows.seen & ~rows.stationary)
@@ -447,7 +550,6 @@ class Fuser:
         hvalid = anyof(rows.heading_valid)
         best = np.full(k, -1, dtype=np.int64)
         if g.size:
-            idx = np.flatnonzero(ok)
             trace = np.trace(rows.position_cov[idx], axis1=1, axis2=2)
             order = np.lexsort((trace, g))
             first = np.ones(order.size, dtype=bool)
@@ -455,6 +557,9 @@ class Fuser:
             best[g[order][first]] = idx[order][first]
         ended: list[int] = []
         coast_ns = int(self.params.max_coast_s * 1e9)
+        for rid, tr in list(self._tracks.items()):
+            if rid not in touched and t_ns - tr.last_seen_ns > coast_ns:
+                ended.append(self._end(rid))
         for rid in rids:
             tr, s = self._tracks[rid], slot[rid]
             tr.position, tr.position_cov, tr.velocity, tr.velocity_cov = (
@@ -472,8 +577,12 @@ class Fuser:
                 tr.state = TrackLifecycle.COASTING
             tr.stamp_utc_ns = t_ns
             if t_ns - tr.last_seen_ns > coast_ns:
-                ended.append(rid)
-                del self._tracks[rid]
-                for rig, tid in tr.members.items():
-                    self._links.pop((rig, tid), None)
+                ended.append(self._end(rid))
         return ended
+
+    def _end(self, rid: int) -> int:
+        """End room track ``rid`` and drop its links; returns ``rid``."""
+        tr = self._tracks.pop(rid)
+        for rig, tid in tr.members.items():
+            self._links.pop((rig, tid), None)
+        return rid

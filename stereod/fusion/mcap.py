@@ -79,5 +79,13 @@ class RoomMcapWriter(McapRunWriter):
 
     def __init__(self, out: Path, room: Room) -> None:
         super().__init__(out, rig=room.name, baseline_m=1.0)
-        self.ros = RoomRosMessages(room)
+        self.room_ros = RoomRosMessages(room)
+        self.ros = self.room_ros
         self.names = self.ros.names
+
+    def set_room(self, room: Room) -> None:
+        """A room file read again: ``/tf_static`` is written anew, with the rigs' new poses,
+        before the next objects (a latched topic: its latest message is the tree)."""
+        with self._lock:
+            self.room_ros.room = room
+            self._static_done = False

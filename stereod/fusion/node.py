@@ -1,0 +1,341 @@
+"""The fusion node's threads around one :class:`~stereod.fusion.fuser.Fuser` (``stereod fuse``).
+
+Event-driven: a receiving thread only queues what arrives; one fusion thread takes everything
+waiting, parses each rig's newest message and fuses those rigs' tracks at once at the newest
+stamp (``Fuser.fuse(t, rigs)``): only the room tracks they touch are fused and written again.
+Those tracks go out at once on their own keys (``objects/<id>``), so that a rig message's added
+latency is one message's work, not a step period; the room's whole message (``objects``,
+every track's latest state, each at its own stamp) goes out at most ``max_rate_hz`` times a
+second, its objects' JSON kept per id between messages. Under load a step takes every message
+waiting, so steps merge messages rather than fall behind. With no message for a while it steps
+on by the time passed since the last one, so that rigs that all stopped end their tracks.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+
+import numpy as np
+import zenoh
+
+from stereod.bus import keys
+from stereod.bus.messages import OBJECT_SCHEMA, ObjectsMessage, encoding_for
+from stereod.bus.publish import Publisher
+from stereod.files.output_file import AtomicOutput
+from stereod.fusion.clock import ClockWatch
+from stereod.fusion.fuser import Fuser
+from stereod.fusion.mcap import RoomMcapWriter
+from stereod.fusion.output import join_room, object_payloads
+from stereod.fusion.room import Room
+from stereod.fusion.status import FuseStatus, RigLink
+from stereod.vision.geometry import Geometry
+
+log = logging.getLogger("stereod.fuse")
+
+IDLE_STEP_S = 0.1
+"""With no message for this long, the fusion steps on by the time passed (s)."""
+QUEUE_SIZE = 4096
+"""Rig messages waiting for the fusion thread; beyond, the newest are dropped and counted."""
+WINDOW = 1000
+"""Steps whose timings make the status's percentiles."""
+MAX_RATE_HZ = 30.0
+"""Room messages per second at most, by default (each object's own key is updated at once)."""
+
+
+class RoomPublisher(Publisher):
+    """A :class:`Publisher` that can also update some tracks' own keys without the room's
+    whole message (a rig message touches a few of the room's tracks)."""
+
+    def tracks(self, tracks: list[tuple[int, bytes]], ended: list[int]) -> None:
+        """Put each (track id, object JSON) on ``objects/<id>`` and a DELETE per ended id."""
+        with self._lock:
+            try:
+                for tid, body in tracks:
+                    pub = self._tracks.get(tid)
+                    if pub is None:
+                        assert self._session is not None
+                        pub = self._tracks[tid] = self._session.declare_publisher(
+                            keys.track(self.rig, tid, prefix=self.prefix),
+                            encoding=zenoh.Encoding(encoding_for(OBJECT_SCHEMA)),
+                            congestion_control=zenoh.CongestionControl.DROP,
+                        )
+                    pub.put(body)
+                for tid in ended:
+                    self._end_track(tid)
+            except zenoh.ZError as exc:
+                self.errors += 1
+                log.warning("publish failed: %s", exc)
+
+
+class FuseNode:
+    """The fusion node's threads and counters around one :class:`Fuser`."""
+
+    def __init__(
+        self,
+        room: Room,
+        fuser: Fuser,
+        clock: ClockWatch,
+        publisher: RoomPublisher,
+        jsonl: AtomicOutput | None,
+        prefix: str,
+        mcap: RoomMcapWriter | None = None,
+        max_rate_hz: float = MAX_RATE_HZ,
+    ) -> None:
+        self.room = room
+        self.fuser = fuser
+        self.clock = clock
+        self.pub = publisher
+        self.jsonl = jsonl
+        self.mcap = mcap
+        self.min_period_s = 1.0 / max_rate_hz
+        self.inbox: deque[tuple[float, str, bytes]] = deque()
+        self.wake = threading.Event()
+        self.waiting = False
+        self.prefix = prefix
+        self.done = threading.Event()
+        self.error: BaseException | None = None
+        self.lock = threading.Lock()
+        self.start = time.monotonic()
+        self.received = {r.name: 0 for r in room.rigs}
+        self.rejected = 0
+        self.dropped = 0
+        self.steps = 0
+        self.room_messages = 0
+        self.geometry = Geometry.CANONICAL
+        self.fuse_ms: deque[float] = deque(maxlen=WINDOW)
+        self.added_ms: deque[float] = deque(maxlen=WINDOW)
+        self._steps_at = (self.start, 0)
+        self._rig_of: dict[str, str] = {}
+        self._states: dict[int, bytes] = {}
+        """Each live room track's object JSON, as last written (by id)."""
+        self._room_due = False
+        self._room_at = 0.0
+        self._t_ns = 0
+        self.pending_room: Room | None = None
+        """A room file read again, for the fusion thread to take before its next step."""
+        self.reload_problem: str | None = None
+        """Why the last reload was refused (on the status until a reload is taken)."""
+
+    @property
+    def tracks(self) -> int:
+        """Room tracks live now (with a member to describe them)."""
+        return len(self._states)
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        """Zenoh's callback: queue the payload with its arrival time (never blocks the
+        session, parses nothing: under load most messages are superseded by their rig's
+        next one before the fusion thread gets to them). A deque's append takes no lock, and
+        the fusion thread is woken only when it waits, so a message costs the receiving
+        thread a few microseconds of the interpreter."""
+        if len(self.inbox) >= QUEUE_SIZE:
+            with self.lock:
+                self.dropped += 1
+            return
+        self.inbox.append((time.monotonic(), str(sample.key_expr), sample.payload.to_bytes()))
+        if self.waiting:
+            self.wake.set()
+
+    def _drain(self) -> list[tuple[float, str, bytes]]:
+        """Everything queued, waiting for something when empty: up to :data:`IDLE_STEP_S`, or
+        until the room's message is due when one is waiting for its turn."""
+        if not self.inbox:
+            wait = IDLE_STEP_S
+            if self._room_due:
+                wait = max(0.0, min(wait, self._room_at + self.min_period_s - time.monotonic()))
+            self.waiting = True
+            if not self.inbox:  # a sample queued between the test and the flag is seen here
+                self.wake.wait(wait)
+            self.waiting = False
+            self.wake.clear()
+        batch = []
+        while self.inbox:
+            batch.append(self.inbox.popleft())
+        return batch
+
+    def _parse(self, payload: bytes) -> ObjectsMessage | None:
+        """A rig's message, or None (counted) for anything else. pydantic's own JSON parser
+        (Rust) bounds nesting itself, refusing a payload nested too deep as invalid, and
+        parses a message faster than ``json`` alone."""
+        try:
+            msg = ObjectsMessage.model_validate_json(payload)
+        except ValueError:
+            with self.lock:
+                self.rejected += 1
+            return None
+        return msg if self.fuser.knows(msg.rig) else None
+
+    def loop(self) -> None:
+        """The fusion thread: until :attr:`done`, drain the queue, ingest each rig's newest
+        message (a rig's message replaces its previous tracks), fuse those rigs, publish."""
+        last_rx: float | None = None
+        try:
+            while not self.done.is_set():
+                self._take_room()
+                batch = self._drain()
+                newest = {key: payload for _, key, payload in batch}
+                rigs: list[str] = []
+                stamp: int | None = None
+                for payload in newest.values():
+                    msg = self._parse(payload)
+                    if msg is None:
+                        continue
+                    self.fuser.ingest(msg)
+                    self.geometry = msg.geometry
+                    rigs.append(msg.rig)
+                    stamp = max(stamp or 0, self.fuser.rig_stamp(msg.rig) or 0)
+                self._count(batch)
+                latest = self.fuser.latest_ns()
+                if latest is None:
+                    continue
+                if batch:
+                    last_rx = max(rx for rx, _, _ in batch)
+                if stamp is not None:
+                    self._step(stamp, rigs, [rx for rx, _, _ in batch])
+                elif last_rx is not None and time.monotonic() - last_rx >= IDLE_STEP_S:
+                    # idle: step on by the time since the last message, to end tracks
+                    self._step(latest + int((time.monotonic() - last_rx) * 1e9), [], [])
+                if self._room_due and time.monotonic() - self._room_at >= self.min_period_s:
+                    self._publish_room()
+            if self._room_due:  # the last tracks fused, before the node stops
+                self._publish_room()
+        except BaseException as exc:  # a fatal error ends the run with its own line
+            self.error = exc
+            self.done.set()
+
+    def _count(self, batch: list[tuple[float, str, bytes]]) -> None:
+        with self.lock:
+            for _, key, _ in batch:
+                rig = self._rig_of.get(key)
+                if rig is None:
+                    parsed = keys.parse(key, prefix=self.prefix)
+                    rig = self._rig_of[key] = parsed[0] if parsed else ""
+                if rig in self.received:
+                    self.received[rig] += 1
+
+    def room_next(self) -> Room:
+        """The room the next step fuses: one read again and not yet taken, else the running
+        one."""
+        with self.lock:
+            return self.pending_room or self.room
+
+    def _take_room(self) -> None:
+        """Swap in a room file read again (fusion thread, between two steps)."""
+        with self.lock:
+            room, self.pending_room = self.pending_room, None
+        if room is None:
+            return
+        with self.lock:  # the status reads the room, the rigs' clocks and links together
+            changed = self.fuser.set_room(room)
+            self.clock.set_rigs([r.name for r in room.rigs], changed)
+            self.room = room
+            for r in room.rigs:
+                self.received.setdefault(r.name, 0)
+        if self.mcap is not None:
+            self.mcap.set_room(room)
+        log.info(
+            "room file reloaded: %d rigs, %s",
+            len(room.rigs),
+            f"moved or gone: {', '.join(changed)}" if changed else "no rig moved",
+        )
+
+    def _step(self, t_ns: int, rigs: list[str], received: list[float]) -> None:
+        """Fuse ``rigs``' new tracks at ``t_ns`` (UTC ns), publish the room tracks they
+        touched on their own keys and mark the room's message due."""
+        t0 = time.monotonic()
+        frame = self.fuser.fuse(t_ns, rigs)
+        self.clock.observe(frame)
+        self.fuser.clock_corrections_ns = dict(self.clock.corrections_ns)
+        fuse_ms = (time.monotonic() - t0) * 1e3
+        touched = object_payloads(frame.tracks)
+        self._states.update(touched)
+        for rid in frame.ended:
+            self._states.pop(rid, None)
+        self.pub.tracks(touched, frame.ended)
+        done = time.monotonic()
+        self._t_ns = max(self._t_ns, t_ns)
+        self._room_due = self._room_due or bool(touched or frame.ended)
+        with self.lock:
+            self.steps += 1
+            self.fuse_ms.append(fuse_ms)
+            self.added_ms.extend((done - rx) * 1e3 for rx in received)
+
+    def _publish_room(self) -> None:
+        """The room's message: every live track's latest state (each at its own stamp)."""
+        payload = join_room(
+            self.room.name, self.room_messages, self._t_ns, self.geometry,
+            self.fuse_ms[-1] if self.fuse_ms else 0.0, list(self._states.values()),
+        )  # fmt: skip
+        self.pub.objects(payload, [], [])
+        self._room_due, self._room_at = False, time.monotonic()
+        self.room_messages += 1
+        if self.jsonl is not None:
+            self.jsonl.write(payload + b"\n")
+        if self.mcap is not None:
+            msg = ObjectsMessage.model_validate_json(payload)
+            self.mcap.write_objects(msg, raw_json=payload.decode())
+
+    def status(self, state: str = "running") -> FuseStatus:
+        """The node's status now."""
+        now = time.monotonic()
+        latest = self.fuser.latest_ns()
+        live = set(self.fuser.live_rigs(latest)) if latest is not None else set()
+        rigs = {}
+        with self.lock:
+            for r in self.room.rigs:
+                est = self.clock.estimate(r.name)
+                rigs[r.name] = RigLink(
+                    live=r.name in live,
+                    messages=self.received[r.name],
+                    tracks=self.fuser.rig_track_count(r.name),
+                    last_stamp_utc_ns=self.fuser.rig_stamp(r.name),
+                    restarts=self.fuser.restarts.get(r.name, 0),
+                    clock_offset_ms=est.offset_ms,
+                    clock_samples=est.samples,
+                    clock_off=est.off,
+                    clock_sigma_ms=est.sigma_ms,
+                    clock_correction_ms=est.correction_ms,
+                )
+            t_prev, n_prev = self._steps_at
+            rate = (self.steps - n_prev) / max(now - t_prev, 1e-3)
+            self._steps_at = (now, self.steps)
+            fuse = np.asarray(self.fuse_ms) if self.fuse_ms else None
+            added = np.asarray(self.added_ms) if self.added_ms else None
+            steps, tracks, dropped, rejected = self.steps, self.tracks, self.dropped, self.rejected
+        problems = [
+            f"rig {name}'s clock is {link.clock_offset_ms:+.1f} ms off the reference rig "
+            f"{self.room.rigs[0].name}'s (bound {self.clock.bound_ms:g} ms): check its "
+            "chrony or PTP"
+            for name, link in rigs.items()
+            if link.clock_off and link.clock_offset_ms is not None
+        ]
+        problems += [f"rig {n}: no message yet" for n, link in rigs.items() if not link.messages]
+        if self.reload_problem is not None:
+            problems.append(self.reload_problem)
+        if dropped:
+            problems.append(f"rig messages dropped, the fusion fell behind: {dropped}")
+        if rejected:
+            problems.append(f"samples on a rig's objects key that were not objects: {rejected}")
+
+        def pct(a: np.ndarray | None, q: float) -> float | None:
+            return None if a is None else float(np.percentile(a, q))
+
+        return FuseStatus(
+            room=self.room.name,
+            state="stopping" if state == "stopping" else "running",
+            stamp_utc_ns=time.time_ns(),
+            uptime_s=now - self.start,
+            rigs=rigs,
+            tracks=tracks,
+            steps=steps,
+            published=self.pub.published,
+            steps_per_s=rate,
+            fuse_ms_p50=pct(fuse, 50),
+            fuse_ms_p99=pct(fuse, 99),
+            added_ms_p50=pct(added, 50),
+            added_ms_p99=pct(added, 99),
+            clock_bound_ms=self.clock.bound_ms,
+            problems=problems,
+        )
