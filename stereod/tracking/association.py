@@ -303,17 +303,21 @@ class Association(TrackFilters):
         indices into ``tracks``) is in front of the others, on which side they join it (True:
         its right, so its left edges are its own), and the largest disparity (px) predicted for
         them (``preds``: each track's predicted centroids); None if none is. In front: the
-        nearest by its filter, nearer than each other one by more than ``merge_depth_m`` (two
-        at about one depth may be either way round), predicted inside the detection in both
-        eyes (``inside`` (2, tracks)), with every other one predicted on one side of it."""
+        nearest by its filter, nearer than each other one by more than ``merge_depth_m`` and
+        three sigmas of their filters' depths (two at about one depth, or one whose depth is
+        a guess, may be either way round), predicted inside the detection in both eyes
+        (``inside`` (2, tracks)), with every other one predicted on one side of it."""
         started = [int(j) for j in hosts if tracks[int(j)].started]
         if len(started) < 2:
             return None
         depth = {j: float(tracks[j].kf.position_m[2]) for j in started}
         front = min(started, key=lambda j: depth[j])
         others = [j for j in started if j != front]
+        sigma = {j: math.sqrt(max(float(tracks[j].kf.P[2, 2]), 0.0)) for j in started}
         if not (inside[0, front] and inside[1, front]) or any(
-            depth[j] - depth[front] <= self.params.merge_depth_m for j in others
+            depth[j] - depth[front]
+            <= max(self.params.merge_depth_m, 3.0 * math.hypot(sigma[j], sigma[front]))
+            for j in others
         ):
             return None
         x = float(preds[front].left[0])

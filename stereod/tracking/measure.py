@@ -130,17 +130,10 @@ def observation(
 ) -> Observation:
     """The tracker's observation of left blob ``i`` and right blob ``j``, matched at the
     rectified centroids ``left_px``, ``right_px`` and triangulated as ``t``; ``exact``: both
-    eyes brought to one instant, ``clipped``: cut by one side of the image. An outline cut by
-    the image's top or bottom (a person taller than the view) whose width differs between the
-    eyes lost or gained a part on one side in one eye: its centroid moved by up to half that,
-    and its depth's sigma is widened by it (:func:`cut_width_sigma_m`)."""
-    cov = t.cov_m2
-    if t.cut and not clipped:
-        cov = cov.copy()
-        cov[2, 2] += cut_width_sigma_m(lb.bbox_px[i], rb.bbox_px[j], t) ** 2
+    eyes brought to one instant, ``clipped``: cut by one side of the image."""
     return Observation(
         position_m=t.position_m,
-        cov_m2=cov,
+        cov_m2=t.cov_m2,
         left_px=left_px,
         right_px=right_px,
         left_image_px=lb.centroid_px[i],
@@ -159,18 +152,6 @@ def observation(
         row_gap_px=t.row_gap_px,
         extent_m=t.extent_m,
     )
-
-
-def cut_width_sigma_m(
-    left_bbox_px: np.ndarray, right_bbox_px: np.ndarray, t: Triangulated
-) -> float:
-    """The depth sigma (m) that a difference of the two eyes' outline widths (px, beyond the
-    pixel that rounding gives) says: one eye's centroid moved by up to half of it, and the
-    disparity with it (eq. 12: Z / d per pixel of disparity); 0 without a positive disparity."""
-    gap = abs(float(left_bbox_px[2]) - float(right_bbox_px[2])) - 1.0
-    if gap <= 0 or t.disparity_px <= 0:
-        return 0.0
-    return float(t.position_m[2]) / t.disparity_px * 0.5 * gap
 
 
 def by_edge(ob: Observation, joined_right: bool, behind_px: float) -> Observation:
