@@ -49,12 +49,24 @@ def test_two_people_crossing_keep_one_id_each() -> None:
     """Two people cross at 2.2 m and 3 m: for about 0.7 s each eye sees one blob of the two,
     longer than ``max_coast_s``. The far one, hidden behind the near one, coasts through it on
     ``max_hidden_s`` and comes out with the id it went in with (two ids before); no person
-    has two."""
+    has two. The near one, taller than the view, is whole for three frames before the blobs
+    join, too few for a velocity. In the joined blob they are in front, whole, the far one
+    joining them on one side: read by their outline's other side they stay seen, and when the
+    blobs part their track takes the one that came out of the blob that hid it (before: 2 %
+    of their frames, their track coasting off the way its three frames guessed)."""
     case = acc.world_room("people_crossing", MODE, seed=0, lead_in_s=0.5)
     score = acc.score(case, acc.run_case(case), gate_m=GATE_M)
     people = {o.name: o for o in score.objects}
     assert all(len(o.track_ids) <= 1 for o in people.values()), {
         n: o.track_ids for n, o in people.items()
     }
-    far = people["far"]
+    assert score.ghosts == [], f"ghost tracks {score.ghosts}"
+    far, near = people["far"], people["near"]
     assert len(far.track_ids) == 1 and far.tracked_share >= 0.5, (far.track_ids, far.tracked_share)
+    # (41 %: most frames left are their entry, cut by the image's side and cut apart in one
+    # eye, and the middle of the crossing, where their depth is not yet sure enough to say
+    # they are in front)
+    assert len(near.track_ids) == 1 and near.tracked_share >= 0.35, (
+        near.track_ids,
+        near.tracked_share,
+    )

@@ -71,6 +71,21 @@ def _inside(point: np.ndarray, bbox: np.ndarray, grow: float) -> bool:
     return bool(x - mx <= point[0] <= x + w + mx and y - my <= point[1] <= y + h + my)
 
 
+def _overlaps(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two boxes (x, y, w, h) share any area."""
+    return bool(
+        min(a[0] + a[2], b[0] + b[2]) > max(a[0], b[0])
+        and min(a[1] + a[3], b[1] + b[3]) > max(a[1], b[1])
+    )
+
+
+def _union(boxes: list[np.ndarray]) -> np.ndarray:
+    """The smallest box (x, y, w, h) holding every one of ``boxes``."""
+    a = np.asarray(boxes, np.float64).reshape(-1, 4)
+    x0, y0 = a[:, 0].min(), a[:, 1].min()
+    return np.array([x0, y0, (a[:, 0] + a[:, 2]).max() - x0, (a[:, 1] + a[:, 3]).max() - y0])
+
+
 def _moved(bbox: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """A box (x, y, w, h) moved by ``shift`` (2,) px."""
     return np.array([bbox[0] + shift[0], bbox[1] + shift[1], bbox[2], bbox[3]], np.float64)
@@ -134,6 +149,7 @@ class Association(TrackFilters):
 
     _project: Projector | None
     _merging: dict[int, int]
+    _fronts: dict[int, tuple[bool, float]]
     line_ns: float
     _tracks: dict[int, Track]
 
@@ -151,6 +167,7 @@ class Association(TrackFilters):
         may_start = [True] * n
         tracks = list(self._tracks.values())
         self._merging = {}
+        self._fronts = {}
         if not detections:
             return out, may_start
         if not tracks:
@@ -159,10 +176,14 @@ class Association(TrackFilters):
         inside = np.zeros((2, n, len(tracks)), bool)
         confirmed_j = [self._confirmed(tr) for tr in tracks]
         boxes = []
+        preds: list[Prediction] = []
+        # each detection's distance (px) from each track's prediction, the larger of the eyes'
+        cost_px = [[math.inf] * len(tracks) for _ in range(n)]
         for j, tr in enumerate(tracks):
             t_left, t_right = self._row_instants(tr, eye_times_ns)
             pred = self._predict_px(tr, t_left, t_right)
             pl, pr, ml, mr = pred.left, pred.right, pred.left_motion, pred.right_motion
+            preds.append(pred)
             boxes.append(
                 (
                     _moved(tr.last.left_bbox_px, pl - tr.left_history[-1][1]),
@@ -180,6 +201,7 @@ class Association(TrackFilters):
                     _to_segment(d.left_px, pl, pred.left_far),
                     _to_segment(d.right_px, pr, pred.right_far),
                 )
+                cost_px[i][j] = dist
                 if dist <= gate:
                     cost[i, j] = dist / gate
                 elif confirmed_j[j] and _resumes(d, tr.last):
@@ -205,10 +227,20 @@ class Association(TrackFilters):
                         self._merging[tracks[h].track_id] = tracks[keeper].track_id
                 may_start[i] = False
                 continue
-            # Two objects in one blob, in one eye or both. It is one of them (the other hidden
-            # behind it) only if it looks like that one alone: its box where that one's box
-            # should be, in both eyes; else a centroid is a blend of both, and both coast
-            # until they part in both eyes.
+            # Two objects in one blob, in one eye or both: its centroid is a blend of both. The
+            # nearer one, clearly in front, is whole in it, the other joining it on one side:
+            # it is seen by its outline's other side, like an object cut by the image's edge
+            # (:meth:`_in_front`). Else it is one of them (the other hidden behind it) if it
+            # looks like that one alone: its box where that one's box should be, in both eyes.
+            # Failing both, both coast until they part in both eyes.
+            front = self._in_front(tracks, hosts, inside[:, i], preds)
+            if front is not None:
+                keep = min(cost[i, front[0]], RESUME_COST)
+                cost[i, :] = np.inf
+                cost[i, front[0]] = keep
+                self._fronts[i] = front[1:]
+                may_start[i] = False
+                continue
             alone = [
                 j
                 for j in hosts
@@ -244,7 +276,54 @@ class Association(TrackFilters):
             if out[i] is None and may_start[i]:
                 holds = any(inside[0, i, j] and inside[1, i, j] for j in unseen)
                 may_start[i] = not holds and not _piece(d, detections, out, tracks)
+        # A blob that would start a track but came out, in both eyes, of the blob that hid a
+        # confirmed track in the last pair is that object reappearing (two people who crossed
+        # part): it takes that track, the nearest to its prediction if several.
+        for i, d in enumerate(detections):
+            if out[i] is not None or not may_start[i]:
+                continue
+            came_out = [
+                j
+                for j in unseen
+                if tracks[j].track_id not in taken
+                and (hid := tracks[j].hidden_in) is not None
+                and _inside(d.left_px, hid[0], 0.0)
+                and _inside(d.right_px, hid[1], 0.0)
+            ]
+            if came_out:
+                tid = tracks[min(came_out, key=lambda j: cost_px[i][j])].track_id
+                out[i] = tid
+                taken.add(tid)
         return out, may_start
+
+    def _in_front(
+        self, tracks: list[Track], hosts: np.ndarray, inside: np.ndarray, preds: list[Prediction]
+    ) -> tuple[int, bool, float] | None:
+        """Which of the confirmed tracks whose predictions fall in one detection (``hosts``,
+        indices into ``tracks``) is in front of the others, on which side they join it (True:
+        its right, so its left edges are its own), and the largest disparity (px) predicted for
+        them (``preds``: each track's predicted centroids); None if none is. In front: the
+        nearest by its filter, nearer than each other one by more than ``merge_depth_m`` and
+        three sigmas of their filters' depths (two at about one depth, or one whose depth is
+        a guess, may be either way round), predicted inside the detection in both eyes
+        (``inside`` (2, tracks)), with every other one predicted on one side of it."""
+        started = [int(j) for j in hosts if tracks[int(j)].started]
+        if len(started) < 2:
+            return None
+        depth = {j: float(tracks[j].kf.position_m[2]) for j in started}
+        front = min(started, key=lambda j: depth[j])
+        others = [j for j in started if j != front]
+        sigma = {j: math.sqrt(max(float(tracks[j].kf.P[2, 2]), 0.0)) for j in started}
+        if not (inside[0, front] and inside[1, front]) or any(
+            depth[j] - depth[front]
+            <= max(self.params.merge_depth_m, 3.0 * math.hypot(sigma[j], sigma[front]))
+            for j in others
+        ):
+            return None
+        x = float(preds[front].left[0])
+        right = [float(preds[j].left[0]) > x for j in others]
+        behind = max(float(preds[j].left[0]) - float(preds[j].right[0]) for j in others)
+        return (front, right[0], behind) if len(set(right)) == 1 else None
 
     def _one_object(self, tracks: list[Track]) -> bool:
         """Whether confirmed tracks that one detection holds are pieces of one object: at one

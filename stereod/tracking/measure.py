@@ -5,6 +5,7 @@ its track's filter, and its observation from its triangulation (eq. 9, 12)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -17,6 +18,7 @@ from stereod.vision.geometry.errors import cos_off_axis, cut_rows, touches_side
 from stereod.vision.geometry.rectified import CalibratedRig
 from stereod.vision.geometry.stereo import CanonicalRig
 from stereod.vision.geometry.triangulate import Triangulated
+from stereod.vision.grouping import EDGE_SIGMA_PX
 
 
 def detections(
@@ -150,3 +152,39 @@ def observation(
         row_gap_px=t.row_gap_px,
         extent_m=t.extent_m,
     )
+
+
+def by_edge(ob: Observation, joined_right: bool, behind_px: float) -> Observation:
+    """An object seen in one blob with another behind it that joins it on one side (on its
+    right, ``joined_right``, or its left), measured like one cut by the image's edge: its
+    depth from the disparity of its outline's other side (one surface point for both eyes),
+    its lateral position loosely (anywhere across what is seen), so what shows of the other
+    moves neither. An edge's disparity is the centroids' plus how much further from its
+    centroid that edge lies in the left image than in the right. Near where the two cross,
+    what shows of the one behind may be on one side in one eye and on the other in the other
+    eye: an edge whose disparity is not larger than the other object's (``behind_px``) is not
+    the front one's in both eyes, and the other side's is tried; with neither, the
+    observation only says the object is there (clipped, no depth: the filter predicts)."""
+    lx, _, lw, _ = (float(v) for v in ob.left_bbox_px)
+    rx, _, rw, _ = (float(v) for v in ob.right_bbox_px)
+    cl, cr = float(ob.left_image_px[0]), float(ob.right_image_px[0])
+    edges = [
+        ob.disparity_px + (lx - cl) - (rx - cr),
+        ob.disparity_px + (lx + lw - cl) - (rx + rw - cr),
+    ]
+    if not joined_right:
+        edges.reverse()
+    edge = next((e for e in edges if e > behind_px and e > 0), None)
+    if edge is None or ob.disparity_px <= 0:
+        return dataclasses.replace(ob, clipped=True, edge_depth=False)
+    scale = ob.disparity_px / edge / ob.depth_factor  # Z along the same ray
+    position = ob.position_m * scale
+    z = float(position[2])
+    cov = ob.cov_m2 * scale * scale
+    metres_per_px = ob.size_m * scale / max(0.5 * (lw + rw), 1.0)
+    cov[0, 0] += (0.25 * (lw + rw) * metres_per_px) ** 2
+    cov[2, 2] += (z / edge * EDGE_SIGMA_PX) ** 2
+    return dataclasses.replace(
+        ob, position_m=position, cov_m2=cov, disparity_px=edge, size_m=ob.size_m * scale,
+        clipped=True, edge_depth=True, depth_factor=1.0,
+    )  # fmt: skip

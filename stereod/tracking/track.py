@@ -75,6 +75,13 @@ class Track:
     fall_evidence: float = 0.0
     """Log-likelihood of free fall over a straight line, summed over recent updates with a
     fading memory."""
+    blended: bool = False
+    """Whether the latest observation was of a blob it shared with an object behind it: its 2D
+    histories then follow that blob's centroid, not the object's."""
+    hidden_in: tuple[np.ndarray, np.ndarray] | None = None
+    """While a confirmed track is unseen: the boxes (left, right; x, y, w, h px) of the blobs
+    that hid it in the latest pair (where its prediction fell, or what the blob that hid it
+    before became: moved on, or parted in two); None when seen, or hidden by nothing."""
 
 
 class TrackFilters:

@@ -11,7 +11,12 @@ has no velocity yet; its gate is how far an object at ``max_speed_mps`` can move
 its depth (its disparity gives the pixels per metre), so an object as fast as a thrown ball is
 followed from its second frame. A detection that a live object's prediction explains in both
 eyes (a piece of it) starts no track; one that two confirmed tracks fall into (two objects
-crossing, one hiding the other) updates neither: both coast until they part.
+crossing, one hiding the other) updates neither: both coast until they part; unless one is
+clearly in front (nearer by more than ``merge_depth_m``), whole in the blob, the other joining
+it on one side: it is measured by its outline's other side, like an object cut by the image's
+edge. A detection that would start a track but came out, in both eyes, of the blob that hid a
+confirmed track in the last pair is that track's object reappearing, wherever its prediction
+went (a person seen for three frames before a crossing has a velocity that is a guess).
 
 The filter's measurement is each observation's triangulated position with its covariance, so
 depth noise growing as Z^2 (eq. 12) is weighted correctly. It starts at a track's second
@@ -48,8 +53,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from stereod.tracking import kalman
-from stereod.tracking.association import Association, Projector, _inside
+from stereod.tracking import kalman, measure
+from stereod.tracking.association import Association, Projector, _inside, _overlaps, _union
 from stereod.tracking.track import Track, behind
 from stereod.tracking.types import (
     Detection,
@@ -74,6 +79,11 @@ class Tracker(Association):
         self._merging: dict[int, int] = {}
         """Tracks the last :meth:`associate` found to be pieces of another's object (absorbed
         id -> keeper id): they end in :meth:`update` once the keeper is seen."""
+        self._fronts: dict[int, tuple[bool, float]] = {}
+        """Detections the last :meth:`associate` gave to the nearer of two objects in one blob
+        (index -> whether the other joins it on its right, and the other's predicted disparity,
+        px): each is measured by its outline's other side in :meth:`update`
+        (:func:`stereod.tracking.measure.by_edge`)."""
         self.line_ns = 0.0
         """How much later a rolling shutter reads each image row than the one above (ns); 0
         for a global shutter (set by the pipeline from ``readout_s``)."""
@@ -89,10 +99,13 @@ class Tracker(Association):
         return self._tracks[track_id]
 
     def histories(self, track_id: int | None) -> tuple[EyeHistory, EyeHistory] | None:
-        """A track's two eye histories (for skew compensation), None for no track."""
+        """A track's two eye histories (for skew compensation), None for no track, or for one
+        last seen in a blob it shared with an object behind it (its histories follow that)."""
         if track_id is None:
             return None
         tr = self._tracks[track_id]
+        if tr.blended:
+            return None
         return tr.left_history, tr.right_history
 
     def update(
@@ -111,7 +124,9 @@ class Tracker(Association):
         rolling shutter reads its rows later; default: the frames'), and ``blob_boxes_px``
         every blob's box in each eye ((n, 4) x, y, w, h; default: the detections'), matched
         or not: a confirmed track unseen for longer than ``max_coast_s`` lives on, up to
-        ``max_hidden_s``, while both eyes see a blob where it should be. Returns the state of
+        ``max_hidden_s``, while both eyes see a blob where it should be, or where the blob that
+        hid it in the last pair was (it moved on, or parted; what comes out of it may be this
+        track's object, see :meth:`associate`). Returns the state of
         every live track (observed or coasting) and the ids of the tracks that ended. A track
         whose filter puts it behind the rig (Z <= 0, where no camera sees) ends there: its
         filter has lost the object, and what it would publish means nothing."""
@@ -120,11 +135,14 @@ class Tracker(Association):
         states: list[TrackState] = []
         ended: list[int] = []
         times = blob_times_ns if blob_times_ns is not None else [eye_times_ns] * len(detections)
-        for ob, tid, det, (t_left, t_right) in zip(
-            observations, assignment, detections, times, strict=True
+        for k, (ob, tid, det, (t_left, t_right)) in enumerate(
+            zip(observations, assignment, detections, times, strict=True)
         ):
             if ob is None:
                 continue
+            blended = tid is not None and k in self._fronts
+            if blended:
+                ob = measure.by_edge(ob, *self._fronts[k])
             if tid is None:
                 kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
                 tr = Track(
@@ -149,6 +167,11 @@ class Tracker(Association):
                     self._filter(tr, t_ns, ob)
                 tr.hits += 1
                 tr.misses = 0
+                tr.hidden_in = None
+                if tr.blended and not blended:  # its own blob again: its 2D tracks start afresh
+                    tr.left_history.clear()
+                    tr.right_history.clear()
+                tr.blended = blended
                 tr.last = ob
                 tr.last_seen_ns = t_ns
                 tr.image_speed_pxps = det.image_speed_pxps
@@ -187,9 +210,10 @@ class Tracker(Association):
                     del self._tracks[tid]
                 elif tr.started or tr.whole:
                     states.append(self._state(tr, t_ns, observed=False))
-            elif t_ns - tr.last_seen_ns > coast_ns and not (
-                t_ns - tr.last_seen_ns <= hidden_ns and self._hidden(tr, eye_times_ns, boxes)
-            ):
+                continue
+            tr.hidden_in = self._hiding(tr, eye_times_ns, boxes)
+            unseen_ns = t_ns - tr.last_seen_ns
+            if unseen_ns > coast_ns and (tr.hidden_in is None or unseen_ns > hidden_ns):
                 ended.append(tid)
                 del self._tracks[tid]
             else:
@@ -201,15 +225,27 @@ class Tracker(Association):
                     states.append(self._state(tr, t_ns, observed=False))
         return states, ended
 
-    def _hidden(
+    def _hiding(
         self, tr: Track, eye_times_ns: tuple[int, int], boxes: tuple[np.ndarray, np.ndarray]
-    ) -> bool:
-        """Whether a track unseen in this pair is where, in both eyes, a blob was seen (``boxes``:
-        each eye's, x, y, w, h px): hidden behind another object, or in one blob with it."""
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """What hides a track unseen in this pair: in each eye, the union of the blobs seen
+        (``boxes``: each eye's, x, y, w, h px) where it should be, or where the blob that hid it
+        in the last pair was (that blob moved on, or parted in two: a person coming out from
+        behind another is not where a short-lived track's guessed velocity puts them); None
+        when an eye has none (nothing hides it)."""
         pred = self._predict_px(tr, *self._row_instants(tr, eye_times_ns))
-        return any(_inside(pred.left_far, b, 0.0) for b in boxes[0]) and any(
-            _inside(pred.right_far, b, 0.0) for b in boxes[1]
-        )
+        out = []
+        for e, point in enumerate((pred.left_far, pred.right_far)):
+            before = tr.hidden_in[e] if tr.hidden_in is not None else None
+            hit = [
+                b
+                for b in boxes[e]
+                if _inside(point, b, 0.0) or (before is not None and _overlaps(b, before))
+            ]
+            if not hit:
+                return None
+            out.append(_union(hit))
+        return out[0], out[1]
 
     def continue_after(self, other: Tracker) -> None:
         """Number new tracks after ``other``'s, so ids are never reused while running."""
