@@ -340,8 +340,8 @@ class Fuser:
         raw = (rows.stamps.tolist(), rows.raw_position, rows.raw_cov)
         shared = {
             rid: [(rows.keys[i][0], raw[0][i], raw[1][i], raw[2][i]) for i in ms]
-            for rid, ms in members.items()
-            if len(ms) >= 2 and rid in self._tracks and rid in touched
+            for rid in sorted(touched)
+            if len(ms := members.get(rid, ())) >= 2 and rid in self._tracks
         }
         # Copies: the caller may keep a frame while the next steps change the tracks (whose
         # arrays are replaced, never written into).
