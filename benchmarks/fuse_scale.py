@@ -38,12 +38,13 @@ import zenoh
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from stereod.bus.messages import ObjectsMessage, dump_objects  # noqa: E402
+from stereod.bus.messages import dump_objects  # noqa: E402
 from stereod.fusion.clock import ClockWatch  # noqa: E402
 from stereod.fusion.fuser import Fuser  # noqa: E402
 from stereod.fusion.output import join_room, object_payloads  # noqa: E402
 from stereod.fusion.room import load_room  # noqa: E402
 from stereod.fusion.status import FuseStatus  # noqa: E402
+from stereod.fusion.wire import decode  # noqa: E402
 from stereod_fakes.room_messages import RigSim, Walker, walkers_from_json  # noqa: E402
 from tests.conftest import free_endpoint, zenoh_config  # noqa: E402
 from tests.processes import start_stereod  # noqa: E402
@@ -103,8 +104,8 @@ def message_cost(rigs: int, per_rig: int, ticks: int = 90) -> tuple[float, float
     cpu = []
     for k, payload in enumerate(payloads):
         c0 = time.thread_time()
-        msg = ObjectsMessage.model_validate_json(payload)
-        fuser.ingest(msg)
+        msg = decode(payload)
+        fuser.ingest_wire(msg)
         frame = fuser.fuse(msg.stamp_utc_ns, [msg.rig])
         clock.observe(frame)
         fuser.clock_corrections_ns = dict(clock.corrections_ns)

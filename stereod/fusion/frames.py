@@ -146,6 +146,8 @@ class RigBatch:
     """(n,) bool."""
     extra: np.ndarray
     """(n, len(wire.EXTRA)) what the room's message repeats of a member (blobs and the like)."""
+    keys: list[tuple[str, int]]
+    """(rig, track id) of each row, as the fusion keys its links (made once per message)."""
 
 
 def _rotated_diag(r: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
@@ -160,9 +162,10 @@ def batch_to_room(wire: RigWire, rotation: np.ndarray, translation: np.ndarray) 
     psig = np.where(np.isfinite(w.position_sigma), w.position_sigma, 1.0)
     vsig = np.where(np.isfinite(w.velocity_sigma), w.velocity_sigma, UNKNOWN_VELOCITY_SIGMA_MPS)
     r = rotation
+    ids = w.ids.tolist()
     return RigBatch(
         rig=w.rig,
-        ids=w.ids.tolist(),
+        ids=ids,
         stamps_ns=w.stamps_ns,
         position=w.position @ r.T + translation,
         position_cov=_rotated_diag(r, psig),
@@ -173,6 +176,7 @@ def batch_to_room(wire: RigWire, rotation: np.ndarray, translation: np.ndarray) 
         velocity_valid=w.velocity_valid,
         heading_valid=w.heading_valid,
         extra=w.extra,
+        keys=[(w.rig, tid) for tid in ids],
     )
 
 

@@ -153,7 +153,7 @@ class _Rows:
         """Each rig's rows (a batch's rows are consecutive)."""
         for batch in batches:
             self.span[batch.rig] = range(len(self.keys), len(self.keys) + len(batch.ids))
-            self.keys += [(batch.rig, tid) for tid in batch.ids]
+            self.keys += batch.keys
         self.index = {k: i for i, k in enumerate(self.keys)}
         n = len(self.keys)
         if n:
@@ -340,8 +340,8 @@ class Fuser:
         raw = (rows.stamps.tolist(), rows.raw_position, rows.raw_cov)
         shared = {
             rid: [(rows.keys[i][0], raw[0][i], raw[1][i], raw[2][i]) for i in ms]
-            for rid, ms in members.items()
-            if len(ms) >= 2 and rid in self._tracks and rid in touched
+            for rid in sorted(touched)
+            if len(ms := members.get(rid, ())) >= 2 and rid in self._tracks
         }
         # Copies: the caller may keep a frame while the next steps change the tracks (whose
         # arrays are replaced, never written into).
@@ -519,12 +519,13 @@ class Fuser:
         idx = np.array([i for rid in rids for i in members[rid]], dtype=np.int64)
         g = np.array([slot[rid] for rid in rids for _ in members[rid]], dtype=np.int64)
         k = len(rids)
-        pinfo = np.linalg.inv(rows.position_cov[idx]) if idx.size else np.zeros((0, 3, 3))
-        pmean = np.einsum("nij,nj->ni", pinfo, rows.position[idx])
-        count, pos, pcov = _group_fusion(g, k, pinfo, pmean)
-        vinfo = np.linalg.inv(rows.velocity_cov[idx]) if idx.size else np.zeros((0, 3, 3))
-        vmean = np.einsum("nij,nj->ni", vinfo, rows.velocity[idx])
-        _, vel, vcov = _group_fusion(g, k, vinfo, vmean)
+        # Position and velocity in one fusion: groups 0..k-1 positions, k..2k-1 velocities.
+        covs = np.concatenate([rows.position_cov[idx], rows.velocity_cov[idx]])
+        info = np.linalg.inv(covs) if idx.size else np.zeros((0, 3, 3))
+        means = np.concatenate([rows.position[idx], rows.velocity[idx]])
+        info_mean = np.einsum("nij,nj->ni", info, means)
+        count2, both, both_cov = _group_fusion(np.concatenate([g, g + k]), 2 * k, info, info_mean)
+        count, pos, pcov, vel, vcov = count2[:k], both[:k], both_cov[:k], both[k:], both_cov[k:]
         coasting = [rid for rid in rids if count[slot[rid]] == 0]
         if coasting:
             trs = [self._tracks[rid] for rid in coasting]
@@ -541,13 +542,13 @@ class Fuser:
 
         # Per room track, from its members' rows at once: any seen, all seen ones stationary,
         # any velocity (heading) valid, and the member with the smallest position variance.
-        def anyof(flags: np.ndarray) -> np.ndarray:
-            return np.bincount(g, weights=flags[idx].astype(np.float64), minlength=k) > 0
-
-        seen = anyof(rows.seen)
-        moving = anyof(rows.seen & ~rows.stationary)
-        vvalid = anyof(rows.velocity_valid)
-        hvalid = anyof(rows.heading_valid)
+        flags = np.stack(
+            [rows.seen, rows.seen & ~rows.stationary, rows.velocity_valid, rows.heading_valid],
+            axis=1,
+        )[idx]
+        counts = np.zeros((k, 4), dtype=np.int64)
+        np.add.at(counts, g, flags)
+        seen, moving, vvalid, hvalid = (counts > 0).T
         best = np.full(k, -1, dtype=np.int64)
         if g.size:
             trace = np.trace(rows.position_cov[idx], axis1=1, axis2=2)

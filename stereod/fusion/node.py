@@ -31,6 +31,7 @@ from stereod.fusion.mcap import RoomMcapWriter
 from stereod.fusion.output import join_room, object_payloads
 from stereod.fusion.room import Room
 from stereod.fusion.status import FuseStatus, RigLink
+from stereod.fusion.wire import RigWire, decode
 from stereod.vision.geometry import Geometry
 
 log = logging.getLogger("stereod.fuse")
@@ -155,12 +156,12 @@ class FuseNode:
             batch.append(self.inbox.popleft())
         return batch
 
-    def _parse(self, payload: bytes) -> ObjectsMessage | None:
-        """A rig's message, or None (counted) for anything else. pydantic's own JSON parser
-        (Rust) bounds nesting itself, refusing a payload nested too deep as invalid, and
-        parses a message faster than ``json`` alone."""
+    def _parse(self, payload: bytes) -> RigWire | None:
+        """A rig's message as arrays, or None (counted) for anything else: ``wire.decode``
+        reads a plain message with ``orjson``, with no model per object, and leaves anything
+        else to the model (whose JSON parser bounds nesting itself)."""
         try:
-            msg = ObjectsMessage.model_validate_json(payload)
+            msg = decode(payload)
         except ValueError:
             with self.lock:
                 self.rejected += 1
@@ -182,7 +183,7 @@ class FuseNode:
                     msg = self._parse(payload)
                     if msg is None:
                         continue
-                    self.fuser.ingest(msg)
+                    self.fuser.ingest_wire(msg)
                     self.geometry = msg.geometry
                     rigs.append(msg.rig)
                     stamp = max(stamp or 0, self.fuser.rig_stamp(msg.rig) or 0)

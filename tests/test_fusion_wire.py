@@ -1,0 +1,152 @@
+"""The fusion's own reader of rig messages (``wire.decode``) against the wire model: it takes
+and refuses the payloads ``ObjectsMessage.model_validate_json`` takes and refuses, and gives
+the same arrays as the model's message does (``wire.from_message``)."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+import orjson
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from stereod.bus.messages import ObjectsMessage, dump_objects
+from stereod.fusion.room import RigPose
+from stereod.fusion.wire import RigWire, _fast, decode, from_message
+from stereod_fakes.room_messages import RigSim, Walker
+
+T0 = 1_700_000_000_000_000_000
+
+
+def payloads() -> list[bytes]:
+    """A rig's messages about walkers in and out of its view, as a daemon writes them."""
+    sim = RigSim(RigPose(name="a", rotation_deg=(0.0, 10.0, 0.0)), seed=3)
+    walkers = [
+        Walker(k, (-3.0 + k, 0.1 * k, 2.0 + 0.5 * k), (0.4, 0.0, -0.1 * k), T0) for k in range(8)
+    ]
+    return [dump_objects(sim.message(walkers, T0 + k * 33_333_333))[0] for k in range(0, 90, 9)]
+
+
+PAYLOADS = payloads()
+
+
+def same(a: RigWire, b: RigWire) -> None:
+    for name in RigWire.__dataclass_fields__:
+        x, y = getattr(a, name), getattr(b, name)
+        if isinstance(x, np.ndarray):
+            assert x.dtype == y.dtype and x.shape == y.shape, name
+            assert np.array_equal(x, y, equal_nan=True), name
+        else:
+            assert x == y, name
+
+
+def verdict(payload: bytes) -> RigWire | None:
+    """The model's reading of ``payload`` (None: refused)."""
+    try:
+        return from_message(ObjectsMessage.model_validate_json(payload))
+    except ValueError:
+        return None
+
+
+def test_generated_messages_read_fast_and_as_the_model_reads_them() -> None:
+    assert any(b'"objects":[{' in p for p in PAYLOADS)
+    for p in PAYLOADS:
+        fast = _fast(orjson.loads(p))
+        assert fast is not None  # the plain case never goes through the model
+        model = verdict(p)
+        assert model is not None
+        same(fast, model)
+        same(decode(p), model)
+
+
+VALUES = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(min_value=-(2**70), max_value=2**70),
+    st.floats(allow_nan=False, allow_infinity=False),
+    st.text(max_size=4),
+    st.sampled_from(["confirmed", "coasting", "tentative", "stereod.objects/1", "canonical"]),
+    st.lists(st.one_of(st.integers(-5, 5), st.floats(-5, 5), st.booleans()), max_size=5),
+    st.dictionaries(st.sampled_from(["centroid_px", "bbox_px", "area_px"]), st.integers(0, 9)),
+)
+"""What a field may be replaced by: JSON of every kind, and of the right kind but wrong size."""
+
+TOP = ["schema", "schema_", "rig", "seq", "t_ns", "stamp_utc_ns", "skew_ns", "left_seq",
+       "right_seq", "geometry", "calibration_id", "latency", "objects", "extra"]  # fmt: skip
+OBJECT = ["schema", "schema_", "track_id", "state", "t_ns", "stamp_utc_ns", "skew_ns",
+          "position_m", "position_sigma_m", "velocity_mps", "velocity_sigma_mps",
+          "velocity_valid", "heading_valid", "speed_mps", "speed_sigma_mps", "heading_deg",
+          "heading_sigma_deg", "raw_velocity_mps", "left", "right", "disparity_px", "size_m",
+          "age_s", "extent_min_m", "extent_max_m", "extra"]  # fmt: skip
+BLOB = ["centroid_px", "bbox_px", "area_px"]
+
+
+@st.composite
+def malformed(draw: st.DrawFn) -> bytes:
+    """A generated message with one to three fields (of the message, an object, a blob, or
+    one element of a vector) replaced by another value or deleted, or the text cut, or a
+    number written beyond what a float holds."""
+    msg: dict[str, Any] = json.loads(draw(st.sampled_from(PAYLOADS[1:])))
+    for _ in range(draw(st.integers(1, 3))):
+        where = draw(st.sampled_from(["top", "object", "blob", "element"]))
+        target: Any = msg
+        keys = TOP
+        if where != "top" and msg.get("objects") and isinstance(msg["objects"], list):
+            obj = draw(st.sampled_from(msg["objects"]))
+            if not isinstance(obj, dict):
+                continue
+            target, keys = obj, OBJECT
+            if where == "blob" and isinstance(obj.get("left"), dict):
+                target, keys = obj[draw(st.sampled_from(["left", "right"]))], BLOB
+            elif where == "element":
+                vec = obj.get(draw(st.sampled_from(["position_m", "velocity_sigma_mps"])))
+                if isinstance(vec, list) and vec:
+                    vec[draw(st.integers(0, len(vec) - 1))] = draw(VALUES)
+                    continue
+        if not isinstance(target, dict):
+            continue
+        key = draw(st.sampled_from(keys))
+        if draw(st.booleans()) and key in target:
+            del target[key]
+        else:
+            target[key] = draw(VALUES)
+    text = json.dumps(msg)
+    form = draw(st.sampled_from(["plain", "cut", "huge"]))
+    if form == "cut":
+        text = text[: draw(st.integers(0, len(text) - 1))]
+    elif form == "huge":
+        text = text.replace('"size_m": ', '"size_m": 1e400, "x": ', 1)
+    return text.encode()
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(malformed())
+def test_malformed_messages_taken_and_refused_as_the_model_does(payload: bytes) -> None:
+    model = verdict(payload)
+    try:
+        fast = _fast(orjson.loads(payload))
+    except Exception:
+        fast = None
+    if fast is not None:  # what the fast path takes, the model takes, and reads the same
+        assert model is not None, payload
+        same(fast, model)
+    if model is None:
+        with pytest.raises(ValueError):
+            decode(payload)
+    else:
+        same(decode(payload), model)
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [b"", b"[]", b"null", b'{"rig": "a"}', b"\xff\xfe", b"[" * 100_000, PAYLOADS[0][:-1]],
+)
+def test_not_a_message_is_refused_with_the_models_error(payload: bytes) -> None:
+    with pytest.raises(ValueError) as fast:
+        decode(payload)
+    with pytest.raises(ValueError) as model:
+        ObjectsMessage.model_validate_json(payload)
+    assert str(fast.value) == str(model.value)
