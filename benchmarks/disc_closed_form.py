@@ -167,6 +167,8 @@ def scenes(name: str, rng: np.random.Generator, n: int) -> Iterator[Scene]:
             r = rng.uniform(1.5, 12.0)
             h = w = 64
             colour = rng.uniform(60.0, 220.0, 3)
+            if name == "grey":  # a grey ball as bright as a colour one's brightest channel
+                colour = np.full(3, rng.uniform(170.0, 230.0))
             bg = wall(rng, h, w)
             if name == "at the edge":  # the ball's box within two pixels of the left edge
                 u, v = rng.uniform(r - 0.5, r + 2.0), rng.uniform(26, 38)
@@ -186,8 +188,8 @@ def scenes(name: str, rng: np.random.Generator, n: int) -> Iterator[Scene]:
 
 SCENES = ("matching wall", "4-6 px", "3-24 px", "flat 3-24 px", "grey", "gain 1.15", "at the edge")
 """Balls 6-11 px over a wall whose quarter is their unlit colour (``test_disc``'s hard case);
-balls 4.4-5.6 px; balls 3-24 px shaded over a texture; the same of one colour all over; the
-same in grey; the same with the frame at 1.15 times the learnt background's gain (the other
+balls 4.4-5.6 px; balls 3-24 px shaded over a texture; the same of one colour all over; a
+bright ball in grey; the same with the frame at 1.15 times the learnt background's gain (the other
 eye's auto-exposure); balls 3-24 px touching or nearly touching the frame's left edge."""
 
 
