@@ -25,6 +25,7 @@ from stereod_fakes.synth import Ball, Scene, write_scene
 
 from .fuzz import digest
 from .processes import run_stereod, start_stereod
+from .test_sdnotify import collect, receiver
 
 pytestmark = pytest.mark.slow
 
@@ -891,7 +892,8 @@ def test_a_daemon_asked_to_reload_while_it_starts_keeps_starting(tmp_path: Path)
         '[driver]\nname = "synthetic"\n[driver.options]\n'
         "width_px = 160\nheight_px = 120\nlive = true\nloop = true\n"
     )
-    proc = start_stereod("run", "--config", str(cfg), cwd=tmp_path)
+    sock, address = receiver(tmp_path)
+    proc = start_stereod("run", "--config", str(cfg), cwd=tmp_path, env={"NOTIFY_SOCKET": address})
     try:
         # As soon as the entry point has set SIGHUP aside (its first statement, long before
         # the imports are done); before that the interpreter itself is starting, a moment
@@ -901,12 +903,16 @@ def test_a_daemon_asked_to_reload_while_it_starts_keeps_starting(tmp_path: Path)
         while time.monotonic() < deadline and not _handles(proc.pid, signal.SIGHUP):
             time.sleep(0.005)
         proc.send_signal(signal.SIGHUP)
-        time.sleep(3.0)
+        # Stopped only once it says it is running, as systemd would: Ctrl-C while it still
+        # starts is an interrupted start (130), however long a loaded host takes to get there.
+        started = collect(sock, "READY=1", 120)
+        assert "READY=1" in started, (started, proc.poll())
         assert proc.poll() is None, proc.communicate()[1]
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=30)
     finally:
         proc.kill()
+        sock.close()
     assert proc.returncode == 0, err
     assert "Traceback" not in err
 
