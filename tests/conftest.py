@@ -29,6 +29,12 @@ def _no_handler_outlives_its_test() -> Iterator[None]:
             logging.root.removeHandler(handler)
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The slow tests first (each file's order kept): run in parallel, a long test handed out
+    last would leave the other workers idle while it finishes."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 def shared_data(*parts: str) -> Path:
     """A path under ../shared/data; skips the test with the reason when it is absent."""
     path = SHARED_DATA.joinpath(*parts)

@@ -229,6 +229,7 @@ def _vtest(params: DetectorParams) -> tuple[float, float, float]:
     return float(np.median(counts)), float(np.median(fractions)), 1.0 - float(np.mean(agree))
 
 
+@pytest.mark.slow
 def test_vtest_walking_people_are_found_without_ghosts() -> None:
     """Real video: pedestrians on a campus (DATA.md: MOG2 finds a median of 6 blobs per frame
     and a foreground fraction around 0.016). The paper's eq. 3 learns each walker into the

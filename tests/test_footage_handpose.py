@@ -115,6 +115,7 @@ def test_the_calibrated_geometry_triangulates_real_landmarks_where_opencv_does()
     assert np.percentile(err_mm, 95) <= 1.0, f"95th percentile {np.percentile(err_mm, 95):.2f} mm"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cam", [0, 1])
 def test_the_detector_keeps_a_moving_hand_and_lets_go_of_what_it_uncovered(cam: int) -> None:
     """One eye's detector at half resolution (360x360, near the Minoru's 320x240), from the

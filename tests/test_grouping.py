@@ -234,6 +234,7 @@ def _vtest_run(grouping: bool) -> tuple[list[int], list[int], dict[int, int]]:
     return ours, theirs, life
 
 
+@pytest.mark.slow
 def test_real_pedestrians_are_fewer_longer_lived_objects_with_grouping() -> None:
     """Real footage of people (vtest.avi, DATA.md; no stereo recording of people with a
     licence and a truth is in ../shared/data yet): per frame, stereod reports about as many
