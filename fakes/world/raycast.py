@@ -112,22 +112,42 @@ class _Caster:
         part = np.full(shape, -1, np.int32)
         names = _names(group)
         dxb, dyb = np.broadcast_to(dx, shape), np.broadcast_to(dy, shape)
-        for k, (name, solid, centre) in enumerate(group):
-            window = None
-            if names.count(name) == 1 and len(names) == len(group):
+        # A coarse grid (a row of dx times a column of dy): a solid's window is a sub-grid.
+        grid = dx.ndim == 2 and dy.ndim == 2 and dx.shape[0] == 1 and dy.shape[1] == 1
+        for k, (_, solid, centre) in enumerate(group):
+            if len(names) == len(group):  # one solid per object: every ray is cast
                 s = solid.intersect(cam - centre, dx, dy)
-            else:
-                window = _window(solid.half_extent_m(), centre - cam, dxb, dyb)
-                if window is None:
-                    s = solid.intersect(cam - centre, dx, dy)
-                elif not window.any():
+                closer = s < best
+                best = np.where(closer, s, best)
+                part[closer] = k
+                continue
+            lim = _slopes(solid.half_extent_m(), centre - cam)
+            if lim is None:
+                s = solid.intersect(cam - centre, dx, dy)
+                closer = s < best
+                best = np.where(closer, s, best)
+                part[closer] = k
+                continue
+            if grid:
+                cs = _span((dx[0] >= lim[0]) & (dx[0] <= lim[1]))
+                rs = _span((dy[:, 0] >= lim[2]) & (dy[:, 0] <= lim[3]))
+                if cs is None or rs is None:
                     continue
-                else:
-                    s = np.full(shape, np.inf)
-                    s[window] = solid.intersect(cam - centre, dxb[window], dyb[window])
-            closer = s < best
-            best = np.where(closer, s, best)
-            part[closer] = k
+                s = solid.intersect(cam - centre, dx[:, cs], dy[rs])
+                sub = best[rs, cs]
+                closer = s < sub
+                sub[closer] = s[closer]
+                part[rs, cs][closer] = k
+                continue
+            window = (dxb >= lim[0]) & (dxb <= lim[1]) & (dyb >= lim[2]) & (dyb <= lim[3])
+            idx = np.flatnonzero(window)
+            if idx.size == 0:
+                continue
+            s = solid.intersect(cam - centre, dxb[window], dyb[window])
+            flat = best.reshape(-1)
+            closer = s < flat[idx]
+            flat[idx[closer]] = s[closer]
+            part.reshape(-1)[idx[closer]] = k
         rad = np.zeros((*shape, 3), np.float32)
         ids = np.full(shape, -1, np.int32)
         for k, (name, solid, centre) in enumerate(group):
@@ -234,18 +254,30 @@ def _names(group: list[_Placed]) -> list[str]:
     return list(dict.fromkeys(name for name, _, _ in group))
 
 
-def _window(half: F64, rel: F64, dx: F64, dy: F64) -> npt.NDArray[np.bool_] | None:
-    """Rays (dx, dy, 1) that can meet the box ``rel +- half`` (relative to the camera), or
-    None when the box reaches behind the near plane (then every ray is a candidate)."""
+def _slopes(half: F64, rel: F64) -> tuple[float, float, float, float] | None:
+    """Bounds (dx lo, dx hi, dy lo, dy hi) of the rays (dx, dy, 1) that can meet the box
+    ``rel +- half`` (relative to the camera), or None when the box reaches behind the near
+    plane (then every ray is a candidate)."""
     lo, hi = rel - half, rel + half
     if lo[2] <= _NEAR_M:
         return None
     xs = [lo[0] / lo[2], lo[0] / hi[2], hi[0] / lo[2], hi[0] / hi[2]]
     ys = [lo[1] / lo[2], lo[1] / hi[2], hi[1] / lo[2], hi[1] / hi[2]]
     eps = 1e-9
-    return np.asarray(
-        (dx >= min(xs) - eps)
-        & (dx <= max(xs) + eps)
-        & (dy >= min(ys) - eps)
-        & (dy <= max(ys) + eps)
+    return (
+        float(min(xs) - eps),
+        float(max(xs) + eps),
+        float(min(ys) - eps),
+        float(max(ys) + eps),
     )
+
+
+def _span(sel: npt.NDArray[np.bool_]) -> slice | None:
+    """The slice of the True entries of ``sel`` (True on one run: the rays' slopes grow
+    along the grid), or None if there are none."""
+    idx = np.flatnonzero(sel)
+    if idx.size == 0:
+        return None
+    if idx[-1] - idx[0] + 1 != idx.size:
+        raise ValueError("ray slopes of a coarse grid must be monotonic")
+    return slice(int(idx[0]), int(idx[-1]) + 1)
