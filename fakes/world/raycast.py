@@ -114,7 +114,10 @@ class _Caster:
         dxb, dyb = np.broadcast_to(dx, shape), np.broadcast_to(dy, shape)
         # A coarse grid (a row of dx times a column of dy): a solid's window is a sub-grid.
         grid = dx.ndim == 2 and dy.ndim == 2 and dx.shape[0] == 1 and dy.shape[1] == 1
+        whole = (slice(None), slice(None))
+        spans: list[tuple[slice, slice]] = []  # per solid: the sub-grid its hits lie in
         for k, (_, solid, centre) in enumerate(group):
+            spans.append(whole)
             if len(names) == len(group):  # one solid per object: every ray is cast
                 s = solid.intersect(cam - centre, dx, dy)
                 closer = s < best
@@ -132,7 +135,9 @@ class _Caster:
                 cs = _span((dx[0] >= lim[0]) & (dx[0] <= lim[1]))
                 rs = _span((dy[:, 0] >= lim[2]) & (dy[:, 0] <= lim[3]))
                 if cs is None or rs is None:
+                    spans[k] = (slice(0, 0), slice(0, 0))
                     continue
+                spans[k] = (rs, cs)
                 s = solid.intersect(cam - centre, dx[:, cs], dy[rs])
                 sub = best[rs, cs]
                 closer = s < sub
@@ -151,10 +156,13 @@ class _Caster:
         rad = np.zeros((*shape, 3), np.float32)
         ids = np.full(shape, -1, np.int32)
         for k, (name, solid, centre) in enumerate(group):
-            m = part == k
+            win = spans[k]  # row-major order within it is that of the whole grid
+            m = part[win] == k
             if m.any():
-                ids[m] = names.index(name)
-                rad[m] = self._shade(solid, cam - centre, best[m], dxb[m], dyb[m], centre, blockers)
+                ids[win][m] = names.index(name)
+                rad[win][m] = self._shade(
+                    solid, cam - centre, best[win][m], dxb[win][m], dyb[win][m], centre, blockers
+                )
         return ids, rad
 
     def _render_group(
@@ -193,7 +201,7 @@ class _Caster:
             out = bg[r0:r1, c0:c1].copy()
             ru = 0.5 * (rad[:, :-1] + rad[:, 1:])  # composite trapezoid rule over the pixel
             ruv = 0.5 * (ru[:-1] + ru[1:])
-            out[pure] = ruv.reshape(h, s, w, s, 3).mean(axis=(1, 3))[pure]
+            out[pure] = _box_mean(ruv, h, w, s)[pure]
         kept = np.zeros((h, 1), bool)
         kept[max(0, keep[0] - r0) : max(0, keep[1] - r0)] = True
         for k, name in enumerate(_names(group)):
@@ -247,6 +255,20 @@ class _Caster:
                 lit = self._bg_rays(eye, dx[miss], dy[miss], [])
                 rad[miss] = lit * np.broadcast_to(ratio[:, None, :], rad.shape)[miss]
             out[rr, cc] = rad.mean(axis=1)
+
+
+def _box_mean(ruv: F32, h: int, w: int, s: int) -> F32:
+    """Mean of each S x S block of ``ruv`` (h S, w S, 3): ``reshape(h, s, w, s, 3).mean(axis=(1,
+    3))`` summed in the same order (block rows, then columns) without numpy's slow
+    many-axis reduction, so the same float32 bits."""
+    v = ruv.reshape(h, s, w, s, 3)
+    acc = v[:, 0, :, 0].copy()
+    for i in range(s):
+        for j in range(s):
+            if i or j:
+                acc += v[:, i, :, j]
+    acc /= np.float32(s * s)
+    return acc
 
 
 def _names(group: list[_Placed]) -> list[str]:
