@@ -7,6 +7,7 @@ described in the package docstring and depend on the pixel only, never on the re
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import cv2
 import numpy as np
@@ -115,7 +116,9 @@ class _Caster:
         # A coarse grid (a row of dx times a column of dy): a solid's window is a sub-grid.
         grid = dx.ndim == 2 and dy.ndim == 2 and dx.shape[0] == 1 and dy.shape[1] == 1
         whole = (slice(None), slice(None))
-        spans: list[tuple[slice, slice]] = []  # per solid: the sub-grid its hits lie in
+        # Per solid, the rays its hits lie among: a sub-grid, or flat indices (ascending).
+        spans: list[tuple[slice, slice] | npt.NDArray[np.intp]] = []
+        ranges: tuple[F64, F64, F64, F64] | None = None  # per row: dx min, max, dy min, max
         for k, (_, solid, centre) in enumerate(group):
             spans.append(whole)
             if len(names) == len(group):  # one solid per object: every ray is cast
@@ -144,11 +147,23 @@ class _Caster:
                 sub[closer] = s[closer]
                 part[rs, cs][closer] = k
                 continue
-            window = (dxb >= lim[0]) & (dxb <= lim[1]) & (dyb >= lim[2]) & (dyb <= lim[3])
-            idx = np.flatnonzero(window)
+            # Rows of rays (a refined pixel's): only the rows whose slope ranges meet the
+            # window are tested ray by ray; the window's rays are the same, in the same order.
+            if ranges is None:
+                ranges = (dxb.min(axis=1), dxb.max(axis=1), dyb.min(axis=1), dyb.max(axis=1))
+            rows = np.flatnonzero(
+                (ranges[1] >= lim[0])
+                & (ranges[0] <= lim[1])
+                & (ranges[3] >= lim[2])
+                & (ranges[2] <= lim[3])
+            )
+            sx, sy = dxb[rows], dyb[rows]
+            window = (sx >= lim[0]) & (sx <= lim[1]) & (sy >= lim[2]) & (sy <= lim[3])
+            idx = (rows[:, None] * shape[1] + np.arange(shape[1]))[window]
+            spans[k] = idx
             if idx.size == 0:
                 continue
-            s = solid.intersect(cam - centre, dxb[window], dyb[window])
+            s = solid.intersect(cam - centre, sx[window], sy[window])
             flat = best.reshape(-1)
             closer = s < flat[idx]
             flat[idx[closer]] = s[closer]
@@ -157,6 +172,20 @@ class _Caster:
         ids = np.full(shape, -1, np.int32)
         for k, (name, solid, centre) in enumerate(group):
             win = spans[k]  # row-major order within it is that of the whole grid
+            if isinstance(win, np.ndarray):
+                at = win[part.reshape(-1)[win] == k]
+                if at.size:
+                    ids.reshape(-1)[at] = names.index(name)
+                    rad.reshape(-1, 3)[at] = self._shade(
+                        solid,
+                        cam - centre,
+                        best.reshape(-1)[at],
+                        dxb.reshape(-1)[at],
+                        dyb.reshape(-1)[at],
+                        centre,
+                        blockers,
+                    )
+                continue
             m = part[win] == k
             if m.any():
                 ids[win][m] = names.index(name)
@@ -257,7 +286,7 @@ class _Caster:
             out[rr, cc] = rad.mean(axis=1)
 
 
-def _box_mean(ruv: F32, h: int, w: int, s: int) -> F32:
+def _box_mean(ruv: npt.NDArray[Any], h: int, w: int, s: int) -> npt.NDArray[Any]:
     """Mean of each S x S block of ``ruv`` (h S, w S, 3): ``reshape(h, s, w, s, 3).mean(axis=(1,
     3))`` summed in the same order (block rows, then columns) without numpy's slow
     many-axis reduction, so the same float32 bits."""
