@@ -332,18 +332,28 @@ def _closest(
     best: F64, a: F64, b: F64, c: float, od: float = 0.0, dd: F64 | None = None, lim: float = 0.0
 ) -> None:
     """Lower ``best`` in place to the roots t > 1e-9 of a t^2 + 2 b t + c = 0 (as
-    :func:`_roots` and :func:`_first`), only those with |od + t dd| <= lim if ``dd`` is given."""
+    :func:`_roots` and :func:`_first`), only those with |od + t dd| <= lim if ``dd`` is given.
+    The far root (never below the near one) is only solved where the near one is no hit."""
     with np.errstate(divide="ignore", invalid="ignore"):
         disc = b * b
         disc -= a * c
         sq = np.sqrt(np.where(disc >= 0.0, disc, np.nan))
         nb = -b
-        for t in ((nb - sq) / a, (nb + sq) / a):
+        t = nb - sq
+        t /= a
+        ok = t > 1e-9
+        if dd is not None:
+            ok &= np.abs(od + t * dd) <= lim
+        rest = np.flatnonzero(~ok & (disc >= 0.0))
+        ok &= t < best
+        np.copyto(best, t, where=ok)
+        if rest.size:
+            t = (nb[rest] + sq[rest]) / a[rest]
             ok = t > 1e-9
             if dd is not None:
-                ok &= np.abs(od + t * dd) <= lim
-            ok &= t < best
-            np.copyto(best, t, where=ok)
+                ok &= np.abs(od + t * dd[rest]) <= lim
+            ok &= t < best[rest]
+            best[rest[ok]] = t[ok]
 
 
 def _first(*cands: F64) -> F64:
