@@ -196,8 +196,9 @@ class Box(_Solid):
 
     def normals(self, qx: F64, qy: F64, qz: F64) -> tuple[F64, F64, F64]:
         h = self.half_extent_m()
-        rel = np.stack([np.abs(qx) / h[0], np.abs(qy) / h[1], np.abs(qz) / h[2]])
-        axis = np.argmax(rel, axis=0)
+        r0, r1, r2 = np.abs(qx) / h[0], np.abs(qy) / h[1], np.abs(qz) / h[2]
+        axis = np.asarray(r1 > r0).astype(np.intp)  # argmax of (r0, r1, r2): first maximum
+        axis[r2 > np.maximum(r0, r1)] = 2
         return tuple(  # type: ignore[return-value]
             np.where(axis == i, np.sign(q), 0.0) for i, q in enumerate((qx, qy, qz))
         )
