@@ -7,6 +7,7 @@ described in the package docstring and depend on the pixel only, never on the re
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import cv2
 import numpy as np
@@ -112,29 +113,85 @@ class _Caster:
         part = np.full(shape, -1, np.int32)
         names = _names(group)
         dxb, dyb = np.broadcast_to(dx, shape), np.broadcast_to(dy, shape)
-        for k, (name, solid, centre) in enumerate(group):
-            window = None
-            if names.count(name) == 1 and len(names) == len(group):
+        # A coarse grid (a row of dx times a column of dy): a solid's window is a sub-grid.
+        grid = dx.ndim == 2 and dy.ndim == 2 and dx.shape[0] == 1 and dy.shape[1] == 1
+        whole = (slice(None), slice(None))
+        # Per solid, the rays its hits lie among: a sub-grid, or flat indices (ascending).
+        spans: list[tuple[slice, slice] | npt.NDArray[np.intp]] = []
+        ranges: tuple[F64, F64, F64, F64] | None = None  # per row: dx min, max, dy min, max
+        for k, (_, solid, centre) in enumerate(group):
+            spans.append(whole)
+            if len(names) == len(group):  # one solid per object: every ray is cast
                 s = solid.intersect(cam - centre, dx, dy)
-            else:
-                window = _window(solid.half_extent_m(), centre - cam, dxb, dyb)
-                if window is None:
-                    s = solid.intersect(cam - centre, dx, dy)
-                elif not window.any():
+                closer = s < best
+                best = np.where(closer, s, best)
+                part[closer] = k
+                continue
+            lim = _slopes(solid.half_extent_m(), centre - cam)
+            if lim is None:
+                s = solid.intersect(cam - centre, dx, dy)
+                closer = s < best
+                best = np.where(closer, s, best)
+                part[closer] = k
+                continue
+            if grid:
+                cs = _span((dx[0] >= lim[0]) & (dx[0] <= lim[1]))
+                rs = _span((dy[:, 0] >= lim[2]) & (dy[:, 0] <= lim[3]))
+                if cs is None or rs is None:
+                    spans[k] = (slice(0, 0), slice(0, 0))
                     continue
-                else:
-                    s = np.full(shape, np.inf)
-                    s[window] = solid.intersect(cam - centre, dxb[window], dyb[window])
-            closer = s < best
-            best = np.where(closer, s, best)
-            part[closer] = k
+                spans[k] = (rs, cs)
+                s = solid.intersect(cam - centre, dx[:, cs], dy[rs])
+                sub = best[rs, cs]
+                closer = s < sub
+                sub[closer] = s[closer]
+                part[rs, cs][closer] = k
+                continue
+            # Rows of rays (a refined pixel's): only the rows whose slope ranges meet the
+            # window are tested ray by ray; the window's rays are the same, in the same order.
+            if ranges is None:
+                ranges = (dxb.min(axis=1), dxb.max(axis=1), dyb.min(axis=1), dyb.max(axis=1))
+            rows = np.flatnonzero(
+                (ranges[1] >= lim[0])
+                & (ranges[0] <= lim[1])
+                & (ranges[3] >= lim[2])
+                & (ranges[2] <= lim[3])
+            )
+            sx, sy = dxb[rows], dyb[rows]
+            window = (sx >= lim[0]) & (sx <= lim[1]) & (sy >= lim[2]) & (sy <= lim[3])
+            idx = (rows[:, None] * shape[1] + np.arange(shape[1]))[window]
+            spans[k] = idx
+            if idx.size == 0:
+                continue
+            s = solid.intersect(cam - centre, sx[window], sy[window])
+            flat = best.reshape(-1)
+            closer = s < flat[idx]
+            flat[idx[closer]] = s[closer]
+            part.reshape(-1)[idx[closer]] = k
         rad = np.zeros((*shape, 3), np.float32)
         ids = np.full(shape, -1, np.int32)
         for k, (name, solid, centre) in enumerate(group):
-            m = part == k
+            win = spans[k]  # row-major order within it is that of the whole grid
+            if isinstance(win, np.ndarray):
+                at = win[part.reshape(-1)[win] == k]
+                if at.size:
+                    ids.reshape(-1)[at] = names.index(name)
+                    rad.reshape(-1, 3)[at] = self._shade(
+                        solid,
+                        cam - centre,
+                        best.reshape(-1)[at],
+                        dxb.reshape(-1)[at],
+                        dyb.reshape(-1)[at],
+                        centre,
+                        blockers,
+                    )
+                continue
+            m = part[win] == k
             if m.any():
-                ids[m] = names.index(name)
-                rad[m] = self._shade(solid, cam - centre, best[m], dxb[m], dyb[m], centre, blockers)
+                ids[win][m] = names.index(name)
+                rad[win][m] = self._shade(
+                    solid, cam - centre, best[win][m], dxb[win][m], dyb[win][m], centre, blockers
+                )
         return ids, rad
 
     def _render_group(
@@ -173,7 +230,7 @@ class _Caster:
             out = bg[r0:r1, c0:c1].copy()
             ru = 0.5 * (rad[:, :-1] + rad[:, 1:])  # composite trapezoid rule over the pixel
             ruv = 0.5 * (ru[:-1] + ru[1:])
-            out[pure] = ruv.reshape(h, s, w, s, 3).mean(axis=(1, 3))[pure]
+            out[pure] = _box_mean(ruv, h, w, s)[pure]
         kept = np.zeros((h, 1), bool)
         kept[max(0, keep[0] - r0) : max(0, keep[1] - r0)] = True
         for k, name in enumerate(_names(group)):
@@ -229,23 +286,49 @@ class _Caster:
             out[rr, cc] = rad.mean(axis=1)
 
 
+def _box_mean(ruv: npt.NDArray[Any], h: int, w: int, s: int) -> npt.NDArray[Any]:
+    """Mean of each S x S block of ``ruv`` (h S, w S, 3): ``reshape(h, s, w, s, 3).mean(axis=(1,
+    3))`` summed in the same order (block rows, then columns) without numpy's slow
+    many-axis reduction, so the same float32 bits."""
+    v = ruv.reshape(h, s, w, s, 3)
+    acc = v[:, 0, :, 0].copy()
+    for i in range(s):
+        for j in range(s):
+            if i or j:
+                acc += v[:, i, :, j]
+    acc /= np.float32(s * s)
+    return acc
+
+
 def _names(group: list[_Placed]) -> list[str]:
     """Object names of a group, each once, in order of first appearance."""
     return list(dict.fromkeys(name for name, _, _ in group))
 
 
-def _window(half: F64, rel: F64, dx: F64, dy: F64) -> npt.NDArray[np.bool_] | None:
-    """Rays (dx, dy, 1) that can meet the box ``rel +- half`` (relative to the camera), or
-    None when the box reaches behind the near plane (then every ray is a candidate)."""
+def _slopes(half: F64, rel: F64) -> tuple[float, float, float, float] | None:
+    """Bounds (dx lo, dx hi, dy lo, dy hi) of the rays (dx, dy, 1) that can meet the box
+    ``rel +- half`` (relative to the camera), or None when the box reaches behind the near
+    plane (then every ray is a candidate)."""
     lo, hi = rel - half, rel + half
     if lo[2] <= _NEAR_M:
         return None
     xs = [lo[0] / lo[2], lo[0] / hi[2], hi[0] / lo[2], hi[0] / hi[2]]
     ys = [lo[1] / lo[2], lo[1] / hi[2], hi[1] / lo[2], hi[1] / hi[2]]
     eps = 1e-9
-    return np.asarray(
-        (dx >= min(xs) - eps)
-        & (dx <= max(xs) + eps)
-        & (dy >= min(ys) - eps)
-        & (dy <= max(ys) + eps)
+    return (
+        float(min(xs) - eps),
+        float(max(xs) + eps),
+        float(min(ys) - eps),
+        float(max(ys) + eps),
     )
+
+
+def _span(sel: npt.NDArray[np.bool_]) -> slice | None:
+    """The slice of the True entries of ``sel`` (True on one run: the rays' slopes grow
+    along the grid), or None if there are none."""
+    idx = np.flatnonzero(sel)
+    if idx.size == 0:
+        return None
+    if idx[-1] - idx[0] + 1 != idx.size:
+        raise ValueError("ray slopes of a coarse grid must be monotonic")
+    return slice(int(idx[0]), int(idx[-1]) + 1)

@@ -196,8 +196,9 @@ class Box(_Solid):
 
     def normals(self, qx: F64, qy: F64, qz: F64) -> tuple[F64, F64, F64]:
         h = self.half_extent_m()
-        rel = np.stack([np.abs(qx) / h[0], np.abs(qy) / h[1], np.abs(qz) / h[2]])
-        axis = np.argmax(rel, axis=0)
+        r0, r1, r2 = np.abs(qx) / h[0], np.abs(qy) / h[1], np.abs(qz) / h[2]
+        axis = np.asarray(r1 > r0).astype(np.intp)  # argmax of (r0, r1, r2): first maximum
+        axis[r2 > np.maximum(r0, r1)] = 2
         return tuple(  # type: ignore[return-value]
             np.where(axis == i, np.sign(q), 0.0) for i, q in enumerate((qx, qy, qz))
         )
@@ -251,13 +252,45 @@ class Capsule(_Solid):
         return _first(*cands)
 
     def intersect(self, o: F64, dx: F64, dy: F64) -> F64:
+        # :meth:`hit` with a common origin and dz = 1: the per-ray constants become scalars,
+        # each float computed with the same operations in the same order (same bits).
         shape = np.broadcast_shapes(np.shape(dx), np.shape(dy))
-        d = np.stack(
-            [np.broadcast_to(dx, shape), np.broadcast_to(dy, shape), np.ones(shape)], axis=-1
-        ).reshape(-1, 3)
-        oo = np.broadcast_to(np.asarray(o, dtype=np.float64), d.shape)
-        t = self.hit(oo, d)
-        return np.asarray(np.where(t > _NEAR_M, t, np.inf).reshape(shape))
+        ex = np.broadcast_to(dx, shape).reshape(-1)
+        ey = np.broadcast_to(dy, shape).reshape(-1)
+        ox, oy, oz = (float(x) for x in o)
+        ax = np.asarray(self.half_axis_m, dtype=np.float64)
+        r = self.radius_m
+        aa = float(ax @ ax)
+        a = ex * ex
+        a += ey * ey
+        a += 1.0
+        best = np.full(a.shape, np.inf)
+        for sign in (-1.0, 1.0):
+            px, py, pz = (
+                ox + sign * float(ax[0]),
+                oy + sign * float(ax[1]),
+                oz + sign * float(ax[2]),
+            )
+            b = px * ex
+            b += py * ey
+            b += pz
+            _closest(best, a, b, px * px + py * py + pz * pz - r * r)
+        if aa > 0.0:
+            u = ax / math.sqrt(aa)
+            u0, u1, u2 = (float(x) for x in u)
+            od = ox * u0 + oy * u1 + oz * u2
+            dd = np.stack([ex, ey, np.ones(ex.shape)], axis=-1) @ u  # BLAS, as in hit()
+            p0, p1, p2 = ox - od * u0, oy - od * u1, oz - od * u2
+            q0, q1, q2 = ex - dd * u0, ey - dd * u1, 1.0 - dd * u2
+            sa = q0 * q0
+            sa += q1 * q1
+            sa += q2 * q2
+            sb = p0 * q0
+            sb += p1 * q1
+            sb += p2 * q2
+            _closest(best, sa, sb, p0 * p0 + p1 * p1 + p2 * p2 - r * r, od, dd, math.sqrt(aa))
+        best[best <= _NEAR_M] = np.inf
+        return best.reshape(shape)
 
     def _axial(self, q: F64) -> F64:
         ax = np.asarray(self.half_axis_m, dtype=np.float64)
@@ -294,6 +327,34 @@ def _sphere_roots(o: F64, d: F64, r: float) -> tuple[F64, F64]:
     b = ox * dx + oy * dy + oz * dz
     c = ox * ox + oy * oy + oz * oz - r * r
     return _roots(a, b, c)
+
+
+def _closest(
+    best: F64, a: F64, b: F64, c: float, od: float = 0.0, dd: F64 | None = None, lim: float = 0.0
+) -> None:
+    """Lower ``best`` in place to the roots t > 1e-9 of a t^2 + 2 b t + c = 0 (as
+    :func:`_roots` and :func:`_first`), only those with |od + t dd| <= lim if ``dd`` is given.
+    The far root (never below the near one) is only solved where the near one is no hit."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        disc = b * b
+        disc -= a * c
+        sq = np.sqrt(np.where(disc >= 0.0, disc, np.nan))
+        nb = -b
+        t = nb - sq
+        t /= a
+        ok = t > 1e-9
+        if dd is not None:
+            ok &= np.abs(od + t * dd) <= lim
+        rest = np.flatnonzero(~ok & (disc >= 0.0))
+        ok &= t < best
+        np.copyto(best, t, where=ok)
+        if rest.size:
+            t = (nb[rest] + sq[rest]) / a[rest]
+            ok = t > 1e-9
+            if dd is not None:
+                ok &= np.abs(od + t * dd[rest]) <= lim
+            ok &= t < best[rest]
+            best[rest[ok]] = t[ok]
 
 
 def _first(*cands: F64) -> F64:
