@@ -188,7 +188,9 @@ class TrackFilters:
         tr.updates += 1
 
     def _begin(self, tr: Track, t_ns: int, ob: Observation) -> None:
-        """A track before its filter runs. A clipped observation only places it. The first
+        """A track before its filter runs. A clipped observation without a depth from its
+        outline's free edge only places it (one with it counts as whole: a person walking in
+        past the image's side starts their filter there). The first
         whole one after that starts the eyes' 2D histories afresh (so what follows is brought
         to one instant with clean image motion) and places it too. The first exact whole one
         (both eyes at one instant) is kept, and the next exact one starts the filter from the
@@ -198,16 +200,17 @@ class TrackFilters:
         ``max_speed_mps`` allows (beyond three sigmas of their noise along the step) are not
         one object moving: the newer one is kept instead."""
         p = self.params
-        if ob.clipped or not tr.whole:
-            tr.whole = not ob.clipped
+        clipped = ob.clipped and not ob.edge_depth  # cut, and no depth from its free edge
+        if clipped or not tr.whole:
+            tr.whole = not clipped
             tr.first = None
             if tr.whole:
                 tr.left_history.clear()
                 tr.right_history.clear()
                 tr.positions.clear()
-        if ob.clipped or not ob.exact or tr.first is None:
+        if clipped or not ob.exact or tr.first is None:
             tr.kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
-            if not ob.clipped and ob.exact:
+            if not clipped and ob.exact:
                 tr.first = (t_ns, ob)
             return
         t0, ob0 = tr.first
