@@ -60,6 +60,9 @@ class Track:
     """Whether the latest observation was whole (not clipped by the image's edge)."""
     started: bool = False
     """Whether the filter runs (from the second whole observation on)."""
+    edge_begun: bool = False
+    """Whether the filter was started on an outline cut by the image's side (its depth from
+    the free edge, its lateral position loose): it starts afresh at the first whole one."""
     first: tuple[int, Observation] | None = None
     """The first exact whole observation and its instant, kept until the next starts the
     filter."""
@@ -188,7 +191,9 @@ class TrackFilters:
         tr.updates += 1
 
     def _begin(self, tr: Track, t_ns: int, ob: Observation) -> None:
-        """A track before its filter runs. A clipped observation only places it. The first
+        """A track before its filter runs. A clipped observation without a depth from its
+        outline's free edge only places it (one with it counts as whole: a person walking in
+        past the image's side starts their filter there). The first
         whole one after that starts the eyes' 2D histories afresh (so what follows is brought
         to one instant with clean image motion) and places it too. The first exact whole one
         (both eyes at one instant) is kept, and the next exact one starts the filter from the
@@ -198,16 +203,17 @@ class TrackFilters:
         ``max_speed_mps`` allows (beyond three sigmas of their noise along the step) are not
         one object moving: the newer one is kept instead."""
         p = self.params
-        if ob.clipped or not tr.whole:
-            tr.whole = not ob.clipped
+        clipped = ob.clipped and not ob.edge_depth  # cut, and no depth from its free edge
+        if clipped or not tr.whole:
+            tr.whole = not clipped
             tr.first = None
             if tr.whole:
                 tr.left_history.clear()
                 tr.right_history.clear()
                 tr.positions.clear()
-        if ob.clipped or not ob.exact or tr.first is None:
+        if clipped or not ob.exact or tr.first is None:
             tr.kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
-            if not ob.clipped and ob.exact:
+            if not clipped and ob.exact:
                 tr.first = (t_ns, ob)
             return
         t0, ob0 = tr.first
@@ -228,8 +234,25 @@ class TrackFilters:
             )
         tr.first = None
         tr.started = True
+        tr.edge_begun = ob.clipped or ob0.clipped
         tr.positions.clear()
         tr.positions.append((t0, ob0.position_m))
+
+    def _afresh(self, tr: Track, t_ns: int, ob: Observation) -> None:
+        """A track whose filter started on outlines cut by the image's side, seen whole at
+        last: its filters start afresh at this observation (their velocity from the cut
+        outlines' loose lateral positions would bias its heading and speed for seconds: a box
+        pushed in past the image's side read 2.5 deg and 3.5 % off), its noise scale and
+        histories too; it stays started, its velocity unknown until the filter learns it."""
+        p = self.params
+        tr.edge_begun, tr.falling, tr.fall_evidence = False, False, 0.0
+        tr.kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
+        if tr.other is not None:
+            tr.other = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
+        tr.noise_scale, tr.updates = 1.0, 0
+        tr.positions.clear()
+        tr.left_history.clear()
+        tr.right_history.clear()
 
     def _confirmed(self, tr: Track) -> bool:
         """Seen ``confirm_hits`` times, and its filter runs."""

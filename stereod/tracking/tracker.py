@@ -159,7 +159,9 @@ class Tracker(Association):
                 self._begin(tr, t_ns, ob)
             else:
                 tr = self._tracks[tid]
-                if not tr.started:
+                if tr.edge_begun and not ob.clipped:  # whole at last: a filter of whole outlines
+                    self._afresh(tr, t_ns, ob)
+                elif not tr.started:
                     self._begin(tr, t_ns, ob)
                 elif ob.clipped and not ob.edge_depth:  # part of it out of view: predicted
                     self._predict(tr, t_ns)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given
@@ -14,6 +15,7 @@ from stereod.vision.geometry.stereo import (
     SILHOUETTE_Q_MAX,
     CanonicalRig,
     MatchParams,
+    box_edges,
     match_blobs,
     silhouette_depth,
     silhouette_depth_factor,
@@ -236,6 +238,41 @@ def test_matching_by_row_disparity_and_size() -> None:
     got = {(int(i), int(j)) for i, j in idx}
     # Blob 2 would need a negative disparity; right blob 3 is at 200 px, beyond the range.
     assert got == {(0, 1), (1, 0)}
+
+
+def _walking_in(disparity_px: int, right_shift_px: int = 0) -> tuple[np.ndarray, ...]:
+    """Each eye's one blob (OpenCV's centroid, area and box) of a flat figure at
+    ``disparity_px`` walking in past the image's left side: a torso 50 px wide on rows 40-120
+    over a leg 32 px wide on rows 120-200, both reaching 30 px beyond the side in the right
+    eye (the right eye's rows moved down ``right_shift_px``, a pair that is not one object)."""
+    out = []
+    for x0, dy in ((-30 + disparity_px, 0), (-30, right_shift_px)):
+        mask = np.zeros((RIG.height_px, RIG.width_px), np.uint8)
+        mask[40 + dy : 120 + dy, max(x0, 0) : x0 + 50] = 255
+        mask[120 + dy : 200 + dy, max(x0, 0) : x0 + 32] = 255
+        n, _, stats, centroids = cv2.connectedComponentsWithStats(mask)
+        assert n == 2
+        out += [centroids[1:], stats[1:, cv2.CC_STAT_AREA], stats[1:, :4]]
+    return tuple(out)
+
+
+def test_a_blob_cut_by_the_images_side_is_matched_by_its_boxs_uncut_rows() -> None:
+    """The left eye sees 12 px more of the figure than the right, most of it leg: its
+    centroid lies 17 px lower, beyond the row tolerance, though both boxes span rows 40-200.
+    Weighed by those rows (and its free right edge's 12 px disparity) the pair matches; a
+    pair whose uncut rows differ by more than the tolerance still does not."""
+    lc, la, lbox, rc, ra, rbox = _walking_in(12)
+    assert abs(lc[0, 1] - rc[0, 1]) > MatchParams().row_tolerance_px
+    assert len(match_blobs(lc, la, rc, ra, MatchParams())) == 0  # by centroids: no match
+    edges = box_edges(RIG, lbox, True), box_edges(RIG, rbox, False)
+    assert match_blobs(lc, la, rc, ra, MatchParams(), edges=edges).tolist() == [[0, 0]]
+    # the free edge's disparity is the figure's: a range that excludes 12 px refuses it
+    narrow = MatchParams(min_disparity_px=0.5, max_disparity_px=8.0)
+    assert (lc[0, 0] - rc[0, 0]) < 8.0
+    assert len(match_blobs(lc, la, rc, ra, narrow, edges=edges)) == 0
+    lc, la, lbox, rc, ra, rbox = _walking_in(12, right_shift_px=10)
+    edges = box_edges(RIG, lbox, True), box_edges(RIG, rbox, False)
+    assert len(match_blobs(lc, la, rc, ra, MatchParams(), edges=edges)) == 0
 
 
 def test_matching_uses_each_blob_once_and_prefers_the_closer_row() -> None:

@@ -13,6 +13,7 @@ import collections
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -421,6 +422,7 @@ def match_blobs(
     params: MatchParams,
     slack_px: float = 0.0,
     agreement: Callable[[int, int], float] | None = None,
+    edges: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Match blobs by row, disparity range and size; return (m, 2) int index pairs (left, right).
 
@@ -440,6 +442,13 @@ def match_blobs(
     at its new place in the other). Given ``agreement`` (left index, right index -> how alike
     the two eyes' images of the pair are, at most 1: :func:`stereod.vision.agreement.
     eye_agreement`), such candidates cost ``AGREEMENT_WEIGHT`` times their disagreement more.
+
+    Given ``edges`` (each eye's :func:`box_edges`), a pair of which either blob is cut by the
+    image's left or right side is held to its boxes instead of its centroids: each eye sees a
+    different part of the object there, so the centroids' rows and disparity are no evidence.
+    Its rows are the boxes' top and bottom rows that neither eye's image edge cuts (none: a
+    person taller than the view, no row evidence, costed as a full tolerance), its disparity
+    that of the boxes' edges on the side no image edge cuts.
     """
     nl, nr = len(left_px), len(right_px)
     if nl == 0 or nr == 0:
@@ -452,14 +461,24 @@ def match_blobs(
     rows = [right[j][1] for j in by_row]
     tol, lo, hi = params.row_tolerance_px, params.min_disparity_px, params.max_disparity_px
     max_ratio = math.log(params.max_area_ratio)
+    l_box = r_box = None
+    if edges is not None:
+        l_box, r_box = (np.asarray(e, np.float64).reshape(-1, 4).tolist() for e in edges)
+    sided = [j for j in by_row if r_box is not None and _cut_side(r_box[j])]
     candidates = []
     for i, (xl, yl) in enumerate(left):
         if not math.isfinite(yl):
             continue
-        for k in range(bisect.bisect_left(rows, yl - tol), bisect.bisect_right(rows, yl + tol)):
-            j = by_row[k]
+        if l_box is not None and _cut_side(l_box[i]):
+            near = by_row  # its centroid's row says nothing: every right blob may be it
+        else:
+            lo_k, hi_k = bisect.bisect_left(rows, yl - tol), bisect.bisect_right(rows, yl + tol)
+            near = by_row[lo_k:hi_k] + [j for j in sided if not yl - tol <= right[j][1] <= yl + tol]
+        for j in near:
             xr, yr = right[j]
             dy, disp = abs(yl - yr), xl - xr
+            if l_box is not None and r_box is not None:
+                dy, disp = _box_evidence(l_box[i], r_box[j], dy, disp, tol)
             ratio = abs(math.log(l_area[i] / float(r_area[j])))
             if dy > tol or ratio > max_ratio or not lo - slack_px <= disp <= hi + slack_px:
                 continue
@@ -485,3 +504,53 @@ def match_blobs(
         used_l[i] = used_r[j] = True
         out.append((i, j))
     return np.array(out, dtype=np.intp).reshape(-1, 2)
+
+
+def box_edges(rig: CanonicalRig | _Rectifies, bbox_px: np.ndarray, left: bool) -> np.ndarray:
+    """One eye's blobs' boxes (n, 4: x, y, w, h image px) as :func:`match_blobs` weighs a
+    blob cut by the image's side: (n, 4) rectified px of its left and right columns and top
+    and bottom rows (x0, x1, y0, y1; each at the middle of its side), NaN where that side of
+    the box reaches the image's edge (the object may go on beyond it)."""
+    b = np.asarray(bbox_px, np.float64).reshape(-1, 4)
+    x0, y0, w, h = b.T
+    x1, y1 = x0 + w, y0 + h
+    xc, yc = x0 + 0.5 * w, y0 + 0.5 * h
+    pts = np.stack([np.c_[x0, yc], np.c_[x1, yc], np.c_[xc, y0], np.c_[xc, y1]], axis=1)
+    rect = (rig.rectify_left if left else rig.rectify_right)(pts.reshape(-1, 2)).reshape(-1, 4, 2)
+    out = np.stack([rect[:, 0, 0], rect[:, 1, 0], rect[:, 2, 1], rect[:, 3, 1]], axis=1)
+    out[np.c_[x0 <= 0, x1 >= rig.width_px, y0 <= 0, y1 >= rig.height_px]] = np.nan
+    return out
+
+
+class _Rectifies(Protocol):
+    """A rig as :func:`box_edges` uses it: its image size and each eye's rectification."""
+
+    width_px: int
+    height_px: int
+
+    def rectify_left(self, points_px: np.ndarray) -> np.ndarray: ...
+    def rectify_right(self, points_px: np.ndarray) -> np.ndarray: ...
+
+
+def _cut_side(box: list[float]) -> bool:
+    """Whether a :func:`box_edges` box reaches the image's left or right side."""
+    return box[0] != box[0] or box[1] != box[1]
+
+
+def _box_evidence(
+    lb: list[float], rb: list[float], dy: float, disp: float, tol: float
+) -> tuple[float, float]:
+    """A candidate pair's row difference and disparity (px) from its :func:`box_edges` boxes
+    ``lb``, ``rb`` where either is cut by the image's side, else its centroids' ``dy`` and
+    ``disp`` as they are: the largest difference of the top and bottom rows that neither eye
+    cuts (``tol`` when none is uncut in both), and the disparity of the side columns that
+    neither eye cuts (the centroids' when both sides are cut in one eye or the other)."""
+    if not (_cut_side(lb) or _cut_side(rb)):
+        return dy, disp
+    rows = [abs(a - b) for a, b in ((lb[2], rb[2]), (lb[3], rb[3])) if a == a and b == b]
+    dy = max(rows) if rows else tol
+    if lb[0] == lb[0] and rb[0] == rb[0]:
+        disp = lb[0] - rb[0]
+    elif lb[1] == lb[1] and rb[1] == rb[1]:
+        disp = lb[1] - rb[1]
+    return dy, disp
