@@ -38,7 +38,7 @@ from stereod.vision.detect import Detector
 from stereod.vision.detect_params import DetectorParams
 from stereod.vision.geometry.rectified import CalibratedRig
 from stereod.vision.geometry.refine import RefineParams
-from stereod.vision.geometry.stereo import CanonicalRig, MatchParams, box_edges, match_blobs
+from stereod.vision.geometry.stereo import CanonicalRig, MatchParams, match_blobs, side_cut_edges
 from stereod.vision.geometry.triangulate import (
     Matched,
     blob_instants,
@@ -474,7 +474,7 @@ class Pipeline:
         slack = abs(eye_times[1] - eye_times[0]) * 1e-9 * image_speed
         images = pair.left.image, pair.right.image
         agree = lambda i, j: eye_agreement(*images, lb.bbox_px[i], rb.bbox_px[j])  # noqa: E731
-        edges = box_edges(p.rig, lb.bbox_px, True), box_edges(p.rig, rb.bbox_px, False)
+        edges = side_cut_edges(p.rig, lb.bbox_px, rb.bbox_px)
         idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack, agree, edges)
         lpx = lrect[idx[:, 0]]
         rpx = rrect[idx[:, 1]]

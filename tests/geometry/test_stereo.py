@@ -17,6 +17,7 @@ from stereod.vision.geometry.stereo import (
     MatchParams,
     box_edges,
     match_blobs,
+    side_cut_edges,
     silhouette_depth,
     silhouette_depth_factor,
 )
@@ -273,6 +274,23 @@ def test_a_blob_cut_by_the_images_side_is_matched_by_its_boxs_uncut_rows() -> No
     lc, la, lbox, rc, ra, rbox = _walking_in(12, right_shift_px=10)
     edges = box_edges(RIG, lbox, True), box_edges(RIG, rbox, False)
     assert len(match_blobs(lc, la, rc, ra, MatchParams(), edges=edges)) == 0
+
+
+def test_the_box_edges_are_made_only_where_a_blob_reaches_the_images_side() -> None:
+    """Boxes clear of the left and right sides (one reaching the top) give no edges, and
+    matching by centroids alone is what the edges would give; one box at the left side gives
+    both eyes' :func:`box_edges`."""
+    lc, la, lbox, rc, ra, rbox = _walking_in(12)
+    inner = lbox + np.array([[5, 0, -10, 0]]), rbox + np.array([[5, 0, -10, 0]])
+    assert side_cut_edges(RIG, *inner) is None
+    edges = box_edges(RIG, inner[0], True), box_edges(RIG, inner[1], False)
+    lc[0, 1] = rc[0, 1]
+    plain = match_blobs(lc, la, rc, ra, MatchParams())
+    assert plain.tolist() == match_blobs(lc, la, rc, ra, MatchParams(), edges=edges).tolist()
+    got = side_cut_edges(RIG, lbox, rbox)
+    assert got is not None
+    np.testing.assert_array_equal(got[0], box_edges(RIG, lbox, True))
+    np.testing.assert_array_equal(got[1], box_edges(RIG, rbox, False))
 
 
 def test_matching_uses_each_blob_once_and_prefers_the_closer_row() -> None:

@@ -522,6 +522,22 @@ def box_edges(rig: CanonicalRig | _Rectifies, bbox_px: np.ndarray, left: bool) -
     return out
 
 
+def side_cut_edges(
+    rig: CanonicalRig | _Rectifies, left_bbox_px: np.ndarray, right_bbox_px: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Both eyes' :func:`box_edges` when a blob of either reaches the image's left or right
+    side, else None: :func:`match_blobs` then weighs every pair by its centroids, as it would
+    with the edges, and most pairs are spared rectifying four points a box."""
+
+    def cut(bbox_px: np.ndarray) -> bool:
+        b = np.asarray(bbox_px).reshape(-1, 4)
+        return bool(np.any((b[:, 0] <= 0) | (b[:, 0] + b[:, 2] >= rig.width_px)))
+
+    if not (cut(left_bbox_px) or cut(right_bbox_px)):
+        return None
+    return box_edges(rig, left_bbox_px, True), box_edges(rig, right_bbox_px, False)
+
+
 class _Rectifies(Protocol):
     """A rig as :func:`box_edges` uses it: its image size and each eye's rectification."""
 
