@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -52,3 +54,31 @@ def run_stereod(
         cwd=cwd,
         **kw,
     )
+
+
+def receiver(tmp_path: Path, abstract: bool = False) -> tuple[socket.socket, str]:
+    """A datagram socket for sd_notify messages (NOTIFY_SOCKET), at a path or abstract."""
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    if abstract:
+        name = f"stereod-test-{os.getpid()}-{time.monotonic_ns()}"
+        s.bind(b"\0" + name.encode())
+        return s, "@" + name
+    path = tmp_path / "notify.sock"
+    s.bind(str(path))
+    return s, str(path)
+
+
+def collect(sock: socket.socket, until: str, timeout: float) -> list[str]:
+    """The sd_notify lines received until one starts with ``until``, or ``timeout`` s pass."""
+    got: list[str] = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        sock.settimeout(max(0.01, deadline - time.monotonic()))
+        try:
+            msg = sock.recv(4096).decode()
+        except TimeoutError:
+            break
+        got += msg.split("\n")
+        if any(line.startswith(until) for line in msg.split("\n")):
+            break
+    return got

@@ -24,8 +24,7 @@ from stereod.vision.calibration import canonical, save
 from stereod_fakes.synth import Ball, Scene, write_scene
 
 from .fuzz import digest
-from .processes import run_stereod, start_stereod
-from .test_sdnotify import collect, receiver
+from .processes import collect, receiver, run_stereod, start_stereod
 
 pytestmark = pytest.mark.slow
 

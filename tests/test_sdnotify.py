@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -18,19 +17,9 @@ from stereod.daemon.sdnotify import Notifier
 from stereod.vision.calibration import canonical, save
 
 from .conftest import ROOT, zenoh_config
+from .processes import collect, receiver
 
 pytestmark = pytest.mark.slow
-
-
-def receiver(tmp_path: Path, abstract: bool = False) -> tuple[socket.socket, str]:
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    if abstract:
-        name = f"stereod-test-{os.getpid()}-{time.monotonic_ns()}"
-        s.bind(b"\0" + name.encode())
-        return s, "@" + name
-    path = tmp_path / "notify.sock"
-    s.bind(str(path))
-    return s, str(path)
 
 
 @pytest.mark.parametrize("abstract", [False, True])
@@ -61,21 +50,6 @@ def write_config(
         f"fps = 15\n[detector]\nthreshold = {threshold}\n"
         f'[zenoh]\nlisten = ["{endpoint}"]\n[daemon]\nstatus_period_s = 0.5\n'
     )
-
-
-def collect(sock: socket.socket, until: str, timeout: float) -> list[str]:
-    got: list[str] = []
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        sock.settimeout(max(0.01, deadline - time.monotonic()))
-        try:
-            msg = sock.recv(4096).decode()
-        except TimeoutError:
-            break
-        got += msg.split("\n")
-        if any(line.startswith(until) for line in msg.split("\n")):
-            break
-    return got
 
 
 def test_run_speaks_the_notify_protocol_in_order(tmp_path: Path, endpoint: str) -> None:
