@@ -199,38 +199,49 @@ def test_pieces_two_tracks_follow_stay_two_objects() -> None:
     assert group_objects(*args, GroupParams(), owners=[3, None]) is not None
 
 
-def _vtest_run(grouping: bool) -> tuple[list[int], list[int], dict[int, int]]:
+def _vtest_run() -> tuple[dict[bool, list[int]], list[int], dict[bool, dict[int, int]]]:
     """vtest.avi's pedestrians as a stereo pair: the right eye is the left shifted 12 px, so
     every pixel is 11 m deep (f = 665 px, B = 0.2 m: a person 1.7 m tall is then about 100 px,
     as in the video). Per frame from the 60th on: MOG2's blobs (DATA.md's settings: default
-    MOG2, 3 x 3 opening, at least 200 px, its shadows left out), stereod's seen objects of at
-    least 200 px, and
-    for every confirmed track the frames it was seen in."""
+    MOG2, 3 x 3 opening, at least 200 px, its shadows left out), and, with grouping on and off
+    (two pipelines fed the same pairs), stereod's seen objects of at least 200 px and for
+    every confirmed track the frames it was seen in."""
     cap = cv2.VideoCapture(str(shared_data("video", "vtest.avi")))
     rig = CanonicalRig(0.200, 60.0, 768, 576)
-    params = PipelineParams(rig, grouping=GroupParams(enabled=grouping))
+    pipes = {
+        g: Pipeline(PipelineParams(rig, grouping=GroupParams(enabled=g))) for g in (True, False)
+    }
     mog = cv2.createBackgroundSubtractorMOG2()
     kernel = np.ones((3, 3), np.uint8)
-    ours, theirs, life = [], [], {}
+    theirs: list[int] = []
+    ours: dict[bool, list[int]] = {True: [], False: []}
+    life: dict[bool, dict[int, int]] = {True: {}, False: {}}
     shift = np.float32([[1, 0, -12], [0, 1, 0]])
-    with Pipeline(params) as pipe:
+    try:
         for k in range(180):
             ok, img = cap.read()
             assert ok, f"vtest.avi frame {k} did not decode"
             right = cv2.warpAffine(img, shift, (768, 576), borderMode=cv2.BORDER_REPLICATE)
             t = 1_000_000_000 + k * 100_000_000
-            pair = StereoPair.of(img, right, t, t, seq=k)
-            result = pipe.process(pair)
+            results = {
+                g: p.process(StereoPair.of(img, right, t, t, seq=k)) for g, p in pipes.items()
+            }
             fg = cv2.morphologyEx((mog.apply(img) == 255).astype(np.uint8), cv2.MORPH_OPEN, kernel)
             if k < 60:
                 continue
             _, _, stats, _ = cv2.connectedComponentsWithStats(fg)
             theirs.append(int((stats[1:, cv2.CC_STAT_AREA] >= 200).sum()))
-            seen = [s for s in result.tracks if s.lifecycle.value in ("confirmed", "stationary")]
-            ours.append(sum(s.observation.left_area_px >= 200 for s in seen))
-            for s in seen:
-                life[s.track_id] = life.get(s.track_id, 0) + 1
-    cap.release()
+            for g, result in results.items():
+                seen = [
+                    s for s in result.tracks if s.lifecycle.value in ("confirmed", "stationary")
+                ]
+                ours[g].append(sum(s.observation.left_area_px >= 200 for s in seen))
+                for s in seen:
+                    life[g][s.track_id] = life[g].get(s.track_id, 0) + 1
+    finally:
+        for p in pipes.values():
+            p.close()
+        cap.release()
     return ours, theirs, life
 
 
@@ -240,8 +251,8 @@ def test_real_pedestrians_are_fewer_longer_lived_objects_with_grouping() -> None
     licence and a truth is in ../shared/data yet): per frame, stereod reports about as many
     objects as MOG2 finds people-sized blobs, never more, and grouping the pieces of a walker
     makes fewer confirmed tracks that each live longer than without it."""
-    ours, theirs, life = _vtest_run(True)
-    _, _, life_apart = _vtest_run(False)
+    ours_by, theirs, life_by = _vtest_run()
+    ours, life, life_apart = ours_by[True], life_by[True], life_by[False]
     assert np.median(ours) <= np.median(theirs) + 1, (np.median(ours), np.median(theirs))
     assert np.median(ours) >= 0.5 * np.median(theirs), (np.median(ours), np.median(theirs))
     assert len(life) < len(life_apart), (len(life), len(life_apart))
