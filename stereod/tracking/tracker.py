@@ -42,6 +42,10 @@ background for ``hold_still_s``, so it stays seen and keeps its id when it moves
 track not seen in a pair is ``coasting`` (predicted) until ``max_coast_s`` has passed, then it
 ends. A tentative track ends at its first miss, except that one seen once waits one pair
 (still ``tentative``): an object entering the view is small, and one eye may miss it once.
+A confirmed track found to be a piece of another's object (at one depth, moving with it: a
+box a robot pushes) is kept as a member of that object, unpublished and not ended, for up to
+``max_member_s``: a blob that would start a track, coming out of that object's blobs, takes
+the member's id back (the box the robot leaves), so an id is never ended and then used again.
 Ids are never reused. All times are seconds computed from timestamps, never frame counts.
 
 The data are in :mod:`stereod.tracking.types`, association in
