@@ -45,6 +45,20 @@ def test_what_a_pushed_box_leaves_behind_is_no_ghost_for_longer_than_absorb_s() 
         assert life <= absorb_s, f"ghost track {tid} lived {life:.1f} s"
 
 
+def test_a_pushed_box_keeps_one_id() -> None:
+    """The box is background until the robot pushes it, so only its leading strip becomes a
+    track; that track joins the robot's blob at one depth and speed, and the two are one blob
+    for over 2 s (longer than ``max_hidden_s``). The box's track is kept as a member of the
+    robot's object, and the blob that comes out of it when the robot backs off takes the box's
+    id (before: a second id for the box). The robot keeps one id too."""
+    case = acc.world_room("robot_push_box", MODE, seed=0, lead_in_s=0.5, after_s=6.0)
+    score = acc.score(case, acc.run_case(case))
+    objects = {o.name: o.track_ids for o in score.objects}
+    assert objects["box"] and len(objects["box"]) == 1, objects
+    assert len(objects["robot"]) == 1, objects
+    assert score.ghosts == [], f"ghost tracks {score.ghosts}"
+
+
 def test_two_people_crossing_keep_one_id_each() -> None:
     """Two people cross at 2.2 m and 3 m: for about 0.7 s each eye sees one blob of the two,
     longer than ``max_coast_s``. The far one, hidden behind the near one, coasts through it on

@@ -192,10 +192,14 @@ def test_a_track_takes_the_blob_that_comes_out_of_the_one_that_hid_it() -> None:
     np.testing.assert_allclose(state.velocity_mps, [-0.5, 0.0, 0.0], atol=0.1)
 
 
-def merged_seen(a: np.ndarray, b: np.ndarray, size_m: float) -> tuple[Detection, Observation]:
-    """One blob of two objects in each eye, as the pipeline would measure it: the union of
-    their boxes, the area-weighted mean of their centroids, triangulated."""
-    (det_a, _), (det_b, _) = seen(a, size_m=size_m), seen(b, size_m=size_m)
+def merged_seen(
+    a: np.ndarray, b: np.ndarray, size_m: float, size_b_m: float | None = None
+) -> tuple[Detection, Observation]:
+    """One blob of two objects in each eye (``b`` of ``size_b_m``, default ``size_m``), as the
+    pipeline would measure it: the union of their boxes, the area-weighted mean of their
+    centroids, triangulated."""
+    det_a, _ = seen(a, size_m=size_m)
+    det_b, _ = seen(b, size_m=size_m if size_b_m is None else size_b_m)
     wa, wb = det_a.area_px, det_b.area_px
     lpx = (wa * det_a.left_px + wb * det_b.left_px) / (wa + wb)
     rpx = (wa * det_a.right_px + wb * det_b.right_px) / (wa + wb)
@@ -743,8 +747,71 @@ def test_pieces_followed_apart_end_into_one_track_when_seen_whole() -> None:
     t = 6 * DT_NS
     both = 0.5 * (torso(t * 1e-9) + arm(t * 1e-9))
     states, ended = step(tracker, t, [both], size_m=0.6)
-    assert tracker.live_ids() == [1] and ended == [2], (tracker.live_ids(), ended)
+    assert tracker.live_ids() == [1] and ended == [], (tracker.live_ids(), ended)
     assert [(s.track_id, s.lifecycle) for s in states] == [(1, TrackLifecycle.CONFIRMED)]
+    # The arm's track is a member of the person's object, neither published nor ended, until
+    # max_member_s passes with it never coming out again: then it ends.
+    max_member_s = TrackerParams().max_member_s
+    k = 7
+    while not ended:
+        t = k * DT_NS
+        states, ended = step(tracker, t, [0.5 * (torso(t * 1e-9) + arm(t * 1e-9))], size_m=0.6)
+        assert [s.track_id for s in states] == [1]
+        k += 1
+    assert ended == [2]
+    assert max_member_s < (k - 1 - 6) * DT_NS * 1e-9 <= max_member_s + DT_NS * 1e-9
+
+
+def test_an_object_taken_into_anothers_for_longer_than_max_hidden_s_keeps_its_id() -> None:
+    """A robot (0.3 m) pushes a box (0.15 m) 0.3 m to its right at 0.4 m/s: first two blobs,
+    then for 2.5 s (longer than ``max_hidden_s``) one, at one depth and moving together, so the
+    box's track is taken into the robot's object. Then the robot backs off and the box stays:
+    the blob that comes out of the robot's is the box again, with its id (before: a new one),
+    and each keeps one id to the end."""
+    assert TrackerParams().max_hidden_s < 2.5
+    tracker = _tracker()
+    depth, v = 2.0, 0.4
+    merged_from, parted_at = 15, 15 + 75  # 2.5 s as one blob
+
+    def robot(t: float) -> np.ndarray:
+        t_part = parted_at * DT_NS * 1e-9
+        x = -0.6 + v * min(t, t_part) - v * max(t - t_part, 0.0)
+        return np.array([x, 0.0, depth])
+
+    def box(t: float) -> np.ndarray:
+        return robot(min(t, parted_at * DT_NS * 1e-9)) + np.array([0.3, 0.0, 0.0])
+
+    ids: dict[str, set[int]] = {"robot": set(), "box": set()}
+    for k in range(parted_at + 45):
+        t = k * DT_NS
+        a, b = robot(t * 1e-9), box(t * 1e-9)
+        if merged_from <= k < parted_at:
+            det, ob = merged_seen(a, b, 0.3, 0.15)
+            assignment, may_start = tracker.associate([det], (t, t))
+            states, ended = tracker.update(t, [ob], assignment, (t, t), [det])
+            assert [s.track_id for s in states] == [1] and ended == [], (states, ended)
+            continue
+        pairs = [seen(a, size_m=0.3)] + ([seen(b, size_m=0.15)] if k >= 1 else [])
+        dets = [d for d, _ in pairs]
+        assignment, may_start = tracker.associate(dets, (t, t))
+        obs = [
+            ob if tid is not None or ok else None
+            for (_, ob), tid, ok in zip(pairs, assignment, may_start, strict=True)
+        ]
+        states, ended = tracker.update(t, obs, assignment, (t, t), dets)
+        assert ended == []
+        for s in states:
+            nearer = (
+                "robot"
+                if np.linalg.norm(s.position_m - a) < np.linalg.norm(s.position_m - b)
+                else "box"
+            )
+            ids[nearer].add(s.track_id)
+    assert ids == {"robot": {1}, "box": {2}}, ids
+    t = (parted_at + 44) * DT_NS * 1e-9
+    final = {s.track_id: s for s in states}
+    np.testing.assert_allclose(final[2].position_m, box(t), atol=0.03)
+    np.testing.assert_allclose(final[1].position_m, robot(t), atol=0.03)
 
 
 def test_two_objects_crossing_in_one_blob_are_not_merged() -> None:

@@ -149,6 +149,7 @@ class Association(TrackFilters):
 
     _project: Projector | None
     _merging: dict[int, int]
+    _members: dict[int, Track]
     _fronts: dict[int, tuple[bool, float]]
     line_ns: float
     _tracks: dict[int, Track]
@@ -294,6 +295,28 @@ class Association(TrackFilters):
                 tid = tracks[min(came_out, key=lambda j: cost_px[i][j])].track_id
                 out[i] = tid
                 taken.add(tid)
+                continue
+            # Or out of the object a member was taken into (a box a robot pushed, that it now
+            # leaves): it is that member again, the nearest to where it was last seen if several.
+            out_of = [
+                m
+                for m in self._members.values()
+                if (hid := m.hidden_in) is not None
+                and _inside(d.left_px, hid[0], 0.0)
+                and _inside(d.right_px, hid[1], 0.0)
+            ]
+            if out_of:
+                m = min(
+                    out_of,
+                    key=lambda m: max(
+                        _dist(d.left_px, m.left_history[-1][1]),
+                        _dist(d.right_px, m.right_history[-1][1]),
+                    ),
+                )
+                del self._members[m.track_id]
+                m.blended = True  # its 2D histories are of before: skew compensation waits
+                self._tracks[m.track_id] = m
+                out[i] = m.track_id
         return out, may_start
 
     def _in_front(

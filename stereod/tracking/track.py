@@ -84,7 +84,14 @@ class Track:
     hidden_in: tuple[np.ndarray, np.ndarray] | None = None
     """While a confirmed track is unseen: the boxes (left, right; x, y, w, h px) of the blobs
     that hid it in the latest pair (where its prediction fell, or what the blob that hid it
-    before became: moved on, or parted in two); None when seen, or hidden by nothing."""
+    before became: moved on, or parted in two); None when seen, or hidden by nothing. For a
+    member of another's object (``member_of``): that object's blobs, followed while they
+    overlap, that it may come out of."""
+    member_of: int | None = None
+    """The track whose object this one was taken into as a piece (it is then a member: not
+    published, not ended, for up to ``max_member_s``), or None."""
+    merged_ns: int = 0
+    """When it became a member (ns)."""
 
 
 class TrackFilters:

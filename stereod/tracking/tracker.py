@@ -42,6 +42,10 @@ background for ``hold_still_s``, so it stays seen and keeps its id when it moves
 track not seen in a pair is ``coasting`` (predicted) until ``max_coast_s`` has passed, then it
 ends. A tentative track ends at its first miss, except that one seen once waits one pair
 (still ``tentative``): an object entering the view is small, and one eye may miss it once.
+A confirmed track found to be a piece of another's object (at one depth, moving with it: a
+box a robot pushes) is kept as a member of that object, unpublished and not ended, for up to
+``max_member_s``: a blob that would start a track, coming out of that object's blobs, takes
+the member's id back (the box the robot leaves), so an id is never ended and then used again.
 Ids are never reused. All times are seconds computed from timestamps, never frame counts.
 
 The data are in :mod:`stereod.tracking.types`, association in
@@ -78,7 +82,11 @@ class Tracker(Association):
         self._project = project
         self._merging: dict[int, int] = {}
         """Tracks the last :meth:`associate` found to be pieces of another's object (absorbed
-        id -> keeper id): they end in :meth:`update` once the keeper is seen."""
+        id -> keeper id): they become members of it in :meth:`update` once the keeper is seen."""
+        self._members: dict[int, Track] = {}
+        """Tracks taken into another's object (id -> track, its ``member_of`` the keeper's id):
+        not published and not ended, for up to ``max_member_s``; one comes back when a blob that
+        would start a track comes out of that object (:meth:`associate`)."""
         self._fronts: dict[int, tuple[bool, float]] = {}
         """Detections the last :meth:`associate` gave to the nearer of two objects in one blob
         (index -> whether the other joins it on its right, and the other's predicted disparity,
@@ -159,7 +167,10 @@ class Tracker(Association):
                 self._begin(tr, t_ns, ob)
             else:
                 tr = self._tracks[tid]
-                if tr.edge_begun and not ob.clipped:  # whole at last: a filter of whole outlines
+                if tr.member_of is not None:  # out of the object it was taken into: anew
+                    tr.member_of = None
+                    self._afresh(tr, t_ns, ob)
+                elif tr.edge_begun and not ob.clipped:  # whole at last: a filter of whole outlines
                     self._afresh(tr, t_ns, ob)
                 elif not tr.started:
                     self._begin(tr, t_ns, ob)
@@ -196,11 +207,13 @@ class Tracker(Association):
         )
         for tid, keeper in self._merging.items():
             if tid in self._tracks and tid not in seen and keeper in seen:
-                ended.append(tid)  # a piece of the keeper's object, now seen whole
-                del self._tracks[tid]
+                self._take_in(self._tracks.pop(tid), keeper, t_ns)  # a piece of its object
         self._merging = {}
         for tid, tr in list(self._tracks.items()):
             if tid in seen:
+                continue
+            if tr.member_of is not None:  # given a blob that gave no position: still a member
+                self._members[tid] = self._tracks.pop(tid)
                 continue
             tr.misses += 1
             if not self._confirmed(tr):
@@ -225,7 +238,26 @@ class Tracker(Association):
                     del self._tracks[tid]
                 elif tr.started or tr.whole:
                     states.append(self._state(tr, t_ns, observed=False))
+        member_ns = int(p.max_member_s * 1e9)
+        for tid, tr in list(self._members.items()):
+            if tr.member_of not in self._tracks or t_ns - tr.merged_ns > member_ns:
+                ended.append(tid)  # its object ended, or it never came out of it
+                del self._members[tid]
+            else:
+                tr.hidden_in = _held_in(tr.hidden_in, boxes)
         return states, ended
+
+    def _take_in(self, tr: Track, keeper: int, t_ns: int) -> None:
+        """Make ``tr`` a member of ``keeper``'s object from ``t_ns`` (ns): it is followed as
+        that object's blob (its boxes in each eye, :func:`_held_in`) until it comes out of it
+        or ``max_member_s`` passes; its own members go to ``keeper`` with it."""
+        tr.member_of, tr.merged_ns = keeper, t_ns
+        last = self._tracks[keeper].last
+        tr.hidden_in = (last.left_bbox_px.copy(), last.right_bbox_px.copy())
+        for member in self._members.values():
+            if member.member_of == tr.track_id:
+                member.member_of = keeper
+        self._members[tr.track_id] = tr
 
     def _hiding(
         self, tr: Track, eye_times_ns: tuple[int, int], boxes: tuple[np.ndarray, np.ndarray]
@@ -254,7 +286,24 @@ class Tracker(Association):
         self._next_id = max(self._next_id, other._next_id)
 
     def end_all(self) -> list[int]:
-        """End every live track (end of input); return their ids."""
-        ids = list(self._tracks)
+        """End every live track and member (end of input); return their ids."""
+        ids = list(self._tracks) + list(self._members)
         self._tracks.clear()
+        self._members.clear()
         return ids
+
+
+def _held_in(
+    before: tuple[np.ndarray, np.ndarray] | None, boxes: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where an object's blob is now, in each eye, given where it was (``before``: left and
+    right boxes, x, y, w, h px) and this pair's blobs (``boxes``, (n, 4) per eye): the union of
+    the blobs that overlap it (it moved, or parted in two), or where it was if none does (the
+    object unseen in that eye)."""
+    if before is None:
+        return None
+    out = []
+    for e in range(2):
+        hit = [b for b in boxes[e] if _overlaps(b, before[e])]
+        out.append(_union(hit) if hit else before[e])
+    return out[0], out[1]

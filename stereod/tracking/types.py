@@ -124,10 +124,13 @@ class TrackerParams:
     legs swing, wanders by a fifth of their size from one frame to the next. ``merge_depth_m``,
     ``merge_speed_mps``: confirmed tracks that one detection holds, at one depth and moving
     together within these, are pieces of one object followed apart, and the longest-followed one
-    takes it. ``gravity_mps2``: gravity in the rig frame (m/s^2; Y points down in a level rig);
-    every moving track is filtered both as moving straight and as falling freely, and follows
-    the likelier (a thrown ball falls 5 mm in one frame at 30 Hz, and a straight-line filter
-    bends its depth to explain that); (0, 0, 0) turns this off.
+    takes it. ``max_member_s``: how long (s) a track so taken into another's object is kept as a
+    member of it (not published, not ended): a blob that would start a track, coming out of
+    that object's blob, takes the member's id (a box a robot pushed for two seconds, then left);
+    a member not seen again by then ends. ``gravity_mps2``: gravity in the rig frame (m/s^2; Y
+    points down in a level rig); every moving track is filtered both as moving straight and as
+    falling freely, and follows the likelier (a thrown ball falls 5 mm in one frame at 30 Hz,
+    and a straight-line filter bends its depth to explain that); (0, 0, 0) turns this off.
     """
 
     gate_px: float = 6.0
@@ -147,6 +150,7 @@ class TrackerParams:
     size_gate: float = 0.25
     merge_depth_m: float = 0.5
     merge_speed_mps: float = 0.5
+    max_member_s: float = 5.0
     stationary_mps: float = 0.05
     gravity_mps2: tuple[float, float, float] = (0.0, 9.81, 0.0)
 
