@@ -23,14 +23,13 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from stereod.bus.messages import ObjectsMessage
 from stereod.fusion import rows as tab
 from stereod.fusion.room import Room
-from stereod.fusion.rows import DIAG, PCOV, POS, SEEN, VCOV, VEL, Table
+from stereod.fusion.rows import DIAG, DIAG_P, PCOV, POS, SEEN, VCOV, VEL, Estimates, Table
 from stereod.fusion.wire import RigWire, from_message
 from stereod.tracking.assignment import min_cost_assignment
 from stereod.tracking.types import TrackLifecycle
@@ -38,8 +37,6 @@ from stereod.tracking.types import TrackLifecycle
 CHI2_3DOF_999 = 16.27
 """Squared Mahalanobis distance below which 99.9 % of a 3-D Gaussian's samples fall."""
 _FORBIDDEN = 1e9
-DIAG_P = [6, 10, 14]
-"""The position covariance's diagonal among a table row's columns."""
 
 
 @dataclass(frozen=True)
@@ -95,6 +92,10 @@ class FusedFrame:
     its track's own stamp (UTC ns, as corrected), position (m) and position covariance (m^2)
     there, in the room frame, not predicted (what clock offsets are estimated from: capture
     stamps only)."""
+    rows: np.ndarray | None = None
+    """The tracks' states as rows of ``rows.WIDTH`` columns (position, velocity, their
+    covariances), in the order of :attr:`tracks`, for writing them out at once; None when
+    not given."""
 
 
 def fuse_gaussians(
@@ -118,36 +119,12 @@ def mahalanobis2(a: np.ndarray, a_cov: np.ndarray, b: np.ndarray, b_cov: np.ndar
 
 def _snapshot(t: RoomTrack) -> RoomTrack:
     """A shallow copy of ``t`` with its own members (its arrays are replaced at each step,
-    never written into, so they are shared)."""
-    return RoomTrack(
-        t.room_id, t.stamp_utc_ns, t.first_ns, t.last_seen_ns, t.position, t.position_cov,
-        t.velocity, t.velocity_cov, t.state, dict(t.members), t.extra, t.velocity_valid,
-        t.heading_valid,
-    )  # fmt: skip
-
-
-class _Estimates:
-    """Room tracks' positions and covariances at one instant, as arrays by slot (the step's
-    association works on them; a link or a new room track updates one in place)."""
-
-    def __init__(self, rids: list[int], mean: np.ndarray, cov: np.ndarray) -> None:
-        self.rids = rids
-        self.slot = {rid: k for k, rid in enumerate(rids)}
-        self.mean = mean
-        """(k, 3) m."""
-        self.cov = cov
-        """(k, 9) m^2, row-major."""
-
-    def set(self, rid: int, mean: np.ndarray, cov: np.ndarray) -> None:
-        """Room track ``rid``'s estimate is now ``mean`` (3,), ``cov`` (9,)."""
-        k = self.slot.get(rid)
-        if k is None:
-            self.slot[rid] = len(self.rids)
-            self.rids.append(rid)
-            self.mean = np.concatenate([self.mean, mean[None]])
-            self.cov = np.concatenate([self.cov, cov[None]])
-        else:
-            self.mean[k], self.cov[k] = mean, cov
+    never written into, so they are shared): its fields copied at once, with no ``__init__``
+    (a step returns a copy of each track it touched)."""
+    copy = object.__new__(RoomTrack)
+    copy.__dict__.update(t.__dict__)
+    copy.members = dict(t.members)
+    return copy
 
 
 class Fuser:
@@ -178,6 +155,11 @@ class Fuser:
         """Rig tracks waiting to open a room track (``birth_s``): when first seen waiting, ns."""
         self._tracks: dict[int, RoomTrack] = {}
         self._next_id = 1
+        self._bare: set[int] = set()
+        """Room tracks with no member (coasting on their own state)."""
+        self._seen_floor = 0
+        """No room track was last seen before this (UTC ns): a lower bound, raised when the
+        tracks are looked over for their coast."""
         self.restarts: dict[str, int] = {}
         """Times each rig's sequence numbers started again (its daemon restarted)."""
         self.clock_corrections_ns: dict[str, int] = {}
@@ -245,6 +227,8 @@ class Fuser:
             if track is not None:
                 track.members.pop(rig, None)
                 lost.add(room_id)
+                if not track.members:
+                    self._bare.add(room_id)
         return lost
 
     def live_rigs(self, t_ns: int) -> list[str]:
@@ -279,7 +263,8 @@ class Fuser:
         tracks, not the room's."""
         live = self.live_rigs(t_ns)
         lost: set[int] = set()
-        for rig in [r for r in self._table.count if r not in live]:
+        live_set = set(live)
+        for rig in [r for r in self._table.count if r not in live_set]:
             lost |= self._forget_rig(rig)
         index = self._table.index
         for key in [
@@ -299,9 +284,13 @@ class Fuser:
                 if track is not None and track.members.get(rig) == tid:
                     del track.members[rig]
                     lost.add(rid)
+                    if not track.members:
+                        self._bare.add(rid)
         self._dirty.clear()
         assoc = live if rigs is None else [r for r in live if r in rigs]
-        if any(tid not in self._links.get(r, ()) for r in assoc for tid in index.get(r, ())):
+        # Every link of a rig is to a track in its message now, so it has a track not linked
+        # yet exactly when it has more tracks than links.
+        if any(len(index.get(r, ())) > len(self._links.get(r, ())) for r in assoc):
             estimate = self._estimates(t_ns)
             for rig in assoc:
                 self._associate(rig, estimate, t_ns)
@@ -311,14 +300,14 @@ class Fuser:
             # Those tracks, those that just lost a member, and those with none (coasting: a
             # step predicts them on, as a full step does, so that they gate as they would).
             touched = {rid for rid in lost if rid in self._tracks}
-            touched.update(rid for rid, tr in self._tracks.items() if not tr.members)
+            touched.update(self._bare)
             for rig in assoc:
                 touched.update(self._links.get(rig, {}).values())
-        ended, shared = self._update(t_ns, touched)
+        ended, shared, state = self._update(t_ns, touched)
         # Copies: the caller may keep a frame while the next steps change the tracks (whose
         # arrays are replaced, never written into).
         tracks = [_snapshot(self._tracks[rid]) for rid in sorted(touched) if rid in self._tracks]
-        return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, shared=shared)
+        return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, shared=shared, rows=state)
 
     def tracks(self) -> list[RoomTrack]:
         """Every room track now, each at its own last stamp (copies), by id."""
@@ -354,12 +343,12 @@ class Fuser:
         )  # fmt: skip
         return tab.predict_rows(f, np.array([(t_ns - t.stamp_utc_ns) * 1e-9 for t in trs]))
 
-    def _estimates(self, t_ns: int) -> _Estimates:
+    def _estimates(self, t_ns: int) -> Estimates:
         """Each room track's position and covariance at ``t_ns``: its linked members'
         fusion, or its last fused state predicted."""
         rids = sorted(self._tracks)
         mean, cov = np.zeros((len(rids), 3)), np.zeros((len(rids), 9))
-        est = _Estimates(rids, mean, cov)
+        est = Estimates(rids, mean, cov)
         idx, starts, with_members = self._member_rows(rids)
         if with_members:
             f = self._predicted(idx, t_ns)
@@ -382,7 +371,7 @@ class Fuser:
         m, c = tab.fuse_groups(f[:, POS], f[:, PCOV], np.zeros(1, dtype=np.int64))
         return m[0], c[0]
 
-    def _associate(self, rig: str, est: _Estimates, t_ns: int) -> None:
+    def _associate(self, rig: str, est: Estimates, t_ns: int) -> None:
         """Link ``rig``'s unlinked tracks to room tracks that have no track of ``rig`` yet, or
         only one it no longer sees (coasting: a seen track of that rig there replaces it, so
         that a rig's new track of an object joins its room track instead of opening a second
@@ -444,7 +433,7 @@ class Fuser:
             rid = self._open(self._predicted([row], t_ns)[0], t_ns)
             self._link(rig, row, rid, est, t_ns)
 
-    def _born(self, rig: str, left: list[int], est: _Estimates, t_ns: int) -> list[int]:
+    def _born(self, rig: str, left: list[int], est: Estimates, t_ns: int) -> list[int]:
         """Of the seen rig tracks no room track took, those that open one now: any not within
         the gate of a room track, and one within it (it contradicts a room track that has its
         rig's track already: a split blob, a stray) once it has been seen for ``birth_s``, so
@@ -476,16 +465,20 @@ class Fuser:
     def _unlink(self, rig: str, room_id: int) -> None:
         """Take ``rig``'s track out of room track ``room_id`` (another of its rig replaces
         it); it stays free, and opens nothing while its rig does not see it."""
-        tid = self._tracks[room_id].members.pop(rig)
+        members = self._tracks[room_id].members
+        tid = members.pop(rig)
         self._links[rig].pop(tid, None)
+        if not members:
+            self._bare.add(room_id)
 
-    def _link(self, rig: str, row: int, room_id: int, est: _Estimates, t_ns: int) -> None:
+    def _link(self, rig: str, row: int, room_id: int, est: Estimates, t_ns: int) -> None:
         """Link ``rig``'s track at table row ``row`` to room track ``room_id``; its estimate
         becomes its members' fusion."""
         tid = self._table.ids[rig][row - self._table.rows(rig).start]
         self._links[rig][tid] = room_id
         members = self._tracks[room_id].members
         members[rig] = tid
+        self._bare.discard(room_id)
         index = self._table.index
         est.set(room_id, *self._fuse_members([index[r][t] for r, t in members.items()], t_ns))
 
@@ -503,22 +496,28 @@ class Fuser:
             velocity=f[VEL].copy(),
             velocity_cov=f[VCOV].reshape(3, 3).copy(),
         )
+        self._bare.add(rid)
+        self._seen_floor = min(self._seen_floor, t_ns)
         return rid
 
-    def _update(self, t_ns: int, touched: set[int]) -> tuple[list[int], _Shared]:
+    def _update(self, t_ns: int, touched: set[int]) -> tuple[list[int], _Shared, np.ndarray | None]:
         """Fuse each ``touched`` room track's members at ``t_ns`` (all of them in one array
         operation); coast those with none; end any unseen for ``max_coast_s``. Returns the
-        ended ids and, for each track fused here that more than one rig sees, its members'
-        own (unpredicted) measurements."""
+        ended ids, for each track fused here that more than one rig sees its members' own
+        (unpredicted) measurements, and the touched tracks left (by id) as table rows."""
         rids = sorted(touched)
         idx, starts, with_members = self._member_rows(rids)
         k = len(with_members)
-        state: dict[int, tuple[Any, ...]] = {}
+        parts = []
+        extra: list[np.ndarray | None] = [None] * k
+        flags: list[list[bool] | None] = [None] * k
         shared: _Shared = {}
         if k:
             table = self._table
-            raw = table.f[idx]
-            f = tab.predict_rows(raw, (t_ns - table.stamps[idx]) * 1e-9)
+            i = np.array(idx, dtype=np.intp)
+            raw = table.f.take(i, axis=0)
+            stamps = table.stamps.take(i)
+            f = tab.predict_rows(raw, (t_ns - stamps) * 1e-9)
             r = len(idx)
             s = np.array(starts)
             # Position and velocity in one fusion: runs 0..k-1 positions, k..2k-1 velocities.
@@ -527,43 +526,54 @@ class Fuser:
                 np.concatenate([f[:, PCOV], f[:, VCOV]]),
                 np.concatenate([s, s + r]),
             )
-            pos, vel = both[:k], both[k:]
-            pcov, vcov = both_cov[:k].reshape(k, 3, 3), both_cov[k:].reshape(k, 3, 3)
-            flags = np.logical_or.reduceat(table.flags[idx], s, axis=0).tolist()
-            trace = (f[:, 6] + f[:, 10] + f[:, 14]).tolist()
+            parts.append(np.concatenate([both[:k], both[k:], both_cov[:k], both_cov[k:]], 1))
+            flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0).tolist()
+            trace = f[:, DIAG_P].sum(axis=1).tolist()
             ends = [*starts[1:], r]
             best = [
                 min(range(a, b), key=trace.__getitem__) for a, b in zip(starts, ends, strict=True)
             ]
-            extra = table.extra[[idx[j] for j in best]]
-            stamps = table.stamps[idx].tolist()
+            extra = list(table.extra.take(i[best], axis=0))
+            stamp_list = stamps.tolist()
+            positions, covs = raw[:, POS], raw[:, PCOV].reshape(-1, 3, 3)
             for g, rid in enumerate(with_members):
-                state[rid] = (pos[g], pcov[g], vel[g], vcov[g], flags[g], extra[g])
                 a, b = starts[g], ends[g]
                 if b - a >= 2:
                     rigs = list(self._tracks[rid].members)
                     shared[rid] = [
-                        (rigs[j - a], stamps[j], raw[j, POS], raw[j, PCOV].reshape(3, 3))
-                        for j in range(a, b)
+                        (rigs[j - a], stamp_list[j], positions[j], covs[j]) for j in range(a, b)
                     ]
-        coasting = [rid for rid in rids if rid not in state]
+        coasting = [rid for rid in rids if not self._tracks[rid].members]
         if coasting:
-            f = self._coast(coasting, t_ns)
-            for j, rid in enumerate(coasting):
-                row = f[j]
-                state[rid] = (row[POS], row[PCOV].reshape(3, 3), row[VEL],
-                              row[VCOV].reshape(3, 3), None, None)  # fmt: skip
+            parts.append(self._coast(coasting, t_ns))
         ended: list[int] = []
         coast_ns = int(self.params.max_coast_s * 1e9)
-        for rid, tr in list(self._tracks.items()):
-            if rid not in touched and t_ns - tr.last_seen_ns > coast_ns:
-                ended.append(self._end(rid))
-        for rid in rids:
+        if t_ns - self._seen_floor > coast_ns:
+            # Some track may be unseen too long: look (the floor is the oldest sighting, kept
+            # low while tracks are seen, so that most steps need not look at every track).
+            for rid, tr in list(self._tracks.items()):
+                if rid not in touched and t_ns - tr.last_seen_ns > coast_ns:
+                    ended.append(self._end(rid))
+            self._seen_floor = min((tr.last_seen_ns for tr in self._tracks.values()), default=t_ns)
+        if not rids:
+            return ended, shared, None
+        state = np.concatenate(parts) if len(parts) > 1 else parts[0]
+        extra += [None] * len(coasting)
+        flags += [None] * len(coasting)
+        keep = []
+        # Each track's arrays are views of one row of ``state`` (one call per column, not
+        # per track).
+        pos, vel = list(state[:, POS]), list(state[:, VEL])
+        pcov, vcov = list(state[:, PCOV].reshape(-1, 3, 3)), list(state[:, VCOV].reshape(-1, 3, 3))
+        for rid, j in sorted(zip(with_members + coasting, range(len(rids)), strict=True)):
             tr = self._tracks[rid]
-            tr.position, tr.position_cov, tr.velocity, tr.velocity_cov, fl, ex = state[rid]
+            tr.position, tr.velocity, tr.position_cov, tr.velocity_cov = (
+                pos[j], vel[j], pcov[j], vcov[j]
+            )  # fmt: skip
+            fl = flags[j]
             if fl is not None:
                 seen, moving, vvalid, hvalid = fl
-                tr.extra = ex
+                tr.extra = extra[j]
                 tr.velocity_valid, tr.heading_valid = vvalid, hvalid
                 if seen:
                     tr.last_seen_ns = t_ns
@@ -576,11 +586,15 @@ class Fuser:
             if t_ns - tr.last_seen_ns > coast_ns:
                 ended.append(self._end(rid))
                 shared.pop(rid, None)
-        return ended, shared
+            else:
+                keep.append((rid, j))
+        self._seen_floor = min(self._seen_floor, t_ns)
+        return ended, shared, state[[j for _, j in keep]]
 
     def _end(self, rid: int) -> int:
         """End room track ``rid`` and drop its links; returns ``rid``."""
         tr = self._tracks.pop(rid)
+        self._bare.discard(rid)
         for rig, tid in tr.members.items():
             self._links.get(rig, {}).pop(tid, None)
         return rid

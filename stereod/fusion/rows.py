@@ -24,21 +24,27 @@ WIDTH = 24
 SEEN, MOVING, VVALID, HVALID = range(4)
 """Columns of :attr:`Table.flags`: measured in this pair, measured and not stationary,
 velocity valid, heading valid."""
-DIAG = [0, 4, 8]
+DIAG = np.array([0, 4, 8])
 """The diagonal's columns in a row-major 3x3 matrix of nine columns."""
-TRANSPOSE = [0, 3, 6, 1, 4, 7, 2, 5, 8]
-# inv = adj / det, adj[k] = m[P[k]] m[Q[k]] - m[R[k]] m[S[k]] (row-major 3x3).
-_P = [4, 2, 1, 5, 0, 2, 3, 1, 0]
-_Q = [8, 7, 5, 6, 8, 3, 7, 6, 4]
-_R = [5, 1, 2, 3, 2, 0, 4, 0, 1]
-_S = [7, 8, 4, 8, 6, 5, 6, 7, 3]
+DIAG_P = np.array([6, 10, 14])
+"""The position covariance's diagonal among a table row's columns."""
+TRANSPOSE = np.array([0, 3, 6, 1, 4, 7, 2, 5, 8])
+# inv = adj / det, adj[k] = m[P[k]] m[Q[k]] - m[R[k]] m[S[k]] (row-major 3x3): P, Q, R, S
+# one after another, so that the four are one gather.
+_PQRS = np.array([
+    4, 2, 1, 5, 0, 2, 3, 1, 0,
+    8, 7, 5, 6, 8, 3, 7, 6, 4,
+    5, 1, 2, 3, 2, 0, 4, 0, 1,
+    7, 8, 4, 8, 6, 5, 6, 7, 3,
+])  # fmt: skip
 
 
 def inv3(m: np.ndarray) -> np.ndarray:
     """The inverses of (n, 9) row-major 3x3 matrices, (n, 9): adjugate over determinant."""
-    adj = m[:, _P] * m[:, _Q] - m[:, _R] * m[:, _S]
-    det = m[:, 0] * adj[:, 0] + m[:, 1] * adj[:, 3] + m[:, 2] * adj[:, 6]
-    return adj / det[:, None]
+    g = m.take(_PQRS, axis=1).reshape(-1, 4, 9)
+    adj = g[:, 0] * g[:, 1] - g[:, 2] * g[:, 3]
+    det = (m[:, :3] * adj[:, ::3]).sum(axis=1, keepdims=True)
+    return adj / det
 
 
 def matvec3(m: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -46,22 +52,27 @@ def matvec3(m: np.ndarray, x: np.ndarray) -> np.ndarray:
     return (m.reshape(-1, 3, 3) @ x[:, :, None])[:, :, 0]
 
 
+_GROW = np.zeros((WIDTH, 2 * WIDTH))
+"""Row @ _GROW: the velocity where the position goes (first WIDTH columns) and the velocity's
+covariance where the position's goes (last WIDTH), the terms prediction adds times dt and
+dt^2."""
+_GROW[3:6, 0:3] = np.eye(3)
+_GROW[15:24, WIDTH + 6 : WIDTH + 15] = np.eye(9)
+_ACCEL = np.zeros(WIDTH)
+_ACCEL[[15, 19, 23]] = ACCEL_SIGMA_MPS2**2
+_ACCEL4 = np.zeros(WIDTH)
+_ACCEL4[[6, 10, 14]] = ACCEL_SIGMA_MPS2**2 / 4.0
+
+
 def predict_rows(f: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
     """Rows of :data:`WIDTH` columns predicted by ``dt_s`` (n,) seconds each: constant velocity,
     the velocity's uncertainty and a white acceleration of ``ACCEL_SIGMA_MPS2`` growing the
     position's covariance by dt^2 V + (a dt^2 / 2)^2 and the velocity's by (a dt)^2, as
     ``frames.predict`` does for one."""
-    q = ACCEL_SIGMA_MPS2**2
     dt = dt_s[:, None]
     dt2 = dt * dt
-    out = np.empty_like(f)
-    out[:, POS] = f[:, POS] + f[:, VEL] * dt
-    out[:, VEL] = f[:, VEL]
-    out[:, PCOV] = f[:, PCOV] + dt2 * f[:, VCOV]
-    out[:, VCOV] = f[:, VCOV]
-    out[:, [6, 10, 14]] += q * dt2 * dt2 / 4.0
-    out[:, [15, 19, 23]] += q * dt2
-    return out
+    grow = f @ _GROW
+    return f + dt * grow[:, :WIDTH] + dt2 * (grow[:, WIDTH:] + _ACCEL + dt2 * _ACCEL4)
 
 
 def fuse_groups(
@@ -173,7 +184,7 @@ class Table:
         ids = w.ids.tolist()
         self.ids[rig] = ids
         self.count[rig] = n
-        self.index[rig] = {tid: base + i for i, tid in enumerate(ids)}
+        self.index[rig] = dict(zip(ids, range(base, base + n), strict=True))
 
     def drop(self, rig: str) -> None:
         """Forget ``rig``'s rows (its block stays its own)."""
@@ -187,3 +198,27 @@ class Table:
             return range(0)
         base = self.blocks[rig] * self.capacity
         return range(base, base + self.count[rig])
+
+
+class Estimates:
+    """Room tracks' positions and covariances at one instant, as arrays by slot (the step's
+    association works on them; a link or a new room track updates one in place)."""
+
+    def __init__(self, rids: list[int], mean: np.ndarray, cov: np.ndarray) -> None:
+        self.rids = rids
+        self.slot = {rid: k for k, rid in enumerate(rids)}
+        self.mean = mean
+        """(k, 3) m."""
+        self.cov = cov
+        """(k, 9) m^2, row-major."""
+
+    def set(self, rid: int, mean: np.ndarray, cov: np.ndarray) -> None:
+        """Room track ``rid``'s estimate is now ``mean`` (3,), ``cov`` (9,)."""
+        k = self.slot.get(rid)
+        if k is None:
+            self.slot[rid] = len(self.rids)
+            self.rids.append(rid)
+            self.mean = np.concatenate([self.mean, mean[None]])
+            self.cov = np.concatenate([self.cov, cov[None]])
+        else:
+            self.mean[k], self.cov[k] = mean, cov
