@@ -58,6 +58,21 @@ def _frame(frame: object) -> list[tuple[object, ...]]:
     ]
 
 
+def _step_both(fast: Fuser, full: ReferenceFuser, msg: object, t: int, rig: str) -> None:
+    """One rig message into both fusers, each fusing that rig at ``t``: the same frame."""
+    assert fast.ingest(msg) and full.ingest(msg)  # type: ignore[arg-type]
+    got, want = fast.fuse(t, [rig]), full.fuse(t, [rig])
+    assert _frame(got) == _frame(want), (t, rig)
+    assert got.ended == want.ended, (t, rig)
+    for a, b in zip(got.tracks, want.tracks, strict=True):
+        np.testing.assert_allclose(a.position, b.position, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(a.velocity, b.velocity, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(a.position_cov, b.position_cov, rtol=1e-9, atol=1e-15)
+    assert sorted(got.shared) == sorted(want.shared), (t, rig)
+    for rid, ms in got.shared.items():
+        assert [(r, s) for r, s, _, _ in ms] == [(r, s) for r, s, _, _ in want.shared[rid]]
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_the_restricted_step_gives_the_room_tracks_of_gating_every_track(seed: int) -> None:
     room = _room()
@@ -74,18 +89,7 @@ def test_the_restricted_step_gives_the_room_tracks_of_gating_every_track(seed: i
             if name == SILENT[0] and k in SILENT[1]:
                 continue
             t = k * FRAME_NS + j * 1_000_000
-            msg = sim.message(walkers, t)
-            assert fast.ingest(msg) and full.ingest(msg)
-            got, want = fast.fuse(t, [name]), full.fuse(t, [name])
-            assert _frame(got) == _frame(want), (k, name)
-            assert got.ended == want.ended, (k, name)
-            for a, b in zip(got.tracks, want.tracks, strict=True):
-                np.testing.assert_allclose(a.position, b.position, rtol=0, atol=1e-9)
-                np.testing.assert_allclose(a.velocity, b.velocity, rtol=0, atol=1e-9)
-                np.testing.assert_allclose(a.position_cov, b.position_cov, rtol=1e-9, atol=1e-15)
-            assert sorted(got.shared) == sorted(want.shared), (k, name)
-            for rid, ms in got.shared.items():
-                assert [(r, s) for r, s, _, _ in ms] == [(r, s) for r, s, _, _ in want.shared[rid]]
+            _step_both(fast, full, sim.message(walkers, t), t, name)
         if k % 10 == 9:  # a full step now and then, as the node's idle step makes
             t = (k + 1) * FRAME_NS
             assert _frame(fast.fuse(t)) == _frame(full.fuse(t)), k
@@ -97,6 +101,30 @@ def test_the_restricted_step_gives_the_room_tracks_of_gating_every_track(seed: i
     assert len(final) >= 25 and opened < 80
     assert fast.restarts == {RESTART[0]: 1}
     assert sum(len(t.members) >= 2 for t in final) >= 5
+
+
+def test_a_crowded_rig_and_rigs_joining_late_give_the_same_room_tracks() -> None:
+    """Rigs with more tracks than the row table's first blocks hold (60 walkers before two
+    rigs side by side), and a third rig whose first message comes after the others' (the
+    table grows while it holds rows): the same room tracks as gating every track."""
+    rigs = [RigPose(name=n, translation_m=(x, 0.0, 0.0)) for n, x in (("a", 0), ("b", 1), ("c", 2))]
+    room = Room(name="crowd", rigs=rigs)
+    rng = np.random.default_rng(5)
+    walkers = [
+        Walker(i, (rng.uniform(-1.0, 2.0), 0.0, rng.uniform(3.0, 6.0)),
+               (rng.uniform(-0.3, 0.3), 0.0, rng.uniform(-0.3, 0.3)))
+        for i in range(60)
+    ]  # fmt: skip
+    sims = {r.name: RigSim(r, seed=k) for k, r in enumerate(rigs)}
+    fast, full = Fuser(room), ReferenceFuser(room)
+    for k in range(30):
+        for j, (name, sim) in enumerate(sims.items()):
+            if name == "c" and k < 12:
+                continue
+            t = k * FRAME_NS + j * 1_000_000
+            _step_both(fast, full, sim.message(walkers, t), t, name)
+    assert fast.rig_track_count("a") > 40 and fast.rig_track_count("c") > 40
+    assert [t.room_id for t in fast.tracks()] == [t.room_id for t in full.tracks()]
 
 
 def test_the_reach_bound_keeps_every_pair_within_the_gate() -> None:
