@@ -109,7 +109,7 @@ def message_cost(rigs: int, per_rig: int, ticks: int = 90) -> tuple[float, float
         frame = fuser.fuse(msg.stamp_utc_ns, [msg.rig])
         clock.observe(frame)
         fuser.clock_corrections_ns = dict(clock.corrections_ns)
-        states.update(object_payloads(frame.tracks))
+        states.update(object_payloads(frame.tracks, frame.rows))
         for rid in frame.ended:
             states.pop(rid, None)
         join_room(room.name, k, msg.stamp_utc_ns, msg.geometry, 0.0, list(states.values()))

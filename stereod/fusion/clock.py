@@ -131,23 +131,42 @@ class ClockWatch:
         corrections."""
         for rid in frame.ended:
             self._shared.pop(rid, None)
-        velocity = {t.room_id: t.velocity for t in frame.tracks}
+        if not frame.shared:
+            return
+        tracks = frame.tracks
+        if frame.rows is not None:
+            v = frame.rows[:, 3:6]
+            speed2 = np.einsum("ij,ij->i", v, v).tolist()
+        else:
+            speed2 = [float(t.velocity @ t.velocity) for t in tracks]
+        velocity = {t.room_id: (t.velocity, s2) for t, s2 in zip(tracks, speed2, strict=True)}
+        min2 = self.min_speed_mps**2
+        corrections = self.corrections_ns
         touched: set[str] = set()
         for rid, ms in frame.shared.items():
-            sh = self._shared.setdefault(rid, _Shared())
+            sh = self._shared.get(rid)
+            if sh is None:
+                sh = self._shared[rid] = _Shared()
+            v_s2 = velocity.get(rid)
+            # Only a moving object's measurements are observed (a slow one says nothing of
+            # time): the others go to the history alone.
+            moving = v_s2 is not None and v_s2[1] >= min2
             for rig, stamp, p, pc in ms:
                 # The rig's own stamp, the correction in force taken off again: the pairs
                 # observed are then the same whenever the correction came in.
-                raw = stamp + self.corrections_ns.get(rig, 0)
-                hist = sh.seen.setdefault(rig, deque(maxlen=HISTORY))
-                if hist and hist[-1][0] >= raw:
+                raw = stamp + corrections.get(rig, 0)
+                hist = sh.seen.get(rig)
+                if hist is None:
+                    hist = sh.seen[rig] = deque(maxlen=HISTORY)
+                elif hist and hist[-1][0] >= raw:
                     continue  # this measurement is in already (a step of another rig)
                 entry = (raw, p, pc)
                 hist.append(entry)
-                sh.waiting.setdefault(rig, []).append(entry)
-            v = velocity.get(rid)
-            if v is not None and float(v @ v) >= self.min_speed_mps**2:
-                touched |= self._observe(sh, v)
+                if moving:
+                    sh.waiting.setdefault(rig, []).append(entry)
+            if moving:
+                assert v_s2 is not None
+                touched |= self._observe(sh, v_s2[0])
             else:
                 sh.waiting.clear()
         if self.correct:

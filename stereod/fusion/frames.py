@@ -16,7 +16,6 @@ import numpy as np
 
 from stereod.bus.messages import ObjectState
 from stereod.fusion.room import RigPose
-from stereod.fusion.wire import CONFIRMED, STATIONARY, TENTATIVE, RigWire
 from stereod.tracking.types import TrackLifecycle
 
 UNKNOWN_VELOCITY_SIGMA_MPS = 2.0
@@ -117,86 +116,3 @@ def predicted(track: RigTrack, t_ns: int) -> RigTrack:
         heading_valid=track.heading_valid,
         source=track.source,
     )
-
-
-@dataclass(frozen=True)
-class RigBatch:
-    """All of one rig message's (not tentative) tracks in the room frame, as arrays: what the
-    fusion works on, one numpy operation for every track at once (m, m/s, UTC ns)."""
-
-    rig: str
-    ids: list[int]
-    stamps_ns: np.ndarray
-    """(n,) each track's UTC stamp, ns."""
-    position: np.ndarray
-    """(n, 3) m."""
-    position_cov: np.ndarray
-    """(n, 3, 3) m^2."""
-    velocity: np.ndarray
-    """(n, 3) m/s."""
-    velocity_cov: np.ndarray
-    """(n, 3, 3) (m/s)^2."""
-    seen: np.ndarray
-    """(n,) measured in this pair (confirmed or stationary)."""
-    stationary: np.ndarray
-    """(n,) bool."""
-    velocity_valid: np.ndarray
-    """(n,) bool."""
-    heading_valid: np.ndarray
-    """(n,) bool."""
-    extra: np.ndarray
-    """(n, len(wire.EXTRA)) what the room's message repeats of a member (blobs and the like)."""
-    keys: list[tuple[str, int]]
-    """(rig, track id) of each row, as the fusion keys its links (made once per message)."""
-
-
-def _rotated_diag(r: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) ``R diag(s^2) R^T`` for (n, 3) sigmas: (R scaled by each row) @ R^T."""
-    return (r[None, :, :] * np.square(sigmas)[:, None, :]) @ r.T
-
-
-def batch_to_room(wire: RigWire, rotation: np.ndarray, translation: np.ndarray) -> RigBatch:
-    """:func:`to_room` of every not tentative object of a message at once: p' = R p + t,
-    v' = R v, P' = R P R^T (a missing or non-finite sigma as :func:`to_room` takes it)."""
-    w = wire if not (wire.state == TENTATIVE).any() else wire.select(wire.state != TENTATIVE)
-    psig = np.where(np.isfinite(w.position_sigma), w.position_sigma, 1.0)
-    vsig = np.where(np.isfinite(w.velocity_sigma), w.velocity_sigma, UNKNOWN_VELOCITY_SIGMA_MPS)
-    r = rotation
-    ids = w.ids.tolist()
-    return RigBatch(
-        rig=w.rig,
-        ids=ids,
-        stamps_ns=w.stamps_ns,
-        position=w.position @ r.T + translation,
-        position_cov=_rotated_diag(r, psig),
-        velocity=w.velocity @ r.T,
-        velocity_cov=_rotated_diag(r, vsig),
-        seen=(w.state == CONFIRMED) | (w.state == STATIONARY),
-        stationary=w.state == STATIONARY,
-        velocity_valid=w.velocity_valid,
-        heading_valid=w.heading_valid,
-        extra=w.extra,
-        keys=[(w.rig, tid) for tid in ids],
-    )
-
-
-def predict_many(
-    position: np.ndarray,
-    position_cov: np.ndarray,
-    velocity: np.ndarray,
-    velocity_cov: np.ndarray,
-    dt_s: np.ndarray,
-    accel_sigma_mps2: float = ACCEL_SIGMA_MPS2,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`predict` of n states at once, each by its own ``dt_s`` (n,) seconds."""
-    dt = np.asarray(dt_s, dtype=np.float64)
-    q = accel_sigma_mps2**2
-    eye = np.eye(3)
-    p = position + velocity * dt[:, None]
-    p_cov = (
-        position_cov
-        + (dt * dt)[:, None, None] * velocity_cov
-        + (q * dt**4 / 4.0)[:, None, None] * eye
-    )
-    v_cov = velocity_cov + (q * dt * dt)[:, None, None] * eye
-    return p, p_cov, velocity.copy(), v_cov

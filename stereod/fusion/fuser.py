@@ -27,9 +27,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stereod.bus.messages import ObjectsMessage
-from stereod.fusion.frames import RigBatch, batch_to_room, predict_many
+from stereod.fusion import rows as tab
 from stereod.fusion.room import Room
-from stereod.fusion.wire import EXTRA, RigWire, from_message
+from stereod.fusion.rows import DIAG, DIAG_P, PCOV, POS, SEEN, VCOV, VEL, Estimates, Table
+from stereod.fusion.wire import RigWire, from_message
 from stereod.tracking.assignment import min_cost_assignment
 from stereod.tracking.types import TrackLifecycle
 
@@ -76,6 +77,9 @@ class RoomTrack:
     heading_valid: bool = False
 
 
+_Shared = dict[int, list[tuple[str, int, np.ndarray, np.ndarray]]]
+
+
 @dataclass(frozen=True)
 class FusedFrame:
     """One fusion step's result: the room tracks at ``t_ns`` and the ids that ended."""
@@ -83,11 +87,15 @@ class FusedFrame:
     t_ns: int
     tracks: list[RoomTrack]
     ended: list[int]
-    shared: dict[int, list[tuple[str, int, np.ndarray, np.ndarray]]] = field(default_factory=dict)
+    shared: _Shared = field(default_factory=dict)
     """For each room id fused at this step that more than one rig sees: each rig's name and
     its track's own stamp (UTC ns, as corrected), position (m) and position covariance (m^2)
     there, in the room frame, not predicted (what clock offsets are estimated from: capture
     stamps only)."""
+    rows: np.ndarray | None = None
+    """The tracks' states as rows of ``rows.WIDTH`` columns (position, velocity, their
+    covariances), in the order of :attr:`tracks`, for writing them out at once; None when
+    not given."""
 
 
 def fuse_gaussians(
@@ -109,100 +117,49 @@ def mahalanobis2(a: np.ndarray, a_cov: np.ndarray, b: np.ndarray, b_cov: np.ndar
     return float(d @ np.linalg.solve(a_cov + b_cov, d))
 
 
-def _group_fusion(
-    group: np.ndarray, k: int, info: np.ndarray, info_mean: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Information-form fusion of rows into ``k`` groups at once: rows with ``group[i] = g``
-    (-1: none) of information matrices ``info`` (n, 3, 3) and ``info_mean`` (n, 3) (``I x``).
-    Returns each group's row count (k,), mean (k, 3) and covariance (k, 3, 3), zero where
-    the group has no row."""
-    ok = group >= 0
-    total = np.zeros((k, 3, 3))
-    total_mean = np.zeros((k, 3))
-    np.add.at(total, group[ok], info[ok])
-    np.add.at(total_mean, group[ok], info_mean[ok])
-    count = np.bincount(group[ok], minlength=k)
-    cov = np.zeros((k, 3, 3))
-    mean = np.zeros((k, 3))
-    has = count > 0
-    if has.any():
-        c = np.linalg.inv(total[has])
-        cov[has] = 0.5 * (c + np.transpose(c, (0, 2, 1)))
-        mean[has] = np.einsum("kij,kj->ki", c, total_mean[has])
-    return count, mean, cov
-
-
 def _snapshot(t: RoomTrack) -> RoomTrack:
     """A shallow copy of ``t`` with its own members (its arrays are replaced at each step,
-    never written into, so they are shared)."""
-    return RoomTrack(
-        t.room_id, t.stamp_utc_ns, t.first_ns, t.last_seen_ns, t.position, t.position_cov,
-        t.velocity, t.velocity_cov, t.state, dict(t.members), t.extra, t.velocity_valid,
-        t.heading_valid,
-    )  # fmt: skip
-
-
-class _Rows:
-    """Every live rig track predicted to one instant, stacked (the step's working set)."""
-
-    def __init__(self, batches: list[RigBatch], t_ns: int) -> None:
-        self.batches = batches
-        self.t_ns = t_ns
-        self.keys: list[tuple[str, int]] = []
-        self.span: dict[str, range] = {}
-        """Each rig's rows (a batch's rows are consecutive)."""
-        for batch in batches:
-            self.span[batch.rig] = range(len(self.keys), len(self.keys) + len(batch.ids))
-            self.keys += batch.keys
-        self.index = {k: i for i, k in enumerate(self.keys)}
-        n = len(self.keys)
-        if n:
-            self.stamps = np.concatenate([b.stamps_ns for b in batches])
-            self.raw_position = np.concatenate([b.position for b in batches])
-            self.raw_cov = np.concatenate([b.position_cov for b in batches])
-            p, pc, v, vc = predict_many(
-                self.raw_position,
-                self.raw_cov,
-                np.concatenate([b.velocity for b in batches]),
-                np.concatenate([b.velocity_cov for b in batches]),
-                (t_ns - self.stamps) * 1e-9,
-            )
-        else:
-            p, v = np.zeros((0, 3)), np.zeros((0, 3))
-            pc, vc = np.zeros((0, 3, 3)), np.zeros((0, 3, 3))
-            self.stamps, self.raw_position, self.raw_cov = np.zeros(0, dtype=np.int64), p, pc
-        self.position, self.position_cov, self.velocity, self.velocity_cov = p, pc, v, vc
-
-        def stack(name: str, empty: np.ndarray) -> np.ndarray:
-            return np.concatenate([getattr(b, name) for b in batches]) if n else empty
-
-        none = np.zeros(0, dtype=bool)
-        self.seen = stack("seen", none)
-        self.stationary = stack("stationary", none)
-        self.velocity_valid = stack("velocity_valid", none)
-        self.heading_valid = stack("heading_valid", none)
-        self.extra = stack("extra", np.zeros((0, len(EXTRA))))
+    never written into, so they are shared): its fields copied at once, with no ``__init__``
+    (a step returns a copy of each track it touched)."""
+    copy = object.__new__(RoomTrack)
+    copy.__dict__.update(t.__dict__)
+    copy.members = dict(t.members)
+    return copy
 
 
 class Fuser:
     """The fusion of one room's rigs; feed it each rig's objects messages with :meth:`ingest`
-    and ask for the room at an instant with :meth:`fuse`. Every track of every rig is handled
-    in stacked numpy arrays, so a step costs a few array operations, not a Python loop of
-    matrix operations per track. Not thread-safe: one caller."""
+    and ask for the room at an instant with :meth:`fuse`.
+
+    A message's tracks are moved into the room frame once, into a :class:`rows.Table` that
+    holds every rig's latest rows; a step gathers the rows it needs from it. With ``rigs``
+    (event-driven) a step predicts and fuses only the room tracks those rigs touch, from their
+    members' rows: no pass over the room's other tracks but the coast check. Association, when
+    those rigs have a track not linked yet, gates it against every room track's estimate, the
+    pairs first bounded by distance (``rows.reach``) so that only those within reach are
+    solved: it gives what gating against all of them would. Not thread-safe: one caller."""
 
     def __init__(self, room: Room, params: FuseParams | None = None) -> None:
         self.room = room
         self.params = params or FuseParams()
         self._poses = {r.name: (r.rotation(), r.translation()) for r in room.rigs}
         self._order = [r.name for r in room.rigs]
-        self._batches: dict[str, RigBatch] = {}
+        self._table = Table()
+        self._dirty: set[str] = set()
+        """Rigs whose rows changed since the last step (their links are checked there)."""
         self._rig_last_ns: dict[str, int] = {}
         self._rig_seq: dict[str, int] = {}
-        self._links: dict[tuple[str, int], int] = {}
+        self._links: dict[str, dict[int, int]] = {}
+        """Rig name -> its track id -> the room track it is linked to."""
         self._since: dict[tuple[str, int], int] = {}
         """Rig tracks waiting to open a room track (``birth_s``): when first seen waiting, ns."""
         self._tracks: dict[int, RoomTrack] = {}
         self._next_id = 1
+        self._bare: set[int] = set()
+        """Room tracks with no member (coasting on their own state)."""
+        self._seen_floor = 0
+        """No room track was last seen before this (UTC ns): a lower bound, raised when the
+        tracks are looked over for their coast."""
         self.restarts: dict[str, int] = {}
         """Times each rig's sequence numbers started again (its daemon restarted)."""
         self.clock_corrections_ns: dict[str, int] = {}
@@ -257,19 +214,21 @@ class Fuser:
                 msg, stamp_utc_ns=msg.stamp_utc_ns - shift, stamps_ns=msg.stamps_ns - shift
             )
         self._rig_last_ns[msg.rig] = msg.stamp_utc_ns
-        self._batches[msg.rig] = batch_to_room(msg, pose[0], pose[1])
+        self._table.put(msg, pose[0], pose[1])
+        self._dirty.add(msg.rig)
         return True
 
     def _forget_rig(self, rig: str) -> set[int]:
         """Drop ``rig``'s tracks and links; returns the room tracks that lost a member."""
-        self._batches.pop(rig, None)
+        self._table.drop(rig)
         lost = set()
-        for key in [k for k in self._links if k[0] == rig]:
-            room_id = self._links.pop(key)
+        for room_id in self._links.pop(rig, {}).values():
             track = self._tracks.get(room_id)
             if track is not None:
                 track.members.pop(rig, None)
                 lost.add(room_id)
+                if not track.members:
+                    self._bare.add(room_id)
         return lost
 
     def live_rigs(self, t_ns: int) -> list[str]:
@@ -283,8 +242,7 @@ class Fuser:
 
     def rig_track_count(self, rig: str) -> int:
         """How many (not tentative) tracks ``rig``'s latest message held."""
-        batch = self._batches.get(rig)
-        return 0 if batch is None else len(batch.ids)
+        return self._table.count.get(rig, 0)
 
     def rig_stamp(self, rig: str) -> int | None:
         """The UTC stamp of ``rig``'s latest message, ns (None before its first)."""
@@ -305,194 +263,227 @@ class Fuser:
         tracks, not the room's."""
         live = self.live_rigs(t_ns)
         lost: set[int] = set()
-        for rig in [r for r in self._batches if r not in live]:
+        live_set = set(live)
+        for rig in [r for r in self._table.count if r not in live_set]:
             lost |= self._forget_rig(rig)
-        rows = _Rows([self._batches[r] for r in live if r in self._batches], t_ns)
-        for key in [k for k in self._since if k not in rows.index or k in self._links]:
+        index = self._table.index
+        for key in [
+            k
+            for k in self._since
+            if k[1] not in index.get(k[0], ()) or k[1] in self._links.get(k[0], ())
+        ]:
             del self._since[key]
-        for key in [k for k in self._links if k not in rows.index]:
-            rid = self._links.pop(key)
-            track = self._tracks.get(rid)
-            if track is not None and track.members.get(key[0]) == key[1]:
-                del track.members[key[0]]
-                lost.add(rid)
-        members: dict[int, list[int]] = {rid: [] for rid in self._tracks}
-        for key, rid in self._links.items():
-            members[rid].append(rows.index[key])
+        # Links to tracks gone from their rig's newest message (only a rig whose rows changed
+        # can have any).
+        for rig in self._dirty:
+            links = self._links.get(rig)
+            ids = index.get(rig, {})
+            for tid in [k for k in links or () if k not in ids]:
+                rid = links.pop(tid)  # type: ignore[union-attr]
+                track = self._tracks.get(rid)
+                if track is not None and track.members.get(rig) == tid:
+                    del track.members[rig]
+                    lost.add(rid)
+                    if not track.members:
+                        self._bare.add(rid)
+        self._dirty.clear()
         assoc = live if rigs is None else [r for r in live if r in rigs]
-        if any(rows.keys[i] not in self._links for r in assoc for i in rows.span.get(r, ())):
-            estimate = self._estimates(rows, members, t_ns)
+        # Every link of a rig is to a track in its message now, so it has a track not linked
+        # yet exactly when it has more tracks than links.
+        if any(len(index.get(r, ())) > len(self._links.get(r, ())) for r in assoc):
+            estimate = self._estimates(t_ns)
             for rig in assoc:
-                self._associate(rig, rows, members, estimate, t_ns)
+                self._associate(rig, estimate, t_ns)
         if rigs is None:
             touched = set(self._tracks)
         else:
             # Those tracks, those that just lost a member, and those with none (coasting: a
             # step predicts them on, as a full step does, so that they gate as they would).
             touched = {rid for rid in lost if rid in self._tracks}
-            touched.update(rid for rid, tr in self._tracks.items() if not tr.members)
+            touched.update(self._bare)
             for rig in assoc:
-                for i in rows.span.get(rig, ()):
-                    linked = self._links.get(rows.keys[i])
-                    if linked is not None:
-                        touched.add(linked)
-        ended = self._update(rows, members, t_ns, touched)
-        raw = (rows.stamps.tolist(), rows.raw_position, rows.raw_cov)
-        shared = {
-            rid: [(rows.keys[i][0], raw[0][i], raw[1][i], raw[2][i]) for i in ms]
-            for rid in sorted(touched)
-            if len(ms := members.get(rid, ())) >= 2 and rid in self._tracks
-        }
+                touched.update(self._links.get(rig, {}).values())
+        ended, shared, state = self._update(t_ns, touched)
         # Copies: the caller may keep a frame while the next steps change the tracks (whose
         # arrays are replaced, never written into).
         tracks = [_snapshot(self._tracks[rid]) for rid in sorted(touched) if rid in self._tracks]
-        return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, shared=shared)
+        return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, shared=shared, rows=state)
 
     def tracks(self) -> list[RoomTrack]:
         """Every room track now, each at its own last stamp (copies), by id."""
         return [_snapshot(tr) for _, tr in sorted(self._tracks.items())]
 
-    def _estimates(
-        self, rows: _Rows, members: dict[int, list[int]], t_ns: int
-    ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    def _member_rows(self, rids: list[int]) -> tuple[list[int], list[int], list[int]]:
+        """The table rows of the members of room tracks ``rids`` (in that order, each track's
+        in its members' order), the start of each track's run, and which of ``rids`` have
+        members (a run each)."""
+        index = self._table.index
+        idx: list[int] = []
+        starts: list[int] = []
+        with_members: list[int] = []
+        for rid in rids:
+            members = self._tracks[rid].members
+            if members:
+                starts.append(len(idx))
+                with_members.append(rid)
+                idx += [index[rig][tid] for rig, tid in members.items()]
+        return idx, starts, with_members
+
+    def _predicted(self, idx: list[int], t_ns: int) -> np.ndarray:
+        """Table rows ``idx`` predicted to ``t_ns``, (n, WIDTH)."""
+        table = self._table
+        return tab.predict_rows(table.f[idx], (t_ns - table.stamps[idx]) * 1e-9)
+
+    def _coast(self, rids: list[int], t_ns: int) -> np.ndarray:
+        """Room tracks ``rids``' own last states predicted to ``t_ns``, (n, WIDTH)."""
+        trs = [self._tracks[rid] for rid in rids]
+        f = np.array(
+            [np.concatenate([t.position, t.velocity, t.position_cov.ravel(),
+                             t.velocity_cov.ravel()]) for t in trs]
+        )  # fmt: skip
+        return tab.predict_rows(f, np.array([(t_ns - t.stamp_utc_ns) * 1e-9 for t in trs]))
+
+    def _estimates(self, t_ns: int) -> Estimates:
         """Each room track's position and covariance at ``t_ns``: its linked members'
         fusion, or its last fused state predicted."""
         rids = sorted(self._tracks)
-        if not rids:
-            return {}
-        slot = {rid: k for k, rid in enumerate(rids)}
-        group = np.full(len(rows.keys), -1, dtype=np.int64)
-        for rid, ms in members.items():
-            group[ms] = slot[rid]
-        info = np.linalg.inv(rows.position_cov) if len(rows.keys) else rows.position_cov
-        info_mean = np.einsum("nij,nj->ni", info, rows.position)
-        count, mean, cov = _group_fusion(group, len(rids), info, info_mean)
-        alone = [rid for rid in rids if count[slot[rid]] == 0]
+        mean, cov = np.zeros((len(rids), 3)), np.zeros((len(rids), 9))
+        est = Estimates(rids, mean, cov)
+        idx, starts, with_members = self._member_rows(rids)
+        if with_members:
+            f = self._predicted(idx, t_ns)
+            m, c = tab.fuse_groups(f[:, POS], f[:, PCOV], np.array(starts))
+            k = [est.slot[rid] for rid in with_members]
+            mean[k], cov[k] = m, c
+        alone = [rid for rid in rids if not self._tracks[rid].members]
         if alone:
-            trs = [self._tracks[rid] for rid in alone]
-            p, pc, _, _ = predict_many(
-                np.array([t.position for t in trs]),
-                np.array([t.position_cov for t in trs]),
-                np.array([t.velocity for t in trs]),
-                np.array([t.velocity_cov for t in trs]),
-                np.array([(t_ns - t.stamp_utc_ns) * 1e-9 for t in trs]),
-            )
-            for j, rid in enumerate(alone):
-                mean[slot[rid]], cov[slot[rid]] = p[j], pc[j]
-        return {rid: (mean[slot[rid]], cov[slot[rid]]) for rid in rids}
+            f = self._coast(alone, t_ns)
+            k = [est.slot[rid] for rid in alone]
+            mean[k], cov[k] = f[:, POS], f[:, PCOV]
+        return est
 
-    def _associate(
-        self,
-        rig: str,
-        rows: _Rows,
-        members: dict[int, list[int]],
-        estimate: dict[int, tuple[np.ndarray, np.ndarray]],
-        t_ns: int,
-    ) -> None:
+    def _fuse_members(self, rows: list[int], t_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        """The fusion of table rows ``rows`` predicted to ``t_ns``: position (3,) and its
+        covariance (9,) (one row: that row's)."""
+        f = self._predicted(rows, t_ns)
+        if len(rows) == 1:
+            return f[0, POS], f[0, PCOV]
+        m, c = tab.fuse_groups(f[:, POS], f[:, PCOV], np.zeros(1, dtype=np.int64))
+        return m[0], c[0]
+
+    def _associate(self, rig: str, est: Estimates, t_ns: int) -> None:
         """Link ``rig``'s unlinked tracks to room tracks that have no track of ``rig`` yet, or
         only one it no longer sees (coasting: a seen track of that rig there replaces it, so
         that a rig's new track of an object joins its room track instead of opening a second
-        id beside it), in one gated assignment; a seen track left over opens a room track."""
-        free = [i for i in rows.span.get(rig, ()) if rows.keys[i] not in self._links]
+        id beside it), in one gated assignment; a seen track left over opens a room track.
+        Only the room tracks within reach of one of the tracks (``rows.reach``) enter the
+        assignment: the others' columns would all be out of the gate."""
+        links = self._links.setdefault(rig, {})
+        index = self._table.index.get(rig, {})
+        free = [row for tid, row in index.items() if tid not in links]
         if not free:
             return
-        candidates: list[int] = []
+        flags = self._table.flags
+        seen_free = flags[free, SEEN]
         stale: dict[int, int] = {}
         """Room track -> its member row of ``rig`` that ``rig`` does not see now."""
-        for rid in sorted(members):
-            mine = [i for i in members[rid] if rows.keys[i][0] == rig]
-            if not mine:
-                candidates.append(rid)
-            elif not rows.seen[mine[0]]:
-                candidates.append(rid)
-                stale[rid] = mine[0]
+        mine = np.ones(len(est.rids), dtype=bool)
+        for tid, rid in links.items():
+            row = index[tid]
+            if flags[row, SEEN]:
+                mine[est.slot[rid]] = False
+            else:
+                stale[rid] = row
+        cols = np.flatnonzero(mine)
+        means, covs = est.mean[cols], est.cov[cols]
+        for rid in stale:
+            others = [
+                self._table.index[r][tid]
+                for r, tid in self._tracks[rid].members.items()
+                if r != rig
+            ]
+            if others:
+                j = int(np.searchsorted(cols, est.slot[rid]))
+                means[j], covs[j] = self._fuse_members(others, t_ns)
+        x = self._predicted(free, t_ns)
+        gate = self.params.gate_chi2
+        near = tab.reach(
+            x[:, POS], x[:, DIAG_P].sum(axis=1), means, covs[:, DIAG].sum(axis=1), gate
+        )
+        keep = np.flatnonzero(near.any(axis=0))
         matched: set[int] = set()
-        if candidates:
-            means, covs = [], []
-            for r in candidates:
-                others = [i for i in members[r] if i != stale.get(r)]
-                if r in stale and others:
-                    m, c = fuse_gaussians(
-                        [rows.position[i] for i in others], [rows.position_cov[i] for i in others]
-                    )
-                else:
-                    m, c = estimate[r]
-                means.append(m)
-                covs.append(c)
-            d = rows.position[free][:, None, :] - np.array(means)
-            s = rows.position_cov[free][:, None] + np.array(covs)
-            d2 = np.einsum("nmi,nmi->nm", d, np.linalg.solve(s, d[..., None])[..., 0])
-            cost = np.where(d2 <= self.params.gate_chi2, d2, _FORBIDDEN)
+        if keep.size:
+            n, m = len(free), keep.size
+            ii, jj = np.repeat(np.arange(n), m), np.tile(keep, n)
+            d2 = tab.gate_d2(x[ii, POS], x[ii, PCOV], means[jj], covs[jj]).reshape(n, m)
+            cost = np.where(d2 <= gate, d2, _FORBIDDEN)
+            candidates = [est.rids[k] for k in cols[keep].tolist()]
             # Only a seen track replaces a coasting one.
             replaceable = np.array([r in stale for r in candidates])
-            cost[np.ix_(~rows.seen[free], replaceable)] = _FORBIDDEN
+            cost[np.ix_(~seen_free, replaceable)] = _FORBIDDEN
             for i, j in zip(*min_cost_assignment(cost), strict=True):
                 if cost[i, j] < _FORBIDDEN:
                     rid = candidates[j]
                     if rid in stale:
-                        self._unlink(rows, stale[rid], rid, members)
-                    self._link(rows, free[i], rid, members, estimate)
+                        self._unlink(rig, rid)
+                    self._link(rig, free[i], rid, est, t_ns)
                     matched.add(int(i))
-        left = [row for i, row in enumerate(free) if i not in matched and rows.seen[row]]
-        for row in self._born(rows, left, estimate, t_ns):
-            rid = self._open(rows, row, t_ns)
-            members[rid] = []
-            self._link(rows, row, rid, members, estimate)
+        left = [row for i, row in enumerate(free) if i not in matched and seen_free[i]]
+        for row in self._born(rig, left, est, t_ns):
+            rid = self._open(self._predicted([row], t_ns)[0], t_ns)
+            self._link(rig, row, rid, est, t_ns)
 
-    def _born(
-        self,
-        rows: _Rows,
-        left: list[int],
-        estimate: dict[int, tuple[np.ndarray, np.ndarray]],
-        t_ns: int,
-    ) -> list[int]:
+    def _born(self, rig: str, left: list[int], est: Estimates, t_ns: int) -> list[int]:
         """Of the seen rig tracks no room track took, those that open one now: any not within
         the gate of a room track, and one within it (it contradicts a room track that has its
         rig's track already: a split blob, a stray) once it has been seen for ``birth_s``, so
         that a short-lived stray opens no second id beside the object's."""
-        if not left or not estimate:
+        if not left or not est.rids:
             return left
-        rids = list(estimate)
-        d = rows.position[left][:, None, :] - np.array([estimate[r][0] for r in rids])
-        s = rows.position_cov[left][:, None] + np.array([estimate[r][1] for r in rids])
-        d2 = np.einsum("nmi,nmi->nm", d, np.linalg.solve(s, d[..., None])[..., 0])
-        near = (d2 <= self.params.gate_chi2).any(axis=1)
+        gate = self.params.gate_chi2
+        x = self._predicted(left, t_ns)
+        near = tab.reach(
+            x[:, POS], x[:, DIAG_P].sum(axis=1), est.mean, est.cov[:, DIAG].sum(axis=1), gate
+        )
+        ii, jj = np.nonzero(near)
+        inside = np.zeros(len(left), dtype=bool)
+        if ii.size:
+            d2 = tab.gate_d2(x[ii, POS], x[ii, PCOV], est.mean[jj], est.cov[jj])
+            inside[ii[d2 <= gate]] = True
+        ids = self._table.ids[rig]
+        base = self._table.rows(rig).start
         born = []
-        for row, contradicts in zip(left, near.tolist(), strict=True):
+        for row, contradicts in zip(left, inside.tolist(), strict=True):
             if not contradicts:
                 born.append(row)
                 continue
-            since = self._since.setdefault(rows.keys[row], t_ns)
+            since = self._since.setdefault((rig, ids[row - base]), t_ns)
             if t_ns - since >= self.params.birth_s * 1e9:
                 born.append(row)
         return born
 
-    def _unlink(self, rows: _Rows, row: int, room_id: int, members: dict[int, list[int]]) -> None:
-        """Take rig track ``row`` out of room track ``room_id`` (another of its rig replaces
+    def _unlink(self, rig: str, room_id: int) -> None:
+        """Take ``rig``'s track out of room track ``room_id`` (another of its rig replaces
         it); it stays free, and opens nothing while its rig does not see it."""
-        rig, _ = key = rows.keys[row]
-        self._links.pop(key, None)
-        self._tracks[room_id].members.pop(rig, None)
-        members[room_id].remove(row)
+        members = self._tracks[room_id].members
+        tid = members.pop(rig)
+        self._links[rig].pop(tid, None)
+        if not members:
+            self._bare.add(room_id)
 
-    def _link(
-        self,
-        rows: _Rows,
-        row: int,
-        room_id: int,
-        members: dict[int, list[int]],
-        estimate: dict[int, tuple[np.ndarray, np.ndarray]],
-    ) -> None:
-        rig, tid = rows.keys[row]
-        self._links[(rig, tid)] = room_id
-        self._tracks[room_id].members[rig] = tid
-        members[room_id].append(row)
-        ms = members[room_id]
-        estimate[room_id] = fuse_gaussians(
-            [rows.position[i] for i in ms], [rows.position_cov[i] for i in ms]
-        )
+    def _link(self, rig: str, row: int, room_id: int, est: Estimates, t_ns: int) -> None:
+        """Link ``rig``'s track at table row ``row`` to room track ``room_id``; its estimate
+        becomes its members' fusion."""
+        tid = self._table.ids[rig][row - self._table.rows(rig).start]
+        self._links[rig][tid] = room_id
+        members = self._tracks[room_id].members
+        members[rig] = tid
+        self._bare.discard(room_id)
+        index = self._table.index
+        est.set(room_id, *self._fuse_members([index[r][t] for r, t in members.items()], t_ns))
 
-    def _open(self, rows: _Rows, row: int, t_ns: int) -> int:
+    def _open(self, f: np.ndarray, t_ns: int) -> int:
+        """A new room track at ``t_ns`` from one predicted row ``f`` (WIDTH,); its id."""
         rid = self._next_id
         self._next_id += 1
         self._tracks[rid] = RoomTrack(
@@ -500,78 +491,93 @@ class Fuser:
             stamp_utc_ns=t_ns,
             first_ns=t_ns,
             last_seen_ns=t_ns,
-            position=rows.position[row].copy(),
-            position_cov=rows.position_cov[row].copy(),
-            velocity=rows.velocity[row].copy(),
-            velocity_cov=rows.velocity_cov[row].copy(),
+            position=f[POS].copy(),
+            position_cov=f[PCOV].reshape(3, 3).copy(),
+            velocity=f[VEL].copy(),
+            velocity_cov=f[VCOV].reshape(3, 3).copy(),
         )
+        self._bare.add(rid)
+        self._seen_floor = min(self._seen_floor, t_ns)
         return rid
 
-    def _update(
-        self, rows: _Rows, members: dict[int, list[int]], t_ns: int, touched: set[int]
-    ) -> list[int]:
-        """Fuse each ``touched`` room track's members at ``t_ns`` (every track in one array
+    def _update(self, t_ns: int, touched: set[int]) -> tuple[list[int], _Shared, np.ndarray | None]:
+        """Fuse each ``touched`` room track's members at ``t_ns`` (all of them in one array
         operation); coast those with none; end any unseen for ``max_coast_s``. Returns the
-        ended ids."""
+        ended ids, for each track fused here that more than one rig sees its members' own
+        (unpredicted) measurements, and the touched tracks left (by id) as table rows."""
         rids = sorted(touched)
-        slot = {rid: k for k, rid in enumerate(rids)}
-        # The member rows of the touched tracks only (a rig's message touches a few).
-        idx = np.array([i for rid in rids for i in members[rid]], dtype=np.int64)
-        g = np.array([slot[rid] for rid in rids for _ in members[rid]], dtype=np.int64)
-        k = len(rids)
-        # Position and velocity in one fusion: groups 0..k-1 positions, k..2k-1 velocities.
-        covs = np.concatenate([rows.position_cov[idx], rows.velocity_cov[idx]])
-        info = np.linalg.inv(covs) if idx.size else np.zeros((0, 3, 3))
-        means = np.concatenate([rows.position[idx], rows.velocity[idx]])
-        info_mean = np.einsum("nij,nj->ni", info, means)
-        count2, both, both_cov = _group_fusion(np.concatenate([g, g + k]), 2 * k, info, info_mean)
-        count, pos, pcov, vel, vcov = count2[:k], both[:k], both_cov[:k], both[k:], both_cov[k:]
-        coasting = [rid for rid in rids if count[slot[rid]] == 0]
-        if coasting:
-            trs = [self._tracks[rid] for rid in coasting]
-            p, pc, v, vc = predict_many(
-                np.array([t.position for t in trs]),
-                np.array([t.position_cov for t in trs]),
-                np.array([t.velocity for t in trs]),
-                np.array([t.velocity_cov for t in trs]),
-                np.array([(t_ns - t.stamp_utc_ns) * 1e-9 for t in trs]),
+        idx, starts, with_members = self._member_rows(rids)
+        k = len(with_members)
+        parts = []
+        extra: list[np.ndarray | None] = [None] * k
+        flags: list[list[bool] | None] = [None] * k
+        shared: _Shared = {}
+        if k:
+            table = self._table
+            i = np.array(idx, dtype=np.intp)
+            raw = table.f.take(i, axis=0)
+            stamps = table.stamps.take(i)
+            f = tab.predict_rows(raw, (t_ns - stamps) * 1e-9)
+            r = len(idx)
+            s = np.array(starts)
+            # Position and velocity in one fusion: runs 0..k-1 positions, k..2k-1 velocities.
+            both, both_cov = tab.fuse_groups(
+                np.concatenate([f[:, POS], f[:, VEL]]),
+                np.concatenate([f[:, PCOV], f[:, VCOV]]),
+                np.concatenate([s, s + r]),
             )
-            for j, rid in enumerate(coasting):
-                s = slot[rid]
-                pos[s], pcov[s], vel[s], vcov[s] = p[j], pc[j], v[j], vc[j]
-
-        # Per room track, from its members' rows at once: any seen, all seen ones stationary,
-        # any velocity (heading) valid, and the member with the smallest position variance.
-        flags = np.stack(
-            [rows.seen, rows.seen & ~rows.stationary, rows.velocity_valid, rows.heading_valid],
-            axis=1,
-        )[idx]
-        counts = np.zeros((k, 4), dtype=np.int64)
-        np.add.at(counts, g, flags)
-        seen, moving, vvalid, hvalid = (counts > 0).T
-        best = np.full(k, -1, dtype=np.int64)
-        if g.size:
-            trace = np.trace(rows.position_cov[idx], axis1=1, axis2=2)
-            order = np.lexsort((trace, g))
-            first = np.ones(order.size, dtype=bool)
-            first[1:] = g[order][1:] != g[order][:-1]
-            best[g[order][first]] = idx[order][first]
+            parts.append(np.concatenate([both[:k], both[k:], both_cov[:k], both_cov[k:]], 1))
+            flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0).tolist()
+            trace = f[:, DIAG_P].sum(axis=1).tolist()
+            ends = [*starts[1:], r]
+            best = [
+                min(range(a, b), key=trace.__getitem__) for a, b in zip(starts, ends, strict=True)
+            ]
+            extra = list(table.extra.take(i[best], axis=0))
+            stamp_list = stamps.tolist()
+            positions, covs = raw[:, POS], raw[:, PCOV].reshape(-1, 3, 3)
+            for g, rid in enumerate(with_members):
+                a, b = starts[g], ends[g]
+                if b - a >= 2:
+                    rigs = list(self._tracks[rid].members)
+                    shared[rid] = [
+                        (rigs[j - a], stamp_list[j], positions[j], covs[j]) for j in range(a, b)
+                    ]
+        coasting = [rid for rid in rids if not self._tracks[rid].members]
+        if coasting:
+            parts.append(self._coast(coasting, t_ns))
         ended: list[int] = []
         coast_ns = int(self.params.max_coast_s * 1e9)
-        for rid, tr in list(self._tracks.items()):
-            if rid not in touched and t_ns - tr.last_seen_ns > coast_ns:
-                ended.append(self._end(rid))
-        for rid in rids:
-            tr, s = self._tracks[rid], slot[rid]
-            tr.position, tr.position_cov, tr.velocity, tr.velocity_cov = (
-                pos[s], pcov[s], vel[s], vcov[s]
+        if t_ns - self._seen_floor > coast_ns:
+            # Some track may be unseen too long: look (the floor is the oldest sighting, kept
+            # low while tracks are seen, so that most steps need not look at every track).
+            for rid, tr in list(self._tracks.items()):
+                if rid not in touched and t_ns - tr.last_seen_ns > coast_ns:
+                    ended.append(self._end(rid))
+            self._seen_floor = min((tr.last_seen_ns for tr in self._tracks.values()), default=t_ns)
+        if not rids:
+            return ended, shared, None
+        state = np.concatenate(parts) if len(parts) > 1 else parts[0]
+        extra += [None] * len(coasting)
+        flags += [None] * len(coasting)
+        keep = []
+        # Each track's arrays are views of one row of ``state`` (one call per column, not
+        # per track).
+        pos, vel = list(state[:, POS]), list(state[:, VEL])
+        pcov, vcov = list(state[:, PCOV].reshape(-1, 3, 3)), list(state[:, VCOV].reshape(-1, 3, 3))
+        for rid, j in sorted(zip(with_members + coasting, range(len(rids)), strict=True)):
+            tr = self._tracks[rid]
+            tr.position, tr.velocity, tr.position_cov, tr.velocity_cov = (
+                pos[j], vel[j], pcov[j], vcov[j]
             )  # fmt: skip
-            if count[s]:
-                tr.extra = rows.extra[best[s]]
-                tr.velocity_valid, tr.heading_valid = bool(vvalid[s]), bool(hvalid[s])
-                if seen[s]:
+            fl = flags[j]
+            if fl is not None:
+                seen, moving, vvalid, hvalid = fl
+                tr.extra = extra[j]
+                tr.velocity_valid, tr.heading_valid = vvalid, hvalid
+                if seen:
                     tr.last_seen_ns = t_ns
-                    tr.state = TrackLifecycle.CONFIRMED if moving[s] else TrackLifecycle.STATIONARY
+                    tr.state = TrackLifecycle.CONFIRMED if moving else TrackLifecycle.STATIONARY
                 else:
                     tr.state = TrackLifecycle.COASTING
             else:
@@ -579,11 +585,16 @@ class Fuser:
             tr.stamp_utc_ns = t_ns
             if t_ns - tr.last_seen_ns > coast_ns:
                 ended.append(self._end(rid))
-        return ended
+                shared.pop(rid, None)
+            else:
+                keep.append((rid, j))
+        self._seen_floor = min(self._seen_floor, t_ns)
+        return ended, shared, state[[j for _, j in keep]]
 
     def _end(self, rid: int) -> int:
         """End room track ``rid`` and drop its links; returns ``rid``."""
         tr = self._tracks.pop(rid)
+        self._bare.discard(rid)
         for rig, tid in tr.members.items():
-            self._links.pop((rig, tid), None)
+            self._links.get(rig, {}).pop(tid, None)
         return rid

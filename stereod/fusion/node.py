@@ -250,7 +250,7 @@ class FuseNode:
         self.clock.observe(frame)
         self.fuser.clock_corrections_ns = dict(self.clock.corrections_ns)
         fuse_ms = (time.monotonic() - t0) * 1e3
-        touched = object_payloads(frame.tracks)
+        touched = object_payloads(frame.tracks, frame.rows)
         self._states.update(touched)
         for rid in frame.ended:
             self._states.pop(rid, None)

@@ -1,0 +1,224 @@
+"""Every live rig track's room-frame state in one table, and the closed-form 3x3 algebra the
+fusion runs on rows of it.
+
+A rig's message writes its tracks' rows once, at arrival (moved into the room frame); a
+fusion step then gathers only the rows it needs (the members of the room tracks that message
+touches) with one index, predicts them to its instant and fuses them, each in a dozen numpy
+calls on (n, 9) columns: a 3x3 matrix is a row of nine numbers, row-major, and its inverse is
+its adjugate over its determinant, so no call loops over matrices one by one.
+
+A row of :attr:`Table.f` holds position (m), velocity (m/s), position covariance (m^2) and
+velocity covariance ((m/s)^2), at the columns :data:`POS`, :data:`VEL`, :data:`PCOV`,
+:data:`VCOV`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stereod.fusion.frames import ACCEL_SIGMA_MPS2, UNKNOWN_VELOCITY_SIGMA_MPS
+from stereod.fusion.wire import CONFIRMED, EXTRA, STATIONARY, TENTATIVE, RigWire
+
+POS, VEL, PCOV, VCOV = slice(0, 3), slice(3, 6), slice(6, 15), slice(15, 24)
+WIDTH = 24
+SEEN, MOVING, VVALID, HVALID = range(4)
+"""Columns of :attr:`Table.flags`: measured in this pair, measured and not stationary,
+velocity valid, heading valid."""
+DIAG = np.array([0, 4, 8])
+"""The diagonal's columns in a row-major 3x3 matrix of nine columns."""
+DIAG_P = np.array([6, 10, 14])
+"""The position covariance's diagonal among a table row's columns."""
+TRANSPOSE = np.array([0, 3, 6, 1, 4, 7, 2, 5, 8])
+# inv = adj / det, adj[k] = m[P[k]] m[Q[k]] - m[R[k]] m[S[k]] (row-major 3x3): P, Q, R, S
+# one after another, so that the four are one gather.
+_PQRS = np.array([
+    4, 2, 1, 5, 0, 2, 3, 1, 0,
+    8, 7, 5, 6, 8, 3, 7, 6, 4,
+    5, 1, 2, 3, 2, 0, 4, 0, 1,
+    7, 8, 4, 8, 6, 5, 6, 7, 3,
+])  # fmt: skip
+
+
+def inv3(m: np.ndarray) -> np.ndarray:
+    """The inverses of (n, 9) row-major 3x3 matrices, (n, 9): adjugate over determinant."""
+    g = m.take(_PQRS, axis=1).reshape(-1, 4, 9)
+    adj = g[:, 0] * g[:, 1] - g[:, 2] * g[:, 3]
+    det = (m[:, :3] * adj[:, ::3]).sum(axis=1, keepdims=True)
+    return adj / det
+
+
+def matvec3(m: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``M x`` for (n, 9) row-major matrices and (n, 3) vectors, (n, 3)."""
+    return (m.reshape(-1, 3, 3) @ x[:, :, None])[:, :, 0]
+
+
+_GROW = np.zeros((WIDTH, 2 * WIDTH))
+"""Row @ _GROW: the velocity where the position goes (first WIDTH columns) and the velocity's
+covariance where the position's goes (last WIDTH), the terms prediction adds times dt and
+dt^2."""
+_GROW[3:6, 0:3] = np.eye(3)
+_GROW[15:24, WIDTH + 6 : WIDTH + 15] = np.eye(9)
+_ACCEL = np.zeros(WIDTH)
+_ACCEL[[15, 19, 23]] = ACCEL_SIGMA_MPS2**2
+_ACCEL4 = np.zeros(WIDTH)
+_ACCEL4[[6, 10, 14]] = ACCEL_SIGMA_MPS2**2 / 4.0
+
+
+def predict_rows(f: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
+    """Rows of :data:`WIDTH` columns predicted by ``dt_s`` (n,) seconds each: constant velocity,
+    the velocity's uncertainty and a white acceleration of ``ACCEL_SIGMA_MPS2`` growing the
+    position's covariance by dt^2 V + (a dt^2 / 2)^2 and the velocity's by (a dt)^2, as
+    ``frames.predict`` does for one."""
+    dt = dt_s[:, None]
+    dt2 = dt * dt
+    grow = f @ _GROW
+    return f + dt * grow[:, :WIDTH] + dt2 * (grow[:, WIDTH:] + _ACCEL + dt2 * _ACCEL4)
+
+
+def fuse_groups(
+    means: np.ndarray, covs: np.ndarray, starts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Information-form fusion of consecutive runs of rows: ``means`` (n, 3), ``covs`` (n, 9),
+    run ``g`` from ``starts[g]`` to the next start (every run at least one row). Returns each
+    run's mean (k, 3) and covariance (k, 9): ``C = (sum C_i^-1)^-1`` (made symmetric),
+    ``x = C sum C_i^-1 x_i``."""
+    info = inv3(covs)
+    both = np.concatenate([info, matvec3(info, means)], axis=1)
+    total = np.add.reduceat(both, starts, axis=0) if len(starts) < len(means) else both
+    c = inv3(total[:, :9])
+    mean = matvec3(c, total[:, 9:])
+    return mean, 0.5 * (c + c[:, TRANSPOSE])
+
+
+def gate_d2(x: np.ndarray, x_cov: np.ndarray, m: np.ndarray, m_cov: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis distances of pairs of independent positions, (n,): ``x`` and ``m``
+    (n, 3), their covariances (n, 9)."""
+    d = x - m
+    return np.einsum("ni,ni->n", d, matvec3(inv3(x_cov + m_cov), d))
+
+
+def reach(
+    x: np.ndarray, x_trace: np.ndarray, m: np.ndarray, m_trace: np.ndarray, gate: float
+) -> np.ndarray:
+    """Which pairs of ``x`` (a, 3) and ``m`` (b, 3) might be within ``gate`` of each other,
+    (a, b) bool, from positions and covariance traces alone: ``d^T S^-1 d >= |d|^2 /
+    lambda_max(S)`` and ``lambda_max(S) <= trace(S)``, so a pair whose squared distance
+    exceeds ``gate`` times its traces' sum is out of the gate (a spatial bound: far pairs
+    need no inverse). The bound is taken a millionth wider against rounding."""
+    d = x[:, None, :] - m[None, :, :]
+    return np.einsum("abi,abi->ab", d, d) <= (gate * (1.0 + 1e-6)) * (
+        x_trace[:, None] + m_trace[None, :]
+    )
+
+
+class Table:
+    """Rows of every rig's latest message, each rig in its own block of consecutive rows
+    (block ``k`` from ``k * capacity``), so that any rows of any rigs are one gather."""
+
+    def __init__(self, capacity: int = 32) -> None:
+        self.capacity = capacity
+        self.blocks: dict[str, int] = {}
+        """Rig name -> its block."""
+        self.count: dict[str, int] = {}
+        """Rig name -> rows of its latest message."""
+        self.f = np.zeros((0, WIDTH))
+        self.stamps = np.zeros(0, dtype=np.int64)
+        """Each row's UTC stamp, ns."""
+        self.flags = np.zeros((0, 4), dtype=bool)
+        self.extra = np.zeros((0, len(EXTRA)))
+        self.ids: dict[str, list[int]] = {}
+        """Rig name -> its rows' track ids, in row order."""
+        self.index: dict[str, dict[int, int]] = {}
+        """Rig name -> track id -> its row in the table."""
+
+    def _grow(self, blocks: int, capacity: int) -> None:
+        """Make room for ``blocks`` blocks of ``capacity`` rows, keeping every rig's rows."""
+        old = (self.f, self.stamps, self.flags, self.extra, self.capacity)
+        n = blocks * capacity
+        self.f = np.zeros((n, WIDTH))
+        self.stamps = np.zeros(n, dtype=np.int64)
+        self.flags = np.zeros((n, 4), dtype=bool)
+        self.extra = np.zeros((n, len(EXTRA)))
+        f, stamps, flags, extra, cap = old
+        for rig, k in self.blocks.items():
+            a, b, c = k * cap, k * capacity, self.count.get(rig, 0)
+            self.f[b : b + c], self.stamps[b : b + c] = f[a : a + c], stamps[a : a + c]
+            self.flags[b : b + c], self.extra[b : b + c] = flags[a : a + c], extra[a : a + c]
+        self.capacity = capacity
+        self.index = {
+            rig: {tid: self.blocks[rig] * capacity + i for i, tid in enumerate(ids)}
+            for rig, ids in self.ids.items()
+        }
+
+    def put(self, wire: RigWire, rotation: np.ndarray, translation: np.ndarray) -> None:
+        """Rig ``wire.rig``'s message, its not tentative objects moved into the room frame
+        (``p' = R p + t``, ``v' = R v``, ``P' = R P R^T``; a missing or non-finite sigma as
+        ``frames.to_room`` takes it), in place of that rig's previous rows."""
+        w = wire if not (wire.state == TENTATIVE).any() else wire.select(wire.state != TENTATIVE)
+        n = len(w.ids)
+        rig = w.rig
+        if rig not in self.blocks:
+            self.blocks[rig] = len(self.blocks)
+        blocks = len(self.blocks)
+        if n > self.capacity or blocks * self.capacity > len(self.f):
+            self._grow(max(blocks, 2 * len(self.f) // max(self.capacity, 1)),
+                       max(self.capacity, 2 * n))  # fmt: skip
+        base = self.blocks[rig] * self.capacity
+        ps, vs = w.position_sigma, w.velocity_sigma
+        sig = np.concatenate([
+            np.where(np.isfinite(ps), ps, 1.0),
+            np.where(np.isfinite(vs), vs, UNKNOWN_VELOCITY_SIGMA_MPS),
+        ])  # fmt: skip
+        r = rotation
+        rows = self.f[base : base + n]
+        rows[:, POS] = w.position @ r.T + translation
+        rows[:, VEL] = w.velocity @ r.T
+        covs = ((r[None, :, :] * np.square(sig)[:, None, :]) @ r.T).reshape(2 * n, 9)
+        rows[:, PCOV], rows[:, VCOV] = covs[:n], covs[n:]
+        self.stamps[base : base + n] = w.stamps_ns
+        flags = self.flags[base : base + n]
+        flags[:, SEEN] = (w.state == CONFIRMED) | (w.state == STATIONARY)
+        flags[:, MOVING] = w.state == CONFIRMED
+        flags[:, VVALID], flags[:, HVALID] = w.velocity_valid, w.heading_valid
+        self.extra[base : base + n] = w.extra
+        ids = w.ids.tolist()
+        self.ids[rig] = ids
+        self.count[rig] = n
+        self.index[rig] = dict(zip(ids, range(base, base + n), strict=True))
+
+    def drop(self, rig: str) -> None:
+        """Forget ``rig``'s rows (its block stays its own)."""
+        self.count.pop(rig, None)
+        self.ids.pop(rig, None)
+        self.index.pop(rig, None)
+
+    def rows(self, rig: str) -> range:
+        """``rig``'s rows in the table (empty when it has none)."""
+        if rig not in self.count:
+            return range(0)
+        base = self.blocks[rig] * self.capacity
+        return range(base, base + self.count[rig])
+
+
+class Estimates:
+    """Room tracks' positions and covariances at one instant, as arrays by slot (the step's
+    association works on them; a link or a new room track updates one in place)."""
+
+    def __init__(self, rids: list[int], mean: np.ndarray, cov: np.ndarray) -> None:
+        self.rids = rids
+        self.slot = {rid: k for k, rid in enumerate(rids)}
+        self.mean = mean
+        """(k, 3) m."""
+        self.cov = cov
+        """(k, 9) m^2, row-major."""
+
+    def set(self, rid: int, mean: np.ndarray, cov: np.ndarray) -> None:
+        """Room track ``rid``'s estimate is now ``mean`` (3,), ``cov`` (9,)."""
+        k = self.slot.get(rid)
+        if k is None:
+            self.slot[rid] = len(self.rids)
+            self.rids.append(rid)
+            self.mean = np.concatenate([self.mean, mean[None]])
+            self.cov = np.concatenate([self.cov, cov[None]])
+        else:
+            self.mean[k], self.cov[k] = mean, cov
