@@ -866,3 +866,32 @@ def test_a_walker_whose_speed_is_never_valid_is_held_when_they_stop() -> None:
     (s,) = states
     assert s.lifecycle is TrackLifecycle.STATIONARY, s.lifecycle
     assert s.freeze_background
+
+
+def test_a_coasting_track_gone_astray_does_not_take_the_floor_left_behind() -> None:
+    """A robot at 1.8 m drives left at 0.5 m/s; one detection, the robot joined by the floor
+    it uncovered, reads it at 0.6 m, and the filters' velocity, then the free-fall model's,
+    goes wild: unseen from then on, its prediction runs 160 px down the image in a third of a
+    second. Half that as a gate took the uncovered floor 76 px away, which then stood still
+    as the robot's track, held out of the background for ``hold_still_s``. Unseen, a track is
+    credited with no more image motion than its image velocity gave it; the floor's blob
+    starts a track of its own, born still, which holds nothing."""
+    tracker = _tracker()
+    robot = line([0.2, 0.0, 1.8], [-0.5, 0.0, 0.0])
+    for k in range(34):
+        t = k * DT_NS
+        p = robot(t * 1e-9)
+        if k == 30:  # one depth far too near, at the robot's place in the left image
+            step(tracker, t, [p * (0.6 / 1.8)], size_m=0.2 * 0.6 / 1.8)
+        else:
+            step(tracker, t, [p], size_m=0.2)
+    assert tracker.track(1).falling
+    floor = np.array([-0.42, 0.26, 1.8])  # uncovered where the robot's prediction runs by
+    at_floor: list[TrackState] = []
+    for k in range(34, 70):
+        t = k * DT_NS
+        states, _ = step(tracker, t, [floor] if k >= 44 else [], size_m=0.2)
+        at_floor += [s for s in states if np.linalg.norm(s.observation.position_m - floor) < 0.05]
+    assert at_floor and 1 not in {s.track_id for s in at_floor}, {s.track_id for s in at_floor}
+    assert not any(s.freeze_background for s in at_floor)
+    assert 1 not in tracker.live_ids()

@@ -192,7 +192,10 @@ class Association(TrackFilters):
                 )
             )
             if len(tr.left_history) >= 2 and len(tr.right_history) >= 2:
-                gate = p.gate_px + p.motion_gate * max(ml, mr)
+                moved = max(ml, mr)
+                if tr.misses > 0:  # unseen: credited no more than its image velocity carries it
+                    moved = min(moved, self._unseen_motion(tr, t_left, t_right))
+                gate = p.gate_px + p.motion_gate * moved
             else:
                 dt = max(t_left - tr.left_history[-1][0], t_right - tr.right_history[-1][0])
                 gate = p.gate_px + tr.image_speed_pxps * dt * 1e-9
@@ -364,6 +367,18 @@ class Association(TrackFilters):
                 if float(np.linalg.norm(ka.velocity_mps - kb.velocity_mps)) > p.merge_speed_mps:
                     return False
         return True
+
+    def _unseen_motion(self, tr: Track, t_left: int, t_right: int) -> float:
+        """How far (px, the larger of the eyes) a track unseen since its last observation may
+        have moved in the images by ``t_left``/``t_right`` (ns): as far as each eye's image
+        velocity while it was seen carries it. Its filter's prediction may run much further
+        (a few bad depths as an object leaves the view switch it to free fall, and in a third
+        of a second unseen it predicts 200 px), and half of that as a gate would take a blob
+        of the background that object uncovered, far from anywhere it went."""
+        return max(
+            predict_px(tr.left_history, t_left, self.WINDOW_NS)[1],
+            predict_px(tr.right_history, t_right, self.WINDOW_NS)[1],
+        )
 
     def _row_instants(self, tr: Track, eye_times_ns: tuple[int, int]) -> tuple[int, int]:
         """When each eye's rolling shutter reads the rows a track was last seen on (ns): the
