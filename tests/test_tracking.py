@@ -694,6 +694,41 @@ def test_distance_to_a_segment_in_closed_form() -> None:
     )
 
 
+def test_gating_every_detection_against_every_track_at_once_is_the_pairs_one_by_one() -> None:
+    """The distances to segments, points in boxes (grown or not) and boxes' overlaps that
+    association takes for all tracks and detections in one pass are each pair's own, ends of
+    segments that coincide, points on a box's edge and boxes of no area included."""
+    from stereod.tracking.association import (
+        _inside,
+        _insides,
+        _iou,
+        _ious,
+        _to_segment,
+        _to_segments,
+    )
+
+    rng = np.random.default_rng(7)
+    points = rng.uniform(-50.0, 350.0, (40, 2))
+    a = rng.uniform(0.0, 300.0, (30, 2))
+    b = np.where(rng.random((30, 1)) < 0.3, a, a + rng.normal(0.0, 60.0, (30, 2)))
+    boxes = np.column_stack([rng.integers(0, 300, (25, 2)), rng.integers(0, 80, (25, 2))]).astype(
+        np.int32
+    )
+    boxes[:3, 2:] = 0  # no area
+    points[:5] = boxes[:5, :2] + boxes[:5, 2:]  # on the far corner
+    far = _to_segments(points, a, b)
+    for i, pt in enumerate(points):
+        for j in range(len(a)):
+            assert far[i, j] == pytest.approx(_to_segment(pt, a[j], b[j]), rel=1e-15, abs=1e-12)
+    for grow in (0.0, 0.25):
+        within = _insides(points, boxes, grow)
+        assert within.any() and not within.all()
+        assert [[_inside(pt, box, grow) for pt in points] for box in boxes] == within.tolist()
+    overlap = _ious(boxes, boxes[::-1])
+    assert (overlap > 0).any()
+    assert [[_iou(p, q) for q in boxes[::-1]] for p in boxes] == overlap.tolist()
+
+
 @pytest.mark.parametrize("factor_known", [True, False])
 def test_a_track_is_looked_for_where_its_silhouettes_centroid_is(factor_known: bool) -> None:
     """A 10 cm ball at 0.8 m, 0.3-0.4 m off the axis: its silhouettes' centroids lie where
