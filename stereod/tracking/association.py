@@ -210,8 +210,8 @@ class Association(TrackFilters):
         boxes = []
         preds: list[Prediction] = []
         gates = np.empty(k)
-        ends = np.empty((4, k, 2))  # each track's segment in each eye: left, its far end, right...
-        last = np.empty((2, k, 4))  # and its last boxes, left and right
+        ends = np.empty((4, k, 2))  # each track's predicted segments: left, left_far, right, ...
+        last = np.empty((2, k, 4))  # and its last boxes, left and right (x, y, w, h px)
         for j, tr in enumerate(tracks):
             t_left, t_right = self._row_instants(tr, eye_times_ns)
             pred = self._predict_px(tr, t_left, t_right)
