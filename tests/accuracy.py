@@ -13,7 +13,9 @@ the object it follows and reports, per object:
 - position error as a share of eq. 12's one-pixel depth error at the true depth (median, same
   window);
 - how many confirmed track ids followed it (one is right; two is an id switch), how many
-  confirmed tracks followed nothing (ghosts);
+  confirmed tracks followed nothing (ghosts), or were seen where no object is for longer than
+  the detector's ``absorb_s`` in one stretch (a ghost stretch: a track that followed a robot
+  out of view, then held the floor a moved box uncovered, counts as a ghost too);
 - in which of its frames in view it was first tracked, and first had a valid velocity.
 
 Used by ``benchmarks/accuracy.py`` (every combination) and by the accuracy tests (a subset).
@@ -35,7 +37,8 @@ import numpy as np
 
 from stereod import CanonicalRig, Eye, Frame, PairResult, Pipeline, PipelineParams
 from stereod.tracking.motion import angle_diff_deg
-from stereod.tracking.types import TrackLifecycle
+from stereod.tracking.types import TrackLifecycle, TrackState
+from stereod.vision.detect_params import DetectorParams
 from stereod_fakes import world
 from stereod_fakes.scenarios import TABLE_I, table_one_scene
 from stereod_fakes.synth import Renderer, Scene
@@ -381,10 +384,17 @@ class CaseScore:
     case: Case
     objects: list[ObjectScore]
     ghosts: list[int]
-    """Confirmed track ids that followed no object."""
+    """Confirmed track ids that followed no object, or had a ghost stretch
+    (``ghost_stretch_s``)."""
     ghost_life_s: dict[int, float] = field(default_factory=dict)
     """How long (s) each ghost was reported confirmed or stationary (first to last such
-    state)."""
+    state; for one that followed an object, its longest ghost stretch)."""
+    ghost_stretch_s: dict[int, float] = field(default_factory=dict)
+    """Tracks seen (confirmed or stationary) on no object of the truth for longer than
+    ``absorb_s`` in one stretch, though most of their states were on one: the longest such
+    stretch (s), first to last state of it (states coasting between are passed over, a state
+    seen on an object ends it). What a moved object uncovers is learned by the background
+    after ``absorb_s``; a track that holds it out longer is a ghost."""
 
 
 SEEN = (TrackLifecycle.CONFIRMED, TrackLifecycle.STATIONARY)
@@ -400,12 +410,18 @@ def _gate_m(rig: CanonicalRig, depth_m: float) -> float:
     return max(0.2, 3.0 * float(rig.depth_error_one_px_m(depth_m)))
 
 
-def score(case: Case, results: list[PairResult], gate_m: float | None = None) -> CaseScore:
+def score(
+    case: Case,
+    results: list[PairResult],
+    gate_m: float | None = None,
+    absorb_s: float = DetectorParams().absorb_s,
+) -> CaseScore:
     """Score a run of ``case`` (see the module docstring). ``gate_m``: the largest distance
     (m) of a track state from an object's true centre to be on it (default: three times eq.
     12's one-pixel error at its depth, at least 0.2 m; a person's centre, what their silhouettes
-    show of them, is a looser thing). An object in view that never moves (a stool) is scenery,
-    which background subtraction rightly never reports: it is not scored."""
+    show of them, is a looser thing). ``absorb_s``: the longest (s) a track may be seen on no
+    object in one stretch (the detector's, by default). An object in view that never moves (a
+    stool) is scenery, which background subtraction rightly never reports: it is not scored."""
     rig = case.mode.rig
     # Which object each (pair, track) state is on, if any.
     on: dict[int, list[str | None]] = {}
@@ -440,6 +456,9 @@ def score(case: Case, results: list[PairResult], gate_m: float | None = None) ->
         if s.track_id in ghosts and s.lifecycle in SEEN:
             life.setdefault(s.track_id, []).append(s.t_ns)
     ghost_life = {t: (max(ts) - min(ts)) * 1e-9 for t, ts in life.items()}
+    stretches = {t: s for t, s in _off_stretches(rows).items() if s > absorb_s and t not in ghosts}
+    ghosts = sorted([*ghosts, *stretches])
+    ghost_life.update(stretches)
     scores = []
     for name in case.objects:
         if name not in moved and in_view_at[name]:
@@ -494,4 +513,23 @@ def score(case: Case, results: list[PairResult], gate_m: float | None = None) ->
             o.position_err_m = float(np.median(dp))
             o.position_ratio = float(np.median(ratio))
         scores.append(o)
-    return CaseScore(case, scores, ghosts, ghost_life)
+    return CaseScore(case, scores, ghosts, ghost_life, stretches)
+
+
+def _off_stretches(rows: list[tuple[int, TrackState, str | None]]) -> dict[int, float]:
+    """Each track's longest stretch (s) of states seen (confirmed or stationary) on no object,
+    from ``rows`` (pair index, state, the object it is on or None) in pair order: first to
+    last state of the stretch; coasting and tentative states are passed over, a state seen on
+    an object ends it."""
+    start: dict[int, int] = {}
+    longest: dict[int, float] = {}
+    for _, s, on in rows:
+        if s.lifecycle not in SEEN:
+            continue
+        tid = s.track_id
+        if on is not None:
+            start.pop(tid, None)
+            continue
+        t0 = start.setdefault(tid, s.t_ns)
+        longest[tid] = max(longest.get(tid, 0.0), (s.t_ns - t0) * 1e-9)
+    return longest

@@ -8,6 +8,7 @@ import pytest
 
 from stereod.daemon.config import load_config
 from stereod.errors import EX_CONFIG, ConfigError, MissingInputError
+from stereod.tracking.types import TrackerParams
 
 
 def test_defaults_are_the_minoru() -> None:
@@ -58,6 +59,14 @@ def test_a_flag_naming_another_driver_leaves_the_files_driver_options_out(tmp_pa
         (
             "[zenoh]\nmode = 'client'\n",
             r"zenoh: mode = 'client' needs a router to connect to: give zenoh\.connect",
+        ),
+        (
+            "[tracking]\nmax_member_s = -1.0\n",
+            r"c\.toml: invalid config: tracking\.max_member_s = -1\.0: must be in 0\.\.600 s",
+        ),
+        (
+            "[tracking]\nmax_member_s = true\n",
+            r"tracking\.max_member_s = True: must be a number",
         ),
         (
             "[matching]\nmin_disparity_px = 10.0\nmax_disparity_px = 5.0\n",
@@ -114,3 +123,16 @@ def test_bad_environment_is_one_line(
     with pytest.raises(ConfigError, match=pattern) as err:
         load_config()
     assert "\n" not in str(err.value)
+
+
+def test_how_long_a_member_is_kept_reaches_the_tracker(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``[tracking] max_member_s`` (the file, then the environment over it) is the tracker's:
+    a box a robot pushes for longer than the default 5 s can keep its id."""
+    f = tmp_path / "c.toml"
+    f.write_text("[tracking]\nmax_member_s = 12.5\n")
+    assert load_config(f).tracking.params().max_member_s == 12.5
+    monkeypatch.setenv("STEREOD_TRACKING__MAX_MEMBER_S", "30")
+    assert load_config(f).tracking.params().max_member_s == 30.0
+    assert load_config().tracking.params() == TrackerParams(max_member_s=30.0)

@@ -694,6 +694,41 @@ def test_distance_to_a_segment_in_closed_form() -> None:
     )
 
 
+def test_gating_every_detection_against_every_track_at_once_is_the_pairs_one_by_one() -> None:
+    """The distances to segments, points in boxes (grown or not) and boxes' overlaps that
+    association takes for all tracks and detections in one pass are each pair's own, ends of
+    segments that coincide, points on a box's edge and boxes of no area included."""
+    from stereod.tracking.association import (
+        _inside,
+        _insides,
+        _iou,
+        _ious,
+        _to_segment,
+        _to_segments,
+    )
+
+    rng = np.random.default_rng(7)
+    points = rng.uniform(-50.0, 350.0, (40, 2))
+    a = rng.uniform(0.0, 300.0, (30, 2))
+    b = np.where(rng.random((30, 1)) < 0.3, a, a + rng.normal(0.0, 60.0, (30, 2)))
+    boxes = np.column_stack([rng.integers(0, 300, (25, 2)), rng.integers(0, 80, (25, 2))]).astype(
+        np.int32
+    )
+    boxes[:3, 2:] = 0  # no area
+    points[:5] = boxes[:5, :2] + boxes[:5, 2:]  # on the far corner
+    far = _to_segments(points, a, b)
+    for i, pt in enumerate(points):
+        for j in range(len(a)):
+            assert far[i, j] == pytest.approx(_to_segment(pt, a[j], b[j]), rel=1e-15, abs=1e-12)
+    for grow in (0.0, 0.25):
+        within = _insides(points, boxes, grow)
+        assert within.any() and not within.all()
+        assert [[_inside(pt, box, grow) for pt in points] for box in boxes] == within.tolist()
+    overlap = _ious(boxes, boxes[::-1])
+    assert (overlap > 0).any()
+    assert [[_iou(p, q) for q in boxes[::-1]] for p in boxes] == overlap.tolist()
+
+
 @pytest.mark.parametrize("factor_known", [True, False])
 def test_a_track_is_looked_for_where_its_silhouettes_centroid_is(factor_known: bool) -> None:
     """A 10 cm ball at 0.8 m, 0.3-0.4 m off the axis: its silhouettes' centroids lie where
@@ -866,3 +901,32 @@ def test_a_walker_whose_speed_is_never_valid_is_held_when_they_stop() -> None:
     (s,) = states
     assert s.lifecycle is TrackLifecycle.STATIONARY, s.lifecycle
     assert s.freeze_background
+
+
+def test_a_coasting_track_gone_astray_does_not_take_the_floor_left_behind() -> None:
+    """A robot at 1.8 m drives left at 0.5 m/s; one detection, the robot joined by the floor
+    it uncovered, reads it at 0.6 m, and the filters' velocity, then the free-fall model's,
+    goes wild: unseen from then on, its prediction runs 160 px down the image in a third of a
+    second. Half that as a gate took the uncovered floor 76 px away, which then stood still
+    as the robot's track, held out of the background for ``hold_still_s``. Unseen, a track is
+    credited with no more image motion than its image velocity gave it; the floor's blob
+    starts a track of its own, born still, which holds nothing."""
+    tracker = _tracker()
+    robot = line([0.2, 0.0, 1.8], [-0.5, 0.0, 0.0])
+    for k in range(34):
+        t = k * DT_NS
+        p = robot(t * 1e-9)
+        if k == 30:  # one depth far too near, at the robot's place in the left image
+            step(tracker, t, [p * (0.6 / 1.8)], size_m=0.2 * 0.6 / 1.8)
+        else:
+            step(tracker, t, [p], size_m=0.2)
+    assert tracker.track(1).falling
+    floor = np.array([-0.42, 0.26, 1.8])  # uncovered where the robot's prediction runs by
+    at_floor: list[TrackState] = []
+    for k in range(34, 70):
+        t = k * DT_NS
+        states, _ = step(tracker, t, [floor] if k >= 44 else [], size_m=0.2)
+        at_floor += [s for s in states if np.linalg.norm(s.observation.position_m - floor) < 0.05]
+    assert at_floor and 1 not in {s.track_id for s in at_floor}, {s.track_id for s in at_floor}
+    assert not any(s.freeze_background for s in at_floor)
+    assert 1 not in tracker.live_ids()

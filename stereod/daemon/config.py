@@ -23,7 +23,6 @@ Example::
 from __future__ import annotations
 
 import json
-import math
 import os
 import sys
 import typing
@@ -32,7 +31,6 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import (
-    AliasChoices,
     BaseModel,
     ConfigDict,
     Field,
@@ -44,31 +42,24 @@ from pydantic import (
 
 from stereod.bus import keys
 from stereod.bus.endpoints import Endpoint
+from stereod.daemon.config_section import Section, pipeline_default
+from stereod.daemon.config_tracking import TrackingConfig
 from stereod.errors import ConfigError, UsageError, describe_error
 from stereod.files.bounds import (
     ABSORB_S,
     BASELINE_M,
     CENTROID_SIGMA_PX,
     HFOV_DEG,
-    HOLD_STILL_S,
     IMAGE_RATE_HZ,
-    MANOEUVRE_CHI2,
-    MAX_COAST_S,
-    MAX_HIDDEN_S,
     READOUT_S,
     STATUS_PERIOD_S,
-    STILL_AFTER_S,
     THRESHOLD_GREY,
-    TIME_BASE_S,
     TOLERANCE_MS,
-    not_bool,
 )
 from stereod.files.config_input import ENV_OTHER, ENV_PREFIX, merge, origin, prune, read_toml
 from stereod.files.nesting import check_depth
 from stereod.files.paths import TextPath
-from stereod.pipeline import PipelineParams
 from stereod.sources.pairing import DEFAULT_TOLERANCE_NS
-from stereod.tracking.types import TrackerParams
 from stereod.vision.detect_params import (
     MAX_WARMUP_FRAMES,
     Centroid,
@@ -88,33 +79,14 @@ else:  # pragma: no cover - exercised on 3.10 only
 DEFAULT_CONFIG_PATH = Path("/etc/stereod/stereod.toml")
 
 
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-    @field_validator("*", mode="before")
-    @classmethod
-    def _numbers_are_not_bools(cls, v: Any, info: ValidationInfo) -> Any:
-        """A number field refuses true/false, which pydantic's lax mode reads as 1/0."""
-        kind = cls.model_fields[info.field_name or ""].annotation
-        if kind in (int, float) or typing.get_origin(kind) is tuple:
-            return not_bool(v)
-        return v
-
-
 # The defaults of the pipeline's settings are stated once, in its parameter classes.
 _DETECT = DetectorParams()
 _MATCH = MatchParams()
-_TRACK = TrackerParams()
 _REFINE = RefineParams()
 _GROUP = GroupParams()
 
 
-def _pipe(name: str) -> Any:
-    """The default of one :class:`PipelineParams` field."""
-    return PipelineParams.__dataclass_fields__[name].default
-
-
-class RigConfig(_Section):
+class RigConfig(Section):
     """The stereo rig: its name in key expressions and the canonical geometry (eq. 9)."""
 
     name: str = Field(keys.DEFAULT_RIG, pattern=keys.RIG_PATTERN, description="Rig name in keys")
@@ -129,20 +101,20 @@ class RigConfig(_Section):
         None, description="Calibration file (stereod calibrate); without it, the canonical rig"
     )
     readout_s: Annotated[float, READOUT_S.validator()] = Field(
-        _pipe("readout_s"),
+        pipeline_default("readout_s"),
         description="Rolling shutter: time from the first image row to the last, s (0: global "
         "shutter); a frame is at most a tenth of a second long at 10 Hz",
     )
 
 
-class DriverConfig(_Section):
+class DriverConfig(Section):
     """Which frame source to open (entry point group ``stereod.drivers``) and its own options."""
 
     name: str = Field("v4l2_minoru", description="replay, synthetic, v4l2_minoru, or a plug-in")
     options: dict[str, Any] = Field(default_factory=dict)
 
 
-class DetectorConfig(_Section):
+class DetectorConfig(Section):
     """Paper sec. II parameters and what is added to them (see
     :class:`stereod.vision.detect_params.DetectorParams`)."""
 
@@ -239,7 +211,7 @@ class DetectorConfig(_Section):
         return DetectorParams(**self.model_dump())
 
 
-class PairingConfig(_Section):
+class PairingConfig(Section):
     """How the two eyes are paired by timestamp."""
 
     tolerance_ms: Annotated[float, TOLERANCE_MS.validator()] = Field(
@@ -247,11 +219,11 @@ class PairingConfig(_Section):
     )
     max_pending: int = Field(8, ge=2, le=1000, description="Frames one eye may wait, count")
     skew_compensation: bool = Field(
-        _pipe("skew_compensation"), description="Bring both eyes to one instant"
+        pipeline_default("skew_compensation"), description="Bring both eyes to one instant"
     )
 
 
-class MatchingConfig(_Section):
+class MatchingConfig(Section):
     """How blobs are matched between the eyes (``MatchParams`` in ``vision/geometry/stereo.py``)."""
 
     row_tolerance_px: float = Field(
@@ -282,10 +254,10 @@ class MatchingConfig(_Section):
         return v
 
     centroid_sigma_px: Annotated[float, CENTROID_SIGMA_PX.validator()] = Field(
-        _pipe("centroid_sigma_px"), description="Centroid error per axis, px"
+        pipeline_default("centroid_sigma_px"), description="Centroid error per axis, px"
     )
     silhouette_depth: bool = Field(
-        _pipe("silhouette_depth"),
+        pipeline_default("silhouette_depth"),
         description="Depth at the object's centre, not where its silhouettes triangulate",
     )
 
@@ -293,101 +265,7 @@ class MatchingConfig(_Section):
         return MatchParams(**self.model_dump(exclude={"centroid_sigma_px", "silhouette_depth"}))
 
 
-class TrackingConfig(_Section):
-    """Association, Kalman filter and lifecycle (``TrackerParams`` in ``tracking/types.py``)."""
-
-    gate_px: float = Field(
-        _TRACK.gate_px, gt=0.0, le=1000.0, description="Image gate around a prediction, px"
-    )
-    motion_gate: float = Field(
-        _TRACK.motion_gate, ge=0.0, le=10.0, description="Gate growth per px of image motion"
-    )
-    max_speed_mps: float = Field(
-        _TRACK.max_speed_mps, gt=0.0, le=1000.0, description="Fastest object to follow, m/s"
-    )
-    manoeuvre_chi2: Annotated[float, MANOEUVRE_CHI2.validator()] = Field(
-        _TRACK.manoeuvre_chi2, description="Mahalanobis bound of a manoeuvre, 3 dof"
-    )
-    manoeuvre_sigma_mps: float = Field(
-        _TRACK.manoeuvre_sigma_mps,
-        gt=0.0,
-        le=1000.0,
-        description="Velocity sigma of a track before its filter starts, m/s",
-    )
-    accel_noise: float = Field(
-        _TRACK.accel_noise, gt=0.0, le=1e6, description="White acceleration density, m^2/s^3"
-    )
-    time_base_s: Annotated[float, TIME_BASE_S.validator()] = Field(
-        _TRACK.time_base_s, description="tau of eq. 21, s"
-    )
-    max_coast_s: Annotated[float, MAX_COAST_S.validator()] = Field(
-        _TRACK.max_coast_s, description="Track lives unseen, s"
-    )
-    max_hidden_s: Annotated[float, MAX_HIDDEN_S.validator()] = Field(
-        _TRACK.max_hidden_s,
-        description="Track lives unseen this long while both eyes see a blob where it should "
-        "be (behind another object), s",
-    )
-    confirm_hits: int = Field(
-        _TRACK.confirm_hits, ge=1, le=1000, description="Observations to confirm a track"
-    )
-    valid_speed_sigma_mps: float = Field(
-        _TRACK.valid_speed_sigma_mps, gt=0.0, description="Speed sigma for a valid velocity, m/s"
-    )
-    valid_speed_sigma_rel: float = Field(
-        _TRACK.valid_speed_sigma_rel, ge=0.0, le=1.0, description="Or this share of the speed"
-    )
-    hold_still_s: Annotated[float, HOLD_STILL_S.validator()] = Field(
-        _TRACK.hold_still_s,
-        validation_alias=AliasChoices("hold_still_s", "freeze_s"),
-        description="A stopped object is held out of the background, keeping its id, this long, s "
-        "(freeze_s, its older name, is read too)",
-    )
-    size_gate: float = Field(
-        _TRACK.size_gate,
-        ge=0.0,
-        le=5.0,
-        description="A track's gate is at least this share of its blob's size (sqrt of area)",
-    )
-    merge_depth_m: float = Field(
-        _TRACK.merge_depth_m,
-        ge=0.0,
-        le=10.0,
-        description="Tracks one blob holds within this depth of each other ...",
-    )
-    merge_speed_mps: float = Field(
-        _TRACK.merge_speed_mps,
-        ge=0.0,
-        le=10.0,
-        description="... and moving together within this are one object, m/s",
-    )
-    still_after_s: Annotated[float, STILL_AFTER_S.validator()] = Field(
-        _TRACK.still_after_s,
-        description="Not seen moving this long: the object is stationary, s",
-    )
-    stationary_mps: float = Field(
-        _TRACK.stationary_mps, ge=0.0, description="Below this an object is stopped"
-    )
-    gravity_mps2: tuple[float, float, float] = Field(
-        _TRACK.gravity_mps2,
-        description="Gravity in the rig frame (Y down in a level rig), m/s^2; [0, 0, 0]: off",
-    )
-    freeze_background: bool = Field(
-        _pipe("freeze_background"), description="Do not learn background under tracks"
-    )
-
-    @field_validator("gravity_mps2")
-    @classmethod
-    def _gravity_finite(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
-        if not all(math.isfinite(c) and abs(c) <= 100.0 for c in v):
-            raise ValueError("each component must be finite and at most 100 m/s^2")
-        return v
-
-    def params(self) -> TrackerParams:
-        return TrackerParams(**self.model_dump(exclude={"freeze_background"}))
-
-
-class GroupingConfig(_Section):
+class GroupingConfig(Section):
     """Which matched blob pairs are one object (``GroupParams`` in ``vision/grouping.py``)."""
 
     enabled: bool = Field(_GROUP.enabled, description="Group blob pairs into objects by depth")
@@ -411,7 +289,7 @@ class GroupingConfig(_Section):
         return GroupParams(**self.model_dump())
 
 
-class RefineConfig(_Section):
+class RefineConfig(Section):
     """Disparity by appearance matching (``RefineParams``, ``vision/geometry/refine.py``)."""
 
     enabled: bool = Field(_REFINE.enabled, description="Match the left patch along the right row")
@@ -430,7 +308,7 @@ class RefineConfig(_Section):
         return RefineParams(**self.model_dump())
 
 
-class ZenohConfig(_Section):
+class ZenohConfig(Section):
     """The Zenoh session: key prefix, mode and endpoints (``tcp/127.0.0.1:7447``)."""
 
     prefix: str = Field(keys.DEFAULT_PREFIX, pattern=keys.PREFIX_PATTERN)
@@ -458,7 +336,7 @@ class ZenohConfig(_Section):
         return self
 
 
-class DaemonConfig(_Section):
+class DaemonConfig(Section):
     """Threads, queues and reporting."""
 
     queue_size: int = Field(4, ge=1, le=1000, description="Pairs waiting for the pipeline")
@@ -488,7 +366,7 @@ Ros2Topic = Literal["odom", "markers", "camera_info", "images", "tf_static", "ob
 _ROS2_TOPICS: tuple[Ros2Topic, ...] = ("odom", "markers", "camera_info", "images", "tf_static")
 
 
-class Ros2Config(_Section):
+class Ros2Config(Section):
     """ROS 2 live (``ros/ros2_live.py``): the daemon also speaks rmw_zenoh (Jazzy, Kilted)."""
 
     enabled: bool = Field(False, description="Publish the ROS 2 topics as an rmw_zenoh node")

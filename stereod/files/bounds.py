@@ -186,6 +186,14 @@ MAX_HIDDEN_S = Bound(
     "s",
     "0 ends a hidden track like any other; an object a minute behind another is gone",
 )
+MAX_MEMBER_S = Bound(
+    ("tracking.max_member_s",),
+    0.0,
+    600.0,
+    "s",
+    "0 ends a track taken into another's object at once (a box a robot pushed comes out of "
+    "it with a new id); ten minutes inside another object and what comes out is another thing",
+)
 HOLD_STILL_S = Bound(
     ("tracking.hold_still_s",),
     0.0,
@@ -289,6 +297,7 @@ BOUNDS: tuple[Bound, ...] = (
     TIME_BASE_S,
     MAX_COAST_S,
     MAX_HIDDEN_S,
+    MAX_MEMBER_S,
     HOLD_STILL_S,
     STILL_AFTER_S,
     READOUT_S,

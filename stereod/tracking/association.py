@@ -14,7 +14,7 @@ from stereod.tracking import kalman
 from stereod.tracking.assignment import min_cost_assignment
 from stereod.tracking.skew import image_velocity, shift_to
 from stereod.tracking.track import Track, TrackFilters
-from stereod.tracking.types import Detection, EyeHistory, Observation
+from stereod.tracking.types import Detection, EyeHistory
 
 Projector = Callable[[float, float, float, bool], tuple[float, float]]
 """A rig-frame point (x, y, z m) to rectified px (x, y) of the left eye (True) or the right
@@ -100,48 +100,78 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return inter / union if union > 0 else 0.0
 
 
-def _piece(
-    d: Detection, detections: list[Detection], owners: list[int | None], tracks: list[Track]
-) -> bool:
-    """Whether a detection lies within a larger one of this pair, or within the box of a
-    track that was found this pair, in both eyes: a piece of that object, not another."""
-    for other in detections:
-        if (
-            other is not d
-            and other.area_px > d.area_px
-            and (
-                _inside(d.left_px, other.left_bbox_px, 0.0)
-                and _inside(d.right_px, other.right_bbox_px, 0.0)
-            )
-        ):
-            return True
+def _to_segments(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`_to_segment` of every point ((n, 2) px) to every segment a-b ((m, 2) each), in
+    one pass: (n, m) px."""
+    ax, ay = a[None, :, 0], a[None, :, 1]
+    px, py = points[:, None, 0], points[:, None, 1]
+    dx, dy = b[None, :, 0] - ax, b[None, :, 1] - ay
+    n2 = dx * dx + dy * dy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.minimum(1.0, np.maximum(0.0, ((px - ax) * dx + (py - ay) * dy) / n2))
+    t = np.where(n2 == 0.0, 0.0, t)
+    return np.hypot(px - (ax + t * dx), py - (ay + t * dy))
+
+
+def _insides(points: np.ndarray, boxes: np.ndarray, grow: float = 0.0) -> np.ndarray:
+    """:func:`_inside` of every point ((m, 2) px) in every box ((n, 4) x, y, w, h, each grown
+    by ``grow`` of its size on every side), in one pass: (n boxes, m points)."""
+    x, y, w, h = (boxes[:, k, None].astype(np.float64) for k in range(4))
+    mx, my = grow * w, grow * h
+    px, py = points[None, :, 0], points[None, :, 1]
+    return (x - mx <= px) & (px <= x + w + mx) & (y - my <= py) & (py <= y + h + my)
+
+
+def _ious(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`_iou` of every box of ``a`` ((n, 4) x, y, w, h) with every box of ``b`` ((m, 4)),
+    in one pass: (n, m)."""
+    a, b = a[:, None, :].astype(np.float64), b[None, :, :].astype(np.float64)
+    lo_x, lo_y = np.maximum(a[..., 0], b[..., 0]), np.maximum(a[..., 1], b[..., 1])
+    ix = np.maximum(0.0, np.minimum(a[..., 0] + a[..., 2], b[..., 0] + b[..., 2]) - lo_x)
+    iy = np.maximum(0.0, np.minimum(a[..., 1] + a[..., 3], b[..., 1] + b[..., 3]) - lo_y)
+    inter = ix * iy
+    union = (a[..., 2] * a[..., 3] + b[..., 2] * b[..., 3]) - inter
+    return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+
+
+def _pieces(
+    detections: list[Detection],
+    centres: np.ndarray,
+    bboxes: np.ndarray,
+    owners: list[int | None],
+    tracks: list[Track],
+) -> np.ndarray:
+    """Which detections ((n,) bool) lie within a larger one of this pair, or within the box of
+    a track that was found this pair, in both eyes: a piece of that object, not another.
+    ``centres`` (n, 2, 2) and ``bboxes`` (n, 2, 4) are the detections' centroids and boxes,
+    left and right eye."""
+    areas = np.array([d.area_px for d in detections])
+    within = (
+        _insides(centres[:, 0], bboxes[:, 0])
+        & _insides(centres[:, 1], bboxes[:, 1])
+        & (areas[:, None] > areas[None, :])
+    )  # (larger one, piece)
+    piece = within.any(axis=0)
     found = {tid for tid in owners if tid is not None}
-    return any(
-        _inside(d.left_px, tr.last.left_bbox_px, 0.25)
-        and _inside(d.right_px, tr.last.right_bbox_px, 0.25)
-        for tr in tracks
-        if tr.track_id in found
-    )
+    held = [tr for tr in tracks if tr.track_id in found]
+    if held:
+        left = np.array([tr.last.left_bbox_px for tr in held]).reshape(-1, 4)
+        right = np.array([tr.last.right_bbox_px for tr in held]).reshape(-1, 4)
+        inside = _insides(centres[:, 0], left, 0.25) & _insides(centres[:, 1], right, 0.25)
+        piece |= inside.any(axis=0)
+    return piece
 
 
 RESUME_COST = 0.99
-"""The association cost (of at most 1, the gate's edge) of a stationary track and a
-detection it did not predict that overlaps where it stood (:func:`_resumes`): the worst
-acceptable, so any detection the track's prediction explains is preferred."""
+"""The association cost (of at most 1, the gate's edge) of a confirmed track and a detection
+beyond its gate that overlaps where it was (``RESUME_IOU``): the worst acceptable, so any
+detection the track's prediction explains is preferred."""
 RESUME_IOU = 0.3
-"""How much a detection's box must overlap a stationary track's last box, in each eye, to be
-that object moving on (a person or robot starting off moves a fraction of its size in a
+"""How much a detection's box must overlap a confirmed track's last box, in each eye, to be
+that object moving on though its prediction is not there (a stationary object setting off:
+its filter predicts it where it stood, and the first step of a start can lie outside the gate
+of an object at rest; a person or robot starting off moves a fraction of its size in a
 frame; a ball 17 px across that sets off at 0.4 m/s, 7 px a frame, keeps 0.4)."""
-
-
-def _resumes(d: Detection, last: Observation) -> bool:
-    """Whether a detection overlaps a stationary track's last boxes in both eyes enough to be
-    the object setting off again: it stood still, so its filter predicts it where it was, and
-    the first step of a start can lie outside the gate of an object at rest."""
-    return (
-        _iou(d.left_bbox_px, last.left_bbox_px) >= RESUME_IOU
-        and _iou(d.right_bbox_px, last.right_bbox_px) >= RESUME_IOU
-    )
 
 
 class Association(TrackFilters):
@@ -171,15 +201,17 @@ class Association(TrackFilters):
         self._fronts = {}
         if not detections:
             return out, may_start
+        centres = np.array([(d.left_px, d.right_px) for d in detections], np.float64)
+        bboxes = np.array([(d.left_bbox_px, d.right_bbox_px) for d in detections], np.float64)
         if not tracks:
-            return out, [not _piece(d, detections, out, []) for d in detections]
-        cost = np.full((n, len(tracks)), np.inf)
-        inside = np.zeros((2, n, len(tracks)), bool)
-        confirmed_j = [self._confirmed(tr) for tr in tracks]
+            return out, (~_pieces(detections, centres, bboxes, out, [])).tolist()
+        k = len(tracks)
+        confirmed = np.array([self._confirmed(tr) for tr in tracks])
         boxes = []
         preds: list[Prediction] = []
-        # each detection's distance (px) from each track's prediction, the larger of the eyes'
-        cost_px = [[math.inf] * len(tracks) for _ in range(n)]
+        gates = np.empty(k)
+        ends = np.empty((4, k, 2))  # each track's predicted segments: left, left_far, right, ...
+        last = np.empty((2, k, 4))  # and its last boxes, left and right (x, y, w, h px)
         for j, tr in enumerate(tracks):
             t_left, t_right = self._row_instants(tr, eye_times_ns)
             pred = self._predict_px(tr, t_left, t_right)
@@ -192,24 +224,35 @@ class Association(TrackFilters):
                 )
             )
             if len(tr.left_history) >= 2 and len(tr.right_history) >= 2:
-                gate = p.gate_px + p.motion_gate * max(ml, mr)
+                moved = max(ml, mr)
+                if tr.misses > 0:  # unseen: credited no more than its image velocity carries it
+                    moved = min(moved, self._unseen_motion(tr, t_left, t_right))
+                gate = p.gate_px + p.motion_gate * moved
             else:
                 dt = max(t_left - tr.left_history[-1][0], t_right - tr.right_history[-1][0])
                 gate = p.gate_px + tr.image_speed_pxps * dt * 1e-9
-            gate = max(gate, p.size_gate * math.sqrt(tr.area_px))
-            for i, d in enumerate(detections):
-                dist = max(
-                    _to_segment(d.left_px, pl, pred.left_far),
-                    _to_segment(d.right_px, pr, pred.right_far),
-                )
-                cost_px[i][j] = dist
-                if dist <= gate:
-                    cost[i, j] = dist / gate
-                elif confirmed_j[j] and _resumes(d, tr.last):
-                    cost[i, j] = RESUME_COST
-                inside[0, i, j] = _inside(pl, d.left_bbox_px, 0.0)
-                inside[1, i, j] = _inside(pr, d.right_bbox_px, 0.0)
-        confirmed = np.array([self._confirmed(tr) for tr in tracks])
+            gates[j] = max(gate, p.size_gate * math.sqrt(tr.area_px))
+            ends[:, j] = pl, pred.left_far, pr, pred.right_far
+            last[:, j] = tr.last.left_bbox_px, tr.last.right_bbox_px
+        # Every detection against every track at once. Its distance (px) from the track's
+        # prediction, the larger of the eyes': within the gate, that over the gate is its cost.
+        # Beyond it, a confirmed track's detection that overlaps where it was in both eyes (a
+        # stationary object setting off) costs RESUME_COST.
+        cost_px = np.maximum(
+            _to_segments(centres[:, 0], ends[0], ends[1]),
+            _to_segments(centres[:, 1], ends[2], ends[3]),
+        )
+        within = cost_px <= gates
+        cost = np.where(within, cost_px / gates, np.inf)
+        resumes = (
+            ~within
+            & confirmed
+            & (_ious(bboxes[:, 0], last[0]) >= RESUME_IOU)
+            & (_ious(bboxes[:, 1], last[1]) >= RESUME_IOU)
+        )
+        cost[resumes] = RESUME_COST
+        # whether each track's prediction falls in each detection's box, left and right eye
+        inside = np.stack((_insides(ends[0], bboxes[:, 0]), _insides(ends[2], bboxes[:, 1])))
         for i, d in enumerate(detections):
             in_left, in_right = inside[0, i] & confirmed, inside[1, i] & confirmed
             if in_left.sum() < 2 and in_right.sum() < 2:
@@ -273,10 +316,11 @@ class Association(TrackFilters):
         # another object): it starts no track of its own while that one lives on, hidden.
         taken = {t for t in out if t is not None}
         unseen = [j for j, tr in enumerate(tracks) if confirmed[j] and tr.track_id not in taken]
-        for i, d in enumerate(detections):
+        piece = _pieces(detections, centres, bboxes, out, tracks)
+        for i in range(n):
             if out[i] is None and may_start[i]:
                 holds = any(inside[0, i, j] and inside[1, i, j] for j in unseen)
-                may_start[i] = not holds and not _piece(d, detections, out, tracks)
+                may_start[i] = not holds and not bool(piece[i])
         # A blob that would start a track but came out, in both eyes, of the blob that hid a
         # confirmed track in the last pair is that object reappearing (two people who crossed
         # part): it takes that track, the nearest to its prediction if several.
@@ -292,7 +336,7 @@ class Association(TrackFilters):
                 and _inside(d.right_px, hid[1], 0.0)
             ]
             if came_out:
-                tid = tracks[min(came_out, key=lambda j: cost_px[i][j])].track_id
+                tid = tracks[min(came_out, key=lambda j: cost_px[i, j])].track_id
                 out[i] = tid
                 taken.add(tid)
                 continue
@@ -364,6 +408,18 @@ class Association(TrackFilters):
                 if float(np.linalg.norm(ka.velocity_mps - kb.velocity_mps)) > p.merge_speed_mps:
                     return False
         return True
+
+    def _unseen_motion(self, tr: Track, t_left: int, t_right: int) -> float:
+        """How far (px, the larger of the eyes) a track unseen since its last observation may
+        have moved in the images by ``t_left``/``t_right`` (ns): as far as each eye's image
+        velocity while it was seen carries it. Its filter's prediction may run much further
+        (a few bad depths as an object leaves the view switch it to free fall, and in a third
+        of a second unseen it predicts 200 px), and half of that as a gate would take a blob
+        of the background that object uncovered, far from anywhere it went."""
+        return max(
+            predict_px(tr.left_history, t_left, self.WINDOW_NS)[1],
+            predict_px(tr.right_history, t_right, self.WINDOW_NS)[1],
+        )
 
     def _row_instants(self, tr: Track, eye_times_ns: tuple[int, int]) -> tuple[int, int]:
         """When each eye's rolling shutter reads the rows a track was last seen on (ns): the

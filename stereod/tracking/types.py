@@ -102,13 +102,15 @@ class TrackerParams:
 
     ``gate_px``: image distance (px, per eye) within which a detection always may join a track's
     prediction; a track that has a velocity adds ``motion_gate`` times how far it moved in the
-    image since it was last seen. ``max_speed_mps``: the fastest object to follow (m/s); it sets
-    the gate of a track with one observation. ``manoeuvre_chi2``: an observation whose squared
-    Mahalanobis distance from the filter's prediction exceeds this (3 dof; 16.3 is 99.9 %)
-    widens the prediction until it does not (a fading memory). ``accel_noise``: spectral density
-    q of the white acceleration (m^2/s^3). ``manoeuvre_sigma_mps``: the velocity sigma of a
-    track before its filter starts. ``time_base_s``: tau of eq. 21 (s). ``max_coast_s``: how
-    long (s) a confirmed track lives unseen. ``max_hidden_s``: how long (s) it lives unseen
+    image since it was last seen (unseen in the last pair: at most as far as its image
+    velocity carries it, whatever its filter predicts). ``max_speed_mps``: the fastest object
+    to follow (m/s); it sets the gate of a track with one observation. ``manoeuvre_chi2``: an
+    observation whose squared Mahalanobis distance from the filter's prediction exceeds this
+    (3 dof; 16.3 is 99.9 %) widens the prediction until it does not (a fading memory).
+    ``accel_noise``: spectral density q of the white acceleration (m^2/s^3).
+    ``manoeuvre_sigma_mps``: the velocity sigma of a track before its filter starts.
+    ``time_base_s``: tau of eq. 21 (s). ``max_coast_s``: how long (s) a confirmed track lives
+    unseen. ``max_hidden_s``: how long (s) it lives unseen
     while each eye sees a blob where it should be (a person walking behind another, or in one
     blob with them through a crossing); at least ``max_coast_s``. ``confirm_hits``: observations
     to confirm. ``valid_speed_sigma_mps``, ``valid_speed_sigma_rel``: a velocity is valid once

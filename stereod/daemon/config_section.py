@@ -1,0 +1,33 @@
+"""What every section of the daemon's configuration shares: the base of its pydantic models
+(unknown keys refused, no inf or NaN, no true/false for a number), and the defaults of the
+pipeline's own settings, stated once in :class:`stereod.pipeline.PipelineParams`."""
+
+from __future__ import annotations
+
+import typing
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
+
+from stereod.files.bounds import not_bool
+from stereod.pipeline import PipelineParams
+
+
+class Section(BaseModel):
+    """One TOML table of the configuration."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _numbers_are_not_bools(cls, v: Any, info: ValidationInfo) -> Any:
+        """A number field refuses true/false, which pydantic's lax mode reads as 1/0."""
+        kind = cls.model_fields[info.field_name or ""].annotation
+        if kind in (int, float) or typing.get_origin(kind) is tuple:
+            return not_bool(v)
+        return v
+
+
+def pipeline_default(name: str) -> Any:
+    """The default of one :class:`PipelineParams` field."""
+    return PipelineParams.__dataclass_fields__[name].default
