@@ -150,3 +150,15 @@ def test_not_a_message_is_refused_with_the_models_error(payload: bytes) -> None:
     with pytest.raises(ValueError) as model:
         ObjectsMessage.model_validate_json(payload)
     assert str(fast.value) == str(model.value)
+
+
+@pytest.mark.parametrize("field", ["track_id", "stamp_utc_ns"])
+def test_an_integer_beyond_64_bits_is_refused_as_a_bad_message(field: str) -> None:
+    """The model takes any JSON integer; the arrays fusion reads hold 64 bits. A rig message
+    whose track id or stamp does not fit is refused like any other bad message (a
+    ``ValueError`` naming the fields), not an ``OverflowError`` out of the subscriber."""
+    msg = json.loads(PAYLOADS[-1])
+    assert msg["objects"], "the generated message has objects"
+    msg["objects"][0][field] = 2**63
+    with pytest.raises(ValueError, match="beyond 64 bits"):
+        decode(json.dumps(msg).encode())

@@ -95,7 +95,12 @@ def from_message(msg: ObjectsMessage) -> RigWire:
         for o in objs
     ]  # fmt: skip
     # Integers (ids, stamps) exactly in their own array; the rest as floats.
-    ints = np.array([r[:3] for r in rows], dtype=np.int64).reshape(n, 3)
+    try:
+        ints = np.array([r[:3] for r in rows], dtype=np.int64).reshape(n, 3)
+    except OverflowError:
+        raise ValueError(
+            f"rig {msg.rig!r}: an object's track_id or stamp_utc_ns is beyond 64 bits"
+        ) from None
     f = np.array([r[3:] for r in rows], dtype=np.float64).reshape(n, 14 + len(EXTRA))
     wire = RigWire(
         rig=msg.rig,
