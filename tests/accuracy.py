@@ -114,15 +114,16 @@ def world_room(
     seed: int,
     *,
     webcam: bool = False,
-    band_rows: int = 1,
+    quality: dict[str, int] | None = None,
     **kw: object,
 ) -> Case:
     """One of the independent renderer's room scenes (``lamp_ball``, ``person_sit_walk``,
     ``person_approach``, ``people_crossing``, ``robot_stop_go``, or ``robot_ball`` with a
     heading and speed), optionally through a webcam's transport (:data:`WEBCAM`), whose
-    rolling shutter's readout the pipeline is then told of. ``band_rows`` rows of the rolling
-    shutter are cast at one instant (1, the benchmark's: every row at its own; 8 is a band of
-    1 ms at 320x240, three times faster to render, in which a ball at 1 m/s moves 1 mm)."""
+    rolling shutter's readout the pipeline is then told of. ``quality`` replaces fields of the
+    scene's render quality (``world.Quality``): the suite renders some scenes more coarsely
+    than the benchmark (e.g. ``rolling_band_rows`` 8, a band of 1 ms at 320x240 cast at one
+    instant, in which a ball at 1 m/s moves 1 mm; the benchmark casts every row apart)."""
     fn = getattr(world, preset)
     if webcam:
         kw = {**kw, "exposure_s": WEBCAM_EXPOSURE_S}
@@ -132,9 +133,8 @@ def world_room(
     )  # fmt: skip
     if webcam:
         scene = dataclasses.replace(scene, transport=WEBCAM)
-    if band_rows != 1:
-        quality = dataclasses.replace(scene.quality, rolling_band_rows=band_rows)
-        scene = dataclasses.replace(scene, quality=quality)
+    if quality:
+        scene = dataclasses.replace(scene, quality=dataclasses.replace(scene.quality, **quality))
     shown = {k: v for k, v in kw.items() if k != "exposure_s"}
     label = preset + "".join(f" {v}" for v in shown.values()) + (" webcam" if webcam else "")
     case = _world_case(scene, mode, label, seed, False)

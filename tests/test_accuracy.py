@@ -119,6 +119,12 @@ def test_a_ball_coming_at_the_rig_through_a_webcam() -> None:
     100 Hz, the pipeline told the readout (``readout_s``): radial at 0.9 m/s. The shutter is
     rendered in bands of 8 rows (1 ms) here; ``make accuracy`` renders every row apart."""
     case = acc.world_room(
-        "robot_ball", MODE, seed=0, webcam=True, band_rows=8, heading_deg=180.0, speed_mps=0.9
+        "robot_ball",
+        MODE,
+        seed=0,
+        webcam=True,
+        quality={"rolling_band_rows": 8},
+        heading_deg=180.0,
+        speed_mps=0.9,
     )
     check(acc.score(case, acc.run_case(case)))
