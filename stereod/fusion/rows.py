@@ -177,7 +177,8 @@ class Table:
         rows = self.f[base : base + n]
         rows[:, POS] = w.position @ r.T + translation
         rows[:, VEL] = w.velocity @ r.T
-        covs = ((r[None, :, :] * np.square(sig)[:, None, :]) @ r.T).reshape(2 * n, 9)
+        # R diag(s^2) R^T, row-major, is linear in s^2: entry (i, j) = sum_k R_ik R_jk s_k^2.
+        covs = np.square(sig) @ (r[:, None, :] * r[None, :, :]).reshape(9, 3).T
         rows[:, PCOV], rows[:, VCOV] = covs[:n], covs[n:]
         self.stamps[base : base + n] = w.stamps_ns
         flags = self.flags[base : base + n]
