@@ -119,18 +119,23 @@ def _figures(tracks: list[RoomTrack], rows: np.ndarray | None = None) -> list[_O
             [np.concatenate([t.position, t.velocity, t.position_cov.ravel(),
                              t.velocity_cov.ravel()]) for t in tracks]
         )  # fmt: skip
-    p, v = rows[:, POS], rows[:, VEL]
+    v = rows[:, VEL]
     vc = rows[:, VCOV].reshape(-1, 3, 3)
     ex = np.array([t.extra for t in tracks])
-    psig = np.sqrt(np.maximum(rows[:, PCOV][:, DIAG], 0.0))
-    vsig = np.sqrt(np.maximum(rows[:, VCOV][:, DIAG], 0.0))
-    speed = np.sqrt((v * v).sum(axis=1))
+    # Every float an object's JSON has, in one array read back at once: position and
+    # velocity (0:6), their sigmas (6:12), speed, its sigma, heading, its sigma (12:16), the
+    # blobs' centroids, disparity and size (16:22).
+    num = np.empty((len(tracks), 22))
+    num[:, 0:6] = rows[:, POS.start : VEL.stop]
+    num[:, 6:12] = np.sqrt(np.maximum(rows[:, _SIGMA_COLUMNS], 0.0))
+    speed = num[:, 12]
+    speed[:] = np.sqrt((v * v).sum(axis=1))
     var_along = np.einsum("ki,kij,kj->k", v, vc, v)
     moving = speed > 1e-9
-    speed_sigma = np.where(
+    num[:, 13] = np.where(
         moving, np.sqrt(np.maximum(var_along, 0.0)) / np.where(moving, speed, 1.0), 0.0
     )
-    heading = np.degrees(np.arctan2(v[:, 0], v[:, 2])) % 360.0
+    num[:, 14] = np.degrees(np.arctan2(v[:, 0], v[:, 2])) % 360.0
     ground2 = v[:, 0] ** 2 + v[:, 2] ** 2
     on_ground = ground2 > 1e-12
     # g^T C g for g = (vz, 0, -vx) / ground2, the heading's gradient, in closed form.
@@ -139,26 +144,18 @@ def _figures(tracks: list[RoomTrack], rows: np.ndarray | None = None) -> list[_O
     var_heading = (vz * vz * c[:, 0] - vx * vz * (c[:, 2] + c[:, 6]) + vx * vx * c[:, 8]) / (
         np.where(on_ground, ground2, 1.0) ** 2
     )
-    heading_sigma = np.degrees(np.sqrt(np.maximum(var_heading, 0.0)))
+    num[:, 15] = np.degrees(np.sqrt(np.maximum(var_heading, 0.0)))
+    num[:, 16:22] = ex[:, _FLOAT_COLUMNS]
     ints = np.rint(ex[:, _INT_COLUMNS]).astype(np.int64).tolist()
-    floats = ex[:, _FLOAT_COLUMNS].tolist()
     out = []
-    columns = zip(
-        tracks, p.tolist(), psig.tolist(), v.tolist(), vsig.tolist(), speed.tolist(),
-        speed_sigma.tolist(), heading.tolist(), heading_sigma.tolist(), on_ground.tolist(),
-        ints, floats, strict=True,
-    )  # fmt: skip
-    for t, pos, ps, vel, vs, sp, sps, hd, hds, ground, ni, nf in columns:
-        skew, lbx, lby, lbw, lbh, larea, rbx, rby, rbw, rbh, rarea = ni
-        lcx, lcy, rcx, rcy, disparity, size = nf
+    for t, x, ni, ground in zip(tracks, num.tolist(), ints, on_ground.tolist(), strict=True):
         out.append(
             _Object(
-                OBJECT_SCHEMA, t.room_id, t.state.value, t.stamp_utc_ns, t.stamp_utc_ns, skew,
-                pos, ps, vel, vs, t.velocity_valid, t.heading_valid, sp, sps, hd,
-                hds if ground else None, None,
-                _Blob([lcx, lcy], [lbx, lby, lbw, lbh], larea),
-                _Blob([rcx, rcy], [rbx, rby, rbw, rbh], rarea),
-                disparity, size, (t.stamp_utc_ns - t.first_ns) * 1e-9, None, None,
+                OBJECT_SCHEMA, t.room_id, t.state.value, t.stamp_utc_ns, t.stamp_utc_ns, ni[0],
+                x[0:3], x[6:9], x[3:6], x[9:12], t.velocity_valid, t.heading_valid, x[12],
+                x[13], x[14], x[15] if ground else None, None,
+                _Blob(x[16:18], ni[1:5], ni[5]), _Blob(x[18:20], ni[6:10], ni[10]),
+                x[20], x[21], (t.stamp_utc_ns - t.first_ns) * 1e-9, None, None,
             )
         )  # fmt: skip
     return out
@@ -169,6 +166,9 @@ _INTS = ("skew_ns", "left_bx", "left_by", "left_bw", "left_bh", "left_area", "ri
 _INT_COLUMNS = [EXTRA.index(c) for c in _INTS]
 _FLOATS = ("left_cx", "left_cy", "right_cx", "right_cy", "disparity_px", "size_m")
 _FLOAT_COLUMNS = [EXTRA.index(c) for c in _FLOATS]
+_SIGMA_COLUMNS = np.concatenate([DIAG + PCOV.start, DIAG + VCOV.start])
+"""The diagonals of a state row's position and velocity covariances (``rows.PCOV``,
+``rows.VCOV``)."""
 
 
 def room_states(tracks: list[RoomTrack]) -> list[ObjectState]:
