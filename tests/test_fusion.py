@@ -3,6 +3,8 @@ message generators whose 3D truth is known in closed form (:mod:`stereod_fakes.r
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -229,6 +231,48 @@ def test_the_room_payload_written_from_arrays_is_the_room_message() -> None:
     for tr, obj in zip(frame.tracks, msg.objects, strict=True):
         members = [seen[(rig, tid)] for rig, tid in tr.members.items()]
         assert (obj.left, obj.right) in [(o.left, o.right) for o in members]
+
+
+def _same_json(a: object, b: object, where: str = "") -> None:
+    """``a`` and ``b`` (parsed JSON) equal with the same types (1 is not 1.0) and key order."""
+    assert type(a) is type(b), (where, a, b)
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and list(a) == list(b), where
+        for k in a:
+            _same_json(a[k], b[k], f"{where}.{k}")
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), where
+        for k, (x, y) in enumerate(zip(a, b)):
+            _same_json(x, y, f"{where}[{k}]")
+    else:
+        assert a == b, (where, a, b)
+
+
+def test_the_room_payload_is_the_models_own_json() -> None:
+    """The room's payload and each object's, written from arrays, are the JSON the model writes
+    for the message they parse to: every field, in the model's order, each number of the
+    model's type (an integer field never written as 1.0, a float one never as 1)."""
+    from stereod.bus.messages import ObjectsMessage, ObjectState
+    from stereod.fusion.output import room_payload
+    from stereod.vision.geometry import Geometry
+
+    walkers = [
+        Walker(1, (0.8, 0.0, 3.5), (1.0, 0.0, 0.0)),
+        Walker(2, (1.6, 0.0, 2.5), (0.0, 0.0, 0.0)),
+        Walker(3, (-1.0, 0.0, 3.0), (0.3, 0.0, 0.2)),
+    ]
+    sims = {"a": RigSim(A, seed=25), "c": RigSim(C, seed=26)}
+    fuser = Fuser(room(A, C))
+    run(fuser, sims, walkers, 6)
+    for sim in sims.values():
+        fuser.ingest(sim.message(walkers, 6 * FRAME_NS))
+    payload, tracks = room_payload("lab", 6, fuser.fuse(6 * FRAME_NS), Geometry.CANONICAL, 0.7)
+    assert len(tracks) >= 2
+    model = ObjectsMessage.model_validate_json(payload)
+    _same_json(json.loads(payload), json.loads(model.model_dump_json(by_alias=True)))
+    for _, body in tracks:
+        obj = ObjectState.model_validate_json(body)
+        _same_json(json.loads(body), json.loads(obj.model_dump_json(by_alias=True)))
 
 
 @pytest.mark.parametrize(("offset_ms", "flagged"), [(40.0, True), (-5.0, False)])

@@ -529,20 +529,20 @@ class Fuser:
             parts.append(np.concatenate([both[:k], both[k:], both_cov[:k], both_cov[k:]], 1))
             flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0).tolist()
             trace = f[:, DIAG_P].sum(axis=1).tolist()
-            ends = [*starts[1:], r]
-            best = [
-                min(range(a, b), key=trace.__getitem__) for a, b in zip(starts, ends, strict=True)
-            ]
-            extra = list(table.extra.take(i[best], axis=0))
             stamp_list = stamps.tolist()
             positions, covs = raw[:, POS], raw[:, PCOV].reshape(-1, 3, 3)
-            for g, rid in enumerate(with_members):
-                a, b = starts[g], ends[g]
-                if b - a >= 2:
-                    rigs = list(self._tracks[rid].members)
-                    shared[rid] = [
-                        (rigs[j - a], stamp_list[j], positions[j], covs[j]) for j in range(a, b)
-                    ]
+            # Best member: least position trace, the first of equals (one member: no choice).
+            best = []
+            for rid, a, b in zip(with_members, starts, [*starts[1:], r], strict=True):
+                if b - a == 1:
+                    best.append(a)
+                    continue
+                best.append(min(range(a, b), key=trace.__getitem__))
+                rigs = list(self._tracks[rid].members)
+                shared[rid] = [
+                    (rigs[j - a], stamp_list[j], positions[j], covs[j]) for j in range(a, b)
+                ]
+            extra = list(table.extra.take(i[best], axis=0))
         coasting = [rid for rid in rids if not self._tracks[rid].members]
         if coasting:
             parts.append(self._coast(coasting, t_ns))

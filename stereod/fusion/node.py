@@ -158,7 +158,7 @@ class FuseNode:
 
     def _parse(self, payload: bytes) -> RigWire | None:
         """A rig's message as arrays, or None (counted) for anything else: ``wire.decode``
-        reads a plain message with ``orjson``, with no model per object, and leaves anything
+        reads a plain message with ``msgspec``, with no model per object, and leaves anything
         else to the model (whose JSON parser bounds nesting itself)."""
         try:
             msg = decode(payload)

@@ -40,11 +40,13 @@ _PQRS = np.array([
 
 
 def inv3(m: np.ndarray) -> np.ndarray:
-    """The inverses of (n, 9) row-major 3x3 matrices, (n, 9): adjugate over determinant."""
-    g = m.take(_PQRS, axis=1).reshape(-1, 4, 9)
-    adj = g[:, 0] * g[:, 1] - g[:, 2] * g[:, 3]
-    det = (m[:, :3] * adj[:, ::3]).sum(axis=1, keepdims=True)
-    return adj / det
+    """The inverses of (n, 9) row-major 3x3 matrices, (n, 9): adjugate over determinant,
+    worked on the transpose (each of the nine entries one contiguous run of n numbers)."""
+    t = m.T
+    g = t.take(_PQRS, axis=0)
+    adj = g[0:9] * g[9:18] - g[18:27] * g[27:36]
+    det = t[0] * adj[0] + t[1] * adj[3] + t[2] * adj[6]
+    return (adj / det).T
 
 
 def matvec3(m: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -83,7 +85,9 @@ def fuse_groups(
     run's mean (k, 3) and covariance (k, 9): ``C = (sum C_i^-1)^-1`` (made symmetric),
     ``x = C sum C_i^-1 x_i``."""
     info = inv3(covs)
-    both = np.concatenate([info, matvec3(info, means)], axis=1)
+    both = np.empty((len(means), 12))
+    both[:, :9] = info
+    np.matmul(info.reshape(-1, 3, 3), means[:, :, None], out=both[:, 9:, None])
     total = np.add.reduceat(both, starts, axis=0) if len(starts) < len(means) else both
     c = inv3(total[:, :9])
     mean = matvec3(c, total[:, 9:])
@@ -173,7 +177,8 @@ class Table:
         rows = self.f[base : base + n]
         rows[:, POS] = w.position @ r.T + translation
         rows[:, VEL] = w.velocity @ r.T
-        covs = ((r[None, :, :] * np.square(sig)[:, None, :]) @ r.T).reshape(2 * n, 9)
+        # R diag(s^2) R^T, row-major, is linear in s^2: entry (i, j) = sum_k R_ik R_jk s_k^2.
+        covs = np.square(sig) @ (r[:, None, :] * r[None, :, :]).reshape(9, 3).T
         rows[:, PCOV], rows[:, VCOV] = covs[:n], covs[n:]
         self.stamps[base : base + n] = w.stamps_ns
         flags = self.flags[base : base + n]
