@@ -34,7 +34,7 @@ from stereod.tracking.tracker import Tracker
 from stereod.tracking.types import Detection, Observation, TrackerParams, TrackState
 from stereod.vision.agreement import eye_agreement
 from stereod.vision.blobs import Blobs
-from stereod.vision.detect import Detector
+from stereod.vision.detect import Detector, fit_round_blobs
 from stereod.vision.detect_params import DetectorParams
 from stereod.vision.geometry.rectified import CalibratedRig
 from stereod.vision.geometry.refine import RefineParams
@@ -451,10 +451,11 @@ class Pipeline:
                 lb = self._eye(0, pair.left.image, pair.left.t_ns)
             finally:  # never leave the right eye's detector running into the next pair
                 rb = fut.result()
-        if lb is None:
-            lb = self._eye(0, pair.left.image, pair.left.t_ns)
-        if rb is None:
-            rb = self._eye(1, pair.right.image, pair.right.t_ns)
+        both = lb is None and rb is None  # on this thread: both eyes' disc fits in one batch
+        lb = lb if lb is not None else self._eye(0, pair.left.image, pair.left.t_ns, both)
+        rb = rb if rb is not None else self._eye(1, pair.right.image, pair.right.t_ns, both)
+        if both:
+            fit_round_blobs(((self.left, lb), (self.right, rb)))
         self._last = [(pair.left.seq, pair.left.t_ns), (pair.right.seq, pair.right.t_ns)]
         return lb, rb
 
@@ -581,15 +582,15 @@ class Pipeline:
                     into[1].append(box_rect(ob.right_bbox_px, FREEZE_MARGIN_PX))
         self._pending = [(frozen[0], released[0]), (frozen[1], released[1])]
 
-    def _eye(self, e: int, image: np.ndarray, t_ns: int) -> Blobs:
-        """One eye's detector: first eq. 3 with its last frame (deferred from the last pair so
-        that it runs in the eye's worker, or ahead, in the same order as if done at once),
-        then this frame's blobs."""
+    def _eye(self, e: int, image: np.ndarray, t_ns: int, fit_later: bool = False) -> Blobs:
+        """One eye's detector: first eq. 3 with its last frame (deferred from the last pair to
+        run in the eye's worker, or ahead, in the order as if done at once), then this frame's
+        blobs (round ones fitted later with ``fit_later``: :func:`fit_round_blobs`)."""
         det = self.right if e else self.left
         pending, self._pending[e] = self._pending[e], None
         if pending is not None:
             det.learn(*pending)
-        return det.find(image, t_ns)
+        return det.find(image, t_ns, fit_later)
 
     def _flush(self) -> None:
         """Apply the deferred eq. 3 now (before the backgrounds are handed over)."""

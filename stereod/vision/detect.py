@@ -125,6 +125,10 @@ class Detector(BackgroundModel):
         self.saturated = 0
         """Frames that were saturated (see the module docstring) and reported empty."""
         self._saturated_run = 0
+        self._fit_later = False
+        self._deferred: list[tuple[int, Candidate, tuple[int, int]]] = []
+        """The last frame's round blobs left to :func:`fit_round_blobs`: each one's index,
+        its candidate in the foreground's rectangle and that rectangle's origin (x, y px)."""
 
     @property
     def mask(self) -> np.ndarray | None:
@@ -207,13 +211,15 @@ class Detector(BackgroundModel):
         self._shade = None
         self._quiet_frame = False
 
-    def find(self, image: np.ndarray, t_ns: int = 0) -> Blobs:
+    def find(self, image: np.ndarray, t_ns: int = 0, fit_later: bool = False) -> Blobs:
         """Eq. 2, 4 and 5 against the current background at capture instant ``t_ns`` (ns);
-        call :meth:`learn` afterwards.
+        call :meth:`learn` afterwards. ``fit_later``: the round blobs keep their matte centre
+        until :func:`fit_round_blobs` fits them, with another eye's in the same batch.
 
         Eq. 4 is first taken on every ``_row_step``-th row only, channel by channel, which is
         enough to find the rectangle around the foreground (see ``_row_step`` and
         :func:`above_any`), then on every pixel inside it."""
+        self._fit_later, self._deferred = fit_later, []
         frame = self._prepare(image)
         self._frame = frame
         if self._t0_ns is None:
@@ -390,13 +396,30 @@ class Detector(BackgroundModel):
             supports.append(own)
         if not centres:
             return Blobs.empty()
-        if fits:
-            for (k, _), fit in zip(fits, disc_centres([c for _, c in fits]), strict=True):
-                if fit is not None:
-                    centres[k] = (fit[0] + origin[0], fit[1] + origin[1])
-        return Blobs(
+        blobs = Blobs(
             centroid_px=np.asarray(centres, np.float64),
             bbox_px=np.asarray(boxes, np.int32),
             area_px=np.asarray(areas, np.int32),
             support=tuple(supports),
         )
+        self._deferred = [(k, c, origin) for k, c in fits]
+        if fits and not self._fit_later:
+            fit_round_blobs([(self, blobs)])
+        return blobs
+
+
+def fit_round_blobs(eyes: Sequence[tuple[Detector, Blobs]]) -> None:
+    """Centre the round blobs each detector left for later (:meth:`Detector.find` with
+    ``fit_later``) on ``blobs``, its last frame's, by a disc fitted to the image
+    (:func:`stereod.vision.disc.disc_centres`): every eye's in one batch, which costs about
+    what one eye's alone does. The fitted centres (image px) replace the matte ones in place;
+    a fit that is not to be trusted leaves its blob's."""
+    jobs = [(blobs, job) for det, blobs in eyes for job in det._deferred]
+    for det, _ in eyes:
+        det._deferred = []
+    if not jobs:
+        return
+    fits = disc_centres([c for _, (_, c, _) in jobs])
+    for (blobs, (k, _, origin)), fit in zip(jobs, fits, strict=True):
+        if fit is not None:
+            blobs.centroid_px[k] = fit[0] + origin[0], fit[1] + origin[1]

@@ -189,7 +189,8 @@ def disc_centres(blobs: Sequence[Candidate]) -> list[tuple[float, float] | None]
     for _ in range(_ITERATIONS):
         dx, dy = xs - theta[:, :1], ys - theta[:, 1:2]
         dist = np.sqrt(dx * dx + dy * dy)
-        if dist.min() < 1e-9:  # a pixel at the centre (a small blob's start): any normal will do
+        # a pixel at the centre (a small blob's start): any normal will do
+        if np.minimum.reduce(dist, axis=None) < 1e-9:
             centred = dist < 1e-9
             safe = np.where(centred, 1.0, dist)
             nx, ny = np.where(centred, 1.0, dx / safe), dy / safe
@@ -208,14 +209,14 @@ def disc_centres(blobs: Sequence[Candidate]) -> list[tuple[float, float] | None]
         np.multiply(contrast[:, :, None], edge, out=grad)
         # normal equations by blocks: theta couples to every channel, each channel's beta
         # only to its own pixels
-        blocks = (rows @ rows_t).reshape(nb, -1)[:, pick]
+        # (the right side first, so that the centre-radius block beside it is one slice)
+        blocks = (rows @ rows_t).reshape(nb, -1).take(pick, axis=1)
         system = blocks[:, : p * (p + 1)].reshape(nb, p, p + 1)
         if channels > 1:
-            system[:, :3, [0, 1, 2, p]] = (
-                blocks[:, p * (p + 1) :].reshape(nb, channels, 3, 4).sum(1)
-            )
+            sums = blocks[:, p * (p + 1) :].reshape(nb, channels, 3, 4)
+            system[:, :3, :4] = np.add.reduce(sums, axis=1)
         for j in list(todo):
-            solved, step = cv2.solve(system[j, :, :p], system[j, :, p:])
+            solved, step = cv2.solve(system[j, :, 1:], system[j, :, :1])
             if not solved or not cv2.checkRange(step):  # singular
                 failed.add(j)
                 todo.remove(j)
@@ -254,12 +255,12 @@ def _least_squares(a: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=4)
 def _blocks(channels: int, k: int) -> np.ndarray:
-    """Where each entry of the normal equations (centre, radius, then each channel's ``k``
-    colour terms) beside their right side, then the ``channels`` centre-radius blocks and
-    right sides summed into the top ones, are in the flattened product of the rows of
-    :func:`disc_centres` (``3 channels + k`` Jacobian rows, a zero row, ``channels``
-    residual rows) with themselves. One channel's colour terms do not meet another's: those
-    entries are the zero row's."""
+    """Where each entry of the right side of the normal equations and, beside it, their
+    matrix (centre, radius, then each channel's ``k`` colour terms), then the ``channels``
+    right sides and centre-radius blocks summed into the top ones, are in the flattened
+    product of the rows of :func:`disc_centres` (``3 channels + k`` Jacobian rows, a zero
+    row, ``channels`` residual rows) with themselves. One channel's colour terms do not meet
+    another's: those entries are the zero row's."""
     g = 3 * channels
     m = g + k + 1 + channels
     zero, p = g + k, 3 + k * channels
@@ -275,16 +276,17 @@ def _blocks(channels: int, k: int) -> np.ndarray:
     for i in range(p):
         for j in range(p + 1):
             ci, cj = channel(i), (channel(j) if j < p else -2)
+            at = (i, 0 if j == p else j + 1)
             if cj == -2:  # the right side: unknown i against its channel's residuals
-                pick[i, j] = row(i, max(ci, 0)) * m + g + k + 1 + max(ci, 0)
+                pick[at] = row(i, max(ci, 0)) * m + g + k + 1 + max(ci, 0)
             elif ci >= 0 and cj >= 0 and ci != cj:
-                pick[i, j] = row(i, ci) * m + zero
+                pick[at] = row(i, ci) * m + zero
             else:
                 c = max(ci, cj, 0)
-                pick[i, j] = row(i, c) * m + row(j, c)
+                pick[at] = row(i, c) * m + row(j, c)
     sums = [
         [
-            [(3 * c + i) * m + (3 * c + j if j < 3 else g + k + 1 + c) for j in range(4)]
+            [(3 * c + i) * m + (3 * c + j - 1 if j else g + k + 1 + c) for j in range(4)]
             for i in range(3)
         ]
         for c in range(channels)
