@@ -8,12 +8,14 @@ between 3 and 6 m in front of them. Two generator processes publish eight rigs e
 process; ``stereod fuse`` and a subscriber to the room are clients of it too, every socket on
 loopback.
 
-Measured over ``--seconds`` after a warm-up: the fusion node's CPU (share of one core, from
-/proc/<pid>/stat), its own added latency (a rig message's arrival in the node to the room
-tracks it changed published on their own keys, p50/p99, from its ``stats`` queryable), the
-latency from a rig's stamp to a room track's arrival at a subscriber on ``objects/*`` and to
-the room's whole message (at most ``--max-rate`` a second) at one on ``objects`` (same host,
-same UTC clock), its step rate and what it dropped. Writes ``docs/bench/fuse_scale.md``.
+Measured over ``--seconds`` after a warm-up: every process's CPU (share of one core, from
+/proc/<pid>/stat: the fusion node, the router, each generator, and this process, whose Zenoh
+session is the room's subscriber); the generators' main-thread CPU a message, writing it and
+publishing it; the fusion node's own added latency (a rig message's arrival in the node to the
+room tracks it changed published on their own keys, p50/p99, from its ``stats`` queryable);
+the latency from a rig's stamp to a room track's arrival at a subscriber on ``objects/*`` and
+to the room's whole message (at most ``--max-rate`` a second) at one on ``objects`` (same
+host, same UTC clock); its step rate and what it dropped. Writes ``docs/bench/fuse_scale.md``.
 
 Usage: ``python benchmarks/fuse_scale.py [--rigs 16] [--objects 10] [--fps 30] [--seconds 20]
 [--max-rate 30]``.
@@ -32,25 +34,39 @@ import threading
 import time
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import zenoh
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from stereod.bus.messages import dump_objects  # noqa: E402
 from stereod.fusion.clock import ClockWatch  # noqa: E402
 from stereod.fusion.fuser import Fuser  # noqa: E402
 from stereod.fusion.output import join_room, object_payloads  # noqa: E402
 from stereod.fusion.room import load_room  # noqa: E402
 from stereod.fusion.status import FuseStatus  # noqa: E402
 from stereod.fusion.wire import decode  # noqa: E402
-from stereod_fakes.room_messages import RigSim, Walker, walkers_from_json  # noqa: E402
+from stereod_fakes.room_messages import Crowd, RigSim, Walker, walkers_from_json  # noqa: E402
 from tests.conftest import free_endpoint, zenoh_config  # noqa: E402
 from tests.processes import start_stereod  # noqa: E402
 from tests.test_router import start_router  # noqa: E402
 
 SPACING_M = 3.0
+
+
+class _Stamped(msgspec.Struct):
+    """The one field of a room track's message the subscriber reads (the others skipped
+    unparsed: the subscriber is the benchmark's, and should cost the host little)."""
+
+    stamp_utc_ns: int
+
+
+class _RoomHead(msgspec.Struct):
+    """The fields of the room's message the subscriber reads."""
+
+    stamp_utc_ns: int
+    objects: list[msgspec.Raw]
 
 
 def room_file(rigs: int) -> str:
@@ -93,9 +109,9 @@ def message_cost(rigs: int, per_rig: int, ticks: int = 90) -> tuple[float, float
         Walker(w.truth_id, w.start_m, w.velocity_mps, t0)
         for w in walkers_from_json(json.dumps(walkers(rigs, per_rig)))
     ]
-    sims = [RigSim(r, seed=k) for k, r in enumerate(room.rigs)]
+    sims, crowd = [RigSim(r, seed=k) for k, r in enumerate(room.rigs)], Crowd(walk)
     payloads = [
-        dump_objects(sim.message(walk, t0 + k * 33_333_333 + j * 100_000))[0]
+        sim.payload(crowd, t0 + k * 33_333_333 + j * 100_000)[0]
         for k in range(ticks)
         for j, sim in enumerate(sims)
     ]
@@ -146,19 +162,22 @@ def main() -> int:
     track_arrivals: list[tuple[int, int]] = []
     lock = threading.Lock()
 
+    room_head = msgspec.json.Decoder(_RoomHead).decode
+    stamped = msgspec.json.Decoder(_Stamped).decode
+
     def on_room(sample: zenoh.Sample) -> None:
         now = time.time_ns()
-        msg = json.loads(sample.payload.to_bytes())  # json alone: the subscriber costs less
+        msg = room_head(sample.payload.to_bytes())
         with lock:
-            arrivals.append((now, msg["stamp_utc_ns"], len(msg["objects"])))
+            arrivals.append((now, msg.stamp_utc_ns, len(msg.objects)))
 
     def on_track(sample: zenoh.Sample) -> None:
         now = time.time_ns()
         if sample.kind != zenoh.SampleKind.PUT:
             return
-        obj = json.loads(sample.payload.to_bytes())
+        stamp = stamped(sample.payload.to_bytes()).stamp_utc_ns
         with lock:
-            track_arrivals.append((now, obj["stamp_utc_ns"]))
+            track_arrivals.append((now, stamp))
 
     try:
         fuse = start_stereod(
@@ -173,7 +192,7 @@ def main() -> int:
             proc = subprocess.Popen(
                 [sys.executable, "-m", "stereod_fakes.room_messages", str(room), *g,
                  "--connect", endpoint, "--mode", "client", "--walkers", wjson,
-                 "--fps", str(a.fps), "--t0-from-stdin"],
+                 "--fps", str(a.fps), "--t0-from-stdin", "--report"],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT,
             )  # fmt: skip
             procs.append(proc)
@@ -192,11 +211,10 @@ def main() -> int:
                 arrivals.clear()
                 track_arrivals.clear()
             s0 = fuse_status(session)
-            c0, w0 = cpu_s(fuse.pid), time.monotonic()
-            gen_c0 = sum(cpu_s(p.pid) for p in procs[1:])
+            pids = [p.pid for p in procs] + [router.pid, os.getpid()]
+            c0, w0 = [cpu_s(pid) for pid in pids], time.monotonic()
             time.sleep(a.seconds)
-            c1, w1 = cpu_s(fuse.pid), time.monotonic()
-            gen_c1 = sum(cpu_s(p.pid) for p in procs[1:])
+            c1, w1 = [cpu_s(pid) for pid in pids], time.monotonic()
             status = fuse_status(session)
             sub.undeclare()
             tsub.undeclare()
@@ -204,8 +222,8 @@ def main() -> int:
         for proc in reversed(procs):
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
-        for proc in reversed(procs):
-            proc.communicate(timeout=60)
+        reports = [json.loads(proc.communicate(timeout=60)[0] or "null") for proc in procs[1:]]
+        procs[0].communicate(timeout=60)
         router.terminate()
         router.communicate(timeout=30)
     with lock:
@@ -218,9 +236,15 @@ def main() -> int:
         return f"{np.percentile(x, 50):.1f} / {np.percentile(x, 99):.1f} ms" if len(x) else "-"
 
     objects = np.array([n for _, _, n in got])
-    cpu = (c1 - c0) / (w1 - w0)
-    gen_cpu = (gen_c1 - gen_c0) / (w1 - w0)
-    rig_msgs = sum(link.messages for link in status.rigs.values())
+    share = [(b - c) / (w1 - w0) * 100 for b, c in zip(c1, c0, strict=True)]
+    cpu, gens, router_cpu, sub_cpu = share[0], share[1:-2], share[-2], share[-1]
+    rig_msgs = sum(link.messages for link in status.rigs.values()) - sum(
+        link.messages for link in s0.rigs.values()
+    )
+    sent = [r for r in reports if r]
+    gen_msgs = sum(r["messages"] for r in sent)
+    build_ms = sum(r["build_s"] for r in sent) / max(gen_msgs, 1) * 1e3
+    publish_ms = sum(r["publish_s"] for r in sent) / max(gen_msgs, 1) * 1e3
     lines = [
         "# stereod fuse at scale (benchmarks/fuse_scale.py)",
         "",
@@ -232,10 +256,16 @@ def main() -> int:
         "",
         "| figure | value |",
         "|---|---|",
-        f"| fuse CPU | {cpu * 100:.0f} % of one core |",
-        f"| generators' CPU | {gen_cpu * 100:.0f} % of one core |",
-        f"| rig messages received per s (the generators' target {a.rigs * a.fps:g}) | "
-        f"{rig_msgs / status.uptime_s:.0f} |",
+        f"| fuse CPU | {cpu:.0f} % of one core |",
+        f"| router CPU | {router_cpu:.0f} % |",
+        f"| generators' CPU, together (each) | {sum(gens):.0f} % "
+        f"({', '.join(f'{g:.0f} %' for g in gens)}) |",
+        f"| room subscriber's CPU (the benchmark's process) | {sub_cpu:.0f} % |",
+        "| a generator's main thread a rig message: writing it / publishing it (the Publisher: "
+        f"the message, and each object on its own key) | {build_ms:.2f} / {publish_ms:.2f} ms |",
+        f"| rig messages sent per s (target {a.rigs * a.fps:g}) | "
+        f"{sum(r['messages'] / r['seconds'] for r in sent):.0f} |",
+        f"| rig messages received by fuse per s | {rig_msgs / (w1 - w0):.0f} |",
         f"| fusion steps per s | {(status.steps - s0.steps) / (w1 - w0):.1f} |",
         f"| room messages per s (--max-rate {a.max_rate:g}) | {len(got) / a.seconds:.1f} |",
         f"| room objects per message, median | {np.median(objects) if len(objects) else 0:.0f} |",
