@@ -4,9 +4,10 @@ generators (no rendering), through one Zenoh router into one fusion node.
 The rigs stand 3 m apart in a line along the room's X, all looking along +Z (neighbours'
 views overlap, so about a third of the objects are seen by two rigs); 160 walkers stroll
 between 3 and 6 m in front of them. Two generator processes publish eight rigs each (a real
-:class:`~stereod.bus.publish.Publisher` per rig, as a daemon would), all as clients of one router
-process; ``stereod fuse`` and a subscriber to the room are clients of it too, every socket on
-loopback.
+:class:`~stereod.bus.publish.Publisher` per rig, as a daemon would), rig k's message k/16 of a
+frame period after the frame's start (rigs on hosts of their own are not in phase; ``--burst``:
+all at the start), all as clients of one router process; ``stereod fuse`` and a subscriber to
+the room are clients of it too, every socket on loopback.
 
 Measured over ``--seconds`` after a warm-up: every process's CPU (share of one core, from
 /proc/<pid>/stat: the fusion node, the router, each generator, and this process, whose Zenoh
@@ -148,6 +149,12 @@ def main() -> int:
     p.add_argument("--seconds", type=float, default=20.0)
     p.add_argument("--warmup", type=float, default=5.0)
     p.add_argument("--generators", type=int, default=2)
+    p.add_argument(
+        "--burst",
+        action="store_true",
+        help="every rig's message at the frame's start (default: the rigs' spread evenly over "
+        "the frame period, as rigs on hosts of their own are not in phase)",
+    )
     p.add_argument("--max-rate", type=float, default=30.0, help="fuse's --max-rate, Hz")
     p.add_argument("--out", type=Path, default=ROOT / "docs" / "bench" / "fuse_scale.md")
     a = p.parse_args()
@@ -188,11 +195,12 @@ def main() -> int:
         names = [f"r{i}" for i in range(a.rigs)]
         groups = [names[i :: a.generators] for i in range(a.generators)]
         wjson = json.dumps(walkers(a.rigs, a.objects))
-        for g in groups:
+        for i, g in enumerate(groups):
+            stagger = [] if a.burst else ["--stagger", str(i / a.generators)]
             proc = subprocess.Popen(
                 [sys.executable, "-m", "stereod_fakes.room_messages", str(room), *g,
                  "--connect", endpoint, "--mode", "client", "--walkers", wjson,
-                 "--fps", str(a.fps), "--t0-from-stdin", "--report"],
+                 "--fps", str(a.fps), "--t0-from-stdin", "--report", *stagger],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT,
             )  # fmt: skip
             procs.append(proc)
@@ -245,13 +253,15 @@ def main() -> int:
     gen_msgs = sum(r["messages"] for r in sent)
     build_ms = sum(r["build_s"] for r in sent) / max(gen_msgs, 1) * 1e3
     publish_ms = sum(r["publish_s"] for r in sent) / max(gen_msgs, 1) * 1e3
+    phase = "all at each frame's start (--burst)" if a.burst else "spread evenly over a frame"
     lines = [
         "# stereod fuse at scale (benchmarks/fuse_scale.py)",
         "",
         f"{a.rigs} rigs x {a.fps:g} Hz, {a.rigs * a.objects} walkers (about {a.objects} per rig), "
-        f"{a.generators} generator processes, one router, all on loopback; "
-        f"{a.seconds:g} s measured after {a.warmup:g} s warm-up; host: {os.cpu_count()} cores, "
-        f"load average {load[0]:.1f} at the start and {os.getloadavg()[0]:.1f} at the end "
+        f"{a.generators} generator processes, one router, all on loopback; the rigs' messages "
+        f"{phase}; {a.seconds:g} s measured after {a.warmup:g} s warm-up; host: "
+        f"{os.cpu_count()} cores, load average {load[0]:.1f} at the start and "
+        f"{os.getloadavg()[0]:.1f} at the end "
         "(other work shares the cores: CPU shares and latencies are those of a busy host).",
         "",
         "| figure | value |",

@@ -418,6 +418,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--report", action="store_true", help="print the messages sent and their CPU at the end"
     )
+    p.add_argument(
+        "--stagger",
+        type=float,
+        default=None,
+        help="publish rig k of this process's n at (k + STAGGER) / n of each frame period, "
+        "as rigs on hosts of their own are not in phase (default: all at the frame's start)",
+    )
     a = p.parse_args(argv)
     room = load_room(a.room)
     sims = []
@@ -451,8 +458,13 @@ def main(argv: list[str] | None = None) -> int:
         tick = 0
         live: list[set[int]] = [set() for _ in sims]
         build_s = publish_s = 0.0
+        n = len(sims)
+        phases = [0.0 if a.stagger is None else (k + a.stagger) / n * period for k in range(n)]
         while not done.is_set() and time.monotonic() - start < a.seconds:
+            frame = start + tick * period
             for k, (sim, pub) in enumerate(zip(sims, pubs, strict=True)):
+                if phases[k] and done.wait(max(0.0, frame + phases[k] - time.monotonic())):
+                    break
                 c0 = time.thread_time()
                 payload, tracks = sim.payload(crowd, time.time_ns())
                 ids = {tid for tid, _ in tracks}
