@@ -12,8 +12,8 @@ it, as a stereo rig's depth error grows. ``seed`` makes the noise repeatable.
 A rig's figures are worked out for all the walkers at once (numpy, :class:`Crowd`); its message
 is then either the wire model (:meth:`RigSim.message`, for tests that read it) or its payload
 written directly by ``msgspec`` (:meth:`RigSim.payload`, what the generator processes
-publish): the same bytes as :func:`~stereod.bus.messages.dump_objects` of the model, at a
-twentieth of the cost, so that 16 generated rigs leave the host's cores to the node measured.
+publish): the same bytes as :func:`~stereod.bus.messages.dump_objects` of the model, at about
+a twelfth of the cost, so that 16 generated rigs leave the host's cores to the node measured.
 """
 
 from __future__ import annotations
