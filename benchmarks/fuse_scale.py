@@ -4,16 +4,19 @@ generators (no rendering), through one Zenoh router into one fusion node.
 The rigs stand 3 m apart in a line along the room's X, all looking along +Z (neighbours'
 views overlap, so about a third of the objects are seen by two rigs); 160 walkers stroll
 between 3 and 6 m in front of them. Two generator processes publish eight rigs each (a real
-:class:`~stereod.bus.publish.Publisher` per rig, as a daemon would), all as clients of one router
-process; ``stereod fuse`` and a subscriber to the room are clients of it too, every socket on
-loopback.
+:class:`~stereod.bus.publish.Publisher` per rig, as a daemon would), rig k's message k/16 of a
+frame period after the frame's start (rigs on hosts of their own are not in phase; ``--burst``:
+all at the start), all as clients of one router process; ``stereod fuse`` and a subscriber to
+the room are clients of it too, every socket on loopback.
 
-Measured over ``--seconds`` after a warm-up: the fusion node's CPU (share of one core, from
-/proc/<pid>/stat), its own added latency (a rig message's arrival in the node to the room
-tracks it changed published on their own keys, p50/p99, from its ``stats`` queryable), the
-latency from a rig's stamp to a room track's arrival at a subscriber on ``objects/*`` and to
-the room's whole message (at most ``--max-rate`` a second) at one on ``objects`` (same host,
-same UTC clock), its step rate and what it dropped. Writes ``docs/bench/fuse_scale.md``.
+Measured over ``--seconds`` after a warm-up: every process's CPU (share of one core, from
+/proc/<pid>/stat: the fusion node, the router, each generator, and this process, whose Zenoh
+session is the room's subscriber); the generators' main-thread CPU a message, writing it and
+publishing it; the fusion node's own added latency (a rig message's arrival in the node to the
+room tracks it changed published on their own keys, p50/p99, from its ``stats`` queryable);
+the latency from a rig's stamp to a room track's arrival at a subscriber on ``objects/*`` and
+to the room's whole message (at most ``--max-rate`` a second) at one on ``objects`` (same
+host, same UTC clock); its step rate and what it dropped. Writes ``docs/bench/fuse_scale.md``.
 
 Usage: ``python benchmarks/fuse_scale.py [--rigs 16] [--objects 10] [--fps 30] [--seconds 20]
 [--max-rate 30]``.
@@ -32,25 +35,39 @@ import threading
 import time
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import zenoh
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from stereod.bus.messages import dump_objects  # noqa: E402
 from stereod.fusion.clock import ClockWatch  # noqa: E402
 from stereod.fusion.fuser import Fuser  # noqa: E402
 from stereod.fusion.output import join_room, object_payloads  # noqa: E402
 from stereod.fusion.room import load_room  # noqa: E402
 from stereod.fusion.status import FuseStatus  # noqa: E402
 from stereod.fusion.wire import decode  # noqa: E402
-from stereod_fakes.room_messages import RigSim, Walker, walkers_from_json  # noqa: E402
+from stereod_fakes.room_messages import Crowd, RigSim, Walker, walkers_from_json  # noqa: E402
 from tests.conftest import free_endpoint, zenoh_config  # noqa: E402
 from tests.processes import start_stereod  # noqa: E402
 from tests.test_router import start_router  # noqa: E402
 
 SPACING_M = 3.0
+
+
+class _Stamped(msgspec.Struct):
+    """The one field of a room track's message the subscriber reads (the others skipped
+    unparsed: the subscriber is the benchmark's, and should cost the host little)."""
+
+    stamp_utc_ns: int
+
+
+class _RoomHead(msgspec.Struct):
+    """The fields of the room's message the subscriber reads."""
+
+    stamp_utc_ns: int
+    objects: list[msgspec.Raw]
 
 
 def room_file(rigs: int) -> str:
@@ -93,9 +110,9 @@ def message_cost(rigs: int, per_rig: int, ticks: int = 90) -> tuple[float, float
         Walker(w.truth_id, w.start_m, w.velocity_mps, t0)
         for w in walkers_from_json(json.dumps(walkers(rigs, per_rig)))
     ]
-    sims = [RigSim(r, seed=k) for k, r in enumerate(room.rigs)]
+    sims, crowd = [RigSim(r, seed=k) for k, r in enumerate(room.rigs)], Crowd(walk)
     payloads = [
-        dump_objects(sim.message(walk, t0 + k * 33_333_333 + j * 100_000))[0]
+        sim.payload(crowd, t0 + k * 33_333_333 + j * 100_000)[0]
         for k in range(ticks)
         for j, sim in enumerate(sims)
     ]
@@ -132,6 +149,12 @@ def main() -> int:
     p.add_argument("--seconds", type=float, default=20.0)
     p.add_argument("--warmup", type=float, default=5.0)
     p.add_argument("--generators", type=int, default=2)
+    p.add_argument(
+        "--burst",
+        action="store_true",
+        help="every rig's message at the frame's start (default: the rigs' spread evenly over "
+        "the frame period, as rigs on hosts of their own are not in phase)",
+    )
     p.add_argument("--max-rate", type=float, default=30.0, help="fuse's --max-rate, Hz")
     p.add_argument("--out", type=Path, default=ROOT / "docs" / "bench" / "fuse_scale.md")
     a = p.parse_args()
@@ -146,19 +169,22 @@ def main() -> int:
     track_arrivals: list[tuple[int, int]] = []
     lock = threading.Lock()
 
+    room_head = msgspec.json.Decoder(_RoomHead).decode
+    stamped = msgspec.json.Decoder(_Stamped).decode
+
     def on_room(sample: zenoh.Sample) -> None:
         now = time.time_ns()
-        msg = json.loads(sample.payload.to_bytes())  # json alone: the subscriber costs less
+        msg = room_head(sample.payload.to_bytes())
         with lock:
-            arrivals.append((now, msg["stamp_utc_ns"], len(msg["objects"])))
+            arrivals.append((now, msg.stamp_utc_ns, len(msg.objects)))
 
     def on_track(sample: zenoh.Sample) -> None:
         now = time.time_ns()
         if sample.kind != zenoh.SampleKind.PUT:
             return
-        obj = json.loads(sample.payload.to_bytes())
+        stamp = stamped(sample.payload.to_bytes()).stamp_utc_ns
         with lock:
-            track_arrivals.append((now, obj["stamp_utc_ns"]))
+            track_arrivals.append((now, stamp))
 
     try:
         fuse = start_stereod(
@@ -169,11 +195,12 @@ def main() -> int:
         names = [f"r{i}" for i in range(a.rigs)]
         groups = [names[i :: a.generators] for i in range(a.generators)]
         wjson = json.dumps(walkers(a.rigs, a.objects))
-        for g in groups:
+        for i, g in enumerate(groups):
+            stagger = [] if a.burst else ["--stagger", str(i / a.generators)]
             proc = subprocess.Popen(
                 [sys.executable, "-m", "stereod_fakes.room_messages", str(room), *g,
                  "--connect", endpoint, "--mode", "client", "--walkers", wjson,
-                 "--fps", str(a.fps), "--t0-from-stdin"],
+                 "--fps", str(a.fps), "--t0-from-stdin", "--report", *stagger],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT,
             )  # fmt: skip
             procs.append(proc)
@@ -192,11 +219,10 @@ def main() -> int:
                 arrivals.clear()
                 track_arrivals.clear()
             s0 = fuse_status(session)
-            c0, w0 = cpu_s(fuse.pid), time.monotonic()
-            gen_c0 = sum(cpu_s(p.pid) for p in procs[1:])
+            pids = [p.pid for p in procs] + [router.pid, os.getpid()]
+            c0, w0 = [cpu_s(pid) for pid in pids], time.monotonic()
             time.sleep(a.seconds)
-            c1, w1 = cpu_s(fuse.pid), time.monotonic()
-            gen_c1 = sum(cpu_s(p.pid) for p in procs[1:])
+            c1, w1 = [cpu_s(pid) for pid in pids], time.monotonic()
             status = fuse_status(session)
             sub.undeclare()
             tsub.undeclare()
@@ -204,8 +230,8 @@ def main() -> int:
         for proc in reversed(procs):
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
-        for proc in reversed(procs):
-            proc.communicate(timeout=60)
+        reports = [json.loads(proc.communicate(timeout=60)[0] or "null") for proc in procs[1:]]
+        procs[0].communicate(timeout=60)
         router.terminate()
         router.communicate(timeout=30)
     with lock:
@@ -218,24 +244,38 @@ def main() -> int:
         return f"{np.percentile(x, 50):.1f} / {np.percentile(x, 99):.1f} ms" if len(x) else "-"
 
     objects = np.array([n for _, _, n in got])
-    cpu = (c1 - c0) / (w1 - w0)
-    gen_cpu = (gen_c1 - gen_c0) / (w1 - w0)
-    rig_msgs = sum(link.messages for link in status.rigs.values())
+    share = [(b - c) / (w1 - w0) * 100 for b, c in zip(c1, c0, strict=True)]
+    cpu, gens, router_cpu, sub_cpu = share[0], share[1:-2], share[-2], share[-1]
+    rig_msgs = sum(link.messages for link in status.rigs.values()) - sum(
+        link.messages for link in s0.rigs.values()
+    )
+    sent = [r for r in reports if r]
+    gen_msgs = sum(r["messages"] for r in sent)
+    build_ms = sum(r["build_s"] for r in sent) / max(gen_msgs, 1) * 1e3
+    publish_ms = sum(r["publish_s"] for r in sent) / max(gen_msgs, 1) * 1e3
+    phase = "all at each frame's start (--burst)" if a.burst else "spread evenly over a frame"
     lines = [
         "# stereod fuse at scale (benchmarks/fuse_scale.py)",
         "",
         f"{a.rigs} rigs x {a.fps:g} Hz, {a.rigs * a.objects} walkers (about {a.objects} per rig), "
-        f"{a.generators} generator processes, one router, all on loopback; "
-        f"{a.seconds:g} s measured after {a.warmup:g} s warm-up; host: {os.cpu_count()} cores, "
-        f"load average {load[0]:.1f} at the start and {os.getloadavg()[0]:.1f} at the end "
+        f"{a.generators} generator processes, one router, all on loopback; the rigs' messages "
+        f"{phase}; {a.seconds:g} s measured after {a.warmup:g} s warm-up; host: "
+        f"{os.cpu_count()} cores, load average {load[0]:.1f} at the start and "
+        f"{os.getloadavg()[0]:.1f} at the end "
         "(other work shares the cores: CPU shares and latencies are those of a busy host).",
         "",
         "| figure | value |",
         "|---|---|",
-        f"| fuse CPU | {cpu * 100:.0f} % of one core |",
-        f"| generators' CPU | {gen_cpu * 100:.0f} % of one core |",
-        f"| rig messages received per s (the generators' target {a.rigs * a.fps:g}) | "
-        f"{rig_msgs / status.uptime_s:.0f} |",
+        f"| fuse CPU | {cpu:.0f} % of one core |",
+        f"| router CPU | {router_cpu:.0f} % |",
+        f"| generators' CPU, together (each) | {sum(gens):.0f} % "
+        f"({', '.join(f'{g:.0f} %' for g in gens)}) |",
+        f"| room subscriber's CPU (the benchmark's process) | {sub_cpu:.0f} % |",
+        "| a generator's main thread a rig message: writing it / publishing it (the Publisher: "
+        f"the message, and each object on its own key) | {build_ms:.2f} / {publish_ms:.2f} ms |",
+        f"| rig messages sent per s (target {a.rigs * a.fps:g}) | "
+        f"{sum(r['messages'] / r['seconds'] for r in sent):.0f} |",
+        f"| rig messages received by fuse per s | {rig_msgs / (w1 - w0):.0f} |",
         f"| fusion steps per s | {(status.steps - s0.steps) / (w1 - w0):.1f} |",
         f"| room messages per s (--max-rate {a.max_rate:g}) | {len(got) / a.seconds:.1f} |",
         f"| room objects per message, median | {np.median(objects) if len(objects) else 0:.0f} |",
