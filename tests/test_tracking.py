@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from stereod.tracking import measure
 from stereod.tracking.association import _iou
 from stereod.tracking.tracker import Tracker
 from stereod.tracking.types import (
@@ -930,3 +931,22 @@ def test_a_coasting_track_gone_astray_does_not_take_the_floor_left_behind() -> N
     assert at_floor and 1 not in {s.track_id for s in at_floor}, {s.track_id for s in at_floor}
     assert not any(s.freeze_background for s in at_floor)
     assert 1 not in tracker.live_ids()
+
+
+def test_an_object_in_front_is_measured_by_its_own_edge_and_placed_by_its_outline() -> None:
+    """A person at 2.2 m has just passed in front of one at 3 m, who now shows on their left,
+    but their lagging prediction still puts the other on their right. Of the blob's two edges,
+    the one at the depth the filter expects is theirs (the other's left edge read as theirs
+    put them at 3 m); their centre lies from that free edge as far as in their own outline
+    seen alone before (the blend's centroid is 7 cm off to the left)."""
+    near, far = np.array([0.05, 0.0, 2.2]), np.array([-0.25, 0.0, 3.0])
+    near_m, far_m = 0.45, 0.4
+    _, alone = seen(near, size_m=near_m)
+    _, ob = merged_seen(near, far, near_m, far_m)
+    assert abs(float(ob.position_m[0]) - near[0]) > 0.06  # the blend's centre is off
+    # the one behind coasts, its depth guessed a little too far (3.2 m)
+    behind_px = RIG.focal_px * RIG.baseline_m / 3.2
+    got = measure.by_edge(ob, True, behind_px, measure.outline_m(alone), 2.2)
+    assert got.edge_depth
+    assert abs(float(got.position_m[2]) - near[2]) < 0.05, got.position_m
+    assert abs(float(got.position_m[0]) - near[0]) < 0.02, got.position_m

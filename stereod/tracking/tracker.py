@@ -87,6 +87,9 @@ class Tracker(Association):
         """Tracks taken into another's object (id -> track, its ``member_of`` the keeper's id):
         not published and not ended, for up to ``max_member_s``; one comes back when a blob that
         would start a track comes out of that object (:meth:`associate`)."""
+        self._shared: set[int] = set()
+        """Detections the last :meth:`associate` found two or more confirmed tracks' predictions
+        in (index): what they show of any one object is blended with another's."""
         self._fronts: dict[int, tuple[bool, float]] = {}
         """Detections the last :meth:`associate` gave to the nearer of two objects in one blob
         (index -> whether the other joins it on its right, and the other's predicted disparity,
@@ -149,8 +152,10 @@ class Tracker(Association):
             if ob is None:
                 continue
             blended = tid is not None and k in self._fronts
-            if blended:
-                ob = measure.by_edge(ob, *self._fronts[k])
+            if tid is not None and blended:
+                front = self._tracks[tid]
+                expected = float(kalman.position_at(front.kf, t_ns)[2]) if front.started else None
+                ob = measure.by_edge(ob, *self._fronts[k], front.outline_m, expected)
             if tid is None:
                 kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
                 tr = Track(
@@ -191,6 +196,8 @@ class Tracker(Association):
                 tr.area_px = 0.8 * tr.area_px + 0.2 * det.area_px
             if not ob.clipped:
                 tr.positions.append((t_ns, ob.position_m))
+                if k not in self._shared:  # seen whole in a blob of its own
+                    tr.outline_m = measure.outline_m(ob)
             tr.left_history.append((t_left, ob.left_px))
             tr.right_history.append((t_right, ob.right_px))
             seen.add(tr.track_id)
