@@ -950,3 +950,26 @@ def test_an_object_in_front_is_measured_by_its_own_edge_and_placed_by_its_outlin
     assert got.edge_depth
     assert abs(float(got.position_m[2]) - near[2]) < 0.05, got.position_m
     assert abs(float(got.position_m[0]) - near[0]) < 0.02, got.position_m
+
+
+def test_a_piece_of_a_confirmed_object_is_not_taken_for_its_centre() -> None:
+    """A person walking behind another shows, for a few frames, only their head above the
+    other's shoulder: a blob under half their size each way. Its centroid is not theirs (8 cm
+    above it): their filter predicts through it, and they keep one id and their height (before:
+    their centre went up to their head and on up while they were hidden, and a second id took
+    them when they came out)."""
+    tracker = Tracker(TrackerParams())
+    path = line([-0.4, 0.0, 3.0], [1.0, 0.0, 0.0])
+    size_m = 0.4
+    for k in range(24):
+        t = k * DT_NS
+        p = path(t * 1e-9)
+        if 10 <= k < 14:  # only the head shows, 8 cm above the centre
+            det, ob = seen(p + np.array([0.0, -0.08, 0.0]), size_m=0.06)
+            assignment, _ = tracker.associate([det], (t, t))
+            states, _ = tracker.update(t, [ob], assignment, (t, t), [det])
+        else:
+            states, _ = step(tracker, t, [p], size_m=size_m)
+        assert [s.track_id for s in states] == [1], (k, [s.track_id for s in states])
+        if k >= 3:
+            assert abs(float(states[0].position_m[1]) - p[1]) < 0.05, (k, states[0].position_m)
