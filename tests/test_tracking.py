@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from stereod.tracking import measure
 from stereod.tracking.association import _iou
 from stereod.tracking.tracker import Tracker
 from stereod.tracking.types import (
@@ -930,3 +931,45 @@ def test_a_coasting_track_gone_astray_does_not_take_the_floor_left_behind() -> N
     assert at_floor and 1 not in {s.track_id for s in at_floor}, {s.track_id for s in at_floor}
     assert not any(s.freeze_background for s in at_floor)
     assert 1 not in tracker.live_ids()
+
+
+def test_an_object_in_front_is_measured_by_its_own_edge_and_placed_by_its_outline() -> None:
+    """A person at 2.2 m has just passed in front of one at 3 m, who now shows on their left,
+    but their lagging prediction still puts the other on their right. Of the blob's two edges,
+    the one at the depth the filter expects is theirs (the other's left edge read as theirs
+    put them at 3 m); their centre lies from that free edge as far as in their own outline
+    seen alone before (the blend's centroid is 7 cm off to the left)."""
+    near, far = np.array([0.05, 0.0, 2.2]), np.array([-0.25, 0.0, 3.0])
+    near_m, far_m = 0.45, 0.4
+    _, alone = seen(near, size_m=near_m)
+    _, ob = merged_seen(near, far, near_m, far_m)
+    assert abs(float(ob.position_m[0]) - near[0]) > 0.06  # the blend's centre is off
+    # the one behind coasts, its depth guessed a little too far (3.2 m)
+    behind_px = RIG.focal_px * RIG.baseline_m / 3.2
+    got = measure.by_edge(ob, True, behind_px, measure.outline_m(alone), 2.2)
+    assert got.edge_depth
+    assert abs(float(got.position_m[2]) - near[2]) < 0.05, got.position_m
+    assert abs(float(got.position_m[0]) - near[0]) < 0.02, got.position_m
+
+
+def test_a_piece_of_a_confirmed_object_is_not_taken_for_its_centre() -> None:
+    """A person walking behind another shows, for a few frames, only their head above the
+    other's shoulder: a blob under half their size each way. Its centroid is not theirs (8 cm
+    above it): their filter predicts through it, and they keep one id and their height (before:
+    their centre went up to their head and on up while they were hidden, and a second id took
+    them when they came out)."""
+    tracker = Tracker(TrackerParams())
+    path = line([-0.4, 0.0, 3.0], [1.0, 0.0, 0.0])
+    size_m = 0.4
+    for k in range(24):
+        t = k * DT_NS
+        p = path(t * 1e-9)
+        if 10 <= k < 14:  # only the head shows, 8 cm above the centre
+            det, ob = seen(p + np.array([0.0, -0.08, 0.0]), size_m=0.06)
+            assignment, _ = tracker.associate([det], (t, t))
+            states, _ = tracker.update(t, [ob], assignment, (t, t), [det])
+        else:
+            states, _ = step(tracker, t, [p], size_m=size_m)
+        assert [s.track_id for s in states] == [1], (k, [s.track_id for s in states])
+        if k >= 3:
+            assert abs(float(states[0].position_m[1]) - p[1]) < 0.05, (k, states[0].position_m)

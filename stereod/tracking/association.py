@@ -181,6 +181,7 @@ class Association(TrackFilters):
     _merging: dict[int, int]
     _members: dict[int, Track]
     _fronts: dict[int, tuple[bool, float]]
+    _shared: set[int]
     line_ns: float
     _tracks: dict[int, Track]
 
@@ -199,6 +200,7 @@ class Association(TrackFilters):
         tracks = list(self._tracks.values())
         self._merging = {}
         self._fronts = {}
+        self._shared = set()
         if not detections:
             return out, may_start
         centres = np.array([(d.left_px, d.right_px) for d in detections], np.float64)
@@ -258,6 +260,7 @@ class Association(TrackFilters):
             if in_left.sum() < 2 and in_right.sum() < 2:
                 continue
             hosts = np.flatnonzero(in_left | in_right)
+            self._shared.add(i)
             if self._one_object([tracks[j] for j in hosts]):
                 # Pieces of one object that were followed apart (an arm, a torso) now seen
                 # whole: the longest-followed track takes it, the others end into it.

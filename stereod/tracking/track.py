@@ -87,6 +87,11 @@ class Track:
     before became: moved on, or parted in two); None when seen, or hidden by nothing. For a
     member of another's object (``member_of``): that object's blobs, followed while they
     overlap, that it may come out of."""
+    outline_m: tuple[float, float] | None = None
+    """How far its silhouettes' centroid lies from their boxes' left and right edges (m at its
+    depth, both eyes' mean), from its latest observation seen whole in a blob of its own: where
+    its centre lies from its free edge when another object joins its blob on one side
+    (:func:`stereod.tracking.measure.by_edge`). None before it was seen so."""
     member_of: int | None = None
     """The track whose object this one was taken into as a piece (it is then a member: not
     published, not ended, for up to ``max_member_s``), or None."""

@@ -16,7 +16,10 @@ clearly in front (nearer by more than ``merge_depth_m``), whole in the blob, the
 it on one side: it is measured by its outline's other side, like an object cut by the image's
 edge. A detection that would start a track but came out, in both eyes, of the blob that hid a
 confirmed track in the last pair is that track's object reappearing, wherever its prediction
-went (a person seen for three frames before a crossing has a velocity that is a guess).
+went (a person seen for three frames before a crossing has a velocity that is a guess). A
+confirmed track given a blob under ``SHRINK`` of its last outline's size, across and down, in
+an eye sees a piece of its object (a head above the shoulder of one in front): its filter
+predicts, and the last whole outline is kept to tell the next blob by.
 
 The filter's measurement is each observation's triangulated position with its covariance, so
 depth noise growing as Z^2 (eq. 12) is weighted correctly. It starts at a track's second
@@ -87,6 +90,9 @@ class Tracker(Association):
         """Tracks taken into another's object (id -> track, its ``member_of`` the keeper's id):
         not published and not ended, for up to ``max_member_s``; one comes back when a blob that
         would start a track comes out of that object (:meth:`associate`)."""
+        self._shared: set[int] = set()
+        """Detections the last :meth:`associate` found two or more confirmed tracks' predictions
+        in (index): what they show of any one object is blended with another's."""
         self._fronts: dict[int, tuple[bool, float]] = {}
         """Detections the last :meth:`associate` gave to the nearer of two objects in one blob
         (index -> whether the other joins it on its right, and the other's predicted disparity,
@@ -149,8 +155,11 @@ class Tracker(Association):
             if ob is None:
                 continue
             blended = tid is not None and k in self._fronts
-            if blended:
-                ob = measure.by_edge(ob, *self._fronts[k])
+            piece = False
+            if tid is not None and blended:
+                front = self._tracks[tid]
+                expected = float(kalman.position_at(front.kf, t_ns)[2]) if front.started else None
+                ob = measure.by_edge(ob, *self._fronts[k], front.outline_m, expected)
             if tid is None:
                 kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
                 tr = Track(
@@ -176,6 +185,11 @@ class Tracker(Association):
                     self._begin(tr, t_ns, ob)
                 elif ob.clipped and not ob.edge_depth:  # part of it out of view: predicted
                     self._predict(tr, t_ns)
+                elif self._confirmed(tr) and _shrunk(tr.last, ob):
+                    # A piece of it shows, the rest hidden: predicted, and its last whole
+                    # outline kept to tell the next pair's blob by.
+                    piece = True
+                    self._predict(tr, t_ns)
                 else:
                     self._filter(tr, t_ns, ob)
                 tr.hits += 1
@@ -185,12 +199,15 @@ class Tracker(Association):
                     tr.left_history.clear()
                     tr.right_history.clear()
                 tr.blended = blended
-                tr.last = ob
+                if not piece:
+                    tr.last = ob
                 tr.last_seen_ns = t_ns
                 tr.image_speed_pxps = det.image_speed_pxps
                 tr.area_px = 0.8 * tr.area_px + 0.2 * det.area_px
-            if not ob.clipped:
+            if not ob.clipped and not piece:
                 tr.positions.append((t_ns, ob.position_m))
+                if k not in self._shared:  # seen whole in a blob of its own
+                    tr.outline_m = measure.outline_m(ob)
             tr.left_history.append((t_left, ob.left_px))
             tr.right_history.append((t_right, ob.right_px))
             seen.add(tr.track_id)
@@ -307,3 +324,17 @@ def _held_in(
         hit = [b for b in boxes[e] if _overlaps(b, before[e])]
         out.append(_union(hit) if hit else before[e])
     return out[0], out[1]
+
+
+SHRINK = 0.5
+"""A blob whose box, across and down, is under this share of a confirmed track's last one in
+either eye is a piece of the object (the rest hidden behind another), not the object."""
+
+
+def _shrunk(last: Observation, ob: Observation) -> bool:
+    """Whether ``ob``'s boxes are, in either eye, under ``SHRINK`` of ``last``'s in both
+    width and height (x, y, w, h px)."""
+    for now, then in ((ob.left_bbox_px, last.left_bbox_px), (ob.right_bbox_px, last.right_bbox_px)):
+        if float(now[2]) < SHRINK * float(then[2]) and float(now[3]) < SHRINK * float(then[3]):
+            return True
+    return False
