@@ -97,8 +97,9 @@ def test_two_people_crossing_keep_one_id_each() -> None:
     in the joined blob lies from their free edge as in their own outline, and that edge is the
     one at their depth: rendered at 320x240 with the benchmark's background and shadows at
     half quality, their track lagged 0.2 m behind and a second id took them as the blobs
-    parted. Rendered coarsely here (one id each at every quality tried)."""
-    case = acc.world_room("people_crossing", MODE, seed=0, lead_in_s=0.5, quality=COARSE)
+    parted. Rendered at the benchmark's quality (coarser renders give the near person one id
+    too, but track them in only 46-68 % of their frames)."""
+    case = acc.world_room("people_crossing", MODE, seed=0, lead_in_s=0.5)
     score = acc.score(case, acc.run_case(case), gate_m=GATE_M)
     people = {o.name: o for o in score.objects}
     assert all(len(o.track_ids) <= 1 for o in people.values()), {
@@ -110,10 +111,8 @@ def test_two_people_crossing_keep_one_id_each() -> None:
     assert len(far.track_ids) == 1 and far.tracked_share >= 0.5, (far.track_ids, far.tracked_share)
     # Walking in past the image's left side they are matched by their boxes' uncut rows and
     # free side edge (their centroids' rows differ by more than the row tolerance there), and
-    # their track starts on the depth of that edge (before: 41 %; now 78 % at the benchmark's
-    # quality). Rendered coarsely, 46 %: leaving by the right side after the crossing, their
-    # depth reads 1.6 m for 2.2 m, beyond the 0.5 m gate
-    assert len(near.track_ids) == 1 and near.tracked_share >= 0.45, (
+    # their track starts on the depth of that edge (before: 41 %; now 78 %)
+    assert len(near.track_ids) == 1 and near.tracked_share >= 0.5, (
         near.track_ids,
         near.tracked_share,
     )
