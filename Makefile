@@ -14,12 +14,8 @@ $(VENV)/.installed: pyproject.toml
 demo: $(VENV)/.installed
 	$(BIN)/stereod demo
 
-# One test worker more than the host has cores (at most 5): many tests spend much of their
-# time waiting on a daemon process or the bus, and the extra worker keeps the cores busy then.
-TEST_WORKERS ?= $(shell n=$$(nproc); echo $$(( n < 4 ? n + 1 : 5 )))
-
 test: $(VENV)/.installed
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=15
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadgroup --durations=15
 
 vm: $(VENV)/.installed
 	bash tests/vm/run.sh
