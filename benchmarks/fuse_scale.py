@@ -262,7 +262,11 @@ def main() -> int:
         f"{phase}; {a.seconds:g} s measured after {a.warmup:g} s warm-up; host: "
         f"{os.cpu_count()} cores, load average {load[0]:.1f} at the start and "
         f"{os.getloadavg()[0]:.1f} at the end "
-        "(other work shares the cores: CPU shares and latencies are those of a busy host).",
+        + (
+            "(other work shares the cores: CPU shares and latencies are those of a busy host)."
+            if load[0] >= 1.0
+            else "(no other work on the host at the start)."
+        ),
         "",
         "| figure | value |",
         "|---|---|",
