@@ -12,6 +12,7 @@ from stereod.vision.detect import Detector
 from stereod.vision.detect_params import DetectorParams
 from stereod.vision.disc import Candidate, disc_centres, is_round
 from tests.disc_reference import disc_centre
+from tests.shaded_balls import shaded_balls
 
 TOLERANCE_PX = 1e-9
 """How far a batched centre may be from the one-at-a-time fit's: the two sum the same
@@ -22,21 +23,7 @@ def _eye(rng: np.random.Generator, h: int, w: int, color: bool) -> tuple[np.ndar
     """A textured wall and a frame of it with five shaded balls 4-22 px across, each pixel
     the share the ball covers (sampled 8 x 8) of the ball's colour, plus sensor noise
     (uint8, (h, w) or (h, w, 3))."""
-    coarse = rng.normal(110.0, 25.0, (h // 6 + 1, w // 6 + 1, 3))
-    wall = cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC)
-    frame = wall.copy()
-    ss = 8
-    ys, xs = np.mgrid[0 : h * ss, 0 : w * ss]
-    px, py = (xs + 0.5) / ss - 0.5, (ys + 0.5) / ss - 0.5
-    for k, r in enumerate((2.0, 3.3, 5.0, 7.5, 10.5)):
-        u, v = 25.0 + 40.0 * k + rng.uniform(-3, 3), rng.uniform(25.0, h - 25.0)
-        rho2 = ((px - u) ** 2 + (py - v) ** 2) / (r * r)
-        inside = rho2 <= 1.0
-        shade = 0.3 + 0.7 * np.sqrt(np.clip(1.0 - rho2, 0.0, None))
-        cover = inside.reshape(h, ss, w, ss).mean(axis=(1, 3))[..., None]
-        lit = (inside * shade).reshape(h, ss, w, ss).mean(axis=(1, 3))[..., None]
-        frame = lit * rng.uniform(60.0, 240.0, 3) + (1.0 - cover) * frame
-    wall, frame = (np.clip(a + rng.normal(0.0, 1.5, a.shape), 0, 255) for a in (wall, frame))
+    wall, frame, _ = shaded_balls(rng, h, w, (2.0, 3.3, 5.0, 7.5, 10.5), 25.0, 40.0)
     if not color:
         wall, frame = wall.mean(axis=2), frame.mean(axis=2)
     return wall.astype(np.uint8), frame.astype(np.uint8)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-import cv2
 import numpy as np
 import pytest
 
@@ -16,6 +15,7 @@ from stereod.vision.detect import Detector, fit_round_blobs
 from stereod.vision.detect_params import DetectorParams
 from stereod.vision.geometry.stereo import CanonicalRig
 from stereod_fakes.synth import Ball, Renderer, Scene
+from tests.shaded_balls import shaded_balls
 
 TOLERANCE_PX = 1e-9
 """How far a centre fitted with the other eye's blobs may be from the one fitted alone: the
@@ -26,21 +26,7 @@ def _eye(rng: np.random.Generator, h: int, w: int) -> tuple[np.ndarray, np.ndarr
     """A textured wall, a frame of it with four shaded balls 5-16 px across (each pixel the
     share a ball covers, sampled 8 x 8, of its colour, plus sensor noise), both uint8
     (h, w, 3), and the balls' true centres (x, y px)."""
-    coarse = rng.normal(110.0, 25.0, (h // 6 + 1, w // 6 + 1, 3))
-    wall = cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC)
-    frame, truth, ss = wall.copy(), [], 8
-    ys, xs = np.mgrid[0 : h * ss, 0 : w * ss]
-    px, py = (xs + 0.5) / ss - 0.5, (ys + 0.5) / ss - 0.5
-    for k, r in enumerate((2.5, 4.0, 6.0, 8.0)):
-        u, v = 30.0 + 45.0 * k + rng.uniform(-3, 3), rng.uniform(25.0, h - 25.0)
-        rho2 = ((px - u) ** 2 + (py - v) ** 2) / (r * r)
-        inside = rho2 <= 1.0
-        shade = 0.3 + 0.7 * np.sqrt(np.clip(1.0 - rho2, 0.0, None))
-        cover = inside.reshape(h, ss, w, ss).mean(axis=(1, 3))[..., None]
-        lit = (inside * shade).reshape(h, ss, w, ss).mean(axis=(1, 3))[..., None]
-        frame = lit * rng.uniform(60.0, 240.0, 3) + (1.0 - cover) * frame
-        truth.append((u, v))
-    wall, frame = (np.clip(a + rng.normal(0.0, 1.5, a.shape), 0, 255) for a in (wall, frame))
+    wall, frame, truth = shaded_balls(rng, h, w, (2.5, 4.0, 6.0, 8.0), 30.0, 45.0)
     return wall.astype(np.uint8), frame.astype(np.uint8), truth
 
 
