@@ -30,13 +30,13 @@ from stereod.errors import (
     EX_SOFTWARE,
     EX_USAGE,
     InternalError,
-    Interrupted,
     ReaderGone,
     StereodError,
     one_line,
 )
 from stereod.files.output_file import signal_name
 from stereod.files.paths import shown
+from stereod.files.stop import clear_stop, raise_stop
 
 GROUP = "stereod.commands"
 
@@ -175,7 +175,7 @@ def one_shot_signals(command: str) -> None:
     handler, whenever it is installed."""
 
     def on_term(signum: int, _frame: Any) -> None:
-        raise Interrupted(f"{command} interrupted by {signal_name(signum)}", signum)
+        raise_stop(f"{command} interrupted by {signal_name(signum)}", signum)
 
     def on_hup(signum: int, frame: Any) -> None:
         handler = signal.getsignal(signal.SIGTERM)
@@ -196,6 +196,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return _main(argv)
     finally:  # a caller in this process (a test) gets its own handlers back
+        clear_stop()
         for signum, handler in saved.items():
             if handler is not None:
                 signal.signal(signum, handler)

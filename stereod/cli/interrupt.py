@@ -12,6 +12,8 @@ from __future__ import annotations
 import threading
 import time
 
+from stereod.files.stop import check_stop
+
 SLICE_S = 0.1
 """Longest a signal waits for the main thread to run its handler, s."""
 
@@ -26,3 +28,4 @@ def wait_until(event: threading.Event, timeout_s: float | None = None) -> bool:
             return event.is_set()
         if event.wait(left):
             return True
+        check_stop()

@@ -44,6 +44,7 @@ from typing import IO, Any
 
 from stereod.errors import Interrupted, MissingInputError, OutputError, ReaderGone, UsageError
 from stereod.files.paths import file_kind, shown
+from stereod.files.stop import check_stop, clear_stop, pending_stop, raise_stop
 
 __all__ = [
     "AtomicOutput",
@@ -380,6 +381,10 @@ class AtomicOutput:
         """Flush, close and move the file into place (once; later calls do nothing)."""
         if self._fh.closed:
             return
+        stop = pending_stop()  # a stop whose exception was swallowed on its way: keep the old file
+        if stop is not None:
+            self.discard()
+            raise stop
         try:
             self._fh.flush()
             if self._tmp is not None:
@@ -441,11 +446,13 @@ def stopped_by_signals(command: str, out: Path) -> Iterator[None]:
     def on_signal(signum: int, _frame: Any) -> None:
         if not in_place and identity() != before:
             return
-        raise Interrupted(f"{command} interrupted by {signal_name(signum)}{text}", signum)
+        raise_stop(f"{command} interrupted by {signal_name(signum)}{text}", signum)
 
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
+        check_stop()  # a signal whose exception library code swallowed still stops the command
     finally:
+        clear_stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)

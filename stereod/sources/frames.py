@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from stereod.files.stop import check_stop
+
 
 class Eye(str, enum.Enum):
     """Which camera of the rig a frame came from."""
@@ -228,6 +230,7 @@ def merged(left: EyeSource, right: EyeSource) -> Iterator[Frame]:
         if not ready:
             return
         frame = min(ready, key=lambda f: f.t_ns)
+        check_stop()
         yield frame
         heads[frame.eye] = sources[frame.eye].read()
 
