@@ -160,7 +160,9 @@ def test_a_full_disk_stops_a_live_recording_with_73_and_no_success(
     for eye in ("left", "right"):
         rows = (out / f"{eye}.csv").read_text().splitlines()[1:]
         assert 0 < man[eye]["frames"] == len(rows) < 1800
-    assert abs(man["left"]["frames"] - man["right"]["frames"]) <= 3, man
+    # Both eyes stop together: within a second of frames (a loaded host delays the second
+    # eye's writer by more than a frame or two), far from the 60 s the source would run.
+    assert abs(man["left"]["frames"] - man["right"]["frames"]) <= 30, man
 
 
 class _FaultyEye(EyeSource):
