@@ -108,6 +108,9 @@ class ClockWatch:
         """Per room id, the rigs' measurements of it (what observations are made from)."""
         """Per rig, each observation's offset estimate (ms) and its weight v^T S^-1 v
         (s^-2)."""
+        self._means: dict[str, tuple[float | None, float | None]] = {}
+        """Per rig, :meth:`_mean` of its observations as they are now (dropped when one is
+        added): a step asks for the same rigs' offsets once per shared object."""
 
     def set_rigs(self, rigs: list[str], changed: list[str]) -> None:
         """A room file read again: ``rigs`` in its order, ``changed`` those whose pose moved
@@ -123,6 +126,7 @@ class ClockWatch:
             for r in rigs
         }  # fmt: skip
         self.rigs = rigs
+        self._means = {}
         self._shared = {}  # measurements made in the poses before
 
     def observe(self, frame: FusedFrame) -> None:
@@ -213,6 +217,7 @@ class ClockWatch:
                 weight = float(v @ s_inv_v)
                 d_ms = -float((p - pa) @ s_inv_v) / weight * 1e3
                 self._samples[rig].append((base_ms + d_ms, weight))
+                self._means.pop(rig, None)
                 done.add(rig)
             sh.waiting[rig] = keep
         sh.waiting[anchor] = []
@@ -230,6 +235,13 @@ class ClockWatch:
         :data:`MIN_SAMPLES`."""
         if rig == self.rigs[0]:
             return 0.0, 0.0
+        known = self._means.get(rig)
+        if known is None:
+            known = self._means[rig] = self._robust_mean(rig)
+        return known
+
+    def _robust_mean(self, rig: str) -> tuple[float | None, float | None]:
+        """:meth:`_mean` worked out from ``rig``'s observations."""
         s = self._samples[rig]
         if len(s) < MIN_SAMPLES:
             return None, None

@@ -520,17 +520,12 @@ class Fuser:
             f = tab.predict_rows(raw, (t_ns - stamps) * 1e-9)
             r = len(idx)
             s = np.array(starts)
-            # Position and velocity in one fusion: runs 0..k-1 positions, k..2k-1 velocities.
-            both, both_cov = tab.fuse_groups(
-                np.concatenate([f[:, POS], f[:, VEL]]),
-                np.concatenate([f[:, PCOV], f[:, VCOV]]),
-                np.concatenate([s, s + r]),
-            )
-            parts.append(np.concatenate([both[:k], both[k:], both_cov[:k], both_cov[k:]], 1))
+            parts.append(tab.fuse_states(f, s))
             flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0).tolist()
             trace = f[:, DIAG_P].sum(axis=1).tolist()
             stamp_list = stamps.tolist()
-            positions, covs = raw[:, POS], raw[:, PCOV].reshape(-1, 3, 3)
+            # Each row's views at once (one call a column, not one a member).
+            positions, covs = list(raw[:, POS]), list(raw[:, PCOV].reshape(-1, 3, 3))
             # Best member: least position trace, the first of equals (one member: no choice).
             best = []
             for rid, a, b in zip(with_members, starts, [*starts[1:], r], strict=True):
@@ -589,6 +584,8 @@ class Fuser:
             else:
                 keep.append((rid, j))
         self._seen_floor = min(self._seen_floor, t_ns)
+        if not coasting and len(keep) == len(rids):
+            return ended, shared, state  # already every track's row, by id
         return ended, shared, state[[j for _, j in keep]]
 
     def _end(self, rid: int) -> int:

@@ -18,8 +18,9 @@ import numpy as np
 
 from stereod.bus.messages import OBJECT_SCHEMA, OBJECTS_SCHEMA, ObjectsMessage, ObjectState
 from stereod.fusion.fuser import FusedFrame, RoomTrack
-from stereod.fusion.rows import DIAG, PCOV, POS, VCOV, VEL
+from stereod.fusion.rows import DIAG, PCOV, VCOV
 from stereod.fusion.wire import EXTRA
+from stereod.tracking.types import TrackLifecycle
 from stereod.vision.geometry import Geometry
 
 
@@ -99,15 +100,17 @@ class _Object(msgspec.Struct, gc=False):
 
 
 _ENCODER = msgspec.json.Encoder()
+_STATE_NAME = {s: s.value for s in TrackLifecycle}
+
+"""Each lifecycle state's name (a dict lookup; an enum's ``.value`` is a descriptor call)."""
 
 
 def _figures(tracks: list[RoomTrack], rows: np.ndarray | None = None) -> list[_Object]:
     """Each room track that has a member to describe it as its object state's fields (plain
     Python values in the model's order, a struct ``msgspec`` writes): sigmas, speed and
-    heading with their sigmas computed for all of them at once (to first order through the
-    velocity's covariance, as :func:`speed_heading` does for one), blobs from the best
-    member's ``extra``. ``rows``: the tracks' states already stacked (``FusedFrame.rows``),
-    else they are stacked here."""
+    heading with their sigmas (to first order through the velocity's covariance, as
+    :func:`speed_heading`), blobs from the best member's ``extra``. ``rows``: the tracks'
+    states already stacked (``FusedFrame.rows``), else they are stacked here."""
     described = [k for k, t in enumerate(tracks) if t.extra is not None]
     if not described:
         return []
@@ -119,43 +122,43 @@ def _figures(tracks: list[RoomTrack], rows: np.ndarray | None = None) -> list[_O
             [np.concatenate([t.position, t.velocity, t.position_cov.ravel(),
                              t.velocity_cov.ravel()]) for t in tracks]
         )  # fmt: skip
-    v = rows[:, VEL]
-    vc = rows[:, VCOV].reshape(-1, 3, 3)
+    # Plain float math a track: some forty numbers each, where a numpy call apiece would
+    # cost more than the arithmetic (the same formulas as :func:`speed_heading`; a root of
+    # a negative variance is 0, of a NaN NaN).
     ex = np.array([t.extra for t in tracks])
-    # Every float an object's JSON has, in one array read back at once: position and
-    # velocity (0:6), their sigmas (6:12), speed, its sigma, heading, its sigma (12:16), the
-    # blobs' centroids, disparity and size (16:22).
-    num = np.empty((len(tracks), 22))
-    num[:, 0:6] = rows[:, POS.start : VEL.stop]
-    num[:, 6:12] = np.sqrt(np.maximum(rows[:, _SIGMA_COLUMNS], 0.0))
-    speed = num[:, 12]
-    speed[:] = np.sqrt((v * v).sum(axis=1))
-    var_along = np.einsum("ki,kij,kj->k", v, vc, v)
-    moving = speed > 1e-9
-    num[:, 13] = np.where(
-        moving, np.sqrt(np.maximum(var_along, 0.0)) / np.where(moving, speed, 1.0), 0.0
-    )
-    num[:, 14] = np.degrees(np.arctan2(v[:, 0], v[:, 2])) % 360.0
-    ground2 = v[:, 0] ** 2 + v[:, 2] ** 2
-    on_ground = ground2 > 1e-12
-    # g^T C g for g = (vz, 0, -vx) / ground2, the heading's gradient, in closed form.
-    vx, vz = v[:, 0], v[:, 2]
-    c = rows[:, VCOV]
-    var_heading = (vz * vz * c[:, 0] - vx * vz * (c[:, 2] + c[:, 6]) + vx * vx * c[:, 8]) / (
-        np.where(on_ground, ground2, 1.0) ** 2
-    )
-    num[:, 15] = np.degrees(np.sqrt(np.maximum(var_heading, 0.0)))
-    num[:, 16:22] = ex[:, _FLOAT_COLUMNS]
+    floats = ex[:, _FLOAT_COLUMNS].tolist()
     ints = np.rint(ex[:, _INT_COLUMNS]).astype(np.int64).tolist()
+    sigmas = np.sqrt(np.maximum(rows[:, _SIGMA_COLUMNS], 0.0)).tolist()
+    sqrt, atan2 = math.sqrt, math.atan2
     out = []
-    for t, x, ni, ground in zip(tracks, num.tolist(), ints, on_ground.tolist(), strict=True):
+    for t, r, sg, fl, ni in zip(tracks, rows.tolist(), sigmas, floats, ints, strict=True):
+        vx, vy, vz = r[3], r[4], r[5]
+        c0, c1, c2, c3, c4, c5, c6, c7, c8 = r[VCOV]
+        speed = sqrt(vx * vx + vy * vy + vz * vz)
+        if speed > 1e-9:
+            var_along = (
+                vx * (c0 * vx + c1 * vy + c2 * vz)
+                + vy * (c3 * vx + c4 * vy + c5 * vz)
+                + vz * (c6 * vx + c7 * vy + c8 * vz)
+            )
+            speed_sigma = (0.0 if var_along < 0.0 else sqrt(var_along)) / speed
+        else:
+            speed_sigma = 0.0
+        ground2 = vx * vx + vz * vz
+        heading_sigma = None
+        if ground2 > 1e-12:
+            # g^T C g for g = (vz, 0, -vx) / ground2, the heading's gradient.
+            var_heading = (vz * vz * c0 - vx * vz * (c2 + c6) + vx * vx * c8) / (ground2 * ground2)
+            heading_sigma = math.degrees(0.0 if var_heading < 0.0 else sqrt(var_heading))
         out.append(
             _Object(
-                OBJECT_SCHEMA, t.room_id, t.state.value, t.stamp_utc_ns, t.stamp_utc_ns, ni[0],
-                x[0:3], x[6:9], x[3:6], x[9:12], t.velocity_valid, t.heading_valid, x[12],
-                x[13], x[14], x[15] if ground else None, None,
-                _Blob(x[16:18], ni[1:5], ni[5]), _Blob(x[18:20], ni[6:10], ni[10]),
-                x[20], x[21], (t.stamp_utc_ns - t.first_ns) * 1e-9, None, None,
+                OBJECT_SCHEMA, t.room_id, _STATE_NAME[t.state], t.stamp_utc_ns, t.stamp_utc_ns,
+                ni[0], r[0:3],
+                sg[0:3], [vx, vy, vz], sg[3:6],
+                t.velocity_valid, t.heading_valid, speed, speed_sigma,
+                math.degrees(atan2(vx, vz)) % 360.0, heading_sigma, None,
+                _Blob(fl[0:2], ni[1:5], ni[5]), _Blob(fl[2:4], ni[6:10], ni[10]),
+                fl[4], fl[5], (t.stamp_utc_ns - t.first_ns) * 1e-9, None, None,
             )
         )  # fmt: skip
     return out
@@ -232,5 +235,11 @@ def join_room(
 ) -> bytes:
     """The room's objects message from its objects' JSON (:func:`object_payloads`), stamped
     ``t_ns`` (UTC ns; each object keeps its own stamp)."""
-    head = _ENCODER.encode(_head(room, seq, t_ns, geometry, fuse_ms))
-    return head[:-1] + b',"objects":[' + b",".join(states) + b"]}"
+    head = _ENCODER.encode(_head(room, seq, t_ns, geometry, fuse_ms))[:-1] + b',"objects":['
+    if not states:
+        return head + b"]}"
+    # One join makes the whole payload (some 100 kB with 160 tracks): the head goes onto the
+    # first object and the tail onto the last, so the big buffer is allocated and copied once.
+    if len(states) == 1:
+        return head + states[0] + b"]}"
+    return b",".join([head + states[0], *states[1:-1], states[-1] + b"]}"])

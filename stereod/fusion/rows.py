@@ -24,6 +24,10 @@ WIDTH = 24
 SEEN, MOVING, VVALID, HVALID = range(4)
 """Columns of :attr:`Table.flags`: measured in this pair, measured and not stationary,
 velocity valid, heading valid."""
+_SEEN_MOVING = np.zeros((4, 2), dtype=bool)
+_SEEN_MOVING[CONFIRMED] = True, True
+_SEEN_MOVING[STATIONARY] = True, False
+"""By lifecycle code, the :data:`SEEN` and :data:`MOVING` flags."""
 DIAG = np.array([0, 4, 8])
 """The diagonal's columns in a row-major 3x3 matrix of nine columns."""
 DIAG_P = np.array([6, 10, 14])
@@ -94,6 +98,27 @@ def fuse_groups(
     return mean, 0.5 * (c + c[:, TRANSPOSE])
 
 
+def fuse_states(f: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """:func:`fuse_groups` of position and velocity at once, on rows of :data:`WIDTH` columns:
+    ``f`` (n, WIDTH), run ``g`` from ``starts[g]`` to the next start; returns each run's fused
+    row (k, WIDTH). A row's position and velocity are two consecutive 3-vectors, and their
+    covariances two consecutive 3x3 matrices, so both are one stacked operation of 2n rows
+    with no copy into separate position and velocity arrays."""
+    n = len(f)
+    means = f[:, POS.start : VEL.stop].reshape(2 * n, 3)
+    info = inv3(f[:, PCOV.start : VCOV.stop].reshape(2 * n, 9))
+    both = np.empty((2 * n, 12))
+    both[:, :9] = info
+    np.matmul(info.reshape(-1, 3, 3), means[:, :, None], out=both[:, 9:, None])
+    if len(starts) < n:
+        both = np.add.reduceat(both.reshape(n, 24), starts, axis=0).reshape(-1, 12)
+    c = inv3(both[:, :9])
+    out = np.empty((len(starts), WIDTH))
+    out[:, POS.start : VEL.stop] = matvec3(c, both[:, 9:]).reshape(-1, 6)
+    out[:, PCOV.start : VCOV.stop] = (0.5 * (c + c[:, TRANSPOSE])).reshape(-1, 18)
+    return out
+
+
 def gate_d2(x: np.ndarray, x_cov: np.ndarray, m: np.ndarray, m_cov: np.ndarray) -> np.ndarray:
     """Squared Mahalanobis distances of pairs of independent positions, (n,): ``x`` and ``m``
     (n, 3), their covariances (n, 9)."""
@@ -134,6 +159,7 @@ class Table:
         """Rig name -> its rows' track ids, in row order."""
         self.index: dict[str, dict[int, int]] = {}
         """Rig name -> track id -> its row in the table."""
+        self._spreads: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def _grow(self, blocks: int, capacity: int) -> None:
         """Make room for ``blocks`` blocks of ``capacity`` rows, keeping every rig's rows."""
@@ -169,27 +195,36 @@ class Table:
                        max(self.capacity, 2 * n))  # fmt: skip
         base = self.blocks[rig] * self.capacity
         ps, vs = w.position_sigma, w.velocity_sigma
-        sig = np.concatenate([
-            np.where(np.isfinite(ps), ps, 1.0),
-            np.where(np.isfinite(vs), vs, UNKNOWN_VELOCITY_SIGMA_MPS),
-        ])  # fmt: skip
+        sig = np.concatenate([ps, vs])
+        if not np.isfinite(sig).all():
+            sig[:n] = np.where(np.isfinite(ps), ps, 1.0)
+            sig[n:] = np.where(np.isfinite(vs), vs, UNKNOWN_VELOCITY_SIGMA_MPS)
         r = rotation
         rows = self.f[base : base + n]
         rows[:, POS] = w.position @ r.T + translation
         rows[:, VEL] = w.velocity @ r.T
-        # R diag(s^2) R^T, row-major, is linear in s^2: entry (i, j) = sum_k R_ik R_jk s_k^2.
-        covs = np.square(sig) @ (r[:, None, :] * r[None, :, :]).reshape(9, 3).T
+        covs = np.square(sig) @ self._spread(rig, r)
         rows[:, PCOV], rows[:, VCOV] = covs[:n], covs[n:]
         self.stamps[base : base + n] = w.stamps_ns
         flags = self.flags[base : base + n]
-        flags[:, SEEN] = (w.state == CONFIRMED) | (w.state == STATIONARY)
-        flags[:, MOVING] = w.state == CONFIRMED
+        flags[:, SEEN : MOVING + 1] = _SEEN_MOVING[w.state]
         flags[:, VVALID], flags[:, HVALID] = w.velocity_valid, w.heading_valid
         self.extra[base : base + n] = w.extra
         ids = w.ids.tolist()
         self.ids[rig] = ids
         self.count[rig] = n
         self.index[rig] = dict(zip(ids, range(base, base + n), strict=True))
+
+    def _spread(self, rig: str, rotation: np.ndarray) -> np.ndarray:
+        """(3, 9): squared sigmas (n, 3) times this are ``R diag(s^2) R^T`` row-major (entry
+        (i, j) is ``sum_k R_ik R_jk s_k^2``, linear in s^2); kept per rig while its rotation
+        is the same array."""
+        known = self._spreads.get(rig)
+        if known is not None and known[0] is rotation:
+            return known[1]
+        spread = (rotation[:, None, :] * rotation[None, :, :]).reshape(9, 3).T.copy()
+        self._spreads[rig] = (rotation, spread)
+        return spread
 
     def drop(self, rig: str) -> None:
         """Forget ``rig``'s rows (its block stays its own)."""
