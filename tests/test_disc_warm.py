@@ -36,9 +36,9 @@ def test_a_followed_ball_is_fitted_as_from_cold_in_fewer_steps(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """A ball crossing a 320x240 view, both eyes: every fit after the ball's first frame
-    starts from its last one, lands within 0.015 px of where the fit started from the blob's
-    matte centre lands (and is refused where that one is), and the fits take at least a
-    fifth fewer Gauss-Newton steps in all."""
+    starts from its last one, lands within 0.04 px of where the fit started from the blob's
+    matte centre lands (and is refused where that one is), and the fits take at most 40 %
+    of the Gauss-Newton steps that those take."""
     ball = Ball(heading_deg=60.0, speed_mps=0.7, centre_m=(0.0, 0.1, 1.8), t_on_s=0.2, t_mid_s=0.8)
     scene = Scene(width_px=320, height_px=240, fps=30.0, duration_s=1.4, color=True, balls=[ball])
     batches: list[tuple[list[Candidate], list[Start]]] = []
@@ -76,7 +76,7 @@ def test_a_followed_ball_is_fitted_as_from_cold_in_fewer_steps(
             started += start is not None
             assert (warm is None) == (cold is None)
             if warm is not None and cold is not None:
-                assert math.hypot(warm[0] - cold[0], warm[1] - cold[1]) < 0.015
+                assert math.hypot(warm[0] - cold[0], warm[1] - cold[1]) < 0.04
                 fitted += 1
     assert fitted >= 30 and started >= fitted - 4, (fitted, started)
-    assert warm_steps <= 0.8 * cold_steps, (warm_steps, cold_steps)
+    assert warm_steps <= cold_steps / 2.5, (warm_steps, cold_steps)

@@ -34,6 +34,11 @@ _CONVERGED_PX = 1e-2
 less than five times this (the radius moves the centre only through their coupling): a
 tenth of the fit's own error against the truth. On the shaded-ball fixtures this moves no
 centre by more than 0.012 px from the fit that stops at 0.005 px of the centre alone."""
+_WARM_CONVERGED_PX = 0.05
+"""A fit started from the last frame's (:func:`warm_start`) stops after a step that moves its
+centre less than this (px), and its radius less than five times this: started a few
+hundredths of a pixel from its optimum, one Gauss-Newton step lands within 0.03 px (0.005 px
+median) of where the fit from the blob's centre lands, on the 320x240 ball scenes."""
 _WARM_SHIFT_PX = 0.5
 """A previous fit further than this (px) from its blob's centre does not start the next."""
 _MAX_SHIFT_PX = 1.0
@@ -132,9 +137,10 @@ def warm_start(
     of a disc of its ``area`` (px) scaled as that fit's was; ``last`` holds the previous
     frame's fits as (blob x, y, fit x, y, fit radius, area radius) px, and the nearest blob
     within ``gate_px`` is taken for the same ball (None where there is none). A ball's fit
-    sits 0.05-0.3 px off its matte centroid, by shading and by what the background hides,
+    sits up to 0.3 px off its matte centroid, by shading and by what the background hides,
     which changes little from one frame to the next: started there, the fit is within a few
-    hundredths of a pixel of its optimum, and one or two steps find it instead of three."""
+    hundredths of a pixel of its optimum, and one step lands within 0.03 px of it
+    instead of three (:data:`_WARM_CONVERGED_PX`)."""
     best, near = None, gate_px * gate_px
     for prev in last:
         d2 = (prev[0] - centre[0]) ** 2 + (prev[1] - centre[1]) ** 2
@@ -214,10 +220,12 @@ def disc_fits(
     basis *= inside[:, None]  # a padded pixel: a zero column
     diff = f - b
     theta = start.copy()
+    warm = [False] * nb  # started from the last frame's fit: one step, if a short one
     for j, (i, x0, y0, _, _) in enumerate(windows):
-        warm = None if starts is None else starts[i]
-        if warm is not None:
-            theta[j] = warm[0] - x0, warm[1] - y0, warm[2]
+        at = None if starts is None else starts[i]
+        if at is not None:
+            theta[j] = at[0] - x0, at[1] - y0, at[2]
+            warm[j] = True
     # The Jacobian's rows (one per unknown, pixels along) that differ between channels:
     # d model / d theta per channel (the edge's motion times that channel's contrast), then
     # d model / d beta, the same for all; then a row of zeros and the residuals per channel.
@@ -274,7 +282,8 @@ def disc_fits(
                 continue
             theta[j] += step[:3, 0]
             beta[j] += step[3:, 0].reshape(channels, k)
-            if max(abs(step[0, 0]), abs(step[1, 0]), abs(step[2, 0]) / 5) < _CONVERGED_PX:
+            moved = max(abs(step[0, 0]), abs(step[1, 0]), abs(step[2, 0]) / 5)
+            if moved < (_WARM_CONVERGED_PX if warm[j] else _CONVERGED_PX):
                 todo.remove(j)
         if not todo:
             break
