@@ -69,7 +69,7 @@ from stereod.vision.background import GAIN_RESCALE, QUIET_LEVELS, BackgroundMode
 from stereod.vision.blobs import Blobs, groups
 from stereod.vision.centroids import coverage_centroid, matte_centroid
 from stereod.vision.detect_params import Centroid, DetectorParams
-from stereod.vision.disc import Candidate, disc_centres, is_round
+from stereod.vision.disc import Candidate, disc_centres, is_round, warm_start
 from stereod.vision.luminance import luminance, mean_channels
 from stereod.vision.rects import Rect, above_any, grown_rect
 from stereod.vision.shadows import scene_changed, shadow_mask
@@ -126,9 +126,16 @@ class Detector(BackgroundModel):
         """Frames that were saturated (see the module docstring) and reported empty."""
         self._saturated_run = 0
         self._fit_later = False
-        self._deferred: list[tuple[int, Candidate, tuple[int, int]]] = []
+        self._deferred: list[
+            tuple[int, Candidate, tuple[int, int], tuple[float, float, float] | None]
+        ] = []
         """The last frame's round blobs left to :func:`fit_round_blobs`: each one's index,
-        its candidate in the foreground's rectangle and that rectangle's origin (x, y px)."""
+        its candidate in the foreground's rectangle, that rectangle's origin (x, y px) and
+        where its fit starts (:func:`stereod.vision.disc.warm_start`, in the rectangle)."""
+        self._fitted: list[tuple[float, float, float, float, float, float]] = []
+        """The last fitted frame's disc fits, where the next frame's start
+        (:func:`stereod.vision.disc.warm_start`): each blob's centre (x, y), its fit's
+        centre (x, y) and radius, and the radius of a disc of its area (image px)."""
 
     @property
     def mask(self) -> np.ndarray | None:
@@ -361,7 +368,8 @@ class Detector(BackgroundModel):
         p = self.params
         centres: list[tuple[float, float]] = []
         boxes, areas, supports = [], [], []
-        fits: list[tuple[int, Candidate]] = []  # the round blobs' disc fits, all in one batch
+        # the round blobs' disc fits, all in one batch, and where each starts
+        fits: list[tuple[int, Candidate, tuple[float, float, float] | None]] = []
         for group in groups(contours, p.merge_gap):
             points = group[0] if len(group) == 1 else np.concatenate(group)
             x, y, bw, bh = cv2.boundingRect(points)
@@ -381,9 +389,11 @@ class Detector(BackgroundModel):
                 cx, cy = matte_centroid(own, frame, background, diff, at, p.threshold)
                 centre = (cx + origin[0], cy + origin[1])
                 if max(bw, bh) <= p.disc_max_px and is_round(own, area):
-                    fits.append(
-                        (len(centres), Candidate(frame, background, (*at, bw, bh), (cx, cy), area))
-                    )
+                    start = warm_start(centre, area, self._fitted, max(bw, bh))
+                    if start is not None:
+                        start = (start[0] - origin[0], start[1] - origin[1], start[2])
+                    blob = Candidate(frame, background, (*at, bw, bh), (cx, cy), area)
+                    fits.append((len(centres), blob, start))
             elif p.centroid is not Centroid.BINARY:
                 cx, cy = coverage_centroid(own, diff, (x - origin[0], y - origin[1]), p.threshold)
                 centre = (cx + origin[0], cy + origin[1])
@@ -402,7 +412,9 @@ class Detector(BackgroundModel):
             area_px=np.asarray(areas, np.int32),
             support=tuple(supports),
         )
-        self._deferred = [(k, c, origin) for k, c in fits]
+        self._deferred = [(k, c, origin, start) for k, c, start in fits]
+        if not fits:
+            self._fitted = []
         if fits and not self._fit_later:
             fit_round_blobs([(self, blobs)])
         return blobs
@@ -414,12 +426,16 @@ def fit_round_blobs(eyes: Sequence[tuple[Detector, Blobs]]) -> None:
     (:func:`stereod.vision.disc.disc_centres`): every eye's in one batch, which costs about
     what one eye's alone does. The fitted centres (image px) replace the matte ones in place;
     a fit that is not to be trusted leaves its blob's."""
-    jobs = [(blobs, job) for det, blobs in eyes for job in det._deferred]
+    jobs = [(det, blobs, job) for det, blobs in eyes for job in det._deferred]
     for det, _ in eyes:
-        det._deferred = []
+        det._deferred, det._fitted = [], []
     if not jobs:
         return
-    fits = disc_centres([c for _, (_, c, _) in jobs])
-    for (blobs, (k, _, origin)), fit in zip(jobs, fits, strict=True):
+    radii: list[float] = []
+    cands = [c for _, _, (_, c, _, _) in jobs]
+    fits = disc_centres(cands, [start for _, _, (*_, start) in jobs], radii)
+    for (det, blobs, (k, c, (ox, oy), _)), fit, r in zip(jobs, fits, radii, strict=True):
         if fit is not None:
-            blobs.centroid_px[k] = fit[0] + origin[0], fit[1] + origin[1]
+            blobs.centroid_px[k] = fit[0] + ox, fit[1] + oy
+            at = (c.centre[0] + ox, c.centre[1] + oy, fit[0] + ox, fit[1] + oy, r)
+            det._fitted.append((*at, math.sqrt(c.area / math.pi)))
