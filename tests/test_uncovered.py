@@ -12,6 +12,7 @@ from stereod.vision.blobs import Blobs
 from stereod.vision.detect import Detector
 from stereod.vision.detect_params import DetectorParams
 from stereod.vision.uncovered import (
+    MAX_CROP_PX,
     OBJECT_SCORE,
     UNCOVERED_SCORE,
     blob_scores,
@@ -172,3 +173,17 @@ def test_the_detectors_uncovered_blob_is_relearned_at_once(color: bool) -> None:
     again = eyes[0].find(frame, t_ns)
     assert len(again) == 2
     assert not any(x <= c[0] < x + w and y <= c[1] < y + h for c in again.centroid_px)
+
+
+def test_a_large_blob_is_scored_alike_at_half_resolution() -> None:
+    """The scene three times larger: the crops around the old and the new box exceed
+    ``MAX_CROP_PX`` and are scored at half resolution, with the same verdicts."""
+    bg, frame = scene()
+    big = (3 * W, 3 * H)
+    bg3 = cv2.resize(bg, big, interpolation=cv2.INTER_LINEAR).astype(np.float32)
+    frame3 = cv2.resize(frame, big, interpolation=cv2.INTER_LINEAR)
+    for box, gone in ((BOX_THEN, True), (BOX_NOW, False)):
+        x, y, w, h = (3 * v for v in box)
+        assert (w + 6) * (h + 6) > MAX_CROP_PX
+        support, at = rect_support((x, y, w, h))
+        assert uncovered(outline_scores(frame3, bg3, support, at)) is gone
