@@ -379,6 +379,34 @@ def test_a_piece_of_a_tracked_object_starts_no_track() -> None:
     assert {s.track_id for s in states} == {1}
 
 
+def test_uncovered_background_is_taken_by_no_track_and_starts_none() -> None:
+    """A robot pushes a box away and backs off: the floor the box uncovered is a blob where
+    the robot's track predicts it, nearer than the robot's own blob. Marked uncovered (its
+    outline is the background's edges, :mod:`stereod.vision.uncovered`), it is no object: the
+    track takes the robot's blob, and the floor starts no track, however long it stays."""
+    tracker = Tracker(TrackerParams())
+    robot = line([0.1, 0.0, 2.0], [-0.3, 0.0, 0.0])
+    for k in range(8):
+        step(tracker, k * DT_NS, [robot(k * DT_NS * 1e-9)], size_m=0.2)
+    floor_at = robot(8 * DT_NS * 1e-9)  # where the track predicts the robot next
+    for k in range(8, 30):
+        t = k * DT_NS
+        real, real_ob = seen(robot(t * 1e-9) - np.array([0.02, 0.0, 0.0]), size_m=0.2)
+        floor, _ = seen(floor_at, size_m=0.2)
+        floor = dataclasses.replace(floor, uncovered=True)
+        assignment, may_start = tracker.associate([floor, real], (t, t))
+        assert assignment == [None, 1] and not may_start[0]
+        obs = [None, real_ob]
+        states, ended = tracker.update(t, obs, assignment, (t, t), [floor, real])
+        assert [s.track_id for s in states] == [1] and not ended
+        assert abs(states[0].position_m[0] - real_ob.position_m[0]) < 0.03
+    # With no track at all, uncovered background starts none either.
+    fresh = Tracker(TrackerParams())
+    floor, _ = seen(floor_at, size_m=0.2)
+    floor = dataclasses.replace(floor, uncovered=True)
+    assert fresh.associate([floor], (0, 0)) == ([None], [False])
+
+
 def union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The box (x, y, w, h) around two boxes."""
     x0, y0 = min(a[0], b[0]), min(a[1], b[1])
