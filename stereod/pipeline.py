@@ -48,6 +48,7 @@ from stereod.vision.geometry.triangulate import (
 )
 from stereod.vision.grouping import GroupParams, group_objects
 from stereod.vision.rects import Rect, box_rect
+from stereod.vision.uncovered import left_behind
 
 log = logging.getLogger(__name__)
 
@@ -399,7 +400,8 @@ class Pipeline:
         compensate = p.skew_compensation and (t_left != t_right or self._line_ns > 0.0)
         t_ns = skew.common_instant(t_left, t_right) if compensate else pair.t_ns
         m = self._match(pair, lb, rb, eye_times)
-        detections, assignment, may_start = self._associate(m, eye_times)
+        gone = left_behind(m.left, m.right, m.matches, (self.left, self.right))  # relearned now
+        detections, assignment, may_start = self._associate(m, eye_times, gone)
         blob_times = blob_instants(m.left, m.right, m.matches, eye_times, self._line_ns)
         observations: list[Observation | None] = []
         for k, tid in enumerate(assignment):
@@ -495,17 +497,15 @@ class Pipeline:
         return Matched(lb, rb, idx, lpx, rpx)
 
     def _associate(
-        self, m: Matched, eye_times: tuple[int, int]
+        self, m: Matched, eye_times: tuple[int, int], gone: list[bool] | None = None
     ) -> tuple[list[Detection], list[int | None], list[bool]]:
-        """The associate stage: the matched pairs as the tracker's detections, each with the
-        fastest image motion it can have (:func:`measure.detections`), each given to a track
-        in the images, each eye at its own instant (``eye_times``, ns, plus the rolling
-        shutter's delay to the track's rows). Gives the detections, each one's track id
-        (None: none) and whether one without a track may start one."""
-        p = self.params
+        """The associate stage: the matched pairs as detections (:func:`measure.detections`;
+        ``gone``: uncovered background, which no track takes), each given to a track in the
+        images, each eye at its own instant (``eye_times``, ns, plus the rolling shutter's
+        delay): the detections, their track ids (None: none), whether each may start one."""
         detections = measure.detections(
-            m.left, m.right, m.matches, m.left_px, m.right_px, p.rig,
-            p.tracker.max_speed_mps, p.max_image_speed_wps,
+            m.left, m.right, m.matches, m.left_px, m.right_px, self.params.rig,
+            self.params.tracker.max_speed_mps, self.params.max_image_speed_wps, gone,
         )  # fmt: skip
         assignment, may_start = self.tracker.associate(detections, eye_times)
         return detections, assignment, may_start

@@ -252,6 +252,42 @@ def test_the_nearer_of_two_crossing_objects_is_seen_by_its_free_side() -> None:
     assert merged_frames >= 8
 
 
+def test_a_free_edge_beyond_the_objects_own_outline_is_not_taken() -> None:
+    """The crossing above, but in two of the merged frames more shows beyond the near
+    person's free side (what shows of the other as they part, in both eyes): read by that
+    edge, they would jump 0.35 m across, more than their own outline is wide. Such a reading
+    is not theirs: their filter predicts through it, and stays on them."""
+    tracker = Tracker(TrackerParams())
+    near = line([-0.3, 0.0, 1.5], [0.5, 0.0, 0.0])
+    far = line([0.35, 0.0, 2.5], [-0.6, 0.0, 0.0])
+    size_m = 0.3
+    merged = 0
+    for k in range(36):
+        t = k * DT_NS
+        a, b = near(t * 1e-9), far(t * 1e-9)
+        (det_a, _), (det_b, _) = seen(a, size_m=size_m), seen(b, size_m=size_m)
+        if k >= 10 and _iou(det_a.left_bbox_px, det_b.left_bbox_px) > 0.0:
+            merged += 1
+            det, ob = merged_seen(a, b, size_m)
+            if merged in (3, 4):  # 0.35 m more on both sides, in both eyes
+                grow = 0.35 * RIG.focal_px / a[2]
+                wider = np.array([-grow, 0.0, 2.0 * grow, 0.0])
+                boxes = {"left_bbox_px": ob.left_bbox_px + wider}
+                boxes["right_bbox_px"] = ob.right_bbox_px + wider
+                det = dataclasses.replace(det, **boxes)
+                width_m = float(boxes["left_bbox_px"][2]) * float(ob.position_m[2]) / RIG.focal_px
+                ob = dataclasses.replace(ob, size_m=width_m, **boxes)
+            assignment, _ = tracker.associate([det], (t, t))
+            states, _ = tracker.update(t, [ob], assignment, (t, t), [det])
+        else:
+            states, _ = step(tracker, t, [a, b], size_m=size_m)
+        by_id = {s.track_id: s for s in states}
+        assert set(by_id) == {1, 2}, (k, set(by_id))
+        if k >= 3:
+            assert abs(float(by_id[1].position_m[0]) - a[0]) < 0.08, (k, by_id[1].position_m)
+    assert merged >= 8
+
+
 def test_a_blob_that_holds_an_unseen_track_starts_no_track_of_its_own() -> None:
     """A ball rolls past a low lamp: for 10 frames its long shadow joins its blob in both eyes,
     whose centroid then lies 40 px off the ball's, beyond any gate. The blob holds where the
@@ -377,6 +413,34 @@ def test_a_piece_of_a_tracked_object_starts_no_track() -> None:
         ]
         states, _ = tracker.update(t, obs, assignment, (t, t), [main, piece])
     assert {s.track_id for s in states} == {1}
+
+
+def test_uncovered_background_is_taken_by_no_track_and_starts_none() -> None:
+    """A robot pushes a box away and backs off: the floor the box uncovered is a blob where
+    the robot's track predicts it, nearer than the robot's own blob. Marked uncovered (its
+    outline is the background's edges, :mod:`stereod.vision.uncovered`), it is no object: the
+    track takes the robot's blob, and the floor starts no track, however long it stays."""
+    tracker = Tracker(TrackerParams())
+    robot = line([0.1, 0.0, 2.0], [-0.3, 0.0, 0.0])
+    for k in range(8):
+        step(tracker, k * DT_NS, [robot(k * DT_NS * 1e-9)], size_m=0.2)
+    floor_at = robot(8 * DT_NS * 1e-9)  # where the track predicts the robot next
+    for k in range(8, 30):
+        t = k * DT_NS
+        real, real_ob = seen(robot(t * 1e-9) - np.array([0.02, 0.0, 0.0]), size_m=0.2)
+        floor, _ = seen(floor_at, size_m=0.2)
+        floor = dataclasses.replace(floor, uncovered=True)
+        assignment, may_start = tracker.associate([floor, real], (t, t))
+        assert assignment == [None, 1] and not may_start[0]
+        obs = [None, real_ob]
+        states, ended = tracker.update(t, obs, assignment, (t, t), [floor, real])
+        assert [s.track_id for s in states] == [1] and not ended
+        assert abs(states[0].position_m[0] - real_ob.position_m[0]) < 0.03
+    # With no track at all, uncovered background starts none either.
+    fresh = Tracker(TrackerParams())
+    floor, _ = seen(floor_at, size_m=0.2)
+    floor = dataclasses.replace(floor, uncovered=True)
+    assert fresh.associate([floor], (0, 0)) == ([None], [False])
 
 
 def union(a: np.ndarray, b: np.ndarray) -> np.ndarray:

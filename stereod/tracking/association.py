@@ -192,7 +192,8 @@ class Association(TrackFilters):
         self, detections: list[Detection], eye_times_ns: tuple[int, int]
     ) -> tuple[list[int | None], list[bool]]:
         """The track each detection belongs to (``None``: none), and whether a detection
-        without a track may start one (not a piece of a live object, not two objects merged)."""
+        without a track may start one (not a piece of a live object, not two objects merged,
+        not background a moved object uncovered: that is no object, and no track takes it)."""
         p = self.params
         n = len(detections)
         out: list[int | None] = [None] * n
@@ -205,8 +206,9 @@ class Association(TrackFilters):
             return out, may_start
         centres = np.array([(d.left_px, d.right_px) for d in detections], np.float64)
         bboxes = np.array([(d.left_bbox_px, d.right_bbox_px) for d in detections], np.float64)
+        gone = np.array([d.uncovered for d in detections])
         if not tracks:
-            return out, (~_pieces(detections, centres, bboxes, out, [])).tolist()
+            return out, (~_pieces(detections, centres, bboxes, out, []) & ~gone).tolist()
         k = len(tracks)
         confirmed = np.array([self._confirmed(tr) for tr in tracks])
         boxes = []
@@ -253,11 +255,12 @@ class Association(TrackFilters):
             & (_ious(bboxes[:, 1], last[1]) >= RESUME_IOU)
         )
         cost[resumes] = RESUME_COST
+        cost[gone] = np.inf
         # whether each track's prediction falls in each detection's box, left and right eye
         inside = np.stack((_insides(ends[0], bboxes[:, 0]), _insides(ends[2], bboxes[:, 1])))
         for i, d in enumerate(detections):
             in_left, in_right = inside[0, i] & confirmed, inside[1, i] & confirmed
-            if in_left.sum() < 2 and in_right.sum() < 2:
+            if gone[i] or (in_left.sum() < 2 and in_right.sum() < 2):
                 continue
             hosts = np.flatnonzero(in_left | in_right)
             self._shared.add(i)
@@ -323,7 +326,7 @@ class Association(TrackFilters):
         for i in range(n):
             if out[i] is None and may_start[i]:
                 holds = any(inside[0, i, j] and inside[1, i, j] for j in unseen)
-                may_start[i] = not holds and not bool(piece[i])
+                may_start[i] = not holds and not bool(piece[i]) and not gone[i]
         # A blob that would start a track but came out, in both eyes, of the blob that hid a
         # confirmed track in the last pair is that object reappearing (two people who crossed
         # part): it takes that track, the nearest to its prediction if several.

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -30,11 +31,13 @@ def detections(
     rig: CanonicalRig | CalibratedRig,
     max_speed_mps: float,
     max_image_speed_wps: float,
+    uncovered: Sequence[bool] | None = None,
 ) -> list[Detection]:
     """Matched blob pairs as the tracker's detections (rectified px), each with the fastest
     image motion it can have: ``max_speed_mps`` at its depth (f / Z = disparity / B pixels
     per metre), or the fastest image motion at all (``max_image_speed_wps`` image widths a
-    second) when its disparity is too small to say (a skewed first sight of a fast object)."""
+    second) when its disparity is too small to say (a skewed first sight of a fast object);
+    ``uncovered``: which pairs are background a moved object uncovered (default: none)."""
     ceiling = max_image_speed_wps * rig.width_px
     out = []
     for k, (i, j) in enumerate(idx):
@@ -50,6 +53,7 @@ def detections(
                 image_speed_pxps=limit,
                 clipped=touches_side(lb.bbox_px[i], rig) or touches_side(rb.bbox_px[j], rig),
                 cut=cut_rows(lb.bbox_px[i], rig) or cut_rows(rb.bbox_px[j], rig),
+                uncovered=bool(uncovered[k]) if uncovered is not None else False,
             )
         )
     return out

@@ -49,6 +49,10 @@ class Detection:
     cut: bool = False
     """A blob touches the image's top or bottom border: its height is unknown, its disparity
     holds (both eyes lose the same rectified rows)."""
+    uncovered: bool = False
+    """Both blobs are background a moved object uncovered (along their outlines the background
+    model has edges the frame lacks: :mod:`stereod.vision.uncovered`): no track takes it or
+    starts on it."""
 
 
 @dataclass(frozen=True, slots=True)

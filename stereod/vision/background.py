@@ -135,6 +135,35 @@ class BackgroundModel:
         first frame."""
         return self._background
 
+    @property
+    def frame(self) -> np.ndarray | None:
+        """The frame last given to :meth:`stereod.vision.detect.Detector.find`, as T stores it
+        (grey or BGR uint8), until :meth:`learn` takes it; ``None`` then."""
+        return self._frame
+
+    def relearn(self, support: np.ndarray, at: tuple[int, int]) -> None:
+        """Make T the last frame at once under a blob's ``support`` (uint8, 255 on it, its
+        top-left corner at ``at``: x, y px), grown by ``hold_margin_px`` as its hold is: what
+        a moved object uncovered (:mod:`stereod.vision.uncovered`) is background now, not
+        after ``absorb_s``. Does nothing without a frame (after :meth:`learn`) or a T."""
+        frame, bg = self._frame, self._background
+        if frame is None or bg is None or self.warming_up:
+            return
+        m = self.params.hold_margin_px
+        sh, sw = support.shape[:2]
+        h, w = bg.shape[:2]
+        x0, y0 = max(at[0] - m, 0), max(at[1] - m, 0)
+        x1, y1 = min(at[0] + sw + m, w), min(at[1] + sh + m, h)
+        if x1 <= x0 or y1 <= y0:
+            return
+        mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        mask[at[1] - y0 : at[1] - y0 + sh, at[0] - x0 : at[0] - x0 + sw] = support
+        if self._hold is not None:
+            mask = cv2.dilate(mask, self._hold)
+        where = (mask != 0)[..., None] if bg.ndim == 3 else mask != 0
+        np.copyto(bg[y0:y1, x0:x1], frame[y0:y1, x0:x1], where=where)
+        self._coarse = None  # T changed: its first pass's rows are rounded again
+
     def _coarse_background(self, bg: np.ndarray) -> np.ndarray:
         """T on the first pass's rows rounded to grey levels (uint8): the cached copy, or
         taken from the whole of ``bg`` when there is none. Eq. 3's rows are brought up to date
