@@ -72,16 +72,23 @@ def ray_cov(position: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     the ray. Y keeps its own error (the pipeline's does not follow the ray on the rendered
     rooms). A point at or behind the rig (Z <= 1 cm) keeps the diagonal."""
     s2 = np.square(sigma)
+    cov = np.zeros((len(s2), 3, 3))
+    cov[:, [0, 1, 2], [0, 1, 2]] = s2
+    cov[:, 0, 2] = cov[:, 2, 0] = ray_xz(position, sigma)
+    return cov
+
+
+def ray_xz(position: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """(n,) the X-Z covariance :func:`ray_cov` puts back, m^2 (0 where it keeps the
+    diagonal)."""
+    s2 = np.square(sigma)
     z = position[:, 2]
     ok = np.isfinite(position).all(axis=1) & np.isfinite(s2).all(axis=1) & (z > 0.01)
     wx = np.where(ok, position[:, 0] / np.where(ok, z, 1.0), 0.0)
     share = s2[:, 2] * np.square(wx)
     room = (1.0 - RAY_LATERAL_FLOOR**2) * s2[:, 0]
     wx *= np.where(share > room, room / np.where(share > 0, share, 1.0), 1.0)
-    cov = np.zeros((len(s2), 3, 3))
-    cov[:, [0, 1, 2], [0, 1, 2]] = s2
-    cov[:, 0, 2] = cov[:, 2, 0] = s2[:, 2] * wx
-    return cov
+    return np.where(ok, s2[:, 2] * wx, 0.0)
 
 
 def to_room(rig: RigPose, obj: ObjectState) -> RigTrack:

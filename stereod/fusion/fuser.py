@@ -520,7 +520,7 @@ class Fuser:
             f = tab.predict_rows(raw, (t_ns - stamps) * 1e-9)
             r = len(idx)
             s = np.array(starts)
-            parts.append(tab.fuse_ray(f, raw, table.ray.take(i, axis=0), s))
+            parts.append(tab.fuse_ray(f, table.ray.take(i, axis=0), s))
             flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0).tolist()
             trace = f[:, DIAG_P].sum(axis=1).tolist()
             stamp_list = stamps.tolist()
