@@ -13,9 +13,10 @@ a rig track to a room track's estimate at ``T`` (the fusion of its linked member
 prediction) is gated by a chi-square bound, a room track takes at most one track of each rig,
 and one minimum-cost assignment (``tracking.assignment.min_cost_assignment``) decides. A
 seen rig track left over opens a new room track. The linked members of a room track are then
-fused in information form, ``P = (sum P_i^-1)^-1``, ``x = P sum P_i^-1 x_i``, for position and
-velocity alike (the rigs measure independently, so the fused error is no larger than the best
-member's).
+fused in information form, ``P = (sum P_i^-1)^-1``, ``x = P sum P_i^-1 x_i``, position with
+each member's covariance along its viewing ray (``frames.ray_cov``; the published diagonal
+where the members disagree beyond it, chi-square at 99.9 %; a lone member as published),
+velocity with the published one.
 
 Why ids survive: a handover is a new rig track gated onto the room track another rig still
 sees (or has seen for less than ``max_coast_s``); a rig that stops talking for ``rig_timeout_s``
@@ -32,8 +33,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stereod.bus.messages import ObjectsMessage
-from stereod.fusion.frames import ACCEL_SIGMA_MPS2, UNKNOWN_VELOCITY_SIGMA_MPS
+from stereod.fusion.frames import ACCEL_SIGMA_MPS2, UNKNOWN_VELOCITY_SIGMA_MPS, ray_cov
 from stereod.fusion.room import Room
+from stereod.fusion.rows import chi2_999
 from stereod.fusion.wire import CONFIRMED, EXTRA, STATIONARY, TENTATIVE, RigWire, from_message
 from stereod.tracking.assignment import min_cost_assignment
 from stereod.tracking.types import TrackLifecycle
@@ -52,6 +54,8 @@ class RigBatch:
     """(n, 3) m."""
     position_cov: np.ndarray
     """(n, 3, 3) m^2."""
+    ray_cov: np.ndarray
+    """(n, 3, 3) the position's covariance along its viewing ray (``frames.ray_cov``), m^2."""
     velocity: np.ndarray
     """(n, 3) m/s."""
     velocity_cov: np.ndarray
@@ -89,6 +93,7 @@ def batch_to_room(wire: RigWire, rotation: np.ndarray, translation: np.ndarray) 
         stamps_ns=w.stamps_ns,
         position=w.position @ r.T + translation,
         position_cov=_rotated_diag(r, psig),
+        ray_cov=r @ ray_cov(w.position, psig) @ r.T,
         velocity=w.velocity @ r.T,
         velocity_cov=_rotated_diag(r, vsig),
         seen=(w.state == CONFIRMED) | (w.state == STATIONARY),
@@ -249,6 +254,7 @@ class _Rows:
             self.stamps = np.concatenate([b.stamps_ns for b in batches])
             self.raw_position = np.concatenate([b.position for b in batches])
             self.raw_cov = np.concatenate([b.position_cov for b in batches])
+            self.ray_cov = np.concatenate([b.ray_cov for b in batches])
             p, pc, v, vc = predict_many(
                 self.raw_position,
                 self.raw_cov,
@@ -260,6 +266,7 @@ class _Rows:
             p, v = np.zeros((0, 3)), np.zeros((0, 3))
             pc, vc = np.zeros((0, 3, 3)), np.zeros((0, 3, 3))
             self.stamps, self.raw_position, self.raw_cov = np.zeros(0, dtype=np.int64), p, pc
+            self.ray_cov = pc
         self.position, self.position_cov, self.velocity, self.velocity_cov = p, pc, v, vc
 
         def stack(name: str, empty: np.ndarray) -> np.ndarray:
@@ -615,6 +622,19 @@ class Fuser:
         info_mean = np.einsum("nij,nj->ni", info, means)
         count2, both, both_cov = _group_fusion(np.concatenate([g, g + k]), 2 * k, info, info_mean)
         count, pos, pcov, vel, vcov = count2[:k], both[:k], both_cov[:k], both[k:], both_cov[k:]
+        # Positions weighed by their covariances along their viewing rays (grown by the
+        # prediction as the published ones are), where the members agree within them.
+        ray = rows.ray_cov[idx] + (rows.position_cov[idx] - rows.raw_cov[idx])
+        rinfo = np.linalg.inv(ray) if idx.size else np.zeros((0, 3, 3))
+        x = rows.position[idx]
+        _, rpos, rpcov = _group_fusion(g, k, rinfo, np.einsum("nij,nj->ni", rinfo, x))
+        d = x - rpos[g]
+        nis = np.zeros(k)
+        np.add.at(nis, g, np.einsum("ni,nij,nj->n", d, rinfo, d))
+        agree = (count > 0) & (nis <= chi2_999(3.0 * (count - 1)))
+        pos[agree], pcov[agree] = rpos[agree], rpcov[agree]
+        alone = count[g] == 1  # a lone member is its own fusion: as published
+        pos[g[alone]], pcov[g[alone]] = x[alone], rows.position_cov[idx][alone]
         coasting = [rid for rid in rids if count[slot[rid]] == 0]
         if coasting:
             trs = [self._tracks[rid] for rid in coasting]

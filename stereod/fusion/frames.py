@@ -23,6 +23,9 @@ UNKNOWN_VELOCITY_SIGMA_MPS = 2.0
 ACCEL_SIGMA_MPS2 = 2.0
 """Acceleration sigma per axis allowed for between a stamp and the instant it is predicted to
 (a person starting or stopping), m/s^2."""
+RAY_LATERAL_FLOOR = 0.1
+"""Least share of the published X sigma left across the viewing ray when the ray's part of the
+depth error is taken out of it (:func:`ray_cov`), dimensionless."""
 
 
 @dataclass(frozen=True)
@@ -56,6 +59,36 @@ def _diag(sigmas: tuple[float, float, float] | None, default: float) -> np.ndarr
     """A diagonal covariance from per-axis sigmas; ``default`` for a missing or non-finite one."""
     s = [default if sigmas is None or not math.isfinite(v) else v for v in (sigmas or (0, 0, 0))]
     return np.diag(np.square(np.asarray(s, dtype=np.float64)))
+
+
+def ray_cov(position: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) position covariances (m^2, rig frame) rebuilt from a message's per-axis sigmas
+    (n, 3) at positions (n, 3) (m), with the same diagonal. A stereo point's depth error, from
+    its horizontal disparity, moves it along its viewing ray: ``X / Z`` in X per unit of depth,
+    so the published X sigma of a point seen off axis holds the ray's share ``s_z X / Z`` of
+    its depth error, and the published diagonal drops that X-Z correlation (a track then
+    weighs across its ray as little as its depth error allows). Here that share is put back
+    as far as the X sigma holds it, leaving at least :data:`RAY_LATERAL_FLOOR` of it across
+    the ray. Y keeps its own error (the pipeline's does not follow the ray on the rendered
+    rooms). A point at or behind the rig (Z <= 1 cm) keeps the diagonal."""
+    s2 = np.square(sigma)
+    cov = np.zeros((len(s2), 3, 3))
+    cov[:, [0, 1, 2], [0, 1, 2]] = s2
+    cov[:, 0, 2] = cov[:, 2, 0] = ray_xz(position, sigma)
+    return cov
+
+
+def ray_xz(position: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """(n,) the X-Z covariance :func:`ray_cov` puts back, m^2 (0 where it keeps the
+    diagonal)."""
+    s2 = np.square(sigma)
+    z = position[:, 2]
+    ok = np.isfinite(position).all(axis=1) & np.isfinite(s2).all(axis=1) & (z > 0.01)
+    wx = np.where(ok, position[:, 0] / np.where(ok, z, 1.0), 0.0)
+    share = s2[:, 2] * np.square(wx)
+    room = (1.0 - RAY_LATERAL_FLOOR**2) * s2[:, 0]
+    wx *= np.where(share > room, room / np.where(share > 0, share, 1.0), 1.0)
+    return np.where(ok, s2[:, 2] * wx, 0.0)
 
 
 def to_room(rig: RigPose, obj: ObjectState) -> RigTrack:

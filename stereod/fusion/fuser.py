@@ -8,9 +8,9 @@ a rig track to a room track's estimate at ``T`` (the fusion of its linked member
 prediction) is gated by a chi-square bound, a room track takes at most one track of each rig,
 and one minimum-cost assignment (``tracking.assignment.min_cost_assignment``) decides. A
 seen rig track left over opens a new room track. The linked members of a room track are then
-fused in information form, ``P = (sum P_i^-1)^-1``, ``x = P sum P_i^-1 x_i``, for position and
-velocity alike (the rigs measure independently, so the fused error is no larger than the best
-member's).
+fused in information form, ``P = (sum P_i^-1)^-1``, ``x = P sum P_i^-1 x_i``, position with
+each member's covariance along its viewing ray (``rows.fuse_ray``; the published diagonal
+where the members disagree beyond it), velocity with the published one.
 
 Why ids survive: a handover is a new rig track gated onto the room track another rig still
 sees (or has seen for less than ``max_coast_s``); a rig that stops talking for ``rig_timeout_s``
@@ -520,7 +520,7 @@ class Fuser:
             f = tab.predict_rows(raw, (t_ns - stamps) * 1e-9)
             r = len(idx)
             s = np.array(starts)
-            parts.append(tab.fuse_states(f, s))
+            parts.append(tab.fuse_ray(f, table.ray.take(i, axis=0), s))
             flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0).tolist()
             trace = f[:, DIAG_P].sum(axis=1).tolist()
             stamp_list = stamps.tolist()

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stereod.fusion.frames import ACCEL_SIGMA_MPS2, UNKNOWN_VELOCITY_SIGMA_MPS
+from stereod.fusion.frames import ACCEL_SIGMA_MPS2, UNKNOWN_VELOCITY_SIGMA_MPS, ray_xz
 from stereod.fusion.wire import CONFIRMED, EXTRA, STATIONARY, TENTATIVE, RigWire
 
 POS, VEL, PCOV, VCOV = slice(0, 3), slice(3, 6), slice(6, 15), slice(15, 24)
@@ -119,6 +119,45 @@ def fuse_states(f: np.ndarray, starts: np.ndarray) -> np.ndarray:
     return out
 
 
+def chi2_999(dof: np.ndarray) -> np.ndarray:
+    """The 99.9 % quantile of a chi-square of ``dof`` degrees of freedom (Wilson and
+    Hilferty's cube-root approximation, within 2 % from 3 dof up; 0 for 0 dof)."""
+    k = np.maximum(dof, 1e-9)
+    q = k * (1.0 - 2.0 / (9.0 * k) + 3.0902 * np.sqrt(2.0 / (9.0 * k))) ** 3
+    return np.where(dof > 0, q, 0.0)
+
+
+_CHI2_BY_SIZE = chi2_999(3.0 * np.maximum(np.arange(65) - 1, 0))
+""":func:`chi2_999` of a run of ``m`` rows' ``3 (m - 1)`` degrees of freedom, by ``m`` (runs of
+more than 64 rows, none in a room, take 64's)."""
+
+
+def fuse_ray(f: np.ndarray, ray: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """:func:`fuse_states` of predicted rows ``f`` (n, WIDTH) with each position weighed by its
+    covariance along its viewing ray: the published one plus ``ray`` (n, 9) (:attr:`Table.ray`;
+    prediction grows both alike). A run whose members disagree beyond that (the sum of their
+    squared Mahalanobis distances to the run's mean above the chi-square bound of ``3 (m - 1)``
+    degrees of freedom at 99.9 %: one is biased, as far as anyone can tell from them) is fused
+    by the published per-axis covariances instead, which do not claim to know a track across
+    its ray to a millimetre. A run of one row is that row, as published. Returns each run's
+    fused row (k, WIDTH)."""
+    size = np.diff(np.append(starts, len(f)))
+    alone = size == 1
+    if alone.all():
+        return f[starts]
+    g = f.copy()
+    g[:, PCOV] += ray
+    out = fuse_states(g, starts)
+    out[alone] = f[starts[alone]]
+    group = np.repeat(np.arange(len(starts)), size)
+    d = f[:, POS] - out[group, POS]
+    j = np.add.reduceat(np.einsum("ni,ni->n", d, matvec3(inv3(g[:, PCOV]), d)), starts)
+    bad = j > _CHI2_BY_SIZE[np.minimum(size, len(_CHI2_BY_SIZE) - 1)]
+    if bad.any():
+        out[bad] = fuse_states(f, starts)[bad]
+    return out
+
+
 def gate_d2(x: np.ndarray, x_cov: np.ndarray, m: np.ndarray, m_cov: np.ndarray) -> np.ndarray:
     """Squared Mahalanobis distances of pairs of independent positions, (n,): ``x`` and ``m``
     (n, 3), their covariances (n, 9)."""
@@ -155,6 +194,9 @@ class Table:
         """Each row's UTC stamp, ns."""
         self.flags = np.zeros((0, 4), dtype=bool)
         self.extra = np.zeros((0, len(EXTRA)))
+        self.ray = np.zeros((0, 9))
+        """What each row's position covariance along its viewing ray (``frames.ray_cov``) adds
+        to its published one, in the room frame, row-major, m^2 (:func:`fuse_ray`)."""
         self.ids: dict[str, list[int]] = {}
         """Rig name -> its rows' track ids, in row order."""
         self.index: dict[str, dict[int, int]] = {}
@@ -164,7 +206,9 @@ class Table:
     def _grow(self, blocks: int, capacity: int) -> None:
         """Make room for ``blocks`` blocks of ``capacity`` rows, keeping every rig's rows."""
         old = (self.f, self.stamps, self.flags, self.extra, self.capacity)
+        ray = self.ray
         n = blocks * capacity
+        self.ray = np.zeros((n, 9))
         self.f = np.zeros((n, WIDTH))
         self.stamps = np.zeros(n, dtype=np.int64)
         self.flags = np.zeros((n, 4), dtype=bool)
@@ -174,6 +218,7 @@ class Table:
             a, b, c = k * cap, k * capacity, self.count.get(rig, 0)
             self.f[b : b + c], self.stamps[b : b + c] = f[a : a + c], stamps[a : a + c]
             self.flags[b : b + c], self.extra[b : b + c] = flags[a : a + c], extra[a : a + c]
+            self.ray[b : b + c] = ray[a : a + c]
         self.capacity = capacity
         self.index = {
             rig: {tid: self.blocks[rig] * capacity + i for i, tid in enumerate(ids)}
@@ -183,7 +228,8 @@ class Table:
     def put(self, wire: RigWire, rotation: np.ndarray, translation: np.ndarray) -> None:
         """Rig ``wire.rig``'s message, its not tentative objects moved into the room frame
         (``p' = R p + t``, ``v' = R v``, ``P' = R P R^T``; a missing or non-finite sigma as
-        ``frames.to_room`` takes it), in place of that rig's previous rows."""
+        ``frames.to_room`` takes it), in place of that rig's previous rows; :attr:`ray` what
+        the position's covariance along its viewing ray (``frames.ray_cov``) adds to that."""
         w = wire if not (wire.state == TENTATIVE).any() else wire.select(wire.state != TENTATIVE)
         n = len(w.ids)
         rig = w.rig
@@ -205,6 +251,9 @@ class Table:
         rows[:, VEL] = w.velocity @ r.T
         covs = np.square(sig) @ self._spread(rig, r)
         rows[:, PCOV], rows[:, VCOV] = covs[:n], covs[n:]
+        # R C R^T of the X-Z covariance alone: c (R_x R_z^T + R_z R_x^T), R_x, R_z R's columns.
+        xz = np.outer(r[:, 0], r[:, 2])
+        self.ray[base : base + n] = np.outer(ray_xz(w.position, sig[:n]), (xz + xz.T).ravel())
         self.stamps[base : base + n] = w.stamps_ns
         flags = self.flags[base : base + n]
         flags[:, SEEN : MOVING + 1] = _SEEN_MOVING[w.state]
