@@ -217,6 +217,22 @@ def merged_seen(
     return det, ob
 
 
+CROSSING_SIZE_M = 0.3
+"""Width (m) of each of the two crossing objects below."""
+
+
+def crossing_pairs():
+    """A person at 1.5 m walking in front of one at 2.5 m, 36 frames: (k, t ns, near's and far's
+    positions m, whether their left boxes overlap from frame 10 on, as one blob)."""
+    near = line([-0.3, 0.0, 1.5], [0.5, 0.0, 0.0])
+    far = line([0.35, 0.0, 2.5], [-0.6, 0.0, 0.0])
+    for k in range(36):
+        t = k * DT_NS
+        a, b = near(t * 1e-9), far(t * 1e-9)
+        (det_a, _), (det_b, _) = seen(a, size_m=CROSSING_SIZE_M), seen(b, size_m=CROSSING_SIZE_M)
+        yield k, t, a, b, k >= 10 and _iou(det_a.left_bbox_px, det_b.left_bbox_px) > 0.0
+
+
 def test_the_nearer_of_two_crossing_objects_is_seen_by_its_free_side() -> None:
     """A person at 1.5 m walks in front of one at 2.5 m: for a dozen frames each eye sees one
     blob of the two, whose centroid and disparity are a blend (its depth 0.2 m off). The nearer
@@ -224,17 +240,11 @@ def test_the_nearer_of_two_crossing_objects_is_seen_by_its_free_side() -> None:
     edges, its depth holds, and it stays seen; the one behind coasts, and both keep their
     ids (before, both coasted)."""
     tracker = Tracker(TrackerParams())
-    near = line([-0.3, 0.0, 1.5], [0.5, 0.0, 0.0])
-    far = line([0.35, 0.0, 2.5], [-0.6, 0.0, 0.0])
-    size_m = 0.3
     merged_frames = 0
-    for k in range(36):
-        t = k * DT_NS
-        a, b = near(t * 1e-9), far(t * 1e-9)
-        (det_a, _), (det_b, _) = seen(a, size_m=size_m), seen(b, size_m=size_m)
-        if k >= 10 and _iou(det_a.left_bbox_px, det_b.left_bbox_px) > 0.0:
+    for k, t, a, b, joined in crossing_pairs():
+        if joined:
             merged_frames += 1
-            det, ob = merged_seen(a, b, size_m)
+            det, ob = merged_seen(a, b, CROSSING_SIZE_M)
             assignment, _ = tracker.associate([det], (t, t))
             assert abs(float(ob.position_m[2]) - a[2]) > 0.1  # the blend is off in depth
             states, _ = tracker.update(t, [ob], assignment, (t, t), [det])
@@ -243,7 +253,7 @@ def test_the_nearer_of_two_crossing_objects_is_seen_by_its_free_side() -> None:
             assert abs(float(by_id[1].position_m[2]) - a[2]) < 0.05
             assert by_id[2].lifecycle is TrackLifecycle.COASTING
             continue
-        states, _ = step(tracker, t, [a, b], size_m=size_m)
+        states, _ = step(tracker, t, [a, b], size_m=CROSSING_SIZE_M)
         by_id = {s.track_id: s for s in states}
         assert set(by_id) == {1, 2}
         if k >= 3:
@@ -258,17 +268,11 @@ def test_a_free_edge_beyond_the_objects_own_outline_is_not_taken() -> None:
     edge, they would jump 0.35 m across, more than their own outline is wide. Such a reading
     is not theirs: their filter predicts through it, and stays on them."""
     tracker = Tracker(TrackerParams())
-    near = line([-0.3, 0.0, 1.5], [0.5, 0.0, 0.0])
-    far = line([0.35, 0.0, 2.5], [-0.6, 0.0, 0.0])
-    size_m = 0.3
     merged = 0
-    for k in range(36):
-        t = k * DT_NS
-        a, b = near(t * 1e-9), far(t * 1e-9)
-        (det_a, _), (det_b, _) = seen(a, size_m=size_m), seen(b, size_m=size_m)
-        if k >= 10 and _iou(det_a.left_bbox_px, det_b.left_bbox_px) > 0.0:
+    for k, t, a, b, joined in crossing_pairs():
+        if joined:
             merged += 1
-            det, ob = merged_seen(a, b, size_m)
+            det, ob = merged_seen(a, b, CROSSING_SIZE_M)
             if merged in (3, 4):  # 0.35 m more on both sides, in both eyes
                 grow = 0.35 * RIG.focal_px / a[2]
                 wider = np.array([-grow, 0.0, 2.0 * grow, 0.0])
@@ -280,7 +284,7 @@ def test_a_free_edge_beyond_the_objects_own_outline_is_not_taken() -> None:
             assignment, _ = tracker.associate([det], (t, t))
             states, _ = tracker.update(t, [ob], assignment, (t, t), [det])
         else:
-            states, _ = step(tracker, t, [a, b], size_m=size_m)
+            states, _ = step(tracker, t, [a, b], size_m=CROSSING_SIZE_M)
         by_id = {s.track_id: s for s in states}
         assert set(by_id) == {1, 2}, (k, set(by_id))
         if k >= 3:
