@@ -13,14 +13,33 @@ from stereod.vision.detect import Detector
 from stereod.vision.detect_params import DetectorParams
 from stereod.vision.uncovered import (
     MAX_CROP_PX,
-    OBJECT_SCORE,
     UNCOVERED_SCORE,
-    blob_scores,
     left_behind,
-    outline_score,
     outline_scores,
     uncovered,
 )
+
+OBJECT_SCORE = 0.45
+"""An object's outline scores at least this: the background model's edges there are at most
+0.55 of the frame's."""
+
+
+def outline_score(
+    frame: np.ndarray, background: np.ndarray, support: np.ndarray, at: tuple[int, int]
+) -> float:
+    """The whole outline's score."""
+    return outline_scores(frame, background, support, at)[0]
+
+
+def blob_scores(frame: np.ndarray, background: np.ndarray, blobs: Blobs) -> np.ndarray:
+    """Each blob's whole outline score."""
+    return np.array(
+        [
+            outline_score(frame, background, s, (int(b[0]), int(b[1])))
+            for s, b in zip(blobs.support, blobs.bbox_px, strict=True)
+        ]
+    )
+
 
 W, H = 320, 240
 BOX_THEN = (40, 100, 60, 50)  # x, y, w, h px: where the box stood while the background was learned
@@ -129,13 +148,13 @@ def test_a_blob_is_scored_from_around_it_only() -> None:
         area_px=np.array([3000, 3000], np.int32),
         support=(rect_support(BOX_THEN)[0], rect_support(BOX_NOW)[0]),
     )
-    before = blob_scores(frame, bg.astype(np.float32), blobs)[:, 0]
+    before = blob_scores(frame, bg.astype(np.float32), blobs)
     rng = np.random.default_rng(0)
     scrambled, scrambled_bg = frame.copy(), bg.copy()
     far = (slice(0, 80), slice(250, 320))  # away from both blobs
     scrambled[far] = rng.integers(0, 256, scrambled[far].shape, dtype=np.uint8)
     scrambled_bg[far] = rng.integers(0, 256, scrambled_bg[far].shape, dtype=np.uint8)
-    after = blob_scores(scrambled, scrambled_bg.astype(np.float32), blobs)[:, 0]
+    after = blob_scores(scrambled, scrambled_bg.astype(np.float32), blobs)
     np.testing.assert_array_equal(before, after)
     assert before[0] <= UNCOVERED_SCORE and before[1] >= OBJECT_SCORE
 

@@ -37,9 +37,6 @@ edges are at most 0.55 of the background model's. On the independent renderer th
 pushed box uncovered scores -0.63 to -0.66, a robot, a box or a person +0.3 to +0.9 (a box
 still in one blob with the floor it uncovered, about 0), a robot still in one blob with it
 down to -0.53."""
-OBJECT_SCORE = 0.45
-"""A blob scoring at least this is an object by its outline: the background model's edges
-there are at most 0.55 of the frame's."""
 SECTOR_OBJECT = 0.0
 """A blob one of whose sectors (:func:`outline_scores`) scores above this has an object's
 edges there: not wholly uncovered background, whatever its whole outline scores (on the
@@ -70,15 +67,15 @@ def outline_scores(
     frame: np.ndarray, background: np.ndarray, support: np.ndarray, at: tuple[int, int]
 ) -> tuple[float, float]:
     """How much more the frame than the background has edges along one blob's outline, in
-        [-1, 1]: (F - B) / max(F, B, ``MIN_EDGE``), F and B the mean log-gradients of each over the
-        band within ``BAND_PX`` of the outline; over the whole band, and the highest over any of
-        its sectors (the band cut by a 3 x 3 grid over the blob's box). Positive: an object
-        stands there; negative: the background had an edge there the frame lacks (uncovered by a
-        moved object); near 0: both alike (a shadow, a flat floor). A region uncovered has no
-        sector where the frame's edges win; one still in a blob with the object that uncovered
-        it has that object's. ``frame`` (uint8) and ``background`` (float32 or uint8), grey or
-        BGR, are whole images; ``support`` (uint8 255 on the blob) is the blob's mask, its top-left
-        corner at ``at`` (x, y px). Everything is computed on the crop around the blob (at half
+    [-1, 1]: (F - B) / max(F, B, ``MIN_EDGE``), F and B the mean log-gradients of each over the
+    band within ``BAND_PX`` of the outline; over the whole band, and the highest over any of
+    its sectors (the band cut by a 3 x 3 grid over the blob's box). Positive: an object stands
+    there; negative: the background had an edge there the frame lacks (uncovered by a moved
+    object); near 0: both alike (a shadow, a flat floor). A region uncovered has no sector
+    where the frame's edges win; one still in a blob with the object that uncovered it has
+    that object's. ``frame`` (uint8) and ``background`` (float32 or uint8), grey or BGR, are
+    whole images; ``support`` (uint8 255 on the blob) is the blob's mask, its top-left corner
+    at ``at`` (x, y px). Everything is computed on the crop around the blob (at half
     resolution beyond ``MAX_CROP_PX``)."""
     h_img, w_img = frame.shape[:2]
     sh, sw = support.shape[:2]
@@ -113,23 +110,9 @@ def outline_scores(
     return float(whole), float(parts.max())
 
 
-def outline_score(
-    frame: np.ndarray, background: np.ndarray, support: np.ndarray, at: tuple[int, int]
-) -> float:
-    """The whole outline's score of :func:`outline_scores`."""
-    return outline_scores(frame, background, support, at)[0]
-
-
-def blob_scores(frame: np.ndarray, background: np.ndarray | None, blobs: Blobs) -> np.ndarray:
-    """:func:`outline_scores` of every blob of one eye's frame ((n, 2) float64: whole outline,
-    highest sector; 0 for all without a background or supports)."""
-    out = np.zeros((len(blobs), 2))
-    if background is None or len(blobs.support) != len(blobs):
-        return out
-    for k, support in enumerate(blobs.support):
-        x, y = int(blobs.bbox_px[k, 0]), int(blobs.bbox_px[k, 1])
-        out[k] = outline_scores(frame, background, support, (x, y))
-    return out
+def _at(blobs: Blobs, i: int) -> tuple[int, int]:
+    """Blob ``i``'s top-left corner (x, y px), where its support mask starts."""
+    return int(blobs.bbox_px[i, 0]), int(blobs.bbox_px[i, 1])
 
 
 def uncovered(scores: tuple[float, float]) -> bool:
@@ -152,11 +135,10 @@ def left_behind(
             frame, background = eye.frame, eye.background
             if frame is None or background is None or len(blobs.support) != len(blobs):
                 break
-            at = (int(blobs.bbox_px[i, 0]), int(blobs.bbox_px[i, 1]))
-            if not uncovered(outline_scores(frame, background, blobs.support[i], at)):
+            if not uncovered(outline_scores(frame, background, blobs.support[i], _at(blobs, i))):
                 break
         else:
             out[k] = True
             for (eye, blobs), i in zip(sides, pair, strict=True):
-                eye.relearn(blobs.support[i], (int(blobs.bbox_px[i, 0]), int(blobs.bbox_px[i, 1])))
+                eye.relearn(blobs.support[i], _at(blobs, i))
     return out
