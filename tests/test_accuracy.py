@@ -104,13 +104,18 @@ def test_a_ball_thrown_at_20_mps_from_five_metres_at_60_deg(seed: int) -> None:
     check(acc.score(case, acc.run_case(case)))
 
 
-def test_a_ball_under_a_low_side_lamp_is_measured_without_its_long_shadow() -> None:
+@pytest.mark.parametrize("mode", [acc.MODES[0], acc.MODES[1]], ids=lambda m: m.name)
+def test_a_ball_under_a_low_side_lamp_is_measured_without_its_long_shadow(
+    mode: acc.RigMode,
+) -> None:
     """A lamp 0.8 m above the floor, 2.5 m to the left, casts a shadow about 0.55 m long
     behind the rolling ball. Left in, the shadow drags the centroid: the speed reads 8 % off
-    and the position 1.6 of eq. 12. Left out, the targets hold. (Through a webcam's transport
-    the shadow joins the ball's blob for a few frames; `make accuracy` measures that row,
-    whose rolling shutter takes minutes to render.)"""
-    case = acc.world_room("lamp_ball", MODE, seed=0, lamp="side")
+    and the position 1.6 of eq. 12. Left out, the targets hold. In the 60 deg view the shadow
+    is a strip a few px high that no square texture window fits in: a wide, low window finds
+    it (with the square window alone, 14 cm and 1.9 deg off). (Through
+    a webcam's transport the shadow joins the ball's blob for a few frames; `make accuracy`
+    measures that row, whose rolling shutter takes minutes to render.)"""
+    case = acc.world_room("lamp_ball", mode, seed=0, lamp="side")
     check(acc.score(case, acc.run_case(case)))
 
 

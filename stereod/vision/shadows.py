@@ -3,6 +3,8 @@ colour and texture kept), left out of the objects or taken for a change of light
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -22,9 +24,43 @@ SHADOW_RATIO_SPREAD = 0.08
 """The largest standard deviation of frame / background over the window, as a share of its
 mean, in a shadow's inside (a shadow darkens by one factor; an object's ratio to the texture
 behind it follows that texture)."""
+SHADOW_STRIP_WINDOW_PX = (15, 3)
+"""A second window (w, h px) for a shadow too thin for the square one: a low lamp's strip."""
+SHADOW_STRIP_MIN_NCC = 0.4
+"""The strip window's ``SHADOW_MIN_NCC``: through a webcam's MJPEG and 4:2:2 chroma, the square
+window's bounds found a low lamp's strip in half the frames only (it came and went, and the
+blob's centroid with it, 20 px). Only thin candidates that it fits inside are judged by it."""
+SHADOW_STRIP_RATIO_SPREAD = 0.12
+"""The strip window's ``SHADOW_RATIO_SPREAD`` (see ``SHADOW_STRIP_MIN_NCC``)."""
+_COLUMN = np.ones((SHADOW_WINDOW_PX, 1), np.uint8)
+"""A column of the square window's height: candidates in a run this tall have it."""
+_STRIP = np.ones(SHADOW_STRIP_WINDOW_PX[::-1], np.uint8)
+"""The strip window as a kernel: its sure pixels are where it fits inside the thin candidates,
+as the square window's are where it fits inside a wide shadow."""
 SHADOW_CHROMA = 0.06
 """How far (share of the brightness) a shadowed pixel's colour may stray from the background's
 scaled by the pixel's own ratio."""
+
+
+@dataclass(frozen=True)
+class _Relit:
+    """:func:`_relit`'s masks (uint8 255) on the crop ``sl`` of an image of ``shape`` (h, w px):
+    the candidates, the sure ones by the square window, the thin candidates (in a vertical run
+    shorter than that window's side), and the sure ones among those by the strip window
+    (``None`` when the strip window fits nowhere inside them)."""
+
+    sl: tuple[slice, slice]
+    shape: tuple[int, ...]
+    cand: np.ndarray
+    core: np.ndarray
+    thin: np.ndarray
+    thin_core: np.ndarray | None
+
+    def full(self, crop: np.ndarray) -> np.ndarray:
+        """``crop`` (a mask on ``sl``) placed in an image of ``shape``, zero elsewhere."""
+        out = np.zeros(self.shape, np.uint8)
+        out[self.sl] = crop
+        return out
 
 
 def _relit(
@@ -32,7 +68,7 @@ def _relit(
     background: np.ndarray,
     foreground: np.ndarray,
     ratio: tuple[float, float],
-) -> tuple[np.ndarray, np.ndarray] | None:
+) -> _Relit | None:
     """Where the foreground is the background under other light: the candidates (uint8 255;
     brightness times a factor within ``ratio``, lower and upper, and in colour each channel
     the background's times that factor within ``SHADOW_CHROMA``: Cucchiara et al.'s V, H and
@@ -40,8 +76,11 @@ def _relit(
     ``SHADOW_WINDOW_PX``) keeps the background's texture (normalised cross-correlation at
     least ``SHADOW_MIN_NCC``, as much texture as the factor leaves, one factor across it
     within ``SHADOW_RATIO_SPREAD``). Only a textured background can tell: on a flat one a
-    darker object of its colour (a shaded side) looks the same. ``None`` when no pixel is a
-    candidate."""
+    darker object of its colour (a shaded side) looks the same. A low lamp's shadow on the
+    floor is a strip a few px high that no square window fits in: candidates in a vertical run
+    shorter than the window's side (thin) are also judged over a wide, low window
+    (``SHADOW_STRIP_WINDOW_PX``) where it fits inside them.
+    ``None`` when no pixel is a candidate."""
     lo, hi = ratio
     colour = frame.ndim == 3
     # The brightness ratio first, on one channel: most of an object is no candidate, and the
@@ -71,7 +110,32 @@ def _relit(
         cand = cv2.bitwise_and(cand, same_colour)
     if cv2.countNonZero(cand) == 0:
         return None
-    k = (SHADOW_WINDOW_PX, SHADOW_WINDOW_PX)
+    square = _keeps_texture(
+        fl, bl, r, (SHADOW_WINDOW_PX, SHADOW_WINDOW_PX), SHADOW_MIN_NCC, SHADOW_RATIO_SPREAD
+    )
+    core = cv2.bitwise_and(cand, square.view(np.uint8) * np.uint8(255))
+    thin = cv2.subtract(cand, cv2.morphologyEx(cand, cv2.MORPH_OPEN, _COLUMN))
+    long = cv2.morphologyEx(thin, cv2.MORPH_OPEN, _STRIP)
+    thin_core = None
+    if cv2.countNonZero(long):
+        strip = _keeps_texture(
+            fl, bl, r, SHADOW_STRIP_WINDOW_PX, SHADOW_STRIP_MIN_NCC, SHADOW_STRIP_RATIO_SPREAD
+        )
+        thin_core = cv2.bitwise_and(long, strip.view(np.uint8) * np.uint8(255))
+    return _Relit(sl, cand_all.shape, cand, core, thin, thin_core)
+
+
+def _keeps_texture(
+    fl: np.ndarray,
+    bl: np.ndarray,
+    r: np.ndarray,
+    k: tuple[int, int],
+    min_ncc: float,
+    spread: float,
+) -> np.ndarray:
+    """Where the window ``k`` (w, h px) keeps the background's texture under one factor: as
+    much texture as the factor leaves, normalised cross-correlation at least ``min_ncc``, and
+    frame / background within ``spread`` (a share of its mean) across it."""
     mf, mb = cv2.blur(fl, k), cv2.blur(bl, k)
     vf = cv2.blur(fl * fl, k) - mf * mf
     vb = cv2.blur(bl * bl, k) - mb * mb
@@ -81,18 +145,9 @@ def _relit(
     gain = mf / (mb + 1.0)  # the window's factor: its texture is the background's times it
     mr = cv2.blur(r, k)
     vr = cv2.blur(r * r, k) - mr * mr  # other light changes its whole window alike
-    keeps_texture = (
-        textured
-        & (ncc >= SHADOW_MIN_NCC)
-        & (vf >= 0.25 * gain * gain * vb)
-        & (vr <= (SHADOW_RATIO_SPREAD * mr) ** 2)
+    return (
+        textured & (ncc >= min_ncc) & (vf >= 0.25 * gain * gain * vb) & (vr <= (spread * mr) ** 2)
     )
-    core = cv2.bitwise_and(cand, keeps_texture.view(np.uint8) * np.uint8(255))
-    full_cand = np.zeros_like(cand_all)
-    full_core = np.zeros_like(cand_all)
-    full_cand[sl] = cand
-    full_core[sl] = core
-    return full_cand, full_core
 
 
 def shadow_mask(
@@ -110,14 +165,21 @@ def shadow_mask(
     found = _relit(frame, background, foreground, ratio)
     if found is None:
         return None
-    cand, core = found
+    shade = _reached(found.cand, found.core)
+    if found.thin_core is not None:
+        # What the strip window finds reaches only the thin candidates: through them, one sure
+        # pixel would otherwise take an object's tall dark side with it.
+        shade = cv2.bitwise_or(shade, _reached(found.thin, found.thin_core))
+    return found.full(shade) if cv2.countNonZero(shade) else None
+
+
+def _reached(cand: np.ndarray, core: np.ndarray) -> np.ndarray:
+    """The candidates (uint8 255) connected to a sure pixel of ``core`` (8-neighbours), not
+    those across a gap: a dark stripe on the object beside its shadow is a candidate too,
+    apart from it."""
     if cv2.countNonZero(core) == 0:
-        return None
-    # The candidates connected to a sure shadow pixel (8-neighbours), not those across a gap:
-    # a dark stripe on the object beside its shadow is a candidate too, apart from it.
+        return np.zeros_like(cand)
     n, labels = cv2.connectedComponents(cand, connectivity=8, ltype=cv2.CV_16U)
-    if n <= 1:
-        return None
     sure = np.zeros(n, np.uint8)
     sure[np.unique(labels[core > 0])] = 255
     sure[0] = 0
@@ -155,4 +217,4 @@ def scene_changed(
     if edges and count >= SCENE_CHANGE_COVER * shape[0] * shape[1]:
         return True
     found = _relit(frame, background, foreground, RELIT_RATIO)
-    return found is not None and cv2.countNonZero(found[1]) >= SCENE_CHANGE_RELIT * count
+    return found is not None and cv2.countNonZero(found.core) >= SCENE_CHANGE_RELIT * count

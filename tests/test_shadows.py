@@ -1,0 +1,71 @@
+"""Cast shadows told from objects (stereod.vision.shadows) on a textured floor built here."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from stereod.vision.shadows import shadow_mask
+
+RATIO = (0.3, 0.95)
+
+
+def _floor(h: int, w: int, seed: int = 4) -> np.ndarray:
+    """A grey floor with a grain a few pixels across."""
+    rng = np.random.default_rng(seed)
+    small = rng.uniform(70, 170, (h // 2, w // 2)).astype(np.float32)
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR).astype(np.uint8)
+
+
+def _darkened(bg: np.ndarray, mask: np.ndarray, factor: float) -> np.ndarray:
+    out = bg.copy()
+    out[mask > 0] = (bg[mask > 0].astype(np.float32) * factor).astype(np.uint8)
+    return out
+
+
+def _strip(shape: tuple[int, int], x0: int, x1: int, y0: int, height: int) -> np.ndarray:
+    mask = np.zeros(shape, np.uint8)
+    mask[y0 : y0 + height, x0:x1] = 255
+    return mask
+
+
+def test_a_shadow_strip_thinner_than_the_square_window_is_shadow() -> None:
+    """A low lamp's shadow on the floor is a strip a few px high (3 px here, 60 px long), as in
+    a 60 deg view at 320x240. No 7x7 window fits inside it: each mixes shadow and lit floor, and
+    its one-factor test fails. The wide, low window finds it: nearly all of it is shadow."""
+    bg = _floor(120, 160)
+    strip = _strip(bg.shape, 40, 100, 70, 3)
+    frame = _darkened(bg, strip, 0.55)
+    shade = shadow_mask(frame, bg, strip, RATIO)
+    assert shade is not None
+    share = cv2.countNonZero(cv2.bitwise_and(shade, strip)) / cv2.countNonZero(strip)
+    assert share >= 0.9, f"{share:.0%} of the strip found as shadow"
+
+
+def test_a_thin_shadow_does_not_take_the_tall_object_it_touches() -> None:
+    """A flat dark object (30 px tall) hides the floor's texture, though it is darker by a
+    factor a shadow could have. Its thin shadow runs from its foot. The strip window's sure
+    pixels reach only thin candidates: the shadow is found, the object is kept whole."""
+    bg = _floor(120, 160)
+    body = np.zeros(bg.shape, np.uint8)
+    body[40:70, 50:70] = 255
+    strip = _strip(bg.shape, 70, 130, 66, 3)
+    frame = _darkened(bg, strip, 0.55)
+    frame[body > 0] = np.uint8(0.6 * float(bg[body > 0].mean()))
+    shade = shadow_mask(frame, bg, cv2.bitwise_or(body, strip), RATIO)
+    assert shade is not None
+    assert cv2.countNonZero(cv2.bitwise_and(shade, body)) == 0
+    share = cv2.countNonZero(cv2.bitwise_and(shade, strip)) / cv2.countNonZero(strip)
+    assert share >= 0.9, f"{share:.0%} of the strip found as shadow"
+
+
+def test_a_square_shadow_is_found_by_the_square_window() -> None:
+    """A wide shadow (40x20 px, factor 0.6) is shadow through the square window alone: its
+    middle holds no thin candidate."""
+    bg = _floor(120, 160)
+    patch = np.zeros(bg.shape, np.uint8)
+    patch[50:70, 60:100] = 255
+    frame = _darkened(bg, patch, 0.6)
+    shade = shadow_mask(frame, bg, patch, RATIO)
+    assert shade is not None
+    assert cv2.countNonZero(cv2.bitwise_and(shade, patch)) >= 0.95 * cv2.countNonZero(patch)
