@@ -519,8 +519,9 @@ class Fuser:
             names = [m for tr in trs for m in tr.members.items()]
             before = [tr.strain.get(m, 0.0) for tr in trs for m in tr.members.items()]
             dt = np.array([(t_ns - tr.stamp_utc_ns) * 1e-9 for tr in trs])
-            fused, strain = tab.fuse_ray(f, table.ray.take(i, axis=0), s, np.array(before), dt)
+            fused, after = tab.fuse_ray(f, table.ray.take(i, axis=0), s, np.array(before), dt)
             parts.append(fused)
+            strain = after.tolist()
             flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0).tolist()
             trace = f[:, DIAG_P].sum(axis=1).tolist()
             stamp_list = stamps.tolist()
@@ -533,7 +534,7 @@ class Fuser:
                     best.append(a)
                     self._tracks[rid].strain = {}
                     continue
-                self._tracks[rid].strain = dict(zip(names[a:b], strain[a:b].tolist(), strict=True))
+                self._tracks[rid].strain = dict(zip(names[a:b], strain[a:b], strict=True))
                 best.append(min(range(a, b), key=trace.__getitem__))
                 rigs = list(self._tracks[rid].members)
                 shared[rid] = [
