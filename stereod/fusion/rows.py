@@ -129,20 +129,21 @@ def fuse_ray(
     published. Returns each run's fused row (k, WIDTH) and each row's strain moved on by its
     run's ``dt_s`` (k,) seconds (:func:`strain_step`) towards its squared Mahalanobis
     distance to its run's fused position under its own unscaled covariance along its ray
-    (0 for a run of one): how far its claim is from what the room makes of it."""
+    (a row alone in its run gets nothing of use: a track of one member keeps no strain)."""
     size = np.diff(np.append(starts, len(f)))
     alone = size == 1
-    step = np.repeat(dt_s, size)
     if alone.all():
-        return f[starts], strain_step(strain, np.zeros(len(f)), step)
+        return f[starts], strain
     g = f.copy()
     g[:, PCOV] += ray
     info = inv3(g[:, PCOV])
-    g[:, PCOV] *= strain_scale(strain)[:, None]
+    if strain.max() > STRAIN_FREE:  # else every scale is 1
+        g[:, PCOV] *= strain_scale(strain)[:, None]
     out = fuse_states(g, starts)
     out[alone] = f[starts[alone]]
     d = f[:, POS] - np.repeat(out[:, POS], size, axis=0)
-    return out, strain_step(strain, np.einsum("ni,ni->n", d, matvec3(info, d)), step)
+    nis = np.einsum("ni,ni->n", d, matvec3(info, d))
+    return out, strain_step(strain, nis, np.repeat(dt_s, size))
 
 
 STRAIN_TAU_S = 0.2
