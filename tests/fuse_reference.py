@@ -640,8 +640,7 @@ class Fuser:
         x = rows.position[idx]
         _, rpos, rpcov = _group_fusion(g, k, winfo, np.einsum("nij,nj->ni", winfo, x))
         d = x - rpos[g]
-        dt = np.array([(t_ns - self._tracks[rid].stamp_utc_ns) * 1e-9 for rid in rids])
-        after = strain_step(before, np.einsum("ni,nij,nj->n", d, rinfo, d), dt[g]).tolist()
+        nis = np.einsum("ni,nij,nj->n", d, rinfo, d)
         many = count > 1
         pos[many], pcov[many] = rpos[many], rpcov[many]
         alone = count[g] == 1  # a lone member is its own fusion: as published
@@ -689,7 +688,11 @@ class Fuser:
             if count[s]:
                 tr.strain = {}
                 if count[s] > 1:
-                    tr.strain = {keys[j]: after[j] for j in np.flatnonzero(g == s).tolist()}
+                    js = np.flatnonzero(g == s).tolist()
+                    after = strain_step(
+                        before[js].tolist(), nis[js].tolist(), (t_ns - tr.stamp_utc_ns) * 1e-9
+                    )
+                    tr.strain = dict(zip([keys[j] for j in js], after, strict=True))
                 tr.extra = rows.extra[best[s]]
                 tr.velocity_valid, tr.heading_valid = bool(vvalid[s]), bool(hvalid[s])
                 if seen[s]:

@@ -518,10 +518,9 @@ class Fuser:
             trs = [self._tracks[rid] for rid in with_members]
             names = [m for tr in trs for m in tr.members.items()]
             before = [tr.strain.get(m, 0.0) for tr in trs for m in tr.members.items()]
-            dt = np.array([(t_ns - tr.stamp_utc_ns) * 1e-9 for tr in trs])
-            fused, after = tab.fuse_ray(f, table.ray.take(i, axis=0), s, np.array(before), dt)
+            fused, nis = tab.fuse_ray(f, table.ray.take(i, axis=0), s, np.array(before))
             parts.append(fused)
-            strain = after.tolist()
+            nis_list = nis.tolist()
             flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0).tolist()
             trace = f[:, DIAG_P].sum(axis=1).tolist()
             stamp_list = stamps.tolist()
@@ -529,12 +528,13 @@ class Fuser:
             positions, covs = list(raw[:, POS]), list(raw[:, PCOV].reshape(-1, 3, 3))
             # Best member: least position trace, the first of equals (one member: no choice).
             best = []
-            for rid, a, b in zip(with_members, starts, [*starts[1:], r], strict=True):
+            for tr, rid, a, b in zip(trs, with_members, starts, [*starts[1:], r], strict=True):
                 if b - a == 1:
                     best.append(a)
-                    self._tracks[rid].strain = {}
+                    tr.strain = {}
                     continue
-                self._tracks[rid].strain = dict(zip(names[a:b], strain[a:b], strict=True))
+                after = tab.strain_step(before[a:b], nis_list[a:b], (t_ns - tr.stamp_utc_ns) * 1e-9)
+                tr.strain = dict(zip(names[a:b], after, strict=True))
                 best.append(min(range(a, b), key=trace.__getitem__))
                 rigs = list(self._tracks[rid].members)
                 shared[rid] = [

@@ -14,6 +14,8 @@ velocity covariance ((m/s)^2), at the columns :data:`POS`, :data:`VEL`, :data:`P
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from stereod.fusion.frames import ACCEL_SIGMA_MPS2, UNKNOWN_VELOCITY_SIGMA_MPS, ray_xz
@@ -120,20 +122,19 @@ def fuse_states(f: np.ndarray, starts: np.ndarray) -> np.ndarray:
 
 
 def fuse_ray(
-    f: np.ndarray, ray: np.ndarray, starts: np.ndarray, strain: np.ndarray, dt_s: np.ndarray
+    f: np.ndarray, ray: np.ndarray, starts: np.ndarray, strain: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`fuse_states` of predicted rows ``f`` (n, WIDTH) with each position weighed by its
     covariance along its viewing ray: the published one plus ``ray`` (n, 9) (:attr:`Table.ray`;
     prediction grows both alike), scaled by :func:`strain_scale` of the row's ``strain`` (n,)
     so far (velocity keeps its published covariance). A run of one row is that row, as
-    published. Returns each run's fused row (k, WIDTH) and each row's strain moved on by its
-    run's ``dt_s`` (k,) seconds (:func:`strain_step`) towards its squared Mahalanobis
-    distance to its run's fused position under its own unscaled covariance along its ray
-    (a row alone in its run gets nothing of use: a track of one member keeps no strain)."""
+    published. Returns each run's fused row (k, WIDTH) and each row's squared Mahalanobis
+    distance to its run's fused position under its own unscaled covariance along its ray (n,)
+    (what :func:`strain_step` moves its strain towards; 0 for a run of one)."""
     size = np.diff(np.append(starts, len(f)))
     alone = size == 1
     if alone.all():
-        return f[starts], strain
+        return f[starts], np.zeros(len(f))
     g = f.copy()
     g[:, PCOV] += ray
     info = inv3(g[:, PCOV])
@@ -142,8 +143,7 @@ def fuse_ray(
     out = fuse_states(g, starts)
     out[alone] = f[starts[alone]]
     d = f[:, POS] - np.repeat(out[:, POS], size, axis=0)
-    nis = np.einsum("ni,ni->n", d, matvec3(info, d))
-    return out, strain_step(strain, nis, np.repeat(dt_s, size))
+    return out, np.einsum("ni,ni->n", d, matvec3(info, d))
 
 
 STRAIN_TAU_S = 0.2
@@ -160,12 +160,13 @@ STRAIN_SCALE_MAX = 1e8
 with the inverses still well conditioned)."""
 
 
-def strain_step(strain: np.ndarray, nis: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
-    """Members' strains (n,) moved on by ``dt_s`` (n,) seconds (none for a negative one)
-    towards their latest squared Mahalanobis distances ``nis`` (n,) (:func:`fuse_ray`): an
-    exponential average over :data:`STRAIN_TAU_S`."""
-    a = -np.expm1(-np.maximum(dt_s, 0.0) / STRAIN_TAU_S)
-    return strain + a * (nis - strain)
+def strain_step(strain: list[float], nis: list[float], dt_s: float) -> list[float]:
+    """One room track's members' strains moved on by ``dt_s`` seconds (none for a negative
+    one) towards their latest squared Mahalanobis distances ``nis`` (:func:`fuse_ray`): an
+    exponential average over :data:`STRAIN_TAU_S` (plain floats: a track has a few members,
+    where a numpy call apiece would cost more than the arithmetic)."""
+    a = -math.expm1(-max(dt_s, 0.0) / STRAIN_TAU_S)
+    return [s + a * (d - s) for s, d in zip(strain, nis, strict=True)]
 
 
 def without_rig(strain: dict[tuple[str, int], float], rig: str) -> dict[tuple[str, int], float]:
