@@ -14,9 +14,9 @@ prediction) is gated by a chi-square bound, a room track takes at most one track
 and one minimum-cost assignment (``tracking.assignment.min_cost_assignment``) decides. A
 seen rig track left over opens a new room track. The linked members of a room track are then
 fused in information form, ``P = (sum P_i^-1)^-1``, ``x = P sum P_i^-1 x_i``, position with
-each member's covariance along its viewing ray (``frames.ray_cov``; the published diagonal
-where the members disagree beyond it, chi-square at 99.9 %; a lone member as published),
-velocity with the published one.
+each member's covariance along its viewing ray (``frames.ray_cov``), scaled up by its strain
+so far (``rows.strain_scale``: its squared Mahalanobis distance to the fused position, averaged
+over a few frames; a lone member as published), velocity with the published one.
 
 Why ids survive: a handover is a new rig track gated onto the room track another rig still
 sees (or has seen for less than ``max_coast_s``); a rig that stops talking for ``rig_timeout_s``
@@ -35,7 +35,7 @@ import numpy as np
 from stereod.bus.messages import ObjectsMessage
 from stereod.fusion.frames import ACCEL_SIGMA_MPS2, UNKNOWN_VELOCITY_SIGMA_MPS, ray_cov
 from stereod.fusion.room import Room
-from stereod.fusion.rows import chi2_999
+from stereod.fusion.rows import strain_scale, strain_step
 from stereod.fusion.wire import CONFIRMED, EXTRA, STATIONARY, TENTATIVE, RigWire, from_message
 from stereod.tracking.assignment import min_cost_assignment
 from stereod.tracking.types import TrackLifecycle
@@ -168,6 +168,8 @@ class RoomTrack:
     blobs, disparity and size: the columns of ``wire.EXTRA``); None before any member."""
     velocity_valid: bool = False
     heading_valid: bool = False
+    strain: dict[tuple[str, int], float] = field(default_factory=dict)
+    """(rig, track id) -> that member's strain (none while the track has one member)."""
 
 
 @dataclass(frozen=True)
@@ -365,6 +367,7 @@ class Fuser:
             track = self._tracks.get(room_id)
             if track is not None:
                 track.members.pop(rig, None)
+                track.strain.pop(key, None)
                 lost.add(room_id)
         return lost
 
@@ -411,6 +414,7 @@ class Fuser:
             track = self._tracks.get(rid)
             if track is not None and track.members.get(key[0]) == key[1]:
                 del track.members[key[0]]
+                track.strain.pop(key, None)
                 lost.add(rid)
         members: dict[int, list[int]] = {rid: [] for rid in self._tracks}
         for key, rid in self._links.items():
@@ -569,6 +573,7 @@ class Fuser:
         rig, _ = key = rows.keys[row]
         self._links.pop(key, None)
         self._tracks[room_id].members.pop(rig, None)
+        self._tracks[room_id].strain.pop(key, None)
         members[room_id].remove(row)
 
     def _link(
@@ -623,16 +628,21 @@ class Fuser:
         count2, both, both_cov = _group_fusion(np.concatenate([g, g + k]), 2 * k, info, info_mean)
         count, pos, pcov, vel, vcov = count2[:k], both[:k], both_cov[:k], both[k:], both_cov[k:]
         # Positions weighed by their covariances along their viewing rays (grown by the
-        # prediction as the published ones are), where the members agree within them.
+        # prediction as the published ones are), each scaled by its member's strain so far;
+        # each member's distance to the fused position then moves its strain on.
         ray = rows.ray_cov[idx] + (rows.position_cov[idx] - rows.raw_cov[idx])
         rinfo = np.linalg.inv(ray) if idx.size else np.zeros((0, 3, 3))
+        keys = [rows.keys[i] for i in idx.tolist()]
+        before = np.array(
+            [self._tracks[rids[j]].strain.get(key, 0.0) for j, key in zip(g.tolist(), keys)]
+        )
+        winfo = rinfo / strain_scale(before)[:, None, None]
         x = rows.position[idx]
-        _, rpos, rpcov = _group_fusion(g, k, rinfo, np.einsum("nij,nj->ni", rinfo, x))
+        _, rpos, rpcov = _group_fusion(g, k, winfo, np.einsum("nij,nj->ni", winfo, x))
         d = x - rpos[g]
-        nis = np.zeros(k)
-        np.add.at(nis, g, np.einsum("ni,nij,nj->n", d, rinfo, d))
-        agree = (count > 0) & (nis <= chi2_999(3.0 * (count - 1)))
-        pos[agree], pcov[agree] = rpos[agree], rpcov[agree]
+        nis = np.einsum("ni,nij,nj->n", d, rinfo, d)
+        many = count > 1
+        pos[many], pcov[many] = rpos[many], rpcov[many]
         alone = count[g] == 1  # a lone member is its own fusion: as published
         pos[g[alone]], pcov[g[alone]] = x[alone], rows.position_cov[idx][alone]
         coasting = [rid for rid in rids if count[slot[rid]] == 0]
@@ -676,6 +686,13 @@ class Fuser:
                 pos[s], pcov[s], vel[s], vcov[s]
             )  # fmt: skip
             if count[s]:
+                tr.strain = {}
+                if count[s] > 1:
+                    js = np.flatnonzero(g == s).tolist()
+                    after = strain_step(
+                        before[js].tolist(), nis[js].tolist(), (t_ns - tr.stamp_utc_ns) * 1e-9
+                    )
+                    tr.strain = dict(zip([keys[j] for j in js], after, strict=True))
                 tr.extra = rows.extra[best[s]]
                 tr.velocity_valid, tr.heading_valid = bool(vvalid[s]), bool(hvalid[s])
                 if seen[s]:

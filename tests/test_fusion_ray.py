@@ -6,6 +6,7 @@ seeing one object off both their axes, fused against the known truth."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from stereod.bus.messages import ObjectsMessage
 from stereod.fusion.frames import ray_cov
@@ -45,9 +46,10 @@ def _stereo_message(
     return msg.model_copy(update={"objects": [obj]})
 
 
-def _errors(bias_a_m: float, seed: int) -> dict[str, float]:
-    """RMS position error (m) against the truth over 200 fusion steps: each rig alone (its
-    track moved into the room) and fused."""
+def _errors(bias_a_m: float, seed: int, stretch: range = range(200)) -> dict[str, float]:
+    """RMS position error (m) against the truth over the fusion steps of ``stretch`` (of 200,
+    rig a's depth off by ``bias_a_m`` in them and only in them): each rig alone (its track
+    moved into the room) and fused. Every step has one room track, both rigs its members."""
     fuser = Fuser(Room(name="lab", rigs=[A, C]))
     sims = {"a": RigSim(A, seed=seed), "c": RigSim(C, seed=seed + 1)}
     rng = np.random.default_rng(seed)
@@ -55,13 +57,16 @@ def _errors(bias_a_m: float, seed: int) -> dict[str, float]:
     for k in range(200):
         t = k * FRAME_NS
         for name, pose in (("a", A), ("c", C)):
-            msg = _stereo_message(sims[name], pose, t, rng, bias_a_m if name == "a" else 0.0)
+            bias = bias_a_m if name == "a" and k in stretch else 0.0
+            msg = _stereo_message(sims[name], pose, t, rng, bias)
             assert fuser.ingest(msg)
             p = pose.rotation() @ np.array(msg.objects[0].position_m) + pose.translation()
-            sq[name].append(float(np.sum(np.square(p - TRUTH))))
+            if k in stretch:
+                sq[name].append(float(np.sum(np.square(p - TRUTH))))
         (tr,) = fuser.fuse(t).tracks
         assert set(tr.members) == {"a", "c"}
-        sq["fused"].append(float(np.sum(np.square(tr.position - TRUTH))))
+        if k in stretch:
+            sq["fused"].append(float(np.sum(np.square(tr.position - TRUTH))))
     return {k: float(np.sqrt(np.mean(v))) for k, v in sq.items()}
 
 
@@ -92,4 +97,15 @@ def test_a_rig_biased_along_its_ray_does_not_pull_the_fused_position() -> None:
     still no worse than the good rig's alone (the bias lies where a claims little)."""
     rms = _errors(2.0 * DEPTH_SIGMA_M["a"], seed=12)
     assert rms["a"] > 1.5 * rms["c"], rms
+    assert rms["fused"] <= rms["c"], rms
+
+
+@pytest.mark.parametrize("sigmas", [3.0, 4.5, 6.0])
+def test_a_stretch_biased_beyond_its_sigmas_fades_out_of_the_fusion(sigmas: float) -> None:
+    """For two seconds in the middle of seven, rig a's depth is off by 3 to 6 times its stated
+    sigma, along its ray (its members disagree beyond a chi-square bound at most steps): over
+    that stretch the fused position is no worse than the good rig's alone, and the object
+    keeps one room track with both rigs in it (no split)."""
+    rms = _errors(sigmas * DEPTH_SIGMA_M["a"], seed=13, stretch=range(80, 140))
+    assert rms["a"] > 2.0 * rms["c"], rms
     assert rms["fused"] <= rms["c"], rms

@@ -9,8 +9,10 @@ prediction) is gated by a chi-square bound, a room track takes at most one track
 and one minimum-cost assignment (``tracking.assignment.min_cost_assignment``) decides. A
 seen rig track left over opens a new room track. The linked members of a room track are then
 fused in information form, ``P = (sum P_i^-1)^-1``, ``x = P sum P_i^-1 x_i``, position with
-each member's covariance along its viewing ray (``rows.fuse_ray``; the published diagonal
-where the members disagree beyond it), velocity with the published one.
+each member's covariance along its viewing ray (``rows.fuse_ray``), scaled up while that
+member's strain runs high (``rows.strain_scale``: its squared Mahalanobis distance to the
+fused position, averaged over a few frames; a rig off along its ray, or a merged blob, fades
+out of the room track without leaving it), velocity with the published one.
 
 Why ids survive: a handover is a new rig track gated onto the room track another rig still
 sees (or has seen for less than ``max_coast_s``); a rig that stops talking for ``rig_timeout_s``
@@ -30,6 +32,8 @@ from stereod.bus.messages import ObjectsMessage
 from stereod.fusion import rows as tab
 from stereod.fusion.room import Room
 from stereod.fusion.rows import DIAG, DIAG_P, PCOV, POS, SEEN, VCOV, VEL, Estimates, Table
+from stereod.fusion.rows import fuse_gaussians as fuse_gaussians
+from stereod.fusion.rows import mahalanobis2 as mahalanobis2
 from stereod.fusion.wire import RigWire, from_message
 from stereod.tracking.assignment import min_cost_assignment
 from stereod.tracking.types import TrackLifecycle
@@ -75,6 +79,10 @@ class RoomTrack:
     blobs, disparity and size: the columns of ``wire.EXTRA``); None before any member."""
     velocity_valid: bool = False
     heading_valid: bool = False
+    strain: dict[tuple[str, int], float] = field(default_factory=dict)
+    """(rig name, its track id) -> that member's strain (``rows.strain_step``): its squared
+    Mahalanobis distance to this track's fused position, averaged over the last few frames
+    (none while the track has one member); replaced, never written into."""
 
 
 _Shared = dict[int, list[tuple[str, int, np.ndarray, np.ndarray]]]
@@ -96,25 +104,6 @@ class FusedFrame:
     """The tracks' states as rows of ``rows.WIDTH`` columns (position, velocity, their
     covariances), in the order of :attr:`tracks`, for writing them out at once; None when
     not given."""
-
-
-def fuse_gaussians(
-    means: list[np.ndarray], covs: list[np.ndarray]
-) -> tuple[np.ndarray, np.ndarray]:
-    """The information-form fusion of independent Gaussian estimates of one quantity: the
-    covariance ``(sum C_i^-1)^-1`` and mean ``C sum C_i^-1 m_i``."""
-    if len(means) == 1:
-        return means[0].copy(), covs[0].copy()
-    infos = [np.linalg.inv(c) for c in covs]
-    cov = np.linalg.inv(np.sum(infos, axis=0))
-    mean = cov @ np.sum([i @ m for i, m in zip(infos, means, strict=True)], axis=0)
-    return mean, 0.5 * (cov + cov.T)
-
-
-def mahalanobis2(a: np.ndarray, a_cov: np.ndarray, b: np.ndarray, b_cov: np.ndarray) -> float:
-    """Squared Mahalanobis distance between two independent Gaussian positions."""
-    d = a - b
-    return float(d @ np.linalg.solve(a_cov + b_cov, d))
 
 
 def _snapshot(t: RoomTrack) -> RoomTrack:
@@ -226,6 +215,7 @@ class Fuser:
             track = self._tracks.get(room_id)
             if track is not None:
                 track.members.pop(rig, None)
+                track.strain = tab.without_rig(track.strain, rig)
                 lost.add(room_id)
                 if not track.members:
                     self._bare.add(room_id)
@@ -283,6 +273,7 @@ class Fuser:
                 track = self._tracks.get(rid)
                 if track is not None and track.members.get(rig) == tid:
                     del track.members[rig]
+                    track.strain = tab.without_rig(track.strain, rig)
                     lost.add(rid)
                     if not track.members:
                         self._bare.add(rid)
@@ -465,8 +456,10 @@ class Fuser:
     def _unlink(self, rig: str, room_id: int) -> None:
         """Take ``rig``'s track out of room track ``room_id`` (another of its rig replaces
         it); it stays free, and opens nothing while its rig does not see it."""
-        members = self._tracks[room_id].members
+        track = self._tracks[room_id]
+        members = track.members
         tid = members.pop(rig)
+        track.strain = tab.without_rig(track.strain, rig)
         self._links[rig].pop(tid, None)
         if not members:
             self._bare.add(room_id)
@@ -520,7 +513,14 @@ class Fuser:
             f = tab.predict_rows(raw, (t_ns - stamps) * 1e-9)
             r = len(idx)
             s = np.array(starts)
-            parts.append(tab.fuse_ray(f, table.ray.take(i, axis=0), s))
+            # Each member's strain so far scales its covariance down in the fusion; its
+            # distance to the fused position then moves its strain on.
+            trs = [self._tracks[rid] for rid in with_members]
+            names = [m for tr in trs for m in tr.members.items()]
+            before = [tr.strain.get(m, 0.0) for tr in trs for m in tr.members.items()]
+            fused, nis = tab.fuse_ray(f, table.ray.take(i, axis=0), s, np.array(before))
+            parts.append(fused)
+            nis_list = nis.tolist()
             flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0).tolist()
             trace = f[:, DIAG_P].sum(axis=1).tolist()
             stamp_list = stamps.tolist()
@@ -528,10 +528,13 @@ class Fuser:
             positions, covs = list(raw[:, POS]), list(raw[:, PCOV].reshape(-1, 3, 3))
             # Best member: least position trace, the first of equals (one member: no choice).
             best = []
-            for rid, a, b in zip(with_members, starts, [*starts[1:], r], strict=True):
+            for tr, rid, a, b in zip(trs, with_members, starts, [*starts[1:], r], strict=True):
                 if b - a == 1:
                     best.append(a)
+                    tr.strain = {}
                     continue
+                after = tab.strain_step(before[a:b], nis_list[a:b], (t_ns - tr.stamp_utc_ns) * 1e-9)
+                tr.strain = dict(zip(names[a:b], after, strict=True))
                 best.append(min(range(a, b), key=trace.__getitem__))
                 rigs = list(self._tracks[rid].members)
                 shared[rid] = [

@@ -14,6 +14,8 @@ velocity covariance ((m/s)^2), at the columns :data:`POS`, :data:`VEL`, :data:`P
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from stereod.fusion.frames import ACCEL_SIGMA_MPS2, UNKNOWN_VELOCITY_SIGMA_MPS, ray_xz
@@ -119,43 +121,88 @@ def fuse_states(f: np.ndarray, starts: np.ndarray) -> np.ndarray:
     return out
 
 
-def chi2_999(dof: np.ndarray) -> np.ndarray:
-    """The 99.9 % quantile of a chi-square of ``dof`` degrees of freedom (Wilson and
-    Hilferty's cube-root approximation, within 2 % from 3 dof up; 0 for 0 dof)."""
-    k = np.maximum(dof, 1e-9)
-    q = k * (1.0 - 2.0 / (9.0 * k) + 3.0902 * np.sqrt(2.0 / (9.0 * k))) ** 3
-    return np.where(dof > 0, q, 0.0)
-
-
-_CHI2_BY_SIZE = chi2_999(3.0 * np.maximum(np.arange(65) - 1, 0))
-""":func:`chi2_999` of a run of ``m`` rows' ``3 (m - 1)`` degrees of freedom, by ``m`` (runs of
-more than 64 rows, none in a room, take 64's)."""
-
-
-def fuse_ray(f: np.ndarray, ray: np.ndarray, starts: np.ndarray) -> np.ndarray:
+def fuse_ray(
+    f: np.ndarray, ray: np.ndarray, starts: np.ndarray, strain: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`fuse_states` of predicted rows ``f`` (n, WIDTH) with each position weighed by its
     covariance along its viewing ray: the published one plus ``ray`` (n, 9) (:attr:`Table.ray`;
-    prediction grows both alike). A run whose members disagree beyond that (the sum of their
-    squared Mahalanobis distances to the run's mean above the chi-square bound of ``3 (m - 1)``
-    degrees of freedom at 99.9 %: one is biased, as far as anyone can tell from them) is fused
-    by the published per-axis covariances instead, which do not claim to know a track across
-    its ray to a millimetre. A run of one row is that row, as published. Returns each run's
-    fused row (k, WIDTH)."""
+    prediction grows both alike), scaled by :func:`strain_scale` of the row's ``strain`` (n,)
+    so far (velocity keeps its published covariance). A run of one row is that row, as
+    published. Returns each run's fused row (k, WIDTH) and each row's squared Mahalanobis
+    distance to its run's fused position under its own unscaled covariance along its ray (n,)
+    (what :func:`strain_step` moves its strain towards; 0 for a run of one)."""
     size = np.diff(np.append(starts, len(f)))
     alone = size == 1
     if alone.all():
-        return f[starts]
+        return f[starts], np.zeros(len(f))
     g = f.copy()
     g[:, PCOV] += ray
+    info = inv3(g[:, PCOV])
+    if strain.max() > STRAIN_FREE:  # else every scale is 1
+        g[:, PCOV] *= strain_scale(strain)[:, None]
     out = fuse_states(g, starts)
     out[alone] = f[starts[alone]]
-    group = np.repeat(np.arange(len(starts)), size)
-    d = f[:, POS] - out[group, POS]
-    j = np.add.reduceat(np.einsum("ni,ni->n", d, matvec3(inv3(g[:, PCOV]), d)), starts)
-    bad = j > _CHI2_BY_SIZE[np.minimum(size, len(_CHI2_BY_SIZE) - 1)]
-    if bad.any():
-        out[bad] = fuse_states(f, starts)[bad]
-    return out
+    d = f[:, POS] - np.repeat(out[:, POS], size, axis=0)
+    return out, np.einsum("ni,ni->n", d, matvec3(info, d))
+
+
+STRAIN_TAU_S = 0.2
+"""Time constant of a member's strain (:func:`strain_step`), s: a few frames."""
+STRAIN_FREE = 6.0
+"""A member's strain up to which it keeps its own covariance, dimensionless: four times the
+mean share of a pair's 3 degrees of freedom, which an average over a few frames of a member
+that agrees with the room stays under."""
+STRAIN_POWER = 8
+"""How steeply a strained member fades (:func:`strain_scale`): its covariance grows as its
+strain over :data:`STRAIN_FREE` to this power."""
+STRAIN_SCALE_MAX = 1e8
+"""The most a member's covariance is scaled by (its weight 1e-8 of its own: out of the fusion,
+with the inverses still well conditioned)."""
+
+
+def strain_step(strain: list[float], nis: list[float], dt_s: float) -> list[float]:
+    """One room track's members' strains moved on by ``dt_s`` seconds (none for a negative
+    one) towards their latest squared Mahalanobis distances ``nis`` (:func:`fuse_ray`): an
+    exponential average over :data:`STRAIN_TAU_S` (plain floats: a track has a few members,
+    where a numpy call apiece would cost more than the arithmetic)."""
+    a = -math.expm1(-max(dt_s, 0.0) / STRAIN_TAU_S)
+    return [s + a * (d - s) for s, d in zip(strain, nis, strict=True)]
+
+
+def without_rig(strain: dict[tuple[str, int], float], rig: str) -> dict[tuple[str, int], float]:
+    """A room track's strains by (rig, track id) less ``rig``'s member (a new dict: a track's
+    strains are replaced, never written into)."""
+    return {k: v for k, v in strain.items() if k[0] != rig} if strain else strain
+
+
+def strain_scale(strain: np.ndarray) -> np.ndarray:
+    """The factor (n,) each member's position covariance is scaled by for its strain (n,): 1
+    up to :data:`STRAIN_FREE`, then ``(strain / STRAIN_FREE) ** STRAIN_POWER`` (at most
+    :data:`STRAIN_SCALE_MAX`). A member the room keeps contradicting (a merged blob, a stretch
+    biased along its ray) fades out of its fusion within a few frames, and its distance to the
+    others' fused position then keeps it out until it agrees again; one that strays for a
+    frame stays in."""
+    over = np.maximum(strain * (1.0 / STRAIN_FREE), 1.0)
+    return np.minimum(over**STRAIN_POWER, STRAIN_SCALE_MAX)
+
+
+def fuse_gaussians(
+    means: list[np.ndarray], covs: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The information-form fusion of independent Gaussian estimates of one quantity: the
+    covariance ``(sum C_i^-1)^-1`` and mean ``C sum C_i^-1 m_i``."""
+    if len(means) == 1:
+        return means[0].copy(), covs[0].copy()
+    infos = [np.linalg.inv(c) for c in covs]
+    cov = np.linalg.inv(np.sum(infos, axis=0))
+    mean = cov @ np.sum([i @ m for i, m in zip(infos, means, strict=True)], axis=0)
+    return mean, 0.5 * (cov + cov.T)
+
+
+def mahalanobis2(a: np.ndarray, a_cov: np.ndarray, b: np.ndarray, b_cov: np.ndarray) -> float:
+    """Squared Mahalanobis distance between two independent Gaussian positions."""
+    d = a - b
+    return float(d @ np.linalg.solve(a_cov + b_cov, d))
 
 
 def gate_d2(x: np.ndarray, x_cov: np.ndarray, m: np.ndarray, m_cov: np.ndarray) -> np.ndarray:
