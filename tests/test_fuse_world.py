@@ -245,7 +245,13 @@ def test_a_replay_whose_clock_is_40_ms_ahead_is_found_and_corrected(
     assert b.offset_ms == pytest.approx(SHIFT_NS / 1e6, abs=8.0), b
     assert b.correction_ms == pytest.approx(SHIFT_NS / 1e6, abs=8.0) and b.off, b
     first = scene.frame_times("left")[0]
-    end = max(m.stamp_utc_ns for m in messages)
+    # The last second the node had the balls confirmed (on a loaded host its last messages
+    # can come after the rigs' last, with every room track coasting).
+    seen = [
+        m.stamp_utc_ns for m in messages if any(o.state.value == "confirmed" for o in m.objects)
+    ]
+    assert seen, f"no confirmed room track in {len(messages)} messages"
+    end = max(seen)
     errors = []
     for m in messages:
         if m.stamp_utc_ns < end - 1_000_000_000:
@@ -255,4 +261,5 @@ def test_a_replay_whose_clock_is_40_ms_ahead_is_found_and_corrected(
             if o.state.value == "confirmed":
                 d = [float(np.linalg.norm(np.array(o.position_m) - p)) for p, _ in truth.values()]
                 errors.append(min(d))
-    assert len(errors) > 20 and float(np.median(errors)) < 0.02, np.median(errors)
+    assert len(errors) > 20, f"{len(errors)} confirmed states in the last second"
+    assert float(np.median(errors)) < 0.02, np.median(errors)
