@@ -139,7 +139,8 @@ class PipelineParams:
 class Timings:
     """Where the time of one pair went inside the pipeline (ms, wall clock). ``detect_ms``
     includes eq. 3 with the previous pair's frames (deferred to run in the eyes' workers); an
-    eye detected ahead (:meth:`Pipeline.detect_ahead`) adds nothing to it."""
+    eye detected ahead (:meth:`Pipeline.detect_ahead`) adds nothing to it. A pair with no blob
+    in either eye and no live track skips the later stages: 0 for them."""
 
     detect_ms: float
     geometry_ms: float
