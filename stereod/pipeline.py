@@ -139,7 +139,8 @@ class PipelineParams:
 class Timings:
     """Where the time of one pair went inside the pipeline (ms, wall clock). ``detect_ms``
     includes eq. 3 with the previous pair's frames (deferred to run in the eyes' workers); an
-    eye detected ahead (:meth:`Pipeline.detect_ahead`) adds nothing to it."""
+    eye detected ahead (:meth:`Pipeline.detect_ahead`) adds nothing to it. A pair with no blob
+    in either eye and no live track skips the later stages: 0 for them."""
 
     detect_ms: float
     geometry_ms: float
@@ -386,7 +387,9 @@ class Pipeline:
     def process(self, pair: StereoPair) -> PairResult:
         """Run one pair through eq. 2-5, 9, 12 and 21-23, stage by stage: :meth:`_detect`,
         :meth:`_match`, :meth:`_associate`, then for each detection :meth:`_skew` (when skew is
-        compensated) and :meth:`_triangulate`, then :meth:`_track` and :meth:`_learn`. A pair
+        compensated) and :meth:`_triangulate`, then the tracker's update (each track's two Kalman
+        filters, tracks started and ended, speed and heading) and :meth:`_learn`; with no blob
+        in either eye and no live track, every stage after detection is skipped. A pair
         the pipeline cannot use (an eye's frame not the rig's size, or not at least
         ``MIN_FRAME_INTERVAL_NS`` later than that eye's frame in the last pair) raises
         ValueError before anything is changed."""
@@ -399,6 +402,11 @@ class Pipeline:
         eye_times = (t_left, t_right)
         compensate = p.skew_compensation and (t_left != t_right or self._line_ns > 0.0)
         t_ns = skew.common_instant(t_left, t_right) if compensate else pair.t_ns
+        if not (len(lb) or len(rb) or self.tracker.live_ids()):  # nothing moves, none tracked:
+            self._learn([])  # the later stages would find nothing, so they are skipped
+            ms = (t1 - t0) * 1e-6, (time.perf_counter_ns() - t0) * 1e-6
+            seqs = pair.seq, t_ns, pair.skew_ns, pair.left.seq, pair.right.seq
+            return PairResult(*seqs, [], [], lb, rb, Timings(ms[0], 0.0, 0.0, ms[1]))
         m = self._match(pair, lb, rb, eye_times)
         gone = left_behind(m.left, m.right, m.matches, (self.left, self.right))  # relearned now
         detections, assignment, may_start = self._associate(m, eye_times, gone)
@@ -417,7 +425,7 @@ class Pipeline:
             observations.append(self._triangulate(m, k, tid, det, times, (lc, rc, exact), at_once))
         t2 = time.perf_counter_ns()
         boxes = (m.left.bbox_px, m.right.bbox_px)
-        states, ended = self._track(
+        states, ended = self.tracker.update(  # the track stage (eq. 21-23)
             t_ns, observations, assignment, eye_times, detections, blob_times, boxes
         )
         self._learn(states)
@@ -552,19 +560,6 @@ class Pipeline:
         ob = measure.observation(t, lb, rb, i, j, m.left_px[k], m.right_px[k], exact, clipped)
         usable = in_range(t.position_m, t.cov_m2, exact, p.rig, p.matching.min_disparity_px)
         return ob if usable else None
-
-    def _track(
-        self, t_ns: int, observations: list[Observation | None], assignment: list[int | None],
-        eye_times: tuple[int, int], detections: list[Detection], blob_times: list[tuple[int, int]],
-        boxes: tuple[np.ndarray, np.ndarray],
-    ) -> tuple[list[TrackState], list[int]]:  # fmt: skip
-        """The track stage: each track's two Kalman filters updated with its observation at
-        ``t_ns`` (or coasting), tracks started and ended, ids given, and speed and heading
-        (eq. 21-23) from the likelier filter (:meth:`stereod.tracking.tracker.Tracker.update`).
-        Gives every live track's state at ``t_ns`` and the ids of the tracks that ended."""
-        return self.tracker.update(
-            t_ns, observations, assignment, eye_times, detections, blob_times, boxes
-        )
 
     def _learn(self, states: list[TrackState]) -> None:
         """Where eq. 3 may learn in each eye, applied when the next pair is detected: not under
