@@ -398,6 +398,30 @@ class Association(TrackFilters):
         behind = max(float(preds[j].left[0]) - float(preds[j].right[0]) for j in others)
         return (front, right[0], behind) if len(set(right)) == 1 else None
 
+    def objects(self, owners: list[int | None]) -> list[int | None]:
+        """Each pair's track (``owners``, as :meth:`associate` gives them; None: none), with
+        the confirmed tracks that are pieces of one object (:meth:`_one_object`, pair by pair,
+        and so on transitively) given one id, the longest-followed one's: the grouping keeps
+        two tracks' pairs apart as two objects, and pieces of a person followed apart (a head,
+        a torso, the legs) would otherwise never be one object again."""
+        live = sorted({t for t in owners if t is not None and t in self._tracks})
+        pieces = [t for t in live if self._confirmed(self._tracks[t])]
+        root = {t: t for t in live}
+
+        def find(t: int) -> int:
+            while root[t] != t:
+                t = root[t]
+            return t
+
+        for a in range(len(pieces)):
+            for b in range(a + 1, len(pieces)):
+                ta, tb = pieces[a], pieces[b]
+                if find(ta) != find(tb) and self._one_object([self._tracks[ta], self._tracks[tb]]):
+                    ra, rb = find(ta), find(tb)
+                    keep = max((ra, rb), key=lambda t: (self._tracks[t].hits, -t))
+                    root[ra] = root[rb] = keep
+        return [None if t is None or t not in root else find(t) for t in owners]
+
     def _one_object(self, tracks: list[Track]) -> bool:
         """Whether confirmed tracks that one detection holds are pieces of one object: at one
         depth (within ``merge_depth_m``) and moving together (velocities within
