@@ -486,7 +486,7 @@ class Pipeline:
             owners = self.tracker.objects(self._associate(m0, eye_times)[1])
             grouped = group_objects(
                 lb, rb, idx, lpx, rpx, lrect, rrect, p.rig.focal_px, p.rig.baseline_m,
-                p.grouping, owners,
+                p.grouping, owners, p.rig.width_px,
             )  # fmt: skip
             if grouped is not None:  # pieces of one object, one detection
                 lb, rb, idx = grouped.left, grouped.right, grouped.index

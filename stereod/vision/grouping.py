@@ -120,6 +120,7 @@ def group_objects(
     baseline_m: float,
     params: GroupParams,
     owners: Sequence[int | None] | None = None,
+    width_px: int | None = None,
 ) -> Grouped | None:
     """Merge the matched pairs ``idx`` (m, 2; rectified centroids ``lpx``/``rpx``) that are
     one object, and attach each eye's unmatched blobs (all rectified centroids ``lrect``/
@@ -127,10 +128,12 @@ def group_objects(
     ``focal_px`` and ``baseline_m`` turn a disparity into a depth (eq. 9: Z = f B / d).
     ``owners``: per matched pair, the live track it belongs to, if any: pairs that two
     tracks follow are two objects, whatever their depths (the disparities of two objects that
-    cross, each moving its own way, are off by the eyes' skew until it is compensated)."""
+    cross, each moving its own way, are off by the eyes' skew until it is compensated).
+    ``width_px``: the images' width, to tell the blobs that reach the image's sides (their
+    side edges are the image's, not the object's) when pairing outlines one eye cut short."""
     if not params.enabled:
         return None
-    cut = _cut_pairs(lb, rb, idx, lrect, rrect)
+    cut = _cut_pairs(lb, rb, idx, lrect, rrect, width_px)
     if cut is not None:  # one eye's outline cut short where the other's goes on: its rows
         lb, rb, idx, lrect, rrect = cut
         lpx, rpx = lrect[idx[:, 0]], rrect[idx[:, 1]]
@@ -176,7 +179,12 @@ be paired by the rows it shares (less: too little is left to place the object by
 
 
 def _cut_pairs(
-    lb: Blobs, rb: Blobs, idx: np.ndarray, lrect: np.ndarray, rrect: np.ndarray
+    lb: Blobs,
+    rb: Blobs,
+    idx: np.ndarray,
+    lrect: np.ndarray,
+    rrect: np.ndarray,
+    width_px: int | None,
 ) -> tuple[Blobs, Blobs, np.ndarray, np.ndarray, np.ndarray] | None:
     """Blobs left unmatched in both eyes that are one object whose outline one eye cut short
     at the top or the bottom (a person's legs as pale as the floor behind them in one eye and
@@ -186,13 +194,22 @@ def _cut_pairs(
     spans (its support there: area, centroid and box anew), so both centroids are of one part
     of the object and their disparity is its depth. Returns both eyes' blobs with the taller
     ones cut, the matches with these pairs added, and the rectified centroids; None when there
-    are none (or the blobs carry no support masks)."""
+    are none (or the blobs carry no support masks). A blob that reaches the image's side
+    (``width_px``; without it, its left side only) takes no part: its side edge is the
+    image's (the feet of a person walking in past it, paired so, made a track 0.5 m too
+    near)."""
     if not lb.support or not rb.support or len(lb.support) != len(lb):
         return None
     if len(rb.support) != len(rb):
         return None
-    free_l = [i for i in range(len(lb)) if i not in set(idx[:, 0].tolist())]
-    free_r = [j for j in range(len(rb)) if j not in set(idx[:, 1].tolist())]
+    right_side = width_px if width_px is not None else math.inf
+
+    def inside(blobs: Blobs, i: int) -> bool:
+        x, _, w, _ = (int(v) for v in blobs.bbox_px[i])
+        return x > 0 and x + w < right_side
+
+    free_l = [i for i in range(len(lb)) if i not in set(idx[:, 0].tolist()) and inside(lb, i)]
+    free_r = [j for j in range(len(rb)) if j not in set(idx[:, 1].tolist()) and inside(rb, j)]
     found: list[tuple[float, int, int]] = []
     for i in free_l:
         a = _rect_box(lb, i, lrect[i])
