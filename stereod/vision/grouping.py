@@ -208,8 +208,9 @@ def _cut_pairs(
         x, _, w, _ = (int(v) for v in blobs.bbox_px[i])
         return x > 0 and x + w < right_side
 
-    free_l = [i for i in range(len(lb)) if i not in set(idx[:, 0].tolist()) and inside(lb, i)]
-    free_r = [j for j in range(len(rb)) if j not in set(idx[:, 1].tolist()) and inside(rb, j)]
+    paired_l, paired_r = set(idx[:, 0].tolist()), set(idx[:, 1].tolist())
+    free_l = [i for i in range(len(lb)) if i not in paired_l and inside(lb, i)]
+    free_r = [j for j in range(len(rb)) if j not in paired_r and inside(rb, j)]
     found: list[tuple[float, int, int]] = []
     for i in free_l:
         a = _rect_box(lb, i, lrect[i])
@@ -226,7 +227,7 @@ def _cut_pairs(
             found.append((abs(d0 - d1), i, j))
     if not found:
         return None
-    out_l, out_r = _editable(lb), _editable(rb)
+    out_l, out_r = _copied(lb), _copied(rb)
     rects = [lrect.copy(), rrect.copy()]
     pairs: list[list[int]] = []
     used_l: set[int] = set()
@@ -243,31 +244,23 @@ def _cut_pairs(
         dy = float(rect[k, 1]) - float(blobs.centroid_px[k, 1])
         _cut_rows(out_r if e else out_l, rects[e], blobs, k, keep[1] - dy, keep[3] - dy)
     matches = np.concatenate([idx.reshape(-1, 2), np.array(pairs, np.intp)]).astype(np.intp)
-    return _frozen_blobs(out_l), _frozen_blobs(out_r), matches, rects[0], rects[1]
+    return _blobs(out_l), _blobs(out_r), matches, rects[0], rects[1]
 
 
-def _editable(blobs: Blobs) -> dict[str, list]:
-    """A blob set's fields as lists, to replace some blobs in."""
-    return {
-        "centroid_px": [c.copy() for c in blobs.centroid_px],
-        "bbox_px": [b.copy() for b in blobs.bbox_px],
-        "area_px": [int(a) for a in blobs.area_px],
-        "support": list(blobs.support),
-    }
+_Fields = tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]
+"""A blob set's centroids, boxes, areas and supports, copied to replace some blobs in."""
 
 
-def _frozen_blobs(fields: dict[str, list]) -> Blobs:
-    return Blobs(
-        centroid_px=np.asarray(fields["centroid_px"], np.float64).reshape(-1, 2),
-        bbox_px=np.asarray(fields["bbox_px"], np.int32).reshape(-1, 4),
-        area_px=np.asarray(fields["area_px"], np.int32),
-        support=tuple(fields["support"]),
-    )
+def _copied(blobs: Blobs) -> _Fields:
+    return blobs.centroid_px.copy(), blobs.bbox_px.copy(), blobs.area_px.copy(), list(blobs.support)
 
 
-def _cut_rows(
-    out: dict[str, list], rect: np.ndarray, blobs: Blobs, k: int, y0: float, y1: float
-) -> None:
+def _blobs(fields: _Fields) -> Blobs:
+    centroid, bbox, area, support = fields
+    return Blobs(centroid, bbox, area, tuple(support))
+
+
+def _cut_rows(out: _Fields, rect: np.ndarray, blobs: Blobs, k: int, y0: float, y1: float) -> None:
     """Replace blob ``k`` in ``out`` by its support within image rows ``y0``..``y1`` (end
     exclusive): its area, centroid (eq. 5 over what is left), box and mask; its rectified
     centroid in ``rect`` moves with its centroid."""
@@ -281,10 +274,11 @@ def _cut_rows(
     bx, by, bw, bh = cv2.boundingRect(mask)
     centre = np.array([x + mo["m10"] / mo["m00"], y + r0 + mo["m01"] / mo["m00"]])
     rect[k] += centre - blobs.centroid_px[k]
-    out["centroid_px"][k] = centre
-    out["bbox_px"][k] = np.array([x + bx, y + r0 + by, bw, bh], np.int32)
-    out["area_px"][k] = int(mo["m00"])
-    out["support"][k] = np.ascontiguousarray(mask[by : by + bh, bx : bx + bw])
+    centroid, bbox, area, support = out
+    centroid[k] = centre
+    bbox[k] = (x + bx, y + r0 + by, bw, bh)
+    area[k] = int(mo["m00"])
+    support[k] = np.ascontiguousarray(mask[by : by + bh, bx : bx + bw])
 
 
 def _merge(
