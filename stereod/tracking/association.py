@@ -323,6 +323,11 @@ class Association(TrackFilters):
             rows_in = np.array([i for i in range(n) if out[i] is None], np.intp)
             if not (cols_in.size and rows_in.size):
                 continue
+            if cols_in.size == 1 and rows_in.size == 1:  # one of each: no choice to make
+                i, j = int(rows_in[0]), int(cols_in[0])
+                if math.isfinite(cost[i, j]):
+                    out[i] = tracks[j].track_id
+                continue
             sub = cost[np.ix_(rows_in, cols_in)]
             feasible = np.isfinite(sub)
             if not feasible.any():
@@ -336,9 +341,10 @@ class Association(TrackFilters):
         # another object): it starts no track of its own while that one lives on, hidden.
         taken = {t for t in out if t is not None}
         unseen = [j for j, tr in enumerate(tracks) if confirmed[j] and tr.track_id not in taken]
-        piece = _pieces(detections, centres, bboxes, out, tracks)
-        for i in range(n):
-            if out[i] is None and may_start[i]:
+        free = [i for i in range(n) if out[i] is None and may_start[i]]
+        if free:  # (pieces matter only to a detection that may still start a track)
+            piece = _pieces(detections, centres, bboxes, out, tracks)
+            for i in free:
                 holds = any(inside[0, i, j] and inside[1, i, j] for j in unseen)
                 may_start[i] = not holds and not bool(piece[i]) and not gone[i]
         # A blob that would start a track but came out, in both eyes, of the blob that hid a
