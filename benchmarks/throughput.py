@@ -4,7 +4,8 @@ For each image size, renders a synthetic scene into memory (a ball crossing a te
 sensor noise), then times on the same pairs:
 
 - stereod: ``Pipeline.process`` (detect both eyes, match, triangulate, track) plus building the
-  wire payloads (objects message and per-track states), as the daemon does per pair;
+  wire payloads (the objects message and each track's state, each object serialised once by
+  ``dump_objects``), as the daemon does per pair;
 - naive: paper sec. II in float numpy + scipy.ndimage (``tests/detect_reference.py``), both eyes,
   detection only;
 - MOG2: OpenCV's Gaussian-mixture background subtractor on both eyes plus connected components.
@@ -29,7 +30,7 @@ from typing import NamedTuple
 import cv2
 import report
 
-from stereod.bus.messages import dump, objects_message
+from stereod.bus.messages import dump_objects, objects_message
 from stereod.pipeline import Pipeline, PipelineParams
 from stereod.sources.frames import StereoPair
 from stereod.vision.detect_params import DetectorParams
@@ -110,9 +111,7 @@ def bench_stereod(pairs: list[StereoPair], w: int, h: int, workers: int, repeat:
                 calibration_id=None,
                 utc_offset_ns=0,
             )
-            dump(msg)
-            for o in msg.objects:
-                dump(o)
+            dump_objects(msg)  # the objects payload and each object's, as the daemon sends them
 
         best = best.best(timed(step, pairs, 1))
         pipe.close()

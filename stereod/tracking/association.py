@@ -116,9 +116,11 @@ def _to_segments(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
 def _insides(points: np.ndarray, boxes: np.ndarray, grow: float = 0.0) -> np.ndarray:
     """:func:`_inside` of every point ((m, 2) px) in every box ((n, 4) x, y, w, h, each grown
     by ``grow`` of its size on every side), in one pass: (n boxes, m points)."""
-    x, y, w, h = (boxes[:, k, None].astype(np.float64) for k in range(4))
-    mx, my = grow * w, grow * h
+    x, y, w, h = np.asarray(boxes, np.float64).T[:, :, None]
     px, py = points[None, :, 0], points[None, :, 1]
+    if grow == 0.0:  # (x - 0 w is x: the same comparisons, without four products)
+        return (x <= px) & (px <= x + w) & (y <= py) & (py <= y + h)
+    mx, my = grow * w, grow * h
     return (x - mx <= px) & (px <= x + w + mx) & (y - my <= py) & (py <= y + h + my)
 
 
@@ -260,20 +262,18 @@ class Association(TrackFilters):
         )
         within = cost_px <= gates
         cost = np.where(within, cost_px / gates, np.inf)
-        resumes = (
-            ~within
-            & confirmed
-            & (_ious(bboxes[:, 0], last[0]) >= RESUME_IOU)
-            & (_ious(bboxes[:, 1], last[1]) >= RESUME_IOU)
-        )
-        cost[resumes] = RESUME_COST
+        resumes = ~within & confirmed
+        if resumes.any():  # (the overlaps only where a confirmed track's gate missed)
+            resumes &= _ious(bboxes[:, 0], last[0]) >= RESUME_IOU
+            resumes &= _ious(bboxes[:, 1], last[1]) >= RESUME_IOU
+            cost[resumes] = RESUME_COST
         cost[gone] = np.inf
         # whether each track's prediction falls in each detection's box, left and right eye
         inside = np.stack((_insides(ends[0], bboxes[:, 0]), _insides(ends[2], bboxes[:, 1])))
-        for i, d in enumerate(detections):
+        hosted = (inside & confirmed).sum(axis=2)  # (eye, detection): confirmed tracks in it
+        for i in np.flatnonzero(~gone & ((hosted[0] >= 2) | (hosted[1] >= 2))).tolist():
+            d = detections[i]
             in_left, in_right = inside[0, i] & confirmed, inside[1, i] & confirmed
-            if gone[i] or (in_left.sum() < 2 and in_right.sum() < 2):
-                continue
             hosts = np.flatnonzero(in_left | in_right)
             self._shared.add(i)
             if self._one_object([tracks[j] for j in hosts]):
@@ -321,6 +321,13 @@ class Association(TrackFilters):
         for group in (confirmed, ~confirmed):
             cols_in = np.flatnonzero(group)
             rows_in = np.array([i for i in range(n) if out[i] is None], np.intp)
+            if not (cols_in.size and rows_in.size):
+                continue
+            if cols_in.size == 1 and rows_in.size == 1:  # one of each: no choice to make
+                i, j = int(rows_in[0]), int(cols_in[0])
+                if math.isfinite(cost[i, j]):
+                    out[i] = tracks[j].track_id
+                continue
             sub = cost[np.ix_(rows_in, cols_in)]
             feasible = np.isfinite(sub)
             if not feasible.any():
@@ -334,9 +341,10 @@ class Association(TrackFilters):
         # another object): it starts no track of its own while that one lives on, hidden.
         taken = {t for t in out if t is not None}
         unseen = [j for j, tr in enumerate(tracks) if confirmed[j] and tr.track_id not in taken]
-        piece = _pieces(detections, centres, bboxes, out, tracks)
-        for i in range(n):
-            if out[i] is None and may_start[i]:
+        free = [i for i in range(n) if out[i] is None and may_start[i]]
+        if free:  # (pieces matter only to a detection that may still start a track)
+            piece = _pieces(detections, centres, bboxes, out, tracks)
+            for i in free:
                 holds = any(inside[0, i, j] and inside[1, i, j] for j in unseen)
                 may_start[i] = not holds and not bool(piece[i]) and not gone[i]
         # A blob that would start a track but came out, in both eyes, of the blob that hid a

@@ -115,7 +115,7 @@ def matte_centroid(
     found = count > 0.5
     np.maximum(count, 1.0, out=count)
     o: np.ndarray = total / (count[..., None] if f.ndim == 3 else count)
-    ob, fb = cv2.subtract(o, b, dtype=cv2.CV_32F), cv2.subtract(f, b, dtype=cv2.CV_32F)
+    ob, fb = o - b, np.subtract(f, b, dtype=np.float32)  # (exact in float32)
     if f.ndim == 3:
         num, den = cv2.transform(fb * ob, _ONES3), cv2.transform(ob * ob, _ONES3)
         channels = 3
@@ -124,7 +124,8 @@ def matte_centroid(
         channels = 1
     usable = found & (den >= channels * (0.5 * threshold) ** 2) & (band > 0)
     np.divide(num, den, out=weight, where=usable)  # the ramp's weight where it is not usable
-    np.clip(weight, 0.0, 1.0, out=weight)
+    np.maximum(weight, 0.0, out=weight)  # clipped to [0, 1] (np.clip costs more a call)
+    np.minimum(weight, 1.0, out=weight)
     np.putmask(weight, inner, 1.0)
     m = cv2.moments(weight)
     if m["m00"] <= 0:

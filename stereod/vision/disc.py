@@ -222,9 +222,14 @@ def disc_fits(
     basis = np.empty((nb, k, n))
     basis[:, 0] = inside
     basis[:, 1], basis[:, 2] = u, v
-    np.sqrt(np.maximum(1.0 - u * u - v * v, 0.0), out=basis[:, 3])  # the sphere's shading
-    basis[:, 4], basis[:, 5], basis[:, 6] = u * u, v * v, u * v
-    basis *= inside[:, None]  # a padded pixel: a zero column
+    np.multiply(u, u, out=basis[:, 4])
+    np.multiply(v, v, out=basis[:, 5])
+    np.multiply(u, v, out=basis[:, 6])
+    shading = np.subtract(1.0, basis[:, 4])
+    shading -= basis[:, 5]
+    np.sqrt(np.maximum(shading, 0.0, out=shading), out=basis[:, 3])  # the sphere's shading
+    if any(ww * wh < n for _, _, _, ww, wh in windows):
+        basis *= inside[:, None]  # a padded pixel: a zero column
     diff = f - b
     theta = start.copy()
     warm = [False] * nb  # started from the last frame's fit: one step, if a short one
@@ -241,7 +246,8 @@ def disc_fits(
     # as large, and large enough for a BLAS to split it over threads, which costs more than
     # it saves on a busy host.)
     g = 3 * channels
-    rows = np.zeros((nb, g + k + 1 + channels, n))
+    rows = np.empty((nb, g + k + 1 + channels, n))  # every row is written below but the zero row
+    rows[:, g + k] = 0.0
     jac = rows[:, : g + k]
     residual = rows[:, g + k + 1 :]
     rows_t = rows.transpose(0, 2, 1)
