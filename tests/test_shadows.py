@@ -75,7 +75,7 @@ def test_a_dark_object_with_a_few_shadow_like_windows_is_kept() -> None:
     """A dark object (uniform, 24x60 px) in front of the textured floor is a candidate
     throughout: darker by a factor a shadow could have. An 8x8 spot of it happens to follow
     the floor's texture under one factor, as a few windows of a real object do by chance
-    (dark trousers in front of a mottled wall: 1.5 to 3 % of them). One spot must not make the
+    (dark trousers in front of a mottled wall: 3 to 8 % of them). One spot must not make the
     whole object shadow; a shadow of the same size is still found."""
     bg = _floor(120, 160)
     body = np.zeros(bg.shape, np.uint8)

@@ -34,14 +34,18 @@ SHADOW_STRIP_RATIO_SPREAD = 0.12
 """The strip window's ``SHADOW_RATIO_SPREAD`` (see ``SHADOW_STRIP_MIN_NCC``)."""
 _COLUMN = np.ones((SHADOW_WINDOW_PX, 1), np.uint8)
 """A column of the square window's height: candidates in a run this tall have it."""
+_SQUARE = np.ones((SHADOW_WINDOW_PX, SHADOW_WINDOW_PX), np.uint8)
+"""The square window as a kernel: it fits inside the candidates where their erosion by it is."""
 _STRIP = np.ones(SHADOW_STRIP_WINDOW_PX[::-1], np.uint8)
 """The strip window as a kernel: its sure pixels are where it fits inside the thin candidates,
 as the square window's are where it fits inside a wide shadow."""
-SHADOW_MIN_SURE = 0.08
-"""The smallest share of a connected stretch of candidates' pixels on textured background that
-must be sure for the stretch to be a shadow. A cast shadow's are 17 to 43 % (a low lamp's, at
-640x480 and 320x240); dark trousers in front of a mottled wall, the colour the wall would take
-in shade, have a few windows pass by chance: 1.5 to 3 %."""
+SHADOW_MIN_SURE = 0.09
+"""The smallest share of a connected stretch of candidates' judged pixels (where the square
+window fits inside the candidates, on textured background) that must be sure for the stretch
+to be a shadow. A low lamp's shadow's are 10 to 100 % (through a webcam's MJPEG and 4:2:2
+chroma 10 to 54 %); dark trousers in front of a mottled wall, the colour the wall would take in
+shade, have a few windows pass by chance: 3 to 8 %. A stretch no window fits inside is judged
+by its sure pixels alone."""
 SHADOW_CHROMA = 0.06
 """How far (share of the brightness) a shadowed pixel's colour may stray from the background's
 scaled by the pixel's own ratio."""
@@ -52,8 +56,8 @@ class _Relit:
     """:func:`_relit`'s masks (uint8 255) on the crop ``sl`` of an image of ``shape`` (h, w px):
     the candidates, the sure ones by the square window and those it could judge (on textured
     background), the thin candidates (in a vertical run shorter than that window's side), and
-    the sure ones among those by the strip window and those it could judge (``None`` when the
-    strip window fits nowhere inside them)."""
+    the sure ones among those by the strip window (``None`` when the strip window fits nowhere
+    inside them)."""
 
     sl: tuple[slice, slice]
     shape: tuple[int, ...]
@@ -62,7 +66,6 @@ class _Relit:
     judged: np.ndarray
     thin: np.ndarray
     thin_core: np.ndarray | None
-    thin_judged: np.ndarray | None
 
     def full(self, crop: np.ndarray) -> np.ndarray:
         """``crop`` (a mask on ``sl``) placed in an image of ``shape``, zero elsewhere."""
@@ -122,17 +125,16 @@ def _relit(
         fl, bl, r, (SHADOW_WINDOW_PX, SHADOW_WINDOW_PX), SHADOW_MIN_NCC, SHADOW_RATIO_SPREAD
     )
     core = cv2.bitwise_and(cand, _u8(square))
-    judged = cv2.bitwise_and(cand, _u8(textured))
+    judged = cv2.bitwise_and(cv2.erode(cand, _SQUARE), _u8(textured))
     thin = cv2.subtract(cand, cv2.morphologyEx(cand, cv2.MORPH_OPEN, _COLUMN))
     long = cv2.morphologyEx(thin, cv2.MORPH_OPEN, _STRIP)
-    thin_core = thin_judged = None
+    thin_core = None
     if cv2.countNonZero(long):
-        strip, strip_textured = _keeps_texture(
+        strip, _ = _keeps_texture(
             fl, bl, r, SHADOW_STRIP_WINDOW_PX, SHADOW_STRIP_MIN_NCC, SHADOW_STRIP_RATIO_SPREAD
         )
         thin_core = cv2.bitwise_and(long, _u8(strip))
-        thin_judged = cv2.bitwise_and(long, _u8(strip_textured))
-    return _Relit(sl, cand_all.shape, cand, core, judged, thin, thin_core, thin_judged)
+    return _Relit(sl, cand_all.shape, cand, core, judged, thin, thin_core)
 
 
 def _u8(mask: np.ndarray) -> np.ndarray:
@@ -183,26 +185,30 @@ def shadow_mask(
     if found is None:
         return None
     shade = _reached(found.cand, found.core, found.judged)
-    if found.thin_core is not None and found.thin_judged is not None:
+    if found.thin_core is not None:
         # What the strip window finds reaches only the thin candidates: through them, one sure
-        # pixel would otherwise take an object's tall dark side with it.
-        shade = cv2.bitwise_or(shade, _reached(found.thin, found.thin_core, found.thin_judged))
+        # pixel would otherwise take an object's tall dark side with it. A strip through a
+        # webcam's MJPEG has few sure pixels, and nothing tall is thin: no share is asked.
+        shade = cv2.bitwise_or(shade, _reached(found.thin, found.thin_core))
     return found.full(shade) if cv2.countNonZero(shade) else None
 
 
-def _reached(cand: np.ndarray, core: np.ndarray, judged: np.ndarray) -> np.ndarray:
+def _reached(cand: np.ndarray, core: np.ndarray, judged: np.ndarray | None = None) -> np.ndarray:
     """The candidates (uint8 255) connected to sure pixels of ``core`` (8-neighbours), not
     those across a gap (a dark stripe on the object beside its shadow is a candidate too,
-    apart from it), in stretches where at least ``SHADOW_MIN_SURE`` of the pixels the window
-    could judge (``judged``) are sure: a few windows on a dark object pass by chance."""
+    apart from it); with ``judged`` (where the window fits inside the candidates and could
+    judge), only in stretches where at least ``SHADOW_MIN_SURE`` of those are sure, if any:
+    a few windows on a dark object pass by chance."""
     if cv2.countNonZero(core) == 0:
         return np.zeros_like(cand)
     n, labels = cv2.connectedComponents(cand, connectivity=8, ltype=cv2.CV_16U)
     sure_px = np.bincount(labels[core > 0], minlength=n)
-    judged_px = np.bincount(labels[judged > 0], minlength=n)
-    sure = np.where(
-        (sure_px > 0) & (sure_px >= SHADOW_MIN_SURE * judged_px), np.uint8(255), np.uint8(0)
-    )
+    enough = sure_px > 0
+    if judged is not None:
+        judged_px = np.bincount(labels[judged > 0], minlength=n)
+        sure_in = np.bincount(labels[(judged > 0) & (core > 0)], minlength=n)
+        enough &= (judged_px == 0) | (sure_in >= SHADOW_MIN_SURE * judged_px)
+    sure = np.where(enough, np.uint8(255), np.uint8(0))
     sure[0] = 0
     return sure[labels]
 
