@@ -39,13 +39,14 @@ _SQUARE = np.ones((SHADOW_WINDOW_PX, SHADOW_WINDOW_PX), np.uint8)
 _STRIP = np.ones(SHADOW_STRIP_WINDOW_PX[::-1], np.uint8)
 """The strip window as a kernel: its sure pixels are where it fits inside the thin candidates,
 as the square window's are where it fits inside a wide shadow."""
-SHADOW_MIN_SURE = 0.09
-"""The smallest share of a connected stretch of candidates' judged pixels (where the square
-window fits inside the candidates, on textured background) that must be sure for the stretch
-to be a shadow. A low lamp's shadow's are 10 to 100 % (through a webcam's MJPEG and 4:2:2
-chroma 10 to 54 %); dark trousers in front of a mottled wall, the colour the wall would take in
-shade, have a few windows pass by chance: 3 to 8 %. A stretch no window fits inside is judged
-by its sure pixels alone."""
+SHADOW_MIN_SURE = (0.09, 0.08)
+"""The smallest share of a connected stretch of candidates' judged pixels that must be sure for
+the stretch to be a shadow: of those where the square window fits inside the candidates, on
+textured background, or, where it fits nowhere, of all its pixels on textured background. A
+low lamp's shadow's are 10 to 100 % (through a webcam's MJPEG and 4:2:2 chroma 10 to 54 %);
+dark trousers in front of a mottled wall, the colour the wall would take in shade, have a few
+windows pass by chance (3 to 8 %), and a walking person's dark legs, blurred over the wall in
+thin stretches no window fits inside, 0 to 6 % of all."""
 SHADOW_CHROMA = 0.06
 """How far (share of the brightness) a shadowed pixel's colour may stray from the background's
 scaled by the pixel's own ratio."""
@@ -125,7 +126,7 @@ def _relit(
         fl, bl, r, (SHADOW_WINDOW_PX, SHADOW_WINDOW_PX), SHADOW_MIN_NCC, SHADOW_RATIO_SPREAD
     )
     core = cv2.bitwise_and(cand, _u8(square))
-    judged = cv2.bitwise_and(cv2.erode(cand, _SQUARE), _u8(textured))
+    judged = cv2.bitwise_and(cand, _u8(textured))
     thin = cv2.subtract(cand, cv2.morphologyEx(cand, cv2.MORPH_OPEN, _COLUMN))
     long = cv2.morphologyEx(thin, cv2.MORPH_OPEN, _STRIP)
     thin_core = None
@@ -196,18 +197,23 @@ def shadow_mask(
 def _reached(cand: np.ndarray, core: np.ndarray, judged: np.ndarray | None = None) -> np.ndarray:
     """The candidates (uint8 255) connected to sure pixels of ``core`` (8-neighbours), not
     those across a gap (a dark stripe on the object beside its shadow is a candidate too,
-    apart from it); with ``judged`` (where the window fits inside the candidates and could
-    judge), only in stretches where at least ``SHADOW_MIN_SURE`` of those are sure, if any:
-    a few windows on a dark object pass by chance."""
+    apart from it); with ``judged`` (where the window could judge), only in stretches where
+    at least ``SHADOW_MIN_SURE`` of those are sure, counted where the window fits inside the
+    candidates if it fits anywhere: a few windows on a dark object pass by chance."""
     if cv2.countNonZero(core) == 0:
         return np.zeros_like(cand)
     n, labels = cv2.connectedComponents(cand, connectivity=8, ltype=cv2.CV_16U)
     sure_px = np.bincount(labels[core > 0], minlength=n)
     enough = sure_px > 0
     if judged is not None:
+        inside = cv2.bitwise_and(cv2.erode(cand, _SQUARE), judged) > 0
+        inner_px = np.bincount(labels[inside], minlength=n)
+        inner_sure = np.bincount(labels[inside & (core > 0)], minlength=n)
         judged_px = np.bincount(labels[judged > 0], minlength=n)
-        sure_in = np.bincount(labels[(judged > 0) & (core > 0)], minlength=n)
-        enough &= (judged_px == 0) | (sure_in >= SHADOW_MIN_SURE * judged_px)
+        share_in, share_all = SHADOW_MIN_SURE
+        enough &= np.where(
+            inner_px > 0, inner_sure >= share_in * inner_px, sure_px >= share_all * judged_px
+        )
     sure = np.where(enough, np.uint8(255), np.uint8(0))
     sure[0] = 0
     return sure[labels]
