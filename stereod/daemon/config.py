@@ -150,7 +150,7 @@ class DetectorConfig(Section):
         _DETECT.hold_margin_px, ge=0, le=50, description="Growth of the held foreground, px"
     )
     absorb_s: Annotated[float, ABSORB_S.validator()] = Field(
-        _DETECT.absorb_s, description="Foreground still this long is learned, s"
+        _DETECT.absorb_s, description="Foreground still this long becomes background, s"
     )
     fill_holes: bool = Field(_DETECT.fill_holes, description="An object's support is filled")
     convex: bool = Field(_DETECT.convex, description="An object's support is convex")

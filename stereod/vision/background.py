@@ -109,6 +109,8 @@ class BackgroundModel:
         self._held_roi: Rect | None = None
         self._held_t: float | None = None
         """The instant (s) of the last frame :meth:`_held` saw."""
+        self._stale: tuple[Rect, np.ndarray] | None = None
+        """Where :meth:`_held` found foreground held ``absorb_s``, for :meth:`learn` to absorb."""
         self._row_step = max(d for d in _ROW_STEPS if d <= max(params.open_px, 1))
         """Rows apart that the first pass of eq. 4 looks at. A pixel the opening keeps lies in
         an ``open_px`` square of pixels, inside the image, each at least the weak level (the
@@ -248,6 +250,7 @@ class BackgroundModel:
         assert bg is not None
         h, w = bg.shape[:2]
         held = self._held() if p.hold_foreground else None
+        stale, self._stale = self._stale, None
         tick = self._ticks
         self._ticks += 1
         if self._quiet_frame and not frozen and p.learn_stride > 1:
@@ -267,7 +270,36 @@ class BackgroundModel:
         if kept is not None:
             region, before, keep = kept
             cv2.copyTo(before, keep, region)  # in place: ``region`` is a view of T
-        self._learned_rows(bg, phase)
+        if stale is not None and self._absorb(frame, bg, stale, boxes):
+            self._coarse = None  # T changed off eq. 3's rows: the first pass's are rounded again
+        else:
+            self._learned_rows(bg, phase)
+
+    def _absorb(
+        self,
+        frame: np.ndarray,
+        bg: np.ndarray,
+        stale: tuple[Rect, np.ndarray],
+        boxes: list[Rect],
+    ) -> bool:
+        """Make T the frame at once where foreground has stayed ``absorb_s`` seconds
+        (``stale``: its rectangle and uint8 mask), outside the ``boxes`` the tracker freezes.
+        Learned by eq. 3 alone,
+        such a pixel's difference would fall through t over tens of frames, and its noise
+        would take it out of the foreground and back in, each time held ``absorb_s`` anew: a
+        still person's legs, learned so, leave speckled foreground for tens of seconds.
+        Gives whether anything changed."""
+        (x0, y0, x1, y1), mask = stale
+        if boxes:
+            mask = mask.copy()
+            for r in boxes:
+                c = clipped(r, x1, y1, x0, y0)
+                if c is not None:
+                    mask[c[1] - y0 : c[3] - y0, c[0] - x0 : c[2] - x0] = 0
+        if not cv2.countNonZero(mask):
+            return False
+        cv2.copyTo(frame[y0:y1, x0:x1].astype(np.float32), mask, bg[y0:y1, x0:x1])
+        return True
 
     def _kept(
         self,
@@ -389,4 +421,6 @@ class BackgroundModel:
             stale = cv2.compare(since, np.full(since.shape, limit, np.float32), cv2.CMP_LT)
         else:
             stale = cv2.compare(since, np.float64(limit), cv2.CMP_LT)
+        stale = cv2.bitwise_and(grown, stale)
+        self._stale = (roi, stale)
         return roi, cv2.subtract(grown, stale)

@@ -34,9 +34,19 @@ SHADOW_STRIP_RATIO_SPREAD = 0.12
 """The strip window's ``SHADOW_RATIO_SPREAD`` (see ``SHADOW_STRIP_MIN_NCC``)."""
 _COLUMN = np.ones((SHADOW_WINDOW_PX, 1), np.uint8)
 """A column of the square window's height: candidates in a run this tall have it."""
+_SQUARE = np.ones((SHADOW_WINDOW_PX, SHADOW_WINDOW_PX), np.uint8)
+"""The square window as a kernel: it fits inside the candidates where their erosion by it is."""
 _STRIP = np.ones(SHADOW_STRIP_WINDOW_PX[::-1], np.uint8)
 """The strip window as a kernel: its sure pixels are where it fits inside the thin candidates,
 as the square window's are where it fits inside a wide shadow."""
+SHADOW_MIN_SURE = (0.09, 0.08)
+"""The smallest share of a connected stretch of candidates' judged pixels that must be sure for
+the stretch to be a shadow: of those where the square window fits inside the candidates, on
+textured background, or, where it fits nowhere, of all its pixels on textured background. A
+low lamp's shadow's are 10 to 100 % (through a webcam's MJPEG and 4:2:2 chroma 10 to 54 %);
+dark trousers in front of a mottled wall, the colour the wall would take in shade, have a few
+windows pass by chance (3 to 8 %), and a walking person's dark legs, blurred over the wall in
+thin stretches no window fits inside, 0 to 6 % of all."""
 SHADOW_CHROMA = 0.06
 """How far (share of the brightness) a shadowed pixel's colour may stray from the background's
 scaled by the pixel's own ratio."""
@@ -45,14 +55,16 @@ scaled by the pixel's own ratio."""
 @dataclass(frozen=True)
 class _Relit:
     """:func:`_relit`'s masks (uint8 255) on the crop ``sl`` of an image of ``shape`` (h, w px):
-    the candidates, the sure ones by the square window, the thin candidates (in a vertical run
-    shorter than that window's side), and the sure ones among those by the strip window
-    (``None`` when the strip window fits nowhere inside them)."""
+    the candidates, the sure ones by the square window and those it could judge (on textured
+    background), the thin candidates (in a vertical run shorter than that window's side), and
+    the sure ones among those by the strip window (``None`` when the strip window fits nowhere
+    inside them)."""
 
     sl: tuple[slice, slice]
     shape: tuple[int, ...]
     cand: np.ndarray
     core: np.ndarray
+    judged: np.ndarray
     thin: np.ndarray
     thin_core: np.ndarray | None
 
@@ -110,19 +122,25 @@ def _relit(
         cand = cv2.bitwise_and(cand, same_colour)
     if cv2.countNonZero(cand) == 0:
         return None
-    square = _keeps_texture(
+    square, textured = _keeps_texture(
         fl, bl, r, (SHADOW_WINDOW_PX, SHADOW_WINDOW_PX), SHADOW_MIN_NCC, SHADOW_RATIO_SPREAD
     )
-    core = cv2.bitwise_and(cand, square.view(np.uint8) * np.uint8(255))
+    core = cv2.bitwise_and(cand, _u8(square))
+    judged = cv2.bitwise_and(cand, _u8(textured))
     thin = cv2.subtract(cand, cv2.morphologyEx(cand, cv2.MORPH_OPEN, _COLUMN))
     long = cv2.morphologyEx(thin, cv2.MORPH_OPEN, _STRIP)
     thin_core = None
     if cv2.countNonZero(long):
-        strip = _keeps_texture(
+        strip, _ = _keeps_texture(
             fl, bl, r, SHADOW_STRIP_WINDOW_PX, SHADOW_STRIP_MIN_NCC, SHADOW_STRIP_RATIO_SPREAD
         )
-        thin_core = cv2.bitwise_and(long, strip.view(np.uint8) * np.uint8(255))
-    return _Relit(sl, cand_all.shape, cand, core, thin, thin_core)
+        thin_core = cv2.bitwise_and(long, _u8(strip))
+    return _Relit(sl, cand_all.shape, cand, core, judged, thin, thin_core)
+
+
+def _u8(mask: np.ndarray) -> np.ndarray:
+    """A boolean mask as uint8 255."""
+    return mask.view(np.uint8) * np.uint8(255)
 
 
 def _keeps_texture(
@@ -132,10 +150,11 @@ def _keeps_texture(
     k: tuple[int, int],
     min_ncc: float,
     spread: float,
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """Where the window ``k`` (w, h px) keeps the background's texture under one factor: as
     much texture as the factor leaves, normalised cross-correlation at least ``min_ncc``, and
-    frame / background within ``spread`` (a share of its mean) across it."""
+    frame / background within ``spread`` (a share of its mean) across it; and where the
+    background has the texture to tell (boolean masks)."""
     mf, mb = cv2.blur(fl, k), cv2.blur(bl, k)
     vf = cv2.blur(fl * fl, k) - mf * mf
     vb = cv2.blur(bl * bl, k) - mb * mb
@@ -145,9 +164,10 @@ def _keeps_texture(
     gain = mf / (mb + 1.0)  # the window's factor: its texture is the background's times it
     mr = cv2.blur(r, k)
     vr = cv2.blur(r * r, k) - mr * mr  # other light changes its whole window alike
-    return (
+    keeps = (
         textured & (ncc >= min_ncc) & (vf >= 0.25 * gain * gain * vb) & (vr <= (spread * mr) ** 2)
     )
+    return keeps, textured
 
 
 def shadow_mask(
@@ -165,23 +185,36 @@ def shadow_mask(
     found = _relit(frame, background, foreground, ratio)
     if found is None:
         return None
-    shade = _reached(found.cand, found.core)
+    shade = _reached(found.cand, found.core, found.judged)
     if found.thin_core is not None:
         # What the strip window finds reaches only the thin candidates: through them, one sure
-        # pixel would otherwise take an object's tall dark side with it.
+        # pixel would otherwise take an object's tall dark side with it. A strip through a
+        # webcam's MJPEG has few sure pixels, and nothing tall is thin: no share is asked.
         shade = cv2.bitwise_or(shade, _reached(found.thin, found.thin_core))
     return found.full(shade) if cv2.countNonZero(shade) else None
 
 
-def _reached(cand: np.ndarray, core: np.ndarray) -> np.ndarray:
-    """The candidates (uint8 255) connected to a sure pixel of ``core`` (8-neighbours), not
-    those across a gap: a dark stripe on the object beside its shadow is a candidate too,
-    apart from it."""
+def _reached(cand: np.ndarray, core: np.ndarray, judged: np.ndarray | None = None) -> np.ndarray:
+    """The candidates (uint8 255) connected to sure pixels of ``core`` (8-neighbours), not
+    those across a gap (a dark stripe on the object beside its shadow is a candidate too,
+    apart from it); with ``judged`` (where the window could judge), only in stretches where
+    at least ``SHADOW_MIN_SURE`` of those are sure, counted where the window fits inside the
+    candidates if it fits anywhere: a few windows on a dark object pass by chance."""
     if cv2.countNonZero(core) == 0:
         return np.zeros_like(cand)
     n, labels = cv2.connectedComponents(cand, connectivity=8, ltype=cv2.CV_16U)
-    sure = np.zeros(n, np.uint8)
-    sure[np.unique(labels[core > 0])] = 255
+    sure_px = np.bincount(labels[core > 0], minlength=n)
+    enough = sure_px > 0
+    if judged is not None:
+        inside = cv2.bitwise_and(cv2.erode(cand, _SQUARE), judged) > 0
+        inner_px = np.bincount(labels[inside], minlength=n)
+        inner_sure = np.bincount(labels[inside & (core > 0)], minlength=n)
+        judged_px = np.bincount(labels[judged > 0], minlength=n)
+        share_in, share_all = SHADOW_MIN_SURE
+        enough &= np.where(
+            inner_px > 0, inner_sure >= share_in * inner_px, sure_px >= share_all * judged_px
+        )
+    sure = np.where(enough, np.uint8(255), np.uint8(0))
     sure[0] = 0
     return sure[labels]
 
