@@ -28,7 +28,7 @@ from stereod.files.output_file import AtomicOutput
 from stereod.fusion.clock import ClockWatch
 from stereod.fusion.fuser import Fuser
 from stereod.fusion.mcap import RoomMcapWriter
-from stereod.fusion.output import join_room, object_payloads
+from stereod.fusion.output import frame_payloads, join_room
 from stereod.fusion.room import Room
 from stereod.fusion.status import FuseStatus, RigLink
 from stereod.fusion.wire import RigWire, decode
@@ -250,7 +250,7 @@ class FuseNode:
         self.clock.observe(frame)
         self.fuser.clock_corrections_ns = dict(self.clock.corrections_ns)
         fuse_ms = (time.monotonic() - t0) * 1e3
-        touched = object_payloads(frame.tracks, frame.rows)
+        touched = frame_payloads(frame)
         self._states.update(touched)
         for rid in frame.ended:
             self._states.pop(rid, None)
