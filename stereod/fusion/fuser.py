@@ -455,11 +455,32 @@ class Fuser:
         track fused here that more than one rig sees its members' own (unpredicted)
         measurements, and the touched tracks left, by id (None when none was touched)."""
         rids = sorted(touched)
-        idx, starts, with_members = self._member_rows(rids)
         st = self._state
         shared: _Shared = {}
         fused_at: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         coast_at: tuple[np.ndarray, np.ndarray] | None = None
+        # Each track's members' table rows, names and strains so far, in one pass.
+        index = self._table.index
+        idx: list[int] = []
+        starts: list[int] = []
+        with_members: list[int] = []
+        coasting: list[int] = []
+        links: list[Links] = []
+        names: list[tuple[str, int]] = []
+        before: list[float] = []
+        for rid in rids:
+            ln = self._tracks[rid]
+            if not ln.members:
+                coasting.append(rid)
+                continue
+            starts.append(len(idx))
+            with_members.append(rid)
+            links.append(ln)
+            strain = ln.strain
+            for m in ln.members.items():
+                idx.append(index[m[0]][m[1]])
+                names.append(m)
+                before.append(strain.get(m, 0.0))
         if with_members:
             table = self._table
             i = np.array(idx, dtype=np.intp)
@@ -469,39 +490,32 @@ class Fuser:
             s = np.array(starts)
             # Each member's strain so far scales its covariance down in the fusion; its
             # distance to the fused position then moves its strain on.
-            links = [self._tracks[rid] for rid in with_members]
-            names = [m for ln in links for m in ln.members.items()]
-            before = [ln.strain.get(m, 0.0) for ln in links for m in ln.members.items()]
             fused, nis = tab.fuse_ray(f, table.ray.take(i, axis=0), s, np.array(before))
             flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0)
             slots = st.slots(with_members)
-            best = starts
+            best = s
             if len(idx) > len(starts):  # some track has several members
-                best = list(starts)
-                nis_list = nis.tolist()
-                trace = f[:, DIAG_P].sum(axis=1).tolist()
-                stamp_list = stamps.tolist()
-                prev = st.stamp[slots].tolist()
+                run = np.repeat(np.arange(len(starts)), np.diff(np.append(s, len(idx))))
+                # Best member: least position trace, the first of equals (a stable sort).
+                best = np.lexsort((f[:, DIAG_P].sum(axis=1), run))[s]
+                after = tab.strain_steps(
+                    np.array(before), nis, ((t_ns - st.stamp[slots]) * 1e-9)[run]
+                ).tolist()
+                when = stamps.tolist()
+                pos, cov = raw[:, POS], raw[:, PCOV].reshape(-1, 3, 3)
                 ends = [*starts[1:], len(idx)]
-                for g, (ln, a, b) in enumerate(zip(links, starts, ends, strict=True)):
+                for ln, rid, a, b in zip(links, with_members, starts, ends, strict=True):
                     if b - a == 1:
                         if ln.strain:
                             ln.strain = {}
                         continue
-                    after = tab.strain_step(before[a:b], nis_list[a:b], (t_ns - prev[g]) * 1e-9)
-                    ln.strain = dict(zip(names[a:b], after, strict=True))
-                    # Best member: least position trace, the first of equals.
-                    best[g] = min(range(a, b), key=trace.__getitem__)
-                    shared[with_members[g]] = [
-                        (names[j][0], stamp_list[j], raw[j, POS], raw[j, PCOV].reshape(3, 3))
-                        for j in range(a, b)
-                    ]
+                    ln.strain = dict(zip(names[a:b], after[a:b], strict=True))
+                    shared[rid] = [(names[j][0], when[j], pos[j], cov[j]) for j in range(a, b)]
             else:
                 for ln in links:
                     if ln.strain:
                         ln.strain = {}
             fused_at = (slots, fused, flags, table.extra.take(i[best], axis=0))
-        coasting = [rid for rid in rids if not self._tracks[rid].members]
         if coasting:
             coast_at = (st.slots(coasting), st.coast(coasting, t_ns))
         ended: list[int] = []

@@ -169,6 +169,13 @@ def strain_step(strain: list[float], nis: list[float], dt_s: float) -> list[floa
     return [s + a * (d - s) for s, d in zip(strain, nis, strict=True)]
 
 
+def strain_steps(strain: np.ndarray, nis: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
+    """:func:`strain_step` of many members at once, each by its own ``dt_s`` (n,) seconds:
+    their strains (n,) moved towards their squared Mahalanobis distances ``nis`` (n,)."""
+    a = -np.expm1(-np.maximum(dt_s, 0.0) / STRAIN_TAU_S)
+    return strain + a * (nis - strain)
+
+
 def without_rig(strain: dict[tuple[str, int], float], rig: str) -> dict[tuple[str, int], float]:
     """A room track's strains by (rig, track id) less ``rig``'s member (a new dict: a track's
     strains are replaced, never written into)."""
