@@ -60,27 +60,23 @@ def matvec3(m: np.ndarray, x: np.ndarray) -> np.ndarray:
     return (m.reshape(-1, 3, 3) @ x[:, :, None])[:, :, 0]
 
 
-_GROW = np.zeros((WIDTH, 2 * WIDTH))
-"""Row @ _GROW: the velocity where the position goes (first WIDTH columns) and the velocity's
-covariance where the position's goes (last WIDTH), the terms prediction adds times dt and
-dt^2."""
-_GROW[3:6, 0:3] = np.eye(3)
-_GROW[15:24, WIDTH + 6 : WIDTH + 15] = np.eye(9)
-_ACCEL = np.zeros(WIDTH)
-_ACCEL[[15, 19, 23]] = ACCEL_SIGMA_MPS2**2
-_ACCEL4 = np.zeros(WIDTH)
-_ACCEL4[[6, 10, 14]] = ACCEL_SIGMA_MPS2**2 / 4.0
+_ACCEL_V = np.zeros(9)
+_ACCEL_V[[0, 4, 8]] = ACCEL_SIGMA_MPS2**2
+_ACCEL_P = _ACCEL_V / 4.0
 
 
 def predict_rows(f: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
     """Rows of :data:`WIDTH` columns predicted by ``dt_s`` (n,) seconds each: constant velocity,
     the velocity's uncertainty and a white acceleration of ``ACCEL_SIGMA_MPS2`` growing the
     position's covariance by dt^2 V + (a dt^2 / 2)^2 and the velocity's by (a dt)^2, as
-    ``frames.predict`` does for one."""
+    ``frames.predict`` does for one (each block of columns in a few whole-array operations)."""
     dt = dt_s[:, None]
     dt2 = dt * dt
-    grow = f @ _GROW
-    return f + dt * grow[:, :WIDTH] + dt2 * (grow[:, WIDTH:] + _ACCEL + dt2 * _ACCEL4)
+    out = f.copy()
+    out[:, POS] += dt * f[:, VEL]
+    out[:, PCOV] += dt2 * (f[:, VCOV] + dt2 * _ACCEL_P)
+    out[:, VCOV] += dt2 * _ACCEL_V
+    return out
 
 
 def fuse_groups(
@@ -255,7 +251,7 @@ class Table:
         """Rig name -> its rows' track ids, in row order."""
         self.index: dict[str, dict[int, int]] = {}
         """Rig name -> track id -> its row in the table."""
-        self._spreads: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._spreads: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def _grow(self, blocks: int, capacity: int) -> None:
         """Make room for ``blocks`` blocks of ``capacity`` rows, keeping every rig's rows."""
@@ -303,11 +299,10 @@ class Table:
         rows = self.f[base : base + n]
         rows[:, POS] = w.position @ r.T + translation
         rows[:, VEL] = w.velocity @ r.T
-        covs = np.square(sig) @ self._spread(rig, r)
+        spread, xz = self._spread(rig, r)
+        covs = np.square(sig) @ spread
         rows[:, PCOV], rows[:, VCOV] = covs[:n], covs[n:]
-        # R C R^T of the X-Z covariance alone: c (R_x R_z^T + R_z R_x^T), R_x, R_z R's columns.
-        xz = np.outer(r[:, 0], r[:, 2])
-        self.ray[base : base + n] = np.outer(ray_xz(w.position, sig[:n]), (xz + xz.T).ravel())
+        self.ray[base : base + n] = ray_xz(w.position, sig[:n])[:, None] * xz
         self.stamps[base : base + n] = w.stamps_ns
         flags = self.flags[base : base + n]
         flags[:, SEEN : MOVING + 1] = _SEEN_MOVING[w.state]
@@ -318,16 +313,18 @@ class Table:
         self.count[rig] = n
         self.index[rig] = dict(zip(ids, range(base, base + n), strict=True))
 
-    def _spread(self, rig: str, rotation: np.ndarray) -> np.ndarray:
+    def _spread(self, rig: str, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(3, 9): squared sigmas (n, 3) times this are ``R diag(s^2) R^T`` row-major (entry
-        (i, j) is ``sum_k R_ik R_jk s_k^2``, linear in s^2); kept per rig while its rotation
-        is the same array."""
+        (i, j) is ``sum_k R_ik R_jk s_k^2``, linear in s^2); and (9,): an X-Z covariance c
+        times this is ``R C R^T`` of it, ``c (R_x R_z^T + R_z R_x^T)`` (``R_x``, ``R_z`` R's
+        columns), row-major. Kept per rig while its rotation is the same array."""
         known = self._spreads.get(rig)
         if known is not None and known[0] is rotation:
-            return known[1]
+            return known[1], known[2]
         spread = (rotation[:, None, :] * rotation[None, :, :]).reshape(9, 3).T.copy()
-        self._spreads[rig] = (rotation, spread)
-        return spread
+        xz = np.outer(rotation[:, 0], rotation[:, 2])
+        self._spreads[rig] = (rotation, spread, (xz + xz.T).ravel())
+        return spread, self._spreads[rig][2]
 
     def drop(self, rig: str) -> None:
         """Forget ``rig``'s rows (its block stays its own)."""
