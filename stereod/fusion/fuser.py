@@ -495,7 +495,7 @@ class Fuser:
             slots = st.slots(with_members)
             best = s
             if len(idx) > len(starts):  # some track has several members
-                run = np.repeat(np.arange(len(starts)), np.diff(np.append(s, len(idx))))
+                run = np.arange(len(starts)).repeat(tab.run_sizes(s, len(idx)))
                 # Best member: least position trace, the first of equals (a stable sort).
                 best = np.lexsort((f[:, DIAG_P].sum(axis=1), run))[s]
                 after = tab.strain_steps(

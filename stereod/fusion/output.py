@@ -134,7 +134,7 @@ def _frame_figures(frame: FusedFrame) -> list[_Object]:
     c, rows = frame.columns, frame.rows
     if c is None or rows is None or not len(rows):
         return []
-    if not c.described.all():
+    if not np.logical_and.reduce(c.described):
         keep = np.flatnonzero(c.described)
         if not keep.size:
             return []

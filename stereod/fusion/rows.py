@@ -127,19 +127,28 @@ def fuse_ray(
     published. Returns each run's fused row (k, WIDTH) and each row's squared Mahalanobis
     distance to its run's fused position under its own unscaled covariance along its ray (n,)
     (what :func:`strain_step` moves its strain towards; 0 for a run of one)."""
-    size = np.diff(np.append(starts, len(f)))
-    alone = size == 1
-    if alone.all():
+    if len(starts) == len(f):  # every run one row
         return f[starts], np.zeros(len(f))
+    size = run_sizes(starts, len(f))
+    alone = size == 1
     g = f.copy()
     g[:, PCOV] += ray
     info = inv3(g[:, PCOV])
-    if strain.max() > STRAIN_FREE:  # else every scale is 1
+    if np.maximum.reduce(strain) > STRAIN_FREE:  # else every scale is 1
         g[:, PCOV] *= strain_scale(strain)[:, None]
     out = fuse_states(g, starts)
     out[alone] = f[starts[alone]]
-    d = f[:, POS] - np.repeat(out[:, POS], size, axis=0)
+    d = f[:, POS] - out[:, POS].repeat(size, axis=0)
     return out, np.einsum("ni,ni->n", d, matvec3(info, d))
+
+
+def run_sizes(starts: np.ndarray, n: int) -> np.ndarray:
+    """The length of each run of rows from ``starts[g]`` to the next start (the last to
+    ``n``), (k,): numpy's own calls, no Python wrapper."""
+    size = np.empty_like(starts)
+    np.subtract(starts[1:], starts[:-1], out=size[:-1])
+    size[-1] = n - starts[-1]
+    return size
 
 
 STRAIN_TAU_S = 0.2
@@ -280,7 +289,8 @@ class Table:
         (``p' = R p + t``, ``v' = R v``, ``P' = R P R^T``; a missing or non-finite sigma as
         ``frames.to_room`` takes it), in place of that rig's previous rows; :attr:`ray` what
         the position's covariance along its viewing ray (``frames.ray_cov``) adds to that."""
-        w = wire if not (wire.state == TENTATIVE).any() else wire.select(wire.state != TENTATIVE)
+        tentative = wire.state == TENTATIVE
+        w = wire if not np.logical_or.reduce(tentative) else wire.select(~tentative)
         n = len(w.ids)
         rig = w.rig
         if rig not in self.blocks:
@@ -292,7 +302,7 @@ class Table:
         base = self.blocks[rig] * self.capacity
         ps, vs = w.position_sigma, w.velocity_sigma
         sig = np.concatenate([ps, vs])
-        if not np.isfinite(sig).all():
+        if not np.logical_and.reduce(np.isfinite(sig), axis=None):
             sig[:n] = np.where(np.isfinite(ps), ps, 1.0)
             sig[n:] = np.where(np.isfinite(vs), vs, UNKNOWN_VELOCITY_SIGMA_MPS)
         r = rotation
