@@ -244,18 +244,21 @@ class FuseNode:
 
     def _step(self, t_ns: int, rigs: list[str], received: list[float]) -> None:
         """Fuse ``rigs``' new tracks at ``t_ns`` (UTC ns), publish the room tracks they
-        touched on their own keys and mark the room's message due."""
+        touched on their own keys, then give the step to the clock watch (its corrections
+        apply from the next message on, so the tracks need not wait for it) and mark the
+        room's message due."""
         t0 = time.monotonic()
         frame = self.fuser.fuse(t_ns, rigs)
-        self.clock.observe(frame)
-        self.fuser.clock_corrections_ns = dict(self.clock.corrections_ns)
-        fuse_ms = (time.monotonic() - t0) * 1e3
+        fused = time.monotonic()
         touched = frame_payloads(frame)
         self._states.update(touched)
         for rid in frame.ended:
             self._states.pop(rid, None)
         self.pub.tracks(touched, frame.ended)
         done = time.monotonic()
+        self.clock.observe(frame)
+        self.fuser.clock_corrections_ns = dict(self.clock.corrections_ns)
+        fuse_ms = (fused - t0 + time.monotonic() - done) * 1e3
         self._t_ns = max(self._t_ns, t_ns)
         self._room_due = self._room_due or bool(touched or frame.ended)
         with self.lock:
