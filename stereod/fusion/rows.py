@@ -96,15 +96,17 @@ def fuse_groups(
     return mean, 0.5 * (c + c[:, TRANSPOSE])
 
 
-def fuse_states(f: np.ndarray, starts: np.ndarray) -> np.ndarray:
+def fuse_states(f: np.ndarray, starts: np.ndarray, info: np.ndarray | None = None) -> np.ndarray:
     """:func:`fuse_groups` of position and velocity at once, on rows of :data:`WIDTH` columns:
     ``f`` (n, WIDTH), run ``g`` from ``starts[g]`` to the next start; returns each run's fused
     row (k, WIDTH). A row's position and velocity are two consecutive 3-vectors, and their
     covariances two consecutive 3x3 matrices, so both are one stacked operation of 2n rows
-    with no copy into separate position and velocity arrays."""
+    with no copy into separate position and velocity arrays. ``info``: those 2n covariances'
+    inverses (:func:`both_inverses`), when the caller has them."""
     n = len(f)
     means = f[:, POS.start : VEL.stop].reshape(2 * n, 3)
-    info = inv3(f[:, PCOV.start : VCOV.stop].reshape(2 * n, 9))
+    if info is None:
+        info = both_inverses(f)
     both = np.empty((2 * n, 12))
     both[:, :9] = info
     np.matmul(info.reshape(-1, 3, 3), means[:, :, None], out=both[:, 9:, None])
@@ -133,13 +135,22 @@ def fuse_ray(
     alone = size == 1
     g = f.copy()
     g[:, PCOV] += ray
-    info = inv3(g[:, PCOV])
+    both = both_inverses(g)
+    info = both[0::2]  # the positions' (each row's inverse is its own: they are elementwise)
     if np.maximum.reduce(strain) > STRAIN_FREE:  # else every scale is 1
         g[:, PCOV] *= strain_scale(strain)[:, None]
-    out = fuse_states(g, starts)
+        out = fuse_states(g, starts)
+    else:
+        out = fuse_states(g, starts, both)
     out[alone] = f[starts[alone]]
     d = f[:, POS] - out[:, POS].repeat(size, axis=0)
     return out, np.einsum("ni,ni->n", d, matvec3(info, d))
+
+
+def both_inverses(f: np.ndarray) -> np.ndarray:
+    """The inverses of rows ``f``'s (n, WIDTH) position and velocity covariances, (2n, 9):
+    row 2i row i's position's, row 2i + 1 its velocity's."""
+    return inv3(f[:, PCOV.start : VCOV.stop].reshape(2 * len(f), 9))
 
 
 def run_sizes(starts: np.ndarray, n: int) -> np.ndarray:
