@@ -468,12 +468,14 @@ class Fuser:
         links: list[Links] = []
         names: list[tuple[str, int]] = []
         before: list[float] = []
+        sizes: list[int] = []
         for rid in rids:
             ln = self._tracks[rid]
             if not ln.members:
                 coasting.append(rid)
                 continue
             starts.append(len(idx))
+            sizes.append(len(ln.members))
             with_members.append(rid)
             links.append(ln)
             strain = ln.strain
@@ -490,12 +492,13 @@ class Fuser:
             s = np.array(starts)
             # Each member's strain so far scales its covariance down in the fusion; its
             # distance to the fused position then moves its strain on.
-            fused, nis = tab.fuse_ray(f, table.ray.take(i, axis=0), s, np.array(before))
+            size = np.array(sizes)
+            fused, nis = tab.fuse_ray(f, table.ray.take(i, axis=0), s, np.array(before), size)
             flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0)
             slots = st.slots(with_members)
             best = s
             if len(idx) > len(starts):  # some track has several members
-                run = np.arange(len(starts)).repeat(tab.run_sizes(s, len(idx)))
+                run = np.arange(len(starts)).repeat(size)
                 # Best member: least position trace, the first of equals (a stable sort).
                 best = np.lexsort((f[:, DIAG_P].sum(axis=1), run))[s]
                 after = tab.strain_steps(

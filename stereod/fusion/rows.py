@@ -120,7 +120,11 @@ def fuse_states(f: np.ndarray, starts: np.ndarray, info: np.ndarray | None = Non
 
 
 def fuse_ray(
-    f: np.ndarray, ray: np.ndarray, starts: np.ndarray, strain: np.ndarray
+    f: np.ndarray,
+    ray: np.ndarray,
+    starts: np.ndarray,
+    strain: np.ndarray,
+    size: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`fuse_states` of predicted rows ``f`` (n, WIDTH) with each position weighed by its
     covariance along its viewing ray: the published one plus ``ray`` (n, 9) (:attr:`Table.ray`;
@@ -128,10 +132,12 @@ def fuse_ray(
     so far (velocity keeps its published covariance). A run of one row is that row, as
     published. Returns each run's fused row (k, WIDTH) and each row's squared Mahalanobis
     distance to its run's fused position under its own unscaled covariance along its ray (n,)
-    (what :func:`strain_step` moves its strain towards; 0 for a run of one)."""
+    (what :func:`strain_step` moves its strain towards; 0 for a run of one). ``size``: each
+    run's length (k,), when the caller has them (:func:`run_sizes`)."""
     if len(starts) == len(f):  # every run one row
         return f[starts], np.zeros(len(f))
-    size = run_sizes(starts, len(f))
+    if size is None:
+        size = run_sizes(starts, len(f))
     alone = size == 1
     g = f.copy()
     g[:, PCOV] += ray
