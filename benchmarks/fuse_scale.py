@@ -44,7 +44,7 @@ sys.path.insert(0, str(ROOT))
 
 from stereod.fusion.clock import ClockWatch  # noqa: E402
 from stereod.fusion.fuser import Fuser  # noqa: E402
-from stereod.fusion.output import join_room, object_payloads  # noqa: E402
+from stereod.fusion.output import frame_payloads, join_room  # noqa: E402
 from stereod.fusion.room import load_room  # noqa: E402
 from stereod.fusion.status import FuseStatus  # noqa: E402
 from stereod.fusion.wire import decode  # noqa: E402
@@ -126,7 +126,7 @@ def message_cost(rigs: int, per_rig: int, ticks: int = 90) -> tuple[float, float
         frame = fuser.fuse(msg.stamp_utc_ns, [msg.rig])
         clock.observe(frame)
         fuser.clock_corrections_ns = dict(clock.corrections_ns)
-        states.update(object_payloads(frame.tracks, frame.rows))
+        states.update(frame_payloads(frame))
         for rid in frame.ended:
             states.pop(rid, None)
         join_room(room.name, k, msg.stamp_utc_ns, msg.geometry, 0.0, list(states.values()))

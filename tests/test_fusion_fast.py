@@ -81,3 +81,21 @@ def test_a_clock_estimate_asked_every_step_follows_every_observation() -> None:
     assert every.estimate("c") == end
     # The estimate moved as observations came in (it was not held from an early step).
     assert len({x for x in asked if x is not None}) > 10
+
+
+def test_strains_moved_on_at_once_are_each_members_own_step() -> None:
+    """``rows.strain_steps`` over members of several tracks, each with its own time step
+    (negative ones included: no move), gives exactly the floats ``rows.strain_step`` gives
+    track by track."""
+    rng = np.random.default_rng(11)
+    sizes = [2, 3, 2, 4, 2]
+    dts = [0.033, -0.01, 0.0, 0.5, 2.0]
+    strain = rng.uniform(0.0, 20.0, sum(sizes))
+    nis = rng.uniform(0.0, 40.0, sum(sizes))
+    run = np.repeat(np.arange(len(sizes)), sizes)
+    got = tab.strain_steps(strain, nis, np.array(dts)[run]).tolist()
+    want = []
+    for a, size, dt in zip(np.cumsum([0, *sizes[:-1]]), sizes, dts, strict=True):
+        want += tab.strain_step(strain[a : a + size].tolist(), nis[a : a + size].tolist(), dt)
+    assert got == want
+    assert got[2:5] == strain[2:5].tolist()  # the negative step moved nothing

@@ -137,13 +137,12 @@ class ClockWatch:
             self._shared.pop(rid, None)
         if not frame.shared:
             return
-        tracks = frame.tracks
-        if frame.rows is not None:
-            v = frame.rows[:, 3:6]
-            speed2 = np.einsum("ij,ij->i", v, v).tolist()
-        else:
-            speed2 = [float(t.velocity @ t.velocity) for t in tracks]
-        velocity = {t.room_id: (t.velocity, s2) for t, s2 in zip(tracks, speed2, strict=True)}
+        # The frame's tracks' velocities (its rows: a frame that shares has some).
+        v = frame.rows[:, 3:6] if frame.rows is not None else np.zeros((0, 3))
+        speed2 = np.einsum("ij,ij->i", v, v).tolist()
+        velocity = {
+            rid: (v[j], speed2[j]) for j, rid in enumerate(frame.ids) if rid in frame.shared
+        }
         min2 = self.min_speed_mps**2
         corrections = self.corrections_ns
         touched: set[str] = set()

@@ -83,7 +83,8 @@ def ray_xz(position: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     diagonal)."""
     s2 = np.square(sigma)
     z = position[:, 2]
-    ok = np.isfinite(position).all(axis=1) & np.isfinite(s2).all(axis=1) & (z > 0.01)
+    every = np.logical_and.reduce
+    ok = every(np.isfinite(position), axis=1) & every(np.isfinite(s2), axis=1) & (z > 0.01)
     wx = np.where(ok, position[:, 0] / np.where(ok, z, 1.0), 0.0)
     share = s2[:, 2] * np.square(wx)
     room = (1.0 - RAY_LATERAL_FLOOR**2) * s2[:, 0]

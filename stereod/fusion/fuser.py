@@ -24,19 +24,31 @@ the room tracks the other rigs kept alive instead of opening duplicates.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from stereod.bus.messages import ObjectsMessage
 from stereod.fusion import rows as tab
 from stereod.fusion.room import Room
-from stereod.fusion.rows import DIAG, DIAG_P, PCOV, POS, SEEN, VCOV, VEL, Estimates, Table
+from stereod.fusion.rows import (
+    DIAG,
+    DIAG_P,
+    HVALID,
+    MOVING,
+    PCOV,
+    POS,
+    SEEN,
+    VVALID,
+    Estimates,
+    Table,
+)
 from stereod.fusion.rows import fuse_gaussians as fuse_gaussians
 from stereod.fusion.rows import mahalanobis2 as mahalanobis2
-from stereod.fusion.wire import RigWire, from_message
+from stereod.fusion.stacked import Columns, FusedFrame, Links, RoomState
+from stereod.fusion.stacked import RoomTrack as RoomTrack
+from stereod.fusion.wire import COASTING, CONFIRMED, STATIONARY, RigWire, from_message
 from stereod.tracking.assignment import min_cost_assignment
-from stereod.tracking.types import TrackLifecycle
 
 CHI2_3DOF_999 = 16.27
 """Squared Mahalanobis distance below which 99.9 % of a 3-D Gaussian's samples fall."""
@@ -58,62 +70,13 @@ class FuseParams:
     its rig's track already) opens a room track of its own once seen this long, s."""
 
 
-@dataclass
-class RoomTrack:
-    """One object in the room: its id, fused state at ``stamp_utc_ns`` and which rig tracks
-    make it (m, m/s, UTC ns)."""
-
-    room_id: int
-    stamp_utc_ns: int
-    first_ns: int
-    last_seen_ns: int
-    position: np.ndarray
-    position_cov: np.ndarray
-    velocity: np.ndarray
-    velocity_cov: np.ndarray
-    state: TrackLifecycle = TrackLifecycle.CONFIRMED
-    members: dict[str, int] = field(default_factory=dict)
-    """Rig name -> that rig's track id, for the rig tracks linked to this object."""
-    extra: np.ndarray | None = None
-    """What the member whose position weighed most at the last step passes on (its skew,
-    blobs, disparity and size: the columns of ``wire.EXTRA``); None before any member."""
-    velocity_valid: bool = False
-    heading_valid: bool = False
-    strain: dict[tuple[str, int], float] = field(default_factory=dict)
-    """(rig name, its track id) -> that member's strain (``rows.strain_step``): its squared
-    Mahalanobis distance to this track's fused position, averaged over the last few frames
-    (none while the track has one member); replaced, never written into."""
-
-
 _Shared = dict[int, list[tuple[str, int, np.ndarray, np.ndarray]]]
 
 
-@dataclass(frozen=True)
-class FusedFrame:
-    """One fusion step's result: the room tracks at ``t_ns`` and the ids that ended."""
-
-    t_ns: int
-    tracks: list[RoomTrack]
-    ended: list[int]
-    shared: _Shared = field(default_factory=dict)
-    """For each room id fused at this step that more than one rig sees: each rig's name and
-    its track's own stamp (UTC ns, as corrected), position (m) and position covariance (m^2)
-    there, in the room frame, not predicted (what clock offsets are estimated from: capture
-    stamps only)."""
-    rows: np.ndarray | None = None
-    """The tracks' states as rows of ``rows.WIDTH`` columns (position, velocity, their
-    covariances), in the order of :attr:`tracks`, for writing them out at once; None when
-    not given."""
-
-
-def _snapshot(t: RoomTrack) -> RoomTrack:
-    """A shallow copy of ``t`` with its own members (its arrays are replaced at each step,
-    never written into, so they are shared): its fields copied at once, with no ``__init__``
-    (a step returns a copy of each track it touched)."""
-    copy = object.__new__(RoomTrack)
-    copy.__dict__.update(t.__dict__)
-    copy.members = dict(t.members)
-    return copy
+def _less(members: dict[str, int], rig: str) -> dict[str, int]:
+    """``members`` less ``rig``'s (a new dict: a room track's members are replaced, never
+    written into, so that a frame keeps them as they were at its step)."""
+    return {r: t for r, t in members.items() if r != rig}
 
 
 class Fuser:
@@ -142,7 +105,9 @@ class Fuser:
         """Rig name -> its track id -> the room track it is linked to."""
         self._since: dict[tuple[str, int], int] = {}
         """Rig tracks waiting to open a room track (``birth_s``): when first seen waiting, ns."""
-        self._tracks: dict[int, RoomTrack] = {}
+        self._tracks: dict[int, Links] = {}
+        """Room id -> its members and their strains (its state is in :attr:`_state`)."""
+        self._state = RoomState()
         self._next_id = 1
         self._bare: set[int] = set()
         """Room tracks with no member (coasting on their own state)."""
@@ -214,7 +179,7 @@ class Fuser:
         for room_id in self._links.pop(rig, {}).values():
             track = self._tracks.get(room_id)
             if track is not None:
-                track.members.pop(rig, None)
+                track.members = _less(track.members, rig)
                 track.strain = tab.without_rig(track.strain, rig)
                 lost.add(room_id)
                 if not track.members:
@@ -272,7 +237,7 @@ class Fuser:
                 rid = links.pop(tid)  # type: ignore[union-attr]
                 track = self._tracks.get(rid)
                 if track is not None and track.members.get(rig) == tid:
-                    del track.members[rig]
+                    track.members = _less(track.members, rig)
                     track.strain = tab.without_rig(track.strain, rig)
                     lost.add(rid)
                     if not track.members:
@@ -294,15 +259,22 @@ class Fuser:
             touched.update(self._bare)
             for rig in assoc:
                 touched.update(self._links.get(rig, {}).values())
-        ended, shared, state = self._update(t_ns, touched)
-        # Copies: the caller may keep a frame while the next steps change the tracks (whose
-        # arrays are replaced, never written into).
-        tracks = [_snapshot(self._tracks[rid]) for rid in sorted(touched) if rid in self._tracks]
-        return FusedFrame(t_ns=t_ns, tracks=tracks, ended=ended, shared=shared, rows=state)
+        ended, shared, kept = self._update(t_ns, touched)
+        if kept is None:
+            return FusedFrame(t_ns, ended, shared)
+        return self._frame(t_ns, ended, shared, kept)
+
+    def _frame(self, t_ns: int, ended: list[int], shared: _Shared, rids: list[int]) -> FusedFrame:
+        """A frame of room tracks ``rids`` as they are now: their columns gathered (copies:
+        the caller may keep a frame while the next steps change the tracks)."""
+        st = self._state
+        k = st.slots(rids)
+        links = [self._tracks[rid] for rid in rids]
+        return FusedFrame(t_ns, ended, shared, st.f[k], Columns(st, k, rids), links)
 
     def tracks(self) -> list[RoomTrack]:
         """Every room track now, each at its own last stamp (copies), by id."""
-        return [_snapshot(tr) for _, tr in sorted(self._tracks.items())]
+        return self._frame(0, [], {}, sorted(self._tracks)).tracks
 
     def _member_rows(self, rids: list[int]) -> tuple[list[int], list[int], list[int]]:
         """The table rows of the members of room tracks ``rids`` (in that order, each track's
@@ -325,15 +297,6 @@ class Fuser:
         table = self._table
         return tab.predict_rows(table.f[idx], (t_ns - table.stamps[idx]) * 1e-9)
 
-    def _coast(self, rids: list[int], t_ns: int) -> np.ndarray:
-        """Room tracks ``rids``' own last states predicted to ``t_ns``, (n, WIDTH)."""
-        trs = [self._tracks[rid] for rid in rids]
-        f = np.array(
-            [np.concatenate([t.position, t.velocity, t.position_cov.ravel(),
-                             t.velocity_cov.ravel()]) for t in trs]
-        )  # fmt: skip
-        return tab.predict_rows(f, np.array([(t_ns - t.stamp_utc_ns) * 1e-9 for t in trs]))
-
     def _estimates(self, t_ns: int) -> Estimates:
         """Each room track's position and covariance at ``t_ns``: its linked members'
         fusion, or its last fused state predicted."""
@@ -348,7 +311,7 @@ class Fuser:
             mean[k], cov[k] = m, c
         alone = [rid for rid in rids if not self._tracks[rid].members]
         if alone:
-            f = self._coast(alone, t_ns)
+            f = self._state.coast(alone, t_ns)
             k = [est.slot[rid] for rid in alone]
             mean[k], cov[k] = f[:, POS], f[:, PCOV]
         return est
@@ -457,11 +420,11 @@ class Fuser:
         """Take ``rig``'s track out of room track ``room_id`` (another of its rig replaces
         it); it stays free, and opens nothing while its rig does not see it."""
         track = self._tracks[room_id]
-        members = track.members
-        tid = members.pop(rig)
+        tid = track.members[rig]
+        track.members = _less(track.members, rig)
         track.strain = tab.without_rig(track.strain, rig)
         self._links[rig].pop(tid, None)
-        if not members:
+        if not track.members:
             self._bare.add(room_id)
 
     def _link(self, rig: str, row: int, room_id: int, est: Estimates, t_ns: int) -> None:
@@ -469,8 +432,8 @@ class Fuser:
         becomes its members' fusion."""
         tid = self._table.ids[rig][row - self._table.rows(rig).start]
         self._links[rig][tid] = room_id
-        members = self._tracks[room_id].members
-        members[rig] = tid
+        track = self._tracks[room_id]
+        members = track.members = {**track.members, rig: tid}
         self._bare.discard(room_id)
         index = self._table.index
         est.set(room_id, *self._fuse_members([index[r][t] for r, t in members.items()], t_ns))
@@ -479,121 +442,127 @@ class Fuser:
         """A new room track at ``t_ns`` from one predicted row ``f`` (WIDTH,); its id."""
         rid = self._next_id
         self._next_id += 1
-        self._tracks[rid] = RoomTrack(
-            room_id=rid,
-            stamp_utc_ns=t_ns,
-            first_ns=t_ns,
-            last_seen_ns=t_ns,
-            position=f[POS].copy(),
-            position_cov=f[PCOV].reshape(3, 3).copy(),
-            velocity=f[VEL].copy(),
-            velocity_cov=f[VCOV].reshape(3, 3).copy(),
-        )
+        self._tracks[rid] = Links()
+        self._state.open(rid, f, t_ns)
         self._bare.add(rid)
         self._seen_floor = min(self._seen_floor, t_ns)
         return rid
 
-    def _update(self, t_ns: int, touched: set[int]) -> tuple[list[int], _Shared, np.ndarray | None]:
+    def _update(self, t_ns: int, touched: set[int]) -> tuple[list[int], _Shared, list[int] | None]:
         """Fuse each ``touched`` room track's members at ``t_ns`` (all of them in one array
-        operation); coast those with none; end any unseen for ``max_coast_s``. Returns the
-        ended ids, for each track fused here that more than one rig sees its members' own
-        (unpredicted) measurements, and the touched tracks left (by id) as table rows."""
+        operation) and write them into the stacked state (one assignment per column); coast
+        those with none; end any unseen for ``max_coast_s``. Returns the ended ids, for each
+        track fused here that more than one rig sees its members' own (unpredicted)
+        measurements, and the touched tracks left, by id (None when none was touched)."""
         rids = sorted(touched)
-        idx, starts, with_members = self._member_rows(rids)
-        k = len(with_members)
-        parts = []
-        extra: list[np.ndarray | None] = [None] * k
-        flags: list[list[bool] | None] = [None] * k
+        st = self._state
         shared: _Shared = {}
-        if k:
+        fused_at: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        coast_at: tuple[np.ndarray, np.ndarray] | None = None
+        # Each track's members' table rows, names and strains so far, in one pass.
+        index = self._table.index
+        idx: list[int] = []
+        starts: list[int] = []
+        with_members: list[int] = []
+        coasting: list[int] = []
+        links: list[Links] = []
+        names: list[tuple[str, int]] = []
+        before: list[float] = []
+        sizes: list[int] = []
+        for rid in rids:
+            ln = self._tracks[rid]
+            if not ln.members:
+                coasting.append(rid)
+                continue
+            starts.append(len(idx))
+            sizes.append(len(ln.members))
+            with_members.append(rid)
+            links.append(ln)
+            strain = ln.strain
+            for m in ln.members.items():
+                idx.append(index[m[0]][m[1]])
+                names.append(m)
+                before.append(strain.get(m, 0.0))
+        if with_members:
             table = self._table
             i = np.array(idx, dtype=np.intp)
             raw = table.f.take(i, axis=0)
             stamps = table.stamps.take(i)
             f = tab.predict_rows(raw, (t_ns - stamps) * 1e-9)
-            r = len(idx)
             s = np.array(starts)
             # Each member's strain so far scales its covariance down in the fusion; its
             # distance to the fused position then moves its strain on.
-            trs = [self._tracks[rid] for rid in with_members]
-            names = [m for tr in trs for m in tr.members.items()]
-            before = [tr.strain.get(m, 0.0) for tr in trs for m in tr.members.items()]
-            fused, nis = tab.fuse_ray(f, table.ray.take(i, axis=0), s, np.array(before))
-            parts.append(fused)
-            nis_list = nis.tolist()
-            flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0).tolist()
-            trace = f[:, DIAG_P].sum(axis=1).tolist()
-            stamp_list = stamps.tolist()
-            # Each row's views at once (one call a column, not one a member).
-            positions, covs = list(raw[:, POS]), list(raw[:, PCOV].reshape(-1, 3, 3))
-            # Best member: least position trace, the first of equals (one member: no choice).
-            best = []
-            for tr, rid, a, b in zip(trs, with_members, starts, [*starts[1:], r], strict=True):
-                if b - a == 1:
-                    best.append(a)
-                    tr.strain = {}
-                    continue
-                after = tab.strain_step(before[a:b], nis_list[a:b], (t_ns - tr.stamp_utc_ns) * 1e-9)
-                tr.strain = dict(zip(names[a:b], after, strict=True))
-                best.append(min(range(a, b), key=trace.__getitem__))
-                rigs = list(self._tracks[rid].members)
-                shared[rid] = [
-                    (rigs[j - a], stamp_list[j], positions[j], covs[j]) for j in range(a, b)
-                ]
-            extra = list(table.extra.take(i[best], axis=0))
-        coasting = [rid for rid in rids if not self._tracks[rid].members]
+            size = np.array(sizes)
+            fused, nis = tab.fuse_ray(f, table.ray.take(i, axis=0), s, np.array(before), size)
+            flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0)
+            slots = st.slots(with_members)
+            best = s
+            if len(idx) > len(starts):  # some track has several members
+                run = np.arange(len(starts)).repeat(size)
+                # Best member: least position trace, the first of equals (a stable sort).
+                best = np.lexsort((f[:, DIAG_P].sum(axis=1), run))[s]
+                after = tab.strain_steps(
+                    np.array(before), nis, ((t_ns - st.stamp[slots]) * 1e-9)[run]
+                ).tolist()
+                when = stamps.tolist()
+                pos, cov = raw[:, POS], raw[:, PCOV].reshape(-1, 3, 3)
+                ends = [*starts[1:], len(idx)]
+                for ln, rid, a, b in zip(links, with_members, starts, ends, strict=True):
+                    if b - a == 1:
+                        if ln.strain:
+                            ln.strain = {}
+                        continue
+                    ln.strain = dict(zip(names[a:b], after[a:b], strict=True))
+                    shared[rid] = [(names[j][0], when[j], pos[j], cov[j]) for j in range(a, b)]
+            else:
+                for ln in links:
+                    if ln.strain:
+                        ln.strain = {}
+            fused_at = (slots, fused, flags, table.extra.take(i[best], axis=0))
         if coasting:
-            parts.append(self._coast(coasting, t_ns))
+            coast_at = (st.slots(coasting), st.coast(coasting, t_ns))
         ended: list[int] = []
         coast_ns = int(self.params.max_coast_s * 1e9)
         if t_ns - self._seen_floor > coast_ns:
             # Some track may be unseen too long: look (the floor is the oldest sighting, kept
             # low while tracks are seen, so that most steps need not look at every track).
-            for rid, tr in list(self._tracks.items()):
-                if rid not in touched and t_ns - tr.last_seen_ns > coast_ns:
+            every = list(self._tracks)
+            late = (t_ns - st.seen[st.slots(every)] > coast_ns).tolist()
+            for rid, old in zip(every, late, strict=True):
+                if old and rid not in touched:
                     ended.append(self._end(rid))
-            self._seen_floor = min((tr.last_seen_ns for tr in self._tracks.values()), default=t_ns)
+            left = st.slots(list(self._tracks))
+            self._seen_floor = int(st.seen[left].min()) if len(left) else t_ns
         if not rids:
             return ended, shared, None
-        state = np.concatenate(parts) if len(parts) > 1 else parts[0]
-        extra += [None] * len(coasting)
-        flags += [None] * len(coasting)
+        if fused_at is not None:
+            slots, rows, fl, extra = fused_at
+            st.f[slots], st.extra[slots], st.described[slots] = rows, extra, True
+            seen, moving = fl[:, SEEN], fl[:, MOVING]
+            st.life[slots] = np.where(seen, np.where(moving, CONFIRMED, STATIONARY), COASTING)
+            st.seen[slots[seen]] = t_ns
+            st.vvalid[slots], st.hvalid[slots] = fl[:, VVALID], fl[:, HVALID]
+        if coast_at is not None:  # no member: its own state predicted on, the rest kept
+            st.f[coast_at[0]], st.life[coast_at[0]] = coast_at[1], COASTING
+        every_slot = st.slots(rids)
+        st.stamp[every_slot] = t_ns
+        self._seen_floor = min(self._seen_floor, t_ns)
+        late = (t_ns - st.seen[every_slot] > coast_ns).tolist()
+        if not any(late):
+            return ended, shared, rids
         keep = []
-        # Each track's arrays are views of one row of ``state`` (one call per column, not
-        # per track).
-        pos, vel = list(state[:, POS]), list(state[:, VEL])
-        pcov, vcov = list(state[:, PCOV].reshape(-1, 3, 3)), list(state[:, VCOV].reshape(-1, 3, 3))
-        for rid, j in sorted(zip(with_members + coasting, range(len(rids)), strict=True)):
-            tr = self._tracks[rid]
-            tr.position, tr.velocity, tr.position_cov, tr.velocity_cov = (
-                pos[j], vel[j], pcov[j], vcov[j]
-            )  # fmt: skip
-            fl = flags[j]
-            if fl is not None:
-                seen, moving, vvalid, hvalid = fl
-                tr.extra = extra[j]
-                tr.velocity_valid, tr.heading_valid = vvalid, hvalid
-                if seen:
-                    tr.last_seen_ns = t_ns
-                    tr.state = TrackLifecycle.CONFIRMED if moving else TrackLifecycle.STATIONARY
-                else:
-                    tr.state = TrackLifecycle.COASTING
-            else:
-                tr.state = TrackLifecycle.COASTING
-            tr.stamp_utc_ns = t_ns
-            if t_ns - tr.last_seen_ns > coast_ns:
+        for rid, old in zip(rids, late, strict=True):
+            if old:
                 ended.append(self._end(rid))
                 shared.pop(rid, None)
             else:
-                keep.append((rid, j))
-        self._seen_floor = min(self._seen_floor, t_ns)
-        if not coasting and len(keep) == len(rids):
-            return ended, shared, state  # already every track's row, by id
-        return ended, shared, state[[j for _, j in keep]]
+                keep.append(rid)
+        return ended, shared, keep
 
     def _end(self, rid: int) -> int:
         """End room track ``rid`` and drop its links; returns ``rid``."""
         tr = self._tracks.pop(rid)
+        self._state.end(rid)
         self._bare.discard(rid)
         for rig, tid in tr.members.items():
             self._links.get(rig, {}).pop(tid, None)

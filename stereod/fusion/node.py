@@ -28,7 +28,7 @@ from stereod.files.output_file import AtomicOutput
 from stereod.fusion.clock import ClockWatch
 from stereod.fusion.fuser import Fuser
 from stereod.fusion.mcap import RoomMcapWriter
-from stereod.fusion.output import join_room, object_payloads
+from stereod.fusion.output import frame_payloads, join_room
 from stereod.fusion.room import Room
 from stereod.fusion.status import FuseStatus, RigLink
 from stereod.fusion.wire import RigWire, decode
@@ -244,18 +244,21 @@ class FuseNode:
 
     def _step(self, t_ns: int, rigs: list[str], received: list[float]) -> None:
         """Fuse ``rigs``' new tracks at ``t_ns`` (UTC ns), publish the room tracks they
-        touched on their own keys and mark the room's message due."""
+        touched on their own keys, then give the step to the clock watch (its corrections
+        apply from the next message on, so the tracks need not wait for it) and mark the
+        room's message due."""
         t0 = time.monotonic()
         frame = self.fuser.fuse(t_ns, rigs)
-        self.clock.observe(frame)
-        self.fuser.clock_corrections_ns = dict(self.clock.corrections_ns)
-        fuse_ms = (time.monotonic() - t0) * 1e3
-        touched = object_payloads(frame.tracks, frame.rows)
+        fused = time.monotonic()
+        touched = frame_payloads(frame)
         self._states.update(touched)
         for rid in frame.ended:
             self._states.pop(rid, None)
         self.pub.tracks(touched, frame.ended)
         done = time.monotonic()
+        self.clock.observe(frame)
+        self.fuser.clock_corrections_ns = dict(self.clock.corrections_ns)
+        fuse_ms = (fused - t0 + time.monotonic() - done) * 1e3
         self._t_ns = max(self._t_ns, t_ns)
         self._room_due = self._room_due or bool(touched or frame.ended)
         with self.lock:

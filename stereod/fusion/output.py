@@ -19,7 +19,7 @@ import numpy as np
 from stereod.bus.messages import OBJECT_SCHEMA, OBJECTS_SCHEMA, ObjectsMessage, ObjectState
 from stereod.fusion.fuser import FusedFrame, RoomTrack
 from stereod.fusion.rows import DIAG, PCOV, VCOV
-from stereod.fusion.wire import EXTRA
+from stereod.fusion.wire import EXTRA, STATES
 from stereod.tracking.types import TrackLifecycle
 from stereod.vision.geometry import Geometry
 
@@ -101,15 +101,14 @@ class _Object(msgspec.Struct, gc=False):
 
 _ENCODER = msgspec.json.Encoder()
 _STATE_NAME = {s: s.value for s in TrackLifecycle}
-
 """Each lifecycle state's name (a dict lookup; an enum's ``.value`` is a descriptor call)."""
+_CODE_NAME = [s.value for s in STATES]
+"""Each lifecycle code's name (``wire.STATES``)."""
 
 
 def _figures(tracks: list[RoomTrack], rows: np.ndarray | None = None) -> list[_Object]:
-    """Each room track that has a member to describe it as its object state's fields (plain
-    Python values in the model's order, a struct ``msgspec`` writes): sigmas, speed and
-    heading with their sigmas (to first order through the velocity's covariance, as
-    :func:`speed_heading`), blobs from the best member's ``extra``. ``rows``: the tracks'
+    """Each room track that has a member to describe it as its object state's fields
+    (:func:`_columns_figures` of their figures gathered into columns). ``rows``: the tracks'
     states already stacked (``FusedFrame.rows``), else they are stacked here."""
     described = [k for k, t in enumerate(tracks) if t.extra is not None]
     if not described:
@@ -122,16 +121,56 @@ def _figures(tracks: list[RoomTrack], rows: np.ndarray | None = None) -> list[_O
             [np.concatenate([t.position, t.velocity, t.position_cov.ravel(),
                              t.velocity_cov.ravel()]) for t in tracks]
         )  # fmt: skip
+    return _columns_figures(
+        [t.room_id for t in tracks], [_STATE_NAME[t.state] for t in tracks],
+        [t.stamp_utc_ns for t in tracks], [t.first_ns for t in tracks],
+        [t.velocity_valid for t in tracks], [t.heading_valid for t in tracks],
+        np.array([t.extra for t in tracks]), rows,
+    )  # fmt: skip
+
+
+def _frame_figures(frame: FusedFrame) -> list[_Object]:
+    """:func:`_figures` of a frame's tracks, from its columns (no track object)."""
+    c, rows = frame.columns, frame.rows
+    if c is None or rows is None or not len(rows):
+        return []
+    if not np.logical_and.reduce(c.described):
+        keep = np.flatnonzero(c.described)
+        if not keep.size:
+            return []
+        return _columns_figures(
+            [c.ids[k] for k in keep.tolist()], [_CODE_NAME[k] for k in c.life[keep].tolist()],
+            c.stamp[keep].tolist(), c.first[keep].tolist(), c.vvalid[keep].tolist(),
+            c.hvalid[keep].tolist(), c.extra[keep], rows[keep],
+        )  # fmt: skip
+    return _columns_figures(
+        c.ids, [_CODE_NAME[k] for k in c.life.tolist()], c.stamp.tolist(), c.first.tolist(),
+        c.vvalid.tolist(), c.hvalid.tolist(), c.extra, rows,
+    )  # fmt: skip
+
+
+def _columns_figures(
+    ids: list[int], states: list[str], stamps: list[int], firsts: list[int],
+    vvalid: list[bool], hvalid: list[bool], ex: np.ndarray, rows: np.ndarray,
+) -> list[_Object]:  # fmt: skip
+    """Room tracks as their object states' fields (plain Python values in the model's
+    order, a struct ``msgspec`` writes) from columns: ids, lifecycle names, state stamps and
+    first sightings (UTC ns), the validity flags, what each best member passes on (n,
+    len(EXTRA)) and state rows (n, WIDTH). Sigmas, speed and heading with their sigmas (to
+    first order through the velocity's covariance, as :func:`speed_heading`), blobs from
+    the best member's ``extra``."""
     # Plain float math a track: some forty numbers each, where a numpy call apiece would
     # cost more than the arithmetic (the same formulas as :func:`speed_heading`; a root of
     # a negative variance is 0, of a NaN NaN).
-    ex = np.array([t.extra for t in tracks])
     floats = ex[:, _FLOAT_COLUMNS].tolist()
     ints = np.rint(ex[:, _INT_COLUMNS]).astype(np.int64).tolist()
     sigmas = np.sqrt(np.maximum(rows[:, _SIGMA_COLUMNS], 0.0)).tolist()
     sqrt, atan2 = math.sqrt, math.atan2
     out = []
-    for t, r, sg, fl, ni in zip(tracks, rows.tolist(), sigmas, floats, ints, strict=True):
+    for rid, name, stamp, first, vv, hv, r, sg, fl, ni in zip(
+        ids, states, stamps, firsts, vvalid, hvalid, rows.tolist(), sigmas, floats, ints,
+        strict=True,
+    ):  # fmt: skip
         vx, vy, vz = r[3], r[4], r[5]
         c0, c1, c2, c3, c4, c5, c6, c7, c8 = r[VCOV]
         speed = sqrt(vx * vx + vy * vy + vz * vz)
@@ -152,13 +191,13 @@ def _figures(tracks: list[RoomTrack], rows: np.ndarray | None = None) -> list[_O
             heading_sigma = math.degrees(0.0 if var_heading < 0.0 else sqrt(var_heading))
         out.append(
             _Object(
-                OBJECT_SCHEMA, t.room_id, _STATE_NAME[t.state], t.stamp_utc_ns, t.stamp_utc_ns,
+                OBJECT_SCHEMA, rid, name, stamp, stamp,
                 ni[0], r[0:3],
                 sg[0:3], [vx, vy, vz], sg[3:6],
-                t.velocity_valid, t.heading_valid, speed, speed_sigma,
+                vv, hv, speed, speed_sigma,
                 math.degrees(atan2(vx, vz)) % 360.0, heading_sigma, None,
                 _Blob(fl[0:2], ni[1:5], ni[5]), _Blob(fl[2:4], ni[6:10], ni[10]),
-                fl[4], fl[5], (t.stamp_utc_ns - t.first_ns) * 1e-9, None, None,
+                fl[4], fl[5], (stamp - first) * 1e-9, None, None,
             )
         )  # fmt: skip
     return out
@@ -203,7 +242,7 @@ def room_message(
     room: str, seq: int, frame: FusedFrame, geometry: Geometry, fuse_ms: float
 ) -> ObjectsMessage:
     """The objects message of one fusion step of ``room`` (``fuse_ms``: that step's time, ms)."""
-    objects = msgspec.to_builtins(_figures(frame.tracks, frame.rows))
+    objects = msgspec.to_builtins(_frame_figures(frame))
     return ObjectsMessage.model_validate(
         {**_head(room, seq, frame.t_ns, geometry, fuse_ms), "objects": objects}
     )
@@ -215,7 +254,7 @@ def room_payload(
     """:func:`room_message` as its JSON payload and each object's own (track id, payload), as
     ``bus.messages.dump_objects`` gives them, written from the step's arrays without building
     a model (:func:`room_message` parses to the same message)."""
-    tracks = object_payloads(frame.tracks, frame.rows)
+    tracks = frame_payloads(frame)
     return join_room(room, seq, frame.t_ns, geometry, fuse_ms, [b for _, b in tracks]), tracks
 
 
@@ -228,6 +267,13 @@ def object_payloads(
     changed."""
     encode = _ENCODER.encode
     return [(f.track_id, encode(f)) for f in _figures(tracks, rows)]
+
+
+def frame_payloads(frame: FusedFrame) -> list[tuple[int, bytes]]:
+    """:func:`object_payloads` of a fusion step's tracks, written from its columns (no track
+    object): what the fusion node publishes after each step."""
+    encode = _ENCODER.encode
+    return [(f.track_id, encode(f)) for f in _frame_figures(frame)]
 
 
 def join_room(

@@ -60,27 +60,23 @@ def matvec3(m: np.ndarray, x: np.ndarray) -> np.ndarray:
     return (m.reshape(-1, 3, 3) @ x[:, :, None])[:, :, 0]
 
 
-_GROW = np.zeros((WIDTH, 2 * WIDTH))
-"""Row @ _GROW: the velocity where the position goes (first WIDTH columns) and the velocity's
-covariance where the position's goes (last WIDTH), the terms prediction adds times dt and
-dt^2."""
-_GROW[3:6, 0:3] = np.eye(3)
-_GROW[15:24, WIDTH + 6 : WIDTH + 15] = np.eye(9)
-_ACCEL = np.zeros(WIDTH)
-_ACCEL[[15, 19, 23]] = ACCEL_SIGMA_MPS2**2
-_ACCEL4 = np.zeros(WIDTH)
-_ACCEL4[[6, 10, 14]] = ACCEL_SIGMA_MPS2**2 / 4.0
+_ACCEL_V = np.zeros(9)
+_ACCEL_V[[0, 4, 8]] = ACCEL_SIGMA_MPS2**2
+_ACCEL_P = _ACCEL_V / 4.0
 
 
 def predict_rows(f: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
     """Rows of :data:`WIDTH` columns predicted by ``dt_s`` (n,) seconds each: constant velocity,
     the velocity's uncertainty and a white acceleration of ``ACCEL_SIGMA_MPS2`` growing the
     position's covariance by dt^2 V + (a dt^2 / 2)^2 and the velocity's by (a dt)^2, as
-    ``frames.predict`` does for one."""
+    ``frames.predict`` does for one (each block of columns in a few whole-array operations)."""
     dt = dt_s[:, None]
     dt2 = dt * dt
-    grow = f @ _GROW
-    return f + dt * grow[:, :WIDTH] + dt2 * (grow[:, WIDTH:] + _ACCEL + dt2 * _ACCEL4)
+    out = f.copy()
+    out[:, POS] += dt * f[:, VEL]
+    out[:, PCOV] += dt2 * (f[:, VCOV] + dt2 * _ACCEL_P)
+    out[:, VCOV] += dt2 * _ACCEL_V
+    return out
 
 
 def fuse_groups(
@@ -100,15 +96,17 @@ def fuse_groups(
     return mean, 0.5 * (c + c[:, TRANSPOSE])
 
 
-def fuse_states(f: np.ndarray, starts: np.ndarray) -> np.ndarray:
+def fuse_states(f: np.ndarray, starts: np.ndarray, info: np.ndarray | None = None) -> np.ndarray:
     """:func:`fuse_groups` of position and velocity at once, on rows of :data:`WIDTH` columns:
     ``f`` (n, WIDTH), run ``g`` from ``starts[g]`` to the next start; returns each run's fused
     row (k, WIDTH). A row's position and velocity are two consecutive 3-vectors, and their
     covariances two consecutive 3x3 matrices, so both are one stacked operation of 2n rows
-    with no copy into separate position and velocity arrays."""
+    with no copy into separate position and velocity arrays. ``info``: those 2n covariances'
+    inverses (:func:`both_inverses`), when the caller has them."""
     n = len(f)
     means = f[:, POS.start : VEL.stop].reshape(2 * n, 3)
-    info = inv3(f[:, PCOV.start : VCOV.stop].reshape(2 * n, 9))
+    if info is None:
+        info = both_inverses(f)
     both = np.empty((2 * n, 12))
     both[:, :9] = info
     np.matmul(info.reshape(-1, 3, 3), means[:, :, None], out=both[:, 9:, None])
@@ -122,7 +120,11 @@ def fuse_states(f: np.ndarray, starts: np.ndarray) -> np.ndarray:
 
 
 def fuse_ray(
-    f: np.ndarray, ray: np.ndarray, starts: np.ndarray, strain: np.ndarray
+    f: np.ndarray,
+    ray: np.ndarray,
+    starts: np.ndarray,
+    strain: np.ndarray,
+    size: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`fuse_states` of predicted rows ``f`` (n, WIDTH) with each position weighed by its
     covariance along its viewing ray: the published one plus ``ray`` (n, 9) (:attr:`Table.ray`;
@@ -130,20 +132,40 @@ def fuse_ray(
     so far (velocity keeps its published covariance). A run of one row is that row, as
     published. Returns each run's fused row (k, WIDTH) and each row's squared Mahalanobis
     distance to its run's fused position under its own unscaled covariance along its ray (n,)
-    (what :func:`strain_step` moves its strain towards; 0 for a run of one)."""
-    size = np.diff(np.append(starts, len(f)))
-    alone = size == 1
-    if alone.all():
+    (what :func:`strain_step` moves its strain towards; 0 for a run of one). ``size``: each
+    run's length (k,), when the caller has them (:func:`run_sizes`)."""
+    if len(starts) == len(f):  # every run one row
         return f[starts], np.zeros(len(f))
+    if size is None:
+        size = run_sizes(starts, len(f))
+    alone = size == 1
     g = f.copy()
     g[:, PCOV] += ray
-    info = inv3(g[:, PCOV])
-    if strain.max() > STRAIN_FREE:  # else every scale is 1
+    both = both_inverses(g)
+    info = both[0::2]  # the positions' (each row's inverse is its own: they are elementwise)
+    if np.maximum.reduce(strain) > STRAIN_FREE:  # else every scale is 1
         g[:, PCOV] *= strain_scale(strain)[:, None]
-    out = fuse_states(g, starts)
+        out = fuse_states(g, starts)
+    else:
+        out = fuse_states(g, starts, both)
     out[alone] = f[starts[alone]]
-    d = f[:, POS] - np.repeat(out[:, POS], size, axis=0)
+    d = f[:, POS] - out[:, POS].repeat(size, axis=0)
     return out, np.einsum("ni,ni->n", d, matvec3(info, d))
+
+
+def both_inverses(f: np.ndarray) -> np.ndarray:
+    """The inverses of rows ``f``'s (n, WIDTH) position and velocity covariances, (2n, 9):
+    row 2i row i's position's, row 2i + 1 its velocity's."""
+    return inv3(f[:, PCOV.start : VCOV.stop].reshape(2 * len(f), 9))
+
+
+def run_sizes(starts: np.ndarray, n: int) -> np.ndarray:
+    """The length of each run of rows from ``starts[g]`` to the next start (the last to
+    ``n``), (k,): numpy's own calls, no Python wrapper."""
+    size = np.empty_like(starts)
+    np.subtract(starts[1:], starts[:-1], out=size[:-1])
+    size[-1] = n - starts[-1]
+    return size
 
 
 STRAIN_TAU_S = 0.2
@@ -167,6 +189,13 @@ def strain_step(strain: list[float], nis: list[float], dt_s: float) -> list[floa
     where a numpy call apiece would cost more than the arithmetic)."""
     a = -math.expm1(-max(dt_s, 0.0) / STRAIN_TAU_S)
     return [s + a * (d - s) for s, d in zip(strain, nis, strict=True)]
+
+
+def strain_steps(strain: np.ndarray, nis: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
+    """:func:`strain_step` of many members at once, each by its own ``dt_s`` (n,) seconds:
+    their strains (n,) moved towards their squared Mahalanobis distances ``nis`` (n,)."""
+    a = -np.expm1(-np.maximum(dt_s, 0.0) / STRAIN_TAU_S)
+    return strain + a * (nis - strain)
 
 
 def without_rig(strain: dict[tuple[str, int], float], rig: str) -> dict[tuple[str, int], float]:
@@ -248,7 +277,7 @@ class Table:
         """Rig name -> its rows' track ids, in row order."""
         self.index: dict[str, dict[int, int]] = {}
         """Rig name -> track id -> its row in the table."""
-        self._spreads: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._spreads: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def _grow(self, blocks: int, capacity: int) -> None:
         """Make room for ``blocks`` blocks of ``capacity`` rows, keeping every rig's rows."""
@@ -277,7 +306,8 @@ class Table:
         (``p' = R p + t``, ``v' = R v``, ``P' = R P R^T``; a missing or non-finite sigma as
         ``frames.to_room`` takes it), in place of that rig's previous rows; :attr:`ray` what
         the position's covariance along its viewing ray (``frames.ray_cov``) adds to that."""
-        w = wire if not (wire.state == TENTATIVE).any() else wire.select(wire.state != TENTATIVE)
+        tentative = wire.state == TENTATIVE
+        w = wire if not np.logical_or.reduce(tentative) else wire.select(~tentative)
         n = len(w.ids)
         rig = w.rig
         if rig not in self.blocks:
@@ -289,18 +319,17 @@ class Table:
         base = self.blocks[rig] * self.capacity
         ps, vs = w.position_sigma, w.velocity_sigma
         sig = np.concatenate([ps, vs])
-        if not np.isfinite(sig).all():
+        if not np.logical_and.reduce(np.isfinite(sig), axis=None):
             sig[:n] = np.where(np.isfinite(ps), ps, 1.0)
             sig[n:] = np.where(np.isfinite(vs), vs, UNKNOWN_VELOCITY_SIGMA_MPS)
         r = rotation
         rows = self.f[base : base + n]
         rows[:, POS] = w.position @ r.T + translation
         rows[:, VEL] = w.velocity @ r.T
-        covs = np.square(sig) @ self._spread(rig, r)
+        spread, xz = self._spread(rig, r)
+        covs = np.square(sig) @ spread
         rows[:, PCOV], rows[:, VCOV] = covs[:n], covs[n:]
-        # R C R^T of the X-Z covariance alone: c (R_x R_z^T + R_z R_x^T), R_x, R_z R's columns.
-        xz = np.outer(r[:, 0], r[:, 2])
-        self.ray[base : base + n] = np.outer(ray_xz(w.position, sig[:n]), (xz + xz.T).ravel())
+        self.ray[base : base + n] = ray_xz(w.position, sig[:n])[:, None] * xz
         self.stamps[base : base + n] = w.stamps_ns
         flags = self.flags[base : base + n]
         flags[:, SEEN : MOVING + 1] = _SEEN_MOVING[w.state]
@@ -311,16 +340,18 @@ class Table:
         self.count[rig] = n
         self.index[rig] = dict(zip(ids, range(base, base + n), strict=True))
 
-    def _spread(self, rig: str, rotation: np.ndarray) -> np.ndarray:
+    def _spread(self, rig: str, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(3, 9): squared sigmas (n, 3) times this are ``R diag(s^2) R^T`` row-major (entry
-        (i, j) is ``sum_k R_ik R_jk s_k^2``, linear in s^2); kept per rig while its rotation
-        is the same array."""
+        (i, j) is ``sum_k R_ik R_jk s_k^2``, linear in s^2); and (9,): an X-Z covariance c
+        times this is ``R C R^T`` of it, ``c (R_x R_z^T + R_z R_x^T)`` (``R_x``, ``R_z`` R's
+        columns), row-major. Kept per rig while its rotation is the same array."""
         known = self._spreads.get(rig)
         if known is not None and known[0] is rotation:
-            return known[1]
+            return known[1], known[2]
         spread = (rotation[:, None, :] * rotation[None, :, :]).reshape(9, 3).T.copy()
-        self._spreads[rig] = (rotation, spread)
-        return spread
+        xz = np.outer(rotation[:, 0], rotation[:, 2])
+        self._spreads[rig] = (rotation, spread, (xz + xz.T).ravel())
+        return spread, self._spreads[rig][2]
 
     def drop(self, rig: str) -> None:
         """Forget ``rig``'s rows (its block stays its own)."""
