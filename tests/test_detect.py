@@ -551,7 +551,8 @@ def test_how_long_an_object_is_held_does_not_depend_on_the_rectangle_searched(st
         DetectorParams(), warmup_frames=3, color=False, learn_stride=stride, absorb_s=0.2
     )
     small, whole = Detector(params), _WholeFrame(params)
-    absorbed = []
+    absorbed: list[int] = []
+    parked_rows: list[int | None] = [None] * 8
     for k in range(40):
         img = base.copy()
         if k >= 5:  # one object moving in a corner: a small rectangle around the foreground
@@ -568,9 +569,21 @@ def test_how_long_an_object_is_held_does_not_depend_on_the_rectangle_searched(st
             np.testing.assert_array_equal(small.background, whole.background, err_msg=f"frame {k}")
             if float(small.background[24, 34]) > float(base[24, 34]) + 0.5:
                 absorbed.append(k)
-    # held from frame 14 (its last as background), absorbed from 0.2 s on: frame 21, at once
-    # (whichever rows eq. 3 learns on that frame)
+            for row in range(20, 28):  # the first frame each row of the square is the frame's
+                if (
+                    k >= 15
+                    and parked_rows[row - 20] is None
+                    and np.all(np.abs(small.background[row, 30:38] - img[row, 30:38]) < 0.5)
+                ):
+                    parked_rows[row - 20] = k
+    parked_rows_absorbed = parked_rows
+    # held from frame 14 (its last as background), learned from 0.2 s on: frame 21; still
+    # from frame 15 (where it first was), it is the frame on every row at once 0.2 s later
+    # (frame 21 or 22, as the float32 instants fall), where eq. 3 would take one row in
+    # ``stride`` a frame, by beta
     assert absorbed and absorbed[0] == 21, absorbed[:1]
+    assert len(set(parked_rows_absorbed)) == 1, parked_rows_absorbed
+    assert parked_rows_absorbed[0] in (21, 22), parked_rows_absorbed
 
 
 def test_a_detector_that_takes_over_a_background_learns_the_rows_in_the_same_turn() -> None:
@@ -839,3 +852,33 @@ def test_a_passing_shadow_leaves_no_trail() -> None:
         blobs = det.detect(img)
     assert len(blobs) == 1, blobs.bbox_px
     np.testing.assert_allclose(blobs.centroid_px[0], (20 + 4 * 29, 60), atol=0.6)
+
+
+def test_an_object_that_moves_in_place_stays_and_one_that_stops_goes_at_absorb_s() -> None:
+    """A textured object (24x32 px) jitters 2 px a frame over one spot for 2.2 s at 30 Hz
+    (absorb_s 1 s): always foreground, it is never still, and stays found (eq. 3 learns it at
+    beta after absorb_s, as the paper's T would). When it stops, it is background once it
+    has been still for absorb_s, all of it at once, not over the tens of frames eq. 3 takes."""
+    h, w = 120, 160
+    base = textured(h, w, 4)
+    rng = np.random.default_rng(7)
+    cells = rng.uniform(150, 250, (8, 6)).astype(np.float32)
+    obj = cv2.resize(cells, (24, 32), interpolation=cv2.INTER_NEAREST).astype(np.uint8)
+    params = dataclasses.replace(
+        DetectorParams(), warmup_frames=3, color=False, learn_stride=3, absorb_s=1.0
+    )
+    det = Detector(params)
+    found = []
+    for k in range(110):
+        img = base.copy()
+        if k >= 5:
+            j = min(k, 70)  # jitters until frame 70, then stays where it is
+            x, y = 60 + 2 * (j % 3), 40 + 2 * ((j // 3) % 2)
+            img[y : y + 32, x : x + 24] = obj
+        det.detect(img, (), k * 33_333_333)
+        mask = det.mask
+        found.append(0 if mask is None else cv2.countNonZero(mask))
+    assert min(found[10:71]) >= 0.6 * 24 * 32, found[10:71]
+    # still from frame 70: 1 s later (frame 100) it is gone, not fading over frames
+    assert max(found[101:]) == 0, found[95:]
+    assert min(found[70:99]) >= 0.3 * 24 * 32, found[70:99]

@@ -123,12 +123,8 @@ def test_the_detector_keeps_a_moving_hand_and_lets_go_of_what_it_uncovered(cam: 
     centre lies within 16 px (about 1.1 cm at the hand) of the foreground in at least 95 % of
     the frames in which MediaPipe found the hand (99 % measured; MOG2 with its defaults has it
     in its foreground in under 40 %). The desk the arm uncovered in the first seconds is
-    learned after ``absorb_s``: from then on the foreground is the arm and the torso, at most
-    15 % of the frame in 95 % of the frames (12-13 % measured; 23-29 % before ``absorb_s``).
-    The arm that lay still on the desk for longer than ``absorb_s`` became background too, and
-    in the last frames, as it moves to the keyboard, leaves its ghost where it lay: at most
-    30 % then (23 % measured), as long as nothing tells the detector that what it sees there
-    is the desk it uncovered (the pipeline's stereo test, :mod:`stereod.vision.uncovered`)."""
+    learned after ``absorb_s``: from then on at most a fifth of the frame is foreground (the
+    arm and the torso: 12-13 % in 95 % of the frames, at most 15-19 %, measured)."""
     video = shared_data("temugeb_handpose3d", "media", f"cam{cam}_test.mp4")
     kp = _landmarks()[:, cam]
     params = DetectorParams()
@@ -156,6 +152,4 @@ def test_the_detector_keeps_a_moving_hand_and_lets_go_of_what_it_uncovered(cam: 
     assert k == 378, f"{video.name}: {k} frames decoded, 378 expected"
     assert seen >= 300, f"the hand in only {seen} frames"
     assert np.mean(near) >= 0.95, f"palm near the foreground in {np.mean(near):.0%} of frames"
-    p95 = float(np.percentile(share, 95))
-    assert p95 <= 0.15, f"{p95:.0%} of the frame foreground (95th percentile) after absorb_s"
-    assert max(share) <= 0.3, f"{max(share):.0%} of the frame foreground after absorb_s"
+    assert max(share) <= 0.2, f"{max(share):.0%} of the frame foreground after absorb_s"

@@ -111,6 +111,12 @@ class BackgroundModel:
         """The instant (s) of the last frame :meth:`_held` saw."""
         self._stale: tuple[Rect, np.ndarray] | None = None
         """Where :meth:`_held` found foreground held ``absorb_s``, for :meth:`learn` to absorb."""
+        self._moved_at: np.ndarray | None = None
+        """When each pixel last changed by more than t from one learned frame to the next (s),
+        kept up to date inside the foreground's rectangle."""
+        self._last_seen: tuple[Rect, np.ndarray] | None = None
+        """The last learned frame over its foreground's rectangle (a copy): where the frame
+        has not changed since, what is held there is still."""
         self._row_step = max(d for d in _ROW_STEPS if d <= max(params.open_px, 1))
         """Rows apart that the first pass of eq. 4 looks at. A pixel the opening keeps lies in
         an ``open_px`` square of pixels, inside the image, each at least the weak level (the
@@ -237,7 +243,7 @@ class BackgroundModel:
         turn, in one call (on one idle frame in ``IDLE_EVERY``, weighted for the frames since
         those rows were last learned); what it must not have changed there (:meth:`_kept`: the
         learned rows under the frozen and held rectangles' union) is copied before and put back
-        after."""
+        after. Foreground still for ``absorb_s`` becomes T at once (:meth:`_absorb`)."""
         frame = self._frame
         if frame is None:
             return
@@ -249,7 +255,7 @@ class BackgroundModel:
         bg = self._background
         assert bg is not None
         h, w = bg.shape[:2]
-        held = self._held() if p.hold_foreground else None
+        held = self._held(frame) if p.hold_foreground else None
         stale, self._stale = self._stale, None
         tick = self._ticks
         self._ticks += 1
@@ -274,6 +280,10 @@ class BackgroundModel:
             self._coarse = None  # T changed off eq. 3's rows: the first pass's are rounded again
         else:
             self._learned_rows(bg, phase)
+        roi = self._held_roi if held is not None else None
+        self._last_seen = (
+            None if roi is None else (roi, frame[roi[1] : roi[3], roi[0] : roi[2]].copy())
+        )
 
     def _absorb(
         self,
@@ -282,13 +292,13 @@ class BackgroundModel:
         stale: tuple[Rect, np.ndarray],
         boxes: list[Rect],
     ) -> bool:
-        """Make T the frame at once where foreground has stayed ``absorb_s`` seconds
-        (``stale``: its rectangle and uint8 mask), outside the ``boxes`` the tracker freezes.
-        Learned by eq. 3 alone,
-        such a pixel's difference would fall through t over tens of frames, and its noise
-        would take it out of the foreground and back in, each time held ``absorb_s`` anew: a
-        still person's legs, learned so, leave speckled foreground for tens of seconds.
-        Gives whether anything changed."""
+        """Make T the frame at once where foreground has stayed still ``absorb_s`` seconds
+        (``stale``: its rectangle and uint8 mask; :meth:`_held`), outside the ``boxes`` the
+        tracker freezes, and hold those pixels ``absorb_s`` anew. Learned by eq. 3 alone, such
+        a pixel's difference would fall through t over tens of frames, and its noise would take
+        it out of the foreground and back in, each time held ``absorb_s`` anew: a still
+        person's legs, learned so, leave speckled foreground for tens of seconds. Gives whether
+        anything changed."""
         (x0, y0, x1, y1), mask = stale
         if boxes:
             mask = mask.copy()
@@ -299,6 +309,8 @@ class BackgroundModel:
         if not cv2.countNonZero(mask):
             return False
         cv2.copyTo(frame[y0:y1, x0:x1].astype(np.float32), mask, bg[y0:y1, x0:x1])
+        assert self._since is not None
+        self._since[y0:y1, x0:x1][mask > 0] = self._t_s
         return True
 
     def _kept(
@@ -375,7 +387,37 @@ class BackgroundModel:
             cv2.accumulateWeighted(frame, self._background, 1.0 / self._seen)
         self._coarse = None
 
-    def _held(self) -> tuple[Rect, np.ndarray] | None:
+    def _moved(self, frame: np.ndarray, roi: Rect, now: float) -> None:
+        """Note ``now`` as the last instant each pixel of ``roi`` moved: where ``frame`` differs
+        from the last learned frame by more than t, and where the last frame's rectangle did
+        not reach (all background there: what is foreground now came since). What moves in
+        place (an object that jitters, an arm that waves over one spot) is not still, however
+        long it has been foreground."""
+        if self._moved_at is None or self._moved_at.shape != frame.shape[:2]:
+            self._moved_at = np.full(frame.shape[:2], now, np.float32)
+            return
+        x0, y0, x1, y1 = roi
+        view = self._moved_at[y0:y1, x0:x1]
+        if self._last_seen is None:
+            view.fill(now)
+            return
+        (lx0, ly0, lx1, ly1), last = self._last_seen
+        ix0, iy0, ix1, iy1 = max(x0, lx0), max(y0, ly0), min(x1, lx1), min(y1, ly1)
+        if ix1 <= ix0 or iy1 <= iy0:
+            view.fill(now)
+            return
+        moved = cv2.absdiff(
+            frame[iy0:iy1, ix0:ix1], last[iy0 - ly0 : iy1 - ly0, ix0 - lx0 : ix1 - lx0]
+        )
+        if moved.ndim == 3:
+            moved = cv2.max(cv2.max(moved[..., 0], moved[..., 1]), moved[..., 2])
+        inner = view[iy0 - y0 : iy1 - y0, ix0 - x0 : ix1 - x0]
+        kept = inner.copy()
+        view.fill(now)
+        inner[...] = kept
+        np.putmask(inner, moved > self.params.threshold, now)
+
+    def _held(self, frame: np.ndarray) -> tuple[Rect, np.ndarray] | None:
         """Inside the rectangle around this frame's foreground, where eq. 3 must not learn
         (uint8 255): the foreground grown by ``hold_margin_px``, less what has stayed
         foreground ``absorb_s`` seconds (it is still: make it background). Outside it
@@ -414,6 +456,7 @@ class BackgroundModel:
             np.putmask(since, grown != 0, held_since)  # held, not in the last rectangle: then
         if old is not None:  # held, and in the last rectangle: its time as it was kept
             cv2.copyTo(old, grown[ky0:ky1, kx0:kx1], since[ky0:ky1, kx0:kx1])  # in place
+        self._moved(frame, roi, now)
         limit = now - self.params.absorb_s
         if min(held_since, float(old.min()) if old is not None else held_since) >= limit:
             return roi, grown  # no time kept is that old: nothing is still
@@ -422,5 +465,7 @@ class BackgroundModel:
         else:
             stale = cv2.compare(since, np.float64(limit), cv2.CMP_LT)
         stale = cv2.bitwise_and(grown, stale)
-        self._stale = (roi, stale)
+        assert self._moved_at is not None
+        still = np.where(self._moved_at[y0:y1, x0:x1] < limit, np.uint8(255), np.uint8(0))
+        self._stale = (roi, cv2.bitwise_and(stale, still))
         return roi, cv2.subtract(grown, stale)

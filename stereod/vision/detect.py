@@ -12,9 +12,10 @@ Beyond the paper, each one chosen by measurement on two renderers (README, Accur
 - **No ghosts.** Eq. 3 learns a moving object into the background wherever it passes, and
   the trail it leaves is detected as objects that are not there. Here a pixel is not learned
   while it is foreground (the mask grown by ``hold_margin_px``), from the first frame it is;
-  whatever stays foreground for ``absorb_s`` seconds becomes background at once (T takes the
-  frame there), so a parked object or the ghost of something that left is gone, not learned
-  over tens of frames in which its noise takes pixels out of the foreground and back in.
+  whatever stays foreground and still for ``absorb_s`` seconds becomes background at once (T
+  takes the frame there), so a parked object or the ghost of something that left is gone, not
+  learned over tens of frames in which its noise takes pixels out of the foreground and back
+  in; what stays foreground but moves in place is learned by eq. 3 after ``absorb_s``.
   ``hold_foreground = false`` is eq. 3 as the paper writes it.
 - **Warm-up by the median.** The initial background the paper asks for is the per-pixel
   median of the first ``warmup_frames`` frames, so what passes by during warm-up leaves no

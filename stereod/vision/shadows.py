@@ -42,7 +42,8 @@ as the square window's are where it fits inside a wide shadow."""
 SHADOW_MIN_SURE = (0.09, 0.08)
 """The smallest share of a connected stretch of candidates' judged pixels that must be sure for
 the stretch to be a shadow: of those where the square window fits inside the candidates, on
-textured background, or, where it fits nowhere, of all its pixels on textured background. A
+textured background, or, where it fits on textured background at fewer than a window's area
+of pixels, of all its pixels on textured background. A
 low lamp's shadow's are 10 to 100 % (through a webcam's MJPEG and 4:2:2 chroma 10 to 54 %);
 dark trousers in front of a mottled wall, the colour the wall would take in shade, have a few
 windows pass by chance (3 to 8 %), and a walking person's dark legs, blurred over the wall in
@@ -199,20 +200,24 @@ def _reached(cand: np.ndarray, core: np.ndarray, judged: np.ndarray | None = Non
     those across a gap (a dark stripe on the object beside its shadow is a candidate too,
     apart from it); with ``judged`` (where the window could judge), only in stretches where
     at least ``SHADOW_MIN_SURE`` of those are sure, counted where the window fits inside the
-    candidates if it fits anywhere: a few windows on a dark object pass by chance."""
+    candidates if it fits there at a window's area of pixels or more: a few windows on a dark
+    object pass by chance."""
     if cv2.countNonZero(core) == 0:
         return np.zeros_like(cand)
-    n, labels = cv2.connectedComponents(cand, connectivity=8, ltype=cv2.CV_16U)
+    n, labels = cv2.connectedComponents(cand, connectivity=8, ltype=cv2.CV_32S)
     sure_px = np.bincount(labels[core > 0], minlength=n)
     enough = sure_px > 0
     if judged is not None:
-        inside = cv2.bitwise_and(cv2.erode(cand, _SQUARE), judged) > 0
+        fits = cv2.erode(cand, _SQUARE, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        inside = cv2.bitwise_and(fits, judged) > 0
         inner_px = np.bincount(labels[inside], minlength=n)
         inner_sure = np.bincount(labels[inside & (core > 0)], minlength=n)
         judged_px = np.bincount(labels[judged > 0], minlength=n)
         share_in, share_all = SHADOW_MIN_SURE
         enough &= np.where(
-            inner_px > 0, inner_sure >= share_in * inner_px, sure_px >= share_all * judged_px
+            inner_px >= _SQUARE.size,
+            inner_sure >= share_in * inner_px,
+            sure_px >= share_all * judged_px,
         )
     sure = np.where(enough, np.uint8(255), np.uint8(0))
     sure[0] = 0
