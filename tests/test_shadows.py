@@ -93,3 +93,26 @@ def test_a_dark_object_with_a_few_shadow_like_windows_is_kept() -> None:
     assert shade is not None
     assert cv2.countNonZero(cv2.bitwise_and(shade, patch)) >= 0.95 * cv2.countNonZero(patch)
     assert cv2.countNonZero(cv2.bitwise_and(shade, body)) <= 0.1 * cv2.countNonZero(body)
+
+
+def test_a_stretch_no_window_fits_in_is_judged_by_the_share_of_all_its_windows() -> None:
+    """A 6 px wide stretch of candidates (60 px tall): no 7x7 window fits inside it, so the
+    share of sure windows is taken over all of it. As the foreground of a wide shadow, nearly
+    all its windows are sure, and it is shadow. As a dark pole whose 7 rows in front of a
+    patch of shade happen to keep the floor's texture (6 of its 360 windows), it is kept."""
+    bg = _floor(120, 160)
+    band = np.zeros(bg.shape, np.uint8)
+    band[30:90, 77:83] = 255
+    wide = np.zeros(bg.shape, np.uint8)
+    wide[30:90, 70:90] = 255
+    shade = shadow_mask(_darkened(bg, wide, 0.45), bg, band, (0.15, 0.95))
+    assert shade is not None
+    assert cv2.countNonZero(cv2.bitwise_and(shade, band)) == cv2.countNonZero(band)
+    pole = bg.copy()
+    pole[band > 0] = 50
+    spot = np.zeros(bg.shape, np.uint8)
+    spot[55:62, 70:90] = 255
+    pole[spot > 0] = _darkened(bg, spot, 0.45)[spot > 0]
+    shade = shadow_mask(pole, bg, band, (0.15, 0.95))
+    taken = 0 if shade is None else cv2.countNonZero(cv2.bitwise_and(shade, band))
+    assert taken == 0, f"{taken} of the pole's px taken for shadow"
