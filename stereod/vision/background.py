@@ -420,7 +420,8 @@ class BackgroundModel:
     def _held(self, frame: np.ndarray) -> tuple[Rect, np.ndarray] | None:
         """Inside the rectangle around this frame's foreground, where eq. 3 must not learn
         (uint8 255): the foreground grown by ``hold_margin_px``, less what has stayed
-        foreground ``absorb_s`` seconds (it is still: make it background). Outside it
+        foreground ``absorb_s`` seconds (eq. 3 learns it; what of it has also been still that
+        long, :meth:`_moved`, is left in ``_stale`` for :meth:`_absorb`). Outside it
         everything may be learned; ``None`` when nothing is foreground. Keeps ``_since`` up to
         date inside the rectangle: for each pixel held now, the last frame it was not (for a
         pixel outside the last frame's rectangle, that frame, whatever the rectangle's
