@@ -882,3 +882,24 @@ def test_an_object_that_moves_in_place_stays_and_one_that_stops_goes_at_absorb_s
     # still from frame 70: 1 s later (frame 100) it is gone, not fading over frames
     assert max(found[101:]) == 0, found[95:]
     assert min(found[70:99]) >= 0.3 * 24 * 32, found[70:99]
+
+
+@pytest.mark.parametrize("color", [False, True])
+def test_a_clipped_lamp_patch_stays_background_as_the_light_dims(color: bool) -> None:
+    """A wall lit to 1.3 times what the sensor holds in one patch (clipped at 255 there), then
+    the light dims by a fifth over 40 frames (a flickering lamp's slow beat with the frame
+    rate). Nothing moves, so nothing may be found. Scaled by the gain, T in the patch would
+    fall to 0.8 x 255 = 204 while the frame still shows 255 (1.04 x 255 clipped) at the
+    dimmest: the patch would be found as an object for most of the dimming."""
+    radiance = textured(120, 160, seed=5).astype(np.float32)
+    radiance[50:70, 0:30] = 330.0 + 10.0 * np.sin(np.arange(30, dtype=np.float32))
+    if color:
+        radiance = cv2.merge([radiance, radiance * 0.95, radiance * 0.9])
+    det = Detector(DetectorParams(warmup_frames=3, color=color))
+    warm(det, np.clip(radiance, 0, 255).astype(np.uint8), 3)
+    found = []
+    for k in range(40):
+        g = 1.0 - 0.2 * (k + 1) / 40
+        frame = np.clip(radiance * g, 0, 255).astype(np.uint8)
+        found.append(len(det.detect(frame)))
+    assert sum(found) == 0, found

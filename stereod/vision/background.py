@@ -26,6 +26,15 @@ _GAIN_MAX_MISFIT = 0.25
 share of the threshold (sensor noise of a few grey levels passes; an offset of 40 does not)."""
 GAIN_RESCALE = 0.01
 """A gain further than this from 1 scales the stored background itself."""
+CLIP_LEVEL = 240
+"""A frame's channel at or above this level (of 255) may be clipped, and tells only that the
+light there is at least that: a webcam's MJPEG and 4:2:2 chroma spread a clip at 255 over the
+levels just below it. When the light dims, T is not scaled below such a channel by more
+than :data:`CLIP_SLACK` (:meth:`BackgroundModel._rescale`)."""
+CLIP_SLACK = 8.0
+"""How far (grey levels) T may stay below a clipped channel of the frame: a third of the
+default threshold, and above sensor noise, so that T there does not climb on noise at each of a
+flickering light's rescales."""
 _ROW_STEPS = (1, 2, 3, 4, 6)
 """Row steps of eq. 4's first pass: divisors of ``_GAIN_STEP``, so the gain's points lie on
 its rows."""
@@ -171,6 +180,28 @@ class BackgroundModel:
         where = (mask != 0)[..., None] if bg.ndim == 3 else mask != 0
         np.copyto(bg[y0:y1, x0:x1], frame[y0:y1, x0:x1], where=where)
         self._coarse = None  # T changed: its first pass's rows are rounded again
+
+    def _rescale(self, bg: np.ndarray, frame: np.ndarray, g: float) -> None:
+        """T times the global gain ``g`` in place (the light changed). A channel clipped in
+        the frame dims less than ``g`` says, or not at all, while T learned from it is only a
+        lower bound: scaled down, T would fall below the frame there and a lit patch by a lamp
+        would turn foreground as the light dims. So when ``g`` < 1, T is at least the frame
+        less :data:`CLIP_SLACK` where a channel of both is at :data:`CLIP_LEVEL` or above,
+        outside the last foreground (an object's lit top passing over the floor is no clip of
+        T's)."""
+        if g >= 1.0:
+            np.multiply(bg, np.float32(g), out=bg)
+            return
+        near = (frame >= CLIP_LEVEL) & (bg >= CLIP_LEVEL)  # learned from a clip, and still at one
+        np.multiply(bg, np.float32(g), out=bg)
+        if not near.any():
+            return
+        if self._roi is not None and self._part is not None and self._shape == bg.shape[:2]:
+            x0, y0, x1, y1 = self._roi
+            fg = self._part != 0
+            inner = near[y0:y1, x0:x1]
+            inner &= ~(fg[..., None] if inner.ndim == 3 else fg)
+        np.maximum(bg, frame.astype(np.float32) - np.float32(CLIP_SLACK), out=bg, where=near)
 
     def _coarse_background(self, bg: np.ndarray) -> np.ndarray:
         """T on the first pass's rows rounded to grey levels (uint8): the cached copy, or

@@ -260,7 +260,7 @@ class Detector(BackgroundModel):
             g = 1.0
         else:  # against g T
             if abs(g - 1.0) > GAIN_RESCALE:  # the light changed: learn at the new gain
-                np.multiply(bg, np.float32(g), out=bg)
+                self._rescale(bg, frame, g)
                 self._over_range = float(bg.max()) >= 255.5
                 g = 1.0
                 self._coarse = None  # T changed: round it again
