@@ -185,23 +185,35 @@ class BackgroundModel:
         """T times the global gain ``g`` in place (the light changed). A channel clipped in
         the frame dims less than ``g`` says, or not at all, while T learned from it is only a
         lower bound: scaled down, T would fall below the frame there and a lit patch by a lamp
-        would turn foreground as the light dims. So when ``g`` < 1, T is at least the frame
-        less :data:`CLIP_SLACK` where a channel of both is at :data:`CLIP_LEVEL` or above,
-        outside the last foreground (an object's lit top passing over the floor is no clip of
-        T's)."""
+        would turn foreground as the light dims. So when ``g`` < 1, where a channel of the
+        frame is at :data:`CLIP_LEVEL` or above and T's was at most :data:`CLIP_SLACK` below
+        it, T is at least the frame less ``CLIP_SLACK``, and no more than it was: outside the
+        last foreground and its hold (an object's lit top passing over the floor is no clip
+        of T's). One pixel cannot tell a clipped patch from a near-white object that enters
+        over a surface near the clip level while the light drops by a tenth at once: that
+        object's first frame is taken into T, and what it leaves is held for ``absorb_s``."""
+        gain = np.float32(g)
         if g >= 1.0:
-            np.multiply(bg, np.float32(g), out=bg)
+            np.multiply(bg, gain, out=bg)
             return
-        near = (frame >= CLIP_LEVEL) & (bg >= CLIP_LEVEL)  # learned from a clip, and still at one
-        np.multiply(bg, np.float32(g), out=bg)
+        near = frame >= CLIP_LEVEL
         if not near.any():
+            np.multiply(bg, gain, out=bg)
             return
-        if self._roi is not None and self._part is not None and self._shape == bg.shape[:2]:
+        held = self._grown if self._grown is not None else self._part
+        if self._roi is not None and held is not None and self._shape == bg.shape[:2]:
             x0, y0, x1, y1 = self._roi
-            fg = self._part != 0
+            if self._shade is not None:
+                held = cv2.bitwise_or(held, self._shade)
             inner = near[y0:y1, x0:x1]
-            inner &= ~(fg[..., None] if inner.ndim == 3 else fg)
-        np.maximum(bg, frame.astype(np.float32) - np.float32(CLIP_SLACK), out=bg, where=near)
+            inner[held != 0] = False  # (every channel of a held pixel)
+        idx = np.flatnonzero(near)
+        old = np.take(bg, idx)
+        idx = idx[old >= CLIP_LEVEL - CLIP_SLACK]  # T learned from a clip, or near one
+        old = np.take(bg, idx)
+        np.multiply(bg, gain, out=bg)
+        least = np.take(frame, idx).astype(np.float32) - np.float32(CLIP_SLACK)
+        np.put(bg, idx, np.maximum(old * gain, np.minimum(least, old)))
 
     def _coarse_background(self, bg: np.ndarray) -> np.ndarray:
         """T on the first pass's rows rounded to grey levels (uint8): the cached copy, or
