@@ -24,6 +24,18 @@ def test_transition_and_process_noise_closed_form() -> None:
     assert q[0, 1] == 0.0
 
 
+def test_transition_and_process_noise_are_their_blocks_in_every_entry() -> None:
+    """F = [[I, dt I], [0, I]] and Q = [[q dt^3/3 I, q dt^2/2 I], [q dt^2/2 I, q dt I]] in
+    every entry, each axis alike, nothing off the blocks' diagonals."""
+    eye, zero = np.eye(3), np.zeros((3, 3))
+    for dt, q in ((0.5, 2.0), (0.033, 0.25), (1e-3, 40.0)):
+        want_f = np.block([[eye, dt * eye], [zero, eye]])
+        assert np.array_equal(kalman.transition(dt), want_f)
+        pp, pv, vv = q * dt**3 / 3.0, q * dt**2 / 2.0, q * dt
+        want_q = np.block([[pp * eye, pv * eye], [pv * eye, vv * eye]])
+        np.testing.assert_allclose(kalman.process_noise(dt, q), want_q, rtol=1e-15, atol=0.0)
+
+
 def test_noise_free_constant_velocity_converges_exactly() -> None:
     v = np.array([0.4, 0.0, -0.7])
     p0 = np.array([0.1, 0.2, 2.0])

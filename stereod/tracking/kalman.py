@@ -21,12 +21,19 @@ H = np.hstack([np.eye(3), np.zeros((3, 3))])
 
 _EYE6 = np.eye(6)
 _ZERO6 = np.zeros((6, 6))
+_DT_AT = [3, 10, 17]
+"""Where dt goes in F, flattened: (0, 3), (1, 4), (2, 5)."""
+_Q_AT = [i * 6 + j for i in range(3) for j in (i, i + 3)] + [
+    (i + 3) * 6 + j for i in range(3) for j in (i, i + 3)
+]
+"""Where Q's terms go, flattened: each position's (i, i) and (i, i + 3), then each
+velocity's (i + 3, i) and (i + 3, i + 3)."""
 
 
 def transition(dt_s: float) -> np.ndarray:
     """F (6, 6): p' = p + v dt, v' = v."""
     f = _EYE6.copy()
-    f[0, 3] = f[1, 4] = f[2, 5] = dt_s
+    f.put(_DT_AT, dt_s)
     return f
 
 
@@ -36,8 +43,7 @@ def process_noise(dt_s: float, q: float) -> np.ndarray:
     dt2 = dt_s * dt_s
     pp, pv, vv = q * dt2 * dt_s / 3.0, q * dt2 / 2.0, q * dt_s
     m = _ZERO6.copy()
-    for i in range(3):
-        m[i, i], m[i, i + 3], m[i + 3, i], m[i + 3, i + 3] = pp, pv, pv, vv
+    m.put(_Q_AT, [pp, pv, pp, pv, pp, pv, pv, vv, pv, vv, pv, vv])
     return m
 
 
