@@ -5,7 +5,7 @@ first)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -547,15 +547,15 @@ class Association(TrackFilters):
         far: tuple[np.ndarray, np.ndarray] | None = None
         if self._project is not None and tr.started:
             accel = self._accel(tr.falling)
-            at = [kalman.position_at(tr.kf, t, accel) for t in (t_left, t_right)]
+            at = [kalman.point_at(tr.kf, t, accel) for t in (t_left, t_right)]
             far = self._projected(at[0], at[1], tr.last.depth_factor)
             if far is not None and not tr.last.clipped:
                 pl, pr = far
-                return Prediction(pl, pl, pr, pr, _motion(pl, pl, last_l), _motion(pr, pr, last_r))
+                return Prediction(pl, pl, pr, pr, _dist(pl, last_l), _dist(pr, last_r))
         elif self._project is not None and len(tr.positions) >= 2:
             (t0, p0), (t1, p1) = tr.positions[-2], tr.positions[-1]
             v = (p1 - p0) / ((t1 - t0) * 1e-9)
-            at_l, at_r = (p1 + v * ((t - t1) * 1e-9) for t in (t_left, t_right))
+            at_l, at_r = ((p1 + v * ((t - t1) * 1e-9)).tolist() for t in (t_left, t_right))
             far = self._projected(at_l, at_r, tr.last.depth_factor)
         pl, ml = predict_px(tr.left_history, t_left, self.WINDOW_NS)
         pr, mr = predict_px(tr.right_history, t_right, self.WINDOW_NS)
@@ -565,14 +565,14 @@ class Association(TrackFilters):
         )
 
     def _projected(
-        self, at_left: np.ndarray, at_right: np.ndarray, depth_factor: float
+        self, at_left: Sequence[float], at_right: Sequence[float], depth_factor: float
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """Where each eye sees the silhouette's centroid (px) of an object centred at rig-frame
-        positions (3,) m at that eye's instant: the centre projected from ``depth_factor``
+        positions (x, y, z m) at that eye's instant: the centre projected from ``depth_factor``
         times nearer (a 10 cm ball at 1 m, at the edge of a 640 px wide image, is seen 3 px
         further out than its centre projects); ``None`` behind the cameras."""
-        xl, yl, zl = at_left.tolist()
-        xr, yr, zr = at_right.tolist()
+        xl, yl, zl = at_left
+        xr, yr, zr = at_right
         if self._project is None or zl <= 0 or zr <= 0:
             return None
         left = self._project(xl, yl, zl / depth_factor, True)

@@ -104,6 +104,22 @@ def position_at(s: KalmanState, t_ns: int, accel_mps2: np.ndarray | None = None)
     return p if accel_mps2 is None else p + 0.5 * dt * dt * accel_mps2
 
 
+def point_at(
+    s: KalmanState, t_ns: int, accel_mps2: np.ndarray | None = None
+) -> tuple[float, float, float]:
+    """:func:`position_at` as three Python floats (m), the same arithmetic to the bit: most
+    callers want one coordinate, or all three for a projection, and numpy's per-call cost is
+    most of the work on three numbers."""
+    dt = (t_ns - s.t_ns) * 1e-9
+    x, y, z, vx, vy, vz = s.x.tolist()
+    x, y, z = x + vx * dt, y + vy * dt, z + vz * dt
+    if accel_mps2 is None:
+        return x, y, z
+    half = 0.5 * dt * dt
+    ax, ay, az = accel_mps2.tolist()
+    return x + half * ax, y + half * ay, z + half * az
+
+
 def inflate_velocity(s: KalmanState, sigma_mps: float) -> KalmanState:
     """The state with ``sigma_mps`` per axis added to its velocity uncertainty: after a
     manoeuvre the old velocity is no guide. Apply it to the state before a prediction, so the
