@@ -157,12 +157,12 @@ def inverse3(m: np.ndarray) -> tuple[np.ndarray, float] | None:
         return None
     if not math.isfinite(det):
         return None
-    adj = [
-        [c11, c * h - b * i, b * f - c * e],
-        [c12, a * i - c * g, c * d - a * f],
-        [c13, b * g - a * h, a * e - b * d],
+    inv = [
+        [c11 / det, (c * h - b * i) / det, (b * f - c * e) / det],
+        [c12 / det, (a * i - c * g) / det, (c * d - a * f) / det],
+        [c13 / det, (b * g - a * h) / det, (a * e - b * d) / det],
     ]
-    return np.array(adj) / det, det
+    return np.array(inv), det
 
 
 def mahalanobis2(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:
