@@ -24,6 +24,18 @@ def test_transition_and_process_noise_closed_form() -> None:
     assert q[0, 1] == 0.0
 
 
+def test_transition_and_process_noise_are_their_blocks_in_every_entry() -> None:
+    """F = [[I, dt I], [0, I]] and Q = [[q dt^3/3 I, q dt^2/2 I], [q dt^2/2 I, q dt I]] in
+    every entry, each axis alike, nothing off the blocks' diagonals."""
+    eye, zero = np.eye(3), np.zeros((3, 3))
+    for dt, q in ((0.5, 2.0), (0.033, 0.25), (1e-3, 40.0)):
+        want_f = np.block([[eye, dt * eye], [zero, eye]])
+        assert np.array_equal(kalman.transition(dt), want_f)
+        pp, pv, vv = q * dt**3 / 3.0, q * dt**2 / 2.0, q * dt
+        want_q = np.block([[pp * eye, pv * eye], [pv * eye, vv * eye]])
+        np.testing.assert_allclose(kalman.process_noise(dt, q), want_q, rtol=1e-15, atol=0.0)
+
+
 def test_noise_free_constant_velocity_converges_exactly() -> None:
     v = np.array([0.4, 0.0, -0.7])
     p0 = np.array([0.1, 0.2, 2.0])
@@ -221,3 +233,17 @@ def test_a_precise_measurement_after_a_long_coast_keeps_a_covariance() -> None:
             got = kalman.update(s, s.x[:3] + rng.normal(scale=1e-6, size=3), np.eye(3) * r)
             bad += int(np.any(np.diag(got.P) < 0.0))
     assert bad == 0
+
+
+def test_point_at_is_position_at_to_the_bit() -> None:
+    """The predicted position in Python floats is numpy's, bit for bit, with and without a
+    known acceleration, ahead of the state's instant and behind it."""
+    rng = np.random.default_rng(5)
+    gravity = np.array([0.0, 9.81, 0.0])
+    for _ in range(300):
+        s = kalman.KalmanState(rng.normal(0.0, 3.0, 6), np.eye(6), int(rng.integers(0, 10**10)))
+        t = s.t_ns + int(rng.integers(-(10**8), 10**9))
+        for accel in (None, gravity, rng.normal(0.0, 5.0, 3)):
+            got = kalman.point_at(s, t, accel)
+            assert all(type(c) is float for c in got)
+            assert got == tuple(kalman.position_at(s, t, accel).tolist())

@@ -329,10 +329,10 @@ def _finite(x: float) -> float | None:
 
 
 def _blob(centroid: np.ndarray, bbox: np.ndarray, area: int) -> EyeBlob:
+    x, y = centroid.tolist()[:2]
+    bx, by, bw, bh = bbox.tolist()[:4]
     return EyeBlob(
-        centroid_px=(float(centroid[0]), float(centroid[1])),
-        bbox_px=(int(bbox[0]), int(bbox[1]), int(bbox[2]), int(bbox[3])),
-        area_px=area,
+        centroid_px=(float(x), float(y)), bbox_px=(int(bx), int(by), int(bw), int(bh)), area_px=area
     )
 
 

@@ -5,7 +5,7 @@ first)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -100,9 +100,18 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return inter / union if union > 0 else 0.0
 
 
+SMALL_PAIRS = 4
+"""At most this many point-segment or point-box pairs are worked out one at a time in Python
+floats (:func:`_to_segments`, :func:`_insides`), the same arithmetic to the bit: a pair with
+one detection and one track would otherwise pay numpy's per-call cost for each of some thirty
+operations on one number."""
+
+
 def _to_segments(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """:func:`_to_segment` of every point ((n, 2) px) to every segment a-b ((m, 2) each), in
     one pass: (n, m) px."""
+    if points.shape[0] * a.shape[0] <= SMALL_PAIRS:
+        return _to_segments_few(points, a, b)
     ax, ay = a[None, :, 0], a[None, :, 1]
     px, py = points[:, None, 0], points[:, None, 1]
     dx, dy = b[None, :, 0] - ax, b[None, :, 1] - ay
@@ -116,12 +125,48 @@ def _to_segments(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
 def _insides(points: np.ndarray, boxes: np.ndarray, grow: float = 0.0) -> np.ndarray:
     """:func:`_inside` of every point ((m, 2) px) in every box ((n, 4) x, y, w, h, each grown
     by ``grow`` of its size on every side), in one pass: (n boxes, m points)."""
+    if len(boxes) * points.shape[0] <= SMALL_PAIRS:
+        return _insides_few(points, boxes, grow)
     x, y, w, h = np.asarray(boxes, np.float64).T[:, :, None]
     px, py = points[None, :, 0], points[None, :, 1]
     if grow == 0.0:  # (x - 0 w is x: the same comparisons, without four products)
         return (x <= px) & (px <= x + w) & (y <= py) & (py <= y + h)
     mx, my = grow * w, grow * h
     return (x - mx <= px) & (px <= x + w + mx) & (y - my <= py) & (py <= y + h + my)
+
+
+def _to_segments_few(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`_to_segments` one pair at a time in Python floats, the same operations in the
+    same order (numpy's ``hypot``, which may differ from ``math.hypot`` in the last bit):
+    (n, m) px."""
+    out = []
+    for px, py in points.tolist():
+        row = []
+        for (ax, ay), (bx, by) in zip(a.tolist(), b.tolist(), strict=True):
+            dx, dy = bx - ax, by - ay
+            n2 = dx * dx + dy * dy
+            if n2 == 0.0:
+                t = 0.0
+            else:
+                q = ((px - ax) * dx + (py - ay) * dy) / n2
+                t = q if q != q else min(1.0, max(0.0, q))  # NaN stays NaN, as in numpy
+            row.append(np.hypot(px - (ax + t * dx), py - (ay + t * dy)))
+        out.append(row)
+    return np.array(out, np.float64).reshape(len(points), len(a))
+
+
+def _insides_few(points: np.ndarray, boxes: np.ndarray, grow: float) -> np.ndarray:
+    """:func:`_insides` one pair at a time in Python floats: (n boxes, m points)."""
+    pts = points.tolist()
+    out = []
+    for x, y, w, h in np.asarray(boxes, np.float64).reshape(-1, 4).tolist():
+        if grow == 0.0:
+            x0, x1, y0, y1 = x, x + w, y, y + h
+        else:
+            mx, my = grow * w, grow * h
+            x0, x1, y0, y1 = x - mx, x + w + mx, y - my, y + h + my
+        out.append([x0 <= px <= x1 and y0 <= py <= y1 for px, py in pts])
+    return np.array(out, bool).reshape(len(out), len(pts))
 
 
 def _ious(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -225,7 +270,6 @@ class Association(TrackFilters):
             return out, (~_pieces(detections, centres, bboxes, out, []) & ~gone).tolist()
         k = len(tracks)
         confirmed = np.array([self._confirmed(tr) for tr in tracks])
-        boxes = []
         preds: list[Prediction] = []
         gates = np.empty(k)
         ends = np.empty((4, k, 2))  # each track's predicted segments: left, left_far, right, ...
@@ -235,12 +279,6 @@ class Association(TrackFilters):
             pred = self._predict_px(tr, t_left, t_right)
             pl, pr, ml, mr = pred.left, pred.right, pred.left_motion, pred.right_motion
             preds.append(pred)
-            boxes.append(
-                (
-                    _moved(tr.last.left_bbox_px, pl - tr.left_history[-1][1]),
-                    _moved(tr.last.right_bbox_px, pr - tr.right_history[-1][1]),
-                )
-            )
             if len(tr.left_history) >= 2 and len(tr.right_history) >= 2:
                 moved = max(ml, mr)
                 if tr.misses > 0:  # unseen: credited no more than its image velocity carries it
@@ -270,8 +308,11 @@ class Association(TrackFilters):
         cost[gone] = np.inf
         # whether each track's prediction falls in each detection's box, left and right eye
         inside = np.stack((_insides(ends[0], bboxes[:, 0]), _insides(ends[2], bboxes[:, 1])))
-        hosted = (inside & confirmed).sum(axis=2)  # (eye, detection): confirmed tracks in it
-        for i in np.flatnonzero(~gone & ((hosted[0] >= 2) | (hosted[1] >= 2))).tolist():
+        shared: list[int] = []
+        if int(np.count_nonzero(confirmed)) >= 2:  # (one confirmed track shares nothing)
+            hosted = (inside & confirmed).sum(axis=2)  # (eye, detection): confirmed tracks in it
+            shared = np.flatnonzero(~gone & ((hosted[0] >= 2) | (hosted[1] >= 2))).tolist()
+        for i in shared:
             d = detections[i]
             in_left, in_right = inside[0, i] & confirmed, inside[1, i] & confirmed
             hosts = np.flatnonzero(in_left | in_right)
@@ -307,8 +348,8 @@ class Association(TrackFilters):
                 j
                 for j in hosts
                 if np.isfinite(cost[i, j])
-                and _iou(d.left_bbox_px, boxes[j][0]) >= 0.9
-                and _iou(d.right_bbox_px, boxes[j][1]) >= 0.9
+                and _iou(d.left_bbox_px, self._predicted_box(tracks[j], preds[j], True)) >= 0.9
+                and _iou(d.right_bbox_px, self._predicted_box(tracks[j], preds[j], False)) >= 0.9
             ]
             keep = cost[i, alone[0]] if len(alone) == 1 else np.inf
             cost[i, :] = np.inf
@@ -388,6 +429,13 @@ class Association(TrackFilters):
                 self._tracks[m.track_id] = m
                 out[i] = m.track_id
         return out, may_start
+
+    @staticmethod
+    def _predicted_box(tr: Track, pred: Prediction, left: bool) -> np.ndarray:
+        """A track's last box in one eye (x, y, w, h px) moved to where ``pred`` puts it."""
+        if left:
+            return _moved(tr.last.left_bbox_px, pred.left - tr.left_history[-1][1])
+        return _moved(tr.last.right_bbox_px, pred.right - tr.right_history[-1][1])
 
     def _in_front(
         self, tracks: list[Track], hosts: np.ndarray, inside: np.ndarray, preds: list[Prediction]
@@ -499,15 +547,15 @@ class Association(TrackFilters):
         far: tuple[np.ndarray, np.ndarray] | None = None
         if self._project is not None and tr.started:
             accel = self._accel(tr.falling)
-            at = [kalman.position_at(tr.kf, t, accel) for t in (t_left, t_right)]
+            at = [kalman.point_at(tr.kf, t, accel) for t in (t_left, t_right)]
             far = self._projected(at[0], at[1], tr.last.depth_factor)
             if far is not None and not tr.last.clipped:
                 pl, pr = far
-                return Prediction(pl, pl, pr, pr, _motion(pl, pl, last_l), _motion(pr, pr, last_r))
+                return Prediction(pl, pl, pr, pr, _dist(pl, last_l), _dist(pr, last_r))
         elif self._project is not None and len(tr.positions) >= 2:
             (t0, p0), (t1, p1) = tr.positions[-2], tr.positions[-1]
             v = (p1 - p0) / ((t1 - t0) * 1e-9)
-            at_l, at_r = (p1 + v * ((t - t1) * 1e-9) for t in (t_left, t_right))
+            at_l, at_r = ((p1 + v * ((t - t1) * 1e-9)).tolist() for t in (t_left, t_right))
             far = self._projected(at_l, at_r, tr.last.depth_factor)
         pl, ml = predict_px(tr.left_history, t_left, self.WINDOW_NS)
         pr, mr = predict_px(tr.right_history, t_right, self.WINDOW_NS)
@@ -517,14 +565,14 @@ class Association(TrackFilters):
         )
 
     def _projected(
-        self, at_left: np.ndarray, at_right: np.ndarray, depth_factor: float
+        self, at_left: Sequence[float], at_right: Sequence[float], depth_factor: float
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """Where each eye sees the silhouette's centroid (px) of an object centred at rig-frame
-        positions (3,) m at that eye's instant: the centre projected from ``depth_factor``
+        positions (x, y, z m) at that eye's instant: the centre projected from ``depth_factor``
         times nearer (a 10 cm ball at 1 m, at the edge of a 640 px wide image, is seen 3 px
         further out than its centre projects); ``None`` behind the cameras."""
-        xl, yl, zl = at_left.tolist()
-        xr, yr, zr = at_right.tolist()
+        xl, yl, zl = at_left
+        xr, yr, zr = at_right
         if self._project is None or zl <= 0 or zr <= 0:
             return None
         left = self._project(xl, yl, zl / depth_factor, True)

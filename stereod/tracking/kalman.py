@@ -21,12 +21,19 @@ H = np.hstack([np.eye(3), np.zeros((3, 3))])
 
 _EYE6 = np.eye(6)
 _ZERO6 = np.zeros((6, 6))
+_DT_AT = [3, 10, 17]
+"""Where dt goes in F, flattened: (0, 3), (1, 4), (2, 5)."""
+_Q_AT = [i * 6 + j for i in range(3) for j in (i, i + 3)] + [
+    (i + 3) * 6 + j for i in range(3) for j in (i, i + 3)
+]
+"""Where Q's terms go, flattened: each position's (i, i) and (i, i + 3), then each
+velocity's (i + 3, i) and (i + 3, i + 3)."""
 
 
 def transition(dt_s: float) -> np.ndarray:
     """F (6, 6): p' = p + v dt, v' = v."""
     f = _EYE6.copy()
-    f[0, 3] = f[1, 4] = f[2, 5] = dt_s
+    f.put(_DT_AT, dt_s)
     return f
 
 
@@ -36,8 +43,7 @@ def process_noise(dt_s: float, q: float) -> np.ndarray:
     dt2 = dt_s * dt_s
     pp, pv, vv = q * dt2 * dt_s / 3.0, q * dt2 / 2.0, q * dt_s
     m = _ZERO6.copy()
-    for i in range(3):
-        m[i, i], m[i, i + 3], m[i + 3, i], m[i + 3, i + 3] = pp, pv, pv, vv
+    m.put(_Q_AT, [pp, pv, pp, pv, pp, pv, pv, vv, pv, vv, pv, vv])
     return m
 
 
@@ -98,6 +104,22 @@ def position_at(s: KalmanState, t_ns: int, accel_mps2: np.ndarray | None = None)
     return p if accel_mps2 is None else p + 0.5 * dt * dt * accel_mps2
 
 
+def point_at(
+    s: KalmanState, t_ns: int, accel_mps2: np.ndarray | None = None
+) -> tuple[float, float, float]:
+    """:func:`position_at` as three Python floats (m), the same arithmetic to the bit: most
+    callers want one coordinate, or all three for a projection, and numpy's per-call cost is
+    most of the work on three numbers."""
+    dt = (t_ns - s.t_ns) * 1e-9
+    x, y, z, vx, vy, vz = s.x.tolist()
+    x, y, z = x + vx * dt, y + vy * dt, z + vz * dt
+    if accel_mps2 is None:
+        return x, y, z
+    half = 0.5 * dt * dt
+    ax, ay, az = accel_mps2.tolist()
+    return x + half * ax, y + half * ay, z + half * az
+
+
 def inflate_velocity(s: KalmanState, sigma_mps: float) -> KalmanState:
     """The state with ``sigma_mps`` per axis added to its velocity uncertainty: after a
     manoeuvre the old velocity is no guide. Apply it to the state before a prediction, so the
@@ -135,12 +157,12 @@ def inverse3(m: np.ndarray) -> tuple[np.ndarray, float] | None:
         return None
     if not math.isfinite(det):
         return None
-    adj = [
-        [c11, c * h - b * i, b * f - c * e],
-        [c12, a * i - c * g, c * d - a * f],
-        [c13, b * g - a * h, a * e - b * d],
+    inv = [
+        [c11 / det, (c * h - b * i) / det, (b * f - c * e) / det],
+        [c12 / det, (a * i - c * g) / det, (c * d - a * f) / det],
+        [c13 / det, (b * g - a * h) / det, (a * e - b * d) / det],
     ]
-    return np.array(adj) / det, det
+    return np.array(inv), det
 
 
 def mahalanobis2(s: KalmanState, z_m: np.ndarray, r_m2: np.ndarray) -> float:

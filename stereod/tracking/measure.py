@@ -74,8 +74,8 @@ def expected_growth(tr: Track | None, eye_times_ns: tuple[int, int]) -> tuple[fl
         (tr.left_history, eye_times_ns[0]),
         (tr.right_history, eye_times_ns[1]),
     ):
-        z_then = float(kalman.position_at(tr.kf, history[-1][0])[2])
-        z_now = float(kalman.position_at(tr.kf, t_now)[2])
+        z_then = kalman.point_at(tr.kf, history[-1][0])[2]
+        z_now = kalman.point_at(tr.kf, t_now)[2]
         if z_then <= 0 or z_now <= 0:
             return None
         out.append(2.0 * math.log(z_then / z_now))

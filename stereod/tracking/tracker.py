@@ -165,7 +165,7 @@ class Tracker(Association):
             piece = False
             if tid is not None and blended:
                 front = self._tracks[tid]
-                expected = float(kalman.position_at(front.kf, t_ns)[2]) if front.started else None
+                expected = kalman.point_at(front.kf, t_ns)[2] if front.started else None
                 ob = measure.by_edge(ob, *self._fronts[k], front.outline_m, expected)
             if tid is None:
                 kf = kalman.initiate(ob.position_m, ob.cov_m2, t_ns, p.manoeuvre_sigma_mps)
@@ -404,5 +404,5 @@ def _off_edge(tr: Track, ob: Observation, t_ns: int) -> bool:
     1.2 m/s walker's velocity to 1.8 m/s, and the other took their id as they parted)."""
     if tr.outline_m is None or not ob.edge_depth:
         return False
-    across = abs(float(ob.position_m[0]) - float(kalman.position_at(tr.kf, t_ns)[0]))
+    across = abs(float(ob.position_m[0]) - kalman.point_at(tr.kf, t_ns)[0])
     return across > tr.outline_m[0] + tr.outline_m[1]

@@ -295,7 +295,8 @@ def disc_fits(
                 continue
             theta[j] += step[:3, 0]
             beta[j] += step[3:, 0].reshape(channels, k)
-            moved = max(abs(step[0, 0]), abs(step[1, 0]), abs(step[2, 0]) / 5)
+            sx, sy, sr = step[:3, 0].tolist()
+            moved = max(abs(sx), abs(sy), abs(sr) / 5)
             if moved < (_WARM_CONVERGED_PX if warm[j] else _CONVERGED_PX):
                 todo.remove(j)
         if not todo:
