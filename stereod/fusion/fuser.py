@@ -70,7 +70,10 @@ class FuseParams:
     its rig's track already) opens a room track of its own once seen this long, s."""
 
 
-_Shared = dict[int, list[tuple[str, int, np.ndarray, np.ndarray]]]
+_Shared = dict[int, list[tuple[str, int, list[float]]]]
+_MEASURED = np.r_[POS, PCOV]
+"""A table row's position and position covariance columns: what ``FusedFrame.shared``
+holds of each member (twelve floats)."""
 
 
 def _less(members: dict[str, int], rig: str) -> dict[str, int]:
@@ -505,7 +508,7 @@ class Fuser:
                     np.array(before), nis, ((t_ns - st.stamp[slots]) * 1e-9)[run]
                 ).tolist()
                 when = stamps.tolist()
-                pos, cov = raw[:, POS], raw[:, PCOV].reshape(-1, 3, 3)
+                measured: list[list[float]] = raw[:, _MEASURED].tolist()
                 ends = [*starts[1:], len(idx)]
                 for ln, rid, a, b in zip(links, with_members, starts, ends, strict=True):
                     if b - a == 1:
@@ -513,7 +516,7 @@ class Fuser:
                             ln.strain = {}
                         continue
                     ln.strain = dict(zip(names[a:b], after[a:b], strict=True))
-                    shared[rid] = [(names[j][0], when[j], pos[j], cov[j]) for j in range(a, b)]
+                    shared[rid] = [(names[j][0], when[j], measured[j]) for j in range(a, b)]
             else:
                 for ln in links:
                     if ln.strain:
