@@ -99,3 +99,36 @@ def test_strains_moved_on_at_once_are_each_members_own_step() -> None:
         want += tab.strain_step(strain[a : a + size].tolist(), nis[a : a + size].tolist(), dt)
     assert got == want
     assert got[2:5] == strain[2:5].tolist()  # the negative step moved nothing
+
+
+def test_a_rigs_observations_kept_in_one_array_are_the_last_window_in_order() -> None:
+    """A clock watch keeps each rig's last ``window`` observations in one array it reads as
+    two columns: after every one of 1000 appends (the buffer wrapping many times), the
+    columns are a ``deque(maxlen=window)``'s contents in order, and the robust mean and its
+    standard error are those of ``numpy.average`` over them within three robust sigmas."""
+    from collections import deque
+
+    from stereod.fusion.clock import MIN_SAMPLES, _Samples, _weighted_median
+
+    rng = np.random.default_rng(5)
+    window = 37
+    watch = ClockWatch(["a", "b"], window=window)
+    kept: deque[tuple[float, float]] = deque(maxlen=window)
+    for k in range(1000):
+        obs = (float(rng.normal(12.0, 3.0)), float(rng.uniform(0.1, 5.0)))
+        watch._samples["b"].append(*obs)
+        watch._means.pop("b", None)
+        kept.append(obs)
+        x, w = watch._samples["b"].columns()
+        assert x.tolist() == [v for v, _ in kept] and w.tolist() == [u for _, u in kept], k
+        if len(kept) >= MIN_SAMPLES and k % 97 == 0:
+            xs, ws = np.array([v for v, _ in kept]), np.array([u for _, u in kept])
+            mid = _weighted_median(xs, ws)
+            sigma = 1.4826 * _weighted_median(np.abs(xs - mid), ws)
+            inside = np.abs(xs - mid) <= 3.0 * sigma
+            mean = float(np.average(xs[inside], weights=ws[inside]))
+            spread = float(np.average((xs[inside] - mean) ** 2, weights=ws[inside]))
+            est = watch.estimate("b")
+            assert est.offset_ms == mean and est.samples == min(k + 1, window)
+            assert est.sigma_ms == float(np.sqrt(spread / inside.sum()))
+    assert isinstance(watch._samples["b"], _Samples)

@@ -73,7 +73,7 @@ def _step_both(fast: Fuser, full: ReferenceFuser, msg: object, t: int, rig: str)
         np.testing.assert_allclose(a.position_cov, b.position_cov, rtol=1e-6, atol=1e-15)
     assert sorted(got.shared) == sorted(want.shared), (t, rig)
     for rid, ms in got.shared.items():
-        assert [(r, s) for r, s, _, _ in ms] == [(r, s) for r, s, _, _ in want.shared[rid]]
+        assert [(r, s) for r, s, _ in ms] == [(r, s) for r, s, _, _ in want.shared[rid]]
 
 
 @pytest.mark.parametrize("seed", [1, 2])

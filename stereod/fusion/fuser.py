@@ -70,7 +70,10 @@ class FuseParams:
     its rig's track already) opens a room track of its own once seen this long, s."""
 
 
-_Shared = dict[int, list[tuple[str, int, np.ndarray, np.ndarray]]]
+_Shared = dict[int, list[tuple[str, int, list[float]]]]
+_MEASURED = np.r_[POS, PCOV]
+"""A table row's position and position covariance columns: what ``FusedFrame.shared``
+holds of each member (twelve floats)."""
 
 
 def _less(members: dict[str, int], rig: str) -> dict[str, int]:
@@ -111,6 +114,8 @@ class Fuser:
         self._next_id = 1
         self._bare: set[int] = set()
         """Room tracks with no member (coasting on their own state)."""
+        self._kept_slots: np.ndarray | None = None
+        """The slots of the tracks :meth:`_update` returned, when it had them."""
         self._seen_floor = 0
         """No room track was last seen before this (UTC ns): a lower bound, raised when the
         tracks are looked over for their coast."""
@@ -259,16 +264,25 @@ class Fuser:
             touched.update(self._bare)
             for rig in assoc:
                 touched.update(self._links.get(rig, {}).values())
+        self._kept_slots = None
         ended, shared, kept = self._update(t_ns, touched)
         if kept is None:
             return FusedFrame(t_ns, ended, shared)
-        return self._frame(t_ns, ended, shared, kept)
+        return self._frame(t_ns, ended, shared, kept, self._kept_slots)
 
-    def _frame(self, t_ns: int, ended: list[int], shared: _Shared, rids: list[int]) -> FusedFrame:
-        """A frame of room tracks ``rids`` as they are now: their columns gathered (copies:
-        the caller may keep a frame while the next steps change the tracks)."""
+    def _frame(
+        self,
+        t_ns: int,
+        ended: list[int],
+        shared: _Shared,
+        rids: list[int],
+        slots: np.ndarray | None = None,
+    ) -> FusedFrame:
+        """A frame of room tracks ``rids`` (``slots``: theirs, when the step has them) as they
+        are now: their columns gathered (copies: the caller may keep a frame while the next
+        steps change the tracks)."""
         st = self._state
-        k = st.slots(rids)
+        k = st.slots(rids) if slots is None else slots
         links = [self._tracks[rid] for rid in rids]
         return FusedFrame(t_ns, ended, shared, st.f[k], Columns(st, k, rids), links)
 
@@ -493,7 +507,8 @@ class Fuser:
             # Each member's strain so far scales its covariance down in the fusion; its
             # distance to the fused position then moves its strain on.
             size = np.array(sizes)
-            fused, nis = tab.fuse_ray(f, table.ray.take(i, axis=0), s, np.array(before), size)
+            so_far = np.array(before)
+            fused, nis = tab.fuse_ray(f, table.ray.take(i, axis=0), s, so_far, size)
             flags = np.logical_or.reduceat(table.flags.take(i, axis=0), s, axis=0)
             slots = st.slots(with_members)
             best = s
@@ -502,10 +517,10 @@ class Fuser:
                 # Best member: least position trace, the first of equals (a stable sort).
                 best = np.lexsort((f[:, DIAG_P].sum(axis=1), run))[s]
                 after = tab.strain_steps(
-                    np.array(before), nis, ((t_ns - st.stamp[slots]) * 1e-9)[run]
+                    so_far, nis, ((t_ns - st.stamp[slots]) * 1e-9)[run]
                 ).tolist()
                 when = stamps.tolist()
-                pos, cov = raw[:, POS], raw[:, PCOV].reshape(-1, 3, 3)
+                measured: list[list[float]] = raw[:, _MEASURED].tolist()
                 ends = [*starts[1:], len(idx)]
                 for ln, rid, a, b in zip(links, with_members, starts, ends, strict=True):
                     if b - a == 1:
@@ -513,7 +528,7 @@ class Fuser:
                             ln.strain = {}
                         continue
                     ln.strain = dict(zip(names[a:b], after[a:b], strict=True))
-                    shared[rid] = [(names[j][0], when[j], pos[j], cov[j]) for j in range(a, b)]
+                    shared[rid] = [(names[j][0], when[j], measured[j]) for j in range(a, b)]
             else:
                 for ln in links:
                     if ln.strain:
@@ -544,11 +559,13 @@ class Fuser:
             st.vvalid[slots], st.hvalid[slots] = fl[:, VVALID], fl[:, HVALID]
         if coast_at is not None:  # no member: its own state predicted on, the rest kept
             st.f[coast_at[0]], st.life[coast_at[0]] = coast_at[1], COASTING
-        every_slot = st.slots(rids)
+        # Without coasting tracks, the fused ones are every touched one, in the same order.
+        every_slot = st.slots(rids) if fused_at is None or coasting else fused_at[0]
         st.stamp[every_slot] = t_ns
         self._seen_floor = min(self._seen_floor, t_ns)
         late = (t_ns - st.seen[every_slot] > coast_ns).tolist()
         if not any(late):
+            self._kept_slots = every_slot
             return ended, shared, rids
         keep = []
         for rid, old in zip(rids, late, strict=True):

@@ -7,8 +7,12 @@ Those tracks go out at once on their own keys (``objects/<id>``), so that a rig 
 latency is one message's work, not a step period; the room's whole message (``objects``,
 every track's latest state, each at its own stamp) goes out at most ``max_rate_hz`` times a
 second, its objects' JSON kept per id between messages. Under load a step takes every message
-waiting, so steps merge messages rather than fall behind. With no message for a while it steps
-on by the time passed since the last one, so that rigs that all stopped end their tracks.
+waiting, so steps merge messages rather than fall behind. A step's tracks are published before
+anything else is done with them (their JSON kept, the clock watch, the counts), and the room's
+message, when due, waits while a rig message is waiting (for a second period at most): what
+is left of a step's work never delays the next rig message's tracks. With no message for a
+while it steps on by the time passed since the last one, so that rigs that all stopped end
+their tracks.
 """
 
 from __future__ import annotations
@@ -187,24 +191,32 @@ class FuseNode:
                     self.geometry = msg.geometry
                     rigs.append(msg.rig)
                     stamp = max(stamp or 0, self.fuser.rig_stamp(msg.rig) or 0)
-                self._count(batch)
                 latest = self.fuser.latest_ns()
-                if latest is None:
-                    continue
-                if batch:
-                    last_rx = max(rx for rx, _, _ in batch)
-                if stamp is not None:
-                    self._step(stamp, rigs, [rx for rx, _, _ in batch])
-                elif last_rx is not None and time.monotonic() - last_rx >= IDLE_STEP_S:
-                    # idle: step on by the time since the last message, to end tracks
-                    self._step(latest + int((time.monotonic() - last_rx) * 1e9), [], [])
-                if self._room_due and time.monotonic() - self._room_at >= self.min_period_s:
+                if latest is not None:
+                    if batch:
+                        last_rx = max(rx for rx, _, _ in batch)
+                    if stamp is not None:
+                        self._step(stamp, rigs, [rx for rx, _, _ in batch])
+                    elif last_rx is not None and time.monotonic() - last_rx >= IDLE_STEP_S:
+                        # idle: step on by the time since the last message, to end tracks
+                        self._step(latest + int((time.monotonic() - last_rx) * 1e9), [], [])
+                self._count(batch)  # after the step: its tracks go out first
+                if self._room_due and self._room_turn(time.monotonic() - self._room_at):
                     self._publish_room()
             if self._room_due:  # the last tracks fused, before the node stops
                 self._publish_room()
         except BaseException as exc:  # a fatal error ends the run with its own line
             self.error = exc
             self.done.set()
+
+    def _room_turn(self, since_s: float) -> bool:
+        """Whether the room's message, due, goes out now, ``since_s`` after the last one: once
+        ``min_period_s`` has passed and no rig message is waiting (a rig message's tracks go
+        out first: the room's message waits for a step, never a step for it), or a second
+        period has passed whatever is waiting."""
+        if since_s < self.min_period_s:
+            return False
+        return not self.inbox or since_s >= 2 * self.min_period_s
 
     def _count(self, batch: list[tuple[float, str, bytes]]) -> None:
         with self.lock:
@@ -244,18 +256,18 @@ class FuseNode:
 
     def _step(self, t_ns: int, rigs: list[str], received: list[float]) -> None:
         """Fuse ``rigs``' new tracks at ``t_ns`` (UTC ns), publish the room tracks they
-        touched on their own keys, then give the step to the clock watch (its corrections
-        apply from the next message on, so the tracks need not wait for it) and mark the
-        room's message due."""
+        touched on their own keys, then keep their JSON for the room's message, give the step
+        to the clock watch (its corrections apply from the next message on, so the tracks
+        need not wait for it) and mark the room's message due."""
         t0 = time.monotonic()
         frame = self.fuser.fuse(t_ns, rigs)
         fused = time.monotonic()
         touched = frame_payloads(frame)
+        self.pub.tracks(touched, frame.ended)
+        done = time.monotonic()
         self._states.update(touched)
         for rid in frame.ended:
             self._states.pop(rid, None)
-        self.pub.tracks(touched, frame.ended)
-        done = time.monotonic()
         self.clock.observe(frame)
         self.fuser.clock_corrections_ns = dict(self.clock.corrections_ns)
         fuse_ms = (fused - t0 + time.monotonic() - done) * 1e3

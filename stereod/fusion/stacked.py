@@ -91,7 +91,7 @@ class FusedFrame:
         self,
         t_ns: int,
         ended: list[int],
-        shared: dict[int, list[tuple[str, int, np.ndarray, np.ndarray]]] | None = None,
+        shared: dict[int, list[tuple[str, int, list[float]]]] | None = None,
         rows: np.ndarray | None = None,
         columns: Columns | None = None,
         links: list[Links] | None = None,
@@ -99,10 +99,10 @@ class FusedFrame:
         self.t_ns = t_ns
         self.ended = ended
         self.shared = shared if shared is not None else {}
-        """For each room id fused at this step that more than one rig sees: each rig's name
-        and its track's own stamp (UTC ns, as corrected), position (m) and position covariance
-        (m^2) there, in the room frame, not predicted (what clock offsets are estimated from:
-        capture stamps only)."""
+        """For each room id fused at this step that more than one rig sees: each rig's name,
+        its track's own stamp (UTC ns, as corrected) and its position (m) and position
+        covariance (m^2, row-major) there as twelve floats, in the room frame, not predicted
+        (what clock offsets are estimated from: capture stamps only)."""
         self.rows = rows
         """The tracks' states as rows of ``rows.WIDTH`` columns (position, velocity, their
         covariances), in the order of :attr:`ids`; None when there are none."""
