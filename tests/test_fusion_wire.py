@@ -162,3 +162,44 @@ def test_an_integer_beyond_64_bits_is_refused_as_a_bad_message(field: str) -> No
     msg["objects"][0][field] = 2**63
     with pytest.raises(ValueError, match="beyond 64 bits"):
         decode(json.dumps(msg).encode())
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("position_sigma_m", 1e200), ("position_sigma_m", 0.0), ("velocity_sigma_mps", 1e200),
+     ("position_m", 1e200)],
+)  # fmt: skip
+def test_a_rigs_finite_but_absurd_numbers_leave_the_room_tracks_finite(
+    field: str, value: float
+) -> None:
+    """Two rigs see one walker; from halfway, rig b's messages carry a sigma of 1e200 or 0 (no
+    error at all), or a position of 1e200 m. Both readers take such a message (every number
+    is finite), but squared in a covariance 1e200 is an infinity, and 0 makes the fusion's
+    matrices singular: before, the room track turned NaN within a step. Now the sigma is taken
+    as missing and the absurd position dropped, and the room track stays on the walker."""
+    from stereod.fusion.fuser import Fuser
+    from stereod.fusion.room import Room
+
+    t0 = 1_700_000_000_000_000_000
+    room = Room(name="lab", rigs=[RigPose(name="a"), RigPose(name="b")])
+    fuser = Fuser(room)
+    sims = {r.name: RigSim(r, seed=k) for k, r in enumerate(room.rigs)}
+    walker = Walker(1, (0.0, 0.0, 2.5), (0.6, 0.0, 0.3), t0)
+    for k in range(60):
+        t = t0 + k * 33_333_333
+        for rig in ("a", "b"):
+            payload = dump_objects(sims[rig].message([walker], t))[0]
+            if rig == "b" and k >= 30:
+                m = json.loads(payload)
+                for o in m["objects"]:
+                    o[field] = [value, value, value]
+                payload = json.dumps(m).encode()
+            fuser.ingest_wire(decode(payload))
+            fuser.fuse(max(fuser.rig_stamp(rig), 0), [rig])
+        tracks = fuser.tracks()
+        assert tracks, k
+        for tr in tracks:
+            assert np.isfinite(tr.position).all() and np.isfinite(tr.position_cov).all(), k
+            assert np.isfinite(tr.velocity).all(), k
+    (tr,) = fuser.tracks()
+    assert np.linalg.norm(tr.position - walker.position(fuser.rig_stamp("a"))) < 0.1

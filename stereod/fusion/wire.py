@@ -10,6 +10,7 @@ degenerate one.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
@@ -118,8 +119,51 @@ def from_message(msg: ObjectsMessage) -> RigWire:
         heading_valid=f[:, 13] != 0,
         extra=f[:, 14:],
     )
-    finite = np.isfinite(wire.position).all(axis=1) & np.isfinite(wire.velocity).all(axis=1)
-    return wire if finite.all() else wire.select(finite)
+    return wire if _plain(f) else usable(wire)
+
+
+MAX_POSITION_M = 1e4
+"""The largest coordinate (m, rig frame) of an object the room takes: no rig sees 10 km, and
+squared in a covariance a much larger number overflows to an infinity."""
+MAX_VELOCITY_MPS = 1e4
+"""The largest velocity component (m/s) of an object the room takes."""
+SIGMA_RANGE = (1e-6, 1e3)
+"""A published sigma (m, or m/s for a velocity) outside this is no measure of an error: a zero
+claims a certainty no triangulation has, and 1e200 squared is an infinity. It is taken as
+missing (the room's default sigma), as a non-finite one is."""
+
+
+_LO = np.array([0.0] * 3 + [SIGMA_RANGE[0]] * 3 + [0.0] * 3 + [SIGMA_RANGE[0]] * 3)
+_HI = np.array(
+    [MAX_POSITION_M] * 3 + [SIGMA_RANGE[1]] * 3 + [MAX_VELOCITY_MPS] * 3 + [SIGMA_RANGE[1]] * 3
+)
+
+
+def _plain(f: np.ndarray) -> bool:
+    """Whether every object's position, velocity and sigmas (a row's first 12 floats) are
+    within bounds, so that :func:`usable` would change nothing (a few calls for a message)."""
+    a = np.abs(f[:, :12])
+    return bool(np.logical_and.reduce((a >= _LO) & (a <= _HI), axis=None))
+
+
+def usable(wire: RigWire) -> RigWire:
+    """``wire`` without the objects the room cannot fuse (a position or velocity not finite or
+    beyond :data:`MAX_POSITION_M` or :data:`MAX_VELOCITY_MPS`), and with each sigma outside
+    :data:`SIGMA_RANGE` made missing (NaN): a rig's finite but absurd numbers would otherwise
+    make its room tracks NaN. Both readers take what they pass through here."""
+    lo, hi = SIGMA_RANGE
+    ps, vs = wire.position_sigma, wire.velocity_sigma
+    with np.errstate(invalid="ignore"):
+        keep = (np.abs(wire.position) <= MAX_POSITION_M).all(axis=1)
+        keep &= (np.abs(wire.velocity) <= MAX_VELOCITY_MPS).all(axis=1)
+        odd_p, odd_v = ~((ps >= lo) & (ps <= hi)), (vs < lo) | (vs > hi)
+    if odd_p.any() or odd_v.any():
+        wire = dataclasses.replace(
+            wire,
+            position_sigma=np.where(odd_p, np.nan, ps),
+            velocity_sigma=np.where(odd_v, np.nan, vs),
+        )
+    return wire if keep.all() else wire.select(keep)
 
 
 def decode(payload: bytes) -> RigWire:
@@ -242,9 +286,10 @@ def _fast(payload: bytes) -> RigWire | None:
     # One flat list into one array (numpy reads a flat list faster than a list of rows).
     f = np.fromiter(vals, np.float64, len(vals)).reshape(-1, 14 + len(EXTRA))
     i = np.fromiter(keys, np.int64, len(keys)).reshape(-1, 3)
-    return RigWire(
+    wire = RigWire(
         rig=m.rig, seq=m.seq, stamp_utc_ns=m.stamp_utc_ns, geometry=_GEOMETRY[m.geometry],
         ids=i[:, 0], state=i[:, 1].astype(np.int8), stamps_ns=i[:, 2], position=f[:, 0:3],
         position_sigma=f[:, 3:6], velocity=f[:, 6:9], velocity_sigma=f[:, 9:12],
         velocity_valid=f[:, 12] != 0, heading_valid=f[:, 13] != 0, extra=f[:, 14:],
     )  # fmt: skip
+    return wire if _plain(f) else usable(wire)
