@@ -468,3 +468,29 @@ def test_speed_heading_channels_are_only_those_of_live_tracks() -> None:
             bridge._on_event(golden.model_copy(update={"seq": n, "objects": [obj]}))
         topics = {c for c in bridge._channels if c.endswith("/speed_heading")}
     assert topics == {f"{RIG}/tracks/track_200/speed_heading"}
+
+
+def test_stopping_while_a_client_watches_an_image_returns() -> None:
+    """The bridge stops while a client is still connected and subscribed to every channel,
+    images included. Stopping drops foxglove-sdk's context, which calls the listener's
+    on_unsubscribe in the stopping thread; that takes the bridge's lock, so the context must
+    not be dropped under it (it was: the stop hung for ever). Stopped in a thread, so that a
+    hang fails the test instead of the suite."""
+    done = threading.Event()
+
+    async def watch(bridge: FoxgloveBridge) -> None:
+        url = f"ws://127.0.0.1:{bridge.port}"
+        async with websockets.connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+            client = Client(ws)
+            await asyncio.wait_for(ws.recv(), 10)  # serverInfo
+            await client.receive(10)  # advertise: subscribe to everything
+            await asyncio.sleep(0.5)  # the subscriptions reach the server
+            assert any("image" in c["topic"] for c in client.channels.values())
+            stopper = threading.Thread(target=lambda: (bridge.stop(), done.set()), daemon=True)
+            stopper.start()
+            await asyncio.get_running_loop().run_in_executor(None, stopper.join, 30.0)
+
+    with zenoh.open(zenoh_config()) as session:
+        bridge = FoxgloveBridge(session, port=0).start()
+        asyncio.run(watch(bridge))
+    assert done.is_set(), "the bridge's stop hung"

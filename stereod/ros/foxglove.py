@@ -354,7 +354,10 @@ class FoxgloveBridge:
         with self._lock:
             subs = self._subs + [s for _, s in self._image_subs.values()]
             self._subs, self._image_subs = [], {}
-            self._ctx = None  # nothing is sent, and no channel made, from now on
+            # nothing is sent, and no channel made, from now on; the context itself goes last,
+            # outside the lock: dropping it closes what still uses it, and foxglove-sdk then
+            # calls the listener (on_unsubscribe, which takes the lock) in this thread
+            ctx, self._ctx = self._ctx, None
         for s in subs:
             s.close()
         if self._front is not None:
@@ -364,6 +367,7 @@ class FoxgloveBridge:
             self._server.stop()
             self._server = None
         self._close_channels()
+        del ctx
 
     def __enter__(self) -> FoxgloveBridge:
         return self.start()
