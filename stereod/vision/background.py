@@ -209,8 +209,8 @@ class BackgroundModel:
             inner[held != 0] = False  # (every channel of a held pixel)
         idx = np.flatnonzero(near)
         old = np.take(bg, idx)
-        idx = idx[old >= CLIP_LEVEL - CLIP_SLACK]  # T learned from a clip, or near one
-        old = np.take(bg, idx)
+        clip = old >= CLIP_LEVEL - CLIP_SLACK  # T learned from a clip, or near one
+        idx, old = idx[clip], old[clip]
         np.multiply(bg, gain, out=bg)
         least = np.take(frame, idx).astype(np.float32) - np.float32(CLIP_SLACK)
         np.put(bg, idx, np.maximum(old * gain, np.minimum(least, old)))
