@@ -35,7 +35,10 @@ Writes ``docs/bench/accuracy.md`` (the host, the summary table with the worst ca
 the paper's Table I motions beside the paper's own errors, and every cell), which the
 documentation's Accuracy page includes, ``docs/bench/accuracy.png`` (every cell's errors) and
 ``docs/bench/accuracy_crossing.png`` (``stereod plot`` of one run, the two balls crossing,
-against the truth). Usage: ``python benchmarks/accuracy.py [--jobs 2] [--quick] [--out DIR]``.
+against the truth). Usage: ``python benchmarks/accuracy.py [--jobs 2] [--quick] [--only PART
+...] [--room-seeds SEED ...] [--out DIR]``: ``--only`` runs a part of the table (balls, rooms,
+fused, people) and prints it, writing it only where ``--out`` says; ``--room-seeds`` runs the
+room rows at more scene seeds than 0.
 """
 
 from __future__ import annotations
@@ -125,11 +128,20 @@ Spec = tuple[str, str, int, str, dict[str, object]]
 """(renderer, mode name, seed, what, arguments) of one case, picklable for the workers."""
 
 
-def specs(quick: bool) -> list[Spec]:
+PARTS = ("balls", "rooms", "fused", "people")
+"""The table's parts (``--only``): the balls and robots of both renderers, the room rows (a
+ball under a lamp), the fused rooms, the people rows."""
+
+
+def specs(
+    quick: bool, parts: tuple[str, ...] = PARTS, room_seeds: tuple[int, ...] = (0,)
+) -> list[Spec]:
+    """Every case of the chosen ``parts`` (one mode and one seed with ``quick``; the room rows
+    at ``room_seeds``)."""
     out: list[Spec] = []
     modes = acc.MODES[:1] if quick else acc.MODES
     seeds = SEEDS[:1] if quick else SEEDS
-    for mode in modes:
+    for mode in modes if "balls" in parts else ():
         for seed in seeds:
             for renderer in ("synth", "world"):
                 for row in acc.TABLE_I:
@@ -147,13 +159,13 @@ def specs(quick: bool) -> list[Spec]:
             for direction in ("lateral", "radial"):
                 for v in (10.0, 20.0):
                     out.append(("world", mode.name, seed, "fast", {"direction": direction, "v": v}))
-    for mode in modes:
-        for preset, kw in ROOM:
-            for webcam in (False, True):
-                out.append(
-                    ("world", mode.name, 0, "room", {"preset": preset, "webcam": webcam, **kw})
-                )
-    for mode in modes:
+    for mode in modes if "rooms" in parts else ():
+        for seed in room_seeds:
+            for preset, kw in ROOM:
+                for webcam in (False, True):
+                    args = {"preset": preset, "webcam": webcam, **kw}
+                    out.append(("world", mode.name, seed, "room", args))
+    for mode in modes if "people" in parts else ():
         for preset, kw in PEOPLE:
             out.append(("world", mode.name, 0, "people", {"preset": preset, **kw}))
     return out
@@ -268,14 +280,14 @@ def room_table(cells: list[Cell]) -> str:
     """The room rows: a ball under a lamp (cast shadows), with and without a webcam's
     transport, per mode."""
     lines = [
-        "| mode | scene | heading err (deg) | speed err (%) | position / eq. 12 | ids "
+        "| mode | scene | seed | heading err (deg) | speed err (%) | position / eq. 12 | ids "
         "| ghosts | ok |",
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for c in cells:
         if c.kind == "room":
             lines.append(
-                f"| {c.mode} | {c.scene} | {_f(c.heading_err_deg, '+.2f')} "
+                f"| {c.mode} | {c.scene} | {c.seed} | {_f(c.heading_err_deg, '+.2f')} "
                 f"| {_f(c.speed_err * 100, '+.1f')} | {_f(c.position_ratio, '.2f')} | {c.ids} "
                 f"| {c.ghosts} | {'yes' if c.ok() else '**no**'} |"
             )
@@ -428,13 +440,32 @@ def main() -> int:
     ap.add_argument(
         "--out",
         type=Path,
-        default=report.DOCS_BENCH,
-        help="folder of accuracy.md and the figures (default docs/bench)",
+        default=None,
+        help="folder of accuracy.md and the figures (default docs/bench for the whole table; "
+        "a part of it is only printed unless this is given)",
     )
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (2)")
     ap.add_argument("--quick", action="store_true", help="one mode and one seed only")
+    ap.add_argument(
+        "--only",
+        nargs="+",
+        choices=PARTS,
+        default=list(PARTS),
+        help="run these parts of the table only (default: all)",
+    )
+    ap.add_argument(
+        "--room-seeds",
+        nargs="+",
+        type=int,
+        default=[0],
+        metavar="SEED",
+        help="the room rows' scene seeds (default 0; the people rows are seed 0)",
+    )
     a = ap.parse_args()
-    todo = specs(a.quick)
+    parts = tuple(p for p in PARTS if p in a.only)
+    whole = parts == PARTS
+    out = a.out if a.out is not None else (report.DOCS_BENCH if whole else None)
+    todo = specs(a.quick, parts, tuple(a.room_seeds))
     host = report.host()
     t0 = time.monotonic()
     cells: list[Cell] = []
@@ -455,22 +486,22 @@ def main() -> int:
                 )
     elapsed = time.monotonic() - t0
     table = [c for c in cells if c.kind not in ("room", "people")]
-    parts = {
-        "balls and robots": table,
-        "rooms": [c for c in cells if c.kind == "room"],
-        "people and robots that stop": [c for c in cells if c.kind == "people"],
-    }
+    rooms = [c for c in cells if c.kind == "room"]
+    people = [c for c in cells if c.kind == "people"]
+    groups = {"balls and robots": table, "rooms": rooms, "people and robots that stop": people}
     failed = sum(not c.ok() for c in cells)
     counts = ", ".join(
         f"{name} {sum(c.ok() for c in group)} of {len(group)}"
-        for name, group in parts.items()
+        for name, group in groups.items()
         if group
     )
-    text = "\n\n".join(
-        [
-            f"{host} {len(todo)} scenes, {len(cells)} objects, {elapsed:.0f} s "
-            f"(`make accuracy`, {a.jobs} worker processes).",
-            f"**{len(cells) - failed} of {len(cells)} cells meet every target** ({counts}). "
+    sections = [
+        f"{host} {len(todo)} scenes, {len(cells)} objects, {elapsed:.0f} s "
+        f"(`make accuracy`, {a.jobs} worker processes).",
+        f"**{len(cells) - failed} of {len(cells)} cells meet every target** ({counts}).",
+    ]
+    if table:
+        sections += [
             "Worst case of the balls and robots per renderer and mode:",
             summary_table(table),
             "The paper's Table I motions, the worst of each over every mode and seed, beside "
@@ -481,24 +512,38 @@ def main() -> int:
             "One run of the two balls crossing, drawn by `stereod plot` against the scene's truth:",
             "![Two balls crossing: top view, speed and heading against the truth]"
             "(bench/accuracy_crossing.png)",
-            "### Rooms",
+        ]
+    if rooms or "fused" in parts:
+        sections.append("### Rooms")
+    if rooms:
+        sections += [
             "A ball under one lamp (cast shadows), and through a webcam's transport:",
             room_table(cells),
-            fusion_section(),
+        ]
+    if "fused" in parts:
+        sections.append(fusion_section())
+    if people:
+        sections += [
             "### People and robots that stop",
             "A confirmed track within 0.5 m of the truth:",
             people_table(cells),
-            "### Every cell",
-            cell_table(table),
         ]
-    )
-    print(summary_table(table))
-    print(room_table(cells))
-    print(people_table(cells))
-    path = report.write("accuracy.md", text, a.out)
-    figure(table, a.out / "accuracy.png")
-    trajectory_figure(a.out / "accuracy_crossing.png")
-    print(f"\n{failed} of {len(cells)} cells miss a target ({counts} meet); wrote {path}")
+    if table:
+        sections += ["### Every cell", cell_table(table)]
+    if table:
+        print(summary_table(table))
+    if rooms:
+        print(room_table(cells))
+    if people:
+        print(people_table(cells))
+    wrote = ""
+    if out is not None:
+        path = report.write("accuracy.md", "\n\n".join(sections), out)
+        wrote = f"; wrote {path}"
+        if table:
+            figure(table, out / "accuracy.png")
+            trajectory_figure(out / "accuracy_crossing.png")
+    print(f"\n{failed} of {len(cells)} cells miss a target ({counts} meet){wrote}")
     return 0 if failed == 0 else 1
 
 
