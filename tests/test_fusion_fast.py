@@ -85,8 +85,9 @@ def test_a_clock_estimate_asked_every_step_follows_every_observation() -> None:
 
 def test_strains_moved_on_at_once_are_each_members_own_step() -> None:
     """``rows.strain_steps`` over members of several tracks, each with its own time step
-    (negative ones included: no move), gives exactly the floats ``rows.strain_step`` gives
-    track by track."""
+    (negative ones included: no move), gives the floats ``rows.strain_step`` gives track by
+    track, to a unit in the last place (numpy's SIMD ``expm1`` and the C library's differ by
+    one on some CPUs), and a negative step's exactly."""
     rng = np.random.default_rng(11)
     sizes = [2, 3, 2, 4, 2]
     dts = [0.033, -0.01, 0.0, 0.5, 2.0]
@@ -97,7 +98,7 @@ def test_strains_moved_on_at_once_are_each_members_own_step() -> None:
     want = []
     for a, size, dt in zip(np.cumsum([0, *sizes[:-1]]), sizes, dts, strict=True):
         want += tab.strain_step(strain[a : a + size].tolist(), nis[a : a + size].tolist(), dt)
-    assert got == want
+    np.testing.assert_array_max_ulp(np.array(got), np.array(want), maxulp=1)
     assert got[2:5] == strain[2:5].tolist()  # the negative step moved nothing
 
 
