@@ -171,7 +171,11 @@ async def play(bridge: FoxgloveBridge, endpoint: str) -> Client:
         if failure:
             raise RuntimeError("the daemon's thread failed") from failure[0]
         counts = {t: len(m) for t, m in client.messages.items()}
-        assert client.done(), f"the scene ended before every channel had data: {counts}"
+        advertised = sorted({c["topic"] for c in client.channels.values()})
+        assert client.done(), (
+            f"the scene ended before every channel had data: received {counts}; advertised "
+            f"{advertised}; the bridge logged {bridge.logged}"
+        )
         # The daemon stopped mid-track: its token went away, the markers must be cleared.
         with contextlib.suppress(TimeoutError):
             while not client.cleared():
