@@ -30,7 +30,7 @@ from stereod.bus.messages import ObjectsMessage
 from stereod.daemon.config import load_config
 from stereod.daemon.daemon import Daemon
 from stereod.errors import UnavailableError
-from stereod.ros.foxglove import FoxgloveBridge
+from stereod.ros.foxglove import READVERTISE_AFTER, FoxgloveBridge
 from stereod.view.overlay import HEADER_PX
 from stereod_fakes.synth import Ball, Scene, SyntheticDriver
 
@@ -498,3 +498,67 @@ def test_stopping_while_a_client_watches_an_image_returns() -> None:
         bridge = FoxgloveBridge(session, port=0).start()
         asyncio.run(watch(bridge))
     assert done.is_set(), "the bridge's stop hung"
+
+
+class RefusedOnce(Client):
+    """A client whose first subscription to each speed_heading channel was lost (as when the
+    server refuses it as unknown): it ignores that advertisement; with ``never``, every one."""
+
+    def __init__(self, ws: Any, never: bool = False) -> None:
+        super().__init__(ws)
+        self.never = never
+        self.speed_adverts: list[int] = []
+
+    async def subscribe(self, channels: list[dict[str, Any]]) -> None:
+        wanted = []
+        for ch in channels:
+            if ch["topic"].endswith("/speed_heading"):
+                self.speed_adverts.append(ch["id"])
+                if self.never or len(self.speed_adverts) == 1:
+                    continue
+            wanted.append(ch)
+        if wanted:
+            await super().subscribe(wanted)
+
+
+@pytest.mark.parametrize("never", [False, True], ids=["lost-once", "never-wanted"])
+def test_a_speed_channel_whose_subscription_was_lost_is_advertised_once_more(
+    never: bool,
+) -> None:
+    """foxglove-sdk advertises a new channel before it registers it, so a client on the same
+    host can subscribe in between and be refused ("unknown channel"): seen in the suite, the
+    track's plot then stayed empty for the whole run. A speed_heading channel with no
+    subscriber after ``READVERTISE_AFTER`` messages, while the client watches others, is
+    advertised once more: a client whose first subscription was lost gets the track's data;
+    one that wants none of it sees two advertisements and no more."""
+    golden = ObjectsMessage.model_validate_json(
+        (ROOT / "tests/golden/objects_example.json").read_text()
+    )
+    (state,) = golden.objects
+    valid = state.model_copy(
+        update={"velocity_valid": True, "velocity_sigma_mps": (0.1, 0.1, 0.1), "track_id": 1}
+    )
+
+    async def watch(bridge: FoxgloveBridge) -> RefusedOnce:
+        url = f"ws://127.0.0.1:{bridge.port}"
+        async with websockets.connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+            client = RefusedOnce(ws, never)
+            await asyncio.wait_for(ws.recv(), 10)  # serverInfo
+            await client.receive(10)  # advertise: subscribe to everything there is
+            await asyncio.sleep(0.3)  # the subscriptions reach the server
+            for n in range(1, 31):
+                bridge._on_event(golden.model_copy(update={"seq": n, "objects": [valid]}))
+                with contextlib.suppress(TimeoutError):
+                    while True:
+                        await client.receive(0.05)
+        return client
+
+    with zenoh.open(zenoh_config()) as session, FoxgloveBridge(session, port=0) as bridge:
+        client = asyncio.run(watch(bridge))
+    topic = f"{RIG}/tracks/track_1/speed_heading"
+    assert len(client.speed_adverts) == 2, client.speed_adverts
+    if never:
+        assert topic not in client.messages
+    else:
+        # the channel came again after READVERTISE_AFTER messages unheard; then every one
+        assert len(client.messages[topic]) >= 30 - READVERTISE_AFTER - 2

@@ -35,7 +35,9 @@ Channels (``<rig>`` as in the export):
   ``.../tracks/track_<id>/speed_heading`` per track (advertised at the track's first valid
   velocity, withdrawn as soon as a message no longer holds the track: at most as many of these
   channels as tracks alive at once, however long the run; a returning Foxglove plot of an
-  ended track keeps the points it has). Markers live 3 frame periods unless refreshed, and a
+  ended track keeps the points it has; advertised once more if no client subscribed within
+  ``READVERTISE_AFTER`` messages while clients watch, since a subscription can cross its
+  first advertisement and be refused). Markers live 3 frame periods unless refreshed, and a
   DELETEALL clears them when the daemon's liveliness token goes away (it stopped or died).
 
 A message is encoded only when some client subscribes to its channel. Every message's log time
@@ -248,6 +250,11 @@ def _listener(bridge: FoxgloveBridge) -> Any:
     return Listener()
 
 
+READVERTISE_AFTER = 5
+"""Messages a new speed_heading channel may go without a subscriber, while clients watch other
+channels, before it is advertised once more (:meth:`FoxgloveBridge._unheard_once`)."""
+
+
 class FoxgloveBridge:
     """Serves what one rig publishes on ``session`` to Foxglove on ``ws://host:port`` (port 0:
     any free one). :meth:`start` returns once the server listens; :meth:`stop` (or the end of
@@ -277,6 +284,9 @@ class FoxgloveBridge:
         self._server: Any = None
         self._front: _ProtocolFront | None = None
         self._channels: dict[str, tuple[Any, Callable[[dict[str, Any]], bytes]]] = {}
+        self._unheard: dict[str, int] = {}  # speed_heading topic -> messages it had no sink for
+        self._readvertised: set[str] = set()
+        self._watching = 0  # clients' subscriptions now, on every channel
         self._images = {
             self.names.image_topic(Eye.LEFT): ("left", self.names.eye_frame(Eye.LEFT)),
             self.names.image_topic(Eye.RIGHT): ("right", self.names.eye_frame(Eye.RIGHT)),
@@ -381,6 +391,8 @@ class FoxgloveBridge:
         """A client subscribed: send it ``/tf_static``; start an image's Zenoh subscription."""
         try:
             topic = str(channel.topic)
+            with self._lock:
+                self._watching += 1
             if topic == self.names.tf_static_topic:
                 self._send_tf()
             elif topic in self._images:
@@ -391,6 +403,8 @@ class FoxgloveBridge:
     def on_unsubscribe(self, client: Any, channel: Any) -> None:
         """A client unsubscribed (or left): stop an image's Zenoh subscription when unwatched."""
         try:
+            with self._lock:
+                self._watching = max(0, self._watching - 1)
             if str(channel.topic) in self._images:
                 self._image_wanted(str(channel.topic), -1)
         except Exception:
@@ -425,7 +439,9 @@ class FoxgloveBridge:
                 self._on_objects(event)
             elif isinstance(event, TrackEnded):
                 with self._lock:
-                    entry = self._channels.pop(self.names.speed_heading_topic(event.track_id), None)
+                    topic = self.names.speed_heading_topic(event.track_id)
+                    entry = self._channels.pop(topic, None)
+                    self._forget_unheard([topic])
                 if entry is not None:
                     entry[0].close()
             elif isinstance(event, DaemonAlive):
@@ -438,6 +454,7 @@ class FoxgloveBridge:
         with self._lock:
             gone = [t for t in self._channels if t.endswith("/speed_heading") and t not in alive]
             closing = [self._channels.pop(t)[0] for t in gone]
+            self._forget_unheard(gone)
         for ch in closing:
             ch.close()
         with self._lock:
@@ -463,6 +480,7 @@ class FoxgloveBridge:
                 self.ros.forget_tracks()
                 stale = [t for t in self._channels if t.endswith("/speed_heading")]
                 closing = [self._channels.pop(t)[0] for t in stale]
+                self._forget_unheard(stale)
             for ch in closing:
                 ch.close()
         self._alive = alive
@@ -529,14 +547,47 @@ class FoxgloveBridge:
             return
         channel, encode = entry
         if not channel.has_sinks():
+            if m.topic.endswith("/speed_heading"):
+                self._unheard_once(m.topic, channel)
             return
         channel.log(encode(m.body), log_time=m.stamp_ns)
         with self._lock:
             self.logged[m.topic] = self.logged.get(m.topic, 0) + 1
 
+    def _unheard_once(self, topic: str, channel: Any) -> None:
+        """A track's speed_heading channel that no client subscribed to within its first
+        :data:`READVERTISE_AFTER` messages while clients watch other channels is advertised
+        once more (closed, and made again with the next message). foxglove-sdk advertises a
+        new channel before it registers it, so a client on the same host can subscribe in
+        between and be refused ("unknown channel"); it never asks again, and the track's plot
+        stays empty. A client that does not want the channel ignores the second advertisement
+        as it did the first."""
+        with self._lock:
+            n = self._unheard[topic] = self._unheard.get(topic, 0) + 1
+            again = (
+                n >= READVERTISE_AFTER
+                and self._watching > 0
+                and topic not in self._readvertised
+                and self._channels.get(topic, (None,))[0] is channel
+            )
+            if again:
+                self._readvertised.add(topic)
+                self._unheard.pop(topic, None)
+                del self._channels[topic]
+        if again:
+            channel.close()
+
+    def _forget_unheard(self, topics: list[str]) -> None:
+        """Drop what :meth:`_unheard_once` kept of channels closed for good (under the lock)."""
+        for t in topics:
+            self._unheard.pop(t, None)
+            self._readvertised.discard(t)
+
     def _close_channels(self) -> None:
         with self._lock:
             channels = [ch for ch, _ in self._channels.values()]
             self._channels.clear()
+            self._unheard.clear()
+            self._readvertised.clear()
         for ch in channels:
             ch.close()
