@@ -30,7 +30,7 @@ from stereod.bus.messages import ObjectsMessage
 from stereod.daemon.config import load_config
 from stereod.daemon.daemon import Daemon
 from stereod.errors import UnavailableError
-from stereod.ros.foxglove import READVERTISE_AFTER, FoxgloveBridge
+from stereod.ros.foxglove import READVERTISE_AFTER, READVERTISE_TRIES, FoxgloveBridge
 from stereod.view.overlay import HEADER_PX
 from stereod_fakes.synth import Ball, Scene, SyntheticDriver
 
@@ -502,11 +502,12 @@ def test_stopping_while_a_client_watches_an_image_returns() -> None:
 
 class RefusedOnce(Client):
     """A client whose first subscription to each speed_heading channel was lost (as when the
-    server refuses it as unknown): it ignores that advertisement; with ``never``, every one."""
+    server refuses it as unknown): it ignores that advertisement. ``speed``: "once" (then
+    subscribes), "never" (ignores every one); ``watch``: subscribes to the other channels."""
 
-    def __init__(self, ws: Any, never: bool = False) -> None:
+    def __init__(self, ws: Any, speed: str, watch: bool) -> None:
         super().__init__(ws)
-        self.never = never
+        self.speed, self.watch = speed, watch
         self.speed_adverts: list[int] = []
 
     async def subscribe(self, channels: list[dict[str, Any]]) -> None:
@@ -514,23 +515,30 @@ class RefusedOnce(Client):
         for ch in channels:
             if ch["topic"].endswith("/speed_heading"):
                 self.speed_adverts.append(ch["id"])
-                if self.never or len(self.speed_adverts) == 1:
+                if self.speed == "never" or len(self.speed_adverts) == 1:
                     continue
+            elif not self.watch:
+                continue
             wanted.append(ch)
         if wanted:
             await super().subscribe(wanted)
 
 
-@pytest.mark.parametrize("never", [False, True], ids=["lost-once", "never-wanted"])
-def test_a_speed_channel_whose_subscription_was_lost_is_advertised_once_more(
-    never: bool,
+@pytest.mark.parametrize(
+    ("speed", "watch", "adverts"),
+    [("once", True, 2), ("never", True, 1 + READVERTISE_TRIES), ("never", False, 1)],
+    ids=["lost-once", "never-wanted", "no-watcher"],
+)
+def test_a_speed_channel_whose_subscription_was_lost_is_advertised_again(
+    speed: str, watch: bool, adverts: int
 ) -> None:
     """foxglove-sdk advertises a new channel before it registers it, so a client on the same
     host can subscribe in between and be refused ("unknown channel"): seen in the suite, the
-    track's plot then stayed empty for the whole run. A speed_heading channel with no
-    subscriber after ``READVERTISE_AFTER`` messages, while the client watches others, is
-    advertised once more: a client whose first subscription was lost gets the track's data;
-    one that wants none of it sees two advertisements and no more."""
+    track's plot then stayed empty for the whole run. A speed_heading channel that nobody has
+    subscribed to after ``READVERTISE_AFTER`` messages, while a client watches others, is
+    advertised again: a client whose first subscription was lost gets the track's data; one
+    that wants none of it sees ``READVERTISE_TRIES`` more advertisements and no more; with no
+    client watching anything, there is nothing to advertise again to."""
     golden = ObjectsMessage.model_validate_json(
         (ROOT / "tests/golden/objects_example.json").read_text()
     )
@@ -538,15 +546,16 @@ def test_a_speed_channel_whose_subscription_was_lost_is_advertised_once_more(
     valid = state.model_copy(
         update={"velocity_valid": True, "velocity_sigma_mps": (0.1, 0.1, 0.1), "track_id": 1}
     )
+    pairs = 2 * READVERTISE_AFTER << READVERTISE_TRIES  # room for every try, and as many more
 
-    async def watch(bridge: FoxgloveBridge) -> RefusedOnce:
+    async def play_to(bridge: FoxgloveBridge) -> RefusedOnce:
         url = f"ws://127.0.0.1:{bridge.port}"
         async with websockets.connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
-            client = RefusedOnce(ws, never)
+            client = RefusedOnce(ws, speed, watch)
             await asyncio.wait_for(ws.recv(), 10)  # serverInfo
-            await client.receive(10)  # advertise: subscribe to everything there is
+            await client.receive(10)  # advertise: subscribe to what it wants
             await asyncio.sleep(0.3)  # the subscriptions reach the server
-            for n in range(1, 31):
+            for n in range(1, pairs + 1):
                 bridge._on_event(golden.model_copy(update={"seq": n, "objects": [valid]}))
                 with contextlib.suppress(TimeoutError):
                     while True:
@@ -554,11 +563,10 @@ def test_a_speed_channel_whose_subscription_was_lost_is_advertised_once_more(
         return client
 
     with zenoh.open(zenoh_config()) as session, FoxgloveBridge(session, port=0) as bridge:
-        client = asyncio.run(watch(bridge))
+        client = asyncio.run(play_to(bridge))
     topic = f"{RIG}/tracks/track_1/speed_heading"
-    assert len(client.speed_adverts) == 2, client.speed_adverts
-    if never:
-        assert topic not in client.messages
+    assert len(client.speed_adverts) == adverts, client.speed_adverts
+    if speed == "once":  # from its second advertisement on, every message
+        assert len(client.messages[topic]) >= pairs - 2 * READVERTISE_AFTER
     else:
-        # the channel came again after READVERTISE_AFTER messages unheard; then every one
-        assert len(client.messages[topic]) >= 30 - READVERTISE_AFTER - 2
+        assert topic not in client.messages

@@ -35,9 +35,9 @@ Channels (``<rig>`` as in the export):
   ``.../tracks/track_<id>/speed_heading`` per track (advertised at the track's first valid
   velocity, withdrawn as soon as a message no longer holds the track: at most as many of these
   channels as tracks alive at once, however long the run; a returning Foxglove plot of an
-  ended track keeps the points it has; advertised once more if no client subscribed within
-  ``READVERTISE_AFTER`` messages while clients watch, since a subscription can cross its
-  first advertisement and be refused). Markers live 3 frame periods unless refreshed, and a
+  ended track keeps the points it has; advertised again, a few times, while no client has
+  subscribed to it and clients watch others, since a subscription can cross its
+  advertisement and be refused). Markers live 3 frame periods unless refreshed, and a
   DELETEALL clears them when the daemon's liveliness token goes away (it stopped or died).
 
 A message is encoded only when some client subscribes to its channel. Every message's log time
@@ -252,7 +252,9 @@ def _listener(bridge: FoxgloveBridge) -> Any:
 
 READVERTISE_AFTER = 5
 """Messages a new speed_heading channel may go without a subscriber, while clients watch other
-channels, before it is advertised once more (:meth:`FoxgloveBridge._unheard_once`)."""
+channels, before it is advertised again (:meth:`FoxgloveBridge._unheard_once`)."""
+READVERTISE_TRIES = 3
+"""How many times such a channel is advertised again (after 5, 10 and 20 messages more)."""
 
 
 class FoxgloveBridge:
@@ -284,8 +286,9 @@ class FoxgloveBridge:
         self._server: Any = None
         self._front: _ProtocolFront | None = None
         self._channels: dict[str, tuple[Any, Callable[[dict[str, Any]], bytes]]] = {}
-        self._unheard: dict[str, int] = {}  # speed_heading topic -> messages it had no sink for
-        self._readvertised: set[str] = set()
+        # speed_heading topic -> (messages with no sink since advertised, advertised again)
+        self._unheard: dict[str, tuple[int, int]] = {}
+        self._heard: set[str] = set()  # speed_heading topics that have had a subscriber
         self._watching = 0  # clients' subscriptions now, on every channel
         self._images = {
             self.names.image_topic(Eye.LEFT): ("left", self.names.eye_frame(Eye.LEFT)),
@@ -377,6 +380,8 @@ class FoxgloveBridge:
             self._server.stop()
             self._server = None
         self._close_channels()
+        with self._lock:
+            self._watching = 0
         del ctx
 
     def __enter__(self) -> FoxgloveBridge:
@@ -404,7 +409,7 @@ class FoxgloveBridge:
         """A client unsubscribed (or left): stop an image's Zenoh subscription when unwatched."""
         try:
             with self._lock:
-                self._watching = max(0, self._watching - 1)
+                self._watching -= 1
             if str(channel.topic) in self._images:
                 self._image_wanted(str(channel.topic), -1)
         except Exception:
@@ -454,7 +459,7 @@ class FoxgloveBridge:
         with self._lock:
             gone = [t for t in self._channels if t.endswith("/speed_heading") and t not in alive]
             closing = [self._channels.pop(t)[0] for t in gone]
-            self._forget_unheard(gone)
+            self._forget_unheard([t for t in {*self._unheard, *self._heard} if t not in alive])
         for ch in closing:
             ch.close()
         with self._lock:
@@ -480,7 +485,8 @@ class FoxgloveBridge:
                 self.ros.forget_tracks()
                 stale = [t for t in self._channels if t.endswith("/speed_heading")]
                 closing = [self._channels.pop(t)[0] for t in stale]
-                self._forget_unheard(stale)
+                self._unheard.clear()
+                self._heard.clear()
             for ch in closing:
                 ch.close()
         self._alive = alive
@@ -550,30 +556,36 @@ class FoxgloveBridge:
             if m.topic.endswith("/speed_heading"):
                 self._unheard_once(m.topic, channel)
             return
+        if m.topic not in self._heard and m.topic.endswith("/speed_heading"):
+            with self._lock:
+                self._heard.add(m.topic)
         channel.log(encode(m.body), log_time=m.stamp_ns)
         with self._lock:
             self.logged[m.topic] = self.logged.get(m.topic, 0) + 1
 
     def _unheard_once(self, topic: str, channel: Any) -> None:
-        """A track's speed_heading channel that no client subscribed to within its first
-        :data:`READVERTISE_AFTER` messages while clients watch other channels is advertised
-        once more (closed, and made again with the next message). foxglove-sdk advertises a
-        new channel before it registers it, so a client on the same host can subscribe in
-        between and be refused ("unknown channel"); it never asks again, and the track's plot
-        stays empty. A client that does not want the channel ignores the second advertisement
-        as it did the first."""
+        """A track's speed_heading channel that no client has subscribed to yet, after
+        :data:`READVERTISE_AFTER` messages while clients watch other channels, is advertised
+        again (closed, and made anew with the next message), at most
+        :data:`READVERTISE_TRIES` times, each after twice as many messages as the one before.
+        foxglove-sdk advertises a new channel before it registers it, so a client on the same
+        host can subscribe in between and be refused ("unknown channel"); it never asks again,
+        and the track's plot stays empty. A client that does not want the channel ignores the
+        advertisements as it did the first."""
         with self._lock:
-            n = self._unheard[topic] = self._unheard.get(topic, 0) + 1
+            entry = self._channels.get(topic)
+            if entry is None or entry[0] is not channel or topic in self._heard:
+                return  # closed meanwhile, or once subscribed: nothing to count
+            n, tries = self._unheard.get(topic, (0, 0))
+            n += 1
             again = (
-                n >= READVERTISE_AFTER
-                and self._watching > 0
-                and topic not in self._readvertised
-                and self._channels.get(topic, (None,))[0] is channel
+                tries < READVERTISE_TRIES and n >= READVERTISE_AFTER << tries and self._watching > 0
             )
             if again:
-                self._readvertised.add(topic)
-                self._unheard.pop(topic, None)
+                self._unheard[topic] = (0, tries + 1)
                 del self._channels[topic]
+            else:
+                self._unheard[topic] = (n, tries)
         if again:
             channel.close()
 
@@ -581,13 +593,13 @@ class FoxgloveBridge:
         """Drop what :meth:`_unheard_once` kept of channels closed for good (under the lock)."""
         for t in topics:
             self._unheard.pop(t, None)
-            self._readvertised.discard(t)
+            self._heard.discard(t)
 
     def _close_channels(self) -> None:
         with self._lock:
             channels = [ch for ch, _ in self._channels.values()]
             self._channels.clear()
             self._unheard.clear()
-            self._readvertised.clear()
+            self._heard.clear()
         for ch in channels:
             ch.close()
