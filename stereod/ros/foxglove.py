@@ -251,8 +251,7 @@ def _listener(bridge: FoxgloveBridge) -> Any:
 
 
 READVERTISE_AFTER = 5
-"""Messages a new speed_heading channel may go without a subscriber, while clients watch other
-channels, before it is advertised again (:meth:`FoxgloveBridge._unheard_once`)."""
+"""Messages a speed_heading channel may go unheard before it is advertised again."""
 READVERTISE_TRIES = 3
 """How many times such a channel is advertised again (after 5, 10 and 20 messages more)."""
 
@@ -564,14 +563,10 @@ class FoxgloveBridge:
             self.logged[m.topic] = self.logged.get(m.topic, 0) + 1
 
     def _unheard_once(self, topic: str, channel: Any) -> None:
-        """A track's speed_heading channel that no client has subscribed to yet, after
-        :data:`READVERTISE_AFTER` messages while clients watch other channels, is advertised
-        again (closed, and made anew with the next message), at most
-        :data:`READVERTISE_TRIES` times, each after twice as many messages as the one before.
-        foxglove-sdk advertises a new channel before it registers it, so a client on the same
-        host can subscribe in between and be refused ("unknown channel"); it never asks again,
-        and the track's plot stays empty. A client that does not want the channel ignores the
-        advertisements as it did the first."""
+        """A speed_heading channel no client has subscribed to, while clients watch others, is
+        advertised again (closed; the next message makes it anew) after :data:`READVERTISE_AFTER`
+        messages, up to :data:`READVERTISE_TRIES` times at doubling gaps: foxglove-sdk advertises
+        a channel before it registers it, and a subscription in between is refused for good."""
         with self._lock:
             entry = self._channels.get(topic)
             if entry is None or entry[0] is not channel or topic in self._heard:
