@@ -113,6 +113,56 @@ def test_pieces_at_different_depths_stay_apart() -> None:
     assert run(left, right, [(0, 0), (1, 1)]) is None
 
 
+def test_two_balls_side_by_side_a_disparity_step_apart_stay_two() -> None:
+    """The Minoru at 320x240 behind a 60 deg lens: two 0.2 m balls side by side, 2.5 m and
+    3.1 m deep, 0.25 m apart in the image. Their disparities differ by 1.29 px (eq. 9), their
+    own depths take up 0.44 px of that: what is left, 0.85 px, is more than one piece's
+    segmentation noise (``disparity_margin_px``) though less than two. Two objects."""
+    rig = CanonicalRig(0.060, 60.0, 320, 240)
+    f, cx, cy = rig.focal_px, (rig.width_px - 1) / 2, (rig.height_px - 1) / 2
+
+    def box(x0: float, x1: float, z: float, left: bool) -> tuple[float, ...]:
+        c = -B / 2 if left else B / 2
+        u0, u1 = cx + f * (x0 - c) / z, cx + f * (x1 - c) / z
+        return (u0, cy + f * 0.15 / z, u1 - u0, f * 0.2 / z)
+
+    near, far = (0.0, 0.2, 2.5), (-0.55, -0.35, 3.1)
+    step = f * B * (1 / near[2] - 1 / far[2])
+    assert step == pytest.approx(1.29, abs=0.01)
+    sides = [[box(*ball, left) for ball in (near, far)] for left in (True, False)]
+    lb, rb = (
+        Blobs(
+            centroid_px=np.array([(x + w / 2, y + h / 2) for x, y, w, h in eye]),
+            bbox_px=np.array([[round(v) for v in b] for b in eye], np.int32),
+            area_px=np.array([round(w * h) for _, _, w, h in eye], np.int32),
+        )
+        for eye in sides
+    )
+    idx = np.array([(0, 0), (1, 1)], np.intp)
+    args = (lb, rb, idx, lb.centroid_px, rb.centroid_px, lb.centroid_px, rb.centroid_px)
+    assert group_objects(*args, f, B, GroupParams()) is None
+    # Counted once for each piece, the margin would join them.
+    assert group_objects(*args, f, B, GroupParams(disparity_margin_px=0.5 * 2)) is not None
+
+
+def test_a_piece_whose_eyes_disagree_on_its_outline_is_given_twice_the_margin() -> None:
+    """A torso and an arm 5 cm from it at 3.4 m, the arm's disparity read 2 px too large. If
+    both eyes outline the arm alike, its disparity is as good as its edges: 2 px is a
+    different depth, two objects. If one eye's outline of it is 3 rows shorter (cut apart
+    from a shadow, say), its disparity is that much less certain: one object."""
+    z = 3.4
+    torso, arm = person(z)[0], person(z)[1]
+    lt, rt = rect_px(*torso, z, True), rect_px(*torso, z, False)
+    la = rect_px(*arm, z, True)
+    shift = (lt[0] - rt[0]) + 2  # the torso's disparity, 2 px more
+    ra = (la[0] - shift, la[1], la[2], la[3])
+    margin = 0.6
+    assert run([lt, la], [rt, ra], [(0, 0), (1, 1)], disparity_margin_px=margin) is None
+    cut = (ra[0], ra[1], ra[2], ra[3] - 3)
+    g = run([lt, la], [rt, cut], [(0, 0), (1, 1)], disparity_margin_px=margin)
+    assert g is not None and g.pieces == (2,)
+
+
 def test_two_people_a_metre_apart_stay_two() -> None:
     z = 3.0
     parts = [person(z, -0.6)[0], person(z, 0.6)[0]]  # torsos 0.8 m apart: a gap of 0.8 m

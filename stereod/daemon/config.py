@@ -282,7 +282,10 @@ class GroupingConfig(Section):
         _GROUP.disparity_margin_px,
         ge=0.0,
         le=50.0,
-        description="Pieces' disparities may differ by this beyond their depth, px",
+        description=(
+            "Pieces' disparities may differ by this beyond their depth, px (twice this for a "
+            "piece whose two eyes' outlines disagree)"
+        ),
     )
 
     def params(self) -> GroupParams:
