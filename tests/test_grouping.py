@@ -115,9 +115,10 @@ def test_pieces_at_different_depths_stay_apart() -> None:
 
 def test_two_balls_side_by_side_a_disparity_step_apart_stay_two() -> None:
     """The Minoru at 320x240 behind a 60 deg lens: two 0.2 m balls side by side, 2.5 m and
-    3.1 m deep, 0.25 m apart in the image. Their disparities differ by 1.29 px (eq. 9), their
+    3.1 m deep, 0.3 m apart in the image. Their disparities differ by 1.29 px (eq. 9), their
     own depths take up 0.44 px of that: what is left, 0.85 px, is more than one piece's
-    segmentation noise (``disparity_margin_px``) though less than two. Two objects."""
+    segmentation noise (``disparity_margin_px``) though less than two. Two objects, also when
+    one eye's outline of a ball is a pixel off at each of its edges."""
     rig = CanonicalRig(0.060, 60.0, 320, 240)
     f, cx, cy = rig.focal_px, (rig.width_px - 1) / 2, (rig.height_px - 1) / 2
 
@@ -143,13 +144,20 @@ def test_two_balls_side_by_side_a_disparity_step_apart_stay_two() -> None:
     assert group_objects(*args, f, B, GroupParams()) is None
     # Counted once for each piece, the margin would join them.
     assert group_objects(*args, f, B, GroupParams(disparity_margin_px=0.5 * 2)) is not None
+    # The near ball's right outline a pixel lower and a pixel wider (its centroid kept): each
+    # edge a pixel off, 3 px of disagreement in all.
+    x, y, w, h = rb.bbox_px[0]
+    rb.bbox_px[0] = (x, y + 1, w + 1, h)
+    assert group_objects(*args, f, B, GroupParams()) is None
 
 
 def test_a_piece_whose_eyes_disagree_on_its_outline_is_given_twice_the_margin() -> None:
     """A torso and an arm 5 cm from it at 3.4 m, the arm's disparity read 2 px too large. If
     both eyes outline the arm alike, its disparity is as good as its edges: 2 px is a
     different depth, two objects. If one eye's outline of it is 3 rows shorter (cut apart
-    from a shadow, say), its disparity is that much less certain: one object."""
+    from a shadow, say), its disparity is that much less certain: one object. Beyond their
+    depths (1.09 px) the step leaves 0.91 px, which a margin of 0.6 px puts midway between
+    once and twice the margin."""
     z = 3.4
     torso, arm = person(z)[0], person(z)[1]
     lt, rt = rect_px(*torso, z, True), rect_px(*torso, z, False)

@@ -3,13 +3,14 @@ one detection (design sec. 11).
 
 One eye's segmentation cuts a person into pieces (an arm that waves, a torso that stays, legs
 that walk), and cuts them differently in the other eye. Each matched pair of blobs has a
-disparity, so a depth: pieces whose depth ranges overlap and which lie close together in the
-image, within a box no larger than ``max_object_size_m`` at that depth, are one object. The
-object's blob in each eye is the union of its pieces there, and its centre the area-weighted
-mean of theirs (eq. 5 over the union). A blob left without a partner in one eye joins an object
-when it lies inside that object's rows and, moved by the object's disparity, next to the
-object's pieces in the other eye: that is what a piece segmented apart in one eye only looks
-like, and leaving it out would move that eye's centroid alone, which is a depth error.
+disparity, so a depth: pieces whose depth ranges lie within ``disparity_margin_px`` of each
+other and which lie close together in the image, within a box no larger than
+``max_object_size_m`` at that depth, are one object. The object's blob in each eye is the union
+of its pieces there, and its centre the area-weighted mean of theirs (eq. 5 over the union).
+A blob left without a partner in one eye joins an object when it lies inside that object's rows
+and, moved by the object's disparity, next to the object's pieces in the other eye: that is
+what a piece segmented apart in one eye only looks like, and leaving it out would move that
+eye's centroid alone, which is a depth error.
 
 Everything here works on the few blobs of a frame, in Python floats and small masks.
 """
@@ -17,7 +18,7 @@ Everything here works on the few blobs of a frame, in Python floats and small ma
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -104,9 +105,11 @@ class _Group:
     d_hi: float
     """The disparities (px) the members' depth extents span."""
     area: float
-    outlines_agree: bool
-    """Every member's outlines in the two eyes agree (:func:`_mismatch` within
-    ``EDGE_TOLERANCE_PX``): its disparity is as good as the segmentation's edges."""
+    lo_sure: bool
+    hi_sure: bool
+    """Whether the member that sets ``d_lo`` (``d_hi``) has outlines the two eyes agree on
+    (:func:`_edge_disagreement` within ``EDGE_TOLERANCE_PX``): its disparity is as good as the
+    segmentation's edges."""
     owners: frozenset[int] = frozenset()
     """The live tracks the members' pairs belong to (at most one: two tracks are two
     objects)."""
@@ -155,7 +158,7 @@ def group_objects(
         # (d / Z px per metre, eq. 9) is half * d / f px.
         half = max(0.5 * (box[2] - box[0]) * d / focal_px, 0.0)
         j = int(idx[k, 1])
-        agree = _mismatch(box, _rect_box(rb, j, rrect[j])) <= EDGE_TOLERANCE_PX
+        sure = _edge_disagreement(box, _rect_box(rb, j, rrect[j])) <= EDGE_TOLERANCE_PX
         owner = owners[k] if owners is not None else None
         groups.append(
             _Group(
@@ -164,7 +167,8 @@ def group_objects(
                 d - half,
                 d + half,
                 float(lb.area_px[i]),
-                agree,
+                sure,
+                sure,
                 frozenset() if owner is None else frozenset((owner,)),
             )
         )
@@ -296,22 +300,19 @@ def _merge(
     params: GroupParams,
 ) -> list[_Group]:
     """Join groups pairwise, nearest in the image first, while the joined group still fits
-    one object: disparity ranges at most ``disparity_margin_px`` apart (twice that where a
-    member's outlines in the two eyes disagree: its disparity is that much less certain), a
-    gap of at most ``max_gap_m`` and a box of at most ``max_object_size_m`` each way, at the
-    joined group's depth. Two balls side by side 0.7 m apart in depth stay two: at the
-    Minoru's 6 cm baseline that is a disparity step of 1.4 px at 3 m (320x240, 60 deg)."""
+    one object: disparity ranges at most ``disparity_margin_px`` apart (:func:`_depths_apart`),
+    a gap of at most ``max_gap_m`` and a box of at most ``max_object_size_m`` each way, at the
+    joined group's depth. Two 0.2 m balls side by side, 2.5 and 3.1 m from a Minoru at
+    320x240 behind a 60 deg lens, are 1.29 px apart in disparity (eq. 9), 0.85 px beyond their
+    own depths: two objects. Counted for each of them, the margin would have made them one."""
     while len(groups) > 1:
         best: tuple[float, int, int] | None = None
         for a in range(len(groups)):
             ga = groups[a]
             for b in range(a + 1, len(groups)):
                 gb = groups[b]
-                margin = params.disparity_margin_px
-                if not (ga.outlines_agree and gb.outlines_agree):
-                    margin *= 2.0
-                if ga.d_hi + margin < gb.d_lo or gb.d_hi + margin < ga.d_lo:
-                    continue  # depths apart
+                if _depths_apart(ga, gb, params.disparity_margin_px):
+                    continue
                 if len(ga.owners | gb.owners) > 1:
                     continue  # two tracks: two objects
                 d = max(0.5 * (max(ga.d_lo, gb.d_lo) + min(ga.d_hi, gb.d_hi)), 1e-6)
@@ -338,11 +339,35 @@ def _merge(
             min(ga.d_lo, gb.d_lo),
             max(ga.d_hi, gb.d_hi),
             ga.area + gb.area,
-            ga.outlines_agree and gb.outlines_agree,
+            _end_sure(ga.d_lo, ga.lo_sure, gb.d_lo, gb.lo_sure, min),
+            _end_sure(ga.d_hi, ga.hi_sure, gb.d_hi, gb.hi_sure, max),
             ga.owners | gb.owners,
         )
         del groups[b]
     return groups
+
+
+def _depths_apart(ga: _Group, gb: _Group, margin: float) -> bool:
+    """Whether two groups' disparity ranges lie more than ``margin`` (px) apart: twice that
+    where the member at either facing end has outlines the eyes disagree on (its disparity is
+    that much less certain)."""
+    if ga.d_hi < gb.d_lo:
+        gap, sure = gb.d_lo - ga.d_hi, ga.hi_sure and gb.lo_sure
+    elif gb.d_hi < ga.d_lo:
+        gap, sure = ga.d_lo - gb.d_hi, gb.hi_sure and ga.lo_sure
+    else:
+        return False
+    return gap > (margin if sure else 2.0 * margin)
+
+
+def _end_sure(
+    a: float, a_sure: bool, b: float, b_sure: bool, pick: Callable[[float, float], float]
+) -> bool:
+    """Whether the end ``pick`` (min or max) of two ranges' ends ``a`` and ``b`` is set by a
+    member whose outlines agree (both, where they are equal)."""
+    if a == b:
+        return a_sure and b_sure
+    return a_sure if pick(a, b) == a else b_sure
 
 
 def _attach(
@@ -396,6 +421,16 @@ def _attach(
                 g = best[1]
                 boxes[g][e] = _union(box, boxes[g][e])
     return out
+
+
+def _edge_disagreement(left: _Box, right: _Box) -> float:
+    """The largest of :func:`_mismatch`'s three terms (px): how far the worst edge of one
+    object's outline in one eye is from where the other eye's puts it."""
+    return max(
+        abs((left[0] - right[0]) - (left[2] - right[2])),
+        abs(left[1] - right[1]),
+        abs(left[3] - right[3]),
+    )
 
 
 def _mismatch(left: _Box, right: _Box) -> float:
