@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
 import subprocess
 import sys
 import zlib
@@ -11,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stereod.errors import InputError, MissingInputError, OutputError
+from stereod.errors import InputError, Interrupted, MissingInputError, OutputError
+from stereod.files.stop import clear_stop, raise_stop
 from stereod.sources.frames import Eye, Frame
 from stereod.sources.recording import (
     Codec,
@@ -353,3 +356,27 @@ def test_an_unlisted_recording_with_mcap_is_one_line_and_exit_66(
         cwd=ROOT,
     )
     one_line_error(res, 66, r"rec: cannot list the recording: Permission denied")
+
+
+@pytest.mark.parametrize("more_frames", [False, True])
+def test_a_stop_whose_exception_was_swallowed_still_leaves_no_recording(
+    tmp_path: Path, more_frames: bool
+) -> None:
+    """A signal's stop raised where library code caught it (and went on) still stops the
+    recording: at the next frame written, or at the end of the ``with`` block. Nothing is
+    moved into place and no temporary folder is left."""
+    frames = random_frames(4, color=False)
+    try:
+        with (
+            pytest.raises(Interrupted, match="interrupted by SIGHUP"),
+            RecordingWriter(tmp_path / "rec", 64, 48, fps=30.0) as w,
+        ):
+            w.write(frames[0][0])
+            with contextlib.suppress(Interrupted):  # caught on its way: too broad an `except`
+                raise_stop("synth interrupted by SIGHUP", signal.SIGHUP)
+            if more_frames:
+                w.write(frames[0][1])
+                pytest.fail("the frame after the stop was written")
+    finally:
+        clear_stop()
+    assert list(tmp_path.iterdir()) == []

@@ -21,6 +21,7 @@ from stereod.errors import (
     StereodError,
 )
 from stereod.files.paths import text_path
+from stereod.files.stop import check_stop
 from stereod.sources.frames import Eye, Frame
 from stereod.sources.recording import (
     CHECKSUM_COLUMN,
@@ -179,6 +180,7 @@ class RecordingWriter:
 
     def write(self, frame: Frame) -> None:
         """Append one frame (its pixels, capture time and sequence number)."""
+        check_stop()  # a signal whose exception library code swallowed stops it here
         img = frame.image
         if img.shape[:2] != self._size:
             raise InputError(
@@ -285,6 +287,12 @@ class RecordingWriter:
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None:
+            try:  # a signal whose exception library code swallowed still stops the recording
+                check_stop()
+            except Interrupted:
+                self.discard()
+                raise
         failed = exc_type is not None and not issubclass(exc_type, Interrupted)
         if exc_type is None or (self.frames and failed and issubclass(exc_type, StereodError)):
             self.close()
