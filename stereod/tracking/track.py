@@ -288,6 +288,18 @@ class TrackFilters:
         tr.left_history.clear()
         tr.right_history.clear()
 
+    def _anew(self, tr: Track, t_ns: int, ob: Observation) -> None:
+        """A tentative track that was given a blob of another object (``tracker._regrown``)
+        begins again at this observation, as a new track would, keeping its id: what it saw
+        before says nothing of this object's position or motion."""
+        tr.started, tr.first, tr.hits = False, None, 0
+        tr.falling, tr.fall_evidence, tr.other = False, 0.0, None
+        tr.noise_scale, tr.updates = 1.0, 0
+        tr.positions.clear()
+        tr.left_history.clear()
+        tr.right_history.clear()
+        self._begin(tr, t_ns, ob)
+
     def _confirmed(self, tr: Track) -> bool:
         """Seen ``confirm_hits`` times, and its filter runs."""
         return tr.started and tr.hits >= self.params.confirm_hits

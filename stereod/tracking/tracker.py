@@ -39,7 +39,9 @@ speed to 2 % and its heading to 12 deg), and an object slow on the ground, or fa
 have a speed known to 0.1 m/s and no direction at all.
 
 Lifecycle: ``tentative`` until ``confirm_hits`` observations and a running filter (two
-observations no faster than ``max_speed_mps`` apart), then ``confirmed``; a confirmed track
+observations no faster than ``max_speed_mps`` apart), then ``confirmed``; a tentative track
+given a blob of another size (beyond ``REGROWN``: the object merged with its long shadow)
+begins again there; a confirmed track
 seen moving that has not moved for ``still_after_s`` is ``stationary`` (held out of the
 background for ``hold_still_s``, so it stays seen and keeps its id when it moves on); a confirmed
 track not seen in a pair is ``coasting`` (predicted) until ``max_coast_s`` has passed, then it
@@ -188,6 +190,8 @@ class Tracker(Association):
                     self._afresh(tr, t_ns, ob)
                 elif tr.edge_begun and not ob.clipped:  # whole at last: a filter of whole outlines
                     self._afresh(tr, t_ns, ob)
+                elif not self._confirmed(tr) and _regrown(tr.last, ob):
+                    self._anew(tr, t_ns, ob)  # not the object it began on: it begins here
                 elif not tr.started:
                     self._begin(tr, t_ns, ob)
                 elif ob.clipped and not ob.edge_depth:  # part of it out of view: predicted
@@ -353,6 +357,21 @@ def _held_in(
         hit = [b for b in boxes[e] if _overlaps(b, before[e])]
         out.append(_union(hit) if hit else before[e])
     return out[0], out[1]
+
+
+REGROWN = 2.5
+"""A tentative track's blob whose size (m) changed by more than this factor since its last one
+is not the same object seen again: an object and then the object with the long shadow it
+merged with, a piece and then the whole. A rigid object's size in metres does not change with
+its distance, and a person's grouped pieces stay within it from one pair to the next."""
+
+
+def _regrown(last: Observation, ob: Observation) -> bool:
+    """Whether ``ob``'s size and ``last``'s differ by more than :data:`REGROWN` (clipped
+    outlines aside: an object entering past the image's side grows as it comes in)."""
+    if ob.clipped or last.clipped or not (ob.size_m > 0.0 and last.size_m > 0.0):
+        return False
+    return max(ob.size_m / last.size_m, last.size_m / ob.size_m) > REGROWN
 
 
 SHRINK = 0.5
