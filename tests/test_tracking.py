@@ -1058,37 +1058,71 @@ def test_pieces_followed_apart_are_one_owner_to_the_grouping() -> None:
     assert tracker.objects([3, None, 1, 2]) == [1, None, 1, 2]
 
 
-def test_a_tentative_track_given_a_blob_of_another_size_begins_again_there() -> None:
-    """A ball 0.2 m across rolls in at 1.6 m. On its third pair its blob merges with its long
-    shadow: 0.7 m across, its centre 0.25 m aside and 0.2 m deeper. That blob is not the ball
-    seen a third time: the track is not confirmed on it, and no confirmed track ever lies
-    where the merged blob put it. The ball's own blob again from the next pair on: one
-    confirmed track, on the ball."""
+def sizes_run(sizes: list[float], offsets: dict[int, list[float]] | None = None):
+    """A ball rolling at 1.6 m, 0.5 m/s across, its blob as wide as ``sizes`` says pair by pair
+    (m); ``offsets``: where a pair's blob is off the ball (m). Each pair's states and the
+    ball's true position."""
     tracker = Tracker(TrackerParams(gate_px=1000.0))
     ball = line([-0.8, 0.3, 1.6], [0.5, 0.0, 0.0])
-    confirmed: dict[int, list[float]] = {}
-    for k in range(10):
+    out = []
+    for k, size in enumerate(sizes):
         t = k * DT_NS
         p = ball(t * 1e-9)
-        if k == 2:
-            states, _ = step(tracker, t, [p + np.array([0.25, 0.0, 0.2])], size_m=0.7)
-            assert all(s.lifecycle is TrackLifecycle.TENTATIVE for s in states), states
-        else:
-            states, _ = step(tracker, t, [p], size_m=0.2)
-        for s in states:
-            if s.lifecycle is TrackLifecycle.CONFIRMED:
-                confirmed.setdefault(s.track_id, []).append(float(np.linalg.norm(s.position_m - p)))
-    assert len(confirmed) == 1, confirmed
-    (errors,) = confirmed.values()
+        off = np.array((offsets or {}).get(k, [0.0, 0.0, 0.0]))
+        states, _ = step(tracker, t, [p + off], size_m=size)
+        out.append((states, p))
+    return out
+
+
+def lifecycles(run: list) -> list[list[TrackLifecycle]]:
+    return [[s.lifecycle for s in states] for states, _ in run]
+
+
+def test_a_tentative_track_given_a_blob_of_another_width_holds_it_aside() -> None:
+    """A ball 0.2 m across rolls in at 1.6 m. On its third pair its blob merges with its long
+    shadow: 0.7 m across, its centre 0.25 m aside and 0.2 m deeper. That blob is not the ball
+    seen a third time: it is held aside, and the ball's own blob on the next pair confirms the
+    track, with the id it had, and never where the merged blob was."""
+    run = sizes_run([0.2, 0.2, 0.7, *[0.2] * 5], {2: [0.25, 0.0, 0.2]})
+    tentative, confirmed = TrackLifecycle.TENTATIVE, TrackLifecycle.CONFIRMED
+    assert lifecycles(run)[:4] == [[tentative]] * 3 + [[confirmed]]
+    assert {s.track_id for states, _ in run for s in states} == {run[0][0][0].track_id}
+    errors = [float(np.linalg.norm(s.position_m - p)) for states, p in run[3:] for s in states]
     assert max(errors) < 0.05, errors
 
 
-def test_a_tentative_track_whose_blob_grows_within_regrown_is_confirmed_on_time() -> None:
-    """The same ball, its blob 1.8 times as wide on its third pair (blurred by its motion):
-    the same object, confirmed there as any track is on its third observation."""
+def test_a_blob_that_keeps_its_new_width_begins_the_track_again() -> None:
+    """Seen twice as an arm (0.1 m across), then as the whole person (0.5 m) from then on:
+    held aside once, then the track begins again from the second such pair (its id kept)
+    and is confirmed two pairs later, the filter started from the person's blobs alone."""
+    run = sizes_run([0.1, 0.1, *[0.5] * 6])
+    got = lifecycles(run)
+    assert got[:5] == [[TrackLifecycle.TENTATIVE]] * 5 and got[5] == [TrackLifecycle.CONFIRMED]
+    assert len({s.track_id for states, _ in run for s in states}) == 1
+
+
+def test_a_blob_whose_width_flickers_confirms_on_the_steady_ones() -> None:
+    """Widths alternating 0.2 and 0.55 m: every other blob is held aside, and the track is
+    confirmed on its third 0.2 m blob, not kept tentative for ever."""
+    got = lifecycles(sizes_run([0.2, 0.55] * 4))
+    assert got[4] == [TrackLifecycle.CONFIRMED], got
+
+
+@pytest.mark.parametrize(("ratio", "confirmed"), [(2.4, True), (2.6, False)])
+def test_regrown_is_the_bound_between_one_object_and_another(ratio: float, confirmed: bool) -> None:
+    """A third blob 2.4 times as wide confirms the track as any third sighting does; 2.6
+    times is held aside (``tracker.REGROWN``: 2.5), wider or narrower alike."""
+    for sizes in ([0.2, 0.2, 0.2 * ratio], [0.2 * ratio, 0.2 * ratio, 0.2]):
+        got = lifecycles(sizes_run(sizes))[2]
+        assert got == [TrackLifecycle.CONFIRMED if confirmed else TrackLifecycle.TENTATIVE], sizes
+
+
+def test_a_clipped_blob_of_another_width_is_not_held_aside() -> None:
+    """An object coming in past the image's side grows as it enters: its clipped blobs are
+    never held aside for their width."""
     tracker = Tracker(TrackerParams(gate_px=1000.0))
     ball = line([-0.8, 0.3, 1.6], [0.5, 0.0, 0.0])
-    for k in range(3):
+    for k, (size, clipped) in enumerate([(0.1, True), (0.3, True), (0.2, False)]):
         t = k * DT_NS
-        states, _ = step(tracker, t, [ball(t * 1e-9)], size_m=0.36 if k == 2 else 0.2)
-    assert [s.lifecycle for s in states] == [TrackLifecycle.CONFIRMED]
+        step(tracker, t, [ball(t * 1e-9)], size_m=size, clipped=clipped)
+        assert all(not tr.odd_size for tr in tracker._tracks.values()), k

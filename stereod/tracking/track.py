@@ -63,6 +63,9 @@ class Track:
     edge_begun: bool = False
     """Whether the filter was started on an outline cut by the image's side (its depth from
     the free edge, its lateral position loose): it starts afresh at the first whole one."""
+    odd_size: bool = False
+    """Whether the last blob given to this tentative track was held aside, its width beyond
+    ``tracker.REGROWN`` of its last observation's."""
     first: tuple[int, Observation] | None = None
     """The first exact whole observation and its instant, kept until the next starts the
     filter."""
@@ -289,10 +292,11 @@ class TrackFilters:
         tr.right_history.clear()
 
     def _anew(self, tr: Track, t_ns: int, ob: Observation) -> None:
-        """A tentative track that was given a blob of another object (``tracker._regrown``)
-        begins again at this observation, as a new track would, keeping its id: what it saw
-        before says nothing of this object's position or motion."""
-        tr.started, tr.first, tr.hits = False, None, 0
+        """A tentative track given blobs of another width two pairs running
+        (``tracker._regrown``) begins again at this observation, as a new track would, keeping
+        its id: what it saw before says nothing of this object's position or motion."""
+        tr.started, tr.first, tr.hits, tr.first_t_ns = False, None, 0, t_ns
+        tr.recent.clear()
         tr.falling, tr.fall_evidence, tr.other = False, 0.0, None
         tr.noise_scale, tr.updates = 1.0, 0
         tr.positions.clear()

@@ -40,8 +40,8 @@ have a speed known to 0.1 m/s and no direction at all.
 
 Lifecycle: ``tentative`` until ``confirm_hits`` observations and a running filter (two
 observations no faster than ``max_speed_mps`` apart), then ``confirmed``; a tentative track
-given a blob of another size (beyond ``REGROWN``: the object merged with its long shadow)
-begins again there; a confirmed track
+given a blob of another width (beyond ``REGROWN``: the object merged with its long shadow)
+holds it aside for a pair, and begins again from the second such pair in a row; a confirmed track
 seen moving that has not moved for ``still_after_s`` is ``stationary`` (held out of the
 background for ``hold_still_s``, so it stays seen and keeps its id when it moves on); a confirmed
 track not seen in a pair is ``coasting`` (predicted) until ``max_coast_s`` has passed, then it
@@ -185,13 +185,24 @@ class Tracker(Association):
                 self._begin(tr, t_ns, ob)
             else:
                 tr = self._tracks[tid]
+                regrown = not self._confirmed(tr) and _regrown(tr.last, ob)
+                if regrown and not tr.odd_size:
+                    # Another object's blob, or the object's own merged with something (a
+                    # long shadow): held aside for this pair, neither a hit nor a miss.
+                    tr.odd_size = True
+                    seen.add(tr.track_id)
+                    if tr.started or tr.whole:
+                        states.append(self._state(tr, t_ns, observed=False))
+                    continue
+                tr.odd_size = False
                 if tr.member_of is not None:  # out of the object it was taken into: anew
                     tr.member_of = None
                     self._afresh(tr, t_ns, ob)
                 elif tr.edge_begun and not ob.clipped:  # whole at last: a filter of whole outlines
                     self._afresh(tr, t_ns, ob)
-                elif not self._confirmed(tr) and _regrown(tr.last, ob):
-                    self._anew(tr, t_ns, ob)  # not the object it began on: it begins here
+                elif regrown:  # a second pair running: the object is this size now
+                    self._anew(tr, t_ns, ob)
+                    tr.area_px = float(det.area_px)
                 elif not tr.started:
                     self._begin(tr, t_ns, ob)
                 elif ob.clipped and not ob.edge_depth:  # part of it out of view: predicted
@@ -360,14 +371,16 @@ def _held_in(
 
 
 REGROWN = 2.5
-"""A tentative track's blob whose size (m) changed by more than this factor since its last one
-is not the same object seen again: an object and then the object with the long shadow it
-merged with, a piece and then the whole. A rigid object's size in metres does not change with
-its distance, and a person's grouped pieces stay within it from one pair to the next."""
+"""A tentative track's blob whose width in metres (its box's width in px times its depth over
+the focal length) differs from its last one's by more than this factor is not its object
+seen once more: a ball that merged with its long shadow (2.96 times as wide in px, 3.2 times
+in metres: the merged blob's depth reads too far as well), a piece and then the whole. Such
+a blob is held aside for one pair; if the next is that width too, the track begins again from
+it."""
 
 
 def _regrown(last: Observation, ob: Observation) -> bool:
-    """Whether ``ob``'s size and ``last``'s differ by more than :data:`REGROWN` (clipped
+    """Whether ``ob``'s width (m) and ``last``'s differ by more than :data:`REGROWN` (clipped
     outlines aside: an object entering past the image's side grows as it comes in)."""
     if ob.clipped or last.clipped or not (ob.size_m > 0.0 and last.size_m > 0.0):
         return False
