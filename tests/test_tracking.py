@@ -24,9 +24,17 @@ DT_NS = 33_333_333
 RIG = CanonicalRig(0.060, 60.0, 640, 480)
 
 
-def seen(p_m: np.ndarray, *, sigma_px: float = 0.3, size_m: float = 0.1, clipped: bool = False):
+def seen(
+    p_m: np.ndarray,
+    *,
+    sigma_px: float = 0.3,
+    size_m: float = 0.1,
+    clipped: bool = False,
+    edge_depth: bool = False,
+):
     """The detection and observation of an object at ``p_m`` (rig frame), as the pipeline would
-    make them through the canonical rig (both eyes at one instant)."""
+    make them through the canonical rig (both eyes at one instant); ``edge_depth``: a clipped
+    one's depth read from its free edge."""
     p = np.asarray(p_m, float)
     (lpx,), (rpx,) = RIG.project(p[None, :])
     pos, cov = RIG.triangulate(lpx[None, :], rpx[None, :], sigma_px)
@@ -49,6 +57,7 @@ def seen(p_m: np.ndarray, *, sigma_px: float = 0.3, size_m: float = 0.1, clipped
         disparity_px=d,
         size_m=size_m,
         clipped=clipped,
+        edge_depth=edge_depth,
     )
     return det, ob
 
@@ -1058,18 +1067,27 @@ def test_pieces_followed_apart_are_one_owner_to_the_grouping() -> None:
     assert tracker.objects([3, None, 1, 2]) == [1, None, 1, 2]
 
 
-def sizes_run(sizes: list[float], offsets: dict[int, list[float]] | None = None):
+def sizes_run(
+    sizes: list[float],
+    offsets: dict[int, list[float]] | None = None,
+    clipped: tuple[int, ...] = (),
+    tracker: Tracker | None = None,
+    edge_depth: bool = False,
+):
     """A ball rolling at 1.6 m, 0.5 m/s across, its blob as wide as ``sizes`` says pair by pair
-    (m); ``offsets``: where a pair's blob is off the ball (m). Each pair's states and the
-    ball's true position."""
-    tracker = Tracker(TrackerParams(gate_px=1000.0))
+    (m); ``offsets``: where a pair's blob is off the ball (m); ``clipped``: the pairs whose
+    blob the image's side cuts (``edge_depth``: read by its free edge). Each pair's states and
+    the ball's true position."""
+    tracker = tracker or Tracker(TrackerParams(gate_px=1000.0))
     ball = line([-0.8, 0.3, 1.6], [0.5, 0.0, 0.0])
     out = []
     for k, size in enumerate(sizes):
         t = k * DT_NS
         p = ball(t * 1e-9)
         off = np.array((offsets or {}).get(k, [0.0, 0.0, 0.0]))
-        states, _ = step(tracker, t, [p + off], size_m=size)
+        cut = k in clipped
+        kw = {"size_m": size, "clipped": cut, "edge_depth": edge_depth and cut}
+        states, _ = step(tracker, t, [p + off], **kw)
         out.append((states, p))
     return out
 
@@ -1093,9 +1111,16 @@ def test_a_tentative_track_given_a_blob_of_another_width_holds_it_aside() -> Non
 
 def test_a_blob_that_keeps_its_new_width_begins_the_track_again() -> None:
     """Seen twice as an arm (0.1 m across), then as the whole person (0.5 m) from then on:
-    held aside once, then the track begins again from the second such pair (its id kept)
-    and is confirmed two pairs later, the filter started from the person's blobs alone."""
-    run = sizes_run([0.1, 0.1, *[0.5] * 6])
+    held aside once, then the track begins again from the second such pair (its id kept) as a
+    new track would, its age, noise history and blob area the person's, and is confirmed
+    two pairs later."""
+    tracker = Tracker(TrackerParams(gate_px=1000.0))
+    run = sizes_run([0.1, 0.1, 0.5, 0.5], tracker=tracker)
+    (restarted,) = run[3][0]
+    (tr,) = tracker._tracks.values()
+    assert restarted.age_s == 0.0 and len(tr.recent) <= 1 and tr.noise_scale == 1.0
+    assert tr.area_px == seen(run[3][1], size_m=0.5)[0].area_px
+    run += sizes_run([0.5] * 4, tracker=tracker)
     got = lifecycles(run)
     assert got[:5] == [[TrackLifecycle.TENTATIVE]] * 5 and got[5] == [TrackLifecycle.CONFIRMED]
     assert len({s.track_id for states, _ in run for s in states}) == 1
@@ -1105,6 +1130,7 @@ def test_a_blob_whose_width_flickers_confirms_on_the_steady_ones() -> None:
     """Widths alternating 0.2 and 0.55 m: every other blob is held aside, and the track is
     confirmed on its third 0.2 m blob, not kept tentative for ever."""
     got = lifecycles(sizes_run([0.2, 0.55] * 4))
+    assert got[2] == got[3] == [TrackLifecycle.TENTATIVE], got
     assert got[4] == [TrackLifecycle.CONFIRMED], got
 
 
@@ -1117,12 +1143,17 @@ def test_regrown_is_the_bound_between_one_object_and_another(ratio: float, confi
         assert got == [TrackLifecycle.CONFIRMED if confirmed else TrackLifecycle.TENTATIVE], sizes
 
 
-def test_a_clipped_blob_of_another_width_is_not_held_aside() -> None:
-    """An object coming in past the image's side grows as it enters: its clipped blobs are
-    never held aside for their width."""
-    tracker = Tracker(TrackerParams(gate_px=1000.0))
-    ball = line([-0.8, 0.3, 1.6], [0.5, 0.0, 0.0])
-    for k, (size, clipped) in enumerate([(0.1, True), (0.3, True), (0.2, False)]):
-        t = k * DT_NS
-        step(tracker, t, [ball(t * 1e-9)], size_m=size, clipped=clipped)
-        assert all(not tr.odd_size for tr in tracker._tracks.values()), k
+def test_a_blob_after_clipped_ones_is_not_held_aside_for_its_width() -> None:
+    """An object coming in past the image's side grows as it enters: the first whole blob
+    after its clipped ones, 2.7 times the last clipped one's width, counts as a sighting (the
+    track is confirmed on the next pair, as without the rule)."""
+    got = lifecycles(sizes_run([0.1, 0.3, 0.8, 0.8, 0.8], clipped=(0, 1)))
+    assert TrackLifecycle.CONFIRMED in got[3], got
+
+
+def test_a_track_begun_at_the_images_side_does_not_confirm_on_a_merged_blob() -> None:
+    """Seen first cut by the image's side, then whole (0.2 m), then merged with its shadow
+    (0.7 m) two pairs running: the merged blobs confirm nothing; the track begins again from
+    the second."""
+    got = lifecycles(sizes_run([0.2, 0.2, 0.7, 0.7], clipped=(0,), edge_depth=True))
+    assert got[2] == got[3] == [TrackLifecycle.TENTATIVE], got

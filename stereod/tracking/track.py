@@ -296,6 +296,7 @@ class TrackFilters:
         (``tracker._regrown``) begins again at this observation, as a new track would, keeping
         its id: what it saw before says nothing of this object's position or motion."""
         tr.started, tr.first, tr.hits, tr.first_t_ns = False, None, 0, t_ns
+        tr.edge_begun, tr.member_of = False, None
         tr.recent.clear()
         tr.falling, tr.fall_evidence, tr.other = False, 0.0, None
         tr.noise_scale, tr.updates = 1.0, 0

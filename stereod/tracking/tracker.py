@@ -195,14 +195,14 @@ class Tracker(Association):
                         states.append(self._state(tr, t_ns, observed=False))
                     continue
                 tr.odd_size = False
-                if tr.member_of is not None:  # out of the object it was taken into: anew
+                if regrown:  # a second pair running: the object is this width now
+                    self._anew(tr, t_ns, ob)
+                    tr.area_px = float(det.area_px)
+                elif tr.member_of is not None:  # out of the object it was taken into: anew
                     tr.member_of = None
                     self._afresh(tr, t_ns, ob)
                 elif tr.edge_begun and not ob.clipped:  # whole at last: a filter of whole outlines
                     self._afresh(tr, t_ns, ob)
-                elif regrown:  # a second pair running: the object is this size now
-                    self._anew(tr, t_ns, ob)
-                    tr.area_px = float(det.area_px)
                 elif not tr.started:
                     self._begin(tr, t_ns, ob)
                 elif ob.clipped and not ob.edge_depth:  # part of it out of view: predicted
@@ -261,6 +261,7 @@ class Tracker(Association):
                 self._members[tid] = self._tracks.pop(tid)
                 continue
             tr.misses += 1
+            tr.odd_size = False  # a blob held aside counts again only in the next pair
             if not self._confirmed(tr):
                 # An object entering the view is small, and one eye may miss it once: a track
                 # seen once waits one pair for it. Any other tentative track ends unseen (a
@@ -374,9 +375,10 @@ REGROWN = 2.5
 """A tentative track's blob whose width in metres (its box's width in px times its depth over
 the focal length) differs from its last one's by more than this factor is not its object
 seen once more: a ball that merged with its long shadow (2.96 times as wide in px, 3.2 times
-in metres: the merged blob's depth reads too far as well), a piece and then the whole. Such
-a blob is held aside for one pair; if the next is that width too, the track begins again from
-it."""
+in metres, 0.693 against 0.216 m: the merged blob's depth reads too far as well), a piece and
+then the whole. Such a blob is held aside for one pair (another object's first blob, given
+to the track, then starts its own track a pair later); if the next pair's blob is again
+beyond this factor of the track's last one, the track begins again from it."""
 
 
 def _regrown(last: Observation, ob: Observation) -> bool:
