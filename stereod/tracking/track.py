@@ -295,14 +295,10 @@ class TrackFilters:
         """A tentative track given blobs of another width two pairs running
         (``tracker._regrown``) begins again at this observation, as a new track would, keeping
         its id: what it saw before says nothing of this object's position or motion."""
+        self._afresh(tr, t_ns, ob)
         tr.started, tr.first, tr.hits, tr.first_t_ns = False, None, 0, t_ns
-        tr.edge_begun, tr.member_of = False, None
+        tr.member_of, tr.other = None, None
         tr.recent.clear()
-        tr.falling, tr.fall_evidence, tr.other = False, 0.0, None
-        tr.noise_scale, tr.updates = 1.0, 0
-        tr.positions.clear()
-        tr.left_history.clear()
-        tr.right_history.clear()
         self._begin(tr, t_ns, ob)
 
     def _confirmed(self, tr: Track) -> bool:

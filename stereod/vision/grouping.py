@@ -423,24 +423,25 @@ def _attach(
     return out
 
 
-def _edge_disagreement(left: _Box, right: _Box) -> float:
-    """The largest of :func:`_mismatch`'s three terms (px): how far the worst edge of one
-    object's outline in one eye is from where the other eye's puts it."""
-    return max(
+def _edge_terms(left: _Box, right: _Box) -> tuple[float, float, float]:
+    """How far two eyes' boxes of one object disagree edge by edge (px): their left and right
+    edges should be one disparity apart, their top and bottom rows equal (rectified)."""
+    return (
         abs((left[0] - right[0]) - (left[2] - right[2])),
         abs(left[1] - right[1]),
         abs(left[3] - right[3]),
     )
 
 
+def _edge_disagreement(left: _Box, right: _Box) -> float:
+    """How far the worst edge of one object's outline in one eye is from where the other
+    eye's puts it (px)."""
+    return max(_edge_terms(left, right))
+
+
 def _mismatch(left: _Box, right: _Box) -> float:
-    """How much two eyes' boxes of one object disagree (px): their left and right edges should
-    be one disparity apart, their top and bottom rows equal (rectified)."""
-    return (
-        abs((left[0] - right[0]) - (left[2] - right[2]))
-        + abs(left[1] - right[1])
-        + abs(left[3] - right[3])
-    )
+    """How much two eyes' boxes of one object disagree in all (px)."""
+    return sum(_edge_terms(left, right))
 
 
 def _overlap(a: _Box, b: _Box) -> float:
