@@ -1,11 +1,15 @@
 """The fusion node's order of work: a due room message never goes out ahead of a waiting rig
-message's tracks, and never waits more than a second period."""
+message's tracks, and never waits more than a second period; and its status counts every rig
+message's added latency."""
 
 from __future__ import annotations
+
+import time
 
 from stereod.daemon.config import ZenohConfig
 from stereod.fusion.clock import ClockWatch
 from stereod.fusion.fuser import Fuser
+from stereod.fusion.histogram import EDGES_MS, difference, quantile_ms
 from stereod.fusion.node import FuseNode, RoomPublisher
 from stereod.fusion.room import RigPose, Room
 
@@ -29,3 +33,20 @@ def test_a_due_room_message_waits_for_a_waiting_rig_message_for_one_period_at_mo
     assert not node._room_turn(0.049)
     assert not node._room_turn(0.05) and not node._room_turn(0.099)
     assert node._room_turn(0.1) and node._room_turn(0.3)
+
+
+def test_every_rig_message_s_added_latency_is_counted_in_the_status_histogram() -> None:
+    """Two rig messages that arrived 30 and 150 ms before their step land in the bins just
+    above those latencies (a step takes a fraction of a millisecond, not the 10 and 50 ms that
+    would carry them on to the next edges), and two readings' difference holds exactly the
+    messages between them."""
+    node = _node(20.0)
+    before = node.status().added_ms_counts
+    now = time.monotonic()
+    node._step(1_000_000_000, [], [now - 0.030, now - 0.150])
+    status = node.status()
+    assert status.added_ms_edges == list(EDGES_MS)
+    between = difference(status.added_ms_counts, before)
+    assert sum(between) == 2
+    assert between[EDGES_MS.index(40.0)] == 1 and between[EDGES_MS.index(200.0)] == 1
+    assert quantile_ms(between, 0.5) <= 40.0 < quantile_ms(between, 0.99) <= 200.0

@@ -41,6 +41,7 @@ from stereod.errors import ConfigError, ReaderGone, StereodError
 from stereod.files.output_file import AtomicOutput, check_outputs
 from stereod.files.paths import shown
 from stereod.fusion.clock import ClockWatch
+from stereod.fusion.collector import freeze_startup_heap
 from stereod.fusion.fuser import FuseParams, Fuser
 from stereod.fusion.mcap import RoomMcapWriter
 from stereod.fusion.node import MAX_RATE_HZ, FuseNode, RoomPublisher
@@ -285,6 +286,8 @@ def run(a: argparse.Namespace) -> int:
                 )
                 stack.enter_context(bridge)
                 log.info("foxglove: serving room %s at %s", room.name, bridge.url)
+            frozen = freeze_startup_heap()
+            log.debug("start-up heap frozen: %d objects left out of collections", frozen)
             worker = threading.Thread(target=node.loop, name="fuse", daemon=True)
             worker.start()
             reload_now = threading.Event()

@@ -31,6 +31,7 @@ from stereod.bus.publish import Publisher
 from stereod.files.output_file import AtomicOutput
 from stereod.fusion.clock import ClockWatch
 from stereod.fusion.fuser import Fuser
+from stereod.fusion.histogram import EDGES_MS, LatencyHistogram
 from stereod.fusion.mcap import RoomMcapWriter
 from stereod.fusion.output import frame_payloads, join_room
 from stereod.fusion.room import Room
@@ -112,6 +113,8 @@ class FuseNode:
         self.geometry = Geometry.CANONICAL
         self.fuse_ms: deque[float] = deque(maxlen=WINDOW)
         self.added_ms: deque[float] = deque(maxlen=WINDOW)
+        self.added_hist = LatencyHistogram()
+        """Every rig message's added latency since start, in bins (for the status)."""
         self._steps_at = (self.start, 0)
         self._rig_of: dict[str, str] = {}
         self._states: dict[int, bytes] = {}
@@ -276,7 +279,9 @@ class FuseNode:
         with self.lock:
             self.steps += 1
             self.fuse_ms.append(fuse_ms)
-            self.added_ms.extend((done - rx) * 1e3 for rx in received)
+            added = [(done - rx) * 1e3 for rx in received]
+            self.added_ms.extend(added)
+            self.added_hist.add(added)
 
     def _publish_room(self) -> None:
         """The room's message: every live track's latest state (each at its own stamp)."""
@@ -319,6 +324,7 @@ class FuseNode:
             self._steps_at = (now, self.steps)
             fuse = np.asarray(self.fuse_ms) if self.fuse_ms else None
             added = np.asarray(self.added_ms) if self.added_ms else None
+            added_counts = list(self.added_hist.counts)
             steps, tracks, dropped, rejected = self.steps, self.tracks, self.dropped, self.rejected
         problems = [
             f"rig {name}'s clock is {link.clock_offset_ms:+.1f} ms off the reference rig "
@@ -352,6 +358,8 @@ class FuseNode:
             fuse_ms_p99=pct(fuse, 99),
             added_ms_p50=pct(added, 50),
             added_ms_p99=pct(added, 99),
+            added_ms_edges=list(EDGES_MS),
+            added_ms_counts=added_counts,
             clock_bound_ms=self.clock.bound_ms,
             problems=problems,
         )

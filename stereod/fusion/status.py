@@ -56,8 +56,18 @@ class FuseStatus(_Model):
     fuse_ms_p50: float | None = Field(description="One step's own time, median, ms")
     fuse_ms_p99: float | None
     added_ms_p50: float | None = Field(
-        description="Rig message received to room message published, median over the last steps, ms"
+        description="Rig message received to its room tracks published, median over the last "
+        "1000 rig messages, ms"
     )
     added_ms_p99: float | None
+    added_ms_edges: list[float] = Field(
+        default_factory=list, description="Upper edges of added_ms_counts' bins, ms"
+    )
+    added_ms_counts: list[int] = Field(
+        default_factory=list,
+        description="Rig messages since start by added latency: each count those up to its "
+        "edge and above the one before (the first from 0 ms), one more count beyond the last "
+        "edge. Two replies' difference gives the percentiles between them",
+    )
     clock_bound_ms: float = Field(description="A rig clock off by more is flagged, ms")
     problems: list[str] = Field(description="Standing problems, one line each")
