@@ -44,8 +44,8 @@ def floor_figures() -> str:
     """What the host itself costs, so that runs on two hosts can be compared: one 640x480 BGR
     absolute difference (OpenCV, median of 200, us), the CPU one 1 ms sleep costs to wake
     from (median of 200, us), and the spread of the thread CPU time a fixed loop of Python
-    takes (300 times, p50 and p99, ms): on a host whose CPUs others share (a cloud VM) the p99
-    lies well above the p50, and so does every latency's tail measured on it."""
+    takes (300 times, p50 and p99, ms): how steady the host runs the same work, which every
+    latency's tail measured on it carries too."""
     import cv2
     import numpy as np
 
@@ -72,8 +72,7 @@ def floor_figures() -> str:
         f"640x480 BGR absdiff {statistics.median(diff) * 1e6:.0f} us, "
         f"CPU to wake from a 1 ms sleep {statistics.median(wake) * 1e6:.0f} us, "
         f"a fixed pure-Python loop's thread CPU p50 {cuts[49] * 1e3:.2f} ms, "
-        f"p99 {cuts[98] * 1e3:.2f} ms (the same work each time: the spread is the host's, "
-        "and every latency's tail measured here carries it)"
+        f"p99 {cuts[98] * 1e3:.2f} ms (the same work each time: the spread is the host's)"
     )
 
 

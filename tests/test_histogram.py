@@ -66,3 +66,39 @@ def test_bad_arguments_are_refused() -> None:
         difference(h.counts, h.counts[:-1])
     with pytest.raises(ValueError, match="not a bin edge"):
         share_within(h.counts, 9.9)
+    with pytest.raises(ValueError, match="counts for"):
+        share_within([], 10.0)
+
+
+def test_within_a_bin_the_quantile_is_interpolated_from_its_lower_edge() -> None:
+    """Four values in the first bin, (0, 0.5] ms: the median lies halfway into it, from 0;
+    eight in (10, 10.5]: their 25th percentile a quarter of the way from 10 ms; q = 1 is the
+    upper edge of the last bin holding any."""
+    first = LatencyHistogram()
+    first.add([0.1, 0.2, 0.3, 0.4])
+    assert quantile_ms(first.counts, 0.5) == pytest.approx(0.25, rel=1e-6)
+    h = LatencyHistogram()
+    h.add([10.2] * 8)
+    assert quantile_ms(h.counts, 0.25) == pytest.approx(10.125, rel=1e-6)
+    assert quantile_ms(h.counts, 1.0) == pytest.approx(10.5, rel=1e-6)
+
+
+def test_a_rank_on_a_whole_count_stays_in_its_bin() -> None:
+    """7 of 100 in one bin and the rest beyond the last edge: the 7th percentile is that bin's
+    (0.07 x 100 is 7.000000000000001 in floating point)."""
+    h = LatencyHistogram()
+    h.add([1.0] * 7 + [9000.0] * 93)
+    assert quantile_ms(h.counts, 0.07) == pytest.approx(1.0, rel=1e-6)
+
+
+def test_readings_of_another_node_or_none_are_refused() -> None:
+    """A node started again between two readings (a count went down), and a node older than
+    the histogram (no bins), are said so rather than read as latencies."""
+    h = LatencyHistogram()
+    h.add([1.0, 2.0])
+    later = LatencyHistogram()
+    later.add([1.0])
+    with pytest.raises(ValueError, match="started again"):
+        difference(later.counts, h.counts)
+    with pytest.raises(ValueError, match="older than"):
+        difference([], [])

@@ -9,6 +9,9 @@ from typing import Final, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 FUSE_STATUS_SCHEMA: Final = "stereod.fuse_status/1"
+WINDOW: Final = 1000
+"""The last steps whose times, and the last rig messages whose added latencies, make the
+status's p50 and p99."""
 
 
 class _Model(BaseModel):
@@ -53,11 +56,13 @@ class FuseStatus(_Model):
     steps: int = Field(description="Fusion steps (room messages) since start")
     published: int
     steps_per_s: float
-    fuse_ms_p50: float | None = Field(description="One step's own time, median, ms")
+    fuse_ms_p50: float | None = Field(
+        description=f"One step's own time, median over the last {WINDOW} steps, ms"
+    )
     fuse_ms_p99: float | None
     added_ms_p50: float | None = Field(
         description="Rig message received to its room tracks published, median over the last "
-        "1000 rig messages, ms"
+        f"{WINDOW} rig messages, ms"
     )
     added_ms_p99: float | None
     added_ms_edges: list[float] = Field(
@@ -67,7 +72,8 @@ class FuseStatus(_Model):
         default_factory=list,
         description="Rig messages since start by added latency: each count those up to its "
         "edge and above the one before (the first from 0 ms), one more count beyond the last "
-        "edge. Two replies' difference gives the percentiles between them",
+        "edge. Two replies' difference gives the percentiles between them (the same node: "
+        "uptime_s grew, and no count went down)",
     )
     clock_bound_ms: float = Field(description="A rig clock off by more is flagged, ms")
     problems: list[str] = Field(description="Standing problems, one line each")
