@@ -18,6 +18,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from tests.processes import start_stereod
 
@@ -92,10 +93,19 @@ class FuseProcs:
         self.procs.append(proc)
         return proc
 
-    def start_fuse(self, room: Path, *args: str) -> subprocess.Popen:
-        """``stereod fuse --room ROOM`` as a client of the router, with ``args``."""
+    def start_fuse(self, room: Path, *args: str, **popen: Any) -> subprocess.Popen:
+        """``stereod fuse --room ROOM`` as a client of the router, with ``args`` (``popen``:
+        for ``subprocess.Popen``, e.g. where its output goes)."""
         fuse = start_stereod(
-            "fuse", "--room", str(room), "--connect", self.endpoint, "--mode", "client", *args
+            "fuse",
+            "--room",
+            str(room),
+            "--connect",
+            self.endpoint,
+            "--mode",
+            "client",
+            *args,
+            **popen,
         )
         self.fuse = self.add(fuse)
         return fuse

@@ -222,3 +222,4 @@ def test_the_readme_example_runs(endpoint: str) -> None:
     assert rows, out
     assert all(row[0].isdigit() for row in rows), out
     assert any(row[1] == "confirmed" for row in rows), out
+    assert any(row[-1] == "deg" for row in rows) and any(row[-1] == "?" for row in rows), out

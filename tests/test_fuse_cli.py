@@ -45,8 +45,9 @@ def test_three_rigs_through_a_router_make_one_id_per_object(tmp_path: Path) -> N
     )
     messages: list[ObjectsMessage] = []
     jsonl = tmp_path / "room.jsonl"
-    with fuse_procs() as run:
-        fuse = run.start_fuse(room, "--jsonl", str(jsonl))
+    summary = tmp_path / "fuse.out"
+    with fuse_procs() as run, summary.open("w") as summary_out:
+        fuse = run.start_fuse(room, "--jsonl", str(jsonl), stdout=summary_out)
         with zenoh.open(zenoh_config(connect=[run.endpoint], mode="client")) as session:
             sub = session.declare_subscriber(
                 "stereod/rooms/lab/objects",
@@ -114,6 +115,7 @@ def test_three_rigs_through_a_router_make_one_id_per_object(tmp_path: Path) -> N
     assert all(len(m.objects) == 2 for m in watched[-10:])
     lines = jsonl.read_text().splitlines()
     assert len(lines) >= len(watched) and json.loads(lines[-1])["rig"] == "lab"
+    assert summary.read_text().startswith(f"{len(lines)} room messages ("), "the summary's count"
 
 
 def test_a_bad_room_file_is_one_line_and_exit_78(tmp_path: Path) -> None:

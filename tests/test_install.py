@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from stereod.daemon.install import hidden_from_service, plan
+from stereod.daemon.install import UNITS, hidden_from_service, plan
 from stereod.errors import EX_CONFIG, EX_DATAERR, EX_NOINPUT, UsageError
 
 from .conftest import stereod
@@ -117,3 +117,11 @@ def test_units_verify_clean_and_score_at_most_2(tmp_path: Path, unit: str) -> No
     m = re.search(r"Overall exposure level for \S+: ([0-9.]+)", sec.stdout)
     assert m, sec.stdout + sec.stderr
     assert float(m.group(1)) <= 2.0, sec.stdout
+
+
+def test_the_help_names_every_unit_it_writes(tmp_path: Path) -> None:
+    """``install-service --help`` lists the units the command writes, all of them."""
+    written = sorted(p.name for p in installed(tmp_path).glob("*.service"))
+    assert written == sorted(UNITS)
+    text = " ".join(stereod("install-service", "--help").stdout.split())
+    assert all(unit in text for unit in UNITS), text

@@ -285,7 +285,6 @@ def run(a: argparse.Namespace) -> int:
                     session, room, prefix=prefix, host=a.foxglove_host, port=a.foxglove_port
                 )
                 stack.enter_context(bridge)
-                log.info("foxglove: serving room %s at %s", room.name, bridge.url)
             frozen = freeze_startup_heap()
             log.debug("start-up heap frozen: %d objects left out of collections", frozen)
             worker = threading.Thread(target=node.loop, name="fuse", daemon=True)
@@ -342,8 +341,8 @@ def run(a: argparse.Namespace) -> int:
             mcap.close()
         committed = True
         say(
-            f"{node.steps} room messages from {sum(node.received.values())} rig messages; "
-            f"{len(fuser.restarts)} rig restarts seen"
+            f"{node.room_messages} room messages ({node.steps} fusion steps) from "
+            f"{sum(node.received.values())} rig messages; {len(fuser.restarts)} rig restarts seen"
         )
     except ReaderGone as exc:
         if exc.stdout:

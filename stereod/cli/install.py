@@ -13,9 +13,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "install-service",
         help="install the systemd units, udev rules and a default config",
-        description="Write stereod.service and stereod@.service (with this stereod's path), "
-        "the Minoru udev rules and /etc/stereod/stereod.toml (never overwritten), then reload "
-        "udev and systemd when they are running. Then: systemctl enable --now stereod.",
+        description="Write stereod.service, stereod@.service and stereod-fuse@.service (with "
+        "this stereod's path), the Minoru udev rules and /etc/stereod/stereod.toml (never "
+        "overwritten), then reload udev and systemd when they are running. Then: systemctl "
+        "enable --now stereod (a fusion node: stereod-fuse@ROOM, see docs/deployment-room.md).",
     )
     p.add_argument(
         "--prefix",

@@ -30,7 +30,10 @@ def read_toml(path: Path) -> dict[str, Any]:
         check_data_depth(data, str(path), ConfigError)
         return data
     except FileNotFoundError as exc:
-        raise MissingInputError(f"{path}: no such config file (pass --config FILE)") from exc
+        raise MissingInputError(
+            f"{path}: no such config file (give an existing one with --config FILE; "
+            f"`stereod install-service` writes {DEFAULT_CONFIG_PATH})"
+        ) from exc
     except OSError as exc:
         raise MissingInputError(f"{path}: cannot read config file: {exc.strerror}") from exc
     except tomllib.TOMLDecodeError as exc:

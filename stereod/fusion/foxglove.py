@@ -28,6 +28,8 @@ DEFAULT_PORT = 8767
 class RoomFoxgloveBridge(FoxgloveBridge):
     """A :class:`FoxgloveBridge` for the room ``room`` published under ``<prefix>/rooms``."""
 
+    serves = "room"
+
     def __init__(
         self,
         session: zenoh.Session,

@@ -69,7 +69,8 @@ ROOM_ROTATION_DEG = Bound(
     "one full turn either way describes every orientation; angles are degrees",
 )
 MAX_RIGS = 64
-"""Most rigs one room file may list (a fusion node beyond that is split, see the README)."""
+"""Most rigs one room file may list (a room beyond that is split between fusion nodes: see
+docs/bench/fuse_scale.md, "Splitting a room")."""
 
 
 def _each(bound: Bound) -> AfterValidator:
@@ -103,7 +104,10 @@ class RigPose(BaseModel):
     @field_validator("translation_m", "rotation_deg", mode="before")
     @classmethod
     def _numbers(cls, v: Any) -> Any:
-        """A TOML ``true`` is not the number 1."""
+        """Three numbers: a TOML ``true`` is not the number 1, and a list of another length is
+        said so (not as a missing or extra item)."""
+        if isinstance(v, (list, tuple)) and len(v) != 3:
+            raise ValueError(f"needs three numbers (X, Y, Z), not {len(v)}")
         return not_bool(v)
 
     def rotation(self) -> np.ndarray:

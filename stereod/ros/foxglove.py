@@ -14,8 +14,7 @@ MCAP export (:mod:`stereod.ros.export_mcap`), so a layout made for the file work
 The front takes the clients of both names of the protocol: ``foxglove.sdk.v1`` (foxglove-sdk,
 current Foxglove) and ``foxglove.websocket.v1`` (older Foxglove releases, Lichtblick, tools of
 the roslibjs era), which foxglove-sdk alone refuses with HTTP 400 and which carries the same
-messages; it hands each connection to the server byte for byte, only the handshake's protocol
-header renamed.
+messages; it hands each connection to the server byte for byte, the protocol header renamed.
 
 Channels (``<rig>`` as in the export):
 
@@ -145,9 +144,8 @@ def _pipe(src: socket.socket, dst: socket.socket) -> None:
 
 class _ProtocolFront:
     """Listens on ``host:port`` for Foxglove clients and hands each connection to foxglove-sdk's
-    server on a loopback port, byte for byte; a client that offers only the protocol's older
-    name is offered to the server as ``foxglove.sdk.v1`` and answered ``foxglove.websocket.v1``.
-    """
+    server on a loopback port, byte for byte; a client offering only the protocol's older name
+    is offered to the server as ``foxglove.sdk.v1`` and answered ``foxglove.websocket.v1``."""
 
     def __init__(self, host: str, port: int, backend_port: int) -> None:
         family, kind, proto, _, addr = socket.getaddrinfo(
@@ -260,7 +258,9 @@ class FoxgloveBridge:
     """Serves what one rig publishes on ``session`` to Foxglove on ``ws://host:port`` (port 0:
     any free one). :meth:`start` returns once the server listens; :meth:`stop` (or the end of
     ``with``) closes it and every Zenoh subscription it made. The session stays the caller's.
-    """
+    ``serves``: what its keys are of, for its log line."""
+
+    serves = "rig"
 
     def __init__(
         self,
@@ -358,7 +358,7 @@ class FoxgloveBridge:
         self._subs.append(
             subscribe_objects(self.session, self._on_event, rig=self.rig, prefix=self.prefix)
         )
-        log.info("foxglove: serving %s for rig %s", self.url, self.rig)
+        log.info("foxglove: serving %s %s at %s", self.serves, self.rig, self.url)
         return self
 
     def stop(self) -> None:

@@ -7,7 +7,7 @@ object's centre of gravity (eq. 5), bounding box and area. The background is the
 eq. 3, ``T_i = T_{i-1} (1 - beta) + L_i beta``, kept in float32 (a uint8 background has a dead
 band of 0.5/beta grey levels and never adapts).
 
-Beyond the paper, each one chosen by measurement on two renderers (README, Accuracy):
+Beyond the paper, each one chosen by measurement on two renderers (docs/accuracy.md):
 
 - **No ghosts.** Eq. 3 learns a moving object into the background wherever it passes, and
   the trail it leaves is detected as objects that are not there. Here a pixel is not learned
