@@ -33,11 +33,13 @@ ROOM_TOPICS = {"/tf_static", "/stereod/lab/tracks/odom", "/stereod/lab/tracks/ma
 
 
 def served_port(fuse: subprocess.Popen) -> int:
-    """The port fuse's log says its Foxglove server listens on."""
+    """The port fuse's log says its Foxglove server listens on (the only one it names: the
+    SDK server's own loopback port behind the front is not for users)."""
     assert fuse.stderr is not None
     deadline = time.monotonic() + 60  # a guard against a hang, not a measurement
     while time.monotonic() < deadline:
         line = fuse.stderr.readline()
+        assert "Started server on" not in line, line
         got = re.search(r"foxglove: serving room lab at ws://127\.0\.0\.1:(\d+)", line)
         if got:
             return int(got.group(1))

@@ -293,7 +293,8 @@ def quiet_third_party() -> None:
 
 
 def setup_logging(level: str) -> None:
-    """Configure the root logger (the entry point's job); STEREOD_LOG_LEVEL overrides."""
+    """Configure the root logger (the entry point's job); STEREOD_LOG_LEVEL overrides. Below
+    DEBUG, foxglove-sdk's server logs warnings only."""
     env = os.environ.get("STEREOD_LOG_LEVEL")
     if env is not None:
         if env.upper() not in LOG_LEVELS:
@@ -303,6 +304,12 @@ def setup_logging(level: str) -> None:
     if sys.stderr.isatty():
         fmt = "%(asctime)s " + fmt
     logging.basicConfig(level=level, format=fmt, force=True)
+    # foxglove-sdk's server says it started on its own loopback port, behind the bridge's
+    # front: at INFO a user would read that port as the one to connect to
+    debug = logging.getLogger().getEffectiveLevel() <= logging.DEBUG
+    logging.getLogger("foxglove.websocket.server").setLevel(
+        logging.NOTSET if debug else logging.WARNING
+    )
 
 
 def run_daemon(
