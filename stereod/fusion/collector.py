@@ -7,8 +7,8 @@ message's parsed rows, every step's payloads) that with 16 rigs a full collectio
 10 to 20 s, and walking that heap took 30 to 100 ms on a loaded 2-core host: a stall of the
 fusion thread, with every rig message behind it waiting. Frozen once start-up is done, those
 objects are left out of every later collection, which then walks only what the running node
-made. (The rig daemon's pipeline makes almost no containers: NumPy arrays
-are not tracked, and 300 pairs ran without a single collection.)
+made. (The rig daemon's pipeline makes almost no containers: NumPy arrays are not tracked, and
+300 pairs ran without a single collection.)
 """
 
 from __future__ import annotations
