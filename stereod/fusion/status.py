@@ -53,7 +53,10 @@ class FuseStatus(_Model):
     uptime_s: float
     rigs: dict[str, RigLink]
     tracks: int = Field(description="Room tracks at the last step")
-    steps: int = Field(description="Fusion steps (room messages) since start")
+    steps: int = Field(
+        description="Fusion steps since start (each publishes the room tracks it touched on "
+        "their own keys; the room's whole message goes out at most --max-rate times a second)"
+    )
     published: int
     steps_per_s: float
     fuse_ms_p50: float | None = Field(
