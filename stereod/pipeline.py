@@ -48,6 +48,7 @@ from stereod.vision.geometry.triangulate import (
 )
 from stereod.vision.grouping import GroupParams, group_objects
 from stereod.vision.rects import Rect, box_rect
+from stereod.vision.row_disparity import rows_median
 from stereod.vision.uncovered import left_behind
 
 log = logging.getLogger(__name__)
@@ -501,6 +502,10 @@ class Pipeline:
                 lpx, rpx = grouped.left_px, grouped.right_px
         if p.refine.enabled:
             refine_rights(p.rig, (pair.left.image, pair.right.image), lb, idx, lpx, rpx, p.refine)
+        else:  # the rows' median disparity where one eye took in rows the other did not
+            rows_median(
+                lb, rb, idx, lpx, rpx, p.centroid_sigma_px, (p.rig.width_px, p.rig.height_px)
+            )
         return Matched(lb, rb, idx, lpx, rpx)
 
     def _associate(

@@ -16,13 +16,15 @@ class Blobs:
 
     ``centroid_px`` (n, 2) float64 image x, y (eq. 5); ``bbox_px`` (n, 4) int32 x, y, w, h;
     ``area_px`` (n,) int32 pixel count of the support; ``support`` n uint8 (h, w) masks (255
-    on the object) aligned with each bounding box.
+    on the object) aligned with each bounding box; ``rows`` n row profiles of eq. 5's
+    weights (:mod:`stereod.vision.row_disparity`), empty where not kept.
     """
 
     centroid_px: np.ndarray
     bbox_px: np.ndarray
     area_px: np.ndarray
     support: tuple[np.ndarray, ...] = ()
+    rows: tuple[np.ndarray, ...] = ()
 
     def __len__(self) -> int:
         return int(self.area_px.shape[0])
@@ -41,6 +43,21 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 _NO_BLOBS = Blobs(
     _frozen(np.zeros((0, 2))), _frozen(np.zeros((0, 4), np.int32)), _frozen(np.zeros(0, np.int32))
 )
+
+
+Editable = tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray], list[np.ndarray]]
+"""A blob set's centroids, boxes, areas, supports and row profiles, copied to edit."""
+
+
+def editable(b: Blobs) -> Editable:
+    """Copies of a blob set's fields, to replace some of its blobs in."""
+    return b.centroid_px.copy(), b.bbox_px.copy(), b.area_px.copy(), list(b.support), list(b.rows)
+
+
+def from_editable(fields: Editable) -> Blobs:
+    """The blob set of edited fields."""
+    centroid, bbox, area, support, rows = fields
+    return Blobs(centroid, bbox, area, tuple(support), tuple(rows))
 
 
 def groups(contours: Sequence[np.ndarray], gap: float) -> list[list[np.ndarray]]:

@@ -8,6 +8,8 @@ import functools
 import cv2
 import numpy as np
 
+from stereod.vision import row_disparity
+
 _RING = np.ones((3, 3), np.uint8)
 
 
@@ -37,14 +39,20 @@ def _padded(
 
 
 def coverage_centroid(
-    support: np.ndarray, diff: np.ndarray, origin: tuple[int, int], threshold: float
+    support: np.ndarray,
+    diff: np.ndarray,
+    origin: tuple[int, int],
+    threshold: float,
+    rows_out: list[np.ndarray] | None = None,
 ) -> tuple[float, float]:
     """Sub-pixel centre of one object (px): eq. 5 over its support, with eq. 4's hard
     threshold softened into a ramp at the edge. Interior pixels (the support eroded by one
     pixel) weigh 1 whatever their difference, so shading inside the object, or a patch of it
     that matches the background, does not pull the centre; each pixel of the edge band (one
     pixel either side of the outline) weighs (d - t/2) / t clipped to [0, 1], the share of it
-    the object covers. ``support`` is (h, w) uint8 at ``origin`` (x, y) of ``diff``."""
+    the object covers. ``support`` is (h, w) uint8 at ``origin`` (x, y) of ``diff``;
+    ``rows_out``, if given, gets the weights' row profile (:mod:`row_disparity`, px of
+    ``diff``) appended."""
     x, y = origin
     bh, bw = support.shape
     x0, y0, x1, y1, own, inner = _padded(support, origin, diff.shape)
@@ -56,6 +64,8 @@ def coverage_centroid(
     else:
         weight = cv2.LUT(edge, ramp)
         cv2.copyTo(np.ones(weight.shape, np.float32), inner, weight)
+    if rows_out is not None:
+        rows_out.append(row_disparity.profile(weight, x0, y0))
     m = cv2.moments(weight)
     if m["m00"] <= 0:
         return (x + (bw - 1) / 2.0, y + (bh - 1) / 2.0)
@@ -76,6 +86,7 @@ def matte_centroid(
     diff: np.ndarray,
     origin: tuple[int, int],
     threshold: float,
+    rows_out: list[np.ndarray] | None = None,
 ) -> tuple[float, float]:
     """Sub-pixel centre of one object (px): eq. 5 over its support, interior pixels (the
     support eroded by one pixel) weighing 1 and each pixel of the edge band (one pixel either
@@ -90,12 +101,12 @@ def matte_centroid(
     near, the ramp is used; a blob with fewer than ``_MATTE_MIN_INTERIOR`` interior pixels is
     left to :func:`coverage_centroid`. ``support`` is (h, w) uint8 at ``origin`` (x, y) of
     the (H, W[, 3]) uint8 ``frame``, ``background`` (at the frame's gain) and eq. 4's
-    ``diff``."""
+    ``diff``; ``rows_out`` as for :func:`coverage_centroid`."""
     x, y = origin
     bh, bw = support.shape
     x0, y0, x1, y1, own, inner = _padded(support, origin, diff.shape)
     if cv2.countNonZero(inner) < _MATTE_MIN_INTERIOR:
-        return coverage_centroid(support, diff, origin, threshold)
+        return coverage_centroid(support, diff, origin, threshold, rows_out)
     band = cv2.dilate(own, _RING)
     ramp = _ramp(threshold)
     weight = cv2.LUT(cv2.bitwise_and(diff[y0:y1, x0:x1], band), ramp)
@@ -127,6 +138,8 @@ def matte_centroid(
     np.maximum(weight, 0.0, out=weight)  # clipped to [0, 1] (np.clip costs more a call)
     np.minimum(weight, 1.0, out=weight)
     np.putmask(weight, inner, 1.0)
+    if rows_out is not None:
+        rows_out.append(row_disparity.profile(weight, x0, y0))
     m = cv2.moments(weight)
     if m["m00"] <= 0:
         return (x + (bw - 1) / 2.0, y + (bh - 1) / 2.0)

@@ -67,6 +67,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
+from stereod.vision import row_disparity
 from stereod.vision.background import GAIN_RESCALE, QUIET_LEVELS, BackgroundModel, negligible
 from stereod.vision.blobs import Blobs, groups
 from stereod.vision.centroids import coverage_centroid, matte_centroid
@@ -370,6 +371,7 @@ class Detector(BackgroundModel):
         p = self.params
         centres: list[tuple[float, float]] = []
         boxes, areas, supports = [], [], []
+        rows: list[np.ndarray] = []
         # the round blobs' disc fits, all in one batch, and where each starts
         fits: list[tuple[int, Candidate, tuple[float, float, float] | None]] = []
         for group in groups(contours, p.merge_gap):
@@ -386,9 +388,10 @@ class Detector(BackgroundModel):
             area = cv2.countNonZero(own)
             if area < p.min_area_px:
                 continue
+            got: list[np.ndarray] = []
             if p.centroid is Centroid.MATTE and frame is not None and background is not None:
                 at = (x - origin[0], y - origin[1])
-                cx, cy = matte_centroid(own, frame, background, diff, at, p.threshold)
+                cx, cy = matte_centroid(own, frame, background, diff, at, p.threshold, got)
                 centre = (cx + origin[0], cy + origin[1])
                 if max(bw, bh) <= p.disc_max_px and is_round(own, area):
                     start = warm_start(centre, area, self._fitted, max(bw, bh))
@@ -397,11 +400,16 @@ class Detector(BackgroundModel):
                     blob = Candidate(frame, background, (*at, bw, bh), (cx, cy), area)
                     fits.append((len(centres), blob, start))
             elif p.centroid is not Centroid.BINARY:
-                cx, cy = coverage_centroid(own, diff, (x - origin[0], y - origin[1]), p.threshold)
+                at = (x - origin[0], y - origin[1])
+                cx, cy = coverage_centroid(own, diff, at, p.threshold, got)
                 centre = (cx + origin[0], cy + origin[1])
             else:
                 m = cv2.moments(own, binaryImage=True)
                 centre = (x + m["m10"] / m["m00"], y + m["m01"] / m["m00"])
+            rows.append(
+                row_disparity.moved(got[0], *origin) if got
+                else row_disparity.binary_profile(own, x, y)
+            )  # fmt: skip
             centres.append(centre)
             boxes.append((x, y, bw, bh))
             areas.append(area)
@@ -413,6 +421,7 @@ class Detector(BackgroundModel):
             bbox_px=np.asarray(boxes, np.int32),
             area_px=np.asarray(areas, np.int32),
             support=tuple(supports),
+            rows=tuple(rows),
         )
         self._deferred = [(k, c, origin, start) for k, c, start in fits]
         if not fits:

@@ -24,7 +24,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stereod.vision.blobs import Blobs
+from stereod.vision import row_disparity
+from stereod.vision.blobs import Blobs, Editable, editable, from_editable
 
 __all__ = ["GroupParams", "Grouped", "edge_disparity_px", "extent_m", "group_objects"]
 
@@ -237,7 +238,7 @@ def _cut_pairs(
             found.append((abs(d0 - d1), i, j))
     if not found:
         return None
-    out_l, out_r = _copied(lb), _copied(rb)
+    out_l, out_r = editable(lb), editable(rb)
     rects = [lrect.copy(), rrect.copy()]
     pairs: list[list[int]] = []
     used_l: set[int] = set()
@@ -254,26 +255,13 @@ def _cut_pairs(
         dy = float(rect[k, 1]) - float(blobs.centroid_px[k, 1])
         _cut_rows(out_r if e else out_l, rects[e], blobs, k, keep[1] - dy, keep[3] - dy)
     matches = np.concatenate([idx.reshape(-1, 2), np.array(pairs, np.intp)]).astype(np.intp)
-    return _blobs(out_l), _blobs(out_r), matches, rects[0], rects[1]
+    return from_editable(out_l), from_editable(out_r), matches, rects[0], rects[1]
 
 
-_Fields = tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]
-"""A blob set's centroids, boxes, areas and supports, copied to replace some blobs in."""
-
-
-def _copied(blobs: Blobs) -> _Fields:
-    return blobs.centroid_px.copy(), blobs.bbox_px.copy(), blobs.area_px.copy(), list(blobs.support)
-
-
-def _blobs(fields: _Fields) -> Blobs:
-    centroid, bbox, area, support = fields
-    return Blobs(centroid, bbox, area, tuple(support))
-
-
-def _cut_rows(out: _Fields, rect: np.ndarray, blobs: Blobs, k: int, y0: float, y1: float) -> None:
+def _cut_rows(out: Editable, rect: np.ndarray, blobs: Blobs, k: int, y0: float, y1: float) -> None:
     """Replace blob ``k`` in ``out`` by its support within image rows ``y0``..``y1`` (end
-    exclusive): its area, centroid (eq. 5 over what is left), box and mask; its rectified
-    centroid in ``rect`` moves with its centroid."""
+    exclusive): its area, centroid (eq. 5 over what is left), box, mask and row profile; its
+    rectified centroid in ``rect`` moves with its centroid."""
     x, y, _, h = (int(v) for v in blobs.bbox_px[k])
     r0 = min(max(int(round(y0)) - y, 0), h - 1)
     r1 = max(min(int(round(y1)) - y, h), r0 + 1)
@@ -284,11 +272,13 @@ def _cut_rows(out: _Fields, rect: np.ndarray, blobs: Blobs, k: int, y0: float, y
     bx, by, bw, bh = cv2.boundingRect(mask)
     centre = np.array([x + mo["m10"] / mo["m00"], y + r0 + mo["m01"] / mo["m00"]])
     rect[k] += centre - blobs.centroid_px[k]
-    centroid, bbox, area, support = out
+    centroid, bbox, area, support, rows = out
     centroid[k] = centre
     bbox[k] = (x + bx, y + r0 + by, bw, bh)
     area[k] = int(mo["m00"])
     support[k] = np.ascontiguousarray(mask[by : by + bh, bx : bx + bw])
+    if rows:
+        rows[k] = row_disparity.cut(rows[k], y + r0, y + r1)
 
 
 def _merge(
@@ -499,7 +489,7 @@ def _build(
     eyes: list[Blobs] = []
     rects: list[np.ndarray] = []
     for e, (blobs, rect, attached) in enumerate(((lb, lrect, attached_l), (rb, rrect, attached_r))):
-        centres, rcentres, boxes, areas, supports = [], [], [], [], []
+        centres, rcentres, boxes, areas, supports, profiles = [], [], [], [], [], []
         used: set[int] = set()
         for g, grp in enumerate(groups):
             members = [int(idx[k, e]) for k in grp.members]
@@ -511,6 +501,8 @@ def _build(
             boxes.append(box)
             areas.append(area)
             supports.append(support)
+            if blobs.rows:
+                profiles.append(row_disparity.merged([blobs.rows[i] for i in members]))
         for i in range(len(blobs)):
             if i not in used:
                 centres.append(blobs.centroid_px[i])
@@ -518,6 +510,8 @@ def _build(
                 boxes.append(blobs.bbox_px[i])
                 areas.append(int(blobs.area_px[i]))
                 supports.append(blobs.support[i] if blobs.support else None)
+                if blobs.rows:
+                    profiles.append(blobs.rows[i])
         eyes.append(
             Blobs(
                 centroid_px=np.asarray(centres, np.float64).reshape(-1, 2),
@@ -526,6 +520,7 @@ def _build(
                 support=tuple(s for s in supports if s is not None)
                 if all(s is not None for s in supports)
                 else (),
+                rows=tuple(profiles),
             )
         )
         rects.append(np.asarray(rcentres, np.float64).reshape(-1, 2))

@@ -1,0 +1,153 @@
+"""An object's disparity read row by row: the median over the rows both eyes see of the
+difference of each row's centre, so that a few rows one eye segments differently (a contact
+shadow's crescent, a patch of floor) cannot move its depth.
+
+A blob's row profile is an (n, 3) float64 array, one row per image row it covers: the row
+(image px), the row's weight (its share of eq. 5's weights: matte coverage, or 1 per pixel)
+and the weighted sum of its columns (px). The centroid's x (eq. 5) is the profile's total
+weighted sum over its total weight; each row's centre is its own. A rectified pair's rows
+match (same object, same row in both eyes), so each common row gives one disparity, and the
+median of those ignores rows where one eye took in a little more or less than the other.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stereod.vision.blobs import Blobs
+
+__all__ = [
+    "EMPTY",
+    "MIN_ROWS",
+    "MIN_ROW_WEIGHT",
+    "SIGMAS",
+    "binary_profile",
+    "cut",
+    "median_shift_px",
+    "merged",
+    "moved",
+    "profile",
+    "rows_median",
+]
+
+MIN_ROWS = 32
+"""Fewest common rows (px) for the median to be read. A round blob of 24 px or less is
+centred by a disc fit (``DetectorParams.disc_max_px``), whose centre is not the profile's;
+over 25 to 31 rows the median's own noise (a row's centre is the mean of its two partial
+edge pixels) matches what it removes: on the independent renderer's balls under a lamp, a
+26-row ball's heading moved by up to 1.4 deg either way."""
+MIN_ROW_WEIGHT = 1.0
+"""Least weight (px) a row needs in both eyes to count: a row that is only the edge band's
+partial pixels has no centre to speak of."""
+SIGMAS = 2.0 * math.sqrt(2.0)
+"""How many centroid errors the rows' median disparity must differ from the centroids' by
+to replace it: twice the noise of a difference of two centroids."""
+EMPTY = np.zeros((0, 3), np.float64)
+EMPTY.setflags(write=False)
+
+
+def profile(weight: np.ndarray, x0: int, y0: int) -> np.ndarray:
+    """The row profile of a weight image (h, w) float32 whose top left is image (x0, y0)."""
+    h, w = weight.shape
+    out = np.empty((h, 3), np.float64)
+    out[:, 0] = np.arange(y0, y0 + h)
+    out[:, 1] = weight.sum(axis=1, dtype=np.float64)
+    out[:, 2] = weight @ np.arange(x0, x0 + w, dtype=np.float32)
+    return out
+
+
+def binary_profile(support: np.ndarray, x0: int, y0: int) -> np.ndarray:
+    """The row profile of a uint8 mask (255 on the object) whose top left is image (x0, y0)."""
+    return profile((support > 0).astype(np.float32), x0, y0)
+
+
+def moved(prof: np.ndarray, dx: int, dy: int) -> np.ndarray:
+    """The profile of the same weights ``dx``, ``dy`` px further right and down (a crop's
+    profile in its image's px)."""
+    if dx == 0 and dy == 0:
+        return prof
+    out = prof.copy()
+    out[:, 0] += dy
+    out[:, 2] += dx * out[:, 1]
+    return out
+
+
+def merged(profiles: list[np.ndarray]) -> np.ndarray:
+    """One profile of several pieces of one object: their weights and sums added row by row."""
+    if not profiles:
+        return EMPTY
+    if len(profiles) == 1:
+        return profiles[0]
+    stacked = np.concatenate(profiles)
+    rows, at = np.unique(stacked[:, 0], return_inverse=True)
+    out = np.zeros((rows.size, 3), np.float64)
+    out[:, 0] = rows
+    np.add.at(out[:, 1], at, stacked[:, 1])
+    np.add.at(out[:, 2], at, stacked[:, 2])
+    return out
+
+
+def cut(prof: np.ndarray, y0: int, y1: int) -> np.ndarray:
+    """The profile's rows from ``y0`` to ``y1`` (image px, end exclusive)."""
+    return prof[(prof[:, 0] >= y0) & (prof[:, 0] < y1)]
+
+
+def median_shift_px(left: np.ndarray, right: np.ndarray, row_offset: int) -> float | None:
+    """How far (px) the median of the common rows' disparities lies from the disparity of the
+    two profiles' centroids: add it to a centroid disparity to read the rows' median instead.
+    Right row ``r + row_offset`` is left row ``r``'s (0 for a rectified pair seen at one
+    instant). None where fewer than :data:`MIN_ROWS` rows have :data:`MIN_ROW_WEIGHT` in both
+    eyes, or a profile has no weight."""
+    wl, wr = float(left[:, 1].sum()), float(right[:, 1].sum())
+    if wl <= 0.0 or wr <= 0.0:
+        return None
+    lk = left[left[:, 1] >= MIN_ROW_WEIGHT]
+    rk = right[right[:, 1] >= MIN_ROW_WEIGHT]
+    _, il, ir = np.intersect1d(
+        lk[:, 0], rk[:, 0] - row_offset, assume_unique=True, return_indices=True
+    )
+    if il.size < MIN_ROWS:
+        return None
+    rows_l, rows_r = lk[il], rk[ir]
+    each = rows_l[:, 2] / rows_l[:, 1] - rows_r[:, 2] / rows_r[:, 1]
+    whole = float(left[:, 2].sum()) / wl - float(right[:, 2].sum()) / wr
+    return float(np.median(each)) - whole
+
+
+def _inside(box: np.ndarray, width: int, height: int) -> bool:
+    x, y, w, h = (int(v) for v in box)
+    return x > 0 and y > 0 and x + w < width and y + h < height
+
+
+def rows_median(
+    lb: Blobs,
+    rb: Blobs,
+    idx: np.ndarray,
+    lpx: np.ndarray,
+    rpx: np.ndarray,
+    sigma_px: float,
+    size: tuple[int, int],
+) -> int:
+    """Move each matched pair's centroids ``lpx``, ``rpx`` (rectified px, in place) apart or
+    together by :func:`median_shift_px` where that exceeds :data:`SIGMAS` times a centroid's
+    error ``sigma_px``: the rows' median
+    disparity replaces the centroids' where the two disagree beyond the centroids' own noise,
+    so one eye's segmentation taking in rows the other did not moves neither the depth nor
+    the eyes' 2D tracks (the skew stage interpolates along those). Each centroid moves half
+    the shift, so their mean stays. Pairs with a blob touching the image's border (size:
+    width, height px; its rows are cut) are left alone. Gives how many pairs moved."""
+    if not lb.rows or not rb.rows:
+        return 0
+    moved_pairs = 0
+    for k, (i, j) in enumerate(idx.tolist()):
+        if not (_inside(lb.bbox_px[i], *size) and _inside(rb.bbox_px[j], *size)):
+            continue
+        offset = round(float(rb.centroid_px[j, 1]) - float(lb.centroid_px[i, 1]))
+        shift = median_shift_px(lb.rows[i], rb.rows[j], offset)
+        if shift is not None and abs(shift) > SIGMAS * sigma_px:
+            lpx[k, 0] += 0.5 * shift
+            rpx[k, 0] -= 0.5 * shift
+            moved_pairs += 1
+    return moved_pairs

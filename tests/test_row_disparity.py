@@ -1,0 +1,134 @@
+"""The rows' median disparity against discs drawn at known sub-pixel positions."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from stereod.vision import row_disparity as rd
+from stereod.vision.blobs import Blobs
+
+SUB = 16  # supersampling of the drawn discs: coverage to 1/256 of a pixel
+
+
+def disc_weight(cx: float, cy: float, r: float, shape: tuple[int, int]) -> np.ndarray:
+    """A disc's coverage of each pixel (float32 0..1), pixel (x, y) centred on x, y."""
+    h, w = shape
+    ys, xs = np.mgrid[0 : h * SUB, 0 : w * SUB]
+    inside = ((xs + 0.5) / SUB - 0.5 - cx) ** 2 + ((ys + 0.5) / SUB - 0.5 - cy) ** 2 <= r * r
+    return inside.reshape(h, SUB, w, SUB).mean(axis=(1, 3)).astype(np.float32)
+
+
+def centroid_x(prof: np.ndarray) -> float:
+    return float(prof[:, 2].sum() / prof[:, 1].sum())
+
+
+def test_profile_sums_to_the_weights_moments() -> None:
+    rng = np.random.default_rng(3)
+    weight = rng.random((17, 23)).astype(np.float32)
+    prof = rd.profile(weight, 40, 7)
+    m = cv2.moments(weight)
+    assert prof[:, 0].tolist() == list(range(7, 24))
+    assert prof[:, 1].sum() == pytest.approx(m["m00"], rel=1e-6)
+    assert centroid_x(prof) == pytest.approx(40 + m["m10"] / m["m00"], abs=1e-5)
+    binary = rd.binary_profile((weight > 0.5).astype(np.uint8) * 255, 40, 7)
+    assert binary[:, 1].sum() == np.count_nonzero(weight > 0.5)
+
+
+def test_a_crescent_in_one_eye_does_not_move_the_median() -> None:
+    """Left: a disc at x 30.37; right: the same disc 11.62 px to the left plus a shadow's
+    crescent under it, off to one side (what one eye takes in and the other does not). The
+    centroids' disparity is off by far more than the rows' median's."""
+    truth = 11.62
+    shape = (60, 70)
+    left = disc_weight(30.37, 25.2, 16.0, shape)
+    right = disc_weight(30.37 - truth, 25.2, 16.0, shape)
+    right[40:44, 18:34] = np.maximum(right[40:44, 18:34], 1.0)  # the crescent, 4 rows
+    pl, pr = rd.profile(left, 0, 0), rd.profile(right, 0, 0)
+    plain = centroid_x(pl) - centroid_x(pr)
+    shift = rd.median_shift_px(pl, pr, 0)
+    assert shift is not None
+    assert abs(plain - truth) > 0.3
+    assert plain + shift == pytest.approx(truth, abs=0.03)
+
+
+def test_rows_are_paired_by_the_offset() -> None:
+    """The right eye's disc sits 3 rows lower (seen later while the object falls)."""
+    shape = (66, 70)
+    left = disc_weight(35.0, 27.0, 19.0, shape)
+    right = disc_weight(35.0 - 8.25, 30.0, 19.0, shape)
+    right[47:50, 28:40] = 1.0
+    pl, pr = rd.profile(left, 0, 0), rd.profile(right, 0, 0)
+    shift = rd.median_shift_px(pl, pr, 3)
+    assert shift is not None
+    assert centroid_x(pl) - centroid_x(pr) + shift == pytest.approx(8.25, abs=0.03)
+
+
+def test_too_few_rows_or_no_weight_gives_none() -> None:
+    small = rd.profile(disc_weight(10.0, 10.0, 6.0, (24, 24)), 0, 0)
+    assert rd.median_shift_px(small, small, 0) is None  # 12 rows: a disc fit's size
+    big = rd.profile(disc_weight(30.0, 30.0, 20.0, (64, 64)), 0, 0)
+    assert rd.median_shift_px(big, big, 0) == pytest.approx(0.0, abs=1e-9)
+    assert rd.median_shift_px(big, big, 40) is None  # no rows in common
+    assert rd.median_shift_px(big, rd.EMPTY, 0) is None
+
+
+def test_merged_pieces_are_the_union_and_cut_keeps_rows() -> None:
+    rng = np.random.default_rng(5)
+    whole = rng.random((30, 20)).astype(np.float32)
+    top, bottom = whole.copy(), whole.copy()
+    top[12:], bottom[:12] = 0.0, 0.0
+    pieces = [rd.profile(top[:12], 5, 9), rd.profile(bottom[8:], 5, 17)]  # rows 17-20 overlap
+    got = rd.merged(pieces)
+    want = rd.profile(whole, 5, 9)
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-4)
+    kept = rd.cut(want, 20, 25)
+    assert kept[:, 0].tolist() == [20, 21, 22, 23, 24]
+    moved = rd.moved(want, 3, -2)
+    assert moved[:, 0].tolist() == (want[:, 0] - 2).tolist()
+    assert centroid_x(moved) == pytest.approx(centroid_x(want) + 3)
+
+
+def blobs_of(weights: list[tuple[np.ndarray, int, int]]) -> Blobs:
+    """Blobs whose row profiles and centroids are those of ``weights`` placed at (x0, y0)."""
+    profs = [rd.profile(w, x0, y0) for w, x0, y0 in weights]
+    centres = []
+    for w, x0, y0 in weights:
+        m = cv2.moments(w)
+        centres.append((x0 + m["m10"] / m["m00"], y0 + m["m01"] / m["m00"]))
+    boxes = [(x0, y0, w.shape[1], w.shape[0]) for w, x0, y0 in weights]
+    areas = [int(np.count_nonzero(w > 0.5)) for w, _, _ in weights]
+    return Blobs(
+        np.array(centres), np.array(boxes, np.int32), np.array(areas, np.int32), rows=tuple(profs)
+    )
+
+
+def test_rows_median_moves_only_pairs_that_disagree_beyond_the_noise() -> None:
+    """Pair 0: a crescent in the right eye (the centroids 0.5 px off, the median right);
+    pair 1: clean (a shift under the threshold leaves it); pair 2: touching the image's
+    border (its rows are cut, so it is left)."""
+    truth = 10.4
+    disc = disc_weight(30.3, 30.0, 18.0, (62, 62))
+    crescent = disc.copy()
+    crescent[46:50, 14:30] = 1.0
+    lb = blobs_of([(disc, 100, 50), (disc, 300, 50), (disc, 0, 150)])
+    shift = round(truth)  # the right eye's blobs truth px to the left: whole px + a sub-px part
+    right = disc_weight(30.3 - (truth - shift), 30.0, 18.0, (62, 62))
+    right_crescent = right.copy()
+    right_crescent[46:50, 14:30] = 1.0
+    rb = blobs_of(
+        [(right_crescent, 100 - shift, 50), (right, 300 - shift, 50), (right_crescent, 0, 150)]
+    )
+    idx = np.array([[0, 0], [1, 1], [2, 2]], np.intp)
+    lpx, rpx = lb.centroid_px.copy(), rb.centroid_px.copy()
+    before = lpx[:, 0] - rpx[:, 0]
+    assert abs(before[0] - truth) > 0.3
+    moved = rd.rows_median(lb, rb, idx, lpx, rpx, 0.15, (640, 480))
+    after = lpx[:, 0] - rpx[:, 0]
+    assert moved == 1
+    assert after[0] == pytest.approx(truth, abs=0.03)
+    assert lpx[0, 0] + rpx[0, 0] == pytest.approx(lb.centroid_px[0, 0] + rb.centroid_px[0, 0])
+    assert after[1] == before[1] and after[2] == before[2]
+    assert np.array_equal(lpx[:, 1], lb.centroid_px[:, 1])
+    assert rd.rows_median(Blobs.empty(), rb, idx[:0], lpx[:0], rpx[:0], 0.15, (640, 480)) == 0
