@@ -97,7 +97,10 @@ def blobs_of(weights: list[tuple[np.ndarray, int, int]]) -> Blobs:
     for w, x0, y0 in weights:
         m = cv2.moments(w)
         centres.append((x0 + m["m10"] / m["m00"], y0 + m["m01"] / m["m00"]))
-    boxes = [(x0, y0, w.shape[1], w.shape[0]) for w, x0, y0 in weights]
+    boxes = []
+    for w, x0, y0 in weights:
+        bx, by, bw, bh = cv2.boundingRect((w > 0.5).astype(np.uint8))
+        boxes.append((x0 + bx, y0 + by, bw, bh))
     areas = [int(np.count_nonzero(w > 0.5)) for w, _, _ in weights]
     return Blobs(
         np.array(centres), np.array(boxes, np.int32), np.array(areas, np.int32), rows=tuple(profs)
@@ -112,13 +115,17 @@ def test_rows_median_moves_only_pairs_that_disagree_beyond_the_noise() -> None:
     disc = disc_weight(30.3, 30.0, 18.0, (62, 62))
     crescent = disc.copy()
     crescent[46:50, 14:30] = 1.0
-    lb = blobs_of([(disc, 100, 50), (disc, 300, 50), (disc, 0, 150)])
+    lb = blobs_of([(disc, 100, 50), (disc, 300, 50), (disc[:, 13:], 0, 150)])
     shift = round(truth)  # the right eye's blobs truth px to the left: whole px + a sub-px part
     right = disc_weight(30.3 - (truth - shift), 30.0, 18.0, (62, 62))
     right_crescent = right.copy()
     right_crescent[46:50, 14:30] = 1.0
     rb = blobs_of(
-        [(right_crescent, 100 - shift, 50), (right, 300 - shift, 50), (right_crescent, 0, 150)]
+        [
+            (right_crescent, 100 - shift, 50),
+            (right, 300 - shift, 50),
+            (right_crescent[:, 13:], 0, 150),
+        ]
     )
     idx = np.array([[0, 0], [1, 1], [2, 2]], np.intp)
     lpx, rpx = lb.centroid_px.copy(), rb.centroid_px.copy()
@@ -132,3 +139,19 @@ def test_rows_median_moves_only_pairs_that_disagree_beyond_the_noise() -> None:
     assert after[1] == before[1] and after[2] == before[2]
     assert np.array_equal(lpx[:, 1], lb.centroid_px[:, 1])
     assert rd.rows_median(Blobs.empty(), rb, idx[:0], lpx[:0], rpx[:0], 0.15, (640, 480)) == 0
+
+
+def test_row_offset_follows_the_end_a_crescent_did_not_move() -> None:
+    """The right eye sees the left's disc ``down`` rows lower (vertical motion between the
+    eyes' instants) with 5 rows of crescent under it, or over it: that end moves 5 rows and
+    the centroid about 2, the other end not at all, so the pairing is the true offset."""
+    disc = disc_weight(30.0, 30.0, 18.0, (62, 62))  # rows 12-48 covered more than half
+    lb = blobs_of([(disc, 100, 40)])
+    for down, crescent in ((2, slice(51, 56)), (7, slice(14, 19))):
+        right = np.zeros((80, 62), np.float32)
+        right[down : down + 62] = disc
+        right[crescent, 20:40] = 1.0
+        rb = blobs_of([(right, 90, 40)])
+        assert rd.row_offset(lb, rb, 0, 0) == down
+        plain = round(float(rb.centroid_px[0, 1] - lb.centroid_px[0, 1]))
+        assert plain != down  # the centroids alone would pair the rows wrongly

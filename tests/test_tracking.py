@@ -572,6 +572,35 @@ def test_object_never_seen_moving_does_not_freeze() -> None:
     assert states and not any(s.freeze_background for s in states)
 
 
+def test_a_piece_parting_from_a_moving_object_holds_its_background() -> None:
+    """A robot pushes a box and leaves it: the box's own track starts where the robot's
+    blob was, standing still, and counts as seen moving (it moved with the robot), so its
+    background is held; a still object that shows up away from anything moving is not."""
+    tracker = Tracker(TrackerParams())
+    robot = line([0.3, 0.0, 2.0], [-0.3, 0.0, 0.0])  # backs away, leaving the box to its right
+    for k in range(30):
+        step(tracker, k * DT_NS, [robot(k * DT_NS * 1e-9)], size_m=0.6)
+    end = robot(29 * DT_NS * 1e-9)
+    # the box's centre just outside the robot's box grown by a quarter (else it is a piece of
+    # the robot), its own box overlapping the robot's last one by a few pixels
+    box, far = end + np.array([0.39, 0.0, 0.0]), np.array([-0.9, 0.0, 2.0])
+    states: list[TrackState] = []
+    for k in range(30, 40):
+        t = k * DT_NS
+        pairs = [seen(robot(t * 1e-9), size_m=0.6), seen(box, size_m=0.22), seen(far, size_m=0.22)]
+        dets = [d for d, _ in pairs]
+        assignment, may_start = tracker.associate(dets, (t, t))
+        obs = [
+            ob if (tid is not None or ok) else None
+            for (_, ob), tid, ok in zip(pairs, assignment, may_start, strict=True)
+        ]
+        states, _ = tracker.update(t, obs, assignment, (t, t), dets)
+    at = {int(round(s.position_m[0] * 10)): s for s in states}
+    assert set(at) >= {round(box[0] * 10), -9}, [s.position_m for s in states]
+    assert at[round(box[0] * 10)].freeze_background
+    assert not at[-9].freeze_background
+
+
 @pytest.mark.parametrize("speed", [0.4, 2.0])
 def test_validity_follows_the_speed_sigma(speed: float) -> None:
     """A velocity is valid once the speed's sigma is below the larger of the absolute and

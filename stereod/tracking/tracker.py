@@ -131,6 +131,23 @@ class Tracker(Association):
             return None
         return tr.left_history, tr.right_history
 
+    def _moving_over(self, ob: Observation) -> int | None:
+        """When the latest track seen moving whose last blob's box, grown by
+        :data:`PARTED_GROW` of its size each way, overlaps this new one's (in the left eye) was
+        last seen moving (ns), else None. A piece that parts from a moving object (a box a
+        robot pushed and leaves) moved with it: its background is held as a stopped object's,
+        not learned in as if it had always stood there."""
+        x, y, w, h = (float(v) for v in ob.left_bbox_px)
+        latest = None
+        for other in self._tracks.values():
+            if other.last_moving_ns is None or other.last is None:
+                continue
+            ox, oy, ow, oh = (float(v) for v in other.last.left_bbox_px)
+            gx, gy = PARTED_GROW * ow, PARTED_GROW * oh
+            if x < ox + ow + gx and ox - gx < x + w and y < oy + oh + gy and oy - gy < y + h:
+                latest = max(latest or other.last_moving_ns, other.last_moving_ns)
+        return latest
+
     def update(
         self,
         t_ns: int,
@@ -181,6 +198,7 @@ class Tracker(Association):
                     last_seen_ns=t_ns,
                 )
                 self._next_id += 1
+                tr.last_moving_ns = self._moving_over(ob)
                 self._tracks[tr.track_id] = tr
                 self._begin(tr, t_ns, ob)
             else:
@@ -440,3 +458,10 @@ def _off_edge(tr: Track, ob: Observation, t_ns: int) -> bool:
         return False
     across = abs(float(ob.position_m[0]) - kalman.point_at(tr.kf, t_ns)[0])
     return across > tr.outline_m[0] + tr.outline_m[1]
+
+
+PARTED_GROW = 0.25
+"""How far (a share of its width and height, each way) a moving track's last box is grown to
+hold a new track that parted from it (:meth:`Tracker._moving_over`): as far as a piece of
+it may lie from it (``association``'s pieces, within a quarter), and a piece that may start
+a track of its own lies just beyond that."""

@@ -29,6 +29,7 @@ __all__ = [
     "merged",
     "moved",
     "profile",
+    "row_offset",
     "rows_median",
 ]
 
@@ -116,6 +117,17 @@ def median_shift_px(left: np.ndarray, right: np.ndarray, row_offset: int) -> flo
     return float(np.median(each)) - whole
 
 
+def row_offset(lb: Blobs, rb: Blobs, i: int, j: int) -> int:
+    """Which right row is left row 0's (px): how far apart the two boxes' top rows are, or
+    their bottom rows, whichever is nearer how far apart the centroids' rows are. Rows one
+    eye added at one end (a shadow's crescent under an object) move that end and, less, the
+    centroid, but not the other end."""
+    top = int(rb.bbox_px[j, 1] - lb.bbox_px[i, 1])
+    bottom = top + int(rb.bbox_px[j, 3] - lb.bbox_px[i, 3])
+    centre = float(rb.centroid_px[j, 1] - lb.centroid_px[i, 1])
+    return top if abs(top - centre) <= abs(bottom - centre) else bottom
+
+
 def _inside(box: np.ndarray, width: int, height: int) -> bool:
     x, y, w, h = (int(v) for v in box)
     return x > 0 and y > 0 and x + w < width and y + h < height
@@ -144,8 +156,7 @@ def rows_median(
     for k, (i, j) in enumerate(idx.tolist()):
         if not (_inside(lb.bbox_px[i], *size) and _inside(rb.bbox_px[j], *size)):
             continue
-        offset = round(float(rb.centroid_px[j, 1]) - float(lb.centroid_px[i, 1]))
-        shift = median_shift_px(lb.rows[i], rb.rows[j], offset)
+        shift = median_shift_px(lb.rows[i], rb.rows[j], row_offset(lb, rb, i, j))
         if shift is not None and abs(shift) > SIGMAS * sigma_px:
             lpx[k, 0] += 0.5 * shift
             rpx[k, 0] -= 0.5 * shift
