@@ -36,6 +36,7 @@ from stereod.vision.agreement import eye_agreement
 from stereod.vision.blobs import Blobs
 from stereod.vision.detect import Detector, fit_round_blobs
 from stereod.vision.detect_params import DetectorParams
+from stereod.vision.geometry import Geometry
 from stereod.vision.geometry.rectified import CalibratedRig
 from stereod.vision.geometry.refine import RefineParams
 from stereod.vision.geometry.stereo import CanonicalRig, MatchParams, match_blobs, side_cut_edges
@@ -476,7 +477,8 @@ class Pipeline:
         between the eyes' instants ``eye_times``, ns) and a similar area, the pairs that are
         pieces of one object grouped into one (:mod:`stereod.vision.grouping`, after asking
         the tracker which track each piece is) and, with ``refine``, the right centroids placed
-        by appearance. Gives the (grouped) blobs, the pairs' indices and rectified centroids."""
+        by appearance, else (canonical rig) the rows' median disparity where it disagrees
+        (:func:`rows_median`). Gives the (grouped) blobs, pairs' indices and rectified centroids."""
         p = self.params
         # Matching, association, compensation and triangulation work in rectified coordinates
         # (identical to image coordinates for the canonical rig); messages report the image ones.
@@ -502,10 +504,9 @@ class Pipeline:
                 lpx, rpx = grouped.left_px, grouped.right_px
         if p.refine.enabled:
             refine_rights(p.rig, (pair.left.image, pair.right.image), lb, idx, lpx, rpx, p.refine)
-        else:  # the rows' median disparity where one eye took in rows the other did not
-            rows_median(
-                lb, rb, idx, lpx, rpx, p.centroid_sigma_px, (p.rig.width_px, p.rig.height_px)
-            )
+        elif p.rig.geometry is Geometry.CANONICAL:
+            size = (p.rig.width_px, p.rig.height_px)
+            rows_median(lb, rb, idx, lpx, rpx, p.centroid_sigma_px, size)
         return Matched(lb, rb, idx, lpx, rpx)
 
     def _associate(

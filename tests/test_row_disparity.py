@@ -32,8 +32,6 @@ def test_profile_sums_to_the_weights_moments() -> None:
     assert prof[:, 0].tolist() == list(range(7, 24))
     assert prof[:, 1].sum() == pytest.approx(m["m00"], rel=1e-6)
     assert centroid_x(prof) == pytest.approx(40 + m["m10"] / m["m00"], abs=1e-5)
-    binary = rd.binary_profile((weight > 0.5).astype(np.uint8) * 255, 40, 7)
-    assert binary[:, 1].sum() == np.count_nonzero(weight > 0.5)
 
 
 def test_a_crescent_in_one_eye_does_not_move_the_median() -> None:
@@ -115,22 +113,28 @@ def test_rows_median_moves_only_pairs_that_disagree_beyond_the_noise() -> None:
     disc = disc_weight(30.3, 30.0, 18.0, (62, 62))
     crescent = disc.copy()
     crescent[46:50, 14:30] = 1.0
+    cut = disc_weight(30.3, 30.0, 18.0, (62, 62))
+    cut[46:52, 10:34] = 1.0  # a larger crescent: this pair would move, but for the border
     lb = blobs_of([(disc, 100, 50), (disc, 300, 50), (disc[:, 13:], 0, 150)])
     shift = round(truth)  # the right eye's blobs truth px to the left: whole px + a sub-px part
     right = disc_weight(30.3 - (truth - shift), 30.0, 18.0, (62, 62))
     right_crescent = right.copy()
     right_crescent[46:50, 14:30] = 1.0
+    right_cut = right.copy()
+    right_cut[46:52, 10:34] = 1.0
     rb = blobs_of(
         [
             (right_crescent, 100 - shift, 50),
             (right, 300 - shift, 50),
-            (right_crescent[:, 13:], 0, 150),
+            (right_cut[:, 13:], 0, 150),
         ]
     )
     idx = np.array([[0, 0], [1, 1], [2, 2]], np.intp)
     lpx, rpx = lb.centroid_px.copy(), rb.centroid_px.copy()
     before = lpx[:, 0] - rpx[:, 0]
     assert abs(before[0] - truth) > 0.3
+    border = rd.median_shift_px(lb.rows[2], rb.rows[2], 0)
+    assert border is not None and abs(border) > rd.SIGMAS * 0.15
     moved = rd.rows_median(lb, rb, idx, lpx, rpx, 0.15, (640, 480))
     after = lpx[:, 0] - rpx[:, 0]
     assert moved == 1
@@ -141,17 +145,45 @@ def test_rows_median_moves_only_pairs_that_disagree_beyond_the_noise() -> None:
     assert rd.rows_median(Blobs.empty(), rb, idx[:0], lpx[:0], rpx[:0], 0.15, (640, 480)) == 0
 
 
-def test_row_offset_follows_the_end_a_crescent_did_not_move() -> None:
-    """The right eye sees the left's disc ``down`` rows lower (vertical motion between the
-    eyes' instants) with 5 rows of crescent under it, or over it: that end moves 5 rows and
-    the centroid about 2, the other end not at all, so the pairing is the true offset."""
+def test_a_crescent_at_either_end_with_vertical_motion_reads_the_truth() -> None:
+    """The right eye sees the left's disc ``down`` rows lower (it moved between the eyes'
+    instants) and 8.6 px to the left, with 5 rows of crescent under it or over it: that end
+    moves 5 rows and the centroid about 2; the rows' median disparity is still the truth."""
+    truth = 8.6
     disc = disc_weight(30.0, 30.0, 18.0, (62, 62))  # rows 12-48 covered more than half
     lb = blobs_of([(disc, 100, 40)])
     for down, crescent in ((2, slice(51, 56)), (7, slice(14, 19))):
         right = np.zeros((80, 62), np.float32)
-        right[down : down + 62] = disc
-        right[crescent, 20:40] = 1.0
-        rb = blobs_of([(right, 90, 40)])
-        assert rd.row_offset(lb, rb, 0, 0) == down
-        plain = round(float(rb.centroid_px[0, 1] - lb.centroid_px[0, 1]))
-        assert plain != down  # the centroids alone would pair the rows wrongly
+        right[down : down + 62] = disc_weight(30.0 - 0.6, 30.0, 18.0, (62, 62))
+        right[crescent, 12:28] = 1.0  # off to one side: it pulls the centroid sideways
+        rb = blobs_of([(right, 92, 40)])
+        offset = rd.row_offset(lb, rb, 0, 0)
+        shift = rd.median_shift_px(lb.rows[0], rb.rows[0], offset)
+        assert shift is not None
+        plain = float(lb.centroid_px[0, 0] - rb.centroid_px[0, 0])
+        assert abs(plain - truth) > 0.3
+        assert plain + shift == pytest.approx(truth, abs=0.05), (down, offset)
+
+
+def test_rows_lost_at_one_end_do_not_pair_rows_apart() -> None:
+    """A slanted bar (its rows' centres 0.6 px further right each row down), 60 rows tall:
+    the right eye lost its top 4 rows. Top rows are 4 apart, bottom rows 0, centroids about
+    2: the rows pair as they are (0), and the rows' median disparity is the truth."""
+    truth, h = 9.3, 60
+
+    def bar(dx: float, rows: range) -> np.ndarray:
+        w = np.zeros((h, 90), np.float32)
+        for r in rows:
+            w[r] = np.clip(np.arange(90) + 0.5 - (10 + dx + 0.6 * r), 0, 1) - np.clip(
+                np.arange(90) + 0.5 - (30 + dx + 0.6 * r), 0, 1
+            )
+        return w
+
+    lb = blobs_of([(bar(truth, range(h)), 0, 20)])
+    rb = blobs_of([(bar(0.0, range(4, h)), 0, 20)])
+    assert rd.row_offset(lb, rb, 0, 0) == 0
+    shift = rd.median_shift_px(lb.rows[0], rb.rows[0], 0)
+    assert shift is not None
+    plain = float(lb.centroid_px[0, 0] - rb.centroid_px[0, 0])
+    assert abs(plain - truth) > 1.0
+    assert plain + shift == pytest.approx(truth, abs=0.05)

@@ -601,6 +601,34 @@ def test_a_piece_parting_from_a_moving_object_holds_its_background() -> None:
     assert not at[-9].freeze_background
 
 
+def test_what_shows_up_by_an_object_that_stopped_long_ago_is_not_held() -> None:
+    """The same box, shown when the robot has stood still for longer than ``still_after_s``:
+    nothing moving is near, so it is born still and not held (the floor a robot uncovered
+    long ago, or a bag that was always there, is not an object set down just now)."""
+    params = TrackerParams(still_after_s=1.0)
+    tracker = Tracker(params)
+    robot = line([0.3, 0.0, 2.0], [-0.3, 0.0, 0.0])
+    for k in range(30):
+        step(tracker, k * DT_NS, [robot(k * DT_NS * 1e-9)], size_m=0.6)
+    end = robot(29 * DT_NS * 1e-9)
+    for k in range(30, 80):  # 1.7 s still
+        step(tracker, k * DT_NS, [end], size_m=0.6)
+    box = end + np.array([0.5, 0.0, 0.0])  # clear of the robot's box, within it grown
+    states: list[TrackState] = []
+    for k in range(80, 90):
+        t = k * DT_NS
+        pairs = [seen(end, size_m=0.6), seen(box, size_m=0.22)]
+        dets = [d for d, _ in pairs]
+        assignment, may_start = tracker.associate(dets, (t, t))
+        obs = [
+            ob if (tid is not None or ok) else None
+            for (_, ob), tid, ok in zip(pairs, assignment, may_start, strict=True)
+        ]
+        states, _ = tracker.update(t, obs, assignment, (t, t), dets)
+    new = [s for s in states if abs(s.position_m[0] - box[0]) < 0.05]
+    assert new and not new[0].freeze_background and not new[0].release_background
+
+
 @pytest.mark.parametrize("speed", [0.4, 2.0])
 def test_validity_follows_the_speed_sigma(speed: float) -> None:
     """A velocity is valid once the speed's sigma is below the larger of the absolute and

@@ -40,7 +40,8 @@ class Track:
     last_moving_ns: int | None = None
     """When the object was last seen clearly moving (speed above ``stationary_mps`` and three
     sigmas); only an object seen moving holds the background, for ``hold_still_s`` after that
-    (a track born still, like a ghost of the background, never does)."""
+    (a track born still, like a ghost of the background, never does, unless it parted from an
+    object moving then: it takes that one's instant, see ``Tracker._parted``)."""
     stationary: bool = False
     """Whether the track was last reported ``stationary``: standing still, held out of the
     background."""

@@ -131,21 +131,33 @@ class Tracker(Association):
             return None
         return tr.left_history, tr.right_history
 
-    def _moving_over(self, ob: Observation) -> int | None:
-        """When the latest track seen moving whose last blob's box, grown by
-        :data:`PARTED_GROW` of its size each way, overlaps this new one's (in the left eye) was
-        last seen moving (ns), else None. A piece that parts from a moving object (a box a
-        robot pushed and leaves) moved with it: its background is held as a stopped object's,
-        not learned in as if it had always stood there."""
+    def _movers(self, t_ns: int) -> list[tuple[np.ndarray, int]]:
+        """The last left box (x, y, w, h px) of every track seen moving within
+        ``still_after_s`` of ``t_ns`` (ns), and when: taken before a pair's new tracks start,
+        so none of them counts, and no stale motion does."""
+        recent = t_ns - int(self.params.still_after_s * 1e9)
+        return [
+            (tr.last.left_bbox_px, tr.last_moving_ns)
+            for tr in self._tracks.values()
+            if tr.last is not None and tr.last_moving_ns is not None
+            and tr.last_moving_ns >= recent
+        ]  # fmt: skip
+
+    @staticmethod
+    def _parted(ob: Observation, movers: list[tuple[np.ndarray, int]]) -> int | None:
+        """When the latest of ``movers`` (:meth:`_movers`) whose box, grown by
+        :data:`PARTED_GROW` of its size each way, overlaps this new observation's left box
+        was seen moving (ns), else None. What parts from an object moving now (a box a robot
+        pushed and leaves, a bag put down) moved with it or was put down by it: its
+        background is held as a stopped object's, not learned in as if it had always stood
+        there."""
         x, y, w, h = (float(v) for v in ob.left_bbox_px)
-        latest = None
-        for other in self._tracks.values():
-            if other.last_moving_ns is None or other.last is None:
-                continue
-            ox, oy, ow, oh = (float(v) for v in other.last.left_bbox_px)
+        latest: int | None = None
+        for box, moved_ns in movers:
+            ox, oy, ow, oh = (float(v) for v in box)
             gx, gy = PARTED_GROW * ow, PARTED_GROW * oh
             if x < ox + ow + gx and ox - gx < x + w and y < oy + oh + gy and oy - gy < y + h:
-                latest = max(latest or other.last_moving_ns, other.last_moving_ns)
+                latest = moved_ns if latest is None else max(latest, moved_ns)
         return latest
 
     def update(
@@ -175,6 +187,7 @@ class Tracker(Association):
         states: list[TrackState] = []
         ended: list[int] = []
         times = blob_times_ns if blob_times_ns is not None else [eye_times_ns] * len(detections)
+        movers = self._movers(t_ns)
         for k, (ob, tid, det, (t_left, t_right)) in enumerate(
             zip(observations, assignment, detections, times, strict=True)
         ):
@@ -198,7 +211,7 @@ class Tracker(Association):
                     last_seen_ns=t_ns,
                 )
                 self._next_id += 1
-                tr.last_moving_ns = self._moving_over(ob)
+                tr.last_moving_ns = self._parted(ob, movers)
                 self._tracks[tr.track_id] = tr
                 self._begin(tr, t_ns, ob)
             else:
@@ -462,6 +475,6 @@ def _off_edge(tr: Track, ob: Observation, t_ns: int) -> bool:
 
 PARTED_GROW = 0.25
 """How far (a share of its width and height, each way) a moving track's last box is grown to
-hold a new track that parted from it (:meth:`Tracker._moving_over`): as far as a piece of
+hold a new track that parted from it (:meth:`Tracker._parted`): as far as a piece of
 it may lie from it (``association``'s pieces, within a quarter), and a piece that may start
 a track of its own lies just beyond that."""

@@ -24,7 +24,8 @@ class TrackLifecycle(str, enum.Enum):
     COASTING = "coasting"
     """Confirmed but not seen in the latest pair: its state is predicted."""
     STATIONARY = "stationary"
-    """Confirmed, seen in the latest pair, seen moving before and not for ``still_after_s``:
+    """Confirmed, seen in the latest pair, seen moving before (or parted from an object seen
+    moving then) and not for ``still_after_s``:
     an object that stopped (a person sitting, a robot waiting). It is held out of the
     background for ``hold_still_s`` and keeps its id when it moves on."""
 

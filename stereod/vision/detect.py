@@ -406,10 +406,7 @@ class Detector(BackgroundModel):
             else:
                 m = cv2.moments(own, binaryImage=True)
                 centre = (x + m["m10"] / m["m00"], y + m["m01"] / m["m00"])
-            rows.append(
-                row_disparity.moved(got[0], *origin) if got
-                else row_disparity.binary_profile(own, x, y)
-            )  # fmt: skip
+            rows.append(row_disparity.moved(got[0], *origin) if got else row_disparity.EMPTY)
             centres.append(centre)
             boxes.append((x, y, bw, bh))
             areas.append(area)

@@ -3,8 +3,9 @@ difference of each row's centre, so that a few rows one eye segments differently
 shadow's crescent, a patch of floor) cannot move its depth.
 
 A blob's row profile is an (n, 3) float64 array, one row per image row it covers: the row
-(image px), the row's weight (its share of eq. 5's weights: matte coverage, or 1 per pixel)
-and the weighted sum of its columns (px). The centroid's x (eq. 5) is the profile's total
+(image px), the row's weight (its share of eq. 5's weights: the matte's coverage, or the
+edge ramp's) and the weighted sum of its columns (px); a binary centroid keeps none (a row's
+centre would be whole pixels). The centroid's x (eq. 5) is the profile's total
 weighted sum over its total weight; each row's centre is its own. A rectified pair's rows
 match (same object, same row in both eyes), so each common row gives one disparity, and the
 median of those ignores rows where one eye took in a little more or less than the other.
@@ -20,10 +21,10 @@ from stereod.vision.blobs import Blobs
 
 __all__ = [
     "EMPTY",
+    "MAD_TIE_PX",
     "MIN_ROWS",
     "MIN_ROW_WEIGHT",
     "SIGMAS",
-    "binary_profile",
     "cut",
     "median_shift_px",
     "merged",
@@ -55,13 +56,8 @@ def profile(weight: np.ndarray, x0: int, y0: int) -> np.ndarray:
     out = np.empty((h, 3), np.float64)
     out[:, 0] = np.arange(y0, y0 + h)
     out[:, 1] = weight.sum(axis=1, dtype=np.float64)
-    out[:, 2] = weight @ np.arange(x0, x0 + w, dtype=np.float32)
+    out[:, 2] = weight @ np.arange(x0, x0 + w, dtype=np.float64)
     return out
-
-
-def binary_profile(support: np.ndarray, x0: int, y0: int) -> np.ndarray:
-    """The row profile of a uint8 mask (255 on the object) whose top left is image (x0, y0)."""
-    return profile((support > 0).astype(np.float32), x0, y0)
 
 
 def moved(prof: np.ndarray, dx: int, dy: int) -> np.ndarray:
@@ -95,6 +91,17 @@ def cut(prof: np.ndarray, y0: int, y1: int) -> np.ndarray:
     return prof[(prof[:, 0] >= y0) & (prof[:, 0] < y1)]
 
 
+def _row_disparities(left: np.ndarray, right: np.ndarray, offset: int) -> np.ndarray | None:
+    """Each common row's disparity (px): left row r's centre less right row r + ``offset``'s,
+    over rows with :data:`MIN_ROW_WEIGHT` in both; None under :data:`MIN_ROWS` of them."""
+    lk = left[left[:, 1] >= MIN_ROW_WEIGHT]
+    rk = right[right[:, 1] >= MIN_ROW_WEIGHT]
+    _, il, ir = np.intersect1d(lk[:, 0], rk[:, 0] - offset, assume_unique=True, return_indices=True)
+    if il.size < MIN_ROWS:
+        return None
+    return lk[il, 2] / lk[il, 1] - rk[ir, 2] / rk[ir, 1]
+
+
 def median_shift_px(left: np.ndarray, right: np.ndarray, row_offset: int) -> float | None:
     """How far (px) the median of the common rows' disparities lies from the disparity of the
     two profiles' centroids: add it to a centroid disparity to read the rows' median instead.
@@ -102,30 +109,53 @@ def median_shift_px(left: np.ndarray, right: np.ndarray, row_offset: int) -> flo
     instant). None where fewer than :data:`MIN_ROWS` rows have :data:`MIN_ROW_WEIGHT` in both
     eyes, or a profile has no weight."""
     wl, wr = float(left[:, 1].sum()), float(right[:, 1].sum())
-    if wl <= 0.0 or wr <= 0.0:
+    each = _row_disparities(left, right, row_offset) if wl > 0.0 and wr > 0.0 else None
+    if each is None:
         return None
-    lk = left[left[:, 1] >= MIN_ROW_WEIGHT]
-    rk = right[right[:, 1] >= MIN_ROW_WEIGHT]
-    _, il, ir = np.intersect1d(
-        lk[:, 0], rk[:, 0] - row_offset, assume_unique=True, return_indices=True
-    )
-    if il.size < MIN_ROWS:
-        return None
-    rows_l, rows_r = lk[il], rk[ir]
-    each = rows_l[:, 2] / rows_l[:, 1] - rows_r[:, 2] / rows_r[:, 1]
     whole = float(left[:, 2].sum()) / wl - float(right[:, 2].sum()) / wr
     return float(np.median(each)) - whole
 
 
+MAD_TIE_PX = 0.05
+"""Median absolute deviations (px) of the rows' disparities closer than this are a tie."""
+
+
 def row_offset(lb: Blobs, rb: Blobs, i: int, j: int) -> int:
-    """Which right row is left row 0's (px): how far apart the two boxes' top rows are, or
-    their bottom rows, whichever is nearer how far apart the centroids' rows are. Rows one
-    eye added at one end (a shadow's crescent under an object) move that end and, less, the
-    centroid, but not the other end."""
+    """Which right row is left row 0's (px): of how far apart the two boxes' top rows are,
+    their bottom rows and their centroids' rows, the one under which the rows' disparities
+    agree best (the least median absolute deviation, to :data:`MAD_TIE_PX`), and of those
+    the nearest 0 (a rectified pair's rows, where nothing moved up or down between the eyes'
+    instants). Rows one eye added or lost at one end (a shadow's crescent under an object)
+    move that end and, less, the centroid, but not the other end. A round or straight-sided
+    object's rows agree under any of these, and then its disparity does not depend on which."""
     top = int(rb.bbox_px[j, 1] - lb.bbox_px[i, 1])
     bottom = top + int(rb.bbox_px[j, 3] - lb.bbox_px[i, 3])
-    centre = float(rb.centroid_px[j, 1] - lb.centroid_px[i, 1])
-    return top if abs(top - centre) <= abs(bottom - centre) else bottom
+    centre = round(float(rb.centroid_px[j, 1] - lb.centroid_px[i, 1]))
+    best: tuple[int, int] | None = None
+    chosen = centre
+    for offset in dict.fromkeys((centre, top, bottom)):
+        each = _row_disparities(lb.rows[i], rb.rows[j], offset)
+        if each is None:
+            continue
+        mad = float(np.median(np.abs(each - np.median(each))))
+        key = (int(mad / MAD_TIE_PX), abs(offset))
+        if best is None or key < best:
+            best, chosen = key, offset
+    return chosen
+
+
+def _own(blobs: Blobs, i: int) -> bool:
+    """Whether blob ``i``'s centroid is its row profile's (eq. 5 over those weights, to
+    1e-3 px): not replaced by a disc fit, a group's area-weighted mean or a cut's moments."""
+    prof = blobs.rows[i]
+    w = float(prof[:, 1].sum())
+    if w <= 0.0:
+        return False
+    cx, cy = (float(v) for v in blobs.centroid_px[i])
+    return (
+        abs(float(prof[:, 2].sum()) / w - cx) < 1e-3
+        and abs(float(prof[:, 0] @ prof[:, 1]) / w - cy) < 1e-3
+    )
 
 
 def _inside(box: np.ndarray, width: int, height: int) -> bool:
@@ -144,17 +174,21 @@ def rows_median(
 ) -> int:
     """Move each matched pair's centroids ``lpx``, ``rpx`` (rectified px, in place) apart or
     together by :func:`median_shift_px` where that exceeds :data:`SIGMAS` times a centroid's
-    error ``sigma_px``: the rows' median
-    disparity replaces the centroids' where the two disagree beyond the centroids' own noise,
-    so one eye's segmentation taking in rows the other did not moves neither the depth nor
-    the eyes' 2D tracks (the skew stage interpolates along those). Each centroid moves half
-    the shift, so their mean stays. Pairs with a blob touching the image's border (size:
-    width, height px; its rows are cut) are left alone. Gives how many pairs moved."""
-    if not lb.rows or not rb.rows:
+    error ``sigma_px``: the rows' median disparity replaces the centroids' where the two
+    disagree beyond the centroids' own noise, so rows one eye's segmentation took in and the
+    other's did not move neither the depth nor, before the skew stage interpolates along
+    each eye's 2D track, the disparity of that track's samples. Each centroid moves half the
+    shift (which eye took in the rows is not known), so their mean stays. For a canonical
+    (already rectified) rig, whose image rows are its rectified rows. Left alone: pairs with
+    a blob touching the image's border (``size``: width, height px; its rows are cut), and a
+    blob whose centroid is not its profile's (:func:`_own`). Gives how many pairs moved."""
+    if len(lb.rows) != len(lb) or len(rb.rows) != len(rb):
         return 0
     moved_pairs = 0
     for k, (i, j) in enumerate(idx.tolist()):
         if not (_inside(lb.bbox_px[i], *size) and _inside(rb.bbox_px[j], *size)):
+            continue
+        if not (_own(lb, i) and _own(rb, j)):
             continue
         shift = median_shift_px(lb.rows[i], rb.rows[j], row_offset(lb, rb, i, j))
         if shift is not None and abs(shift) > SIGMAS * sigma_px:
