@@ -65,7 +65,11 @@ def seen(
 def step(
     tracker: Tracker, t_ns: int, points: list[np.ndarray], **kw: object
 ) -> tuple[list[TrackState], list[int]]:
-    pairs = [seen(p, **kw) for p in points]  # type: ignore[arg-type]
+    return fold(tracker, t_ns, [seen(p, **kw) for p in points])  # type: ignore[arg-type]
+
+
+def fold(tracker: Tracker, t_ns: int, pairs: list) -> tuple[list[TrackState], list[int]]:
+    """One pair's detections and observations (from :func:`seen`) through the tracker."""
     dets = [d for d, _ in pairs]
     assignment, may_start = tracker.associate(dets, (t_ns, t_ns))
     observations = [
@@ -588,13 +592,7 @@ def test_a_piece_parting_from_a_moving_object_holds_its_background() -> None:
     for k in range(30, 40):
         t = k * DT_NS
         pairs = [seen(robot(t * 1e-9), size_m=0.6), seen(box, size_m=0.22), seen(far, size_m=0.22)]
-        dets = [d for d, _ in pairs]
-        assignment, may_start = tracker.associate(dets, (t, t))
-        obs = [
-            ob if (tid is not None or ok) else None
-            for (_, ob), tid, ok in zip(pairs, assignment, may_start, strict=True)
-        ]
-        states, _ = tracker.update(t, obs, assignment, (t, t), dets)
+        states, _ = fold(tracker, t, pairs)
     at = {int(round(s.position_m[0] * 10)): s for s in states}
     assert set(at) >= {round(box[0] * 10), -9}, [s.position_m for s in states]
     assert at[round(box[0] * 10)].freeze_background
@@ -617,14 +615,7 @@ def test_what_shows_up_by_an_object_that_stopped_long_ago_is_not_held() -> None:
     states: list[TrackState] = []
     for k in range(80, 90):
         t = k * DT_NS
-        pairs = [seen(end, size_m=0.6), seen(box, size_m=0.22)]
-        dets = [d for d, _ in pairs]
-        assignment, may_start = tracker.associate(dets, (t, t))
-        obs = [
-            ob if (tid is not None or ok) else None
-            for (_, ob), tid, ok in zip(pairs, assignment, may_start, strict=True)
-        ]
-        states, _ = tracker.update(t, obs, assignment, (t, t), dets)
+        states, _ = fold(tracker, t, [seen(end, size_m=0.6), seen(box, size_m=0.22)])
     new = [s for s in states if abs(s.position_m[0] - box[0]) < 0.05]
     assert new and not new[0].freeze_background and not new[0].release_background
 
