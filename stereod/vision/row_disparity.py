@@ -108,9 +108,13 @@ def median_shift_px(left: np.ndarray, right: np.ndarray, row_offset: int) -> flo
     Right row ``r + row_offset`` is left row ``r``'s (0 for a rectified pair seen at one
     instant). None where fewer than :data:`MIN_ROWS` rows have :data:`MIN_ROW_WEIGHT` in both
     eyes, or a profile has no weight."""
+    return _shift(left, right, _row_disparities(left, right, row_offset))
+
+
+def _shift(left: np.ndarray, right: np.ndarray, each: np.ndarray | None) -> float | None:
+    """:func:`median_shift_px` from the rows' disparities ``each`` already read."""
     wl, wr = float(left[:, 1].sum()), float(right[:, 1].sum())
-    each = _row_disparities(left, right, row_offset) if wl > 0.0 and wr > 0.0 else None
-    if each is None:
+    if each is None or wl <= 0.0 or wr <= 0.0:
         return None
     whole = float(left[:, 2].sum()) / wl - float(right[:, 2].sum()) / wr
     return float(np.median(each)) - whole
@@ -128,11 +132,16 @@ def row_offset(lb: Blobs, rb: Blobs, i: int, j: int) -> int:
     instants). Rows one eye added or lost at one end (a shadow's crescent under an object)
     move that end and, less, the centroid, but not the other end. A round or straight-sided
     object's rows agree under any of these, and then its disparity does not depend on which."""
+    return _paired(lb, rb, i, j)[0]
+
+
+def _paired(lb: Blobs, rb: Blobs, i: int, j: int) -> tuple[int, np.ndarray | None]:
+    """:func:`row_offset`, and the rows' disparities under it (None: too few rows)."""
     top = int(rb.bbox_px[j, 1] - lb.bbox_px[i, 1])
     bottom = top + int(rb.bbox_px[j, 3] - lb.bbox_px[i, 3])
     centre = round(float(rb.centroid_px[j, 1] - lb.centroid_px[i, 1]))
     best: tuple[int, int] | None = None
-    chosen = centre
+    chosen: tuple[int, np.ndarray | None] = (centre, None)
     for offset in dict.fromkeys((centre, top, bottom)):
         each = _row_disparities(lb.rows[i], rb.rows[j], offset)
         if each is None:
@@ -140,7 +149,7 @@ def row_offset(lb: Blobs, rb: Blobs, i: int, j: int) -> int:
         mad = float(np.median(np.abs(each - np.median(each))))
         key = (int(mad / MAD_TIE_PX), abs(offset))
         if best is None or key < best:
-            best, chosen = key, offset
+            best, chosen = key, (offset, each)
     return chosen
 
 
@@ -190,7 +199,7 @@ def rows_median(
             continue
         if not (_own(lb, i) and _own(rb, j)):
             continue
-        shift = median_shift_px(lb.rows[i], rb.rows[j], row_offset(lb, rb, i, j))
+        shift = _shift(lb.rows[i], rb.rows[j], _paired(lb, rb, i, j)[1])
         if shift is not None and abs(shift) > SIGMAS * sigma_px:
             lpx[k, 0] += 0.5 * shift
             rpx[k, 0] -= 0.5 * shift
