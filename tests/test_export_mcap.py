@@ -41,6 +41,9 @@ from .conftest import ROOT, stereod
 from .processes import start_stereod
 from .test_replay import FifoReader, mcap_messages, temporaries, wait_for
 
+pytestmark = pytest.mark.xdist_group("export_mcap")
+"""One worker records the run these tests read (``recorded``) once."""
+
 TYPESTORE = get_typestore(Stores.ROS2_HUMBLE)
 GOLDEN = ROOT / "tests" / "golden" / "objects_example.json"
 BASELINE_M = 0.06

@@ -199,6 +199,7 @@ def crossing(tmp_path_factory: pytest.TempPathFactory) -> tuple[Scene, list[RigP
     return scene, rigs, write_room(scene, rigs, tmp_path_factory.mktemp("crossing"), "lab")
 
 
+@pytest.mark.xdist_group("fuse_world_crossing")  # one worker renders the crossing once
 def test_a_replay_whose_clock_is_40_ms_ahead_is_found_and_corrected(
     crossing: tuple[Scene, list[RigPlacement], Path],
 ) -> None:
@@ -274,6 +275,7 @@ def test_a_replay_whose_clock_is_40_ms_ahead_is_found_and_corrected(
     assert float(np.median(errors)) < 0.02, np.median(errors)
 
 
+@pytest.mark.xdist_group("fuse_world_crossing")
 def test_where_both_rigs_see_a_ball_the_room_is_no_further_from_it_than_the_better_rig(
     crossing: tuple[Scene, list[RigPlacement], Path], tmp_path: Path
 ) -> None:

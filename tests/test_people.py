@@ -75,6 +75,7 @@ def _push_box() -> acc.CaseScore:
     return acc.score(case, acc.run_case(case))
 
 
+@pytest.mark.xdist_group("push_box")  # one worker renders the scene once (_push_box)
 def test_what_a_pushed_box_leaves_behind_is_no_ghost_for_longer_than_absorb_s() -> None:
     """A robot pushes a box 0.6 m and backs away: where the box stood the floor shows again,
     unlike the background learned there. That is foreground never seen moving, learned after
@@ -92,6 +93,7 @@ def test_what_a_pushed_box_leaves_behind_is_no_ghost_for_longer_than_absorb_s() 
     assert score.ghost_stretch_s == {}, f"ghost stretches (s) {score.ghost_stretch_s}"
 
 
+@pytest.mark.xdist_group("push_box")
 def test_a_pushed_box_keeps_one_id() -> None:
     """The box is background until the robot pushes it, so only its leading strip becomes a
     track; that track joins the robot's blob at one depth and speed, and the two are one blob
