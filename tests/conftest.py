@@ -35,6 +35,21 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """Under ``--dist loadgroup``, a test marked ``xdist_group`` must carry its group in its
+    node id (pytest-xdist's worker writes it there as it collects): where it does not, the
+    tests of one group run on several workers, each making what they share (a rendered
+    scene, a recording) again, and nothing else would say so."""
+    if not item.config.getoption("loadgroup", False):  # (set on a worker under loadgroup)
+        return
+    if item.get_closest_marker("xdist_group") and "@" not in item.nodeid:
+        pytest.fail(
+            "--dist loadgroup ignored this test's xdist_group: this pytest and pytest-xdist "
+            "do not group (pytest-xdist#1386); install the versions pyproject.toml asks",
+            pytrace=False,
+        )
+
+
 def shared_data(*parts: str) -> Path:
     """A path under ../shared/data; skips the test with the reason when it is absent."""
     path = SHARED_DATA.joinpath(*parts)
