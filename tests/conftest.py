@@ -42,7 +42,9 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
     scene, a recording) again, and nothing else would say so."""
     if not item.config.getoption("loadgroup", False):  # (set on a worker under loadgroup)
         return
-    if item.get_closest_marker("xdist_group") and "@" not in item.nodeid:
+    groups = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                     for m in item.iter_markers("xdist_group")})  # fmt: skip
+    if groups and not item.nodeid.endswith("@" + "_".join(groups)):
         pytest.fail(
             "--dist loadgroup ignored this test's xdist_group: this pytest and pytest-xdist "
             "do not group (pytest-xdist#1386); install the versions pyproject.toml asks",
