@@ -8,17 +8,15 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import Any
-
-from pydantic import ValidationError
+from typing import TYPE_CHECKING, Any
 
 from stereod.cli.common import add_canonical_rig, number, path_arg, size_arg
 from stereod.cli.progress import Progress
 from stereod.errors import UsageError, describe_validation_error
-from stereod.sources.recording import Codec, size_problem
 from stereod.vision.detect_params import DetectorParams
 
-from .synth import Ball, Scene, write_scene
+if TYPE_CHECKING:
+    from .synth import Ball, Scene
 
 BALL_KEYS = {
     "heading": "heading_deg",
@@ -209,6 +207,8 @@ def travel_problem(scene: Scene, ball: Ball) -> str | None:
 def recording_size(text: str) -> tuple[int, int]:
     """An argparse type: ``WxH`` that a recording stores as it is (even sides: the video
     writer would crop an odd one), so a bad ``--size`` is one line and exit 64."""
+    from stereod.sources.recording import size_problem
+
     w, h = size_arg(text)
     problem = size_problem(w, h)
     if problem is not None:
@@ -218,6 +218,10 @@ def recording_size(text: str) -> tuple[int, int]:
 
 def scene_from_args(a: argparse.Namespace) -> Scene:
     """The :class:`~.synth.Scene` described by ``stereod synth`` flags."""
+    from pydantic import ValidationError
+
+    from .synth import Scene
+
     w, h = a.size
     if not a.lead_in + a.travel <= a.duration:
         raise UsageError(
@@ -261,6 +265,10 @@ def scene_from_args(a: argparse.Namespace) -> Scene:
 
 
 def run(a: argparse.Namespace) -> int:
+    from stereod.sources.recording import Codec
+
+    from .synth import write_scene
+
     scene = scene_from_args(a)
     with Progress("render", total=scene.n_frames, unit="pair") as bar:
         write_scene(scene, a.out, Codec(a.codec), on_pair=lambda k: bar.update(1))

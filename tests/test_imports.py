@@ -46,18 +46,20 @@ NOT_IN_THE_DAEMON = (
 ROS 2 encoders when the daemon starts its node)."""
 
 
-def imported_by(modules: tuple[str, ...]) -> set[str]:
-    """Every module a fresh interpreter holds after importing ``modules``."""
+def imported_by(modules: tuple[str, ...], then: str = "") -> set[str]:
+    """Every module a fresh interpreter holds after importing ``modules`` and running the
+    statement ``then``."""
     code = (
         "import importlib, json, sys\n"
         f"for m in {list(modules)!r}:\n"
         "    importlib.import_module(m)\n"
-        "print(json.dumps(sorted(sys.modules)))\n"
+        f"{then}\n"
+        "print(json.dumps(sorted(sys.modules)), file=sys.stderr)\n"
     )
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
     )
-    return set(json.loads(out.stdout))
+    return set(json.loads(out.stderr.strip().splitlines()[-1]))
 
 
 @pytest.fixture(scope="module")
@@ -75,3 +77,24 @@ def test_the_check_sees_what_a_module_imports() -> None:
     """The same check finds the ROS 2 encoders where they are imported: it can fail."""
     got = imported_by(("stereod.ros.ros2_live",))
     assert "stereod.ros.mapping" in got and "stereod.ros.ros2_live" in got
+
+
+NOT_FOR_THE_FLAGS = ("numpy", "cv2", "zenoh", "msgspec", "stereod.pipeline", "stereod.daemon")
+"""What ``stereod --help``, a command's ``--help`` and a bad flag never need: every command's
+flags are known without the code it runs (most of a second and 50 MB)."""
+
+
+def test_the_flags_need_none_of_the_pipeline() -> None:
+    got = imported_by(("stereod.cli",), "sys.modules['stereod.cli'].build_parser()")
+    assert "stereod_fakes.cli" in got and "stereod.cli.fuse" in got  # every command registered
+    loaded = sorted(m for m in got for n in NOT_FOR_THE_FLAGS if m == n or m.startswith(n + "."))
+    assert not loaded, f"building the command line loads {loaded}"
+
+
+def test_a_command_loads_what_it_runs() -> None:
+    """The same check sees the pipeline once a command runs: it can fail."""
+    got = imported_by(
+        ("stereod.cli",),
+        "sys.modules['stereod.cli'].main(['run', '--check', '--driver', 'synthetic'])",
+    )
+    assert {"numpy", "cv2", "stereod.daemon.daemon"} <= got

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-import stereod.cli.record as record_command
+import stereod.sources.drivers as drivers
 from stereod.cli import main
 from stereod.errors import InputError, InternalError, StereodError
 from stereod.sources.frames import Driver, Eye, EyeSource, Frame, StereoSource, merged
@@ -267,7 +267,8 @@ def test_a_failing_eye_ends_the_record_command_with_its_code(
     """The command exits with the eye's error's code in one line (a bug's names its crash log,
     with the eye thread's traceback), prints no summary and writes no --mcap."""
     monkeypatch.setenv("STEREOD_CRASH_DIR", str(tmp_path))
-    monkeypatch.setattr(record_command, "load_driver", lambda *_, **__: FaultyDriver(fault))
+    # the command imports its driver loader when it runs
+    monkeypatch.setattr(drivers, "load_driver", lambda *_, **__: FaultyDriver(fault))
     cfg = synthetic_config(tmp_path / "c.toml", duration_s=1)
     out, cams = tmp_path / "rec", tmp_path / "cams.mcap"
     assert main(["record", str(out), "--config", str(cfg), "--mcap", str(cams)]) == code

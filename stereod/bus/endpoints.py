@@ -5,21 +5,11 @@ from __future__ import annotations
 
 import ipaddress
 import re
-import sys
-from pathlib import Path
 from typing import Annotated
 
 from pydantic import (
     AfterValidator,
 )
-
-if sys.version_info >= (3, 11):
-    pass
-else:  # pragma: no cover - exercised on 3.10 only
-    pass
-
-DEFAULT_CONFIG_PATH = Path("/etc/stereod/stereod.toml")
-
 
 _IP_LINKS = ("tcp", "udp", "tls", "quic", "ws")
 _OTHER_LINKS = ("unixsock-stream", "unixpipe", "serial", "vsock")

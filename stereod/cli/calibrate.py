@@ -6,6 +6,7 @@ import argparse
 import re
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from stereod.bus import keys
 from stereod.cli.common import (
@@ -17,15 +18,13 @@ from stereod.cli.common import (
     size_arg,
 )
 from stereod.cli.progress import Progress
-from stereod.daemon.config import load_config
 from stereod.errors import UsageError
-from stereod.files.bounds import SQUARE_M
+from stereod.files.bounds import MIN_BOARD_CORNERS, SQUARE_M
 from stereod.files.output_file import check_outputs, stopped_by_signals
-from stereod.sources.drivers import load_driver
-from stereod.sources.frames import merged
-from stereod.vision import calibrate as cb
-from stereod.vision import room_calibration as room_cal
-from stereod.vision.calibration import MIN_BOARD_CORNERS, Board, create_output, load, write
+
+if TYPE_CHECKING:
+    from stereod.vision import calibrate as cb
+    from stereod.vision.calibration import Board
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -181,6 +180,9 @@ def room_name_arg(text: str) -> str:
 
 
 def run(a: argparse.Namespace) -> int:
+    from stereod.vision import calibrate as cb
+    from stereod.vision.calibration import Board, create_output, write
+
     cols, rows = a.board
     board = Board(cols=cols, rows=rows, square=a.square)
     if a.room is not None or a.rig:
@@ -214,6 +216,9 @@ def run(a: argparse.Namespace) -> int:
 
 def _room(a: argparse.Namespace, board: Board) -> int:
     """``--room``: the rigs' poses from their shared board views, written as a room file."""
+    from stereod.vision import room_calibration as room_cal
+    from stereod.vision.calibration import create_output, load
+
     if a.room is None:
         raise UsageError("--rig is for --room: add --room OUT.toml")
     names = [name for name, _, _ in a.rig]
@@ -237,6 +242,8 @@ def _room(a: argparse.Namespace, board: Board) -> int:
 def _files(
     a: argparse.Namespace, pairs: list[tuple[Path, Path]], board: Board, limits: cb.Limits
 ) -> cb.Report:
+    from stereod.vision import calibrate as cb
+
     seen = {True: 0, False: 0}
     with Progress("looking for the board", total=len(pairs), unit="pair") as bar:
 
@@ -248,6 +255,11 @@ def _files(
 
 
 def _live(a: argparse.Namespace, board: Board, limits: cb.Limits) -> cb.Report:
+    from stereod.daemon.config import load_config
+    from stereod.sources.drivers import load_driver
+    from stereod.sources.frames import merged
+    from stereod.vision import calibrate as cb
+
     ov: dict[str, object] = {}
     if a.recording is not None:
         ov["driver"] = {"name": "replay", "options": {"path": a.recording}}

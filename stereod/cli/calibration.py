@@ -8,9 +8,6 @@ from pathlib import Path
 from stereod.cli.common import path_arg, size_arg
 from stereod.files.bounds import IMAGE_SIDE_PX
 from stereod.files.output_file import check_outputs
-from stereod.vision import calibration as cal_mod
-from stereod.vision import calibration_io
-from stereod.vision.calibrate import Report, format_report
 
 
 def image_size_arg(text: str) -> tuple[int, int]:
@@ -63,6 +60,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
+    from stereod.vision import calibration as cal_mod
+    from stereod.vision import calibration_io
+    from stereod.vision.calibrate import Report, format_report
+
     if a.calibration_command == "show":
         cal = cal_mod.load(a.file)
         print(

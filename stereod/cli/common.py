@@ -285,11 +285,14 @@ def run_inputs(config: Path | None, cfg: Any, driver: Any = None) -> list[Path]:
 
 def quiet_third_party() -> None:
     """Silence OpenCV's and FFmpeg's own messages on stderr: every problem they report (a
-    file that does not open, a truncated video) reaches the user once, in our words."""
+    file that does not open, a truncated video) reaches the user once, in our words. Through
+    the variables OpenCV reads when it loads (so a command that never needs it does not load
+    it; one a user sets is kept), and through its API where it is loaded already."""
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
-    import cv2
-
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT")
+    cv2 = sys.modules.get("cv2")
+    if cv2 is not None and os.environ["OPENCV_LOG_LEVEL"] == "SILENT":
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
 
 
 def setup_logging(level: str) -> None:

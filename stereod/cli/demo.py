@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 
 from stereod.cli.common import add_rate, number, path_arg, setup_logging
-from stereod.view.demo import run_demo
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -44,6 +43,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
+    from stereod.view.demo import run_demo
+
     setup_logging("WARNING")
     return run_demo(
         rate=a.rate,

@@ -21,8 +21,6 @@ from stereod.cli.common import (
 )
 from stereod.errors import EX_DATAERR, ConfigError, one_line
 from stereod.files.output_file import check_outputs, stopped_by_signals
-from stereod.ros.export_mcap import export_run
-from stereod.vision.calibration import load
 
 TOPICS = """\
 topics (<rig> from the messages, e.g. minoru):
@@ -95,6 +93,9 @@ def run(a: argparse.Namespace) -> int:
 
 
 def _export(a: argparse.Namespace) -> int:
+    from stereod.ros.export_mcap import export_run
+    from stereod.vision.calibration import load
+
     if a.recording is None and a.jsonl is None:
         raise ConfigError(
             "nothing to export: give the run's recording directory and/or --jsonl RUN.jsonl"

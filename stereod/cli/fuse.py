@@ -20,10 +20,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import zenoh
-
 from stereod.bus import keys
-from stereod.bus.messages import encoding_for
 from stereod.cli.common import (
     add_config,
     add_zenoh,
@@ -35,21 +32,18 @@ from stereod.cli.common import (
     summaries_off_stdout,
     zenoh_overrides,
 )
-from stereod.daemon.config import load_config
-from stereod.daemon.sdnotify import Notifier
 from stereod.errors import ConfigError, ReaderGone, StereodError
 from stereod.files.output_file import AtomicOutput, check_outputs
 from stereod.files.paths import shown
-from stereod.fusion.clock import ClockWatch
-from stereod.fusion.collector import freeze_startup_heap
-from stereod.fusion.fuser import FuseParams, Fuser
-from stereod.fusion.mcap import RoomMcapWriter
-from stereod.fusion.node import MAX_RATE_HZ, FuseNode, RoomPublisher
-from stereod.fusion.room import Room, load_room
-from stereod.fusion.status import FUSE_STATUS_SCHEMA
+from stereod.fusion.params import MAX_RATE_HZ, FuseParams
 
 if TYPE_CHECKING:
+    import zenoh
+
+    from stereod.daemon.sdnotify import Notifier
     from stereod.fusion.foxglove import RoomFoxgloveBridge
+    from stereod.fusion.node import FuseNode
+    from stereod.fusion.room import Room
 
 log = logging.getLogger("stereod.fuse")
 
@@ -178,6 +172,8 @@ def _reload(
     """SIGHUP: read the room file again. A valid one (the same room's name) is handed to the
     fusion thread, subscriptions follow its rigs; anything else is one line on the status and
     in the log, and the room runs on as it was."""
+    from stereod.fusion.room import load_room
+
     notifier.notify(RELOADING=1)
     try:
         room = load_room(path)
@@ -213,6 +209,19 @@ def run(a: argparse.Namespace) -> int:
     """Fuse the room until SIGINT or SIGTERM (exit 0), reading the room file again on SIGHUP;
     a bad room file or configuration at start is one line and 78, a missing one 66, an
     unreachable router 69 (a bad one at a reload is reported, and the room kept)."""
+    import zenoh
+
+    from stereod.bus.messages import encoding_for
+    from stereod.daemon.config import load_config
+    from stereod.daemon.sdnotify import Notifier
+    from stereod.fusion.clock import ClockWatch
+    from stereod.fusion.collector import freeze_startup_heap
+    from stereod.fusion.fuser import Fuser
+    from stereod.fusion.mcap import RoomMcapWriter
+    from stereod.fusion.node import FuseNode, RoomPublisher
+    from stereod.fusion.room import load_room
+    from stereod.fusion.status import FUSE_STATUS_SCHEMA
+
     room = load_room(a.room)
     cfg = load_config(a.config, {"zenoh": zenoh_overrides(a)})
     setup_logging(a.log_level)

@@ -6,7 +6,6 @@ import argparse
 from pathlib import Path
 
 from stereod.cli.common import path_arg
-from stereod.daemon.install import apply, plan
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -35,6 +34,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
+    from stereod.daemon.install import apply, plan
+
     actions = plan(a.prefix, uninstall=a.uninstall)
     for action in actions:
         print(("would " if a.dry_run else "") + action.describe())

@@ -6,7 +6,6 @@ import argparse
 
 from stereod.cli.common import path_arg
 from stereod.files.output_file import check_outputs
-from stereod.view.plot import check_overlap, figure_target, plot_run, read_run, read_truth, summary
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -42,6 +41,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
+    from stereod.view.plot import (
+        check_overlap,
+        figure_target,
+        plot_run,
+        read_run,
+        read_truth,
+        summary,
+    )
+
     check_outputs({"--out": figure_target(a.out)[0]}, [a.run, a.truth])
     data = read_run(a.run)
     truth = read_truth(a.truth, data.t0_ns) if a.truth is not None else []

@@ -13,7 +13,7 @@ import argparse
 import signal
 import threading
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stereod.cli.common import (
     add_config,
@@ -25,12 +25,10 @@ from stereod.cli.common import (
     setup_logging,
 )
 from stereod.cli.progress import Progress
-from stereod.daemon.config import load_config
 from stereod.files.output_file import check_outputs, signal_name
-from stereod.ros.mcap_run import RunMcap, config_geometry
-from stereod.sources.drivers import load_driver
-from stereod.sources.frames import Eye, Frame, SourceInfo
-from stereod.sources.record import record
+
+if TYPE_CHECKING:
+    from stereod.sources.frames import Eye, Frame, SourceInfo
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -69,6 +67,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
+    from stereod.daemon.config import load_config
+    from stereod.ros.mcap_run import RunMcap, config_geometry
+    from stereod.sources.drivers import load_driver
+    from stereod.sources.record import record
+
     ov = {"driver": {"name": a.driver}} if a.driver else {}
     cfg = load_config(a.config, ov)
     setup_logging(command_log_level(cfg))

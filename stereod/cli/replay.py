@@ -14,11 +14,8 @@ import datetime
 import logging
 import re
 import signal
-import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from stereod.bus.messages import DaemonState
-from stereod.bus.publish import Publisher
 from stereod.cli.common import (
     EPILOG_KEYS,
     add_pipeline,
@@ -34,17 +31,14 @@ from stereod.cli.common import (
     run_inputs,
     say,
     setup_logging,
-    stdout_gone,
     summaries_off_stdout,
 )
-from stereod.cli.progress import Progress
-from stereod.daemon.config import StereodConfig, load_config
-from stereod.daemon.daemon import Daemon, RunSummary
-from stereod.errors import ConfigError, ReaderGone, StereodError, UsageError
+from stereod.errors import ReaderGone, StereodError, UsageError
 from stereod.files.output_file import Interrupted, check_outputs, signal_name, written_in_place
-from stereod.ros.mcap_run import RunMcap, config_geometry
-from stereod.sources.drivers import load_driver
-from stereod.sources.recording import read_manifest
+
+if TYPE_CHECKING:
+    from stereod.daemon.config import StereodConfig
+    from stereod.ros.mcap_run import RunMcap
 
 log = logging.getLogger(__name__)
 
@@ -217,6 +211,12 @@ def plain_video_flags(a: argparse.Namespace) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
+    from stereod.cli.progress import Progress
+    from stereod.cli.replay_daemon import InterruptibleReplay, LoopReplay
+    from stereod.daemon.config import load_config
+    from stereod.sources.drivers import load_driver
+    from stereod.sources.recording import read_manifest
+
     options = driver_options(a)
     ov = pipeline_overrides(a)
     ov["driver"] = {"name": "replay", "options": options}
@@ -226,7 +226,7 @@ def run(a: argparse.Namespace) -> int:
     check_outputs({"--jsonl": a.jsonl, "--mcap": a.mcap}, run_inputs(a.config, cfg, driver))
     mcap = _mcap(a, cfg)
     summaries_off_stdout(a.jsonl, a.mcap)
-    daemon = (_LoopReplay if a.loop else _Replay)(
+    daemon = (LoopReplay if a.loop else InterruptibleReplay)(
         cfg,
         driver,
         rate=a.rate,
@@ -279,64 +279,9 @@ def _mcap(a: argparse.Namespace, cfg: StereodConfig) -> RunMcap | None:
     """The MCAP file of ``--mcap`` (checked against the inputs and the JSONL before)."""
     if a.mcap is None:
         return None
+    from stereod.ros.mcap_run import RunMcap, config_geometry
+
     return RunMcap(a.mcap, rig=cfg.rig.name, geometry=config_geometry(cfg))
-
-
-class _Replay(Daemon):
-    """A replay that a signal (Ctrl-C, SIGTERM) stops before the end of its input: the run
-    fails with :class:`Interrupted`, so the daemon discards its JSONL as after any failure,
-    instead of committing what played as if it were the whole input. A JSONL written into a
-    pipe whose reader closed it ends it too (``--jsonl /dev/stdout | head``)."""
-
-    def _jsonl_reader_gone(self, exc: ReaderGone) -> None:
-        self.fail(exc)
-
-    def _rig_taken(self, pub: Publisher) -> None:
-        """A replay would mix its messages into a running rig's: refused before it plays."""
-        self.fail(
-            ConfigError(
-                f"another stereod already publishes rig {self.cfg.rig.name!r} under "
-                f"{pub.base}/ on this bus; give the replay its own name with --rig NAME"
-            )
-        )
-
-    def run(self) -> RunSummary:
-        caught: list[int] = []
-        wake = threading.Event()
-
-        def on_signal(signum: int, _frame: Any) -> None:
-            caught.append(signum)
-            wake.set()
-
-        def watch() -> None:
-            # fail() takes locks that the main thread, where the handler runs, may hold.
-            wake.wait()
-            if caught and self.health.state is not DaemonState.FINISHED:
-                signum = caught[0]
-                self.fail(Interrupted(f"interrupted by {signal_name(signum)}", signum))
-
-        watcher = threading.Thread(target=watch, name="signals", daemon=True)
-        watcher.start()
-        signums = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-        previous = {sig: signal.signal(sig, on_signal) for sig in signums}
-        try:
-            return super().run()
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-            wake.set()
-            watcher.join()
-
-
-class _LoopReplay(Daemon):
-    """A replay that plays its input again and again: a signal is its normal end, and so is
-    the reader of its JSONL going away (``--loop --jsonl /dev/stdout | head``)."""
-
-    def _jsonl_reader_gone(self, exc: ReaderGone) -> None:
-        log.info("%s: stopping", exc)
-        if exc.stdout:
-            stdout_gone()
-        self.stop()
 
 
 def _replaced_files(a: argparse.Namespace) -> list[str]:

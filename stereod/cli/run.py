@@ -15,8 +15,6 @@ from stereod.cli.common import (
     run_daemon,
     setup_logging,
 )
-from stereod.daemon.config import DEFAULT_CONFIG_PATH
-from stereod.daemon.daemon import Daemon
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -42,6 +40,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
+    from stereod.daemon.daemon import Daemon
+    from stereod.files.config_input import DEFAULT_CONFIG_PATH
+
     ov = pipeline_overrides(a)
     if a.driver:
         ov["driver"] = {"name": a.driver}

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 
-from stereod.bus.messages import ALL_MESSAGES
 from stereod.errors import UsageError
 
 
@@ -16,6 +15,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
+    from stereod.bus.messages import ALL_MESSAGES
+
     if a.name is not None:
         if a.name not in ALL_MESSAGES:
             raise UsageError(f"schema {a.name!r}: unknown; known: {', '.join(ALL_MESSAGES)}")

@@ -8,16 +8,14 @@ import signal
 import sys
 import threading
 import time
+from typing import TYPE_CHECKING
 
-import zenoh
-from pydantic import ValidationError
-
-from stereod.bus.publish import opened_session, reachable
-from stereod.bus.subscribe import format_sample
 from stereod.cli.common import DEFAULT_CONNECT, add_zenoh, number, zenoh_overrides
 from stereod.cli.interrupt import wait_until
-from stereod.daemon.config import ZenohConfig
 from stereod.errors import OutputError, UsageError, describe_validation_error
+
+if TYPE_CHECKING:
+    import zenoh
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -46,6 +44,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
+    import zenoh
+    from pydantic import ValidationError
+
+    from stereod.bus.publish import opened_session, reachable
+    from stereod.bus.subscribe import format_sample
+    from stereod.daemon.config import ZenohConfig
+
     ov = {k: v for k, v in zenoh_overrides(a).items() if v is not None}
     if not ov.get("connect") and not ov.get("listen"):
         ov["connect"] = [DEFAULT_CONNECT]

@@ -8,12 +8,9 @@ import re
 import signal
 import threading
 
-from pydantic import ValidationError
-
 from stereod.bus.keys import DEFAULT_RIG, RIG_PATTERN
 from stereod.cli.common import DEFAULT_CONNECT, add_zenoh, number, setup_logging, zenoh_overrides
 from stereod.cli.interrupt import wait_until
-from stereod.daemon.config import ZenohConfig
 from stereod.errors import ConfigError, describe_validation_error
 
 
@@ -65,6 +62,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
+    from pydantic import ValidationError
+
+    from stereod.daemon.config import ZenohConfig
+
     setup_logging("WARNING")
     ov = {k: v for k, v in zenoh_overrides(a).items() if v is not None}
     if not ov.get("connect") and not ov.get("listen"):

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 import typing
 from collections.abc import Mapping
 from pathlib import Path
@@ -70,14 +69,6 @@ from stereod.vision.detect_params import (
 from stereod.vision.geometry.refine import RefineParams
 from stereod.vision.geometry.stereo import MatchParams
 from stereod.vision.grouping import GroupParams
-
-if sys.version_info >= (3, 11):
-    pass
-else:  # pragma: no cover - exercised on 3.10 only
-    pass
-
-DEFAULT_CONFIG_PATH = Path("/etc/stereod/stereod.toml")
-
 
 # The defaults of the pipeline's settings are stated once, in its parameter classes.
 _DETECT = DetectorParams()

@@ -131,6 +131,10 @@ SQUARE_M = Bound(
     "a webcam cannot see a printed square under 0.1 mm, and no one holds a board of 1 m "
     "squares in front of a rig; in metres, as every length",
 )
+MIN_BOARD_CORNERS = 3
+"""The fewest inner corners a side of a chessboard may have: OpenCV's
+``findChessboardCorners`` refuses fewer ("both width and height of the pattern should have
+bigger than 2")."""
 STATUS_PERIOD_S = Bound(
     ("daemon.status_period_s",),
     0.05,

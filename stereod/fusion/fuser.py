@@ -24,12 +24,13 @@ the room tracks the other rigs kept alive instead of opening duplicates.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 
 import numpy as np
 
 from stereod.bus.messages import ObjectsMessage
 from stereod.fusion import rows as tab
+from stereod.fusion.params import CHI2_3DOF_999 as CHI2_3DOF_999
+from stereod.fusion.params import FuseParams as FuseParams
 from stereod.fusion.room import Room
 from stereod.fusion.rows import (
     DIAG,
@@ -50,24 +51,7 @@ from stereod.fusion.stacked import RoomTrack as RoomTrack
 from stereod.fusion.wire import COASTING, CONFIRMED, STATIONARY, RigWire, from_message
 from stereod.tracking.assignment import min_cost_assignment
 
-CHI2_3DOF_999 = 16.27
-"""Squared Mahalanobis distance below which 99.9 % of a 3-D Gaussian's samples fall."""
 _FORBIDDEN = 1e9
-
-
-@dataclass(frozen=True)
-class FuseParams:
-    """How association and track ends are decided (s, dimensionless chi-square bounds)."""
-
-    gate_chi2: float = CHI2_3DOF_999
-    """A rig track further than this squared Mahalanobis distance is not that room track."""
-    rig_timeout_s: float = 1.0
-    """A rig silent this long (by its stamps against the fusion instant) loses its tracks, s."""
-    max_coast_s: float = 2.0
-    """A room track no rig sees for this long ends, s."""
-    birth_s: float = 0.5
-    """A rig track within the gate of a room track that it cannot join (that room track has
-    its rig's track already) opens a room track of its own once seen this long, s."""
 
 
 _Shared = dict[int, list[tuple[str, int, list[float]]]]

@@ -34,6 +34,7 @@ from stereod.fusion.fuser import Fuser
 from stereod.fusion.histogram import EDGES_MS, LatencyHistogram
 from stereod.fusion.mcap import RoomMcapWriter
 from stereod.fusion.output import frame_payloads, join_room
+from stereod.fusion.params import MAX_RATE_HZ
 from stereod.fusion.room import Room
 from stereod.fusion.status import WINDOW, FuseStatus, RigLink
 from stereod.fusion.wire import RigWire, decode
@@ -45,8 +46,6 @@ IDLE_STEP_S = 0.1
 """With no message for this long, the fusion steps on by the time passed (s)."""
 QUEUE_SIZE = 4096
 """Rig messages waiting for the fusion thread; beyond, the newest are dropped and counted."""
-MAX_RATE_HZ = 30.0
-"""Room messages per second at most, by default (each object's own key is updated at once)."""
 
 
 class RoomPublisher(Publisher):

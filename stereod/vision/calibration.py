@@ -40,6 +40,7 @@ from stereod.files.bounds import (
     BASELINE_M,
     HFOV_DEG,
     IMAGE_SIDE_PX,
+    MIN_BOARD_CORNERS,
     SQUARE_M,
     focal_range_px,
     not_bool,
@@ -77,11 +78,6 @@ def _is_number(x: object) -> bool:
 MAX_ENTRY = 1e9
 """The largest magnitude of any matrix entry (px, or lengths in the board's unit): larger
 numbers are damage, and would overflow the geometry's arithmetic."""
-
-
-MIN_BOARD_CORNERS = 3
-"""The fewest inner corners a side of a board may have: OpenCV's ``findChessboardCorners``
-refuses fewer ("both width and height of the pattern should have bigger than 2")."""
 
 
 class Board(BaseModel):

@@ -1,0 +1,75 @@
+"""The daemons a replay runs: one that a signal interrupts (its outputs left as they were),
+and one that loops until a signal ends it normally."""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+from typing import Any
+
+from stereod.bus.messages import DaemonState
+from stereod.bus.publish import Publisher
+from stereod.cli.common import stdout_gone
+from stereod.daemon.daemon import Daemon, RunSummary
+from stereod.errors import ConfigError, ReaderGone
+from stereod.files.output_file import Interrupted, signal_name
+
+log = logging.getLogger("stereod.cli.replay")
+
+
+class InterruptibleReplay(Daemon):
+    """A replay that a signal (Ctrl-C, SIGTERM) stops before the end of its input: the run
+    fails with :class:`Interrupted`, so the daemon discards its JSONL as after any failure,
+    instead of committing what played as if it were the whole input. A JSONL written into a
+    pipe whose reader closed it ends it too (``--jsonl /dev/stdout | head``)."""
+
+    def _jsonl_reader_gone(self, exc: ReaderGone) -> None:
+        self.fail(exc)
+
+    def _rig_taken(self, pub: Publisher) -> None:
+        """A replay would mix its messages into a running rig's: refused before it plays."""
+        self.fail(
+            ConfigError(
+                f"another stereod already publishes rig {self.cfg.rig.name!r} under "
+                f"{pub.base}/ on this bus; give the replay its own name with --rig NAME"
+            )
+        )
+
+    def run(self) -> RunSummary:
+        caught: list[int] = []
+        wake = threading.Event()
+
+        def on_signal(signum: int, _frame: Any) -> None:
+            caught.append(signum)
+            wake.set()
+
+        def watch() -> None:
+            # fail() takes locks that the main thread, where the handler runs, may hold.
+            wake.wait()
+            if caught and self.health.state is not DaemonState.FINISHED:
+                signum = caught[0]
+                self.fail(Interrupted(f"interrupted by {signal_name(signum)}", signum))
+
+        watcher = threading.Thread(target=watch, name="signals", daemon=True)
+        watcher.start()
+        signums = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+        previous = {sig: signal.signal(sig, on_signal) for sig in signums}
+        try:
+            return super().run()
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+            wake.set()
+            watcher.join()
+
+
+class LoopReplay(Daemon):
+    """A replay that plays its input again and again: a signal is its normal end, and so is
+    the reader of its JSONL going away (``--loop --jsonl /dev/stdout | head``)."""
+
+    def _jsonl_reader_gone(self, exc: ReaderGone) -> None:
+        log.info("%s: stopping", exc)
+        if exc.stdout:
+            stdout_gone()
+        self.stop()
