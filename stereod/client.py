@@ -44,7 +44,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 from pydantic import ValidationError
@@ -59,9 +59,11 @@ from stereod.bus.messages import (
     StatusMessage,
 )
 from stereod.bus.publish import session_config
-from stereod.daemon.config import ZenohConfig
+from stereod.daemon.config_zenoh import ZenohConfig
 from stereod.errors import ConfigError, describe_validation_error
-from stereod.vision.calibration import Calibration
+
+if TYPE_CHECKING:
+    from stereod.vision.calibration import Calibration
 
 __all__ = [
     "DaemonAlive",
@@ -430,6 +432,8 @@ def query_calibration(
     timeout_s: float = 5.0,
 ) -> Calibration | CanonicalGeometry:
     """The geometry in force: the calibration file's content, or the canonical rig's figures."""
+    from stereod.vision.calibration import Calibration
+
     raw = _query(session, keys.queryable("calibration", rig, prefix=prefix), timeout_s)
     try:
         if json.loads(raw).get("geometry") == "canonical":

@@ -24,7 +24,7 @@ import zenoh
 
 from stereod.bus import keys
 from stereod.bus.messages import OBJECT_SCHEMA, OBJECTS_SCHEMA, STATUS_SCHEMA, encoding_for
-from stereod.daemon.config import ZenohConfig
+from stereod.daemon.config_zenoh import ZenohConfig
 from stereod.errors import ConfigError, MissingInputError, UnavailableError
 from stereod.files.nesting import Syntax, check_depth
 from stereod.files.paths import read_input_file, shown, text_path

@@ -49,7 +49,7 @@ def run(a: argparse.Namespace) -> int:
 
     from stereod.bus.publish import opened_session, reachable
     from stereod.bus.subscribe import format_sample
-    from stereod.daemon.config import ZenohConfig
+    from stereod.daemon.config_zenoh import ZenohConfig
 
     ov = {k: v for k, v in zenoh_overrides(a).items() if v is not None}
     if not ov.get("connect") and not ov.get("listen"):

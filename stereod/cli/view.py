@@ -64,7 +64,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def run(a: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
-    from stereod.daemon.config import ZenohConfig
+    from stereod.daemon.config_zenoh import ZenohConfig
 
     setup_logging("WARNING")
     ov = {k: v for k, v in zenoh_overrides(a).items() if v is not None}

@@ -10,7 +10,6 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
 
 from stereod.files.bounds import not_bool
-from stereod.pipeline import PipelineParams
 
 
 class Section(BaseModel):
@@ -29,5 +28,8 @@ class Section(BaseModel):
 
 
 def pipeline_default(name: str) -> Any:
-    """The default of one :class:`PipelineParams` field."""
+    """The default of one :class:`PipelineParams` field (the pipeline is loaded by the sections
+    that state its defaults, not by every section)."""
+    from stereod.pipeline import PipelineParams
+
     return PipelineParams.__dataclass_fields__[name].default

@@ -50,7 +50,7 @@ from stereod.client import (
     subscribe_objects,
     subscribe_status,
 )
-from stereod.daemon.config import ZenohConfig
+from stereod.daemon.config_zenoh import ZenohConfig
 from stereod.errors import ConfigError, UnavailableError
 from stereod.vision.calibration import Calibration
 
