@@ -477,7 +477,7 @@ class Pipeline:
         between the eyes' instants ``eye_times``, ns) and a similar area, the pairs that are
         pieces of one object grouped into one (:mod:`stereod.vision.grouping`, after asking
         the tracker which track each piece is) and, with ``refine``, the right centroids placed
-        by appearance, else (canonical rig) the rows' median disparity where it disagrees
+        by appearance, else the rows' median disparity where it disagrees
         (:func:`rows_median`). Gives the (grouped) blobs, pairs' indices and rectified centroids."""
         p = self.params
         # Matching, association, compensation and triangulation work in rectified coordinates
@@ -504,9 +504,14 @@ class Pipeline:
                 lpx, rpx = grouped.left_px, grouped.right_px
         if p.refine.enabled:
             refine_rights(p.rig, (pair.left.image, pair.right.image), lb, idx, lpx, rpx, p.refine)
-        elif p.rig.geometry is Geometry.CANONICAL:
+        else:
             size = (p.rig.width_px, p.rig.height_px)
-            rows_median(lb, rb, idx, lpx, rpx, p.centroid_sigma_px, size)
+            rectify = (
+                None
+                if p.rig.geometry is Geometry.CANONICAL
+                else (p.rig.rectify_left, p.rig.rectify_right)
+            )
+            rows_median(lb, rb, idx, lpx, rpx, p.centroid_sigma_px, size, rectify)
         return Matched(lb, rb, idx, lpx, rpx)
 
     def _associate(

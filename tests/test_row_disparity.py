@@ -187,3 +187,64 @@ def test_rows_lost_at_one_end_do_not_pair_rows_apart() -> None:
     plain = float(lb.centroid_px[0, 0] - rb.centroid_px[0, 0])
     assert abs(plain - truth) > 1.0
     assert plain + shift == pytest.approx(truth, abs=0.05)
+
+
+def turned(deg: float, dx: float, dy: float, scale: float = 1.0) -> rd.Rectify:
+    """A rectification that turns image px by ``deg`` about (320, 240), scales and shifts
+    them: a calibrated eye's, without its lens's distortion (a disc stays a disc)."""
+    c, s = scale * np.cos(np.radians(deg)), scale * np.sin(np.radians(deg))
+
+    def rectify(p: np.ndarray) -> np.ndarray:
+        q = np.asarray(p, np.float64) - (320.0, 240.0)
+        turned = np.column_stack((c * q[:, 0] - s * q[:, 1], s * q[:, 0] + c * q[:, 1]))
+        return turned + np.array([320.0 + dx, 240.0 + dy])
+
+    return rectify
+
+
+def unturned(rectify: rd.Rectify, point: tuple[float, float]) -> tuple[float, float]:
+    """The image px that ``rectify`` takes to ``point`` (its inverse, by Newton's method)."""
+    p = np.array([point], np.float64)
+    for _ in range(20):
+        p = p - (rectify(p) - point)
+    return float(p[0, 0]), float(p[0, 1])
+
+
+@pytest.mark.parametrize("turn", [(0.9, -0.7), (3.0, -2.5)], ids=["minoru", "3 deg"])
+def test_a_calibrated_pair_reads_the_true_disparity(turn: tuple[float, float]) -> None:
+    """Each eye turned its own way and shifted (a Minoru's eyes are about a degree apart):
+    the same disc at a known rectified disparity, the right eye with a shadow's crescent under
+    it in its own image rows. The rows' median moves the rectified centroids to the truth."""
+    rect_l, rect_r = turned(turn[0], 3.0, -2.0), turned(turn[1], -4.0, 1.5, 1.03)
+    truth = 9.3
+    centre = (352.4, 180.6)  # rectified px of the left disc's centre
+    lx, ly = unturned(rect_l, centre)
+    rx, ry = unturned(rect_r, (centre[0] - truth, centre[1]))
+    x0l, y0l, x0r, y0r = int(lx) - 31, int(ly) - 31, int(rx) - 31, int(ry) - 31
+    left = disc_weight(lx - x0l, ly - y0l, 20.0, (62, 62))
+    right = disc_weight(rx - x0r, ry - y0r, 20.0 / 1.03, (62, 62))
+    right[49:56, 16:33] = 1.0  # the crescent, in the right eye's image rows
+    lb, rb = blobs_of([(left, x0l, y0l)]), blobs_of([(right, x0r, y0r)])
+    idx = np.array([[0, 0]], np.intp)
+    lpx, rpx = rect_l(lb.centroid_px), rect_r(rb.centroid_px)
+    before = float(lpx[0, 0] - rpx[0, 0])
+    assert abs(before - truth) > 0.3
+    assert rd.rows_median(lb, rb, idx, lpx, rpx, 0.15, (640, 480), (rect_l, rect_r)) == 1
+    assert float(lpx[0, 0] - rpx[0, 0]) == pytest.approx(truth, abs=0.08)
+    assert lpx[0, 1] == rect_l(lb.centroid_px)[0, 1]  # heights stay
+
+
+def test_rows_that_cross_the_other_eyes_leave_the_centroids() -> None:
+    """Two cameras turned towards each other (here 12 deg each way) have image rows far from
+    their rectified rows: the pair keeps its centroids."""
+    rect_l, rect_r = turned(12.0, 0.0, 0.0), turned(-12.0, 0.0, 0.0)
+    disc = disc_weight(30.3, 30.0, 18.0, (62, 62))
+    crescent = disc.copy()
+    crescent[46:52, 14:32] = 1.0
+    lb, rb = blobs_of([(disc, 300, 200)]), blobs_of([(crescent, 290, 200)])
+    idx = np.array([[0, 0]], np.intp)
+    lpx, rpx = rect_l(lb.centroid_px), rect_r(rb.centroid_px)
+    before = lpx.copy(), rpx.copy()
+    assert rd.rows_median(lb, rb, idx, lpx.copy(), rpx.copy(), 0.15, (640, 480)) == 1  # level
+    assert rd.rows_median(lb, rb, idx, lpx, rpx, 0.15, (640, 480), (rect_l, rect_r)) == 0
+    assert np.array_equal(lpx, before[0]) and np.array_equal(rpx, before[1])
