@@ -33,13 +33,16 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from stereod import CanonicalRig, Eye, Frame, PairResult, Pipeline, PipelineParams
 from stereod.tracking.motion import angle_diff_deg
 from stereod.tracking.types import TrackLifecycle, TrackState
 from stereod.vision.detect_params import DetectorParams
+from stereod.vision.geometry.rectified import CalibratedRig
 from stereod_fakes import world
+from stereod_fakes.rig import RigSpec
 from stereod_fakes.scenarios import TABLE_I, table_one_scene
 from stereod_fakes.synth import Renderer, Scene
 
@@ -140,6 +143,41 @@ def world_room(
     case = _world_case(scene, mode, label, seed, False)
     case.readout_s = WEBCAM.readout_s if webcam else 0.0
     return case
+
+
+def through_calibrated_rig(case: Case, spec: RigSpec) -> tuple[Case, CalibratedRig]:
+    """The case as the eyes of a calibrated rig (``spec``: each eye's intrinsics, lens
+    distortion and turn) would see it, and that rig's geometry from its exact calibration.
+    Each image px of an eye looks along the ray its rectification gives; the rendered frame
+    (a canonical rig's, whose cameras are the rectified ones) is read there, scaled from the
+    rig's rectified focal length to the render's. The rectified frame is the render's, so
+    the truth stands. Resampling smooths the rendered noise where a px falls between four,
+    so a case is taken without a webcam's transport (its MJPEG blocks would be resampled)."""
+    w, h = case.mode.width_px, case.mode.height_px
+    canon = case.mode.rig
+    cal = spec.calibration(w, h)
+    rig = CalibratedRig(cal)
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    grid = np.column_stack((xs.ravel(), ys.ravel()))
+    scale = canon.focal_px / rig.focal_px
+    maps: dict[Eye, tuple[np.ndarray, np.ndarray]] = {}
+    for eye, rectify, cx in (
+        (Eye.LEFT, rig.rectify_left, rig.cx_left_px),
+        (Eye.RIGHT, rig.rectify_right, rig.cx_right_px),
+    ):
+        r = rectify(grid).reshape(h, w, 2)
+        maps[eye] = (
+            ((r[..., 0] - cx) * scale + canon.cx_px).astype(np.float32),
+            ((r[..., 1] - rig.cy_px) * scale + canon.cy_px).astype(np.float32),
+        )
+    rendered = case.frames
+
+    def frames() -> Iterator[Frame]:
+        for f in rendered():
+            image = cv2.remap(f.image, *maps[f.eye], cv2.INTER_LINEAR, cv2.BORDER_REPLICATE)
+            yield Frame(f.eye, image, f.t_ns, f.seq)
+
+    return dataclasses.replace(case, name=f"{case.name} calibrated", frames=frames), rig
 
 
 CACHE_ENV = "STEREOD_WORLD_CACHE"
