@@ -34,6 +34,7 @@ import numpy as np
 
 from stereod.bus.messages import ObjectsMessage
 from stereod.fusion.frames import ACCEL_SIGMA_MPS2, UNKNOWN_VELOCITY_SIGMA_MPS, ray_cov
+from stereod.fusion.params import FuseParams
 from stereod.fusion.room import Room
 from stereod.fusion.rows import strain_scale, strain_step
 from stereod.fusion.wire import CONFIRMED, EXTRA, STATIONARY, TENTATIVE, RigWire, from_message
@@ -127,24 +128,7 @@ def predict_many(
     return p, p_cov, velocity.copy(), v_cov
 
 
-CHI2_3DOF_999 = 16.27
-"""Squared Mahalanobis distance below which 99.9 % of a 3-D Gaussian's samples fall."""
 _FORBIDDEN = 1e9
-
-
-@dataclass(frozen=True)
-class FuseParams:
-    """How association and track ends are decided (s, dimensionless chi-square bounds)."""
-
-    gate_chi2: float = CHI2_3DOF_999
-    """A rig track further than this squared Mahalanobis distance is not that room track."""
-    rig_timeout_s: float = 1.0
-    """A rig silent this long (by its stamps against the fusion instant) loses its tracks, s."""
-    max_coast_s: float = 2.0
-    """A room track no rig sees for this long ends, s."""
-    birth_s: float = 0.5
-    """A rig track within the gate of a room track that it cannot join (that room track has
-    its rig's track already) opens a room track of its own once seen this long, s."""
 
 
 @dataclass
