@@ -1,7 +1,7 @@
 """The ``stereod`` command's entry point, as light as a module can be: it sets what Ctrl-C
-and SIGHUP do before the command's imports (NumPy, OpenCV, Zenoh: most of a second), where
-Python's defaults would print a traceback, or end a daemon that a reload was asked of while
-it started."""
+and SIGHUP do before the command line's imports (a fifth of a second; a command then loads
+NumPy, OpenCV or Zenoh as it runs, most of a second more), where Python's defaults would print
+a traceback, or end a daemon that a reload was asked of while it started."""
 
 from __future__ import annotations
 

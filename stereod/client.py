@@ -432,12 +432,12 @@ def query_calibration(
     timeout_s: float = 5.0,
 ) -> Calibration | CanonicalGeometry:
     """The geometry in force: the calibration file's content, or the canonical rig's figures."""
-    from stereod.vision.calibration import Calibration
-
     raw = _query(session, keys.queryable("calibration", rig, prefix=prefix), timeout_s)
     try:
         if json.loads(raw).get("geometry") == "canonical":
             return CanonicalGeometry.model_validate_json(raw)
+        from stereod.vision.calibration import Calibration  # OpenCV: only for a calibration
+
         return Calibration.model_validate_json(raw)
     except (ValidationError, ValueError, AttributeError) as exc:
         raise QueryError(f"calibration: the reply does not parse: {exc}") from exc

@@ -174,7 +174,9 @@ def through_calibrated_rig(case: Case, spec: RigSpec) -> tuple[Case, CalibratedR
 
     def frames() -> Iterator[Frame]:
         for f in rendered():
-            image = cv2.remap(f.image, *maps[f.eye], cv2.INTER_LINEAR, cv2.BORDER_REPLICATE)
+            image = cv2.remap(
+                f.image, *maps[f.eye], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+            )
             yield Frame(f.eye, image, f.t_ns, f.seq)
 
     return dataclasses.replace(case, name=f"{case.name} calibrated", frames=frames), rig

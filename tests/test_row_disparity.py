@@ -203,40 +203,55 @@ def turned(deg: float, dx: float, dy: float, scale: float = 1.0) -> rd.Rectify:
 
 
 def unturned(rectify: rd.Rectify, point: tuple[float, float]) -> tuple[float, float]:
-    """The image px that ``rectify`` takes to ``point`` (its inverse, by Newton's method)."""
+    """The image px that ``rectify`` takes to ``point`` (its inverse, by fixed-point iteration:
+    ``rectify`` is near a shift)."""
     p = np.array([point], np.float64)
-    for _ in range(20):
-        p = p - (rectify(p) - point)
+    for _ in range(60):
+        across = np.linalg.norm(rectify(p + np.array([1.0, 0.0])) - rectify(p))
+        p = p - (rectify(p) - point) / across
     return float(p[0, 0]), float(p[0, 1])
 
 
-@pytest.mark.parametrize("turn", [(0.9, -0.7), (3.0, -2.5)], ids=["minoru", "3 deg"])
-def test_a_calibrated_pair_reads_the_true_disparity(turn: tuple[float, float]) -> None:
-    """Each eye turned its own way and shifted (a Minoru's eyes are about a degree apart):
-    the same disc at a known rectified disparity, the right eye with a shadow's crescent under
-    it in its own image rows. The rows' median moves the rectified centroids to the truth."""
-    rect_l, rect_r = turned(turn[0], 3.0, -2.0), turned(turn[1], -4.0, 1.5, 1.03)
+@pytest.mark.parametrize(
+    ("turn", "scale"),
+    [((0.9, -0.7), 1.03), ((3.0, -2.5), 1.03), ((0.9, -0.7), 1.1)],
+    ids=["minoru", "3 deg", "wide right eye"],
+)
+def test_a_calibrated_pair_reads_the_true_disparity(
+    turn: tuple[float, float], scale: float
+) -> None:
+    """Each eye turned its own way and shifted (a Minoru's eyes are about a degree apart), the
+    right eye's px ``scale`` times the left's in rectified px: the same disc at a known
+    rectified disparity, the right eye with a shadow's crescent under it in its own image
+    rows. The rows' median moves the rectified centroids to the truth, each eye by its half
+    of the shift in its own px, in opposite directions."""
+    rect_l, rect_r = turned(turn[0], 3.0, -2.0), turned(turn[1], -4.0, 1.5, scale)
     truth = 9.3
     centre = (352.4, 180.6)  # rectified px of the left disc's centre
     lx, ly = unturned(rect_l, centre)
     rx, ry = unturned(rect_r, (centre[0] - truth, centre[1]))
     x0l, y0l, x0r, y0r = int(lx) - 31, int(ly) - 31, int(rx) - 31, int(ry) - 31
     left = disc_weight(lx - x0l, ly - y0l, 20.0, (62, 62))
-    right = disc_weight(rx - x0r, ry - y0r, 20.0 / 1.03, (62, 62))
+    right = disc_weight(rx - x0r, ry - y0r, 20.0 / scale, (62, 62))
     right[49:56, 16:33] = 1.0  # the crescent, in the right eye's image rows
     lb, rb = blobs_of([(left, x0l, y0l)]), blobs_of([(right, x0r, y0r)])
     idx = np.array([[0, 0]], np.intp)
     lpx, rpx = rect_l(lb.centroid_px), rect_r(rb.centroid_px)
     before = float(lpx[0, 0] - rpx[0, 0])
     assert abs(before - truth) > 0.3
+    start = lpx.copy(), rpx.copy()
     assert rd.rows_median(lb, rb, idx, lpx, rpx, 0.15, (640, 480), (rect_l, rect_r)) == 1
     assert float(lpx[0, 0] - rpx[0, 0]) == pytest.approx(truth, abs=0.08)
+    moved_l, moved_r = lpx[0, 0] - start[0][0, 0], rpx[0, 0] - start[1][0, 0]
+    across = scale * np.cos(np.radians(turn[1])) / np.cos(np.radians(turn[0]))
+    assert moved_l * moved_r < 0
+    assert -moved_r / moved_l == pytest.approx(across, rel=1e-3)
     assert lpx[0, 1] == rect_l(lb.centroid_px)[0, 1]  # heights stay
 
 
-def test_rows_that_cross_the_other_eyes_leave_the_centroids() -> None:
-    """Two cameras turned towards each other (here 12 deg each way) have image rows far from
-    their rectified rows: the pair keeps its centroids."""
+def test_rows_steeper_than_the_limit_leave_the_centroids() -> None:
+    """Eyes turned 12 deg each way about their axes: their image rows lie far from their
+    rectified rows, and the pair keeps its centroids."""
     rect_l, rect_r = turned(12.0, 0.0, 0.0), turned(-12.0, 0.0, 0.0)
     disc = disc_weight(30.3, 30.0, 18.0, (62, 62))
     crescent = disc.copy()

@@ -32,9 +32,11 @@ from stereod.vision.blobs import Blobs
 __all__ = [
     "EMPTY",
     "MAD_TIE_PX",
+    "MAX_TILT_DEG",
     "MIN_ROWS",
     "MIN_ROW_WEIGHT",
     "SIGMAS",
+    "Rectify",
     "cut",
     "median_shift_px",
     "merged",
@@ -49,8 +51,10 @@ Rectify = Callable[[np.ndarray], np.ndarray]
 MAX_TILT_DEG = 4.0
 """The steepest an eye's image row may lie in rectified px, at the blob (deg), for its rows to
 be paired as rectified rows: a Minoru's eyes are turned by about a degree, and rows turned 3
-and -2.5 deg still read a disc's disparity to 0.08 px; two cameras turned towards each other
-(tens of degrees) have rows that cross the other eye's, and keep their centroids."""
+and -2.5 deg still read a disc's disparity to 0.08 px. An eye turned further about its axis,
+or the rows of two cameras toed in towards each other away from mid-height, keep their
+centroids. (Toed-in rows at mid-height lie level: there the shift is read, scaled by how much
+wider one eye sees the object, which corrects most of a crescent's error.)"""
 
 MIN_ROWS = 32
 """Fewest common rows (px) for the median to be read. A round blob of 24 px or less is
@@ -209,10 +213,13 @@ def rows_median(
     shift (which eye took in the rows is not known), so their mean stays. For a canonical
     (already rectified) rig, whose image rows are its rectified rows; a calibrated rig gives
     its eyes' ``rectify`` (left, right), and each eye's half of the shift, read in its image
-    px, is scaled by how many rectified px an image px across is at its centroid. Left alone:
-    pairs with
-    a blob touching the image's border (``size``: width, height px; its rows are cut), and a
-    blob whose centroid is not its profile's (:func:`_own`). Gives how many pairs moved."""
+    px, is scaled by how many rectified px an image px across is at its centroid (where one
+    eye's px are s times the other's, the shift, read in the eye that took in the rows, is
+    then off by about (s - 1) / 2 of itself: a thousandth for a Minoru's eyes, whose focal
+    lengths are within a few per cent). Left alone: pairs with a blob touching the image's
+    border (``size``: width, height px; its rows are cut), a blob whose centroid is not its
+    profile's (:func:`_own`), and a calibrated eye whose rows lie steeper than
+    :data:`MAX_TILT_DEG`. Gives how many pairs moved."""
     if len(lb.rows) != len(lb) or len(rb.rows) != len(rb):
         return 0
     moved_pairs = 0
