@@ -118,6 +118,7 @@ def world_room(
     *,
     webcam: bool = False,
     quality: dict[str, int] | None = None,
+    photometry: dict[str, float] | None = None,
     **kw: object,
 ) -> Case:
     """One of the independent renderer's room scenes (``lamp_ball``, ``person_sit_walk``,
@@ -126,7 +127,8 @@ def world_room(
     rolling shutter's readout the pipeline is then told of. ``quality`` replaces fields of the
     scene's render quality (``world.Quality``): the suite renders some scenes more coarsely
     than the benchmark (e.g. ``rolling_band_rows`` 8, a band of 1 ms at 320x240 cast at one
-    instant, in which a ball at 1 m/s moves 1 mm; the benchmark casts every row apart)."""
+    instant, in which a ball at 1 m/s moves 1 mm; the benchmark casts every row apart).
+    ``photometry`` replaces fields of its gains and noise (``world.Photometry``)."""
     fn = getattr(world, preset)
     if webcam:
         kw = {**kw, "exposure_s": WEBCAM_EXPOSURE_S}
@@ -138,6 +140,9 @@ def world_room(
         scene = dataclasses.replace(scene, transport=WEBCAM)
     if quality:
         scene = dataclasses.replace(scene, quality=dataclasses.replace(scene.quality, **quality))
+    if photometry:
+        light = dataclasses.replace(scene.photometry, **photometry)
+        scene = dataclasses.replace(scene, photometry=light)
     shown = {k: v for k, v in kw.items() if k != "exposure_s"}
     label = preset + "".join(f" {v}" for v in shown.values()) + (" webcam" if webcam else "")
     case = _world_case(scene, mode, label, seed, False)
@@ -145,14 +150,19 @@ def world_room(
     return case
 
 
-def through_calibrated_rig(case: Case, spec: RigSpec) -> tuple[Case, CalibratedRig]:
+def through_calibrated_rig(
+    case: Case, spec: RigSpec, noise_sigma: float = 0.0
+) -> tuple[Case, CalibratedRig]:
     """The case as the eyes of a calibrated rig (``spec``: each eye's intrinsics, lens
     distortion and turn) would see it, and that rig's geometry from its exact calibration.
     Each image px of an eye looks along the ray its rectification gives; the rendered frame
     (a canonical rig's, whose cameras are the rectified ones) is read there, scaled from the
     rig's rectified focal length to the render's. The rectified frame is the render's, so
-    the truth stands. Resampling smooths the rendered noise where a px falls between four,
-    so a case is taken without a webcam's transport (its MJPEG blocks would be resampled)."""
+    the truth stands. Resampling would smooth a rendered sensor's noise where a px falls
+    between four, so the case is rendered without it (``photometry={"noise_sigma": 0}``) and
+    Gaussian noise of ``noise_sigma`` (grey levels) is added to each resampled frame, seeded
+    by the case's seed, the eye and the instant; and without a webcam's transport (its MJPEG
+    blocks would be resampled)."""
     w, h = case.mode.width_px, case.mode.height_px
     canon = case.mode.rig
     cal = spec.calibration(w, h)
@@ -175,9 +185,16 @@ def through_calibrated_rig(case: Case, spec: RigSpec) -> tuple[Case, CalibratedR
     def frames() -> Iterator[Frame]:
         for f in rendered():
             image = cv2.remap(
-                f.image, *maps[f.eye], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+                f.image.astype(np.float32),
+                *maps[f.eye],
+                cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_REPLICATE,
             )
-            yield Frame(f.eye, image, f.t_ns, f.seq)
+            if noise_sigma > 0.0:
+                eye = 0 if f.eye is Eye.LEFT else 1
+                rng = np.random.default_rng([case.seed, eye, f.t_ns])
+                image += rng.standard_normal(image.shape, dtype=np.float32) * noise_sigma
+            yield Frame(f.eye, np.clip(image + 0.5, 0.0, 255.0).astype(np.uint8), f.t_ns, f.seq)
 
     return dataclasses.replace(case, name=f"{case.name} calibrated", frames=frames), rig
 

@@ -126,11 +126,17 @@ def test_a_calibrated_rig_reads_the_overhead_lamps_ball_by_its_rows(seed: int) -
     """The overhead lamp's ball (a shadow's crescent under it, which one eye segments with
     the ball in some frames) through a Minoru-like calibrated rig: lenses that distort, focal
     lengths 1 % apart, the right eye turned by about a degree. The rows' median disparity
-    holds its depth as it does a canonical rig's (with the centroids' disparity alone, the
-    heading read -2.4 and -1.5 deg at these seeds, its 90th percentile 16 to 18 deg)."""
-    rendered = acc.world_room("lamp_ball", acc.MODES[0], seed=seed, lamp="overhead")
-    case, rig = acc.through_calibrated_rig(rendered, minoru_like(320, 240, 42.0))
-    check(acc.score(case, acc.run_case(case, PipelineParams(rig))))
+    keeps the crescent out of its depth frame by frame: the heading's 90th percentile is 4.5
+    deg at these seeds, against 15 and 14 deg with the centroids' disparity alone. (Its
+    median heading error, -0.87 and -0.86 deg here, misses 1 deg at two of seeds 0 to 5 with
+    or without the rows: see the changelog.)"""
+    rendered = acc.world_room(
+        "lamp_ball", acc.MODES[0], seed=seed, lamp="overhead", photometry={"noise_sigma": 0.0}
+    )
+    case, rig = acc.through_calibrated_rig(rendered, minoru_like(320, 240, 42.0), 3.0)
+    score = acc.score(case, acc.run_case(case, PipelineParams(rig)))
+    check(score)
+    assert score.objects[0].heading_p90_deg <= 7.0, score.objects[0].heading_p90_deg
 
 
 def test_a_ball_coming_at_the_rig_through_a_webcam() -> None:
