@@ -121,17 +121,16 @@ def test_a_ball_under_a_low_side_lamp_is_measured_without_its_long_shadow(
     check(acc.score(case, acc.run_case(case)))
 
 
-@pytest.mark.parametrize("seed", [1, 3])
-def test_a_calibrated_rig_reads_the_overhead_lamps_ball_by_its_rows(seed: int) -> None:
+def test_a_calibrated_rig_reads_the_overhead_lamps_ball_by_its_rows() -> None:
     """The overhead lamp's ball (a shadow's crescent under it, which one eye segments with
     the ball in some frames) through a Minoru-like calibrated rig: lenses that distort, focal
     lengths 1 % apart, the right eye turned by about a degree. The rows' median disparity
     keeps the crescent out of its depth frame by frame: the heading's 90th percentile is 4.5
-    deg at these seeds, against 15 and 14 deg with the centroids' disparity alone. (Its
-    median heading error, -0.87 and -0.86 deg here, misses 1 deg at two of seeds 0 to 5 with
-    or without the rows: see the changelog.)"""
+    deg at this seed, against 15 deg with the centroids' disparity alone (3.3 to 5.8 deg
+    against 8.1 to 15.4 over seeds 0 to 5). Its median heading error, -0.87 deg here, misses
+    1 deg at two of those seeds with the rows and at one without: see the changelog."""
     rendered = acc.world_room(
-        "lamp_ball", acc.MODES[0], seed=seed, lamp="overhead", photometry={"noise_sigma": 0.0}
+        "lamp_ball", acc.MODES[0], seed=1, lamp="overhead", photometry={"noise_sigma": 0.0}
     )
     case, rig = acc.through_calibrated_rig(rendered, minoru_like(320, 240, 42.0), 3.0)
     score = acc.score(case, acc.run_case(case, PipelineParams(rig)))
