@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import datetime
-import logging
 import re
 import signal
 from typing import TYPE_CHECKING, Any
@@ -39,9 +38,6 @@ from stereod.files.output_file import Interrupted, check_outputs, signal_name, w
 if TYPE_CHECKING:
     from stereod.daemon.config import StereodConfig
     from stereod.ros.mcap_run import RunMcap
-
-log = logging.getLogger(__name__)
-
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
