@@ -39,6 +39,7 @@ if TYPE_CHECKING:
     from stereod.daemon.config import StereodConfig
     from stereod.ros.mcap_run import RunMcap
 
+
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "replay",
