@@ -10,6 +10,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -35,12 +36,15 @@ with zenoh.open(cfg):
 """
 
 
-def start_router(endpoint: str) -> subprocess.Popen[str]:
+def start_router(endpoint: str, **popen: Any) -> subprocess.Popen[str]:
+    """A Zenoh router listening on ``endpoint``, up when this returns (``popen``: more
+    :class:`subprocess.Popen` arguments, for example a ``preexec_fn``)."""
     proc = subprocess.Popen(
         [sys.executable, "-c", ROUTER, endpoint],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        **popen,
     )
     assert proc.stdout is not None and proc.stdout.readline().strip() == "up"
     return proc
