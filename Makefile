@@ -33,6 +33,7 @@ bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/throughput.py
 	$(BIN)/python benchmarks/throughput.py --color
 	$(BIN)/python benchmarks/images.py
+	$(BIN)/python benchmarks/people.py
 
 accuracy: $(VENV)/.installed
 	$(BIN)/python benchmarks/accuracy.py

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
+from stereod.vision import shadows
 from stereod.vision.shadows import shadow_mask
 
 RATIO = (0.3, 0.95)
@@ -116,3 +118,42 @@ def test_a_stretch_no_window_fits_in_is_judged_by_the_share_of_all_its_windows()
     shade = shadow_mask(pole, bg, band, (0.15, 0.95))
     taken = 0 if shade is None else cv2.countNonZero(cv2.bitwise_and(shade, band))
     assert taken == 0, f"{taken} of the pole's px taken for shadow"
+
+
+def _scattered(colour: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """A 320x240 floor (BGR or grey) with three things far apart, as people spread across a
+    room leave them: a wide shadow top left, a low lamp's strip bottom right, and a flat dark
+    object (uniform, no texture) in the middle. The frame, the background, the foreground
+    and each thing's mask."""
+    bg = _floor(240, 320)
+    if colour:
+        bg = cv2.merge((bg, _floor(240, 320, seed=5), _floor(240, 320, seed=6)))
+    things = {name: np.zeros((240, 320), np.uint8) for name in ("wide", "strip", "body")}
+    things["wide"][20:50, 20:70] = 255
+    things["strip"][200:203, 220:290] = 255
+    things["body"][100:150, 150:175] = 255
+    frame = _darkened(_darkened(bg, things["wide"], 0.6), things["strip"], 0.55)
+    frame[things["body"] > 0] = 45
+    foreground = cv2.bitwise_or(cv2.bitwise_or(things["wide"], things["strip"]), things["body"])
+    return frame, bg, foreground, things
+
+
+@pytest.mark.parametrize("colour", [False, True], ids=["grey", "bgr"])
+def test_shadows_far_apart_are_judged_each_in_its_own_rectangle(
+    colour: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Shadows and objects spread across the view are judged in one rectangle around each
+    group of them, not in the one around all: the same shadow as judged in that one, pixel
+    for pixel, found where it was made (the wide shadow, the strip) and not on the object."""
+    frame, bg, foreground, things = _scattered(colour)
+    assert len(shadows._crops(foreground, shadows.SHADOW_WINDOW_PX)) == 3
+    shade = shadow_mask(frame, bg, foreground, RATIO)
+    assert shade is not None
+    for name, least in (("wide", 0.95), ("strip", 0.9)):
+        found = cv2.countNonZero(cv2.bitwise_and(shade, things[name]))
+        assert found >= least * cv2.countNonZero(things[name]), (name, found)
+    assert cv2.countNonZero(cv2.bitwise_and(shade, things["body"])) == 0
+    monkeypatch.setattr(shadows, "SHADOW_MAX_CROPS", 0)  # one rectangle around all
+    assert len(shadows._crops(foreground, shadows.SHADOW_WINDOW_PX)) == 1
+    whole = shadow_mask(frame, bg, foreground, RATIO)
+    assert whole is not None and np.array_equal(shade, whole)

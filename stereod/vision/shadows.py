@@ -76,6 +76,15 @@ class _Relit:
         return out
 
 
+SHADOW_CELL_PX = 16
+"""Side (px) of the cells the candidates are gathered into: the colour and texture tests run
+on one rectangle around each 8-connected group of occupied cells, not on the rectangle around
+all of them (people spread across a room leave most of that empty)."""
+SHADOW_MAX_CROPS = 8
+"""More groups than this are judged in one rectangle around all of them (each rectangle costs
+some 40 whole-array calls)."""
+
+
 def _relit(
     frame: np.ndarray,
     background: np.ndarray,
@@ -95,11 +104,10 @@ def _relit(
     (``SHADOW_STRIP_WINDOW_PX``) where it fits inside them.
     ``None`` when no pixel is a candidate."""
     lo, hi = ratio
-    colour = frame.ndim == 3
     # The brightness ratio first, on one channel: most of an object is no candidate, and the
     # rest of the test runs only around the candidates.
-    fl8 = cv2.transform(frame, MEAN_RGB) if colour else frame
-    bl8 = cv2.transform(background, MEAN_RGB) if colour else background
+    fl8 = cv2.transform(frame, MEAN_RGB) if frame.ndim == 3 else frame
+    bl8 = cv2.transform(background, MEAN_RGB) if frame.ndim == 3 else background
     r = fl8.astype(np.float32) / (bl8.astype(np.float32) + np.float32(1.0))
     cand_all = cv2.bitwise_and(cv2.inRange(r, lo, hi), foreground)
     if cv2.countNonZero(cand_all) == 0:
@@ -109,34 +117,106 @@ def _relit(
     x0, y0 = max(x - m, 0), max(y - m, 0)
     x1, y1 = min(x + w + m, frame.shape[1]), min(y + h + m, frame.shape[0])
     sl = (slice(y0, y1), slice(x0, x1))
-    f = frame[sl].astype(np.float32)
-    b = background[sl].astype(np.float32)
-    fl = cv2.transform(f, MEAN_RGB) if colour else f
-    bl = cv2.transform(b, MEAN_RGB) if colour else b
-    r = fl / (bl + 1.0)
-    cand = cand_all[sl]
-    if colour:  # the largest channel's |f - b r|, in OpenCV calls (numpy's max over the
-        # last axis of three is several times slower)
-        c0, c1, c2 = cv2.split(cv2.absdiff(f, cv2.multiply(b, cv2.merge((r, r, r)))))
-        off = cv2.max(cv2.max(c0, c1), c2)
-        same_colour = cv2.compare(off, SHADOW_CHROMA * (bl + 1.0) + 3.0, cv2.CMP_LE)
-        cand = cv2.bitwise_and(cand, same_colour)
+    frame, background, first = frame[sl], background[sl], cand_all[sl]
+    cand, core, judged = np.zeros_like(first), np.zeros_like(first), np.zeros_like(first)
+    looks: list[tuple[tuple[slice, slice], np.ndarray | None, _Looks]] = []
+    for crop, own in _crops(first, m):  # each group of candidates in a rectangle of its own
+        look = _Looks(frame[crop], background[crop])
+        looks.append((crop, own, look))
+        part = look.same_colour(first[crop])
+        if own is not None:
+            part = cv2.bitwise_and(part, own)
+        square, textured = look.keeps_texture(
+            (SHADOW_WINDOW_PX, SHADOW_WINDOW_PX), SHADOW_MIN_NCC, SHADOW_RATIO_SPREAD
+        )
+        cand[crop] = cv2.bitwise_or(cand[crop], part)
+        core[crop] = cv2.bitwise_or(core[crop], cv2.bitwise_and(part, _u8(square)))
+        judged[crop] = cv2.bitwise_or(judged[crop], cv2.bitwise_and(part, _u8(textured)))
     if cv2.countNonZero(cand) == 0:
         return None
-    square, textured = _keeps_texture(
-        fl, bl, r, (SHADOW_WINDOW_PX, SHADOW_WINDOW_PX), SHADOW_MIN_NCC, SHADOW_RATIO_SPREAD
-    )
-    core = cv2.bitwise_and(cand, _u8(square))
-    judged = cv2.bitwise_and(cand, _u8(textured))
     thin = cv2.subtract(cand, cv2.morphologyEx(cand, cv2.MORPH_OPEN, _COLUMN))
     long = cv2.morphologyEx(thin, cv2.MORPH_OPEN, _STRIP)
     thin_core = None
     if cv2.countNonZero(long):
-        strip, _ = _keeps_texture(
-            fl, bl, r, SHADOW_STRIP_WINDOW_PX, SHADOW_STRIP_MIN_NCC, SHADOW_STRIP_RATIO_SPREAD
-        )
-        thin_core = cv2.bitwise_and(long, _u8(strip))
+        thin_core = np.zeros_like(long)
+        for crop, own, look in looks:
+            part = long[crop] if own is None else cv2.bitwise_and(long[crop], own)
+            if cv2.countNonZero(part):
+                strip, _ = look.keeps_texture(
+                    SHADOW_STRIP_WINDOW_PX, SHADOW_STRIP_MIN_NCC, SHADOW_STRIP_RATIO_SPREAD
+                )
+                found = cv2.bitwise_and(part, _u8(strip))
+                thin_core[crop] = cv2.bitwise_or(thin_core[crop], found)
     return _Relit(sl, cand_all.shape, cand, core, judged, thin, thin_core)
+
+
+def _crops(cand: np.ndarray, margin: int) -> list[tuple[tuple[slice, slice], np.ndarray | None]]:
+    """Rectangles of ``cand`` (uint8) that hold every candidate with ``margin`` px around it
+    (within ``cand``'s own bounds), each with the mask (uint8 255) of the pixels it judges
+    where it holds more than those (``None``: all of them): one rectangle per 8-connected group
+    of :data:`SHADOW_CELL_PX` cells holding candidates, or one for all when the groups are
+    more than :data:`SHADOW_MAX_CROPS` or their rectangles would cover most of ``cand``.
+    A pixel's window (``margin`` px around it at most) then lies inside its rectangle, or
+    reaches the image's edge where the whole one does: each pixel is judged as it would be
+    in the whole."""
+    h, w = cand.shape
+    c = SHADOW_CELL_PX
+    gh, gw = -(-h // c), -(-w // c)
+    whole: list[tuple[tuple[slice, slice], np.ndarray | None]] = [
+        ((slice(0, h), slice(0, w)), None)
+    ]
+    if gh * gw <= 4:
+        return whole
+    cells = cv2.copyMakeBorder(cand, 0, gh * c - h, 0, gw * c - w, cv2.BORDER_CONSTANT, value=0)
+    occupied = cv2.resize(cells, (gw, gh), interpolation=cv2.INTER_AREA)  # a cell's mean, >0
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(occupied, connectivity=8)
+    if n - 1 > SHADOW_MAX_CROPS or n <= 2:
+        return whole
+    boxes = []
+    for gx, gy, bw, bh in stats[1:, :4].tolist():
+        bx0, by0 = max(gx * c - margin, 0), max(gy * c - margin, 0)
+        bx1, by1 = min((gx + bw) * c + margin, w), min((gy + bh) * c + margin, h)
+        boxes.append((bx0, by0, bx1, by1))
+    if sum((bx1 - bx0) * (by1 - by0) for bx0, by0, bx1, by1 in boxes) >= 0.6 * h * w:
+        return whole
+    owner = cv2.resize(labels.astype(np.uint8), (gw * c, gh * c), interpolation=cv2.INTER_NEAREST)
+    out: list[tuple[tuple[slice, slice], np.ndarray | None]] = []
+    for j, (bx0, by0, bx1, by1) in enumerate(boxes, start=1):
+        crop = (slice(by0, by1), slice(bx0, bx1))
+        out.append((crop, _u8(owner[crop] == j)))
+    return out
+
+
+class _Looks:
+    """A crop of the frame and of the background in float32, with their brightness and its
+    ratio, for the colour and texture tests."""
+
+    def __init__(self, frame: np.ndarray, background: np.ndarray) -> None:
+        self.colour = frame.ndim == 3
+        self.f = frame.astype(np.float32)
+        self.b = background.astype(np.float32)
+        self.fl = cv2.transform(self.f, MEAN_RGB) if self.colour else self.f
+        self.bl = cv2.transform(self.b, MEAN_RGB) if self.colour else self.b
+        self.r = self.fl / (self.bl + 1.0)
+
+    def same_colour(self, cand: np.ndarray) -> np.ndarray:
+        """The candidates (uint8 255) whose every channel is the background's times their
+        brightness ratio within ``SHADOW_CHROMA`` (grey frames: all of them)."""
+        if not self.colour:
+            return cand
+        r = self.r
+        # the largest channel's |f - b r|, in OpenCV calls (numpy's max over the last axis of
+        # three is several times slower)
+        c0, c1, c2 = cv2.split(cv2.absdiff(self.f, cv2.multiply(self.b, cv2.merge((r, r, r)))))
+        off = cv2.max(cv2.max(c0, c1), c2)
+        same = cv2.compare(off, SHADOW_CHROMA * (self.bl + 1.0) + 3.0, cv2.CMP_LE)
+        return cv2.bitwise_and(cand, same)
+
+    def keeps_texture(
+        self, k: tuple[int, int], min_ncc: float, spread: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`_keeps_texture` on this crop."""
+        return _keeps_texture(self.fl, self.bl, self.r, k, min_ncc, spread)
 
 
 def _u8(mask: np.ndarray) -> np.ndarray:
