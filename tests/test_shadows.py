@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 import pytest
@@ -138,13 +140,51 @@ def _scattered(colour: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[s
     return frame, bg, foreground, things
 
 
+def _fields(found: shadows._Relit | None) -> list[np.ndarray | None]:
+    """Every mask :func:`shadows._relit` gives, placed in the whole image."""
+    if found is None:
+        return []
+    masks = (found.cand, found.core, found.judged, found.thin, found.thin_core)
+    return [None if m is None else found.full(m) for m in masks]
+
+
+def _judged_alike(
+    frame: np.ndarray, bg: np.ndarray, foreground: np.ndarray, mp: pytest.MonkeyPatch
+) -> int:
+    """Judge the candidates group by group, then in the one rectangle around them all (as
+    before groups were), and check every mask is the same pixel for pixel; the number of
+    rectangles the groups took."""
+    crops: list[int] = []
+    split = shadows._crops
+
+    def counted(cand: np.ndarray, margin: int) -> list[tuple[tuple[slice, slice], Any]]:
+        out = split(cand, margin)
+        crops.append(len(out))
+        return out
+
+    with mp.context() as m:
+        m.setattr(shadows, "_crops", counted)
+        grouped = _fields(shadows._relit(frame, bg, foreground, RATIO))
+    with mp.context() as m:
+        m.setattr(shadows, "SHADOW_MAX_CROPS", 0)
+        whole = _fields(shadows._relit(frame, bg, foreground, RATIO))
+    assert len(grouped) == len(whole)
+    for i, (g, w) in enumerate(zip(grouped, whole, strict=True)):
+        assert (g is None) == (w is None), i
+        if g is not None:
+            assert w is not None
+            assert np.array_equal(g, w), (i, int(np.count_nonzero(g != w)))
+    return crops[0] if crops else 0
+
+
 @pytest.mark.parametrize("colour", [False, True], ids=["grey", "bgr"])
 def test_shadows_far_apart_are_judged_each_in_its_own_rectangle(
     colour: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Shadows and objects spread across the view are judged in one rectangle around each
-    group of them, not in the one around all: the same shadow as judged in that one, pixel
-    for pixel, found where it was made (the wide shadow, the strip) and not on the object."""
+    group of them, not in the one around all: the shadows are found where they were made
+    (the wide one, the strip) and not on the object, and every mask is what the one
+    rectangle around all gives, pixel for pixel."""
     frame, bg, foreground, things = _scattered(colour)
     assert len(shadows._crops(foreground, shadows.SHADOW_WINDOW_PX)) == 3
     shade = shadow_mask(frame, bg, foreground, RATIO)
@@ -153,7 +193,53 @@ def test_shadows_far_apart_are_judged_each_in_its_own_rectangle(
         found = cv2.countNonZero(cv2.bitwise_and(shade, things[name]))
         assert found >= least * cv2.countNonZero(things[name]), (name, found)
     assert cv2.countNonZero(cv2.bitwise_and(shade, things["body"])) == 0
-    monkeypatch.setattr(shadows, "SHADOW_MAX_CROPS", 0)  # one rectangle around all
-    assert len(shadows._crops(foreground, shadows.SHADOW_WINDOW_PX)) == 1
-    whole = shadow_mask(frame, bg, foreground, RATIO)
-    assert whole is not None and np.array_equal(shade, whole)
+    assert _judged_alike(frame, bg, foreground, monkeypatch) == 3
+
+
+def test_a_group_inside_another_groups_rectangle_is_judged_in_its_own(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """An L-shaped shadow's rectangle holds a small shadow of another group at its edge,
+    where that rectangle's border would cut the small one's windows: each pixel is judged
+    only in its own group's rectangle, as in the one around all. (A third shadow in the far
+    corner makes the rectangle around all large enough to be split.)"""
+    bg = _floor(240, 320)
+    shade = np.zeros(bg.shape, np.uint8)
+    shade[20:110, 20:28] = 255  # the L's upright
+    shade[100:110, 20:120] = 255  # its foot
+    shade[10:40, 115:140] = 255  # another group, astride the L's rectangle's right edge
+    shade[200:230, 270:310] = 255  # far away
+    frame = _darkened(bg, shade, 0.6)
+    assert _judged_alike(frame, bg, shade, monkeypatch) == 3
+
+
+def test_random_scenes_are_judged_alike_by_groups_and_whole(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Random shadows and dark flat objects of random sizes, anywhere on a floor whose sides
+    are no multiple of the cells' (their groups' rectangles meet the image's edges and each
+    other): every mask is the same judged by groups as in the one rectangle around all, and
+    most scenes are split."""
+    split = [_random_scene(seed, monkeypatch) > 1 for seed in range(16)]
+    assert sum(split) >= 8, split
+
+
+def _random_scene(seed: int, monkeypatch: pytest.MonkeyPatch) -> int:
+    """One random scene judged both ways (:func:`_judged_alike`); its number of rectangles."""
+    rng = np.random.default_rng(seed)
+    h, w = 173, 237
+    bg = _floor(h, w, seed=seed + 10)
+    if seed % 2:
+        bg = cv2.merge((bg, _floor(h, w, seed=seed + 20), _floor(h, w, seed=seed + 30)))
+    frame, foreground = bg.copy(), np.zeros((h, w), np.uint8)
+    for _ in range(int(rng.integers(2, 9))):
+        x0, y0 = int(rng.integers(0, w - 4)), int(rng.integers(0, h - 4))
+        thing = np.zeros((h, w), np.uint8)
+        tall = 3 if rng.random() < 0.4 else int(rng.integers(3, 40))  # a low lamp's strip
+        thing[y0 : y0 + tall, x0 : x0 + int(rng.integers(3, 60))] = 255
+        if rng.random() < 0.7:
+            frame = _darkened(frame, thing, float(rng.uniform(0.4, 0.8)))
+        else:
+            frame[thing > 0] = int(rng.integers(20, 60))
+        foreground = cv2.bitwise_or(foreground, thing)
+    return _judged_alike(frame, bg, foreground, monkeypatch)

@@ -82,7 +82,12 @@ on one rectangle around each 8-connected group of occupied cells, not on the rec
 all of them (people spread across a room leave most of that empty)."""
 SHADOW_MAX_CROPS = 8
 """More groups than this are judged in one rectangle around all of them (each rectangle costs
-some 40 whole-array calls)."""
+some 40 whole-array calls). At most 255: a group's label is kept in a uint8."""
+SHADOW_MIN_CELLS = 5
+"""A rectangle of fewer cells than this is judged whole (a ball's, or a small image's)."""
+SHADOW_MAX_CROPPED = 0.6
+"""Groups whose rectangles would cover this share of the whole rectangle or more are judged in
+the whole one (splitting it would save too little to pay for more calls)."""
 
 
 def _relit(
@@ -117,11 +122,13 @@ def _relit(
     x0, y0 = max(x - m, 0), max(y - m, 0)
     x1, y1 = min(x + w + m, frame.shape[1]), min(y + h + m, frame.shape[0])
     sl = (slice(y0, y1), slice(x0, x1))
-    frame, background, first = frame[sl], background[sl], cand_all[sl]
+    seen, behind, first = frame[sl], background[sl], cand_all[sl]
     cand, core, judged = np.zeros_like(first), np.zeros_like(first), np.zeros_like(first)
     looks: list[tuple[tuple[slice, slice], np.ndarray | None, _Looks]] = []
-    for crop, own in _crops(first, m):  # each group of candidates in a rectangle of its own
-        look = _Looks(frame[crop], background[crop])
+    # each group of candidates in a rectangle of its own, with room for the widest window's
+    # half (the strip's, 15 // 2 = 7 px = m)
+    for crop, own in _crops(first, m):
+        look = _Looks(seen[crop], behind[crop])
         looks.append((crop, own, look))
         part = look.same_colour(first[crop])
         if own is not None:
@@ -158,14 +165,15 @@ def _crops(cand: np.ndarray, margin: int) -> list[tuple[tuple[slice, slice], np.
     more than :data:`SHADOW_MAX_CROPS` or their rectangles would cover most of ``cand``.
     A pixel's window (``margin`` px around it at most) then lies inside its rectangle, or
     reaches the image's edge where the whole one does: each pixel is judged as it would be
-    in the whole."""
+    in the whole (to the last bit as long as OpenCV's box filter sums a window alike wherever
+    its image starts, as it does in this build; ``tests/test_shadows.py`` compares the two)."""
     h, w = cand.shape
     c = SHADOW_CELL_PX
     gh, gw = -(-h // c), -(-w // c)
     whole: list[tuple[tuple[slice, slice], np.ndarray | None]] = [
         ((slice(0, h), slice(0, w)), None)
     ]
-    if gh * gw <= 4:
+    if gh * gw < SHADOW_MIN_CELLS:
         return whole
     cells = cv2.copyMakeBorder(cand, 0, gh * c - h, 0, gw * c - w, cv2.BORDER_CONSTANT, value=0)
     occupied = cv2.resize(cells, (gw, gh), interpolation=cv2.INTER_AREA)  # a cell's mean, >0
@@ -177,9 +185,11 @@ def _crops(cand: np.ndarray, margin: int) -> list[tuple[tuple[slice, slice], np.
         bx0, by0 = max(gx * c - margin, 0), max(gy * c - margin, 0)
         bx1, by1 = min((gx + bw) * c + margin, w), min((gy + bh) * c + margin, h)
         boxes.append((bx0, by0, bx1, by1))
-    if sum((bx1 - bx0) * (by1 - by0) for bx0, by0, bx1, by1 in boxes) >= 0.6 * h * w:
+    if sum((bx1 - bx0) * (by1 - by0) for bx0, by0, bx1, by1 in boxes) >= SHADOW_MAX_CROPPED * h * w:
         return whole
-    owner = cv2.resize(labels.astype(np.uint8), (gw * c, gh * c), interpolation=cv2.INTER_NEAREST)
+    owner = cv2.resize(  # each pixel's group: labels fit a uint8 (SHADOW_MAX_CROPS <= 255)
+        labels.astype(np.uint8), (gw * c, gh * c), interpolation=cv2.INTER_NEAREST
+    )
     out: list[tuple[tuple[slice, slice], np.ndarray | None]] = []
     for j, (bx0, by0, bx1, by1) in enumerate(boxes, start=1):
         crop = (slice(by0, by1), slice(bx0, bx1))
