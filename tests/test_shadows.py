@@ -231,7 +231,8 @@ def _random_scene(seed: int, monkeypatch: pytest.MonkeyPatch) -> int:
     bg = _floor(h, w, seed=seed + 10)
     if seed % 2:
         bg = cv2.merge((bg, _floor(h, w, seed=seed + 20), _floor(h, w, seed=seed + 30)))
-    frame, foreground = bg.copy(), np.zeros((h, w), np.uint8)
+    frame = bg.copy()
+    foreground: np.ndarray = np.zeros((h, w), np.uint8)
     for _ in range(int(rng.integers(2, 9))):
         x0, y0 = int(rng.integers(0, w - 4)), int(rng.integers(0, h - 4))
         thing = np.zeros((h, w), np.uint8)
