@@ -77,9 +77,9 @@ def stereo_pairs(frames: list[np.ndarray], w: int, h: int) -> list[StereoPair]:
 
 def stereod_ms(pairs: list[StereoPair], w: int, h: int, shadows: bool) -> tuple[np.ndarray, int]:
     """Each measured pair's CPU time (ms) through the pipeline and its payloads, and the
-    median number of objects a pair."""
+    median number of tracks a pair."""
     params = PipelineParams(CanonicalRig(0.200, 60.0, w, h), DetectorParams(shadows=shadows))
-    cpu, objects = [], []
+    cpu, tracks = [], []
     with Pipeline(params) as pipe:
         for k, pair in enumerate(pairs):
             c0 = time.process_time()
@@ -95,8 +95,8 @@ def stereod_ms(pairs: list[StereoPair], w: int, h: int, shadows: bool) -> tuple[
             )
             if k >= WARMUP:
                 cpu.append((time.process_time() - c0) * 1e3)
-                objects.append(len(result.tracks))
-    return np.array(cpu), int(np.median(objects))
+                tracks.append(len(result.tracks))
+    return np.array(cpu), int(np.median(tracks))
 
 
 def mog2_ms(pairs: list[StereoPair]) -> float:
@@ -125,19 +125,19 @@ def main() -> None:
     host = report.host()
     frames = read_frames(a.video, a.frames)
     rows = [
-        "| size | objects a pair, median | stereod CPU a pair: mean / p50 / p90 / max "
-        "| `shadows = false`, mean | MOG2 + CC, mean | vs MOG2 |",
+        "| size | tracks a pair, median | stereod CPU a pair: mean / p50 / p90 / max "
+        "| `shadows = false`, mean | MOG2 + CC, mean | vs MOG2, by CPU |",
         "|---|---:|---|---:|---:|---:|",
     ]
     for name in a.sizes:
         w, h = SIZES[name]
         pairs = stereo_pairs(frames, w, h)
-        ms, objects = stereod_ms(pairs, w, h, shadows=True)
+        ms, tracks = stereod_ms(pairs, w, h, shadows=True)
         plain, _ = stereod_ms(pairs, w, h, shadows=False)
         mog = mog2_ms(pairs)
         p50, p90 = np.percentile(ms, [50, 90])
         row = (
-            f"| {name} | {objects} | {ms.mean():.1f} / {p50:.1f} / {p90:.1f} / {ms.max():.1f} ms "
+            f"| {name} | {tracks} | {ms.mean():.1f} / {p50:.1f} / {p90:.1f} / {ms.max():.1f} ms "
             f"| {plain.mean():.1f} ms | {mog:.1f} ms | {mog / ms.mean():.2f}x |"
         )
         print(row, flush=True)

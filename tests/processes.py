@@ -26,14 +26,16 @@ def start_stereod(*args: str, env: dict[str, str] | None = None, **popen: Any) -
     Ctrl-C reaches it as it would from a terminal, even when the tests themselves run as a
     shell's background job (which ignores SIGINT, and a child inherits that)."""
     popen.setdefault("stdout", subprocess.PIPE)
-    popen.setdefault("preexec_fn", _interruptible)
+    popen.setdefault("preexec_fn", interruptible)
     popen.setdefault("stderr", subprocess.PIPE)
     popen.setdefault("text", True)
     popen.setdefault("cwd", ROOT)
     return subprocess.Popen(stereod_command(*args), env={**os.environ, **(env or {})}, **popen)
 
 
-def _interruptible() -> None:
+def interruptible() -> None:
+    """A ``preexec_fn``: the child takes Ctrl-C's default action (ends), whatever its parent
+    ignores."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
