@@ -27,7 +27,10 @@ def test_start_up_garbage_is_freed_and_the_rest_left_out_of_later_collections() 
     try:
         frozen = freeze_startup_heap()
         assert gone() is None  # collected before the freeze, not frozen for ever
-        assert frozen == gc.get_freeze_count() > 10_000  # pytest, numpy and stereod imported
+        assert frozen > 10_000  # pytest, numpy and stereod imported
+        # as frozen, less any that another thread of this process freed since (a frozen
+        # object is still freed when its last reference goes)
+        assert frozen - 100 <= gc.get_freeze_count() <= frozen
         made = [[k] for k in range(1000)]  # containers made after start-up
         assert sum(len(gc.get_objects(g)) for g in range(3)) < frozen
         assert any(o is made for o in gc.get_objects())
