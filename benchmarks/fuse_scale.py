@@ -292,13 +292,22 @@ def main() -> int:
             sub.undeclare()
             tsub.undeclare()
     finally:
-        for proc in reversed(procs):
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-        reports = [json.loads(proc.communicate(timeout=60)[0] or "null") for proc in procs[1:]]
-        procs[0].communicate(timeout=60)
-        router.terminate()
-        router.communicate(timeout=30)
+        outputs: list[str] = []
+        try:
+            for proc in reversed(procs):
+                if proc.poll() is None:
+                    proc.send_signal(signal.SIGTERM)
+            outputs = [proc.communicate(timeout=60)[0] for proc in procs[1:]]
+            if procs:
+                procs[0].communicate(timeout=60)
+        finally:  # whatever failed, nothing the benchmark started is left running
+            for proc in procs:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.communicate()
+            router.terminate()
+            router.communicate(timeout=30)
+    reports = [json.loads(out or "null") for out in outputs]
     with lock:
         got = list(arrivals)
         got_tracks = list(track_arrivals)
