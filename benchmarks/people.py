@@ -25,6 +25,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import report
+from throughput import WARMUP, bench_mog2
 
 from stereod.bus.messages import dump_objects, objects_message
 from stereod.pipeline import Pipeline, PipelineParams
@@ -40,8 +41,6 @@ SHIFT_PX_AT_768 = 12
 """The right eye's shift at the footage's own width (as ``tests/test_grouping.py`` uses it)."""
 PERIOD_NS = 100_000_000
 """The footage's frame period (10 fps)."""
-WARMUP = DetectorParams().warmup_frames + 1
-"""Pairs fed before measuring: the detectors' warm-up, and the pair that learns from it."""
 
 
 def read_frames(path: Path, n: int) -> list[np.ndarray]:
@@ -99,20 +98,6 @@ def stereod_ms(pairs: list[StereoPair], w: int, h: int, shadows: bool) -> tuple[
     return np.array(cpu), int(np.median(tracks))
 
 
-def mog2_ms(pairs: list[StereoPair]) -> float:
-    """MOG2 + connected components on both eyes: mean CPU time a measured pair (ms)."""
-    subs = [cv2.createBackgroundSubtractorMOG2(detectShadows=False) for _ in range(2)]
-    total = 0.0
-    for k, pair in enumerate(pairs):
-        c0 = time.process_time()
-        for sub, img in zip(subs, (pair.left.image, pair.right.image), strict=True):
-            fg = sub.apply(img)
-            cv2.connectedComponentsWithStats(fg, connectivity=8, ltype=cv2.CV_16U)
-        if k >= WARMUP:
-            total += time.process_time() - c0
-    return total / (len(pairs) - WARMUP) * 1e3
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=200, help="frames of the footage (200)")
@@ -134,7 +119,7 @@ def main() -> None:
         pairs = stereo_pairs(frames, w, h)
         ms, tracks = stereod_ms(pairs, w, h, shadows=True)
         plain, _ = stereod_ms(pairs, w, h, shadows=False)
-        mog = mog2_ms(pairs)
+        mog = 1e3 / bench_mog2(pairs, 1).cpu  # ms a pair, the same pairs measured
         p50, p90 = np.percentile(ms, [50, 90])
         row = (
             f"| {name} | {tracks} | {ms.mean():.1f} / {p50:.1f} / {p90:.1f} / {ms.max():.1f} ms "
