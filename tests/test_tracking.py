@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from stereod.tracking import measure
-from stereod.tracking.association import _iou
+from stereod.tracking.boxes import iou
 from stereod.tracking.tracker import Tracker
 from stereod.tracking.types import (
     Detection,
@@ -243,7 +243,7 @@ def crossing_pairs():
         t = k * DT_NS
         a, b = near(t * 1e-9), far(t * 1e-9)
         (det_a, _), (det_b, _) = seen(a, size_m=CROSSING_SIZE_M), seen(b, size_m=CROSSING_SIZE_M)
-        yield k, t, a, b, k >= 10 and _iou(det_a.left_bbox_px, det_b.left_bbox_px) > 0.0
+        yield k, t, a, b, k >= 10 and iou(det_a.left_bbox_px, det_b.left_bbox_px) > 0.0
 
 
 def test_the_nearer_of_two_crossing_objects_is_seen_by_its_free_side() -> None:
@@ -488,7 +488,7 @@ def test_crossing_objects_coast_while_merged_and_keep_their_ids() -> None:
             area = det_a.area_px + det_b.area_px
             dets = [Detection(left_mid, right_mid, *boxes, area, det_a.image_speed_pxps)]
             assignment, may_start = tracker.associate(dets, (t, t))
-            hidden = _iou(boxes[0], det_a.left_bbox_px) >= 0.9
+            hidden = iou(boxes[0], det_a.left_bbox_px) >= 0.9
             # Wholly behind the near one, the far object is not seen: the blob is the near one.
             assert assignment == ([1] if hidden else [None]) and may_start == [False]
             _, ob_a = seen(a, size_m=0.12)
@@ -808,14 +808,14 @@ def test_an_object_cut_by_the_image_edge_keeps_its_id() -> None:
 def test_distance_to_a_segment_in_closed_form() -> None:
     """The perpendicular foot when it falls on the segment, else the nearer end; a
     segment of no length is its point."""
-    from stereod.tracking.association import _to_segment
+    from stereod.tracking.boxes import to_segment
 
     a, b = np.array([1.0, 1.0]), np.array([5.0, 1.0])
-    assert _to_segment(np.array([3.0, 4.0]), a, b) == pytest.approx(3.0)
-    assert _to_segment(np.array([8.0, 5.0]), a, b) == pytest.approx(5.0)
-    assert _to_segment(np.array([-2.0, -3.0]), a, b) == pytest.approx(5.0)
-    assert _to_segment(np.array([4.0, 5.0]), a, a) == pytest.approx(5.0)
-    assert _to_segment(np.array([0.0, 2.0]), np.array([0.0, 0.0]), np.array([2.0, 2.0])) == (
+    assert to_segment(np.array([3.0, 4.0]), a, b) == pytest.approx(3.0)
+    assert to_segment(np.array([8.0, 5.0]), a, b) == pytest.approx(5.0)
+    assert to_segment(np.array([-2.0, -3.0]), a, b) == pytest.approx(5.0)
+    assert to_segment(np.array([4.0, 5.0]), a, a) == pytest.approx(5.0)
+    assert to_segment(np.array([0.0, 2.0]), np.array([0.0, 0.0]), np.array([2.0, 2.0])) == (
         pytest.approx(np.sqrt(2.0))
     )
 
@@ -824,13 +824,13 @@ def test_gating_every_detection_against_every_track_at_once_is_the_pairs_one_by_
     """The distances to segments, points in boxes (grown or not) and boxes' overlaps that
     association takes for all tracks and detections in one pass are each pair's own, ends of
     segments that coincide, points on a box's edge and boxes of no area included."""
-    from stereod.tracking.association import (
-        _inside,
-        _insides,
-        _iou,
-        _ious,
-        _to_segment,
-        _to_segments,
+    from stereod.tracking.boxes import (
+        inside,
+        insides,
+        iou,
+        ious,
+        to_segment,
+        to_segments,
     )
 
     rng = np.random.default_rng(7)
@@ -842,17 +842,17 @@ def test_gating_every_detection_against_every_track_at_once_is_the_pairs_one_by_
     )
     boxes[:3, 2:] = 0  # no area
     points[:5] = boxes[:5, :2] + boxes[:5, 2:]  # on the far corner
-    far = _to_segments(points, a, b)
+    far = to_segments(points, a, b)
     for i, pt in enumerate(points):
         for j in range(len(a)):
-            assert far[i, j] == pytest.approx(_to_segment(pt, a[j], b[j]), rel=1e-15, abs=1e-12)
+            assert far[i, j] == pytest.approx(to_segment(pt, a[j], b[j]), rel=1e-15, abs=1e-12)
     for grow in (0.0, 0.25):
-        within = _insides(points, boxes, grow)
+        within = insides(points, boxes, grow)
         assert within.any() and not within.all()
-        assert [[_inside(pt, box, grow) for pt in points] for box in boxes] == within.tolist()
-    overlap = _ious(boxes, boxes[::-1])
+        assert [[inside(pt, box, grow) for pt in points] for box in boxes] == within.tolist()
+    overlap = ious(boxes, boxes[::-1])
     assert (overlap > 0).any()
-    assert [[_iou(p, q) for q in boxes[::-1]] for p in boxes] == overlap.tolist()
+    assert [[iou(p, q) for q in boxes[::-1]] for p in boxes] == overlap.tolist()
 
 
 @pytest.mark.parametrize("factor_known", [True, False])
@@ -1205,3 +1205,107 @@ def test_a_track_begun_at_the_images_side_does_not_confirm_on_a_merged_blob() ->
     the second."""
     got = lifecycles(sizes_run([0.2, 0.2, 0.7, 0.7], clipped=(0,), edge_depth=True))
     assert got[2] == got[3] == [TrackLifecycle.TENTATIVE], got
+
+
+SHADOW_PX = 40.0
+"""How far a long shadow beside a ball moves its blob's centroid (px, each eye): its box
+grows by twice that on the shadow's side."""
+
+
+def with_shadow(p_m: np.ndarray) -> tuple[Detection, Observation]:
+    """The ball at ``p_m`` (0.1 m across) with its long shadow to its right in its blob, in
+    both eyes: its centroids ``SHADOW_PX`` further right, its boxes ``2 * SHADOW_PX`` wider on
+    that side, and its position triangulated from those centroids (as the pipeline would)."""
+    det, ob = seen(p_m)
+    shift = np.array([SHADOW_PX, 0.0])
+    grow = np.array([0.0, 0.0, 2 * SHADOW_PX, 0.0])
+    lpx, rpx = det.left_px + shift, det.right_px + shift
+    pos, cov = RIG.triangulate(lpx[None, :], rpx[None, :], 0.3)
+    det = dataclasses.replace(
+        det, left_px=lpx, right_px=rpx, left_bbox_px=det.left_bbox_px + grow,
+        right_bbox_px=det.right_bbox_px + grow,
+    )  # fmt: skip
+    ob = dataclasses.replace(
+        ob, position_m=pos[0], cov_m2=cov[0], left_px=lpx, right_px=rpx, left_image_px=lpx,
+        right_image_px=rpx, left_bbox_px=det.left_bbox_px, right_bbox_px=det.right_bbox_px,
+    )  # fmt: skip
+    return det, ob
+
+
+def shadow_run(shadowed: set[int], frames: int, tracker: Tracker | None = None) -> list:
+    """A ball rolling at 2 m, 0.4 m/s across, its blob joined by its long shadow in the pairs
+    ``shadowed``: each pair's states and the ball's true position."""
+    tracker = tracker or Tracker(TrackerParams())
+    path = line([-0.5, 0.0, 2.0], [0.4, 0.0, 0.0])
+    out = []
+    for k in range(frames):
+        t = k * DT_NS
+        p = path(t * 1e-9)
+        states, _ = fold(tracker, t, [with_shadow(p) if k in shadowed else seen(p)])
+        out.append((states, p))
+    return out
+
+
+def test_a_track_begun_with_its_shadow_moves_onto_the_ball_alone_keeping_its_id() -> None:
+    """A ball rolls in with its long shadow in its blob for 20 pairs, then the detector leaves
+    the shadow out: the ball's blob lies 40 px from where the track expects it, beyond its
+    gate, yet its boxes are the shadowed ones' with an end shared. It is the same object
+    re-segmented: the track takes it, moved onto it with its velocity kept (the jump is no
+    motion), and goes on with its id; the ball alone is then followed to within 1 cm."""
+    run = shadow_run(set(range(20)), 60)
+    assert {s.track_id for states, _ in run for s in states} == {1}
+    for states, p in run[21:]:
+        (s,) = states
+        assert s.lifecycle is TrackLifecycle.CONFIRMED
+        assert float(np.linalg.norm(s.position_m - p)) < 0.01, (s.position_m, p)
+        assert abs(float(s.velocity_mps[0]) - 0.4) < 0.05 and abs(float(s.velocity_mps[2])) < 0.05
+
+
+def test_a_shadow_joining_a_tracked_ball_is_held_out_of_its_filter() -> None:
+    """The ball alone for 20 pairs, then with its shadow for 10 (a third of a second), then
+    alone: the shadowed blobs (more than ``REGROWN`` times the ball's box) are the ball with
+    something joined to it, not the ball moved 40 px. The track coasts on its filter through
+    them, within 1 cm of the ball, and takes the ball alone again with its id."""
+    run = shadow_run(set(range(20, 30)), 50)
+    assert {s.track_id for states, _ in run for s in states} == {1}
+    for k, (states, p) in enumerate(run[20:], start=20):
+        (s,) = states
+        held = k < 30
+        assert (s.lifecycle is TrackLifecycle.COASTING) is held, k
+        assert float(np.linalg.norm(s.position_m - p)) < 0.01, (k, s.position_m, p)
+
+
+def test_a_shadow_that_stays_longer_than_max_coast_s_is_taken_for_the_object() -> None:
+    """The ball's blob grows and stays grown for 1 s: after ``max_coast_s`` (0.5 s) of it, the
+    track takes the grown blob (the object did grow, as a person opening their arms), placed
+    where its centroid is; it keeps its id throughout."""
+    run = shadow_run(set(range(20, 50)), 50)
+    assert {s.track_id for states, _ in run for s in states} == {1}
+    taken = [k for k, (states, _) in enumerate(run) if k >= 20 and states[0].lifecycle
+             is TrackLifecycle.CONFIRMED]  # fmt: skip
+    assert taken and 20 + 15 <= taken[0] <= 20 + 16, taken
+    off = [float(states[0].position_m[0] - p[0]) for states, p in run[taken[0] :]]
+    shift_m = SHADOW_PX * 2.0 / RIG.focal_px  # 40 px at 2 m
+    assert all(abs(d - shift_m) < 0.01 for d in off), (off, shift_m)
+
+
+def test_a_blob_parting_in_two_inside_a_tracks_box_is_no_recut() -> None:
+    """Two blobs where one track's object was (a robot leaving the box it pushed): each would
+    hold with that track's box an end shared, but two blobs there are two objects parting,
+    not the object re-segmented, and neither is taken as one."""
+    tracker = Tracker(TrackerParams())
+    path = line([-0.5, 0.0, 2.0], [0.4, 0.0, 0.0])
+    for k in range(10):
+        t = k * DT_NS
+        fold(tracker, t, [with_shadow(path(t * 1e-9))])
+    t = 10 * DT_NS
+    left, _ = seen(path(t * 1e-9))  # the ball's side of the blob, and the far side alike
+    move = np.array([2 * SHADOW_PX, 0.0, 0.0, 0.0])
+    right = dataclasses.replace(
+        left, left_px=left.left_px + move[:2], right_px=left.right_px + move[:2],
+        left_bbox_px=left.left_bbox_px + move, right_bbox_px=left.right_bbox_px + move,
+    )  # fmt: skip
+    tracker.associate([left], (t, t))
+    assert tracker._recut == {(0, 1)}  # alone, the ball's blob is the track's re-segmented
+    tracker.associate([left, right], (t, t))
+    assert tracker._recut == set()

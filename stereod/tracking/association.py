@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereod.tracking import kalman
+from stereod.tracking import boxes, kalman
 from stereod.tracking.assignment import min_cost_assignment
 from stereod.tracking.skew import image_velocity, shift_to
 from stereod.tracking.track import Track, TrackFilters
@@ -56,131 +56,6 @@ def _motion(a: np.ndarray, b: np.ndarray, last: np.ndarray) -> float:
     return max(_dist(a, last), _dist(b, last))
 
 
-def _to_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-    """Distance (px) from a point to the segment a-b (a point when a == b)."""
-    ax, ay, px, py = float(a[0]), float(a[1]), float(point[0]), float(point[1])
-    dx, dy = float(b[0]) - ax, float(b[1]) - ay
-    n2 = dx * dx + dy * dy
-    t = 0.0 if n2 == 0.0 else min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / n2))
-    return math.hypot(px - (ax + t * dx), py - (ay + t * dy))
-
-
-def _inside(point: np.ndarray, bbox: np.ndarray, grow: float) -> bool:
-    x, y, w, h = (float(v) for v in bbox)
-    mx, my = grow * w, grow * h
-    return bool(x - mx <= point[0] <= x + w + mx and y - my <= point[1] <= y + h + my)
-
-
-def _overlaps(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether two boxes (x, y, w, h) share any area."""
-    return bool(
-        min(a[0] + a[2], b[0] + b[2]) > max(a[0], b[0])
-        and min(a[1] + a[3], b[1] + b[3]) > max(a[1], b[1])
-    )
-
-
-def _union(boxes: list[np.ndarray]) -> np.ndarray:
-    """The smallest box (x, y, w, h) holding every one of ``boxes``."""
-    a = np.asarray(boxes, np.float64).reshape(-1, 4)
-    x0, y0 = a[:, 0].min(), a[:, 1].min()
-    return np.array([x0, y0, (a[:, 0] + a[:, 2]).max() - x0, (a[:, 1] + a[:, 3]).max() - y0])
-
-
-def _moved(bbox: np.ndarray, shift: np.ndarray) -> np.ndarray:
-    """A box (x, y, w, h) moved by ``shift`` (2,) px."""
-    return np.array([bbox[0] + shift[0], bbox[1] + shift[1], bbox[2], bbox[3]], np.float64)
-
-
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    """Intersection over union of two boxes (x, y, w, h)."""
-    ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
-    iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
-    inter = ix * iy
-    union = float(a[2] * a[3] + b[2] * b[3]) - inter
-    return inter / union if union > 0 else 0.0
-
-
-SMALL_PAIRS = 4
-"""At most this many point-segment or point-box pairs are worked out one at a time in Python
-floats (:func:`_to_segments`, :func:`_insides`), the same arithmetic to the bit: a pair with
-one detection and one track would otherwise pay numpy's per-call cost for each of some thirty
-operations on one number."""
-
-
-def _to_segments(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """:func:`_to_segment` of every point ((n, 2) px) to every segment a-b ((m, 2) each), in
-    one pass: (n, m) px."""
-    if points.shape[0] * a.shape[0] <= SMALL_PAIRS:
-        return _to_segments_few(points, a, b)
-    ax, ay = a[None, :, 0], a[None, :, 1]
-    px, py = points[:, None, 0], points[:, None, 1]
-    dx, dy = b[None, :, 0] - ax, b[None, :, 1] - ay
-    n2 = dx * dx + dy * dy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.minimum(1.0, np.maximum(0.0, ((px - ax) * dx + (py - ay) * dy) / n2))
-    t = np.where(n2 == 0.0, 0.0, t)
-    return np.hypot(px - (ax + t * dx), py - (ay + t * dy))
-
-
-def _insides(points: np.ndarray, boxes: np.ndarray, grow: float = 0.0) -> np.ndarray:
-    """:func:`_inside` of every point ((m, 2) px) in every box ((n, 4) x, y, w, h, each grown
-    by ``grow`` of its size on every side), in one pass: (n boxes, m points)."""
-    if len(boxes) * points.shape[0] <= SMALL_PAIRS:
-        return _insides_few(points, boxes, grow)
-    x, y, w, h = np.asarray(boxes, np.float64).T[:, :, None]
-    px, py = points[None, :, 0], points[None, :, 1]
-    if grow == 0.0:  # (x - 0 w is x: the same comparisons, without four products)
-        return (x <= px) & (px <= x + w) & (y <= py) & (py <= y + h)
-    mx, my = grow * w, grow * h
-    return (x - mx <= px) & (px <= x + w + mx) & (y - my <= py) & (py <= y + h + my)
-
-
-def _to_segments_few(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """:func:`_to_segments` one pair at a time in Python floats, the same operations in the
-    same order (numpy's ``hypot``, which may differ from ``math.hypot`` in the last bit):
-    (n, m) px."""
-    out = []
-    for px, py in points.tolist():
-        row = []
-        for (ax, ay), (bx, by) in zip(a.tolist(), b.tolist(), strict=True):
-            dx, dy = bx - ax, by - ay
-            n2 = dx * dx + dy * dy
-            if n2 == 0.0:
-                t = 0.0
-            else:
-                q = ((px - ax) * dx + (py - ay) * dy) / n2
-                t = q if q != q else min(1.0, max(0.0, q))  # NaN stays NaN, as in numpy
-            row.append(np.hypot(px - (ax + t * dx), py - (ay + t * dy)))
-        out.append(row)
-    return np.array(out, np.float64).reshape(len(points), len(a))
-
-
-def _insides_few(points: np.ndarray, boxes: np.ndarray, grow: float) -> np.ndarray:
-    """:func:`_insides` one pair at a time in Python floats: (n boxes, m points)."""
-    pts = points.tolist()
-    out = []
-    for x, y, w, h in np.asarray(boxes, np.float64).reshape(-1, 4).tolist():
-        if grow == 0.0:
-            x0, x1, y0, y1 = x, x + w, y, y + h
-        else:
-            mx, my = grow * w, grow * h
-            x0, x1, y0, y1 = x - mx, x + w + mx, y - my, y + h + my
-        out.append([x0 <= px <= x1 and y0 <= py <= y1 for px, py in pts])
-    return np.array(out, bool).reshape(len(out), len(pts))
-
-
-def _ious(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """:func:`_iou` of every box of ``a`` ((n, 4) x, y, w, h) with every box of ``b`` ((m, 4)),
-    in one pass: (n, m)."""
-    a, b = a[:, None, :].astype(np.float64), b[None, :, :].astype(np.float64)
-    lo_x, lo_y = np.maximum(a[..., 0], b[..., 0]), np.maximum(a[..., 1], b[..., 1])
-    ix = np.maximum(0.0, np.minimum(a[..., 0] + a[..., 2], b[..., 0] + b[..., 2]) - lo_x)
-    iy = np.maximum(0.0, np.minimum(a[..., 1] + a[..., 3], b[..., 1] + b[..., 3]) - lo_y)
-    inter = ix * iy
-    union = (a[..., 2] * a[..., 3] + b[..., 2] * b[..., 3]) - inter
-    return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
-
-
 def _pieces(
     detections: list[Detection],
     centres: np.ndarray,
@@ -194,8 +69,8 @@ def _pieces(
     left and right eye."""
     areas = np.array([d.area_px for d in detections])
     within = (
-        _insides(centres[:, 0], bboxes[:, 0])
-        & _insides(centres[:, 1], bboxes[:, 1])
+        boxes.insides(centres[:, 0], bboxes[:, 0])
+        & boxes.insides(centres[:, 1], bboxes[:, 1])
         & (areas[:, None] > areas[None, :])
     )  # (larger one, piece)
     piece = within.any(axis=0)
@@ -204,7 +79,9 @@ def _pieces(
     if held:
         left = np.array([tr.last.left_bbox_px for tr in held]).reshape(-1, 4)
         right = np.array([tr.last.right_bbox_px for tr in held]).reshape(-1, 4)
-        inside = _insides(centres[:, 0], left, 0.25) & _insides(centres[:, 1], right, 0.25)
+        inside = boxes.insides(centres[:, 0], left, 0.25) & boxes.insides(
+            centres[:, 1], right, 0.25
+        )
         piece |= inside.any(axis=0)
     return piece
 
@@ -241,6 +118,7 @@ class Association(TrackFilters):
     _members: dict[int, Track]
     _fronts: dict[int, tuple[bool, float]]
     _shared: set[int]
+    _recut: set[tuple[int, int]]
     line_ns: float
     _tracks: dict[int, Track]
 
@@ -261,6 +139,7 @@ class Association(TrackFilters):
         self._merging = {}
         self._fronts = {}
         self._shared = set()
+        self._recut = set()
         if not detections:
             return out, may_start
         centres = np.array([(d.left_px, d.right_px) for d in detections], np.float64)
@@ -295,19 +174,33 @@ class Association(TrackFilters):
         # Beyond it, a confirmed track's detection that overlaps where it was in both eyes (a
         # stationary object setting off) costs RESUME_COST.
         cost_px = np.maximum(
-            _to_segments(centres[:, 0], ends[0], ends[1]),
-            _to_segments(centres[:, 1], ends[2], ends[3]),
+            boxes.to_segments(centres[:, 0], ends[0], ends[1]),
+            boxes.to_segments(centres[:, 1], ends[2], ends[3]),
         )
         within = cost_px <= gates
         cost = np.where(within, cost_px / gates, np.inf)
         resumes = ~within & confirmed
         if resumes.any():  # (the overlaps only where a confirmed track's gate missed)
-            resumes &= _ious(bboxes[:, 0], last[0]) >= RESUME_IOU
-            resumes &= _ious(bboxes[:, 1], last[1]) >= RESUME_IOU
-            cost[resumes] = RESUME_COST
+            # A detection whose boxes and the track's predicted ones hold one another with
+            # an end shared, in both eyes, is its object with an end of it segmented or not
+            # (a ball and its long shadow, then the ball alone): its centroid jumped by a
+            # change of shape, which :meth:`update` does not take for a motion.
+            # (Only the one blob where the track should be: two there are its object and
+            # another parting, as a robot leaves the box it pushed.)
+            recut = resumes.copy()
+            for e, left in ((0, True), (1, False)):
+                predicted = self._predicted_boxes(tracks, preds, left)
+                alone = (boxes.ious(bboxes[:, e], predicted) > 0).sum(axis=0) == 1  # per track
+                recut &= boxes.recuts(bboxes[:, e], predicted) & alone
+            resumes &= boxes.ious(bboxes[:, 0], last[0]) >= RESUME_IOU
+            resumes &= boxes.ious(bboxes[:, 1], last[1]) >= RESUME_IOU
+            cost[resumes | recut] = RESUME_COST
+            self._recut = {(int(i), tracks[int(j)].track_id) for i, j in np.argwhere(recut)}
         cost[gone] = np.inf
         # whether each track's prediction falls in each detection's box, left and right eye
-        inside = np.stack((_insides(ends[0], bboxes[:, 0]), _insides(ends[2], bboxes[:, 1])))
+        inside = np.stack(
+            (boxes.insides(ends[0], bboxes[:, 0]), boxes.insides(ends[2], bboxes[:, 1]))
+        )
         shared: list[int] = []
         if int(np.count_nonzero(confirmed)) >= 2:  # (one confirmed track shares nothing)
             hosted = (inside & confirmed).sum(axis=2)  # (eye, detection): confirmed tracks in it
@@ -348,8 +241,9 @@ class Association(TrackFilters):
                 j
                 for j in hosts
                 if np.isfinite(cost[i, j])
-                and _iou(d.left_bbox_px, self._predicted_box(tracks[j], preds[j], True)) >= 0.9
-                and _iou(d.right_bbox_px, self._predicted_box(tracks[j], preds[j], False)) >= 0.9
+                and boxes.iou(d.left_bbox_px, self._predicted_box(tracks[j], preds[j], True)) >= 0.9
+                and boxes.iou(d.right_bbox_px, self._predicted_box(tracks[j], preds[j], False))
+                >= 0.9
             ]
             keep = cost[i, alone[0]] if len(alone) == 1 else np.inf
             cost[i, :] = np.inf
@@ -399,8 +293,8 @@ class Association(TrackFilters):
                 for j in unseen
                 if tracks[j].track_id not in taken
                 and (hid := tracks[j].hidden_in) is not None
-                and _inside(d.left_px, hid[0], 0.0)
-                and _inside(d.right_px, hid[1], 0.0)
+                and boxes.inside(d.left_px, hid[0], 0.0)
+                and boxes.inside(d.right_px, hid[1], 0.0)
             ]
             if came_out:
                 tid = tracks[min(came_out, key=lambda j: cost_px[i, j])].track_id
@@ -413,8 +307,8 @@ class Association(TrackFilters):
                 m
                 for m in self._members.values()
                 if (hid := m.hidden_in) is not None
-                and _inside(d.left_px, hid[0], 0.0)
-                and _inside(d.right_px, hid[1], 0.0)
+                and boxes.inside(d.left_px, hid[0], 0.0)
+                and boxes.inside(d.right_px, hid[1], 0.0)
             ]
             if out_of:
                 m = min(
@@ -430,12 +324,20 @@ class Association(TrackFilters):
                 out[i] = m.track_id
         return out, may_start
 
+    @classmethod
+    def _predicted_boxes(
+        cls, tracks: list[Track], preds: list[Prediction], left: bool
+    ) -> np.ndarray:
+        """Every track's :meth:`_predicted_box` in one eye: (k, 4) x, y, w, h px."""
+        out = [cls._predicted_box(tr, p, left) for tr, p in zip(tracks, preds, strict=True)]
+        return np.array(out, np.float64).reshape(-1, 4)
+
     @staticmethod
     def _predicted_box(tr: Track, pred: Prediction, left: bool) -> np.ndarray:
         """A track's last box in one eye (x, y, w, h px) moved to where ``pred`` puts it."""
         if left:
-            return _moved(tr.last.left_bbox_px, pred.left - tr.left_history[-1][1])
-        return _moved(tr.last.right_bbox_px, pred.right - tr.right_history[-1][1])
+            return boxes.moved(tr.last.left_bbox_px, pred.left - tr.left_history[-1][1])
+        return boxes.moved(tr.last.right_bbox_px, pred.right - tr.right_history[-1][1])
 
     def _in_front(
         self, tracks: list[Track], hosts: np.ndarray, inside: np.ndarray, preds: list[Prediction]

@@ -19,7 +19,12 @@ confirmed track in the last pair is that track's object reappearing, wherever it
 went (a person seen for three frames before a crossing has a velocity that is a guess). A
 confirmed track given a blob under ``SHRINK`` of its last outline's size, across and down, in
 an eye sees a piece of its object (a head above the shoulder of one in front): its filter
-predicts, and the last whole outline is kept to tell the next blob by.
+predicts, and the last whole outline is kept to tell the next blob by. A confirmed track's
+detection beyond its gate whose boxes and the track's predicted ones hold one another with an
+end shared, in both eyes and alone there, is its object re-segmented (a ball's long shadow
+taken in or left out): grown by more than ``REGROWN``, the track predicts through it for up
+to ``max_coast_s`` (then takes it: the object did grow); otherwise it moves onto it with its
+velocity kept.
 
 The filter's measurement is each observation's triangulated position with its covariance, so
 depth noise growing as Z^2 (eq. 12) is weighted correctly. It starts at a track's second
@@ -63,14 +68,8 @@ from __future__ import annotations
 import numpy as np
 
 from stereod.tracking import kalman, measure
-from stereod.tracking.association import (
-    Association,
-    Projector,
-    _inside,
-    _overlaps,
-    _union,
-    predict_px,
-)
+from stereod.tracking.association import Association, Projector, predict_px
+from stereod.tracking.boxes import inside, overlaps, union
 from stereod.tracking.track import Track, behind
 from stereod.tracking.types import (
     Detection,
@@ -107,6 +106,11 @@ class Tracker(Association):
         (index -> whether the other joins it on its right, and the other's predicted disparity,
         px): each is measured by its outline's other side in :meth:`update`
         (:func:`stereod.tracking.measure.by_edge`)."""
+        self._recut: set[tuple[int, int]] = set()
+        """(Detection index, track id) pairs the last :meth:`associate` found to be that
+        track's object with an end of it segmented or not (:func:`boxes.recuts`): if the
+        track takes it, :meth:`update` holds it out of the filter when it grew by more than
+        ``REGROWN``, else moves the track onto it without taking the jump for a motion."""
         self.line_ns = 0.0
         """How much later a rolling shutter reads each image row than the one above (ns); 0
         for a global shutter (set by the pipeline from ``readout_s``)."""
@@ -183,6 +187,7 @@ class Tracker(Association):
         whose filter puts it behind the rig (Z <= 0, where no camera sees) ends there: its
         filter has lost the object, and what it would publish means nothing."""
         p = self.params
+        coast_ns = int(p.max_coast_s * 1e9)
         seen: set[int] = set()
         states: list[TrackState] = []
         ended: list[int] = []
@@ -216,6 +221,17 @@ class Tracker(Association):
                 self._begin(tr, t_ns, ob)
             else:
                 tr = self._tracks[tid]
+                recut = (k, tid) in self._recut and self._confirmed(tr) and not blended
+                if recut and _grown(tr.last, ob) and t_ns - tr.last_seen_ns <= coast_ns:
+                    # Its object joined by what its blob took in with it (a long shadow the
+                    # detector did not leave out): predicted, its outline and 2D tracks kept
+                    # to know it by when it shows alone again; after ``max_coast_s`` of it,
+                    # the blob is taken for the object (it did grow).
+                    self._predict(tr, t_ns)
+                    seen.add(tr.track_id)
+                    if tr.started or tr.whole:
+                        states.append(self._state(tr, t_ns, observed=False))
+                    continue
                 regrown = not self._confirmed(tr) and _regrown(tr.last, ob)
                 if regrown and not tr.odd_size:
                     # Another object's blob, or the object's own merged with something (a
@@ -238,7 +254,7 @@ class Tracker(Association):
                     self._begin(tr, t_ns, ob)
                 elif ob.clipped and not ob.edge_depth:  # part of it out of view: predicted
                     self._predict(tr, t_ns)
-                elif self._confirmed(tr) and not blended and _reshaped(tr.last, ob):
+                elif recut or (self._confirmed(tr) and not blended and _reshaped(tr.last, ob)):
                     self._anchor(tr, t_ns, ob)  # an end of it showed or went: not a motion
                     self._shift_histories(tr, ob, t_left, t_right)
                 elif self._confirmed(tr) and (
@@ -275,7 +291,6 @@ class Tracker(Association):
                 del self._tracks[tr.track_id]
             elif tr.started or tr.whole:  # a track seen only cut by the image's edge is quiet
                 states.append(self._state(tr, t_ns, observed=True))
-        coast_ns = int(p.max_coast_s * 1e9)
         hidden_ns = int(max(p.max_hidden_s, p.max_coast_s) * 1e9)
         boxes = blob_boxes_px or (
             np.array([d.left_bbox_px for d in detections]).reshape(-1, 4),
@@ -367,11 +382,11 @@ class Tracker(Association):
             hit = [
                 b
                 for b in boxes[e]
-                if _inside(point, b, 0.0) or (before is not None and _overlaps(b, before))
+                if inside(point, b, 0.0) or (before is not None and overlaps(b, before))
             ]
             if not hit:
                 return None
-            out.append(_union(hit))
+            out.append(union(hit))
         return out[0], out[1]
 
     def continue_after(self, other: Tracker) -> None:
@@ -397,8 +412,8 @@ def _held_in(
         return None
     out = []
     for e in range(2):
-        hit = [b for b in boxes[e] if _overlaps(b, before[e])]
-        out.append(_union(hit) if hit else before[e])
+        hit = [b for b in boxes[e] if overlaps(b, before[e])]
+        out.append(union(hit) if hit else before[e])
     return out[0], out[1]
 
 
@@ -418,6 +433,15 @@ def _regrown(last: Observation, ob: Observation) -> bool:
     if ob.clipped or last.clipped or not (ob.size_m > 0.0 and last.size_m > 0.0):
         return False
     return max(ob.size_m / last.size_m, last.size_m / ob.size_m) > REGROWN
+
+
+def _grown(last: Observation, ob: Observation) -> bool:
+    """Whether ``ob``'s box is more than :data:`REGROWN` times the area of ``last``'s in both
+    eyes (x, y, w, h px): more than its object grows by in a pair."""
+    for now, then in ((ob.left_bbox_px, last.left_bbox_px), (ob.right_bbox_px, last.right_bbox_px)):
+        if float(now[2]) * float(now[3]) <= REGROWN * float(then[2]) * float(then[3]):
+            return False
+    return True
 
 
 SHRINK = 0.5
