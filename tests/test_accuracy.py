@@ -121,6 +121,24 @@ def test_a_ball_under_a_low_side_lamp_is_measured_without_its_long_shadow(
     check(acc.score(case, acc.run_case(case)))
 
 
+def test_a_ball_whose_long_shadow_comes_and_goes_through_a_webcam_keeps_one_id() -> None:
+    """The low side lamp's ball through a webcam's transport (seed 2): MJPEG leaves the shade
+    too little of the floor's texture, and the shadow test finds the long shadow in some
+    frames only, so the ball's blob is 38 px wide in some frames and 140 px (ball and shadow)
+    in others, its centroid 40 px apart. One id all the same, no ghost, and the speed and
+    position within their targets (the shadowed blobs are held out of the filter). Its median
+    heading, -1.4 deg here, misses 1 deg: see `docs/accuracy.md`. The shutter is rendered in
+    bands of 24 rows (3 ms, in which the ball moves 1.5 mm)."""
+    case = acc.world_room(
+        "lamp_ball", MODE, seed=2, lamp="side", webcam=True, quality={"rolling_band_rows": 24}
+    )
+    score = acc.score(case, acc.run_case(case))
+    assert score.ghosts == []
+    (ball,) = score.objects
+    assert len(ball.track_ids) == 1, ball.track_ids
+    assert abs(ball.speed_err) <= 0.03 and ball.position_ratio <= 0.25, ball
+
+
 def test_a_calibrated_rig_reads_the_overhead_lamps_ball_by_its_rows() -> None:
     """The overhead lamp's ball (a shadow's crescent under it, which one eye segments with
     the ball in some frames) through a Minoru-like calibrated rig: lenses that distort, focal
