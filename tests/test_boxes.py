@@ -69,7 +69,9 @@ def test_recut_boxes_hold_one_another_and_share_an_end() -> None:
     """A ball's box (40 x 40 px) and the box of the ball with its long shadow beside it (140 x
     42) are one object's, re-segmented: one holds the other and they share the ball's side.
     A small blob in the middle of a large one's box shares no end; boxes that only overlap
-    hold neither; the bounds are :data:`RECUT_END_PX`."""
+    hold neither; a ball in one blob with a person beside it, or at a larger box's corner,
+    shares one end of each axis but not both ends of the other; the bounds are
+    :data:`RECUT_END_PX`."""
     from stereod.tracking.boxes import RECUT_END_PX, recuts
 
     ball = np.array([[100.0, 50.0, 40.0, 40.0]])
@@ -82,6 +84,8 @@ def test_recut_boxes_hold_one_another_and_share_an_end() -> None:
         "a box around the ball, no end shared": ([60.0, 10.0, 120.0, 120.0], False),
         "beyond the bound": ([100.0 - e - 1.0, 50.0, 140.0, 40.0], False),
         "overlapping only": ([120.0, 50.0, 140.0, 40.0], False),
+        "a ball at a larger box's corner": ([100.0, 10.0, 140.0, 80.0], False),
+        "a ball and a person beside it, one blob": ([40.0, -60.0, 100.0, 150.0], False),
     }
     for name, (box, want) in cases.items():
         other = np.array([box])

@@ -100,8 +100,9 @@ def _stacked(a: Track, b: Track) -> bool:
 
 RESUME_COST = 0.99
 """The association cost (of at most 1, the gate's edge) of a confirmed track and a detection
-beyond its gate that overlaps where it was (``RESUME_IOU``): the worst acceptable, so any
-detection the track's prediction explains is preferred."""
+beyond its gate that overlaps where it was (``RESUME_IOU``), or that is its object
+re-segmented (:func:`stereod.tracking.boxes.recuts`): the worst acceptable, so any detection
+the track's prediction explains is preferred."""
 RESUME_IOU = 0.3
 """How much a detection's box must overlap a confirmed track's last box, in each eye, to be
 that object moving on though its prediction is not there (a stationary object setting off:
@@ -182,16 +183,21 @@ class Association(TrackFilters):
         resumes = ~within & confirmed
         if resumes.any():  # (the overlaps only where a confirmed track's gate missed)
             # A detection whose boxes and the track's predicted ones hold one another with
-            # an end shared, in both eyes, is its object with an end of it segmented or not
-            # (a ball and its long shadow, then the ball alone): its centroid jumped by a
-            # change of shape, which :meth:`update` does not take for a motion.
+            # their ends shared (``recuts``), in both eyes, is its object with an end of it
+            # segmented or not (a ball and its long shadow, then the ball alone): its
+            # centroid jumped by a change of shape, which :meth:`update` does not take for a
+            # motion.
             # (Only the one blob where the track should be: two there are its object and
             # another parting, as a robot leaves the box it pushed.)
             recut = resumes.copy()
+            missed = np.flatnonzero(resumes.any(axis=0))  # (the tracks with such a detection)
             for e, left in ((0, True), (1, False)):
-                predicted = self._predicted_boxes(tracks, preds, left)
-                alone = (boxes.ious(bboxes[:, e], predicted) > 0).sum(axis=0) == 1  # per track
-                recut &= boxes.recuts(bboxes[:, e], predicted) & alone
+                predicted = self._predicted_boxes(
+                    [tracks[j] for j in missed], [preds[j] for j in missed], left
+                )
+                touch = boxes.ious(bboxes[:, e], predicted) > 0
+                recut[:, missed] &= boxes.recuts(bboxes[:, e], predicted) & touch
+                recut[:, missed] &= touch.sum(axis=0) == 1  # the one blob there
             resumes &= boxes.ious(bboxes[:, 0], last[0]) >= RESUME_IOU
             resumes &= boxes.ious(bboxes[:, 1], last[1]) >= RESUME_IOU
             cost[resumes | recut] = RESUME_COST

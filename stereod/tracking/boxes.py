@@ -143,10 +143,11 @@ edge is a pixel or two off, and a prediction a pixel or two more."""
 
 def recuts(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Whether each box of ``a`` ((n, 4) x, y, w, h px) and each of ``b`` ((m, 4)) are one
-    object's boxes with an end of it segmented or not: one holds the other (within
-    :data:`RECUT_END_PX`), and they share the ends of the axis along which they differ more
-    on one side at least (a ball's box and the box of the ball with its long shadow beside
-    it share the ball's side, top and bottom). (n, m) bool."""
+    object's boxes with an end of it segmented or not: one holds the other, and along the
+    axis where they differ more they share one end at least, along the other both (each
+    within :data:`RECUT_END_PX`). A ball's box and the box of the ball with its long shadow
+    beside it share the ball's side, top and bottom; a ball and a person beside it, whose
+    blob holds both, share the floor's end but not the person's sides. (n, m) bool."""
     a, b = a[:, None, :].astype(np.float64), b[None, :, :].astype(np.float64)
     e = RECUT_END_PX
     lo_a, hi_a = a[..., :2], a[..., :2] + a[..., 2:]
@@ -156,5 +157,6 @@ def recuts(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     same_lo, same_hi = np.abs(lo_a - lo_b) <= e, np.abs(hi_a - hi_b) <= e
     wide = np.abs(a[..., 2] - b[..., 2]) >= np.abs(a[..., 3] - b[..., 3])  # differs across
     axis = np.where(wide, 0, 1)[..., None]
-    shared = np.take_along_axis(same_lo | same_hi, axis, axis=-1)[..., 0]
-    return (a_in_b | b_in_a) & shared
+    one_end = np.take_along_axis(same_lo | same_hi, axis, axis=-1)[..., 0]
+    both_ends = np.take_along_axis(same_lo & same_hi, 1 - axis, axis=-1)[..., 0]
+    return (a_in_b | b_in_a) & one_end & both_ends

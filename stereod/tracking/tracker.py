@@ -20,10 +20,11 @@ went (a person seen for three frames before a crossing has a velocity that is a 
 confirmed track given a blob under ``SHRINK`` of its last outline's size, across and down, in
 an eye sees a piece of its object (a head above the shoulder of one in front): its filter
 predicts, and the last whole outline is kept to tell the next blob by. A confirmed track's
-detection beyond its gate whose boxes and the track's predicted ones hold one another with an
-end shared, in both eyes and alone there, is its object re-segmented (a ball's long shadow
-taken in or left out): grown by more than ``REGROWN``, the track predicts through it for up
-to ``max_coast_s`` (then takes it: the object did grow); otherwise it moves onto it with its
+detection beyond its gate whose boxes and the track's predicted ones hold one another with
+their ends shared (:func:`boxes.recuts`), in both eyes and alone there, is its object
+re-segmented (a ball's long shadow taken in or left out): its box grown by more than
+``RECUT_GROWN`` in area, the track counts as unseen and coasts through it for up to
+``max_coast_s`` (then takes it: the object did grow); otherwise it moves onto it with its
 velocity kept.
 
 The filter's measurement is each observation's triangulated position with its covariance, so
@@ -110,7 +111,7 @@ class Tracker(Association):
         """(Detection index, track id) pairs the last :meth:`associate` found to be that
         track's object with an end of it segmented or not (:func:`boxes.recuts`): if the
         track takes it, :meth:`update` holds it out of the filter when it grew by more than
-        ``REGROWN``, else moves the track onto it without taking the jump for a motion."""
+        ``RECUT_GROWN``, else moves the track onto it without taking the jump for a motion."""
         self.line_ns = 0.0
         """How much later a rolling shutter reads each image row than the one above (ns); 0
         for a global shutter (set by the pipeline from ``readout_s``)."""
@@ -222,15 +223,16 @@ class Tracker(Association):
             else:
                 tr = self._tracks[tid]
                 recut = (k, tid) in self._recut and self._confirmed(tr) and not blended
-                if recut and _grown(tr.last, ob) and t_ns - tr.last_seen_ns <= coast_ns:
+                if (
+                    recut
+                    and _grown(tr.last, ob)
+                    and not _reshaped(tr.last, ob)  # (one end of it showing again: taken)
+                    and t_ns - tr.last_seen_ns <= coast_ns
+                ):
                     # Its object joined by what its blob took in with it (a long shadow the
-                    # detector did not leave out): predicted, its outline and 2D tracks kept
-                    # to know it by when it shows alone again; after ``max_coast_s`` of it,
-                    # the blob is taken for the object (it did grow).
-                    self._predict(tr, t_ns)
-                    seen.add(tr.track_id)
-                    if tr.started or tr.whole:
-                        states.append(self._state(tr, t_ns, observed=False))
+                    # detector did not leave out): unseen in this pair, its outline and 2D
+                    # tracks kept to know it by when it shows alone again; after
+                    # ``max_coast_s`` of it, the blob is taken for the object (it did grow).
                     continue
                 regrown = not self._confirmed(tr) and _regrown(tr.last, ob)
                 if regrown and not tr.odd_size:
@@ -435,11 +437,18 @@ def _regrown(last: Observation, ob: Observation) -> bool:
     return max(ob.size_m / last.size_m, last.size_m / ob.size_m) > REGROWN
 
 
+RECUT_GROWN = 2.5
+"""A confirmed track's re-segmented blob (:func:`stereod.tracking.boxes.recuts`) whose box
+has more than this times the area of its last one's in both eyes has taken in something
+beside its object (a ball's box with its long shadow: 3.7 times), more than an object grows
+by in a pair."""
+
+
 def _grown(last: Observation, ob: Observation) -> bool:
-    """Whether ``ob``'s box is more than :data:`REGROWN` times the area of ``last``'s in both
-    eyes (x, y, w, h px): more than its object grows by in a pair."""
+    """Whether ``ob``'s box is more than :data:`RECUT_GROWN` times the area (px^2) of
+    ``last``'s in both eyes (x, y, w, h px)."""
     for now, then in ((ob.left_bbox_px, last.left_bbox_px), (ob.right_bbox_px, last.right_bbox_px)):
-        if float(now[2]) * float(now[3]) <= REGROWN * float(then[2]) * float(then[3]):
+        if float(now[2]) * float(now[3]) <= RECUT_GROWN * float(then[2]) * float(then[3]):
             return False
     return True
 
