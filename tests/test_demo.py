@@ -16,7 +16,7 @@ import aiohttp
 import pytest
 
 from stereod.tracking.motion import angle_diff_deg
-from stereod.view.demo import DEMO_PORT, free_tcp_port, run_demo
+from stereod.view.demo import DEMO_PORT, free_tcp_port, listening_session, run_demo
 from tests.processes import run_stereod, start_stereod
 
 
@@ -145,19 +145,33 @@ async def _page_headings(url: str) -> list[float]:
 
 def test_a_port_left_in_time_wait_is_free_for_the_demo() -> None:
     """After a demo, its port's last connections linger in TIME_WAIT for a minute; a server
-    (the demo's Zenoh) may listen there, so the demo must not move to another port. A port
-    with a listener is taken."""
+    (the demo's Zenoh) may listen there, so the demo must not move to another port."""
     with socket.socket() as server:
         server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         server.bind(("127.0.0.1", 0))
         server.listen()
         port = server.getsockname()[1]
-        assert free_tcp_port(port) != port  # listening: taken
         client = socket.create_connection(("127.0.0.1", port))
         conn, _ = server.accept()
         conn.close()  # the server side closes first: it keeps the TIME_WAIT
         client.close()
-    assert free_tcp_port(port) == port
+    with listening_session(port) as listening:
+        assert listening.endpoint == f"tcp/127.0.0.1:{port}"
+
+
+def test_the_demo_holds_its_port_from_the_start(capsys: pytest.CaptureFixture[str]) -> None:
+    """Two demos started together cannot both take a port: the demo listens from the moment
+    it picks its port (not once a page opens), so the second finds it taken and moves on,
+    saying where it went."""
+    with listening_session(free_tcp_port()) as first:
+        port = int(first.endpoint.rsplit(":", 1)[1])
+        with socket.socket() as other, pytest.raises(OSError):  # another program: refused
+            other.bind(("127.0.0.1", port))
+        with listening_session(port) as second:
+            assert second.endpoint != first.endpoint
+    assert (
+        f"zenoh: port {port} is taken, listening on {second.endpoint} " in capsys.readouterr().out
+    )
 
 
 def test_demo_view_on_a_port_in_use_names_its_own_flag(tmp_path: Path) -> None:

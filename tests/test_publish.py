@@ -80,6 +80,34 @@ def test_a_subscriber_to_the_tracks_keys_alone_counts_as_one(
             o.undeclare()
 
 
+def test_a_session_given_to_the_publisher_stays_open_with_nothing_of_it_left(
+    endpoint: str, listener: zenoh.Session
+) -> None:
+    """The demo opens its session before the publisher (to hold its port): the publisher
+    publishes on it, and on close ends its tracks and withdraws its token and keys, leaving
+    the session open for its owner to close."""
+    got: list[tuple[str, str]] = []
+    sub = listener.declare_subscriber(
+        "stereod/r/**", lambda s: got.append((str(s.key_expr), str(s.kind).split(".")[-1]))
+    )
+    session = open_session(ZenohConfig(connect=[endpoint]))
+    try:
+        with Publisher(ZenohConfig(), "r", {}, session=session) as pub:
+            assert wait_alive(listener, rig="r", timeout_s=10)
+            pub.objects(b'{"n": 1}', [(3, b'{"t": 3}')], [])
+            time.sleep(0.3)
+        assert not session.is_closed()
+        time.sleep(0.3)
+        assert not list(listener.liveliness().get("stereod/r/alive", timeout=1.0))
+        session.put("stereod/r/after", b"still open")
+        time.sleep(0.3)
+    finally:
+        session.close()
+        sub.undeclare()
+    assert ("stereod/r/objects/3", "PUT") in got and ("stereod/r/objects/3", "DELETE") in got
+    assert ("stereod/r/after", "PUT") in got
+
+
 def test_session_config_has_no_multicast_by_default() -> None:
     cfg = session_config(ZenohConfig(listen=["tcp/127.0.0.1:0"]))
     assert '"enabled":false' in cfg.get_json("scouting/multicast").replace(" ", "")

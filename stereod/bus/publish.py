@@ -216,6 +216,7 @@ class Publisher:
         rig: str,
         queryables: dict[str, Callable[[], bytes]],
         on_status_subscriber: Callable[[], None] | None = None,
+        session: zenoh.Session | None = None,
     ) -> None:
         self.rig = rig
         self.prefix = cfg.prefix
@@ -224,6 +225,8 @@ class Publisher:
         self._queryables = queryables
         self._on_status_subscriber = on_status_subscriber
         self._session: zenoh.Session | None = None
+        self._given = session
+        """A session opened by the caller, who keeps it open (and closes it) after this."""
         self._tracks: dict[int, zenoh.Publisher] = {}
         self._entities: list[Any] = []
         self._lock = threading.Lock()
@@ -234,7 +237,7 @@ class Publisher:
         daemons under one rig name mix their messages and answer each other's queries."""
 
     def open(self) -> Publisher:
-        s = open_session(self._cfg)
+        s = self._given if self._given is not None else open_session(self._cfg)
         self._session = s
         if self._cfg.connect and not reachable(s):
             log.warning(
@@ -359,17 +362,19 @@ class Publisher:
                 log.warning("status publish failed: %s", exc)
 
     def close(self) -> None:
-        """End every live track (DELETE), withdraw the token, close the session."""
+        """End every live track (DELETE), withdraw the token, close the session (one the
+        caller gave stays open, with nothing of this publisher left on it)."""
         with self._lock:
             if self._session is None:
                 return
             for tid in list(self._tracks):
                 self._end_track(tid)
             self._alive.undeclare()
-            for e in self._entities:
+            for e in (*self._entities, self._objects, self._status):
                 e.undeclare()
             self._entities.clear()
-            close_session(self._session)
+            if self._given is None:
+                close_session(self._session)
             self._session = None
 
     def __enter__(self) -> Publisher:

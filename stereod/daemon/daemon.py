@@ -48,6 +48,8 @@ from stereod.vision.calibration import canonical
 from stereod.vision.geometry.rectified import CalibratedRig
 
 if TYPE_CHECKING:
+    import zenoh
+
     from stereod.ros.ros2_live import Ros2Live
 
 log = logging.getLogger(__name__)
@@ -111,7 +113,8 @@ class Daemon:
     ``reload_config`` re-reads the configuration on :meth:`reload`; ``inputs`` are files the
     run reads besides the source's own (the config file), which ``jsonl`` must not be;
     ``on_message`` sees every published pair on the output thread, with the pair's frames in
-    ``Outgoing.pair`` when ``keep_frames`` is set.
+    ``Outgoing.pair`` when ``keep_frames`` is set; ``session`` is a Zenoh session the caller
+    opened (and closes) to publish on instead of one opened from ``cfg.zenoh``.
     """
 
     def __init__(
@@ -127,6 +130,7 @@ class Daemon:
         on_message: Callable[[Outgoing], None] | None = None,
         keep_frames: bool = False,
         inputs: Sequence[Path] = (),
+        session: zenoh.Session | None = None,
     ) -> None:
         self.cfg = cfg
         self.driver = driver
@@ -138,6 +142,7 @@ class Daemon:
         self._on_message = on_message
         self._keep_frames = keep_frames
         self._inputs = [*inputs, *([cfg.rig.calibration] if cfg.rig.calibration else [])]
+        self._session = session
         self._stop = threading.Event()
         self._status_now = threading.Event()
         self._reload_requested = threading.Event()
@@ -296,7 +301,9 @@ class Daemon:
             "calibration": self._calibration_json,
             "stats": self.stats,
         }
-        with Publisher(cfg.zenoh, cfg.rig.name, queryables, self._status_now.set) as pub:
+        with Publisher(
+            cfg.zenoh, cfg.rig.name, queryables, self._status_now.set, session=self._session
+        ) as pub:
             self._publisher = pub
             if pub.rig_taken:
                 self._rig_taken(pub)

@@ -24,13 +24,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import zenoh
 
-from stereod.bus.publish import opened_session
+from stereod.bus.publish import close_session, open_session, opened_session
 from stereod.bus.subscribe import format_object
 from stereod.cli.interrupt import wait_until
 from stereod.client import Event, ObjectsMessage, subscribe_objects
 from stereod.daemon.config import ZenohConfig, load_config
 from stereod.daemon.daemon import Daemon
+from stereod.errors import UnavailableError
 from stereod.sources.drivers import load_driver
 from stereod.sources.record import record
 from stereod.tracking.motion import angle_diff_deg, circular_median_deg
@@ -43,19 +45,11 @@ DEMO_PORT = 7447
 looks by default), else on any free port."""
 
 
-def free_tcp_port(preferred: int = 0) -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago: ``preferred`` if it is. A port
-    whose last connections are still in TIME_WAIT counts as free, as it does for a server
-    (SO_REUSEADDR): only a listener takes it."""
-    for port in (preferred, 0) if preferred else (0,):
-        with socket.socket() as s:
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-            return int(s.getsockname()[1])
-    raise OSError("no free TCP port on 127.0.0.1")
+def free_tcp_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago (the kernel's pick)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
 @dataclass(frozen=True)
@@ -127,37 +121,35 @@ def run_demo(
             f"ball at heading {heading_deg:g} deg, {speed_mps:g} m/s, around "
             f"({', '.join(f'{c:g}' for c in ball.centre_m)}) m"
         )
-        port = free_tcp_port(DEMO_PORT)
-        endpoint = f"tcp/127.0.0.1:{port}"
-        if port != DEMO_PORT:  # say so: `stereod subscribe` and `view` look at 7447 by default
-            print(
-                f"zenoh: port {DEMO_PORT} is taken, listening on {endpoint} "
-                f"(stereod subscribe --connect {endpoint})",
-                flush=True,
-            )
-        cfg = load_config(overrides={"zenoh": {"listen": [endpoint]}})
-        received: list[ObjectsMessage] = []
-        lock = threading.Lock()
-        closed: list[BrokenPipeError] = []
-
-        def on_event(event: Event) -> None:
-            if not isinstance(event, ObjectsMessage):
-                return
-            with lock:
-                received.append(event)
-                if closed:
-                    return
-                try:
-                    for o in event.objects:
-                        print(f"t {event.t_ns / 1e9:6.3f} s" + format_object(o), flush=True)
-                except BrokenPipeError as exc:  # `stereod demo | head`: the reader had enough
-                    closed.append(exc)
-                    daemon.stop()
-
-        daemon = Daemon(
-            cfg, load_driver("replay", {"path": out}), rate=rate, wait_subscriber_s=10.0
-        )
         with contextlib.ExitStack() as stack:
+            listening = stack.enter_context(listening_session())
+            endpoint = listening.endpoint
+            cfg = load_config(overrides={"zenoh": {"listen": [endpoint]}})
+            received: list[ObjectsMessage] = []
+            lock = threading.Lock()
+            closed: list[BrokenPipeError] = []
+
+            def on_event(event: Event) -> None:
+                if not isinstance(event, ObjectsMessage):
+                    return
+                with lock:
+                    received.append(event)
+                    if closed:
+                        return
+                    try:
+                        for o in event.objects:
+                            print(f"t {event.t_ns / 1e9:6.3f} s" + format_object(o), flush=True)
+                    except BrokenPipeError as exc:  # `stereod demo | head`: the reader had enough
+                        closed.append(exc)
+                        daemon.stop()
+
+            daemon = Daemon(
+                cfg,
+                load_driver("replay", {"path": out}),
+                rate=rate,
+                wait_subscriber_s=10.0,
+                session=listening.session,
+            )
             if view:
                 from stereod.view.server import ViewServer  # aiohttp only when asked for
 
@@ -198,6 +190,37 @@ def run_demo(
                 with contextlib.suppress(KeyboardInterrupt):
                     wait_until(threading.Event())
     return code
+
+
+@dataclass(frozen=True)
+class Listening:
+    """A Zenoh session listening on ``endpoint``."""
+
+    session: zenoh.Session
+    endpoint: str
+
+
+@contextlib.contextmanager
+def listening_session(port: int = DEMO_PORT) -> Iterator[Listening]:
+    """The daemon's session, listening from now on so no other process takes its port while
+    the demo waits for a page: on tcp/127.0.0.1 at ``port`` (7447: where ``stereod subscribe``
+    and ``view`` look by default) unless another program listens there (a port whose last
+    connections are in TIME_WAIT is free for it), else on a free port, said on stdout."""
+    endpoint = f"tcp/127.0.0.1:{port}"
+    try:
+        session = open_session(ZenohConfig(listen=[endpoint]))
+    except UnavailableError:  # another program listens there
+        endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+        session = open_session(ZenohConfig(listen=[endpoint]))
+        print(
+            f"zenoh: port {port} is taken, listening on {endpoint} "
+            f"(stereod subscribe --connect {endpoint})",
+            flush=True,
+        )
+    try:
+        yield Listening(session, endpoint)
+    finally:
+        close_session(session)
 
 
 @contextlib.contextmanager
