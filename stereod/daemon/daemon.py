@@ -112,9 +112,9 @@ class Daemon:
     ``wait_subscriber_s`` waits that long for a subscriber before capture starts;
     ``reload_config`` re-reads the configuration on :meth:`reload`; ``inputs`` are files the
     run reads besides the source's own (the config file), which ``jsonl`` must not be;
-    ``on_message`` sees every published pair on the output thread, with the pair's frames in
-    ``Outgoing.pair`` when ``keep_frames`` is set; ``session`` is a Zenoh session the caller
-    opened (and closes) to publish on instead of one opened from ``cfg.zenoh``.
+    ``on_message`` sees every published pair on the output thread (its frames in
+    ``Outgoing.pair`` with ``keep_frames``); it publishes on ``session`` (the caller's to close)
+    when given, else on a session of ``cfg.zenoh``'s.
     """
 
     def __init__(
@@ -301,9 +301,8 @@ class Daemon:
             "calibration": self._calibration_json,
             "stats": self.stats,
         }
-        with Publisher(
-            cfg.zenoh, cfg.rig.name, queryables, self._status_now.set, session=self._session
-        ) as pub:
+        status_now, session = self._status_now.set, self._session
+        with Publisher(cfg.zenoh, cfg.rig.name, queryables, status_now, session=session) as pub:
             self._publisher = pub
             if pub.rig_taken:
                 self._rig_taken(pub)
