@@ -18,6 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from stereod.cli.signals import relayed
 from stereod.errors import EX_DATAERR, ConfigError, ReaderGone, one_line
 from stereod.files.bounds import BASELINE_M, HFOV_DEG, PLAYBACK_RATE, THRESHOLD_GREY, TIME_BASE_S
 from stereod.files.output_file import is_stdout
@@ -335,19 +336,21 @@ def run_daemon(
     if problems_fail:
         daemon.health.log_problems = False
 
-    def on_signal(signum: int, _frame: Any) -> None:
+    def on_signal(signum: int) -> None:
         log.info("signal %d: stopping", signum)
         daemon.stop()
 
-    def on_hup(_signum: int, _frame: Any) -> None:
-        daemon.reload()
+    def on_hup(signum: int) -> None:
+        if reloads:
+            daemon.reload()
+        else:
+            on_signal(signum)
 
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGHUP, on_hup if reloads else on_signal)
+    handlers = {signal.SIGINT: on_signal, signal.SIGTERM: on_signal, signal.SIGHUP: on_hup}
     t0 = time.monotonic()
     try:
-        summary = daemon.run()
+        with relayed(handlers):
+            summary = daemon.run()
     finally:
         if progress is not None:
             progress.close()

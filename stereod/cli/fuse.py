@@ -32,6 +32,7 @@ from stereod.cli.common import (
     summaries_off_stdout,
     zenoh_overrides,
 )
+from stereod.cli.signals import relayed
 from stereod.errors import ConfigError, ReaderGone, StereodError
 from stereod.files.output_file import AtomicOutput, check_outputs
 from stereod.files.paths import shown
@@ -300,17 +301,16 @@ def run(a: argparse.Namespace) -> int:
             worker.start()
             reload_now = threading.Event()
 
-            def hangup(*_: object) -> None:
+            def hangup(_signum: int) -> None:
                 reload_now.set()
                 status_now.set()
 
-            def stop(*_: object) -> None:
+            def stop(_signum: int) -> None:
                 node.done.set()
                 status_now.set()
 
-            for signum in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(signum, stop)
-            signal.signal(signal.SIGHUP, hangup)
+            handlers = {signal.SIGINT: stop, signal.SIGTERM: stop, signal.SIGHUP: hangup}
+            stack.enter_context(relayed(handlers))
             notifier.notify(READY=1, STATUS=f"fusing room {room.name}")
             log.info(
                 "fusing %d rigs into %s",

@@ -13,7 +13,7 @@ import argparse
 import signal
 import threading
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from stereod.cli.common import (
     add_config,
@@ -25,10 +25,12 @@ from stereod.cli.common import (
     setup_logging,
 )
 from stereod.cli.progress import Progress
+from stereod.cli.signals import relayed
 from stereod.files.output_file import check_outputs, signal_name
 
 if TYPE_CHECKING:
-    from stereod.sources.frames import Eye, Frame, SourceInfo
+    from stereod.daemon.config import StereodConfig
+    from stereod.sources.frames import Driver, Eye, Frame, SourceInfo
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -68,9 +70,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 def run(a: argparse.Namespace) -> int:
     from stereod.daemon.config import load_config
-    from stereod.ros.mcap_run import RunMcap, config_geometry
     from stereod.sources.drivers import load_driver
-    from stereod.sources.record import record
 
     ov = {"driver": {"name": a.driver}} if a.driver else {}
     cfg = load_config(a.config, ov)
@@ -79,12 +79,25 @@ def run(a: argparse.Namespace) -> int:
     stop = threading.Event()
     caught: list[int] = []
 
-    def on_signal(signum: int, _frame: Any) -> None:
+    def on_signal(signum: int) -> None:
         caught.append(signum)
         stop.set()
 
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    with relayed({signal.SIGINT: on_signal, signal.SIGTERM: on_signal}):
+        return _record(a, cfg, driver, stop, caught)
+
+
+def _record(
+    a: argparse.Namespace,
+    cfg: StereodConfig,
+    driver: Driver,
+    stop: threading.Event,
+    caught: list[int],
+) -> int:
+    """Record until ``stop`` (set by the signals in ``caught``), then say what was kept."""
+    from stereod.ros.mcap_run import RunMcap, config_geometry
+    from stereod.sources.record import record
+
     check_outputs({"--mcap": a.mcap}, run_inputs(a.config, cfg, driver))
     mcap = None
     if a.mcap is not None:

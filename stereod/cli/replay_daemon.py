@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import logging
 import signal
-import threading
-from typing import Any
 
 from stereod.bus.messages import DaemonState
 from stereod.bus.publish import Publisher
 from stereod.cli.common import stdout_gone
+from stereod.cli.signals import relayed
 from stereod.daemon.daemon import Daemon, RunSummary
 from stereod.errors import ConfigError, ReaderGone
 from stereod.files.output_file import Interrupted, signal_name
@@ -37,31 +36,13 @@ class InterruptibleReplay(Daemon):
         )
 
     def run(self) -> RunSummary:
-        caught: list[int] = []
-        wake = threading.Event()
-
-        def on_signal(signum: int, _frame: Any) -> None:
-            caught.append(signum)
-            wake.set()
-
-        def watch() -> None:
-            # fail() takes locks that the main thread, where the handler runs, may hold.
-            wake.wait()
-            if caught and self.health.state is not DaemonState.FINISHED:
-                signum = caught[0]
+        def interrupted(signum: int) -> None:
+            if self.health.state is not DaemonState.FINISHED:  # the first one wins
                 self.fail(Interrupted(f"interrupted by {signal_name(signum)}", signum))
 
-        watcher = threading.Thread(target=watch, name="signals", daemon=True)
-        watcher.start()
         signums = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-        previous = {sig: signal.signal(sig, on_signal) for sig in signums}
-        try:
+        with relayed(dict.fromkeys(signums, interrupted)):
             return super().run()
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-            wake.set()
-            watcher.join()
 
 
 class LoopReplay(Daemon):

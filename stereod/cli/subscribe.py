@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 from stereod.cli.common import DEFAULT_CONNECT, add_zenoh, number, zenoh_overrides
 from stereod.cli.interrupt import wait_until
+from stereod.cli.signals import relayed
 from stereod.errors import OutputError, UsageError, describe_validation_error
 
 if TYPE_CHECKING:
@@ -95,9 +96,11 @@ def run(a: argparse.Namespace) -> int:
             if a.count is not None and count >= a.count:
                 done.set()
 
-    signal.signal(signal.SIGINT, lambda *_: done.set())
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
-    with opened_session(zcfg, consumer=True) as session:
+    def on_signal(_signum: int) -> None:
+        done.set()
+
+    stopping = relayed(dict.fromkeys((signal.SIGINT, signal.SIGTERM), on_signal))
+    with stopping, opened_session(zcfg, consumer=True) as session:
         sub = session.declare_subscriber(key, on_sample)
         start = time.monotonic()
         if zcfg.connect and not reachable(session, min(1.0, a.duration or 1.0)):

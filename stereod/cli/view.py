@@ -11,6 +11,7 @@ import threading
 from stereod.bus.keys import DEFAULT_RIG, RIG_PATTERN
 from stereod.cli.common import DEFAULT_CONNECT, add_zenoh, number, setup_logging, zenoh_overrides
 from stereod.cli.interrupt import wait_until
+from stereod.cli.signals import relayed
 from stereod.errors import ConfigError, describe_validation_error
 
 
@@ -79,9 +80,12 @@ def run(a: argparse.Namespace) -> int:
     from stereod.view.server import ViewServer
 
     done = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: done.set())
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
+
+    def on_signal(_signum: int) -> None:
+        done.set()
+
     with contextlib.ExitStack() as stack:
+        stack.enter_context(relayed(dict.fromkeys((signal.SIGINT, signal.SIGTERM), on_signal)))
         server = stack.enter_context(ViewServer(zcfg, rig=a.rig, host=a.host, port=a.port))
         where = ", ".join(zcfg.connect or zcfg.listen)
         also = ""

@@ -29,6 +29,7 @@ import zenoh
 from stereod.bus.publish import close_session, open_session, opened_session
 from stereod.bus.subscribe import format_object
 from stereod.cli.interrupt import wait_until
+from stereod.cli.signals import relayed
 from stereod.client import Event, ObjectsMessage, subscribe_objects
 from stereod.daemon.config import ZenohConfig, load_config
 from stereod.daemon.daemon import Daemon
@@ -256,11 +257,11 @@ def _stopping_on_signals(
     """While the daemon runs, Ctrl-C or SIGTERM stops it as ``stereod run`` does (its threads
     drain and end, the scene's folder is removed) and sets ``interrupted``."""
 
-    def on_signal(_signum: int, _frame: object) -> None:
+    def on_signal(_signum: int) -> None:
         interrupted.set()
         daemon.stop()
 
-    return _handling((signal.SIGINT, signal.SIGTERM), on_signal)
+    return relayed(dict.fromkeys((signal.SIGINT, signal.SIGTERM), on_signal))
 
 
 def report(ball: DemoBall, rig: CanonicalRig, received: list[ObjectsMessage]) -> int:

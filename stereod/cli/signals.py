@@ -1,0 +1,58 @@
+"""Signal handlers that take no lock: their work runs on a thread of its own.
+
+Python runs a signal's handler in the main thread, between two bytecodes, whatever that
+thread is doing at the time: taking the lock of a ``threading.Event`` it is setting, say. A
+handler that takes the same lock (``Event.set``, a daemon's ``stop``) then waits for itself
+for ever, which a burst of signals (Ctrl-C pressed twice, ``timeout`` signalling the process
+and its group) makes likely. :func:`relayed` installs handlers that only put the signal's
+number on a :class:`queue.SimpleQueue` (whose ``put`` may interrupt itself), and calls the
+real handlers from a thread that reads that queue, where a lock is only ever waited for.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import queue
+import signal
+import threading
+from collections.abc import Callable, Iterator, Mapping
+from types import FrameType
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+
+@contextlib.contextmanager
+def relayed(handlers: Mapping[signal.Signals, Callable[[int], None]]) -> Iterator[None]:
+    """Within the block, each signal of ``handlers`` calls its handler with the signal's
+    number on the ``signals`` thread (in the order they came); after it the previous handlers
+    are back. A handler that raises is logged, and the next signal is still handled. Off the
+    main thread (where no handler can be set) nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: queue.SimpleQueue[int | None] = queue.SimpleQueue()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        pending.put(signum)
+
+    def relay() -> None:
+        while (signum := pending.get()) is not None:
+            try:
+                handlers[signal.Signals(signum)](signum)
+            except Exception:
+                log.exception("the handler of signal %d failed", signum)
+
+    thread = threading.Thread(target=relay, name="signals", daemon=True)
+    thread.start()
+    previous: dict[signal.Signals, Callable[[int, FrameType | None], Any] | int | None] = {}
+    try:
+        for signum in handlers:
+            previous[signum] = signal.signal(signum, on_signal)
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        pending.put(None)
+        thread.join()

@@ -1,0 +1,123 @@
+"""Signal handlers relayed to a thread of their own (stereod.cli.signals)."""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+
+import pytest
+
+from stereod.cli.signals import relayed
+
+pytestmark = pytest.mark.skipif(
+    threading.current_thread() is not threading.main_thread(),
+    reason="signal handlers are set from the main thread only",
+)
+
+
+def test_a_handler_runs_on_the_signals_thread_and_the_previous_one_comes_back() -> None:
+    got: list[tuple[int, str]] = []
+    done = threading.Event()
+
+    def handler(signum: int) -> None:
+        got.append((signum, threading.current_thread().name))
+        done.set()
+
+    before = signal.getsignal(signal.SIGUSR1)
+    with relayed({signal.SIGUSR1: handler}):
+        os.kill(os.getpid(), signal.SIGUSR1)
+        assert done.wait(5)
+    assert got == [(signal.SIGUSR1, "signals")]
+    assert signal.getsignal(signal.SIGUSR1) == before
+    assert "signals" not in {t.name for t in threading.enumerate()}
+
+
+def test_a_handler_that_raises_is_logged_and_the_next_signal_still_handled(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    calls: list[int] = []
+    second = threading.Event()
+
+    def handler(signum: int) -> None:
+        calls.append(signum)
+        if len(calls) == 1:
+            raise RuntimeError("first one fails")
+        second.set()
+
+    with (
+        caplog.at_level(logging.ERROR, logger="stereod.cli.signals"),
+        relayed({signal.SIGUSR2: handler}),
+    ):
+        os.kill(os.getpid(), signal.SIGUSR2)
+        deadline = time.monotonic() + 5
+        while not calls and time.monotonic() < deadline:
+            time.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGUSR2)
+        assert second.wait(5)
+    assert calls == [signal.SIGUSR2, signal.SIGUSR2]
+    assert "the handler of signal" in caplog.text and "first one fails" in caplog.text
+
+
+_CHILD = textwrap.dedent(
+    """
+    import signal, sys, threading, time
+    from stereod.cli.signals import relayed
+
+    event = threading.Event()
+    count = 0
+
+    def handler(_signum):
+        global count
+        count += 1
+        event.set()
+
+    def spin():
+        print("ready", flush=True)
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            event.set()  # the main thread holds the event's lock again and again
+            event.clear()
+
+    if sys.argv[1] == "relayed":
+        with relayed({signal.SIGINT: handler}):
+            spin()
+    else:
+        signal.signal(signal.SIGINT, lambda signum, _frame: handler(signum))
+        spin()
+    print("done", count, flush=True)
+    """
+)
+
+
+def _burst(how: str) -> subprocess.CompletedProcess[str] | None:
+    """A process that sets and clears an event in its main thread, sent 300 SIGINTs whose
+    handler sets the same event; None when it hung."""
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD, how], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stdout.readline() == "ready\n"
+    for _ in range(300):
+        proc.send_signal(signal.SIGINT)
+        time.sleep(0.0002)
+    try:
+        out, _ = proc.communicate(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        return None
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out)
+
+
+def test_a_burst_of_signals_never_deadlocks_a_main_thread_holding_the_handlers_lock() -> None:
+    """Ctrl-C pressed twice, or ``timeout`` signalling a process and its group: a handler
+    setting an event the main thread was setting waited for itself for ever (a handler set
+    directly hangs in this test every time on this machine). Relayed, every run ends."""
+    for _ in range(2):
+        done = _burst("relayed")
+        assert done is not None, "the process hung"
+        assert done.returncode == 0 and done.stdout.startswith("done ")
+        assert int(done.stdout.split()[1]) > 0
