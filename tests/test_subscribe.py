@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from stereod.bus.subscribe import format_sample
+from stereod.bus.subscribe import format_sample, json_line
 
 EXAMPLE = Path(__file__).parent / "golden" / "objects_example.json"
 
@@ -37,3 +37,18 @@ def test_valid_velocity_shows_speed_and_heading() -> None:
 def test_delete_and_non_json() -> None:
     assert format_sample("k/1", b"", deleted=True) == "k/1: DELETE (track ended)"
     assert format_sample("k", b"\xff\x00") == "k: 2 bytes (not JSON)"
+
+
+def test_json_lines_are_json_whatever_the_payload() -> None:
+    """``subscribe --json`` on ``stereod/**`` meets the images' JPEG: each sample is still
+    one line that parses, the JPEG said by its size and encoding, never its bytes."""
+    jpeg = b"\xff\xd8\xff\xe0\x00\x10JFIF\x00" + bytes(range(256))
+    line = json_line("stereod/r/image/left", jpeg, encoding="image/jpeg")
+    assert json.loads(line) == {
+        "key": "stereod/r/image/left", "bytes": len(jpeg), "encoding": "image/jpeg",
+    }  # fmt: skip
+    assert json_line("k", b'{"seq": 1}') == '{"seq": 1}'  # JSON as it came
+    spread = json_line("k", b'{\n  "seq": 2\n}')
+    assert "\n" not in spread and json.loads(spread) == {"seq": 2}
+    assert json.loads(json_line("k/1", b"", deleted=True)) == {"key": "k/1", "delete": True}
+    assert json.loads(json_line("k", "caf\u00e9 au lait".encode()))["bytes"] == 13  # not JSON

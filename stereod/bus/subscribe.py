@@ -26,6 +26,20 @@ def format_object(o: ObjectState) -> str:
     return f"  #{o.track_id:<4} {o.state.value:<10} pos {_v(o.position_m)} m  {motion}"
 
 
+def json_line(key: str, payload: bytes, deleted: bool = False, encoding: str = "") -> str:
+    """One sample as one line of JSON (``subscribe --json``): a JSON payload as it came (made
+    compact if it spans lines), a DELETE as ``{"key", "delete": true}``, and anything else
+    (an image's JPEG) as ``{"key", "bytes", "encoding"}``, never its bytes in a text line."""
+    if deleted:
+        return json.dumps({"key": key, "delete": True})
+    try:
+        text = payload.decode("utf-8")
+        value = json.loads(text)
+    except ValueError:  # not UTF-8, or not JSON
+        return json.dumps({"key": key, "bytes": len(payload), "encoding": encoding})
+    return json.dumps(value) if "\n" in text or "\r" in text else text
+
+
 def format_sample(key: str, payload: bytes, deleted: bool = False) -> str:
     """A readable block for one sample on any stereod key."""
     if deleted:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 import threading
@@ -30,7 +29,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "keyexpr", nargs="?", default="stereod/**", help="key expression (default: stereod/**)"
     )
-    p.add_argument("--json", action="store_true", help="raw JSON, one line per sample")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="raw JSON, one line per sample (a sample that is no JSON, such as an image, as "
+        '{"key", "bytes", "encoding"}; a DELETE as {"key", "delete": true})',
+    )
     p.add_argument(
         "--count", type=number(1, 10**12, integer=True), metavar="N", help="exit after N samples"
     )
@@ -49,7 +53,7 @@ def run(a: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     from stereod.bus.publish import opened_session, reachable
-    from stereod.bus.subscribe import format_sample
+    from stereod.bus.subscribe import format_sample, json_line
     from stereod.daemon.config_zenoh import ZenohConfig
 
     ov = {k: v for k, v in zenoh_overrides(a).items() if v is not None}
@@ -76,11 +80,7 @@ def run(a: argparse.Namespace) -> int:
         payload = s.payload.to_bytes()
         deleted = s.kind == zenoh.SampleKind.DELETE
         if a.json:
-            line = (
-                json.dumps({"key": key, "delete": True})
-                if deleted
-                else payload.decode("utf-8", "replace")
-            )
+            line = json_line(key, payload, deleted, str(s.encoding))
         else:
             line = format_sample(key, payload, deleted)
         with lock:
