@@ -195,6 +195,29 @@ def test_a_truth_that_does_not_meet_the_run_in_time_is_refused(tmp_path: Path) -
     assert fig.exists()
 
 
+def test_a_run_whose_values_no_axis_can_hold_is_one_line_and_exit_65(tmp_path: Path) -> None:
+    """A position of 1e308 m is no position: a run of them overflowed the axes' arithmetic
+    inside matplotlib (an internal error, exit 70), and one alone draws a figure of nothing.
+    The file, line, track and field are named, and no figure is made; 1e6 m, the bound, is
+    still drawn."""
+    import json
+
+    msg = json.loads((ROOT / "tests" / "golden" / "objects_example.json").read_text())
+    fig = tmp_path / "fig.png"
+    for value, code in ((1e308, 65), (-1e6, 0)):
+        msg["objects"][0]["position_m"] = [value] * 3
+        run = tmp_path / "run.jsonl"
+        run.write_text("\n" + json.dumps(msg) + "\n")
+        r = stereod("plot", str(run), "-o", str(fig))
+        assert r.returncode == code, r.stderr
+        if code:
+            track = msg["objects"][0]["track_id"]
+            assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+            assert f"{run}:2: track {track}'s position_m holds 1e+308, out of range" in r.stderr
+            assert not fig.exists()
+    assert fig.exists()
+
+
 def _golden_run(tmp_path: Path) -> Path:
     run = tmp_path / "run.jsonl"
     line = (ROOT / "tests" / "golden" / "objects_example.json").read_text().replace("\n", "")

@@ -114,6 +114,7 @@ def read_run(path: Path) -> Run:
             ) from exc
         t0 = msg.t_ns if t0 is None else min(t0, msg.t_ns)
         for o in msg.objects:
+            _check_state(path, n, o)
             rows.setdefault(o.track_id, []).append((o.t_ns, o))
     if t0 is None:
         raise InputError(f"{path}: no objects messages in the file")
@@ -140,6 +141,24 @@ def read_run(path: Path) -> Run:
             )
         )
     return Run(t0, tracks)
+
+
+def _check_state(path: Path, line: int, o: ObjectState) -> None:
+    """Refuse (65) an object whose position, velocity or speed lies beyond what the figure's
+    axes can hold (:data:`MAX_TRUTH_M`), naming the file, line, track and field."""
+    fields = {
+        "position_m": o.position_m,
+        "velocity_mps": o.velocity_mps,
+        "raw_velocity_mps": o.raw_velocity_mps or (),
+        "speed_mps": (o.speed_mps,),
+    }
+    for name, values in fields.items():
+        for v in values:
+            if v is not None and not (math.isfinite(v) and abs(v) <= MAX_TRUTH_M):
+                raise InputError(
+                    f"{path}:{line}: track {o.track_id}'s {name} holds {v:g}, out of range "
+                    f"(|value| <= {MAX_TRUTH_M:g}); give the file written by --jsonl"
+                )
 
 
 def read_truth(path: Path, t0_ns: int) -> list[TruthSeries]:
@@ -183,8 +202,8 @@ def read_truth(path: Path, t0_ns: int) -> list[TruthSeries]:
 
 
 MAX_TRUTH_M = 1e6
-"""Largest position (m) or speed (m/s) a truth may give: far beyond any scene a stereo webcam
-sees, well short of what overflows the axes' arithmetic (1e308 does)."""
+"""Largest position (m) or speed (m/s) a truth or a run may give: far beyond any scene a
+stereo webcam sees, well short of what overflows the axes' arithmetic (1e308 does)."""
 MAX_TRUTH_T_NS = 2**62
 """Largest truth time, ns since the epoch (year 2116)."""
 
