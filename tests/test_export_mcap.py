@@ -483,27 +483,53 @@ def test_missing_jsonl_leaves_output_untouched(
     assert_untouched(out, before)
 
 
-def test_corrupt_line_leaves_output_untouched(
-    recorded: Recorded, previous: tuple[Path, bytes], tmp_path: Path
+def test_a_damaged_line_is_skipped_said_and_the_rest_exported(
+    recorded: Recorded, tmp_path: Path
 ) -> None:
-    out, before = previous
+    """A line cut short (and one that is no message at all, and one at the end cut
+    mid-line): the file holds every other message, each damaged line is named on the one
+    line of stderr, and the exit is 65, as for a truncated video."""
     bad = tmp_path / "bad.jsonl"
     lines = list(recorded.lines)
     lines[4] = lines[4][: len(lines[4]) // 2]
+    lines[7] = '{"bad": 1}'
+    lines[-1] = lines[-1][:40]
     bad.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out.mcap"
+    res = stereod("export", str(recorded.rec), "--jsonl", str(bad), "--mcap", str(out), *GEOMETRY)
+    assert res.returncode == 65, res.stderr
+    (err,) = res.stderr.splitlines()
+    assert err.startswith(f"stereod: {bad} line 5: not a stereod.objects/1 message"), err
+    assert f"{bad} line 8: not a stereod.objects/1 message" in err
+    assert f"{bad} line {len(lines)}: not a stereod.objects/1 message" in err
+    assert err.count("; skipped") == 3
+    kept = [x for k, x in enumerate(recorded.lines) if k not in (4, 7, len(lines) - 1)]
+    assert [m.data for m in read_bag(out).msgs(f"{RIG}/objects")] == kept
+    assert temporaries(out.parent) == []
+
+
+def test_a_jsonl_with_no_message_at_all_leaves_output_untouched(
+    recorded: Recorded, previous: tuple[Path, bytes], tmp_path: Path
+) -> None:
+    """Every line damaged: no run's JSONL, so nothing is exported and nothing replaced."""
+    out, before = previous
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text("".join(x[: len(x) // 2] + "\n" for x in recorded.lines))
     with pytest.raises(InputError) as exc:
         export_run(out, jsonl=bad, recording=recorded.rec)
-    one_line(exc, f"{bad} line 5")
+    one_line(exc, f"{bad} line 1")
+    assert "skipped" not in str(exc.value)
     assert_untouched(out, before)
 
 
 @pytest.mark.parametrize("track_id", [2**31, 2**40, -1])
 def test_track_id_beyond_int32_is_one_line_65(
-    recorded: Recorded, previous: tuple[Path, bytes], tmp_path: Path, track_id: int
+    recorded: Recorded, tmp_path: Path, track_id: int
 ) -> None:
     """A track id a ROS marker (int32) cannot carry: exit 65 naming the file, line and id
-    (it was struct.error deep in the CDR writer: an internal error, 70); nothing replaced."""
-    out, before = previous
+    (it was struct.error deep in the CDR writer: an internal error, 70); its message is
+    left out, every other one exported."""
+    out = tmp_path / "out.mcap"
     bad = tmp_path / "big.jsonl"
     messages = [json.loads(x) for x in recorded.lines]
     n = next(i for i, m in enumerate(messages) if m["objects"])
@@ -513,9 +539,10 @@ def test_track_id_beyond_int32_is_one_line_65(
     assert res.returncode == 65, res.stderr
     assert res.stderr.splitlines() == [
         f"stereod: {bad} line {n + 1}: track_id {track_id} is outside 0..2147483647, the ids "
-        "a ROS marker (int32) can carry; regenerate the file with `stereod replay --jsonl`"
+        "a ROS marker (int32) can carry; regenerate the file with `stereod replay --jsonl`; "
+        "skipped"
     ]
-    assert_untouched(out, before)
+    assert len(read_bag(out).msgs(f"{RIG}/objects")) == len(messages) - 1
 
 
 def test_failure_while_writing_removes_the_temporary(

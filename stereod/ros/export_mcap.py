@@ -48,8 +48,26 @@ MAX_TRACK_ID = 2**31 - 1
 and would need 68 years at one new track a second to reach it)."""
 
 
-def _jsonl_messages(path: Path) -> Iterator[tuple[int, ObjectsMessage, str]]:
-    """(line number, message, line) of each non-blank line, validated; errors name the line."""
+DAMAGED_SAID = 20
+"""Damaged JSONL lines said one by one; the rest are counted."""
+
+
+def _jsonl_messages(
+    path: Path, damaged: list[str] | None = None
+) -> Iterator[tuple[int, ObjectsMessage, str]]:
+    """(line number, message, line) of each non-blank line, validated; errors name the line.
+    With ``damaged`` a line that is no message (cut short by a killed run, say) is said
+    there and skipped, and text that is no UTF-8 ends the file there, said too."""
+    skipped = 0
+
+    def skip(problem: InputError) -> None:
+        nonlocal skipped
+        if damaged is None:
+            raise problem
+        skipped += 1
+        if skipped <= DAMAGED_SAID:
+            damaged.append(f"{problem}; skipped")
+
     try:
         fh = path.open(encoding="utf-8", newline="")
     except FileNotFoundError as exc:
@@ -70,25 +88,36 @@ def _jsonl_messages(path: Path) -> Iterator[tuple[int, ObjectsMessage, str]]:
                 except ValidationError as exc:
                     e = exc.errors(include_url=False)[0]
                     loc = ".".join(str(p) for p in e["loc"]) or "(line)"
-                    raise InputError(
-                        f"{path} line {n}: not a stereod.objects/1 message (field {loc}: "
-                        f"{e['msg']}); regenerate the file with `stereod replay --jsonl`"
-                    ) from exc
-                for obj in msg.objects:
-                    if not 0 <= obj.track_id <= MAX_TRACK_ID:
-                        raise InputError(
-                            f"{path} line {n}: track_id {obj.track_id} is outside "
+                    skip(
+                        InputError(
+                            f"{path} line {n}: not a stereod.objects/1 message (field {loc}: "
+                            f"{e['msg']}); regenerate the file with `stereod replay --jsonl`"
+                        )
+                    )
+                    continue
+                far = [o.track_id for o in msg.objects if not 0 <= o.track_id <= MAX_TRACK_ID]
+                if far:
+                    skip(
+                        InputError(
+                            f"{path} line {n}: track_id {far[0]} is outside "
                             f"0..{MAX_TRACK_ID}, the ids a ROS marker (int32) can carry; "
                             "regenerate the file with `stereod replay --jsonl`"
                         )
+                    )
+                    continue
                 yield n, msg, line
         except UnicodeDecodeError as exc:
-            raise InputError(
+            problem = InputError(
                 f"{path} line {n + 1}: not UTF-8 text; regenerate the file with "
                 "`stereod replay --jsonl`"
-            ) from exc
+            )
+            if damaged is None:
+                raise problem from exc
+            damaged.append(f"{problem}; the file exported up to there")
         except OSError as exc:
             raise InputError(f"{path}: cannot read JSONL file: {exc.strerror}") from exc
+    if skipped > DAMAGED_SAID and damaged is not None:
+        damaged.append(f"{path}: {skipped - DAMAGED_SAID} more damaged lines skipped")
 
 
 @dataclass
@@ -99,11 +128,13 @@ class _JsonlScan:
     rigs: set[str] = field(default_factory=set)
     kinds: set[tuple[str, str | None]] = field(default_factory=set)
     offset_ns: int | None = None
+    problems: list[str] = field(default_factory=list)
+    """Its damaged lines, skipped."""
 
 
 def _scan_jsonl(path: Path, bounds: tuple[int, int] | None, recording: Path | None) -> _JsonlScan:
     scan = _JsonlScan()
-    for n, msg, _ in _jsonl_messages(path):
+    for n, msg, _ in _jsonl_messages(path, scan.problems):
         scan.count += 1
         scan.rigs.add(msg.rig)
         scan.kinds.add((value_text(msg.geometry), msg.calibration_id))
@@ -115,6 +146,8 @@ def _scan_jsonl(path: Path, bounds: tuple[int, int] | None, recording: Path | No
                 f"({bounds[0]}..{bounds[1]} ns): the JSONL is from another run; pass the "
                 "matching pair"
             )
+    if scan.problems and not scan.count:  # no message at all: no run's JSONL
+        raise InputError(scan.problems[0].removesuffix("; skipped"))
     return scan
 
 
@@ -334,14 +367,17 @@ def export_run(
     elif lo is not None and man is not None and (created := _created_utc_ns(man)) is not None:
         clock, offset = "created_utc", created - lo
 
-    problems: list[str] = []
+    problems: list[str] = list(scan.problems)
     gray = man is None or not man.color
     streams: list[Iterator[tuple[int, int, Any]]] = [
         _frame_events(rec, order, offset, include_images, gray, problems)
         for order, rec in enumerate(eyes.values())
     ]
     if jsonl is not None:
-        streams.append((m.stamp_utc_ns, 2, (m, line)) for _, m, line in _jsonl_messages(jsonl))
+        said_once: list[str] = []  # the scan said the damaged lines
+        streams.append(
+            (m.stamp_utc_ns, 2, (m, line)) for _, m, line in _jsonl_messages(jsonl, said_once)
+        )
 
     writer = McapRunWriter(
         out,
