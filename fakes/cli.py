@@ -248,12 +248,23 @@ def scene_from_args(a: argparse.Namespace) -> Scene:
             balls=balls,
         )
     except ValidationError as exc:
-        raise UsageError(f"synth: {describe_validation_error(exc)}") from exc
+        given = {
+            "width_px": f"--size {w}x{h}", "height_px": f"--size {w}x{h}", "fps": "--fps",
+            "hfov_deg": "--hfov", "baseline_m": "--baseline", "duration_s": "--duration",
+            "noise_sigma": "--noise", "skew_s": "--skew-ms", "drift": "--drift",
+        }  # fmt: skip
+        flags = dict.fromkeys(given.get(str(e["loc"][0]), "synth") for e in exc.errors())
+        raise UsageError(f"{', '.join(flags)}: {describe_validation_error(exc)}") from exc
     for spec, ball in zip(specs, scene.balls, strict=True):
         keys = {part.partition("=")[0].strip() for part in spec.split(",")}
         problem = ball_problem(scene, ball, move="z" in keys and "radius" not in keys)
         if problem is None:
             problem = travel_problem(scene, ball)
+        if problem is not None and not a.ball:  # the default ball: the view is what is off
+            raise UsageError(
+                f"--size {w}x{h}: the default ball, {problem}; give a larger --size or a "
+                "--ball that fits (nothing was written)"
+            )
         if problem is not None:
             raise UsageError(f"--ball {spec!r}: {problem} (nothing was written)")
     if scene.n_frames == 0:

@@ -136,3 +136,19 @@ def test_whole_runs(tmp_path_factory, recording: Path, command: str, flags: list
     if res.returncode:
         assert len(lines) == 1 and lines[0].startswith("stereod"), res.stderr
     assert {p: digest(p) for p in recording.iterdir()} == before
+
+
+def test_every_flag_and_argument_of_every_command_says_what_it_is_for() -> None:
+    """``--help`` explains every flag: none is listed bare (``fuse --log-level`` was)."""
+
+    def bare(parser: argparse.ArgumentParser, path: str) -> list[str]:
+        out = []
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    out += bare(sub, f"{path} {name}")
+            elif not action.help and action.help != argparse.SUPPRESS:
+                out.append(f"{path} {'/'.join(action.option_strings) or action.dest}")
+        return out
+
+    assert bare(PARSER, "stereod") == []

@@ -154,6 +154,26 @@ def test_synth_refuses_a_ball_that_cannot_be_seen(tmp_path: Path, ball: str, pat
 
 
 @pytest.mark.parametrize(
+    ("size", "pattern"),
+    [
+        (
+            "2x2",
+            r"the default ball, a ball of radius 0\.05 m .* too small to detect .*larger --size",
+        ),
+        ("100000x100000", r"width_px = 100000: Input should be less than or equal to 4096"),
+    ],
+)
+def test_synth_names_the_size_when_the_size_is_what_is_off(
+    tmp_path: Path, size: str, pattern: str
+) -> None:
+    """A view too small for the default ball, or too large to render, is ``--size``'s error
+    (it named a ``--ball ''`` the user never gave, or the scene's field); nothing is written."""
+    res = stereod("synth", str(tmp_path / "s"), "--size", size)
+    one_line_error(res, 64, rf"--size {size}: {pattern}")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
     ("ball", "pattern"),
     [  # at mid-travel at 1.8 m (or z), in view for the default 1.6 s from 1.2 s to 2.8 s
         ("heading=0,speed=3", r"start of its travel \(1\.2 s\) it is at z = -0\.6 m, at or behind"),

@@ -134,7 +134,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="ADDR",
         help="address of the Foxglove WebSocket (default 127.0.0.1: this machine only)",
     )
-    p.add_argument("--log-level", choices=["DEBUG", "INFO", "WARNING", "ERROR"], default="INFO")
+    p.add_argument(
+        "--log-level",
+        choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+        default="INFO",
+        help="the least severe log lines written to stderr (default INFO)",
+    )
     add_zenoh(p)
     p.set_defaults(func=run)
 

@@ -12,7 +12,7 @@ from stereod.bus.keys import DEFAULT_RIG, RIG_PATTERN
 from stereod.cli.common import DEFAULT_CONNECT, add_zenoh, number, setup_logging, zenoh_overrides
 from stereod.cli.interrupt import wait_until
 from stereod.cli.signals import relayed
-from stereod.errors import ConfigError, describe_validation_error
+from stereod.errors import ConfigError, UsageError, describe_validation_error
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -76,7 +76,7 @@ def run(a: argparse.Namespace) -> int:
     except ValidationError as exc:
         raise ConfigError(f"zenoh flags: {describe_validation_error(exc)}") from exc
     if not re.match(RIG_PATTERN, a.rig):
-        raise ConfigError(f"--rig {a.rig!r}: use letters, digits, '_' and '-' only")
+        raise UsageError(f"--rig {a.rig!r}: use letters, digits, '_' and '-' only")
     from stereod.view.server import ViewServer
 
     done = threading.Event()
