@@ -69,6 +69,10 @@ def test_a_flag_naming_another_driver_leaves_the_files_driver_options_out(tmp_pa
             r"tracking\.max_member_s = True: must be a number",
         ),
         (
+            "[rig]\ncalibration = ''\n",
+            r"rig\.calibration = '': is empty: give a path, or leave the key out",
+        ),
+        (
             "[matching]\nmin_disparity_px = 10.0\nmax_disparity_px = 5.0\n",
             r"matching\.max_disparity_px = 5\.0: must be larger than min_disparity_px \(10\)",
         ),
@@ -136,3 +140,11 @@ def test_how_long_a_member_is_kept_reaches_the_tracker(
     monkeypatch.setenv("STEREOD_TRACKING__MAX_MEMBER_S", "30")
     assert load_config(f).tracking.params().max_member_s == 30.0
     assert load_config().tracking.params() == TrackerParams(max_member_s=30.0)
+
+
+def test_a_config_saved_with_a_byte_order_mark_reads_as_without(tmp_path: Path) -> None:
+    """An editor that writes UTF-8 with a BOM (some on Windows do) made the first line an
+    'invalid statement' at column 1; the mark is no part of the text."""
+    f = tmp_path / "c.toml"
+    f.write_bytes("\ufeff[rig]\nbaseline_m = 0.07\n".encode())
+    assert load_config(f).rig.baseline_m == 0.07

@@ -108,3 +108,10 @@ def test_a_room_file_nested_too_deep_or_missing_is_refused(tmp_path: Path) -> No
     with pytest.raises(MissingInputError, match="no such room file") as info:
         load_room(tmp_path / "absent.toml")
     assert info.value.exit_code == EX_NOINPUT
+
+
+def test_a_room_file_saved_with_a_byte_order_mark_reads_as_without(tmp_path: Path) -> None:
+    f = tmp_path / "room.toml"
+    f.write_bytes(("\ufeff" + ROOM).encode())
+    room = load_room(f)
+    assert room.name == "lab" and [r.name for r in room.rigs] == ["a", "b"]

@@ -24,7 +24,7 @@ DEFAULT_CONFIG_PATH = Path("/etc/stereod/stereod.toml")
 def read_toml(path: Path) -> dict[str, Any]:
     """Parse a TOML config file; errors name the file and what to do."""
     try:
-        text = read_input_file(path, "a config file", too_large=ConfigError).decode()
+        text = read_input_file(path, "a config file", too_large=ConfigError).decode("utf-8-sig")
         check_depth(text, "toml", str(path), ConfigError)
         data = tomllib.loads(text)
         check_data_depth(data, str(path), ConfigError)

@@ -18,7 +18,7 @@ import stat
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import AfterValidator
+from pydantic import AfterValidator, BeforeValidator
 
 from stereod.errors import InputError, MissingInputError, StereodError, one_line
 
@@ -72,10 +72,17 @@ def _check_name(value: str) -> str:
     return value
 
 
-TextPath = Annotated[Path, AfterValidator(_check_path)]
-"""A configuration field holding a path: valid UTF-8, no NUL (refused with the field's name)."""
+def _not_empty(value: object) -> object:
+    if isinstance(value, str) and not value.strip():
+        raise ValueError("is empty: give a path, or leave the key out")
+    return value
 
-TextPathStr = Annotated[str, AfterValidator(_check_name)]
+
+TextPath = Annotated[Path, BeforeValidator(_not_empty), AfterValidator(_check_path)]
+"""A configuration field holding a path: not empty (which would name the folder the command
+runs in), valid UTF-8, no NUL (refused with the field's name)."""
+
+TextPathStr = Annotated[str, BeforeValidator(_not_empty), AfterValidator(_check_name)]
 """The same for a path kept as a string (device nodes)."""
 
 

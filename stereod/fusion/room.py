@@ -171,7 +171,7 @@ def load_room(path: Path) -> Room:
     the file and field, a missing or unreadable file a :class:`MissingInputError` (66)."""
     where = shown(path)
     try:
-        text = read_input_file(path, "a room file", too_large=ConfigError).decode()
+        text = read_input_file(path, "a room file", too_large=ConfigError).decode("utf-8-sig")
     except FileNotFoundError as exc:
         raise MissingInputError(f"{where}: no such room file (pass --room FILE)") from exc
     except OSError as exc:
