@@ -46,6 +46,29 @@ def test_install_dry_run_and_uninstall(tmp_path: Path) -> None:
     assert not (units / "stereod.service").exists() and cfg.exists()
 
 
+def test_a_prefix_that_is_no_folder_or_empty_is_refused_and_only_what_was_done_is_said(
+    tmp_path: Path,
+) -> None:
+    """A file as --prefix said five writes, then failed on the first (exit 73); an empty one
+    installed into ./etc. Both are one line and 64 now, nothing written; a step that fails
+    under a prefix is the last line, after the steps done before it."""
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    for prefix, why in ((str(afile), "not a folder"), ("", "is empty")):
+        res = stereod("install-service", "--prefix", prefix, cwd=tmp_path)
+        assert res.returncode == 64 and res.stdout == "", res
+        assert len(res.stderr.splitlines()) == 1 and why in res.stderr, res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+    blocked = tmp_path / "p"
+    (blocked / "etc/udev").mkdir(parents=True)
+    (blocked / "etc/udev/rules.d").write_text("a file where a folder goes")
+    res = stereod("install-service", "--prefix", str(blocked))
+    assert res.returncode == 73, res.stderr
+    said = res.stdout.splitlines()
+    assert len(said) == len(UNITS) and all(line.startswith("write ") for line in said), said
+    assert "rules.d" in res.stderr and not any("rules" in line for line in said)
+
+
 def test_default_config_is_valid_and_listens_on_loopback_only(tmp_path: Path) -> None:
     installed(tmp_path)
     res = stereod("run", "--config", str(tmp_path / "etc/stereod/stereod.toml"), "--check")

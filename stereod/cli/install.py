@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 
 from stereod.cli.common import path_arg
+from stereod.errors import UsageError
+from stereod.files.paths import shown
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -19,7 +21,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument(
         "--prefix",
-        type=path_arg,
+        type=_prefix_arg,
         default=Path("/"),
         metavar="DIR",
         help="install under DIR instead of / (packaging, tests); nothing is reloaded",
@@ -33,14 +35,26 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.set_defaults(func=run)
 
 
+def _prefix_arg(text: str) -> Path:
+    """An argparse type: a folder to install under; an empty one (which would be the folder
+    the command runs in) is refused."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty: give a folder, or leave --prefix out for /")
+    return path_arg(text)
+
+
 def run(a: argparse.Namespace) -> int:
     from stereod.daemon.install import apply, plan
 
+    if a.prefix.exists() and not a.prefix.is_dir():
+        raise UsageError(
+            f"--prefix {shown(a.prefix)}: not a folder; give the folder to install under"
+        )
     actions = plan(a.prefix, uninstall=a.uninstall)
     for action in actions:
+        if not a.dry_run:
+            apply([action])  # said once done: a step that fails is the last line
         print(("would " if a.dry_run else "") + action.describe())
-    if not a.dry_run:
-        apply(actions)
     if not actions:
         print("nothing to do")
     return 0
