@@ -27,6 +27,10 @@ BALL_KEYS = {
 }
 
 
+DEFAULT_SIZE = (640, 480)
+"""``--size`` when none is given, px."""
+
+
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "synth",
@@ -48,7 +52,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--size",
         type=recording_size,
-        default=(640, 480),
+        default=DEFAULT_SIZE,
         metavar="WxH",
         help="image size, px: even numbers (default 640x480)",
     )
@@ -257,16 +261,21 @@ def scene_from_args(a: argparse.Namespace) -> Scene:
         raise UsageError(f"{', '.join(flags)}: {describe_validation_error(exc)}") from exc
     for spec, ball in zip(specs, scene.balls, strict=True):
         keys = {part.partition("=")[0].strip() for part in spec.split(",")}
-        problem = ball_problem(scene, ball, move="z" in keys and "radius" not in keys)
+        move = "z" in keys and "radius" not in keys
+        problem = ball_problem(scene, ball, move=move)
+        if problem is not None and not a.ball and (w, h) != DEFAULT_SIZE:
+            width, height = DEFAULT_SIZE
+            usual = scene.model_copy(update={"width_px": width, "height_px": height})
+            if ball_problem(usual, ball, move=move) is None:  # the size is what is off
+                raise UsageError(
+                    f"--size {w}x{h}: the default ball, {problem}; give a larger --size or "
+                    "a --ball that fits (nothing was written)"
+                )
         if problem is None:
             problem = travel_problem(scene, ball)
-        if problem is not None and not a.ball:  # the default ball: the view is what is off
-            raise UsageError(
-                f"--size {w}x{h}: the default ball, {problem}; give a larger --size or a "
-                "--ball that fits (nothing was written)"
-            )
         if problem is not None:
-            raise UsageError(f"--ball {spec!r}: {problem} (nothing was written)")
+            which = f"--ball {spec!r}" if a.ball else "the default ball (no --ball given)"
+            raise UsageError(f"{which}: {problem} (nothing was written)")
     if scene.n_frames == 0:
         raise UsageError(
             f"--duration {a.duration:g} s at --fps {a.fps:g} Hz is not one frame: give a "

@@ -486,24 +486,27 @@ def test_missing_jsonl_leaves_output_untouched(
 def test_a_damaged_line_is_skipped_said_and_the_rest_exported(
     recorded: Recorded, tmp_path: Path
 ) -> None:
-    """A line cut short (and one that is no message at all, and one at the end cut
-    mid-line): the file holds every other message, each damaged line is named on the one
-    line of stderr, and the exit is 65, as for a truncated video."""
+    """A line cut short, one that is no message at all, one that is not UTF-8 and one at
+    the end cut mid-line: the file holds every other message (those beside the bytes that
+    are not UTF-8 too), each damaged line is named on the one line of stderr with its own
+    number, and the exit is 65, as for a truncated video."""
     bad = tmp_path / "bad.jsonl"
     lines = list(recorded.lines)
     lines[4] = lines[4][: len(lines[4]) // 2]
     lines[7] = '{"bad": 1}'
     lines[-1] = lines[-1][:40]
-    bad.write_text("\n".join(lines) + "\n")
+    data = [x.encode() for x in lines]
+    data[9] = data[9][:30] + b"\xff\xfe" + data[9][30:]
+    bad.write_bytes(b"\n".join(data) + b"\n")
     out = tmp_path / "out.mcap"
     res = stereod("export", str(recorded.rec), "--jsonl", str(bad), "--mcap", str(out), *GEOMETRY)
     assert res.returncode == 65, res.stderr
     (err,) = res.stderr.splitlines()
     assert err.startswith(f"stereod: {bad} line 5: not a stereod.objects/1 message"), err
     assert f"{bad} line 8: not a stereod.objects/1 message" in err
-    assert f"{bad} line {len(lines)}: not a stereod.objects/1 message" in err
-    assert err.count("; skipped") == 3
-    kept = [x for k, x in enumerate(recorded.lines) if k not in (4, 7, len(lines) - 1)]
+    assert f"{bad} line 10: not UTF-8 text" in err and "; and 1 more" in err
+    assert err.count("; skipped") == 3  # the fourth is counted
+    kept = [x for k, x in enumerate(recorded.lines) if k not in (4, 7, 9, len(lines) - 1)]
     assert [m.data for m in read_bag(out).msgs(f"{RIG}/objects")] == kept
     assert temporaries(out.parent) == []
 

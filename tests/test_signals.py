@@ -121,3 +121,22 @@ def test_a_burst_of_signals_never_deadlocks_a_main_thread_holding_the_handlers_l
         assert done is not None, "the process hung"
         assert done.returncode == 0 and done.stdout.startswith("done ")
         assert int(done.stdout.split()[1]) > 0
+
+
+def test_a_signal_handed_on_by_another_handler_runs_that_handlers_work() -> None:
+    """A one-shot command's SIGHUP calls whatever handles SIGTERM (``record`` ends on
+    either): the relayed SIGTERM handler must take it as its own, not look up a SIGHUP
+    handler it was never given."""
+    got: list[int] = []
+    done = threading.Event()
+
+    def on_term(signum: int) -> None:
+        got.append(signum)
+        done.set()
+
+    with relayed({signal.SIGTERM: on_term}):
+        handler = signal.getsignal(signal.SIGTERM)
+        assert callable(handler)
+        handler(signal.SIGHUP, None)
+        assert done.wait(5)
+    assert got == [signal.SIGHUP]

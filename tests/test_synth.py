@@ -171,6 +171,12 @@ def test_synth_names_the_size_when_the_size_is_what_is_off(
     res = stereod("synth", str(tmp_path / "s"), "--size", size)
     one_line_error(res, 64, rf"--size {size}: {pattern}")
     assert list(tmp_path.iterdir()) == []
+    # what a larger view would not mend is not the size's: a travel through the camera
+    res = stereod(
+        "synth", str(tmp_path / "s"), "--size", "320x240", "--travel", "20", "--duration", "30"
+    )
+    one_line_error(res, 64, r"^stereod: the default ball \(no --ball given\): at the start")
+    assert "--size" not in res.stderr and list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize(

@@ -35,7 +35,7 @@ def json_line(key: str, payload: bytes, deleted: bool = False, encoding: str = "
     try:
         text = payload.decode("utf-8")
         value = json.loads(text)
-    except ValueError:  # not UTF-8, or not JSON
+    except (ValueError, RecursionError):  # not UTF-8, not JSON, or nested past the parser
         return json.dumps({"key": key, "bytes": len(payload), "encoding": encoding})
     return json.dumps(value) if "\n" in text or "\r" in text else text
 

@@ -348,12 +348,17 @@ def run_daemon(
 
     handlers = {signal.SIGINT: on_signal, signal.SIGTERM: on_signal, signal.SIGHUP: on_hup}
     t0 = time.monotonic()
-    try:
-        with relayed(handlers):
+    with relayed(handlers):  # to the end: a late signal stops nothing, and kills nothing
+        try:
             summary = daemon.run()
-    finally:
-        if progress is not None:
-            progress.close()
+        finally:
+            if progress is not None:
+                progress.close()
+        return _ended(daemon, summary, t0, quiet=quiet, problems_fail=problems_fail)
+
+
+def _ended(daemon: Any, summary: Any, t0: float, *, quiet: bool, problems_fail: bool) -> int:
+    """:func:`run_daemon`'s summary line and exit code once the run is over."""
     if isinstance(summary.error, ReaderGone) and summary.error.stdout:
         stdout_gone()
     if not quiet:

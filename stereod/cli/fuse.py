@@ -271,102 +271,103 @@ def run(a: argparse.Namespace) -> int:
             jsonl.discard()
         raise
     node = FuseNode(room, fuser, clock, publisher, jsonl, prefix, mcap, a.max_rate)
+    reload_now = threading.Event()
+
+    def hangup(_signum: int) -> None:
+        reload_now.set()
+        status_now.set()
+
+    def stop(_signum: int) -> None:
+        node.done.set()
+        status_now.set()
+
+    # To the end, outputs committed: a late signal only stops what has already stopped.
     notifier = Notifier()
     committed = False
-    try:
-        with publisher, contextlib.ExitStack() as stack:
-            bridge: RoomFoxgloveBridge | None = None
-            if publisher.rig_taken:
-                raise ConfigError(
-                    f"another stereod fuse already publishes room {room.name!r} under "
-                    f"{publisher.base}/ on this bus; give this room another name in {a.room}"
-                )
-            session = publisher.session
-            status_pub = session.declare_publisher(
-                keys.status(room.name, prefix=zcfg.prefix),
-                encoding=zenoh.Encoding(encoding_for(FUSE_STATUS_SCHEMA)),
-                congestion_control=zenoh.CongestionControl.DROP,
-            )
-            subs = {
-                r.name: session.declare_subscriber(
-                    keys.objects(r.name, prefix=prefix), node.on_sample
-                )
-                for r in room.rigs
-            }
-            if a.foxglove:
-                from stereod.fusion.foxglove import RoomFoxgloveBridge
-
-                bridge = RoomFoxgloveBridge(
-                    session, room, prefix=prefix, host=a.foxglove_host, port=a.foxglove_port
-                )
-                stack.enter_context(bridge)
-            frozen = freeze_startup_heap()
-            log.debug("start-up heap frozen: %d objects left out of collections", frozen)
-            worker = threading.Thread(target=node.loop, name="fuse", daemon=True)
-            worker.start()
-            reload_now = threading.Event()
-
-            def hangup(_signum: int) -> None:
-                reload_now.set()
-                status_now.set()
-
-            def stop(_signum: int) -> None:
-                node.done.set()
-                status_now.set()
-
-            handlers = {signal.SIGINT: stop, signal.SIGTERM: stop, signal.SIGHUP: hangup}
-            stack.enter_context(relayed(handlers))
-            notifier.notify(READY=1, STATUS=f"fusing room {room.name}")
-            log.info(
-                "fusing %d rigs into %s",
-                len(room.rigs),
-                keys.objects(room.name, prefix=zcfg.prefix),
-            )
-            period = cfg.daemon.status_period_s
-            last = 0.0
-            while not node.done.is_set():
-                status_now.wait(min(period, 0.25))
-                if reload_now.is_set():
-                    reload_now.clear()
-                    _reload(a.room, node, session, subs, prefix, notifier, bridge)
-                    config["room"] = node.room_next().model_dump(mode="json")
-                now = time.monotonic()
-                if status_now.is_set() or now - last >= period:
-                    status_now.clear()
-                    st = node.status()
-                    status_pub.put(st.model_dump_json(by_alias=True).encode())
-                    notifier.notify(
-                        WATCHDOG=1,
-                        STATUS=f"{st.tracks} tracks, {st.steps_per_s:.1f} steps/s, "
-                        f"{sum(link.live for link in st.rigs.values())}/{len(st.rigs)} rigs",
+    with relayed({signal.SIGINT: stop, signal.SIGTERM: stop, signal.SIGHUP: hangup}):
+        try:
+            with publisher, contextlib.ExitStack() as stack:
+                bridge: RoomFoxgloveBridge | None = None
+                if publisher.rig_taken:
+                    raise ConfigError(
+                        f"another stereod fuse already publishes room {room.name!r} under "
+                        f"{publisher.base}/ on this bus; give this room another name in {a.room}"
                     )
-                    last = now
-            notifier.notify(STOPPING=1)
-            worker.join()
-            for s in subs.values():
-                s.undeclare()
-            status_pub.put(node.status("stopping").model_dump_json(by_alias=True).encode())
-            status_pub.undeclare()
-        if node.error is not None:
-            raise node.error
-        if jsonl is not None:
-            jsonl.commit()
-        if mcap is not None:
-            mcap.close()
-        committed = True
-        say(
-            f"{node.room_messages} room messages ({node.steps} fusion steps) from "
-            f"{sum(node.received.values())} rig messages; {len(fuser.restarts)} rig restarts seen"
-        )
-    except ReaderGone as exc:
-        if exc.stdout:
-            stdout_gone()
-            return 0
-        raise
-    finally:
-        if jsonl is not None and not committed:
-            jsonl.discard()
-        if mcap is not None and not committed:
-            mcap.abort()
-        notifier.close()
-    return 0
+                session = publisher.session
+                status_pub = session.declare_publisher(
+                    keys.status(room.name, prefix=zcfg.prefix),
+                    encoding=zenoh.Encoding(encoding_for(FUSE_STATUS_SCHEMA)),
+                    congestion_control=zenoh.CongestionControl.DROP,
+                )
+                subs = {
+                    r.name: session.declare_subscriber(
+                        keys.objects(r.name, prefix=prefix), node.on_sample
+                    )
+                    for r in room.rigs
+                }
+                if a.foxglove:
+                    from stereod.fusion.foxglove import RoomFoxgloveBridge
+
+                    bridge = RoomFoxgloveBridge(
+                        session, room, prefix=prefix, host=a.foxglove_host, port=a.foxglove_port
+                    )
+                    stack.enter_context(bridge)
+                frozen = freeze_startup_heap()
+                log.debug("start-up heap frozen: %d objects left out of collections", frozen)
+                worker = threading.Thread(target=node.loop, name="fuse", daemon=True)
+                worker.start()
+                notifier.notify(READY=1, STATUS=f"fusing room {room.name}")
+                log.info(
+                    "fusing %d rigs into %s",
+                    len(room.rigs),
+                    keys.objects(room.name, prefix=zcfg.prefix),
+                )
+                period = cfg.daemon.status_period_s
+                last = 0.0
+                while not node.done.is_set():
+                    status_now.wait(min(period, 0.25))
+                    if reload_now.is_set():
+                        reload_now.clear()
+                        _reload(a.room, node, session, subs, prefix, notifier, bridge)
+                        config["room"] = node.room_next().model_dump(mode="json")
+                    now = time.monotonic()
+                    if status_now.is_set() or now - last >= period:
+                        status_now.clear()
+                        st = node.status()
+                        status_pub.put(st.model_dump_json(by_alias=True).encode())
+                        notifier.notify(
+                            WATCHDOG=1,
+                            STATUS=f"{st.tracks} tracks, {st.steps_per_s:.1f} steps/s, "
+                            f"{sum(link.live for link in st.rigs.values())}/{len(st.rigs)} rigs",
+                        )
+                        last = now
+                notifier.notify(STOPPING=1)
+                worker.join()
+                for s in subs.values():
+                    s.undeclare()
+                status_pub.put(node.status("stopping").model_dump_json(by_alias=True).encode())
+                status_pub.undeclare()
+            if node.error is not None:
+                raise node.error
+            if jsonl is not None:
+                jsonl.commit()
+            if mcap is not None:
+                mcap.close()
+            committed = True
+            say(
+                f"{node.room_messages} room messages ({node.steps} fusion steps) from "
+                f"{sum(node.received.values())} rig messages; "
+                f"{len(fuser.restarts)} rig restarts seen"
+            )
+        except ReaderGone as exc:
+            if exc.stdout:
+                stdout_gone()
+                return 0
+            raise
+        finally:
+            if jsonl is not None and not committed:
+                jsonl.discard()
+            if mcap is not None and not committed:
+                mcap.abort()
+            notifier.close()
+        return 0

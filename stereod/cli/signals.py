@@ -27,20 +27,26 @@ log = logging.getLogger(__name__)
 def relayed(handlers: Mapping[signal.Signals, Callable[[int], None]]) -> Iterator[None]:
     """Within the block, each signal of ``handlers`` calls its handler with the signal's
     number on the ``signals`` thread (in the order they came); after it the previous handlers
-    are back. A handler that raises is logged, and the next signal is still handled. Off the
-    main thread (where no handler can be set) nothing changes."""
+    are back. A signal handed to one of these handlers by another (a one-shot command's
+    SIGHUP calls whatever handles SIGTERM) runs that handler's work, with its own number. A
+    handler that raises is logged, and the next signal is still handled. Off the main thread
+    (where no handler can be set) nothing changes."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    pending: queue.SimpleQueue[int | None] = queue.SimpleQueue()
+    pending: queue.SimpleQueue[tuple[signal.Signals, int] | None] = queue.SimpleQueue()
 
-    def on_signal(signum: int, _frame: object) -> None:
-        pending.put(signum)
+    def catcher(installed: signal.Signals) -> Callable[[int, FrameType | None], None]:
+        def on_signal(signum: int, _frame: FrameType | None) -> None:
+            pending.put((installed, signum))
+
+        return on_signal
 
     def relay() -> None:
-        while (signum := pending.get()) is not None:
+        while (caught := pending.get()) is not None:
+            installed, signum = caught
             try:
-                handlers[signal.Signals(signum)](signum)
+                handlers[installed](signum)
             except Exception:
                 log.exception("the handler of signal %d failed", signum)
 
@@ -49,7 +55,7 @@ def relayed(handlers: Mapping[signal.Signals, Callable[[int], None]]) -> Iterato
     previous: dict[signal.Signals, Callable[[int, FrameType | None], Any] | int | None] = {}
     try:
         for signum in handlers:
-            previous[signum] = signal.signal(signum, on_signal)
+            previous[signum] = signal.signal(signum, catcher(signum))
         yield
     finally:
         for signum, handler in previous.items():

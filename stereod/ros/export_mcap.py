@@ -56,8 +56,9 @@ def _jsonl_messages(
     path: Path, damaged: list[str] | None = None
 ) -> Iterator[tuple[int, ObjectsMessage, str]]:
     """(line number, message, line) of each non-blank line, validated; errors name the line.
-    With ``damaged`` a line that is no message (cut short by a killed run, say) is said
-    there and skipped, and text that is no UTF-8 ends the file there, said too."""
+    With ``damaged`` a line that is no message (cut short, not UTF-8, or a track id no ROS
+    marker carries) is said there and skipped. Each line is decoded on its own, so one
+    damaged line costs no other."""
     skipped = 0
 
     def skip(problem: InputError) -> None:
@@ -69,18 +70,22 @@ def _jsonl_messages(
             damaged.append(f"{problem}; skipped")
 
     try:
-        fh = path.open(encoding="utf-8", newline="")
+        fh = path.open("rb")
     except FileNotFoundError as exc:
         raise MissingInputError(
             f"{path}: no such JSONL file; write one with `stereod replay RECORDING --jsonl {path}`"
         ) from exc
     except OSError as exc:
         raise MissingInputError(f"{path}: cannot read JSONL file: {exc.strerror}") from exc
-    n = 0
+    regenerate = "regenerate the file with `stereod replay --jsonl`"
     with fh:
         try:
             for n, raw in enumerate(fh, start=1):
-                line = raw.rstrip("\r\n")
+                try:
+                    line = raw.decode("utf-8").rstrip("\r\n")
+                except UnicodeDecodeError:
+                    skip(InputError(f"{path} line {n}: not UTF-8 text; {regenerate}"))
+                    continue
                 if not line.strip():
                     continue
                 try:
@@ -91,7 +96,7 @@ def _jsonl_messages(
                     skip(
                         InputError(
                             f"{path} line {n}: not a stereod.objects/1 message (field {loc}: "
-                            f"{e['msg']}); regenerate the file with `stereod replay --jsonl`"
+                            f"{e['msg']}); {regenerate}"
                         )
                     )
                     continue
@@ -101,19 +106,11 @@ def _jsonl_messages(
                         InputError(
                             f"{path} line {n}: track_id {far[0]} is outside "
                             f"0..{MAX_TRACK_ID}, the ids a ROS marker (int32) can carry; "
-                            "regenerate the file with `stereod replay --jsonl`"
+                            f"{regenerate}"
                         )
                     )
                     continue
                 yield n, msg, line
-        except UnicodeDecodeError as exc:
-            problem = InputError(
-                f"{path} line {n + 1}: not UTF-8 text; regenerate the file with "
-                "`stereod replay --jsonl`"
-            )
-            if damaged is None:
-                raise problem from exc
-            damaged.append(f"{problem}; the file exported up to there")
         except OSError as exc:
             raise InputError(f"{path}: cannot read JSONL file: {exc.strerror}") from exc
     if skipped > DAMAGED_SAID and damaged is not None:

@@ -123,7 +123,8 @@ def run_demo(
             f"({', '.join(f'{c:g}' for c in ball.centre_m)}) m"
         )
         with contextlib.ExitStack() as stack:
-            listening = stack.enter_context(listening_session())
+            zenoh_cfg = load_config().zenoh  # the STEREOD_ZENOH__* variables hold here too
+            listening = stack.enter_context(listening_session(base=zenoh_cfg))
             endpoint = listening.endpoint
             cfg = load_config(overrides={"zenoh": {"listen": [endpoint]}})
             received: list[ObjectsMessage] = []
@@ -202,17 +203,21 @@ class Listening:
 
 
 @contextlib.contextmanager
-def listening_session(port: int = DEMO_PORT) -> Iterator[Listening]:
+def listening_session(
+    port: int = DEMO_PORT, base: ZenohConfig | None = None
+) -> Iterator[Listening]:
     """The daemon's session, listening from now on so no other process takes its port while
     the demo waits for a page: on tcp/127.0.0.1 at ``port`` (7447: where ``stereod subscribe``
     and ``view`` look by default) unless another program listens there (a port whose last
-    connections are in TIME_WAIT is free for it), else on a free port, said on stdout."""
+    connections are in TIME_WAIT is free for it), else on a free port, said on stdout;
+    ``base`` gives its other settings."""
+    base = base if base is not None else ZenohConfig()
     endpoint = f"tcp/127.0.0.1:{port}"
     try:
-        session = open_session(ZenohConfig(listen=[endpoint]))
+        session = open_session(base.model_copy(update={"listen": [endpoint]}))
     except UnavailableError:  # another program listens there
         endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-        session = open_session(ZenohConfig(listen=[endpoint]))
+        session = open_session(base.model_copy(update={"listen": [endpoint]}))
         print(
             f"zenoh: port {port} is taken, listening on {endpoint} "
             f"(stereod subscribe --connect {endpoint})",
