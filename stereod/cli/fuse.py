@@ -281,9 +281,9 @@ def run(a: argparse.Namespace) -> int:
         node.done.set()
         status_now.set()
 
-    # To the end, outputs committed: a late signal only stops what has already stopped.
     notifier = Notifier()
     committed = False
+    # To the end, outputs committed: a late signal only stops what has already stopped.
     with relayed({signal.SIGINT: stop, signal.SIGTERM: stop, signal.SIGHUP: hangup}):
         try:
             with publisher, contextlib.ExitStack() as stack:

@@ -36,8 +36,11 @@ class InterruptibleReplay(Daemon):
         )
 
     def run(self) -> RunSummary:
+        caught: list[int] = []  # touched by the signals thread only
+
         def interrupted(signum: int) -> None:
-            if self.health.state is not DaemonState.FINISHED:  # the first one wins
+            if not caught and self.health.state is not DaemonState.FINISHED:  # the first wins
+                caught.append(signum)
                 self.fail(Interrupted(f"interrupted by {signal_name(signum)}", signum))
 
         signums = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
