@@ -473,22 +473,22 @@ class Pipeline:
 
     def _match(self, pair: StereoPair, lb: Blobs, rb: Blobs, eye_times: tuple[int, int]) -> Matched:
         """The match stage: both eyes' centroids rectified, blobs paired on one rectified row
-        with a disparity in range (widened by how far ``max_image_speed_wps`` moves an object
-        between the eyes' instants ``eye_times``, ns) and a similar area, pieces of one object
-        grouped into one (:mod:`stereod.vision.grouping`, after asking the tracker which track
-        each piece is), and the right centroids placed by appearance (``refine``) or the rows'
-        median disparity where it disagrees (:func:`rows_median`). Gives the (grouped) blobs,
-        pairs' indices and rectified centroids."""
+        (within a tolerance that grows with their heights) with a disparity in range (widened by how
+        far ``max_image_speed_wps`` moves an object between the eyes' instants ``eye_times``, ns)
+        and a similar area, pieces of one object grouped into one (:mod:`stereod.vision.grouping`,
+        after asking the tracker which track each piece is), and the right centroids placed by
+        appearance (``refine``) or the rows' median disparity where it disagrees
+        (:func:`rows_median`). Gives the (grouped) blobs, pairs' indices and rectified centroids."""
         p = self.params
         # Matching, association, compensation and triangulation work in rectified coordinates
         # (identical to image coordinates for the canonical rig); messages report the image ones.
         lrect, rrect = p.rig.rectify_left(lb.centroid_px), p.rig.rectify_right(rb.centroid_px)
-        image_speed = p.max_image_speed_wps * p.rig.width_px
-        slack = abs(eye_times[1] - eye_times[0]) * 1e-9 * image_speed
+        slack = abs(eye_times[1] - eye_times[0]) * 1e-9 * p.max_image_speed_wps * p.rig.width_px
         images = pair.left.image, pair.right.image
         agree = lambda i, j: eye_agreement(*images, lb.bbox_px[i], rb.bbox_px[j])  # noqa: E731
         edges = side_cut_edges(p.rig, lb.bbox_px, rb.bbox_px)
-        idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack, agree, edges)
+        hs = lb.bbox_px[:, 3], rb.bbox_px[:, 3]
+        idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack, agree, edges, hs)
         lpx, rpx = lrect[idx[:, 0]], rrect[idx[:, 1]]
         if p.grouping.enabled and len(lb) + len(rb) > 2 * min(len(idx), 1):  # or unmatched
             m0 = Matched(lb, rb, idx, lpx, rpx)  # which live object each pair is, before merging

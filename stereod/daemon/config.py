@@ -219,6 +219,12 @@ class MatchingConfig(Section):
     row_tolerance_px: float = Field(
         _MATCH.row_tolerance_px, gt=0.0, description="Largest |y_L - y_R|, px"
     )
+    row_tolerance_share: float = Field(
+        _MATCH.row_tolerance_share,
+        ge=0.0,
+        lt=1.0,
+        description="The row tolerance grows to this share of the shorter blob's height",
+    )
     min_disparity_px: float = Field(
         _MATCH.min_disparity_px, ge=0.0, description="Smallest x_L - x_R, px"
     )

@@ -324,9 +324,28 @@ def test_an_ambiguous_blob_takes_the_partner_that_looks_like_it() -> None:
     assert sorted(match_blobs(*args, agreement=agree).tolist()) == [[0, 1], [1, 0]]
 
 
+def test_a_tall_blob_whose_bottom_one_eye_adds_to_still_matches() -> None:
+    """A ball 75 px tall at 640x480 whose contact shadow one eye segments with it (8 rows
+    more below, its centroid 6.4 px lower, beyond the 6 px tolerance): paired once the
+    tolerance is a tenth of the shorter blob's height (7.5 px). Blobs 30 px tall as far
+    apart in row are not: the tolerance stays 6 px for every pair under 60 px."""
+    left, right = np.array([[300.0, 392.1]]), np.array([[270.0, 385.7]])
+    la, ra = np.array([5830]), np.array([4630])
+    assert len(match_blobs(left, la, right, ra, MatchParams())) == 0  # by centroids alone
+    tall = (np.array([83]), np.array([75]))
+    assert match_blobs(left, la, right, ra, MatchParams(), heights=tall).tolist() == [[0, 0]]
+    none = MatchParams(row_tolerance_share=0.0)
+    assert len(match_blobs(left, la, right, ra, none, heights=tall)) == 0
+    small = (np.array([30]), np.array([30]))
+    assert len(match_blobs(left, la, right, ra, MatchParams(), heights=small)) == 0
+    assert MatchParams().row_tolerance_share * 60 == MatchParams().row_tolerance_px
+
+
 def test_a_row_tolerance_of_zero_is_refused() -> None:
     with pytest.raises(ValueError, match="row tolerance must be > 0 px"):
         MatchParams(row_tolerance_px=0.0)
+    with pytest.raises(ValueError, match=r"row tolerance share must be in \[0, 1\)"):
+        MatchParams(row_tolerance_share=1.0)
     with pytest.raises(ValueError, match=r"max_disparity_px \(5\) must be larger than"):
         MatchParams(min_disparity_px=10.0, max_disparity_px=5.0)
 
@@ -349,22 +368,26 @@ def _every_pair_matched(
     ra: np.ndarray,
     p: MatchParams,
     slack: float,
+    heights: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[tuple[int, int]]:
     """The matching rule on every pair of blobs, without the bisection on rows: the
     reference for :func:`match_blobs`."""
     found = []
     for i in range(len(left)):
         for j in range(len(right)):
+            tol = p.row_tolerance_px
+            if heights is not None:
+                tol = max(tol, p.row_tolerance_share * min(heights[0][i], heights[1][j]))
             dy = abs(left[i, 1] - right[j, 1])
             disp = left[i, 0] - right[j, 0]
             ratio = abs(math.log(max(la[i], 1) / max(ra[j], 1)))
             if (
-                dy <= p.row_tolerance_px
+                dy <= tol
                 and p.min_disparity_px - slack <= disp <= p.max_disparity_px + slack
                 and ratio <= math.log(p.max_area_ratio)
             ):
                 out = max(p.min_disparity_px - disp, 0.0) + max(disp - p.max_disparity_px, 0.0)
-                cost = dy / p.row_tolerance_px + ratio + (out / slack if slack > 0 else 0.0)
+                cost = dy / tol + ratio + (out / slack if slack > 0 else 0.0)
                 found.append((cost, i, j))
     used_l, used_r, pairs = set(), set(), []
     for _, i, j in sorted(found):
@@ -381,21 +404,24 @@ def _every_pair_matched(
     st.integers(0, 2**32 - 1),
     st.sampled_from([0.0, 3.0]),
     st.sampled_from([2.0, 6.0, 400.0]),
+    st.booleans(),
 )
 def test_matching_looks_at_every_pair_that_can_match(
-    nl: int, nr: int, seed: int, slack: float, tolerance: float
+    nl: int, nr: int, seed: int, slack: float, tolerance: float, tall: bool
 ) -> None:
     """Blobs on a few rows (many within one tolerance, some exactly on its edge, some not a
-    number): the pairs found by bisection on the rows are those of the rule applied to every
-    pair."""
+    number), of heights that widen some pairs' tolerance (``tall``): the pairs found by
+    bisection on the rows are those of the rule applied to every pair."""
     rng = np.random.default_rng(seed)
     rows = rng.choice([10.0, 12.0, 16.0, 100.0, 103.5, 240.0, np.nan], size=nl + nr)
     left = np.stack([rng.uniform(0, 640, nl), rows[:nl] + rng.choice([0.0, 0.5], nl)], 1)
     right = np.stack([rng.uniform(0, 640, nr), rows[nl:]], 1)
     la, ra = rng.integers(0, 400, nl), rng.integers(0, 400, nr)
     p = MatchParams(row_tolerance_px=tolerance, max_disparity_px=150.0)
-    got = match_blobs(left.reshape(-1, 2), la, right.reshape(-1, 2), ra, p, slack)
-    assert [tuple(r) for r in got.tolist()] == _every_pair_matched(left, la, right, ra, p, slack)
+    hs = (rng.choice([5, 40, 60, 160], nl), rng.choice([5, 40, 60, 160], nr)) if tall else None
+    got = match_blobs(left.reshape(-1, 2), la, right.reshape(-1, 2), ra, p, slack, heights=hs)
+    want = _every_pair_matched(left, la, right, ra, p, slack, hs)
+    assert [tuple(r) for r in got.tolist()] == want
 
 
 def test_the_depth_factor_of_each_silhouette_is_the_closed_form_with_numpys_nans() -> None:

@@ -390,11 +390,16 @@ class MatchParams:
     """How left and right blobs are matched.
 
     ``row_tolerance_px``: largest |y_L - y_R| (px) on rectified rows.
+    ``row_tolerance_share``: for a pair of tall blobs, the tolerance grows to this share of
+    the shorter one's height: where the eyes segment an object's top or bottom differently (a
+    contact shadow under a ball in one eye, a webcam's blurred edge), its centroid's row moves
+    by a share of its height, beyond any fixed number of pixels at a larger image.
     ``min_disparity_px`` / ``max_disparity_px``: allowed x_L - x_R (px); the maximum sets the
     nearest depth, B f / d_max. ``max_area_ratio``: largest ratio between the two blob areas.
     """
 
     row_tolerance_px: float = 6.0
+    row_tolerance_share: float = 0.1
     min_disparity_px: float = 0.5
     max_disparity_px: float = 200.0
     max_area_ratio: float = 2.5
@@ -402,6 +407,10 @@ class MatchParams:
     def __post_init__(self) -> None:
         if not self.row_tolerance_px > 0:
             raise ValueError(f"row tolerance must be > 0 px, got {self.row_tolerance_px}")
+        if not 0.0 <= self.row_tolerance_share < 1.0:
+            raise ValueError(
+                f"row tolerance share must be in [0, 1), got {self.row_tolerance_share}"
+            )
         if not self.max_disparity_px > self.min_disparity_px:
             raise ValueError(
                 f"max_disparity_px ({self.max_disparity_px:g}) must be larger than "
@@ -423,11 +432,14 @@ def match_blobs(
     slack_px: float = 0.0,
     agreement: Callable[[int, int], float] | None = None,
     edges: tuple[np.ndarray, np.ndarray] | None = None,
+    heights: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Match blobs by row, disparity range and size; return (m, 2) int index pairs (left, right).
 
     Candidates must lie on the same row within the tolerance, at a disparity in range, with
-    similar areas. ``slack_px`` widens the disparity range both ways by how far an object may
+    similar areas. Given ``heights`` (each eye's blobs' heights, px), a pair's tolerance is
+    the larger of ``row_tolerance_px`` and ``row_tolerance_share`` of its shorter blob's
+    height. ``slack_px`` widens the disparity range both ways by how far an object may
     move in the image between the two eyes' capture instants (skew): a fast object seen by a
     late right eye can even show a negative disparity. Each blob is used once: pairs are taken
     greedily by increasing cost (row difference in tolerances, log area ratio, and how far out
@@ -465,24 +477,30 @@ def match_blobs(
     if edges is not None:
         l_box, r_box = (np.asarray(e, np.float64).reshape(-1, 4).tolist() for e in edges)
     sided = [j for j in by_row if r_box is not None and _cut_side(r_box[j])]
+    share = params.row_tolerance_share if heights is not None else 0.0
+    l_h, r_h = ([0.0] * nl, [0.0] * nr) if heights is None else (h.tolist() for h in heights)
     candidates = []
     for i, (xl, yl) in enumerate(left):
         if not math.isfinite(yl):
             continue
+        tol_i = max(tol, share * l_h[i])  # no pair of blob i has a larger one
         if l_box is not None and _cut_side(l_box[i]):
             near = by_row  # its centroid's row says nothing: every right blob may be it
         else:
-            lo_k, hi_k = bisect.bisect_left(rows, yl - tol), bisect.bisect_right(rows, yl + tol)
-            near = by_row[lo_k:hi_k] + [j for j in sided if not yl - tol <= right[j][1] <= yl + tol]
+            lo_k = bisect.bisect_left(rows, yl - tol_i)
+            hi_k = bisect.bisect_right(rows, yl + tol_i)
+            near = by_row[lo_k:hi_k]
+            near += [j for j in sided if not yl - tol_i <= right[j][1] <= yl + tol_i]
         for j in near:
             xr, yr = right[j]
+            tol_ij = max(tol, share * min(l_h[i], r_h[j]))
             dy, disp = abs(yl - yr), xl - xr
             if l_box is not None and r_box is not None:
-                dy, disp = _box_evidence(l_box[i], r_box[j], dy, disp, tol)
+                dy, disp = _box_evidence(l_box[i], r_box[j], dy, disp, tol_ij)
             ratio = abs(math.log(l_area[i] / float(r_area[j])))
-            if dy > tol or ratio > max_ratio or not lo - slack_px <= disp <= hi + slack_px:
+            if dy > tol_ij or ratio > max_ratio or not lo - slack_px <= disp <= hi + slack_px:
                 continue
-            cost = dy / tol + ratio
+            cost = dy / tol_ij + ratio
             if slack_px > 0:
                 cost += (max(lo - disp, 0.0) + max(disp - hi, 0.0)) / slack_px
             candidates.append((cost, i, j))
