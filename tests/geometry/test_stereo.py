@@ -326,19 +326,34 @@ def test_an_ambiguous_blob_takes_the_partner_that_looks_like_it() -> None:
 
 def test_a_tall_blob_whose_bottom_one_eye_adds_to_still_matches() -> None:
     """A ball 75 px tall at 640x480 whose contact shadow one eye segments with it (8 rows
-    more below, its centroid 6.4 px lower, beyond the 6 px tolerance): paired once the
-    tolerance is a tenth of the shorter blob's height (7.5 px). Blobs 30 px tall as far
-    apart in row are not: the tolerance stays 6 px for every pair under 60 px."""
+    more below, its centroid 6.4 px lower, beyond the 6 px tolerance; both tops on one row):
+    paired once the tolerance is a tenth of the shorter blob's height (7.5 px). Not paired
+    so: blobs under 60 px tall, whose tolerance stays 6 px; blobs whose tops and bottoms
+    both disagree (two objects, not one end cut differently); a blob that reaches the
+    image's top or bottom (its end there is the image's)."""
     left, right = np.array([[300.0, 392.1]]), np.array([[270.0, 385.7]])
     la, ra = np.array([5830]), np.array([4630])
-    assert len(match_blobs(left, la, right, ra, MatchParams())) == 0  # by centroids alone
-    tall = (np.array([83]), np.array([75]))
-    assert match_blobs(left, la, right, ra, MatchParams(), heights=tall).tolist() == [[0, 0]]
-    none = MatchParams(row_tolerance_share=0.0)
-    assert len(match_blobs(left, la, right, ra, none, heights=tall)) == 0
-    small = (np.array([30]), np.array([30]))
-    assert len(match_blobs(left, la, right, ra, MatchParams(), heights=small)) == 0
-    assert MatchParams().row_tolerance_share * 60 == MatchParams().row_tolerance_px
+    p = MatchParams()
+
+    def matched(lbox: list[int], rbox: list[int], params: MatchParams = p) -> bool:
+        lb, rb = np.array([lbox]), np.array([rbox])
+        edges = side_cut_edges(RIG, lb, rb, params.tall_px)
+        return len(match_blobs(left, la, right, ra, params, edges=edges)) == 1
+
+    assert len(match_blobs(left, la, right, ra, p)) == 0  # by centroids alone
+    assert (
+        side_cut_edges(
+            RIG, np.array([[256, 348, 87, 40]]), np.array([[226, 348, 78, 40]]), p.tall_px
+        )
+        is None
+    )
+    assert p.tall_px == 60.0
+    assert matched([256, 348, 87, 83], [226, 348, 78, 75])
+    assert matched([256, 340, 87, 83], [226, 348, 78, 75])  # the bottoms agree instead
+    assert not matched([256, 348, 87, 83], [226, 348, 78, 75], MatchParams(row_tolerance_share=0))
+    assert not matched([256, 348, 87, 59], [226, 348, 78, 59])
+    assert not matched([256, 340, 87, 83], [226, 350, 78, 60])
+    assert not matched([256, 397, 87, 83], [226, 397, 78, 83])  # bottom at row 480
 
 
 def test_a_row_tolerance_of_zero_is_refused() -> None:
@@ -368,16 +383,20 @@ def _every_pair_matched(
     ra: np.ndarray,
     p: MatchParams,
     slack: float,
-    heights: tuple[np.ndarray, np.ndarray] | None = None,
+    ends: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[tuple[int, int]]:
     """The matching rule on every pair of blobs, without the bisection on rows: the
-    reference for :func:`match_blobs`."""
+    reference for :func:`match_blobs`. ``ends``: each eye's blobs' top and bottom rows (NaN
+    where the image's border cuts it), for the tolerance of tall blobs."""
     found = []
     for i in range(len(left)):
         for j in range(len(right)):
             tol = p.row_tolerance_px
-            if heights is not None:
-                tol = max(tol, p.row_tolerance_share * min(heights[0][i], heights[1][j]))
+            if ends is not None:
+                (lt, lb), (rt, rb) = ends[0][i], ends[1][j]
+                clear = not np.isnan([lt, lb, rt, rb]).any()
+                if clear and (abs(lt - rt) <= tol or abs(lb - rb) <= tol):
+                    tol = max(tol, p.row_tolerance_share * min(lb - lt, rb - rt))
             dy = abs(left[i, 1] - right[j, 1])
             disp = left[i, 0] - right[j, 0]
             ratio = abs(math.log(max(la[i], 1) / max(ra[j], 1)))
@@ -410,17 +429,27 @@ def test_matching_looks_at_every_pair_that_can_match(
     nl: int, nr: int, seed: int, slack: float, tolerance: float, tall: bool
 ) -> None:
     """Blobs on a few rows (many within one tolerance, some exactly on its edge, some not a
-    number), of heights that widen some pairs' tolerance (``tall``): the pairs found by
-    bisection on the rows are those of the rule applied to every pair."""
+    number), with boxes whose heights widen some pairs' tolerance (``tall``): the pairs found
+    by bisection on the rows are those of the rule applied to every pair."""
     rng = np.random.default_rng(seed)
     rows = rng.choice([10.0, 12.0, 16.0, 100.0, 103.5, 240.0, np.nan], size=nl + nr)
     left = np.stack([rng.uniform(0, 640, nl), rows[:nl] + rng.choice([0.0, 0.5], nl)], 1)
     right = np.stack([rng.uniform(0, 640, nr), rows[nl:]], 1)
     la, ra = rng.integers(0, 400, nl), rng.integers(0, 400, nr)
     p = MatchParams(row_tolerance_px=tolerance, max_disparity_px=150.0)
-    hs = (rng.choice([5, 40, 60, 160], nl), rng.choice([5, 40, 60, 160], nr)) if tall else None
-    got = match_blobs(left.reshape(-1, 2), la, right.reshape(-1, 2), ra, p, slack, heights=hs)
-    want = _every_pair_matched(left, la, right, ra, p, slack, hs)
+    edges = ends = None
+    if tall:  # boxes clear of the image's sides, some reaching its top or bottom (NaN)
+
+        def box_rows(n: int) -> np.ndarray:
+            top = rng.choice([np.nan, 50.0, 52.0, 90.0], n)
+            bottom = top + rng.choice([5.0, 40.0, 60.0, 160.0], n)
+            bottom[rng.random(n) < 0.2] = np.nan
+            return np.stack([top, bottom], 1)
+
+        ends = box_rows(nl), box_rows(nr)
+        edges = tuple(np.concatenate([np.full((len(e), 2), [10.0, 20.0]), e], 1) for e in ends)
+    got = match_blobs(left.reshape(-1, 2), la, right.reshape(-1, 2), ra, p, slack, edges=edges)
+    want = _every_pair_matched(left, la, right, ra, p, slack, ends)
     assert [tuple(r) for r in got.tolist()] == want
 
 

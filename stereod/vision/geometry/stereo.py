@@ -390,10 +390,11 @@ class MatchParams:
     """How left and right blobs are matched.
 
     ``row_tolerance_px``: largest |y_L - y_R| (px) on rectified rows.
-    ``row_tolerance_share``: for a pair of tall blobs, the tolerance grows to this share of
-    the shorter one's height: where the eyes segment an object's top or bottom differently (a
-    contact shadow under a ball in one eye, a webcam's blurred edge), its centroid's row moves
-    by a share of its height, beyond any fixed number of pixels at a larger image.
+    ``row_tolerance_share``: for a pair of blobs clear of the image's border whose top rows or
+    bottom rows agree within ``row_tolerance_px``, the tolerance grows to this share of the
+    shorter one's height: where the eyes segment one end of an object differently (a contact
+    shadow under a ball in one eye), its centroid's row moves by a share of its height, beyond
+    any fixed number of pixels at a larger image.
     ``min_disparity_px`` / ``max_disparity_px``: allowed x_L - x_R (px); the maximum sets the
     nearest depth, B f / d_max. ``max_area_ratio``: largest ratio between the two blob areas.
     """
@@ -417,6 +418,13 @@ class MatchParams:
                 f"min_disparity_px ({self.min_disparity_px:g}): nothing could match"
             )
 
+    @property
+    def tall_px(self) -> float:
+        """The height (px) from which a blob's row tolerance may grow (``row_tolerance_share``
+        of it beyond ``row_tolerance_px``); infinite when it never does."""
+        share = self.row_tolerance_share
+        return self.row_tolerance_px / share if share > 0 else math.inf
+
 
 AGREEMENT_WEIGHT = 2.0
 """What full disagreement between the eyes' images adds to an ambiguous candidate pair's cost:
@@ -432,14 +440,11 @@ def match_blobs(
     slack_px: float = 0.0,
     agreement: Callable[[int, int], float] | None = None,
     edges: tuple[np.ndarray, np.ndarray] | None = None,
-    heights: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Match blobs by row, disparity range and size; return (m, 2) int index pairs (left, right).
 
     Candidates must lie on the same row within the tolerance, at a disparity in range, with
-    similar areas. Given ``heights`` (each eye's blobs' heights, px), a pair's tolerance is
-    the larger of ``row_tolerance_px`` and ``row_tolerance_share`` of its shorter blob's
-    height. ``slack_px`` widens the disparity range both ways by how far an object may
+    similar areas. ``slack_px`` widens the disparity range both ways by how far an object may
     move in the image between the two eyes' capture instants (skew): a fast object seen by a
     late right eye can even show a negative disparity. Each blob is used once: pairs are taken
     greedily by increasing cost (row difference in tolerances, log area ratio, and how far out
@@ -460,7 +465,10 @@ def match_blobs(
     different part of the object there, so the centroids' rows and disparity are no evidence.
     Its rows are the boxes' top and bottom rows that neither eye's image edge cuts (none: a
     person taller than the view, no row evidence, costed as a full tolerance), its disparity
-    that of the boxes' edges on the side no image edge cuts.
+    that of the boxes' edges on the side no image edge cuts. The edges also widen the row
+    tolerance of a pair of blobs that both lie clear of the image's border and whose top rows
+    or bottom rows agree within ``row_tolerance_px``, to ``row_tolerance_share`` of the
+    shorter one's height (the other end cut differently by the two eyes' segmentations).
     """
     nl, nr = len(left_px), len(right_px)
     if nl == 0 or nr == 0:
@@ -477,13 +485,12 @@ def match_blobs(
     if edges is not None:
         l_box, r_box = (np.asarray(e, np.float64).reshape(-1, 4).tolist() for e in edges)
     sided = [j for j in by_row if r_box is not None and _cut_side(r_box[j])]
-    share = params.row_tolerance_share if heights is not None else 0.0
-    l_h, r_h = ([0.0] * nl, [0.0] * nr) if heights is None else (h.tolist() for h in heights)
+    share = params.row_tolerance_share
     candidates = []
     for i, (xl, yl) in enumerate(left):
         if not math.isfinite(yl):
             continue
-        tol_i = max(tol, share * l_h[i])  # no pair of blob i has a larger one
+        tol_i = tol if l_box is None else max(tol, share * _clear_height(l_box[i]))
         if l_box is not None and _cut_side(l_box[i]):
             near = by_row  # its centroid's row says nothing: every right blob may be it
         else:
@@ -493,7 +500,9 @@ def match_blobs(
             near += [j for j in sided if not yl - tol_i <= right[j][1] <= yl + tol_i]
         for j in near:
             xr, yr = right[j]
-            tol_ij = max(tol, share * min(l_h[i], r_h[j]))
+            tol_ij = tol
+            if tol_i > tol and r_box is not None and l_box is not None:
+                tol_ij = _end_tolerance(l_box[i], r_box[j], tol, share)
             dy, disp = abs(yl - yr), xl - xr
             if l_box is not None and r_box is not None:
                 dy, disp = _box_evidence(l_box[i], r_box[j], dy, disp, tol_ij)
@@ -541,17 +550,22 @@ def box_edges(rig: CanonicalRig | _Rectifies, bbox_px: np.ndarray, left: bool) -
 
 
 def side_cut_edges(
-    rig: CanonicalRig | _Rectifies, left_bbox_px: np.ndarray, right_bbox_px: np.ndarray
+    rig: CanonicalRig | _Rectifies,
+    left_bbox_px: np.ndarray,
+    right_bbox_px: np.ndarray,
+    tall_px: float = math.inf,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Both eyes' :func:`box_edges` when a blob of either reaches the image's left or right
-    side, else None: :func:`match_blobs` then weighs every pair by its centroids, as it would
-    with the edges, and most pairs are spared rectifying four points a box."""
+    side or is at least ``tall_px`` tall (:attr:`MatchParams.tall_px`), else None:
+    :func:`match_blobs` then weighs every pair by its centroids, as it would with the edges,
+    and most pairs are spared rectifying four points a box."""
 
-    def cut(bbox_px: np.ndarray) -> bool:
+    def needs(bbox_px: np.ndarray) -> bool:
         b = np.asarray(bbox_px).reshape(-1, 4)
-        return bool(np.any((b[:, 0] <= 0) | (b[:, 0] + b[:, 2] >= rig.width_px)))
+        cut = (b[:, 0] <= 0) | (b[:, 0] + b[:, 2] >= rig.width_px)
+        return bool(np.any(cut | (b[:, 3] >= tall_px)))
 
-    if not (cut(left_bbox_px) or cut(right_bbox_px)):
+    if not (needs(left_bbox_px) or needs(right_bbox_px)):
         return None
     return box_edges(rig, left_bbox_px, True), box_edges(rig, right_bbox_px, False)
 
@@ -564,6 +578,20 @@ class _Rectifies(Protocol):
 
     def rectify_left(self, points_px: np.ndarray) -> np.ndarray: ...
     def rectify_right(self, points_px: np.ndarray) -> np.ndarray: ...
+
+
+def _clear_height(box: list[float]) -> float:
+    """A :func:`box_edges` box's height (px), or 0 where it reaches the image's border."""
+    return box[3] - box[2] if all(v == v for v in box) else 0.0
+
+
+def _end_tolerance(lb: list[float], rb: list[float], tol: float, share: float) -> float:
+    """The row tolerance (px) of a pair of :func:`box_edges` boxes: ``share`` of the shorter
+    one's height where both lie clear of the image's border and their top rows or bottom
+    rows agree within ``tol``, at least ``tol``."""
+    if not (abs(lb[2] - rb[2]) <= tol or abs(lb[3] - rb[3]) <= tol):
+        return tol
+    return max(tol, share * min(_clear_height(lb), _clear_height(rb)))
 
 
 def _cut_side(box: list[float]) -> bool:
