@@ -487,7 +487,8 @@ class Pipeline:
         images = pair.left.image, pair.right.image
         agree = lambda i, j: eye_agreement(*images, lb.bbox_px[i], rb.bbox_px[j])  # noqa: E731
         edges = side_cut_edges(p.rig, lb.bbox_px, rb.bbox_px, p.matching.tall_px)
-        idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack, agree, edges)
+        hs = lb.bbox_px[:, 3], rb.bbox_px[:, 3]
+        idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack, agree, edges, hs)
         lpx, rpx = lrect[idx[:, 0]], rrect[idx[:, 1]]
         if p.grouping.enabled and len(lb) + len(rb) > 2 * min(len(idx), 1):  # or unmatched
             m0 = Matched(lb, rb, idx, lpx, rpx)  # which live object each pair is, before merging

@@ -223,7 +223,8 @@ class MatchingConfig(Section):
         _MATCH.row_tolerance_share,
         ge=0.0,
         lt=1.0,
-        description="The row tolerance grows to this share of the shorter blob's height",
+        description="For two blobs clear of the image's border with one end on one row, the "
+        "row tolerance grows to this share of the shorter one's height (0: never)",
     )
     min_disparity_px: float = Field(
         _MATCH.min_disparity_px, ge=0.0, description="Smallest x_L - x_R, px"

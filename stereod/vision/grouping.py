@@ -26,6 +26,7 @@ import numpy as np
 
 from stereod.vision import row_disparity
 from stereod.vision.blobs import Blobs, Editable, editable, from_editable
+from stereod.vision.geometry.stereo import EDGE_TOLERANCE_PX
 
 __all__ = ["GroupParams", "Grouped", "edge_disparity_px", "extent_m", "group_objects"]
 
@@ -181,9 +182,6 @@ def group_objects(
     return _build(groups, lb, rb, idx, lrect, rrect, attached_l, attached_r)
 
 
-EDGE_TOLERANCE_PX = 2.0
-"""How far (px) two eyes' outline edges of one object may disagree beyond their disparity:
-a segmentation's edge is a pixel or two off (a closing, a hysteresis)."""
 CUT_MIN_SHARE = 0.3
 """The least share of its taller outline's rows an outline cut short in one eye must keep to
 be paired by the rows it shares (less: too little is left to place the object by)."""

@@ -325,12 +325,13 @@ def test_an_ambiguous_blob_takes_the_partner_that_looks_like_it() -> None:
 
 
 def test_a_tall_blob_whose_bottom_one_eye_adds_to_still_matches() -> None:
-    """A ball 75 px tall at 640x480 whose contact shadow one eye segments with it (8 rows
-    more below, its centroid 6.4 px lower, beyond the 6 px tolerance; both tops on one row):
-    paired once the tolerance is a tenth of the shorter blob's height (7.5 px). Not paired
-    so: blobs under 60 px tall, whose tolerance stays 6 px; blobs whose tops and bottoms
-    both disagree (two objects, not one end cut differently); a blob that reaches the
-    image's top or bottom (its end there is the image's)."""
+    """A ball 75 px tall at 640x480 whose contact shadow's crescent one eye segments with it
+    (8 rows more below and 9 px wider, its centroid 6.4 px lower, beyond the 6 px tolerance;
+    both tops on one row): paired once the tolerance is a tenth of the shorter blob's height
+    (7.5 px). Not paired so: blobs under 60 px tall, whose tolerance stays 6 px; blobs whose
+    tops and bottoms both disagree (two objects, not one end cut differently); an outline
+    cut short at one end whose sides agree (grouping pairs it by the rows both show); a blob
+    that reaches the image's top, bottom or side (its end there is the image's)."""
     left, right = np.array([[300.0, 392.1]]), np.array([[270.0, 385.7]])
     la, ra = np.array([5830]), np.array([4630])
     p = MatchParams()
@@ -338,22 +339,22 @@ def test_a_tall_blob_whose_bottom_one_eye_adds_to_still_matches() -> None:
     def matched(lbox: list[int], rbox: list[int], params: MatchParams = p) -> bool:
         lb, rb = np.array([lbox]), np.array([rbox])
         edges = side_cut_edges(RIG, lb, rb, params.tall_px)
-        return len(match_blobs(left, la, right, ra, params, edges=edges)) == 1
+        hs = lb[:, 3], rb[:, 3]
+        return len(match_blobs(left, la, right, ra, params, edges=edges, heights=hs)) == 1
 
     assert len(match_blobs(left, la, right, ra, p)) == 0  # by centroids alone
-    assert (
-        side_cut_edges(
-            RIG, np.array([[256, 348, 87, 40]]), np.array([[226, 348, 78, 40]]), p.tall_px
-        )
-        is None
-    )
     assert p.tall_px == 60.0
-    assert matched([256, 348, 87, 83], [226, 348, 78, 75])
-    assert matched([256, 340, 87, 83], [226, 348, 78, 75])  # the bottoms agree instead
-    assert not matched([256, 348, 87, 83], [226, 348, 78, 75], MatchParams(row_tolerance_share=0))
-    assert not matched([256, 348, 87, 59], [226, 348, 78, 59])
-    assert not matched([256, 340, 87, 83], [226, 350, 78, 60])
-    assert not matched([256, 397, 87, 83], [226, 397, 78, 83])  # bottom at row 480
+    short = np.array([[256, 348, 87, 59]]), np.array([[226, 348, 78, 59]])
+    assert side_cut_edges(RIG, *short, p.tall_px) is None
+    assert matched([256, 348, 87, 83], [230, 348, 78, 75])
+    assert matched([256, 340, 87, 83], [230, 348, 78, 75])  # the bottoms agree instead
+    assert not matched([256, 348, 87, 83], [230, 348, 78, 75], MatchParams(row_tolerance_share=0))
+    assert not matched([256, 348, 87, 59], [230, 348, 78, 59])
+    assert not matched([256, 340, 87, 83], [230, 350, 78, 60])
+    assert not matched([256, 348, 87, 83], [226, 348, 87, 75])  # sides one disparity apart
+    assert not matched([256, 397, 87, 83], [230, 397, 78, 83])  # bottom at row 480
+    assert not matched([256, 397, 87, 83], [230, 397, 78, 75])  # the left one's
+    assert not matched([0, 348, 87, 83], [0, 348, 78, 75])  # at the image's left side
 
 
 def test_a_row_tolerance_of_zero_is_refused() -> None:
@@ -383,25 +384,30 @@ def _every_pair_matched(
     ra: np.ndarray,
     p: MatchParams,
     slack: float,
-    ends: tuple[np.ndarray, np.ndarray] | None = None,
+    boxes: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[tuple[int, int]]:
     """The matching rule on every pair of blobs, without the bisection on rows: the
-    reference for :func:`match_blobs`. ``ends``: each eye's blobs' top and bottom rows (NaN
-    where the image's border cuts it), for the tolerance of tall blobs."""
+    reference for :func:`match_blobs`. ``boxes``: each eye's blobs' (x0, x1, y0, y1) px, NaN
+    where the image's top or bottom cuts one, for the tolerance of tall blobs: one object
+    whose top or bottom two segmentations cut apart has one end on one row in both eyes, and
+    at least one side further than its disparity."""
     found = []
+    tol = p.row_tolerance_px
     for i in range(len(left)):
         for j in range(len(right)):
-            tol = p.row_tolerance_px
-            if ends is not None:
-                (lt, lb), (rt, rb) = ends[0][i], ends[1][j]
-                clear = not np.isnan([lt, lb, rt, rb]).any()
-                if clear and (abs(lt - rt) <= tol or abs(lb - rb) <= tol):
-                    tol = max(tol, p.row_tolerance_share * min(lb - lt, rb - rt))
+            gate = tol
+            if boxes is not None:
+                (lx0, lx1, lt, lb), (rx0, rx1, rt, rb) = boxes[0][i], boxes[1][j]
+                one_end = abs(lt - rt) <= tol or abs(lb - rb) <= tol  # False with a NaN
+                d0, d1 = lx0 - rx0, lx1 - rx1
+                sides = min(d0, d1) > 0 and abs(d0 - d1) <= 4.0
+                if one_end and not sides and not np.isnan([lt, lb, rt, rb]).any():
+                    gate = max(tol, p.row_tolerance_share * min(lb - lt, rb - rt))
             dy = abs(left[i, 1] - right[j, 1])
             disp = left[i, 0] - right[j, 0]
             ratio = abs(math.log(max(la[i], 1) / max(ra[j], 1)))
             if (
-                dy <= tol
+                dy <= gate
                 and p.min_disparity_px - slack <= disp <= p.max_disparity_px + slack
                 and ratio <= math.log(p.max_area_ratio)
             ):
@@ -437,19 +443,24 @@ def test_matching_looks_at_every_pair_that_can_match(
     right = np.stack([rng.uniform(0, 640, nr), rows[nl:]], 1)
     la, ra = rng.integers(0, 400, nl), rng.integers(0, 400, nr)
     p = MatchParams(row_tolerance_px=tolerance, max_disparity_px=150.0)
-    edges = ends = None
+    edges = heights = None
     if tall:  # boxes clear of the image's sides, some reaching its top or bottom (NaN)
 
-        def box_rows(n: int) -> np.ndarray:
+        def boxes(n: int) -> tuple[np.ndarray, np.ndarray]:
+            x0 = rng.choice([10.0, 14.0, 30.0], n)
+            x1 = x0 + rng.choice([20.0, 24.0, 60.0], n)
             top = rng.choice([np.nan, 50.0, 52.0, 90.0], n)
-            bottom = top + rng.choice([5.0, 40.0, 60.0, 160.0], n)
+            height = rng.choice([5.0, 40.0, 60.0, 160.0], n)
+            bottom = top + height
             bottom[rng.random(n) < 0.2] = np.nan
-            return np.stack([top, bottom], 1)
+            return np.stack([x0, x1, top, bottom], 1), height
 
-        ends = box_rows(nl), box_rows(nr)
-        edges = tuple(np.concatenate([np.full((len(e), 2), [10.0, 20.0]), e], 1) for e in ends)
-    got = match_blobs(left.reshape(-1, 2), la, right.reshape(-1, 2), ra, p, slack, edges=edges)
-    want = _every_pair_matched(left, la, right, ra, p, slack, ends)
+        (lbox, lh), (rbox, rh) = boxes(nl), boxes(nr)
+        edges, heights = (lbox, rbox), (lh, rh)
+    got = match_blobs(
+        left.reshape(-1, 2), la, right.reshape(-1, 2), ra, p, slack, edges=edges, heights=heights
+    )
+    want = _every_pair_matched(left, la, right, ra, p, slack, edges)
     assert [tuple(r) for r in got.tolist()] == want
 
 

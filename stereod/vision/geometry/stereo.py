@@ -391,10 +391,11 @@ class MatchParams:
 
     ``row_tolerance_px``: largest |y_L - y_R| (px) on rectified rows.
     ``row_tolerance_share``: for a pair of blobs clear of the image's border whose top rows or
-    bottom rows agree within ``row_tolerance_px``, the tolerance grows to this share of the
-    shorter one's height: where the eyes segment one end of an object differently (a contact
-    shadow under a ball in one eye), its centroid's row moves by a share of its height, beyond
-    any fixed number of pixels at a larger image.
+    bottom rows agree within ``row_tolerance_px`` (and whose sides do not), the tolerance
+    grows to this share of the shorter one's height (0: never): where the eyes segment one
+    end of an object differently (a contact shadow under a ball in one eye), its centroid's
+    row moves by a share of its height, beyond any fixed number of pixels at a larger image
+    (:func:`match_blobs`).
     ``min_disparity_px`` / ``max_disparity_px``: allowed x_L - x_R (px); the maximum sets the
     nearest depth, B f / d_max. ``max_area_ratio``: largest ratio between the two blob areas.
     """
@@ -420,11 +421,15 @@ class MatchParams:
 
     @property
     def tall_px(self) -> float:
-        """The height (px) from which a blob's row tolerance may grow (``row_tolerance_share``
-        of it beyond ``row_tolerance_px``); infinite when it never does."""
+        """The height (image px) below which a blob's row tolerance is ``row_tolerance_px``
+        (``row_tolerance_share`` of it is no more); infinite when it never grows."""
         share = self.row_tolerance_share
         return self.row_tolerance_px / share if share > 0 else math.inf
 
+
+EDGE_TOLERANCE_PX = 2.0
+"""How far (px) two eyes' outline edges of one object may disagree beyond their disparity:
+a segmentation's edge is a pixel or two off (a closing, a hysteresis)."""
 
 AGREEMENT_WEIGHT = 2.0
 """What full disagreement between the eyes' images adds to an ambiguous candidate pair's cost:
@@ -440,6 +445,7 @@ def match_blobs(
     slack_px: float = 0.0,
     agreement: Callable[[int, int], float] | None = None,
     edges: tuple[np.ndarray, np.ndarray] | None = None,
+    heights: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Match blobs by row, disparity range and size; return (m, 2) int index pairs (left, right).
 
@@ -465,10 +471,17 @@ def match_blobs(
     different part of the object there, so the centroids' rows and disparity are no evidence.
     Its rows are the boxes' top and bottom rows that neither eye's image edge cuts (none: a
     person taller than the view, no row evidence, costed as a full tolerance), its disparity
-    that of the boxes' edges on the side no image edge cuts. The edges also widen the row
-    tolerance of a pair of blobs that both lie clear of the image's border and whose top rows
-    or bottom rows agree within ``row_tolerance_px``, to ``row_tolerance_share`` of the
-    shorter one's height (the other end cut differently by the two eyes' segmentations).
+    that of the boxes' edges on the side no image edge cuts.
+
+    Given the edges and ``heights`` (each eye's blobs' heights, image px), a pair of blobs
+    that both lie clear of the image's border, whose top rows or bottom rows agree within
+    ``row_tolerance_px`` and whose sides do not both lie one disparity apart has a row
+    tolerance of ``row_tolerance_share`` of the shorter one's height where that is more: the
+    eyes segmented its other end differently (a contact shadow's crescent in one eye), which
+    moves a centroid's row by a share of the object's height. Its row difference still costs
+    by ``row_tolerance_px``, so the pairs within that rank as without it. An outline cut
+    short at one end whose sides agree is left to :mod:`stereod.vision.grouping`, which pairs
+    it by the rows both eyes show.
     """
     nl, nr = len(left_px), len(right_px)
     if nl == 0 or nr == 0:
@@ -485,12 +498,16 @@ def match_blobs(
     if edges is not None:
         l_box, r_box = (np.asarray(e, np.float64).reshape(-1, 4).tolist() for e in edges)
     sided = [j for j in by_row if r_box is not None and _cut_side(r_box[j])]
-    share = params.row_tolerance_share
+    grow = l_box is not None and r_box is not None and heights is not None
+    share = params.row_tolerance_share if grow else 0.0
+    l_h, r_h = (h.tolist() for h in heights) if heights is not None and grow else ([], [])
     candidates = []
     for i, (xl, yl) in enumerate(left):
         if not math.isfinite(yl):
             continue
-        tol_i = tol if l_box is None else max(tol, share * _clear_height(l_box[i]))
+        tol_i = tol
+        if share > 0 and l_box is not None and _clear(l_box[i]):
+            tol_i = max(tol, share * l_h[i])  # no pair of blob i has a larger one
         if l_box is not None and _cut_side(l_box[i]):
             near = by_row  # its centroid's row says nothing: every right blob may be it
         else:
@@ -501,15 +518,15 @@ def match_blobs(
         for j in near:
             xr, yr = right[j]
             tol_ij = tol
-            if tol_i > tol and r_box is not None and l_box is not None:
-                tol_ij = _end_tolerance(l_box[i], r_box[j], tol, share)
+            if tol_i > tol and l_box is not None and r_box is not None:
+                tol_ij = _end_tolerance(l_box[i], r_box[j], tol, share * min(l_h[i], r_h[j]))
             dy, disp = abs(yl - yr), xl - xr
             if l_box is not None and r_box is not None:
-                dy, disp = _box_evidence(l_box[i], r_box[j], dy, disp, tol_ij)
+                dy, disp = _box_evidence(l_box[i], r_box[j], dy, disp, tol)
             ratio = abs(math.log(l_area[i] / float(r_area[j])))
             if dy > tol_ij or ratio > max_ratio or not lo - slack_px <= disp <= hi + slack_px:
                 continue
-            cost = dy / tol_ij + ratio
+            cost = dy / tol + ratio
             if slack_px > 0:
                 cost += (max(lo - disp, 0.0) + max(disp - hi, 0.0)) / slack_px
             candidates.append((cost, i, j))
@@ -556,9 +573,10 @@ def side_cut_edges(
     tall_px: float = math.inf,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Both eyes' :func:`box_edges` when a blob of either reaches the image's left or right
-    side or is at least ``tall_px`` tall (:attr:`MatchParams.tall_px`), else None:
-    :func:`match_blobs` then weighs every pair by its centroids, as it would with the edges,
-    and most pairs are spared rectifying four points a box."""
+    side or is at least ``tall_px`` tall in the image (:attr:`MatchParams.tall_px`), else
+    None: :func:`match_blobs` then weighs every pair by its centroids with one row
+    tolerance, as it would with the edges, and most pairs are spared rectifying four points
+    a box."""
 
     def needs(bbox_px: np.ndarray) -> bool:
         b = np.asarray(bbox_px).reshape(-1, 4)
@@ -580,18 +598,24 @@ class _Rectifies(Protocol):
     def rectify_right(self, points_px: np.ndarray) -> np.ndarray: ...
 
 
-def _clear_height(box: list[float]) -> float:
-    """A :func:`box_edges` box's height (px), or 0 where it reaches the image's border."""
-    return box[3] - box[2] if all(v == v for v in box) else 0.0
+def _clear(box: list[float]) -> bool:
+    """Whether a :func:`box_edges` box lies clear of the image's border on all four sides."""
+    return all(v == v for v in box)
 
 
-def _end_tolerance(lb: list[float], rb: list[float], tol: float, share: float) -> float:
-    """The row tolerance (px) of a pair of :func:`box_edges` boxes: ``share`` of the shorter
-    one's height where both lie clear of the image's border and their top rows or bottom
-    rows agree within ``tol``, at least ``tol``."""
-    if not (abs(lb[2] - rb[2]) <= tol or abs(lb[3] - rb[3]) <= tol):
+def _end_tolerance(lb: list[float], rb: list[float], tol: float, grown: float) -> float:
+    """The row tolerance (px) of a pair of :func:`box_edges` boxes: ``grown`` (at least
+    ``tol``) where both lie clear of the image's border, their top rows or bottom rows agree
+    within ``tol`` and their sides do not both lie one disparity apart (within two
+    :data:`EDGE_TOLERANCE_PX`: that outline is one cut short at one end, grouping's to pair
+    by its shared rows), else ``tol``."""
+    clear = _clear(lb) and _clear(rb)
+    if not (clear and (abs(lb[2] - rb[2]) <= tol or abs(lb[3] - rb[3]) <= tol)):
         return tol
-    return max(tol, share * min(_clear_height(lb), _clear_height(rb)))
+    d0, d1 = lb[0] - rb[0], lb[1] - rb[1]
+    if min(d0, d1) > 0 and abs(d0 - d1) <= 2 * EDGE_TOLERANCE_PX:
+        return tol
+    return max(tol, grown)
 
 
 def _cut_side(box: list[float]) -> bool:
