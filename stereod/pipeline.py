@@ -486,7 +486,7 @@ class Pipeline:
         slack = abs(eye_times[1] - eye_times[0]) * 1e-9 * p.max_image_speed_wps * p.rig.width_px
         images = pair.left.image, pair.right.image
         agree = lambda i, j: eye_agreement(*images, lb.bbox_px[i], rb.bbox_px[j])  # noqa: E731
-        edges = side_cut_edges(p.rig, lb.bbox_px, rb.bbox_px, p.matching.tall_px)
+        edges = side_cut_edges(p.rig, lb.bbox_px, rb.bbox_px, p.matching, (lrect, rrect))
         hs = lb.bbox_px[:, 3], rb.bbox_px[:, 3]
         idx = match_blobs(lrect, lb.area_px, rrect, rb.area_px, p.matching, slack, agree, edges, hs)
         lpx, rpx = lrect[idx[:, 0]], rrect[idx[:, 1]]

@@ -338,14 +338,18 @@ def test_a_tall_blob_whose_bottom_one_eye_adds_to_still_matches() -> None:
 
     def matched(lbox: list[int], rbox: list[int], params: MatchParams = p) -> bool:
         lb, rb = np.array([lbox]), np.array([rbox])
-        edges = side_cut_edges(RIG, lb, rb, params.tall_px)
+        edges = side_cut_edges(RIG, lb, rb, params, (left, right))
         hs = lb[:, 3], rb[:, 3]
         return len(match_blobs(left, la, right, ra, params, edges=edges, heights=hs)) == 1
 
     assert len(match_blobs(left, la, right, ra, p)) == 0  # by centroids alone
     assert p.tall_px == 60.0
     short = np.array([[256, 348, 87, 59]]), np.array([[226, 348, 78, 59]])
-    assert side_cut_edges(RIG, *short, p.tall_px) is None
+    assert side_cut_edges(RIG, *short, p, (left, right)) is None
+    tall = np.array([[256, 348, 87, 83]]), np.array([[226, 348, 78, 75]])
+    assert side_cut_edges(RIG, *tall, p, (left, right)) is not None
+    within = left, right + np.array([[0.0, 6.0]])  # a partner within the tolerance
+    assert side_cut_edges(RIG, *tall, p, within) is None
     assert matched([256, 348, 87, 83], [230, 348, 78, 75])
     assert matched([256, 340, 87, 83], [230, 348, 78, 75])  # the bottoms agree instead
     assert not matched([256, 348, 87, 83], [230, 348, 78, 75], MatchParams(row_tolerance_share=0))
