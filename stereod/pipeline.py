@@ -37,9 +37,10 @@ from stereod.vision.blobs import Blobs
 from stereod.vision.detect import Detector, fit_round_blobs
 from stereod.vision.detect_params import DetectorParams
 from stereod.vision.geometry import Geometry
+from stereod.vision.geometry.matching import MatchParams, match_blobs, side_cut_edges
 from stereod.vision.geometry.rectified import CalibratedRig
 from stereod.vision.geometry.refine import RefineParams
-from stereod.vision.geometry.stereo import CanonicalRig, MatchParams, match_blobs, side_cut_edges
+from stereod.vision.geometry.stereo import CanonicalRig
 from stereod.vision.geometry.triangulate import (
     Matched,
     blob_instants,
@@ -269,16 +270,15 @@ class Pipeline:
     def run(
         self, frames: Iterable[Frame], tolerance_ns: int = DEFAULT_TOLERANCE_NS
     ) -> Iterator[PairResult]:
-        """Pair ``frames`` (both eyes, in the order they were captured, as a camera delivers
-        them: a frame waits for the other eye's nearest one within ``tolerance_ns`` among at
-        most 8 of its eye's, so frames given long before their partners, such as one eye's
-        whole sequence before the other's, are dropped; see :class:`stereod.sources.pairing.Pairer`)
-        and yield each pair's result as soon as
-        the pair is formed (a frame that waits for its partner is detected meanwhile, as the
-        daemon does: :meth:`detect_ahead`). Tracks still live at the end stay live:
-        :meth:`finish` ends them. The pairer's counts (frames in, pairs out, drops by reason)
-        are :attr:`pairing` meanwhile and after; frames dropped because they came out of
-        order (``overflow``, ``non_monotonic``) are also logged as a warning at the end."""
+        """Pair ``frames`` (both eyes, in the order they were captured, as a camera delivers them: a
+        frame waits for the other eye's nearest one within ``tolerance_ns`` among at most 8 of its
+        eye's, so frames given long before their partners, such as one eye's whole sequence before
+        the other's, are dropped; see :class:`stereod.sources.pairing.Pairer`) and yield each pair's
+        result as soon as the pair is formed (a frame that waits for its partner is detected
+        meanwhile, as the daemon does: :meth:`detect_ahead`). Tracks still live at the end stay
+        live: :meth:`finish` ends them. The pairer's counts (frames in, pairs out, drops by reason)
+        are :attr:`pairing` meanwhile and after; frames dropped because they came out of order
+        (``overflow``, ``non_monotonic``) are also logged as a warning at the end."""
         pairer = Pairer(tolerance_ns)
         self.pairing = pairer.stats
         for k, frame in enumerate(frames):

@@ -10,7 +10,8 @@ import pytest
 
 from stereod import Pipeline, PipelineParams, StereoPair
 from stereod.vision.blobs import Blobs
-from stereod.vision.geometry.stereo import CanonicalRig, MatchParams, match_blobs, side_cut_edges
+from stereod.vision.geometry.matching import MatchParams, match_blobs, side_cut_edges
+from stereod.vision.geometry.stereo import CanonicalRig
 from stereod.vision.grouping import GroupParams, extent_m, group_objects
 
 from .conftest import shared_data

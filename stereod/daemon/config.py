@@ -65,8 +65,8 @@ from stereod.vision.detect_params import (
     Luminance,
     Warmup,
 )
+from stereod.vision.geometry.matching import MatchParams
 from stereod.vision.geometry.refine import RefineParams
-from stereod.vision.geometry.stereo import MatchParams
 from stereod.vision.grouping import GroupParams
 
 # The defaults of the pipeline's settings are stated once, in its parameter classes.
@@ -214,7 +214,7 @@ class PairingConfig(Section):
 
 
 class MatchingConfig(Section):
-    """How blobs are matched between the eyes (``MatchParams`` in ``vision/geometry/stereo.py``)."""
+    """How blobs are matched between the eyes (``MatchParams``, ``vision/geometry/matching.py``)."""
 
     row_tolerance_px: float = Field(
         _MATCH.row_tolerance_px, gt=0.0, description="Largest |y_L - y_R|, px"

@@ -26,7 +26,7 @@ import numpy as np
 
 from stereod.vision import row_disparity
 from stereod.vision.blobs import Blobs, Editable, editable, from_editable
-from stereod.vision.geometry.stereo import EDGE_TOLERANCE_PX
+from stereod.vision.geometry.matching import EDGE_TOLERANCE_PX
 
 __all__ = ["GroupParams", "Grouped", "edge_disparity_px", "extent_m", "group_objects"]
 
