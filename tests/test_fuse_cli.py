@@ -16,8 +16,9 @@ import zenoh
 from stereod.bus.messages import ObjectsMessage
 from stereod.fusion.status import FuseStatus
 from stereod_fakes.room_messages import Walker, walkers_from_json
+from tests.processes import start_stereod
 
-from .conftest import stereod, zenoh_config
+from .conftest import free_endpoint, stereod, zenoh_config
 from .fuse_procs import ROOM, fuse_procs, stop
 
 pytestmark = pytest.mark.slow
@@ -127,3 +128,21 @@ def test_a_bad_room_file_is_one_line_and_exit_78(tmp_path: Path) -> None:
     assert str(room) in res.stderr
     missing = stereod("fuse", "--room", str(tmp_path / "none.toml"))
     assert missing.returncode == 66 and "no such room file" in missing.stderr
+
+
+def test_a_node_that_heard_from_no_rig_says_how_to_connect_them(tmp_path: Path) -> None:
+    """A node on its own (no rig's daemon connected to it) ends on SIGTERM with exit 0, its
+    count of nothing, and one line naming the room's rigs and how to connect them."""
+    room = tmp_path / "room.toml"
+    room.write_text(ROOM)
+    fuse = start_stereod("fuse", "--room", str(room), "--listen", free_endpoint())
+    assert fuse.stderr is not None
+    for line in fuse.stderr:  # until its subscriptions are up
+        if "fusing 3 rigs" in line:
+            break
+    fuse.send_signal(signal.SIGTERM)
+    out, err = fuse.communicate(timeout=30)
+    assert fuse.returncode == 0, err
+    assert out.startswith("0 room messages (0 fusion steps) from 0 rig messages")
+    (said,) = [line for line in err.splitlines() if "no message came" in line]
+    assert "(a, b, c)" in said and "--connect / --listen" in said

@@ -10,7 +10,11 @@ one rig's clock 40 ms ahead (its ``--utc-start``): the shift is the truth of its
 
 from __future__ import annotations
 
+import json
+import os
+import re
 import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -27,9 +31,9 @@ from stereod.fusion.room import load_room
 from stereod.fusion.status import FuseStatus
 from stereod_fakes.world import Scene
 from stereod_fakes.world.rooms import RigPlacement, crossing_room, three_rig_room, write_room
-from tests.processes import run_stereod, start_stereod
+from tests.processes import ROOT, run_stereod, start_stereod
 
-from .conftest import zenoh_config
+from .conftest import free_endpoint, zenoh_config
 from .fuse_procs import fuse_procs
 
 pytestmark = pytest.mark.slow
@@ -79,6 +83,7 @@ def fused_in_stamp_order(
         yield m, frame
 
 
+@pytest.mark.xdist_group("fuse_world_three")  # one worker renders the room once
 def test_one_id_per_ball_across_three_rendered_rigs(
     rendered: tuple[Scene, list[RigPlacement], Path],
 ) -> None:
@@ -329,3 +334,46 @@ def test_where_both_rigs_see_a_ball_the_room_is_no_further_from_it_than_the_bett
         assert median["room"] <= min(median["a"], median["b"]), (ball, median)
         # Rig a's own track of the ball is the ball's, not a point between the two.
         assert median["a"] < 0.01, (ball, median)
+
+
+def _recipe() -> str:
+    """The shell commands of docs/fusion.md's "Testing without cameras"."""
+    text = (ROOT / "docs" / "fusion.md").read_text()
+    section = text.split("## Testing without cameras", 1)[1].split("\n## ", 1)[0]
+    (block,) = re.findall(r"```sh\n(.*?)```", section, re.S)
+    return block
+
+
+RENDER_LINE = (
+    'python -c "from stereod_fakes.world.rooms import three_rig_room, write_room; '
+    "write_room(*three_rig_room(), 'room')\""
+)
+"""The recipe's first line: what :func:`rendered` does (the same call, name and defaults)."""
+
+
+@pytest.mark.xdist_group("fuse_world_three")  # one worker renders the room once
+def test_the_documented_recipe_fuses_the_rendered_room(
+    rendered: tuple[Scene, list[RigPlacement], Path], tmp_path: Path
+) -> None:
+    """docs/fusion.md's commands as written, run by bash on the room their first line renders
+    (rendered here by the same call), on a free port instead of 7447: the node hears every
+    rig, ends cleanly on SIGTERM, and its room messages hold the two balls, one id each."""
+    render, *rest = _recipe().splitlines()
+    assert render == RENDER_LINE
+    _, rigs, folder = rendered
+    (tmp_path / "room").symlink_to(folder)
+    script = "\n".join(rest).replace("tcp/127.0.0.1:7447", free_endpoint())
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
+    res = subprocess.run(
+        ["bash", "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True,
+        timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    said = r"(\d+) room messages \(\d+ fusion steps\) from (\d+) rig messages"
+    summary = re.search(said, res.stdout)
+    assert summary is not None, (res.stdout, res.stderr)
+    lines = (tmp_path / "room.jsonl").read_text().splitlines()
+    assert int(summary[1]) == len(lines) > 0 and int(summary[2]) >= len(rigs)
+    assert "no message came" not in res.stderr
+    ids = {o["track_id"] for line in lines for o in json.loads(line)["objects"]}
+    assert len(ids) == 2, ids

@@ -15,6 +15,7 @@ import contextlib
 import json
 import logging
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -142,6 +143,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     add_zenoh(p)
     p.set_defaults(func=run)
+
+
+NOTHING_RECEIVED = (
+    "stereod fuse: no message came from the room's rigs ({rigs}): connect their daemons and "
+    "this node to one another, or all to one router (--connect / --listen, or [zenoh] in "
+    "--config; peers do not find each other by multicast), and use the rig names of the "
+    "room file (--rig)"
+)
+"""Said at the end of a run in which no rig's message arrived."""
 
 
 def _calibration(room: Room) -> bytes:
@@ -359,6 +369,9 @@ def run(a: argparse.Namespace) -> int:
                 f"{sum(node.received.values())} rig messages; "
                 f"{len(fuser.restarts)} rig restarts seen"
             )
+            if not any(node.received.values()):
+                print(NOTHING_RECEIVED.format(rigs=", ".join(r.name for r in room.rigs)),
+                      file=sys.stderr)  # fmt: skip
         except ReaderGone as exc:
             if exc.stdout:
                 stdout_gone()
