@@ -350,8 +350,14 @@ def write_scene(
             writer.write(right)
             if on_pair is not None:
                 on_pair(k)
-        writer.write_text(TRUTH, json.dumps(scene.model_dump(mode="json"), indent=2) + "\n")
+        writer.write_text(TRUTH, truth_text(scene))
     return out
+
+
+def truth_text(scene: Scene) -> str:
+    """The ``truth.json`` of a recording of ``scene``: the scene itself, which
+    :func:`scene_from_truth` reads back."""
+    return json.dumps(scene.model_dump(mode="json"), indent=2) + "\n"
 
 
 class _SynthEye(EyeSource):
@@ -397,7 +403,10 @@ class _SynthSource(StereoSource):
         if flags.prerender:
             self.prerendered = {eye: self._prerender(eye) for eye in Eye}
         self._start_s: float | None = None
-        info = SourceInfo(scene.width_px, scene.height_px, scene.fps, flags.live, "synthetic scene")
+        files = {} if flags.loop else {TRUTH: truth_text(scene)}  # a loop's times go past it
+        info = SourceInfo(
+            scene.width_px, scene.height_px, scene.fps, flags.live, "synthetic scene", files=files
+        )
         super().__init__(_SynthEye(Eye.LEFT, self), _SynthEye(Eye.RIGHT, self), info)
 
     def _prerender(self, eye: Eye) -> np.ndarray:

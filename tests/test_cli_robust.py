@@ -420,6 +420,37 @@ ROWS = [
         lambda d: opencv_files(d),
     ),
     Row(
+        "replay a file of a recording",
+        ["replay", "{d}/rec/left.csv"],
+        66,
+        r"rec/left.csv: that is a file of the recording .*rec; give the folder$",
+        lambda d: recording(d),
+    ),
+    Row(
+        "replay with a run's output as the calibration",
+        ["replay", "{d}/rec", "--calibration", "{d}/run.jsonl"],
+        78,
+        r"run.jsonl: not valid JSON \(.*\); it is given by --calibration$",
+        lambda d: (recording(d), (d / "run.jsonl").write_text('{"a": 1} {"b": 2}\n')),
+    ),
+    Row(
+        "run --check with a config naming a missing calibration",
+        ["run", "--check", "--config", "{d}/c.toml"],
+        66,
+        r"none.json: no such calibration file; it is rig.calibration in .*c.toml$",
+        lambda d: (d / "c.toml").write_text(f'[rig]\ncalibration = "{d}/none.json"\n'),
+    ),
+    Row(
+        "calibration export --ros to a file",
+        ["calibration", "export", "{d}/cal.json", "--ros", "{d}/fig.png"],
+        73,
+        r"fig.png: is a file; --ros takes the folder for left.yaml and right.yaml",
+        lambda d: (
+            save(canonical(0.06, 60.0, W, H), d / "cal.json"),
+            (d / "fig.png").write_bytes(b"png"),
+        ),
+    ),
+    Row(
         "calibration export over the calibration",
         ["calibration", "export", "{d}/left.yaml", "--ros", "{d}"],
         64,
@@ -430,11 +461,18 @@ ROWS = [
         "record into an existing recording",
         ["record", "{d}/rec", "--driver", "replay", "--config", "{d}/c.toml"],
         73,
-        r"rec: already exists and is not an empty directory",
+        r"rec: already exists, and is a folder that is not empty; a recording goes into a new",
         lambda d: (
             recording(d),
             (d / "c.toml").write_text(f'[driver.options]\npath = "{d}/rec"\n'),
         ),
+    ),
+    Row(
+        "synth into an existing file",
+        ["synth", "{d}/run.jsonl"],
+        73,
+        r"run.jsonl: already exists, and is a file; a recording goes into a new folder",
+        lambda d: (d / "run.jsonl").write_text("{}\n"),
     ),
 ]
 

@@ -16,7 +16,14 @@ import aiohttp
 import pytest
 
 from stereod.tracking.motion import angle_diff_deg
-from stereod.view.demo import DEMO_PORT, free_tcp_port, listening_session, run_demo
+from stereod.view.demo import (
+    DEMO_PORT,
+    DemoBall,
+    free_tcp_port,
+    listening_session,
+    run_demo,
+)
+from stereod_fakes.synth import Scene, scene_from_truth
 from tests.processes import run_stereod, start_stereod
 
 
@@ -27,15 +34,21 @@ def test_angle_difference_wraps() -> None:
 
 
 @pytest.mark.slow
-def test_demo_measures_heading_and_speed(capsys: pytest.CaptureFixture[str]) -> None:
-    """With its usual port taken, the demo says where it listens instead, and still works."""
+def test_demo_measures_heading_and_speed(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """With its usual port taken, the demo says where it listens instead, and still works.
+    ``--keep DIR`` keeps the recording with the scene's truth (it kept no truth.json, so
+    ``plot --truth DIR/truth.json`` failed)."""
     with socket.socket() as taken:
         taken.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # past any TIME_WAIT
         with contextlib.suppress(OSError):  # already taken by someone else: as good
             taken.bind(("127.0.0.1", DEMO_PORT))
             taken.listen()
-        assert run_demo(rate=0.0, heading_deg=210.0, speed_mps=0.7) == 0
+        assert run_demo(rate=0.0, heading_deg=210.0, speed_mps=0.7, keep=tmp_path / "kept") == 0
     out = capsys.readouterr().out
+    scene = scene_from_truth(tmp_path / "kept" / "truth.json")
+    assert scene == Scene.model_validate(DemoBall(210.0, 0.7).scene_options())
     assert f"zenoh: port {DEMO_PORT} is taken, listening on tcp/127.0.0.1:" in out
     assert "within the paper's errors" in out
     error_line = next(line for line in out.splitlines() if line.startswith("error"))

@@ -351,3 +351,32 @@ def test_legends_never_cover_the_data() -> None:
         box = legend.get_window_extent(renderer)
         for ax in fig.axes:
             assert not box.overlaps(ax.get_window_extent(renderer)), ax.get_title()
+
+
+def test_a_folder_as_the_figure_is_refused_like_every_output(tmp_path: Path) -> None:
+    """``-o DIR`` (an existing folder, with or without a slash) is one line and exit 73, and
+    nothing is written: it wrote DIR.png beside the folder (``-o /tmp`` wrote /tmp.png)."""
+    run = _golden_run(tmp_path)
+    folder = tmp_path / "figs"
+    folder.mkdir()
+    for given in (str(folder), f"{folder}/"):
+        r = stereod("plot", str(run), "-o", given)
+        assert r.returncode == 73, r.stderr
+        assert r.stderr == f"stereod: {folder}: is a directory; give the name of a file in it\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["figs", "run.jsonl"]
+    assert list(folder.iterdir()) == []
+
+
+def test_a_binary_file_as_the_run_or_truth_says_what_to_give(tmp_path: Path) -> None:
+    """A PNG given as the run (or the truth) is one line and exit 65 naming it and what to give
+    instead (it was Python's own 'utf-8' codec message)."""
+    run = _golden_run(tmp_path)
+    png = tmp_path / "fig.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
+    for args, what in (([str(png)], "--jsonl"), ([str(run), "--truth", str(png)], "truth")):
+        r = stereod("plot", *args, "-o", str(tmp_path / "out.png"))
+        assert r.returncode == 65, r.stderr
+        assert r.stderr.count("\n") == 1 and "codec" not in r.stderr, r.stderr
+        assert r.stderr.startswith(f"stereod: {png}: not a text file (byte 0 is not UTF-8)")
+        assert what in r.stderr
+    assert not (tmp_path / "out.png").exists()

@@ -23,7 +23,7 @@ from stereod.sources.frames import Driver, Eye, EyeSource, Frame, StereoSource, 
 from stereod.sources.record import record
 from stereod.vision.calibration import canonical, save
 from stereod_fakes.replay import ReplayDriver
-from stereod_fakes.synth import Renderer, Scene, SyntheticDriver
+from stereod_fakes.synth import Renderer, Scene, SyntheticDriver, scene_from_truth
 from stereod_fakes.v4l2_kernel import FakeCamera, FakeKernel
 from stereod_v4l2_minoru.driver import MinoruDriver
 
@@ -58,6 +58,17 @@ def test_replay_reproduces_recorded_frames_and_timestamps(tmp_path: Path, color:
     man = json.loads((tmp_path / "rec" / "recording.json").read_text())
     assert man["calibration"] == json.loads(cal.read_text())
     assert man["color"] is color
+
+
+def test_a_synthetic_scene_is_recorded_with_its_truth(tmp_path: Path) -> None:
+    """Recording the synthetic driver keeps the scene beside the frames as ``truth.json``, as
+    ``stereod synth`` does (``stereod demo --keep`` and ``record`` kept none); a looped scene,
+    whose times run past it, keeps none."""
+    options = {"duration_s": 0.4, "fps": 10, "width_px": 80, "height_px": 60}
+    record(SyntheticDriver(options), tmp_path / "rec")
+    assert scene_from_truth(tmp_path / "rec" / "truth.json") == Scene.model_validate(options)
+    record(SyntheticDriver({**options, "loop": True}), tmp_path / "loop", seconds=0.2)
+    assert not (tmp_path / "loop" / "truth.json").exists()
 
 
 def test_live_record_stops_after_seconds(tmp_path: Path) -> None:

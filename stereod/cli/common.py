@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from stereod.cli.signals import relayed
-from stereod.errors import EX_DATAERR, ConfigError, ReaderGone, one_line
+from stereod.errors import EX_DATAERR, ConfigError, ReaderGone, StereodError, one_line
 from stereod.files.bounds import BASELINE_M, HFOV_DEG, PLAYBACK_RATE, THRESHOLD_GREY, TIME_BASE_S
 from stereod.files.output_file import is_stdout
 from stereod.vision.detect_params import MAX_WARMUP_FRAMES, DetectorParams
@@ -259,7 +259,6 @@ def load_checked(path: Path | None, overrides: dict[str, Any]) -> tuple[Any, Any
     from stereod.daemon.config import load_config
     from stereod.files.config_input import origin
     from stereod.sources.drivers import load_driver
-    from stereod.vision.calibration import load as load_calibration
 
     cfg = load_config(path, overrides)
     driver = load_driver(
@@ -269,9 +268,26 @@ def load_checked(path: Path | None, overrides: dict[str, Any]) -> tuple[Any, Any
         name_origin=origin(("driver", "name"), path, overrides),
     )
     session_config(cfg.zenoh)
-    if cfg.rig.calibration is not None:
-        load_calibration(cfg.rig.calibration)
+    check_calibration(cfg, path, overrides)
     return cfg, driver
+
+
+def check_calibration(cfg: Any, path: Path | None, overrides: dict[str, Any]) -> None:
+    """Read the calibration file a configuration ``cfg`` (from ``path`` and ``overrides``)
+    names, if any; its error says which setting named it, for the user to change."""
+    from stereod.files.config_input import origin
+    from stereod.vision.calibration import load as load_calibration
+
+    if cfg.rig.calibration is None:
+        return
+    try:
+        load_calibration(cfg.rig.calibration)
+    except StereodError as exc:
+        where = origin(("rig", "calibration"), path, overrides)
+        named = (
+            "given by --calibration" if where == "command line" else (f"rig.calibration in {where}")
+        )
+        raise type(exc)(f"{exc}; it is {named}") from exc
 
 
 def run_inputs(config: Path | None, cfg: Any, driver: Any = None) -> list[Path]:

@@ -20,6 +20,7 @@ from stereod.cli.common import (
     add_pipeline,
     add_rate,
     add_wait_subscriber,
+    check_calibration,
     command_log_level,
     load_checked,
     number,
@@ -219,6 +220,7 @@ def run(a: argparse.Namespace) -> int:
     ov["driver"] = {"name": "replay", "options": options}
     cfg = load_config(a.config, ov)
     setup_logging(command_log_level(cfg))
+    check_calibration(cfg, a.config, ov)
     driver = load_driver("replay", options)
     check_outputs({"--jsonl": a.jsonl, "--mcap": a.mcap}, run_inputs(a.config, cfg, driver))
     mcap = _mcap(a, cfg)

@@ -174,6 +174,9 @@ class SourceInfo:
     """Wall clock minus the source's monotonic clock (ns), when the source knows it."""
     inputs: list[Path] = field(default_factory=list)
     """Files the source reads (an output must never overwrite one of them)."""
+    files: dict[str, str] = field(default_factory=dict)
+    """Text files a recording of the source keeps beside its frames (name: text), such as a
+    synthetic scene's truth."""
 
 
 class StereoSource:

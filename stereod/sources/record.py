@@ -141,6 +141,8 @@ def record(
                     counts[frame.eye.value] += 1
                     if on_frame is not None:
                         on_frame(frame)
+            for name, text in info.files.items():
+                writer.write_text(name, text)
     return counts
 
 

@@ -147,6 +147,10 @@ def read_manifest(directory: Path) -> Manifest:
             raise MissingInputError(
                 f"{directory}: that is a recording's manifest; give its folder, {directory.parent}"
             ) from exc
+        if os.path.isfile(directory) and os.path.isfile(directory.parent / MANIFEST):
+            raise MissingInputError(
+                f"{directory}: that is a file of the recording {directory.parent}; give the folder"
+            ) from exc
         raise MissingInputError(
             f"{directory}: not a recording ({MANIFEST} missing); for plain videos use "
             "--left-video/--right-video"

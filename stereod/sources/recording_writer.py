@@ -86,9 +86,10 @@ class RecordingWriter:
         except OSError as exc:
             raise OutputError(f"{directory}: cannot look into it: {exc.strerror}") from exc
         if occupied:
+            what = "a folder that is not empty" if directory.is_dir() else "a file"
             raise OutputError(
-                f"{directory}: already exists and is not an empty directory; a recording goes "
-                "into a new one (nothing was written)"
+                f"{directory}: already exists, and is {what}; a recording goes into a new "
+                "folder (nothing was written)"
             )
         try:
             directory.parent.mkdir(parents=True, exist_ok=True)

@@ -27,7 +27,7 @@ from pydantic import ValidationError
 
 from stereod.bus.messages import ObjectsMessage, ObjectState
 from stereod.errors import InputError, MissingInputError, NotInstalledError, UsageError
-from stereod.files.output_file import AtomicOutput, written_in_place
+from stereod.files.output_file import AtomicOutput, output_target, written_in_place
 
 FIGSIZE_IN = (12.0, 6.0)
 DPI = 100
@@ -101,7 +101,10 @@ def read_run(path: Path) -> Run:
     except OSError as exc:
         raise _unreadable(path, "run", exc, " (write one with --jsonl)") from exc
     except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: cannot read the run file: {exc}") from exc
+        raise InputError(
+            f"{path}: not a text file (byte {exc.start} is not UTF-8); give the objects "
+            "messages written by --jsonl"
+        ) from exc
     for n, line in enumerate(lines, 1):
         if not line.strip():
             continue
@@ -190,7 +193,10 @@ def read_truth(path: Path, t0_ns: int) -> list[TruthSeries]:
     except OSError as exc:
         raise _unreadable(path, "truth", exc) from exc
     except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: cannot read the truth file: {exc}") from exc
+        raise InputError(
+            f"{path}: not a text file (byte {exc.start} is not UTF-8); give a truth CSV or a "
+            "synthetic recording's truth.json"
+        ) from exc
     out = []
     for name, rows in sorted(per.items()):
         a = np.array(sorted(rows, key=lambda r: r[0]))
@@ -337,7 +343,9 @@ def _figure_class() -> Any:
 def figure_target(out: Path) -> tuple[Path, str]:
     """The file a figure for ``--out`` is written to and its format, by its suffix (``png``,
     ``pdf``, ``svg``, ...), ``.png`` added when it has none, as matplotlib would. A suffix
-    matplotlib cannot write is refused before any work, listing those it can."""
+    matplotlib cannot write is refused before any work, listing those it can, and so is what
+    cannot be an output at all (a folder, a socket: :func:`output_target`'s rule)."""
+    output_target(out)
     if not out.suffix:
         if written_in_place(out):  # /dev/null, a FIFO: that file, as PNG
             return out, "png"

@@ -49,6 +49,10 @@ def export_ros(cal: Calibration, directory: Path) -> list[Path]:
     missing parents, as a recording's folder is); return their paths."""
     try:
         directory.mkdir(parents=True, exist_ok=True)
+    except FileExistsError as exc:  # a file, or a link to one, by that name
+        raise OutputError(
+            f"{directory}: is a file; --ros takes the folder for left.yaml and right.yaml"
+        ) from exc
     except OSError as exc:
         raise OutputError(f"{directory}: cannot create the folder: {exc.strerror}") from exc
     out = []
