@@ -40,8 +40,8 @@ import stereod
 import stereod.client
 from stereod import errors
 from stereod.bus import keys
-from stereod.bus.messages import ALL_MESSAGES
 from stereod.cli import build_parser
+from stereod.cli.schema import wire_messages
 from stereod.daemon.config import StereodConfig
 from stereod.files.bounds import BOUNDS, Bound
 from stereod.files.bounds import markdown_table as bounds_table
@@ -295,7 +295,7 @@ def _schema_table(schema: dict[str, Any]) -> str:
 def message_schemas() -> dict[str, dict[str, Any]]:
     """Every wire message's JSON Schema, by its ``schema`` name, as ``stereod schema`` prints
     them."""
-    return {name: m.model_json_schema(by_alias=True) for name, m in ALL_MESSAGES.items()}
+    return {name: m.model_json_schema(by_alias=True) for name, m in wire_messages().items()}
 
 
 def wire_page() -> str:

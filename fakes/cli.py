@@ -72,7 +72,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         type=number(0.0, 3600.0, unit="s"),
         default=1.2,
         metavar="S",
-        help="seconds of empty scene before the balls appear (background warm-up)",
+        help="seconds of empty scene before the balls appear (background warm-up; default 1.2)",
     )
     p.add_argument(
         "--travel",

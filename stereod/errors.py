@@ -23,6 +23,7 @@ boundary with ``raise ... from exc`` so callers only ever catch ``StereodError``
 from __future__ import annotations
 
 import difflib
+import typing
 from collections.abc import Sequence
 from typing import Any
 
@@ -172,16 +173,32 @@ def describe_error(e: Any, prefix: str = "", model: Any = None) -> str:
 
 def nearest_field(model: Any, loc: Sequence[int | str]) -> str | None:
     """The field of the pydantic ``model`` class (followed through its nested models along
-    ``loc``) whose name is nearest the last part of ``loc``, if one is near enough to be a
-    misspelling of it (difflib ratio 0.75: ``treshold`` for ``threshold``)."""
+    ``loc``, a list's items included) whose name is nearest the last part of ``loc``, if one
+    is near enough to be a misspelling of it: the same letters in another order (``fsp`` for
+    ``fps``), or a difflib ratio of 0.75 (``treshold`` for ``threshold``)."""
     for part in loc[:-1]:
+        if isinstance(part, int):  # an item of a list: the list's model goes on
+            continue
         field = getattr(model, "model_fields", {}).get(str(part))
-        model = getattr(field, "annotation", None)
-        if not hasattr(model, "model_fields"):
+        model = _model_in(getattr(field, "annotation", None))
+        if model is None:
             return None
     names = list(getattr(model, "model_fields", {}))
-    found = difflib.get_close_matches(str(loc[-1]), names, n=1, cutoff=0.75) if loc else []
+    if not loc:
+        return None
+    typo = str(loc[-1])
+    swapped = [n for n in names if sorted(n) == sorted(typo)]
+    found = swapped or difflib.get_close_matches(typo, names, n=1, cutoff=0.75)
     return found[0] if found else None
+
+
+def _model_in(annotation: Any) -> Any:
+    """The pydantic model an annotation holds: itself, or the one model among its arguments
+    (``list[Rig]``, ``Rig | None``), else None."""
+    if hasattr(annotation, "model_fields"):
+        return annotation
+    found = [m for m in (_model_in(a) for a in typing.get_args(annotation)) if m is not None]
+    return found[0] if len(found) == 1 else None
 
 
 def _shown(value: object, limit: int = 60) -> str:

@@ -473,6 +473,23 @@ def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
         78,
         r"detector\.treshold: unknown field \(did you mean threshold\?\)",
     )
+    # Letters swapped, and a field of a list's item (a room's rig), are answered too.
+    typo.write_text('[driver]\nname = "synthetic"\n[driver.options]\nfsp = 30\n')
+    one_line_error(
+        stereod("run", "--config", str(typo), "--check"),
+        78,
+        r"driver\.options\.fsp: unknown field \(did you mean fps\?\)",
+    )
+    room = tmp_path / "room.toml"
+    room.write_text(
+        '[room]\nname = "lab"\n[[room.rigs]]\nnmae = "a"\ntranslation_m = [0.0, 0.0, 0.0]\n'
+        "rotation_deg = [0.0, 0.0, 0.0]\n"
+    )
+    one_line_error(
+        stereod("fuse", "--room", str(room)),
+        78,
+        r"room\.rigs\.0\.nmae: unknown field \(did you mean name\?\)",
+    )
     one_line_error(
         stereod("run", "--config", str(tmp_path / "none.toml")), 66, "no such config file"
     )

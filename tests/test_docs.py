@@ -23,8 +23,8 @@ import pytest
 
 import stereod.client
 from stereod import errors
-from stereod.bus.messages import ALL_MESSAGES
 from stereod.cli import build_parser
+from stereod.cli.schema import wire_messages
 from stereod.daemon.config import StereodConfig, load_config
 from stereod.files.bounds import BOUNDS
 
@@ -131,6 +131,14 @@ def test_the_cli_reference_has_every_command() -> None:
                     assert f"### `stereod {name} {child}`" in page, f"{name} {child}"
 
 
+def test_the_command_table_has_every_command() -> None:
+    """docs/cli.md's table lists every command ``stereod --help`` does, and no other (it
+    lacked ``fuse``)."""
+    table = re.findall(r"^\| `([a-z-]+)` \|", (ROOT / "docs" / "cli.md").read_text(), re.M)
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    assert sorted(table) == sorted(sub.choices), table  # type: ignore[attr-defined]
+
+
 def test_the_configuration_reference_has_every_field() -> None:
     page = gen_ref().config_page()
     fields = 0
@@ -161,7 +169,7 @@ def test_the_configuration_reference_file_is_the_defaults(tmp_path: Path) -> Non
 
 def test_the_wire_reference_has_every_message_and_field() -> None:
     page = gen_ref().wire_page()
-    for name, model in ALL_MESSAGES.items():
+    for name, model in wire_messages().items():
         assert f"## `{name}`" in page, name
         for field in model.model_json_schema(by_alias=True)["properties"]:
             assert f"| `{field}` |" in page, f"{name} {field}"

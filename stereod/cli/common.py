@@ -128,8 +128,9 @@ def endpoint_arg(text: str) -> str:
         raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
 
 
-def add_zenoh(p: argparse.ArgumentParser) -> None:
-    """--connect, --listen, --mode, --prefix."""
+def add_zenoh(p: argparse.ArgumentParser, *, listens: bool = True) -> None:
+    """--connect, --listen, --mode, --prefix; ``listens``: the command's session listens on
+    loopback when no endpoint is given (a daemon), else nowhere (a consumer)."""
     g = p.add_argument_group("zenoh")
     g.add_argument(
         "--connect",
@@ -143,8 +144,12 @@ def add_zenoh(p: argparse.ArgumentParser) -> None:
         action="append",
         type=endpoint_arg,
         metavar="ENDPOINT",
-        help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; default: a daemon "
-        "on loopback only, subscribe and view nowhere)",
+        help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; default: "
+        + (
+            "the config's, else loopback only, a free port (7447 in router mode))"
+            if listens
+            else "the config's, else none: it connects)"
+        ),
     )
     g.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (peer)")
     g.add_argument("--prefix", help="key prefix (default: stereod)")

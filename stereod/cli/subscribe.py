@@ -44,7 +44,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="S",
         help="exit after S seconds",
     )
-    add_zenoh(p)
+    add_zenoh(p, listens=False)
     p.set_defaults(func=run)
 
 

@@ -58,7 +58,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="ADDR",
         help="address of the Foxglove WebSocket (default 127.0.0.1: this machine only)",
     )
-    add_zenoh(p)
+    add_zenoh(p, listens=False)
     p.set_defaults(func=run)
 
 
