@@ -12,16 +12,27 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from mcap.reader import make_reader
 
-from stereod.bus.messages import ObjectsMessage
+from stereod.bus.messages import ObjectsMessage, dump_objects
+from stereod.fusion.room import RigPose
 from stereod.fusion.status import FuseStatus
-from stereod_fakes.room_messages import Walker, walkers_from_json
+from stereod_fakes.room_messages import RigSim, Walker, walkers_from_json
 from tests.processes import start_stereod
 
 from .conftest import free_endpoint, stereod, zenoh_config
 from .fuse_procs import ROOM, fuse_procs, stop
 
 pytestmark = pytest.mark.slow
+
+
+_EMPTY = (
+    '{"schema": "stereod.objects/1", "rig": "a", "seq": 1, "t_ns": 0, "stamp_utc_ns": 0, '
+    '"skew_ns": 0, "left_seq": 1, "right_seq": 1, "geometry": "canonical", '
+    '"calibration_id": null, "latency": {"detect_ms": 0, "geometry_ms": 0, "track_ms": 0, '
+    '"pipeline_ms": 0, "queue_ms": 0}, "objects": []}'
+)
+"""A rig's objects message with no object, as JSON (its stamp 0, to be replaced)."""
 
 
 def test_three_rigs_through_a_router_make_one_id_per_object(tmp_path: Path) -> None:
@@ -88,6 +99,16 @@ def test_three_rigs_through_a_router_make_one_id_per_object(tmp_path: Path) -> N
                 if any("that were not objects" in p for p in status.problems):
                     break
                 time.sleep(0.1)
+            # So is a message stamped at 64 bits' end (a replay given such a --utc-start made
+            # them, and the step's clock arithmetic overflowed: the node died with exit 70).
+            far = json.loads(_EMPTY.replace('"stamp_utc_ns": 0', f'"stamp_utc_ns": {2**63 - 1}'))
+            while time.monotonic() < deadline:
+                session.put("stereod/a/objects", json.dumps(far).encode())
+                replies = list(session.get("stereod/rooms/lab/stats", timeout=10))
+                status = FuseStatus.model_validate_json(replies[0].ok.payload.to_bytes())
+                if any("a stamp outside 1970..2116" in p for p in status.problems):
+                    break
+                time.sleep(0.1)
             alive = list(session.liveliness().get("stereod/rooms/lab/alive", timeout=5))
             sub.undeclare()
         for g in gens.values():
@@ -101,6 +122,7 @@ def test_three_rigs_through_a_router_make_one_id_per_object(tmp_path: Path) -> N
     assert any(
         p.startswith("samples on a rig's objects key that were not") for p in status.problems
     )
+    assert any("a stamp outside 1970..2116" in p for p in status.problems), status.problems
     watched = [m for m in messages if m.stamp_utc_ns > t0 - 1_000_000_000]
     ids: dict[int, int] = {}
     for m in watched:
@@ -146,3 +168,44 @@ def test_a_node_that_heard_from_no_rig_says_how_to_connect_them(tmp_path: Path) 
     assert out.startswith("0 room messages (0 fusion steps) from 0 rig messages")
     (said,) = [line for line in err.splitlines() if "no message came" in line]
     assert "(a, b, c)" in said and "--connect / --listen" in said
+
+
+def test_a_rig_whose_clock_reads_after_2038_leaves_the_mcap_but_not_the_node(
+    tmp_path: Path,
+) -> None:
+    """ROS time holds seconds in 32 bits. A rig stamping its messages in 2100 (``replay
+    --utc-start`` takes it) made ``fuse --mcap`` exit 65 at the first room message; now the
+    node fuses on, leaves those room messages out of the MCAP, says so on its status, and
+    its MCAP is whole at a clean stop."""
+    room = tmp_path / "room.toml"
+    room.write_text(ROOM)
+    t0 = 4_102_444_800_000_000_000  # 2100-01-01
+    sim = RigSim(RigPose(name="a"), seed=1)
+    walker = [Walker(1, (0.3, 0.0, 3.0), (0.2, 0.0, 0.0), t0)]
+    endpoint = free_endpoint()
+    mcap = tmp_path / "room.mcap"
+    fuse = start_stereod("fuse", "--room", str(room), "--listen", endpoint, "--mcap", str(mcap))
+    assert fuse.stderr is not None
+    for line in fuse.stderr:
+        if "fusing 3 rigs" in line:
+            break
+    said: list[str] = []
+    with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as session:
+        deadline = time.monotonic() + 60  # a guard against a hang, not a measurement
+        k = 0
+        while not said and time.monotonic() < deadline:
+            payload, _ = dump_objects(sim.message(walker, t0 + k * 33_333_333))
+            session.put("stereod/a/objects", payload)
+            k += 1
+            time.sleep(0.03)
+            if k % 10 == 0:
+                replies = list(session.get("stereod/rooms/lab/stats", timeout=10))
+                status = FuseStatus.model_validate_json(replies[0].ok.payload.to_bytes())
+                said = [p for p in status.problems if "left out of the MCAP" in p]
+    fuse.send_signal(signal.SIGTERM)
+    out, err = fuse.communicate(timeout=30)
+    assert fuse.returncode == 0, err
+    assert said and "outside ROS time" in said[0], status.problems
+    assert status.steps > 0 and " room messages " in out
+    with mcap.open("rb") as f:
+        assert make_reader(f).get_summary() is not None

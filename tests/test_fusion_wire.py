@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from stereod.bus.messages import ObjectsMessage, dump_objects
+from stereod.files.bounds import UTC_NS_MAX
 from stereod.fusion.room import RigPose
 from stereod.fusion.wire import RigWire, _fast, decode, from_message
 from stereod_fakes.room_messages import RigSim, Walker
@@ -133,8 +134,9 @@ def test_malformed_messages_taken_and_refused_as_the_model_does(payload: bytes) 
     if fast is not None:  # what the fast path takes, the model takes, and reads the same
         assert model is not None, payload
         same(fast, model)
-    if model is None:
-        with pytest.raises(ValueError):
+    stamps = [] if model is None else [model.stamp_utc_ns, *model.stamps_ns.tolist()]
+    if model is None or not all(0 <= t <= UTC_NS_MAX for t in stamps):
+        with pytest.raises(ValueError):  # refused, or stamped where the room's clock overflows
             decode(payload)
     else:
         same(decode(payload), model)
@@ -150,6 +152,21 @@ def test_not_a_message_is_refused_with_the_models_error(payload: bytes) -> None:
     with pytest.raises(ValueError) as model:
         ObjectsMessage.model_validate_json(payload)
     assert str(fast.value) == str(model.value)
+
+
+@pytest.mark.parametrize("where", ["message", "object"])
+@pytest.mark.parametrize("stamp", [-1, UTC_NS_MAX + 1, 2**63 - 1])
+def test_a_stamp_outside_1970_to_2116_is_refused_naming_the_rig(where: str, stamp: int) -> None:
+    """A message (or one of its objects) stamped before 1970 or past 2**62 ns is refused by
+    both readers: at 64 bits' end, the room's step overflowed and the node died (exit 70).
+    The last instant within is taken."""
+    msg = json.loads(PAYLOADS[-1])
+    target = msg if where == "message" else msg["objects"][0]
+    target["stamp_utc_ns"] = stamp
+    with pytest.raises(ValueError, match=r"rig 'a': a stamp outside 1970\.\.2116"):
+        decode(json.dumps(msg).encode())
+    target["stamp_utc_ns"] = UTC_NS_MAX
+    assert decode(json.dumps(msg).encode()).rig == "a"
 
 
 @pytest.mark.parametrize("field", ["track_id", "stamp_utc_ns"])

@@ -58,3 +58,29 @@ def test_a_bad_utc_start_is_one_line_and_exit_64(rec: Path, bad: str) -> None:
     assert res.returncode == 64
     assert res.stderr.count("\n") == 1 and "--utc-start" in res.stderr
     assert "unrecognized" not in res.stderr  # refused for its value, naming what to give
+
+
+@pytest.mark.parametrize("late", [str(2**63 - 1), "2117-01-01T00:00:00Z"])
+def test_a_utc_start_past_2116_is_refused(rec: Path, late: str) -> None:
+    """The first frame's instant may not be one whose stream time passes 64 bits (at 2^63 - 1
+    the stamps did, and a fusion node fed them died): 1970..2116, one line, exit 64."""
+    res = run_stereod("replay", str(rec), "--rate", "0", "--utc-start", late, *LOOPBACK)
+    assert res.returncode == 64, res.stderr
+    assert res.stderr.count("\n") == 1 and "--utc-start" in res.stderr
+    assert "outside 1970..2116" in res.stderr, res.stderr
+
+
+def test_a_utc_start_after_2038_is_refused_with_mcap(rec: Path, tmp_path: Path) -> None:
+    """A ROS 2 stamp holds seconds in 32 bits: with ``--mcap`` a start after 2038-01-19 is
+    refused before anything runs, naming the flag (it failed at the first message, exit 65);
+    without ``--mcap`` it plays."""
+    later = "2100-01-01T00:00:00Z"
+    res = run_stereod(
+        "replay", str(rec), "--rate", "0", "--utc-start", later, "--mcap", str(tmp_path / "r.mcap"),
+        *LOOPBACK,
+    )  # fmt: skip
+    assert res.returncode == 64, res.stderr
+    assert res.stderr.startswith("stereod: --utc-start 4102444800000000000 ns: after 2038-01-19")
+    assert not (tmp_path / "r.mcap").exists()
+    res = run_stereod("replay", str(rec), "--rate", "0", "-q", "--utc-start", later, *LOOPBACK)
+    assert res.returncode == 0, res.stderr

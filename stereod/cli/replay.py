@@ -158,11 +158,14 @@ def driver_options(a: argparse.Namespace) -> dict[str, Any]:
 def utc_instant_arg(text: str) -> int:
     """An argparse type: a UTC instant as integer ns since 1970, or ISO 8601 with a zone
     (``Z`` or ``+01:00``), to the nanosecond (more digits than 9 after the point refused)."""
+    from stereod.files.bounds import UTC_NS_MAX
+
+    beyond = f"{text!r}: outside 1970..2116 (the latest instant a stamp may carry is {UTC_NS_MAX})"
     t = text.strip()
     if re.fullmatch(r"[0-9]{1,19}", t):
         ns = int(t)
-        if ns > 2**63 - 1:
-            raise argparse.ArgumentTypeError(f"{text!r}: beyond the year 2262 (int64 ns)")
+        if ns > UTC_NS_MAX:
+            raise argparse.ArgumentTypeError(beyond)
         return ns
     m = re.fullmatch(r"(.+?T\d\d:\d\d:\d\d)(?:\.(\d{1,9}))?(Z|[+-]\d\d:?\d\d)", t)
     if m is None:
@@ -181,8 +184,8 @@ def utc_instant_arg(text: str) -> int:
     delta = whole - epoch
     ns = (delta.days * 86_400 + delta.seconds) * 10**9 + delta.microseconds * 1000
     ns += int((m.group(2) or "0").ljust(9, "0"))
-    if not 0 <= ns <= 2**63 - 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: outside 1970..2262 (int64 ns)")
+    if not 0 <= ns <= UTC_NS_MAX:
+        raise argparse.ArgumentTypeError(beyond)
     return ns
 
 
@@ -212,9 +215,15 @@ def run(a: argparse.Namespace) -> int:
     from stereod.cli.progress import Progress
     from stereod.cli.replay_daemon import InterruptibleReplay, LoopReplay
     from stereod.daemon.config import load_config
+    from stereod.files.bounds import ROS_TIME_NS_MAX
     from stereod.sources.drivers import load_driver
     from stereod.sources.recording import read_manifest
 
+    if a.mcap is not None and a.utc_start is not None and a.utc_start > ROS_TIME_NS_MAX:
+        raise UsageError(
+            f"--utc-start {a.utc_start} ns: after 2038-01-19, the last instant a ROS 2 stamp "
+            "holds; give --mcap an earlier start, or leave out --mcap"
+        )
     options = driver_options(a)
     ov = pipeline_overrides(a)
     ov["driver"] = {"name": "replay", "options": options}

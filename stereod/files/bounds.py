@@ -289,6 +289,15 @@ PLAYBACK_RATE = Bound(
     zero_off=True,
 )
 
+UTC_NS_MAX = 2**62
+"""The latest UTC instant (ns since 1970, early in 2116) a stamp may carry: beyond it, a
+replay's stream time or a fusion step's period added to it could pass the 64 bits that every
+reader of the wire holds an integer in."""
+ROS_TIME_NS_MAX = (2**31 - 1) * 10**9 + 999_999_999
+"""The latest instant (ns) a ROS 2 ``builtin_interfaces/Time`` holds (its seconds are int32:
+2038-01-19): what an MCAP of ROS 2 messages can stamp."""
+
+
 BOUNDS: tuple[Bound, ...] = (
     BASELINE_M,
     HFOV_DEG,

@@ -28,6 +28,7 @@ import zenoh
 from stereod.bus import keys
 from stereod.bus.messages import OBJECT_SCHEMA, ObjectsMessage, encoding_for
 from stereod.bus.publish import Publisher
+from stereod.errors import InputError
 from stereod.files.output_file import AtomicOutput
 from stereod.fusion.clock import ClockWatch
 from stereod.fusion.fuser import Fuser
@@ -104,6 +105,9 @@ class FuseNode:
         self.start = time.monotonic()
         self.received = {r.name: 0 for r in room.rigs}
         self.rejected = 0
+        self.last_rejected: str | None = None
+        self.mcap_skipped = 0
+        self.mcap_problem: str | None = None
         self.dropped = 0
         self.steps = 0
         self.room_messages = 0
@@ -166,9 +170,11 @@ class FuseNode:
         else to the model (whose JSON parser bounds nesting itself)."""
         try:
             msg = decode(payload)
-        except ValueError:
+        except ValueError as exc:
+            why = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
             with self.lock:
                 self.rejected += 1
+                self.last_rejected = why
             return None
         return msg if self.fuser.knows(msg.rig) else None
 
@@ -293,7 +299,12 @@ class FuseNode:
             self.jsonl.write(payload + b"\n")
         if self.mcap is not None:
             msg = ObjectsMessage.model_validate_json(payload)
-            self.mcap.write_objects(msg, raw_json=payload.decode())
+            try:
+                self.mcap.write_objects(msg, raw_json=payload.decode())
+            except InputError as exc:  # a stamp ROS time cannot hold: left out, said
+                with self.lock:
+                    self.mcap_skipped += 1
+                    self.mcap_problem = str(exc)
 
     def status(self, state: str = "running") -> FuseStatus:
         """The node's status now."""
@@ -323,6 +334,8 @@ class FuseNode:
             added = np.asarray(self.added_ms) if self.added_ms else None
             added_counts = list(self.added_hist.counts)
             steps, tracks, dropped, rejected = self.steps, self.tracks, self.dropped, self.rejected
+            last_rejected = self.last_rejected
+            mcap_skipped, mcap_problem = self.mcap_skipped, self.mcap_problem
         problems = [
             f"rig {name}'s clock is {link.clock_offset_ms:+.1f} ms off the reference rig "
             f"{self.room.rigs[0].name}'s (bound {self.clock.bound_ms:g} ms): check its "
@@ -336,7 +349,16 @@ class FuseNode:
         if dropped:
             problems.append(f"rig messages dropped, the fusion fell behind: {dropped}")
         if rejected:
-            problems.append(f"samples on a rig's objects key that were not objects: {rejected}")
+            problems.append(
+                f"samples on a rig's objects key that were not objects: {rejected} (the last: "
+                f"{last_rejected})"
+            )
+
+        if mcap_skipped:
+            problems.append(
+                f"room messages left out of the MCAP: {mcap_skipped} (the last: {mcap_problem}; "
+                "a rig's clock is wrong)"
+            )
 
         def pct(a: np.ndarray | None, q: float) -> float | None:
             return None if a is None else float(np.percentile(a, q))

@@ -18,6 +18,7 @@ import msgspec
 import numpy as np
 
 from stereod.bus.messages import OBJECT_SCHEMA, OBJECTS_SCHEMA, ObjectsMessage
+from stereod.files.bounds import UTC_NS_MAX
 from stereod.tracking.types import TrackLifecycle
 from stereod.vision.geometry import Geometry
 
@@ -174,12 +175,23 @@ def decode(payload: bytes) -> RigWire:
     one row per object. Anything that is not plainly such a message (a field missing or of
     another type, a number not finite or beyond 64 bits, ...) is left to the model, whose
     verdict and error (``pydantic.ValidationError``, a ``ValueError``) stand, so the two accept
-    and refuse the same payloads."""
+    and refuse the same payloads. Either way, a message stamped (or with an object stamped)
+    outside 0..:data:`~stereod.files.bounds.UTC_NS_MAX` is refused (``ValueError``): the room's
+    clock arithmetic would pass 64 bits."""
     try:
         wire = _fast(payload)
     except Exception:  # anything unusual: the model decides, with its own error
         wire = None
-    return wire if wire is not None else from_message(ObjectsMessage.model_validate_json(payload))
+    if wire is None:
+        wire = from_message(ObjectsMessage.model_validate_json(payload))
+    if not 0 <= wire.stamp_utc_ns <= UTC_NS_MAX or (
+        len(wire.stamps_ns)
+        and not 0 <= int(wire.stamps_ns.min()) <= int(wire.stamps_ns.max()) <= UTC_NS_MAX
+    ):
+        raise ValueError(
+            f"rig {wire.rig!r}: a stamp outside 1970..2116 (0..{UTC_NS_MAX} ns): its clock is wrong"
+        )
+    return wire
 
 
 _FLOAT = float
