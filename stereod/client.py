@@ -149,12 +149,15 @@ class Subscription:
 
 def parse_payload(payload: bytes) -> ObjectsMessage | ObjectState | StatusMessage | Any:
     """Any stereod payload as its typed message when its ``schema`` names one this version
-    knows (objects, object, status, stats); other JSON as plain data; None when not JSON."""
+    knows (objects, object, status, stats); other JSON as plain data; None when not JSON (or
+    nested too deep for Python's parser)."""
     try:
         data = json.loads(payload)
-    except ValueError:
+    except (ValueError, RecursionError):
         return None
-    schema = data.get("schema", "") if isinstance(data, dict) else ""
+    schema = data.get("schema") if isinstance(data, dict) else None
+    if not isinstance(schema, str):
+        return data
     family = schema.split("/", 1)[0]
     model = _MODELS.get(family)
     if model is None:

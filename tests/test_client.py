@@ -16,6 +16,7 @@ import zenoh
 from stereod import client
 from stereod.bus import keys
 from stereod.bus.messages import CanonicalGeometry, StatusMessage
+from stereod.bus.subscribe import format_sample
 from stereod.client import (
     DaemonAlive,
     Event,
@@ -139,6 +140,13 @@ def test_queries_and_the_iterator(endpoint: str) -> None:
 
 def test_parse_payload_is_lenient() -> None:
     assert parse_payload(b"\xff") is None
+    # A schema that is no string, and JSON nested past Python's parser, raised (AttributeError,
+    # RecursionError) out of a subscriber's callback.
+    assert parse_payload(b'{"schema": null}') == {"schema": None}
+    assert parse_payload(b'{"schema": 5, "a": [1]}') == {"schema": 5, "a": [1]}
+    assert parse_payload(b"[" * 2000 + b"]" * 2000) is None
+    assert format_sample("k", b'{"schema": null}') == 'k: {"schema": null}'
+    assert format_sample("k", b"[" * 2000 + b"]" * 2000) == "k: 4000 bytes (not JSON)"
     assert parse_payload(b'{"schema": "other/1", "a": 1}') == {"schema": "other/1", "a": 1}
     golden = (Path(__file__).parent / "golden" / "objects_example.json").read_bytes()
     assert isinstance(parse_payload(golden), ObjectsMessage)

@@ -202,6 +202,27 @@ class ViewHub:
         }
 
 
+def browser_json(msg: Any) -> str:
+    """``msg`` as JSON a browser's ``JSON.parse`` reads: a number that is not finite (a NaN a
+    daemon's status may carry) becomes null, where Python would write a bare ``NaN`` that
+    makes the page drop the message."""
+    try:
+        return json.dumps(msg, allow_nan=False)
+    except ValueError:
+        return json.dumps(_finite(msg), allow_nan=False)
+
+
+def _finite(value: Any) -> Any:
+    """``value`` with every float that is not finite replaced by None, at any depth."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
 def _host_name(host: str) -> str:
     """``host`` as it appears in a URL's authority: IPv6 in brackets, lower case."""
     host = host.strip().lower()
@@ -398,7 +419,7 @@ class ViewServer:
         loop = self._loop
         if loop is None or loop.is_closed():
             return
-        text = json.dumps(msg)
+        text = browser_json(msg)
         with contextlib.suppress(RuntimeError):  # the loop stopped meanwhile
             loop.call_soon_threadsafe(self._broadcast, text)
 
@@ -468,7 +489,7 @@ class ViewServer:
         self.connected.set()
         sender = asyncio.ensure_future(self._send(ws, queue))
         try:
-            await ws.send_str(json.dumps(self.hub.hello()))
+            await ws.send_str(browser_json(self.hub.hello()))
             async for msg in ws:  # the page sends nothing; this waits for it to go
                 if msg.type == WSMsgType.ERROR:
                     break
