@@ -41,6 +41,9 @@ EX_SOFTWARE = 70
 """Exit code for an internal error, a bug (sysexits.h EX_SOFTWARE); the log has the details."""
 EX_CANTCREAT = 73
 """Exit code for an output that cannot be created (sysexits.h EX_CANTCREAT)."""
+EX_IOERR = 74
+"""Exit code for standard output that failed while being written, a full disk or a device
+error (sysexits.h EX_IOERR)."""
 EX_CONFIG = 78
 """Exit code for bad configuration (sysexits.h EX_CONFIG); systemd does not restart on it."""
 

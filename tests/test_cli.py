@@ -674,3 +674,15 @@ def test_the_crash_log_holds_arguments_that_are_not_utf8(
     text = path.read_text()
     assert text.splitlines()[0].endswith(": stereod plot --title caf\\udce9")
     assert "RuntimeError: a bug" in text
+
+
+@pytest.mark.parametrize("argv", [["schema"], ["run", "--check"]])
+def test_standard_output_on_a_full_disk_is_one_line_and_exit_74(argv: list[str]) -> None:
+    """``> /dev/full``: the user's output failed, not our code; it was an internal error (70,
+    a crash log and "please report it")."""
+    with open("/dev/full", "w") as full:
+        res = subprocess.run(
+            stereod_command(*argv), stdout=full, stderr=subprocess.PIPE, text=True, timeout=60
+        )
+    assert res.returncode == 74, res.stderr
+    assert res.stderr == "stereod: cannot write to standard output: No space left on device\n"

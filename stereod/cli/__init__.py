@@ -13,6 +13,7 @@ anything unexpected is written in full to a crash log and summed up in one line,
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import sys
@@ -27,6 +28,7 @@ from typing import Any, NoReturn
 from stereod import __version__
 from stereod.cli.common import EPILOG_KEYS, quiet_third_party
 from stereod.errors import (
+    EX_IOERR,
     EX_SOFTWARE,
     EX_USAGE,
     InternalError,
@@ -193,9 +195,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``stereod`` console script; returns the exit code."""
     quiet_third_party()
     saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}
+    stdout = sys.stdout
+    sys.stdout = _Watched(stdout)  # type: ignore[assignment]
     try:
         return _main(argv)
-    finally:  # a caller in this process (a test) gets its own handlers back
+    finally:  # a caller in this process (a test) gets its own handlers and stdout back
+        sys.stdout = stdout
         clear_stop()
         for signum, handler in saved.items():
             if handler is not None:
@@ -224,13 +229,53 @@ def _main(argv: Sequence[str] | None) -> int:
         # stdout went away (`stereod subscribe | head`): nothing more to say to anyone.
         sys.stderr.close()
         return 0
+    except OSError as exc:
+        if not isinstance(sys.stdout, _Watched) or sys.stdout.failed is not exc:
+            return _internal(exc)
+        # `stereod schema > /dev/full`: the user's output, not our bug; the interpreter's own
+        # last flush goes nowhere, so this line is the only one.
+        print(f"stereod: cannot write to standard output: {exc.strerror or exc}", file=sys.stderr)
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EX_IOERR
     except Exception as exc:  # the last guard: one line, the details in a file
-        print(
-            f"stereod: internal error: {type(exc).__name__}: {one_line(str(exc))[:200]} "
-            f"({_details(exc)})",
-            file=sys.stderr,
-        )
-        return EX_SOFTWARE
+        return _internal(exc)
+
+
+def _internal(exc: BaseException) -> int:
+    """An unexpected ``exc``: one line, the details in a file, and exit 70."""
+    print(
+        f"stereod: internal error: {type(exc).__name__}: {one_line(str(exc))[:200]} "
+        f"({_details(exc)})",
+        file=sys.stderr,
+    )
+    return EX_SOFTWARE
+
+
+class _Watched:
+    """Standard output that remembers the error a write or flush of it raised, so that the
+    user's full disk behind ``> FILE`` is told apart from an error of ours."""
+
+    def __init__(self, stream: Any) -> None:
+        self._stream = stream
+        self.failed: OSError | None = None
+
+    def write(self, text: str) -> int:
+        try:
+            return int(self._stream.write(text))
+        except OSError as exc:
+            self.failed = exc
+            raise
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except OSError as exc:
+            self.failed = exc
+            raise
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
 
 
 def _details(exc: BaseException) -> str:
