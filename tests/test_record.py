@@ -403,3 +403,27 @@ def test_record_mcap_and_a_later_export_stamp_every_frame_alike(tmp_path: Path) 
         recorded = _log_times(cams.read_bytes(), topic)
         assert len(recorded) == 5
         assert _log_times(later.read_bytes(), topic) == recorded
+
+
+def test_recording_a_damaged_recording_keeps_what_decodes_and_says_what_is_lost(
+    tmp_path: Path,
+) -> None:
+    """The replay driver reading a recording whose left video is cut in half: the new
+    recording keeps the frames that decode, and the run ends as ``replay`` of the same input
+    does, one line naming the truncated file and exit 65 (it said nothing and exited 0)."""
+    src = tmp_path / "src"
+    scene = {"duration_s": 2.0, "fps": 15, "width_px": 80, "height_px": 60}
+    record(SyntheticDriver(scene), src)
+    video = src / "left.mkv"
+    video.write_bytes(video.read_bytes()[: video.stat().st_size // 2])
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'[driver]\nname = "replay"\n[driver.options]\npath = "{src}"\n')
+    res = stereod("record", str(tmp_path / "out"), "--config", str(cfg))
+    assert res.returncode == 65, res.stderr
+    assert (
+        res.stderr.count("\n") == 1
+        and "left.mkv: truncated: the manifest says 30 frames" in res.stderr
+    )
+    kept = re.search(r"recorded (\d+) left and (\d+) right frames", res.stdout)
+    assert kept is not None and 0 < int(kept[1]) < 30 and int(kept[2]) == 30, res.stdout
+    assert (tmp_path / "out" / "recording.json").exists()

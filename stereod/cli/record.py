@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import signal
+import sys
 import threading
 from collections.abc import Callable
 from typing import TYPE_CHECKING
@@ -23,9 +24,11 @@ from stereod.cli.common import (
     path_arg,
     run_inputs,
     setup_logging,
+    summarise,
 )
 from stereod.cli.progress import Progress
 from stereod.cli.signals import relayed
+from stereod.errors import EX_DATAERR, one_line
 from stereod.files.output_file import check_outputs, signal_name
 
 if TYPE_CHECKING:
@@ -109,6 +112,7 @@ def _record(
         if mcap is not None:
             on_frame = _both(mcap.frame, progress)
             on_start = mcap.start_source
+        problems: list[str] = []
         try:
             counts = record(
                 driver,
@@ -119,6 +123,7 @@ def _record(
                 stop=stop,
                 on_frame=on_frame,
                 on_start=on_start,
+                problems=problems,
             )
         except BaseException:
             if mcap is not None:
@@ -129,6 +134,9 @@ def _record(
     if mcap is not None:
         summary = mcap.commit()
         print(summary.line() if summary else f"no frame recorded: {a.mcap} not written")
+    if problems:  # the input was damaged: what could be read is kept, and the run fails
+        print(f"stereod: {one_line(summarise(problems))}", file=sys.stderr)
+        return EX_DATAERR
     return 0
 
 

@@ -38,6 +38,7 @@ def record(
     stop: threading.Event | None = None,
     on_frame: Callable[[Frame], None] | None = None,
     on_start: Callable[[SourceInfo, int | None], None] | None = None,
+    problems: list[str] | None = None,
 ) -> dict[str, int]:
     """Record until ``seconds`` of stream time, the end of input or ``stop``; return the frame
     counts per eye. ``out`` must be new (or empty; through a symbolic link, where it leads);
@@ -52,7 +53,9 @@ def record(
     ``on_frame`` sees every frame written (progress), one call at a time; ``on_start`` sees
     the opened source and the recording's UTC offset (ns, wall clock minus the frames' clock)
     before the first frame is written: for a source without a clock of its own, the wall clock
-    at its first frame, which the manifest keeps too (so a later export stamps as ``--mcap``)."""
+    at its first frame, which the manifest keeps too (so a later export stamps as ``--mcap``).
+    ``problems``, where given, gets what a file source said of its input (a truncated or
+    damaged video, found as it was read): the recording holds what could be read."""
     stop = stop or threading.Event()
     out = follow_links(out)
     cal = load_calibration(calibration).model_dump(mode="json") if calibration else None
@@ -143,6 +146,8 @@ def record(
                         on_frame(frame)
             for name, text in info.files.items():
                 writer.write_text(name, text)
+        if problems is not None and not info.live:
+            problems.extend(source.problems() + source.final_problems())
     return counts
 
 
