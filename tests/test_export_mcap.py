@@ -33,7 +33,9 @@ from scipy.spatial.transform import Rotation
 from stereod.bus.messages import ObjectsMessage
 from stereod.errors import InputError, MissingInputError, OutputError
 from stereod.ros.export_mcap import export_run
+from stereod.ros.mapping import RosMessages
 from stereod.ros.mcap_writer import ExportSummary, McapRunWriter
+from stereod.ros.names import T_ODOM
 from stereod.sources.frames import Eye, Frame
 from stereod.vision.calibration import Calibration, canonical, from_arrays
 
@@ -869,3 +871,20 @@ def test_export_stopped_by_sigterm_leaves_the_file_and_no_temporary(
     assert proc.returncode == 143, err
     assert err == f"stereod: export interrupted by SIGTERM; {out} left as it was\n"
     assert_untouched(out, before)
+
+
+def test_a_sigma_whose_square_overflows_is_an_infinite_variance() -> None:
+    """A run edited to a position sigma of 1e300 made ``export`` end in an internal error
+    (``** 2`` raised OverflowError); its Odometry's variance is infinite instead, the other
+    entries as they were."""
+    msg = ObjectsMessage.model_validate_json(
+        (Path(__file__).parent / "golden" / "objects_example.json").read_text()
+    )
+    obj = msg.objects[0]
+    huge = obj.model_copy(update={"position_sigma_m": (1e300, 0.01, 0.02)})
+    ros = RosMessages("minoru", calibration=canonical(0.06, 60.0, 640, 480))
+    odom = [
+        m for m in ros.objects(msg.model_copy(update={"objects": [huge]})) if m.typename == T_ODOM
+    ]
+    cov = odom[0].body["pose"]["covariance"]
+    assert math.isinf(cov[0]) and cov[7] == pytest.approx(1e-4) and cov[14] == pytest.approx(4e-4)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import stat
@@ -380,3 +381,22 @@ def test_a_binary_file_as_the_run_or_truth_says_what_to_give(tmp_path: Path) -> 
         assert r.stderr.startswith(f"stereod: {png}: not a text file (byte 0 is not UTF-8)")
         assert what in r.stderr
     assert not (tmp_path / "out.png").exists()
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("speed_sigma_mps", 1e308), ("position_sigma_m", [1e300, 0.01, 0.01])],
+)
+def test_a_sigma_beyond_the_axes_is_refused_naming_it(
+    tmp_path: Path, field: str, value: object
+) -> None:
+    """A sigma of 1e308 made the band's axis limits overflow in matplotlib (an internal error,
+    70); it is refused as an out-of-range position is: one line naming the field, exit 65."""
+    msg = json.loads((ROOT / "tests" / "golden" / "objects_example.json").read_text())
+    msg["objects"][0][field] = value
+    run = tmp_path / "run.jsonl"
+    run.write_text(json.dumps(msg) + "\n")
+    r = stereod("plot", str(run), "-o", str(tmp_path / "fig.png"))
+    assert r.returncode == 65, r.stderr
+    assert r.stderr.count("\n") == 1 and f"'s {field} holds 1e+30" in r.stderr, r.stderr
+    assert not (tmp_path / "fig.png").exists()

@@ -261,10 +261,10 @@ class RosMessages:
         names = self.names
         pose_cov = [0.0] * 36
         for i, s in enumerate(obj.position_sigma_m):
-            pose_cov[7 * i] = float(s) ** 2
+            pose_cov[7 * i] = _square(s)
         heading_known = obj.heading_valid and obj.heading_sigma_deg is not None
         pose_cov[7 * 4] = (
-            math.radians(obj.heading_sigma_deg) ** 2
+            _square(math.radians(obj.heading_sigma_deg))
             if heading_known and obj.heading_sigma_deg is not None
             else -1.0  # not estimated: ROS's "unknown"
         )
@@ -273,7 +273,7 @@ class RosMessages:
             twist_cov[0] = -1.0  # no valid velocity: the whole twist is "unknown"
         else:
             for i, s in enumerate(obj.velocity_sigma_mps):
-                twist_cov[7 * i] = float(s) ** 2
+                twist_cov[7 * i] = _square(s)
             for i in (3, 4, 5):  # angular rates are not estimated
                 twist_cov[7 * i] = -1.0
         return {
@@ -389,3 +389,10 @@ def _camera_info_body(cal: Calibration, eye: Eye) -> dict[str, Any]:
         "binning_y": 0,
         "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False},
     }
+
+
+def _square(sigma: float) -> float:
+    """A sigma as its variance: infinite for one whose square passes the float range (a
+    hand-edited run's 1e300), where ``** 2`` raised OverflowError."""
+    s = float(sigma)
+    return s * s

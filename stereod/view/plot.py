@@ -147,13 +147,18 @@ def read_run(path: Path) -> Run:
 
 
 def _check_state(path: Path, line: int, o: ObjectState) -> None:
-    """Refuse (65) an object whose position, velocity or speed lies beyond what the figure's
-    axes can hold (:data:`MAX_TRUTH_M`), naming the file, line, track and field."""
+    """Refuse (65) an object whose position, velocity or speed, or one of their sigmas (drawn
+    as bands), lies beyond what the figure's axes can hold (:data:`MAX_TRUTH_M`), naming the
+    file, line, track and field."""
     fields = {
         "position_m": o.position_m,
         "velocity_mps": o.velocity_mps,
         "raw_velocity_mps": o.raw_velocity_mps or (),
         "speed_mps": (o.speed_mps,),
+        "position_sigma_m": o.position_sigma_m,
+        "velocity_sigma_mps": o.velocity_sigma_mps or (),
+        "speed_sigma_mps": (o.speed_sigma_mps,),
+        "heading_sigma_deg": (o.heading_sigma_deg,),
     }
     for name, values in fields.items():
         for v in values:
