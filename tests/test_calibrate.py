@@ -167,6 +167,26 @@ def test_cli_refuses_bad_calibration_unless_forced(tmp_path: Path) -> None:
     assert "per pair" in res.stdout and "RMS reprojection error" in res.stdout
 
 
+def test_one_eyes_views_as_both_are_no_rig_and_no_force_keeps_them(tmp_path: Path) -> None:
+    """The same real image as both eyes of every pair: the baseline comes out nil. It was a
+    calibration file's error (exit 78, "the file is damaged"), though no file was read, and
+    ``--force`` said the same. Now exit 65, naming the pairs, the baseline and what to give."""
+    for n in ("01", "02", "03", "04", "05", "06", "08", "09"):
+        image = shared_data("opencv_stereo", f"left{n}.jpg").read_bytes()
+        (tmp_path / f"left{n}.jpg").write_bytes(image)
+        (tmp_path / f"right{n}.jpg").write_bytes(image)
+    out = tmp_path / "c.json"
+    args = ["calibrate", "--pairs", str(tmp_path), "--board", "9x6", "--square", "0.025"]
+    for force in ([], ["--force"]):
+        one_line_error(
+            stereod(*args, "--out", str(out), *force),
+            65,
+            rf"8 pairs from {tmp_path}: the board's views give no stereo rig \(T: baseline "
+            r"\|T\| = .*, the same view in both eyes\?\): give pairs whose left and right",
+        )
+        assert not out.exists()
+
+
 def test_opencv_finds_boards_of_three_inner_corners_a_side_and_no_fewer() -> None:
     """The limit --board enforces is OpenCV's own: 3x3 is found, 2 corners a side refused."""
     assert MIN_BOARD_CORNERS == 3

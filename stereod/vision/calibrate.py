@@ -324,13 +324,23 @@ def calibrate(
         pairs_used=len(found),
         pairs_rejected=len(rejected),
     )
-    cal = from_arrays(
-        image_size,
-        {"K1": k1, "D1": d1, "K2": k2, "D2": d2, "R": r, "T": t, **rect},
-        quality=quality,
-        board=board,
-        source=source,
-    )
+    baseline = float(np.linalg.norm(t))
+    try:
+        cal = from_arrays(
+            image_size,
+            {"K1": k1, "D1": d1, "K2": k2, "D2": d2, "R": r, "T": t, **rect},
+            quality=quality,
+            board=board,
+            source=source,
+        )
+    except CalibrationError as exc:  # no rig: a result no calibration file can hold
+        first = str(exc).removeprefix("calibration: ").split(" (", 1)[0].split("; ", 1)[0]
+        same = ", the same view in both eyes?" if baseline < 1e-3 else ""
+        raise InputError(
+            f"{source or 'the pairs'}: the board's views give no stereo rig ({first}{same}): "
+            "give pairs whose left and right images come from the two eyes at once; no "
+            "calibration file can hold this one, --force or not"
+        ) from exc
     problems = []
     if len(found) < limits.min_pairs:
         problems.append(
