@@ -37,6 +37,11 @@ def test_save_load_round_trip_and_id(tmp_path: Path) -> None:
     save(cal, path)
     back = load(path, (640, 480))
     assert back == cal and back.id == cal.content_id() and len(cal.id) == 16
+    # As the config and room files, one saved by an editor with a byte-order mark reads the same
+    # (it was "not valid JSON ... column 1").
+    marked = tmp_path / "bom.json"
+    marked.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    assert load(marked, (640, 480)) == cal
     other = from_arrays(
         (640, 480),
         {**{k: cal.array(k) for k in ("K1", "D1", "K2", "D2", "R")}, "T": cal.array("T") * 1.001},

@@ -451,6 +451,24 @@ ROWS = [
         ),
     ),
     Row(
+        "replay with --calibration and --hfov",
+        ["replay", "{d}/rec", "--calibration", "{d}/cal.json", "--hfov", "42"],
+        64,
+        r"--hfov describes the canonical rig, and --calibration .*cal.json gives its own",
+        lambda d: (recording(d), save(canonical(0.06, 60.0, W, H), d / "cal.json")),
+    ),
+    Row(
+        "calibration export --ros with right.yaml a folder",
+        ["calibration", "export", "{d}/cal.json", "--ros", "{d}/ros"],
+        73,
+        r"ros/right.yaml: is a directory",
+        lambda d: (
+            save(canonical(0.06, 60.0, W, H), d / "cal.json"),
+            (d / "ros" / "right.yaml").mkdir(parents=True),
+            (d / "ros" / "left.yaml").write_text("earlier\n"),
+        ),
+    ),
+    Row(
         "calibration export over the calibration",
         ["calibration", "export", "{d}/left.yaml", "--ros", "{d}"],
         64,

@@ -108,6 +108,9 @@ def test_environment_reaches_lists_and_driver_options(monkeypatch: pytest.Monkey
     assert cfg.zenoh.connect == ["tcp/127.0.0.1:7447"]
     assert cfg.driver.options == {"fps": "30"}
     assert cfg.detector.beta == 0.07  # a flag beats the environment
+    # A pair is JSON too (it was taken as a string and refused: "a valid tuple").
+    monkeypatch.setenv("STEREOD_DETECTOR__SHADOW_RATIO", "[0.3, 0.9]")
+    assert load_config().detector.shadow_ratio == (0.3, 0.9)
 
 
 @pytest.mark.parametrize(

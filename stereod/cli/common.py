@@ -19,7 +19,14 @@ from pathlib import Path
 from typing import Any
 
 from stereod.cli.signals import relayed
-from stereod.errors import EX_DATAERR, ConfigError, ReaderGone, StereodError, one_line
+from stereod.errors import (
+    EX_DATAERR,
+    ConfigError,
+    ReaderGone,
+    StereodError,
+    UsageError,
+    one_line,
+)
 from stereod.files.bounds import BASELINE_M, HFOV_DEG, PLAYBACK_RATE, THRESHOLD_GREY, TIME_BASE_S
 from stereod.files.output_file import is_stdout
 from stereod.vision.detect_params import MAX_WARMUP_FRAMES, DetectorParams
@@ -236,7 +243,15 @@ def zenoh_overrides(a: argparse.Namespace) -> dict[str, Any]:
 
 
 def pipeline_overrides(a: argparse.Namespace) -> dict[str, Any]:
-    """The config overrides of :func:`add_pipeline`'s flags (unset flags are None)."""
+    """The config overrides of :func:`add_pipeline`'s flags (unset flags are None). A
+    calibration's own baseline and field of view stand: ``--baseline`` or ``--hfov`` beside
+    ``--calibration`` is refused (they were silently ignored)."""
+    if a.calibration is not None and (a.baseline is not None or a.hfov is not None):
+        flag = "--baseline" if a.baseline is not None else "--hfov"
+        raise UsageError(
+            f"{flag} describes the canonical rig, and --calibration {a.calibration} gives its "
+            f"own: leave out {flag}"
+        )
     return {
         "rig": {
             "name": a.rig,

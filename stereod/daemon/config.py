@@ -375,8 +375,8 @@ class StereodConfig(BaseModel):
 
 def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
     """The configuration that ``STEREOD_<SECTION>__<FIELD>`` variables set, as nested tables
-    (``STEREOD_DRIVER__OPTIONS__FPS`` reaches into the driver's options). A list or table
-    value is JSON; a variable that names no field is refused, as an unknown TOML key is."""
+    (``STEREOD_DRIVER__OPTIONS__FPS`` reaches into the driver's options). A list, pair or
+    table value is JSON; a variable that names no field is refused, as an unknown TOML key is."""
     env = os.environ if environ is None else environ
     out: dict[str, Any] = {}
     for name, value in sorted(env.items()):
@@ -393,7 +393,7 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
                 "STEREOD_<SECTION>__<FIELD>, e.g. STEREOD_DETECTOR__BETA; see stereod run --check)"
             )
         parsed: Any = value
-        if len(parts) == 2 and typing.get_origin(fld.annotation) in (list, dict):
+        if len(parts) == 2 and typing.get_origin(fld.annotation) in (list, tuple, dict):
             where = f"environment variable {name}"
             check_depth(value, "json", where, ConfigError)
             try:

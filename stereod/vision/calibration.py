@@ -13,6 +13,7 @@ intrinsics/extrinsics YAML of OpenCV's ``stereo_calib`` sample).
 
 from __future__ import annotations
 
+import codecs
 import datetime
 import hashlib
 import json
@@ -369,6 +370,7 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
     made for frames of that size. Errors name the file and the field."""
     try:
         text = read_input_file(path, "a calibration file", too_large=CalibrationError)
+        text = text.removeprefix(codecs.BOM_UTF8)  # a byte-order mark, as some editors write
     except FileNotFoundError as exc:
         raise MissingInputError(f"{path}: no such calibration file") from exc
     except OSError as exc:

@@ -18,6 +18,7 @@ from stereod.errors import (
     StereodError,
 )
 from stereod.files.nesting import Syntax, check_depth
+from stereod.files.output_file import output_target
 from stereod.files.paths import read_input_file
 from stereod.vision.calibration import Calibration, create_output, from_arrays
 
@@ -55,6 +56,8 @@ def export_ros(cal: Calibration, directory: Path) -> list[Path]:
         ) from exc
     except OSError as exc:
         raise OutputError(f"{directory}: cannot create the folder: {exc.strerror}") from exc
+    for eye in ("left", "right"):  # both can be written before either is
+        output_target(directory / f"{eye}.yaml")
     out = []
     for eye in ("left", "right"):
         path = directory / f"{eye}.yaml"
