@@ -371,6 +371,11 @@ def test_ctrl_c_ends_a_recording_normally(tmp_path: Path) -> None:
     out, cams = tmp_path / "rec", tmp_path / "cams.mcap"
     proc = start_stereod("record", str(out), "--config", str(cfg), "--mcap", str(cams))
     wait_for(proc, lambda: bool(list(tmp_path.glob(".cams.mcap.*"))))  # made at the start
+
+    def recorded() -> bool:  # a frame's row in the recording being written
+        return any(len(p.read_text().splitlines()) > 1 for p in tmp_path.glob(".rec.*/left.csv"))
+
+    wait_for(proc, recorded)
     proc.send_signal(signal.SIGINT)
     printed, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
@@ -381,6 +386,29 @@ def test_ctrl_c_ends_a_recording_normally(tmp_path: Path) -> None:
     frames = json.loads((out / "recording.json").read_text())["left"]["frames"]
     assert int(said.group(1)) == frames
     assert mcap_messages(cams.read_bytes(), "/stereod/minoru/left/camera_info") == frames
+
+
+def test_no_frame_keeps_no_recording(tmp_path: Path) -> None:
+    """Stopped before the first frame, or from a source none of whose frames is usable, there
+    is nothing to keep: no recording (an empty one, which replay refuses, was kept, and
+    ``record`` exited 0), and the command says so in one line with exit 65."""
+    stop = threading.Event()
+    stop.set()
+    options = {"duration_s": 0.4, "fps": 10, "width_px": 80, "height_px": 60}
+    assert record(SyntheticDriver(options), tmp_path / "none", stop=stop) == {"left": 0, "right": 0}
+    assert not (tmp_path / "none").exists()
+    src = tmp_path / "src"
+    record(SyntheticDriver(options), src)
+    manifest = json.loads((src / "recording.json").read_text())
+    manifest["color"] = not manifest["color"]  # every frame's check fails: none is usable
+    (src / "recording.json").write_text(json.dumps(manifest))
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'[driver]\nname = "replay"\n[driver.options]\npath = "{src}"\n')
+    out = tmp_path / "out"
+    res = stereod("record", str(out), "--config", str(cfg))
+    assert res.returncode == 65, res.stderr
+    assert res.stderr.startswith(f"stereod: no frame recorded: {out} not written (")
+    assert res.stderr.count("\n") == 1 and not out.exists()
 
 
 def _log_times(data: bytes, topic: str) -> list[int]:

@@ -130,6 +130,12 @@ def _record(
                 mcap.abort()
             raise
     how = f" (stopped by {signal_name(caught[0])})" if caught else ""
+    if not counts["left"] + counts["right"]:
+        if mcap is not None:
+            mcap.abort()
+        why = f" ({one_line(summarise(problems))})" if problems else ""
+        print(f"stereod: no frame recorded{how}: {a.out} not written{why}", file=sys.stderr)
+        return 128 + caught[0] if caught else EX_DATAERR
     print(f"recorded {counts['left']} left and {counts['right']} right frames to {a.out}{how}")
     if mcap is not None:
         summary = mcap.commit()

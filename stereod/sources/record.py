@@ -42,8 +42,9 @@ def record(
 ) -> dict[str, int]:
     """Record until ``seconds`` of stream time, the end of input or ``stop``; return the frame
     counts per eye. ``out`` must be new (or empty; through a symbolic link, where it leads);
-    it appears only when the recording closes. Frames are stored as the source delivers them,
-    BGR or grey (the first frame decides; the manifest's ``color`` says which).
+    it appears only when the recording closes, and not at all when no frame came. Frames are
+    stored as the source delivers them, BGR or grey (the first frame decides; the manifest's
+    ``color`` says which).
     A failure in either eye of a live source stops both and is raised here: a
     :class:`~stereod.errors.StereodError` as it is, anything else as an
     :class:`~stereod.errors.InternalError` naming the eye (the original as its cause). The
@@ -146,6 +147,8 @@ def record(
                         on_frame(frame)
             for name, text in info.files.items():
                 writer.write_text(name, text)
+            if not writer.frames:  # no recording: one of no frames replays as nothing
+                writer.discard()
         if problems is not None and not info.live:
             problems.extend(source.problems() + source.final_problems())
     return counts
