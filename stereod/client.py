@@ -60,7 +60,7 @@ from stereod.bus.messages import (
 )
 from stereod.bus.publish import session_config
 from stereod.daemon.config_zenoh import ZenohConfig
-from stereod.errors import ConfigError, describe_validation_error
+from stereod.errors import ConfigError, describe_validation_error, one_line
 
 if TYPE_CHECKING:
     from stereod.vision.calibration import Calibration
@@ -127,8 +127,13 @@ class Subscription:
 
     def _rejected(self, key: str, exc: Exception) -> None:
         self.rejected += 1
-        if self.rejected == 1:
-            log.warning("ignoring a sample on %s that does not parse: %s", key, exc)
+        if self.rejected == 1:  # once, on one line (pydantic's own text spans several)
+            why = describe_validation_error(exc) if isinstance(exc, ValidationError) else exc
+            log.warning(
+                "ignoring a sample on %s that does not parse: %s (further ones are not logged)",
+                key,
+                one_line(str(why))[:300],
+            )
 
     def close(self) -> None:
         for e in self._entities:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from pydantic import ValidationError
 
 from stereod import client
 from stereod.bus import keys
@@ -23,6 +24,7 @@ from stereod.client import (
     ObjectsMessage,
     ObjectState,
     QueryError,
+    Subscription,
     TrackEnded,
     object_events,
     parse_payload,
@@ -203,3 +205,22 @@ def test_readme_client_example_started_before_the_daemon(endpoint: str) -> None:
     # queried it before its first pair.
     assert "daemon up, 0 pairs so far" in out, out
     assert "heading" in out and " ended" in out, out
+
+
+def test_a_status_that_does_not_parse_is_logged_once_on_one_line(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """pydantic's own text of a refused sample spans a line per field; the subscription's
+    warning is one line naming the key and the fields, and only the first is logged."""
+    sub = Subscription()
+    with pytest.raises(ValidationError) as bad:
+        StatusMessage.model_validate_json(b'{"schema": "stereod.status/1", "rig": 5}')
+    with caplog.at_level("WARNING", logger="stereod.client"):
+        sub._rejected("stereod/minoru/status", bad.value)
+        sub._rejected("stereod/minoru/status", bad.value)
+    (record,) = caplog.records
+    text = record.getMessage()
+    assert "\n" not in text and sub.rejected == 2
+    assert text.startswith(
+        "ignoring a sample on stereod/minoru/status that does not parse: rig = 5"
+    )
