@@ -888,3 +888,29 @@ def test_a_sigma_whose_square_overflows_is_an_infinite_variance() -> None:
     ]
     cov = odom[0].body["pose"]["covariance"]
     assert math.isinf(cov[0]) and cov[7] == pytest.approx(1e-4) and cov[14] == pytest.approx(4e-4)
+
+
+def test_a_line_with_a_position_not_finite_or_absurd_is_skipped_and_said(
+    recorded: Recorded, tmp_path: Path
+) -> None:
+    """A NaN, an infinity (JSON as Python writes it) or a 1e308 position was written into the
+    MCAP as it came, where ``plot`` refuses the same file; the line is now skipped and named
+    like any damaged one, the rest exported, exit 65."""
+    lines = list(recorded.lines)
+    with_objects = [k for k, x in enumerate(lines) if json.loads(x)["objects"]][:3]
+    for k, value in zip(with_objects, ("NaN", "Infinity", "1e308"), strict=True):
+        msg = json.loads(lines[k])
+        msg["objects"][0]["position_m"][0] = "@"
+        lines[k] = json.dumps(msg).replace('"@"', value)
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out.mcap"
+    res = stereod("export", str(recorded.rec), "--jsonl", str(bad), "--mcap", str(out), *GEOMETRY)
+    assert res.returncode == 65, res.stderr
+    (err,) = res.stderr.splitlines()
+    first = with_objects[0] + 1
+    assert err.startswith(f"stereod: {bad} line {first}: track "), err
+    assert "position or velocity is not finite, or beyond 1e+06 m or m/s" in err
+    assert err.count("; skipped") == 3
+    kept = [x for k, x in enumerate(recorded.lines) if k not in with_objects]
+    assert [m.data for m in read_bag(out).msgs(f"{RIG}/objects")] == kept

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +26,7 @@ import cv2
 import numpy as np
 from pydantic import ValidationError
 
-from stereod.bus.messages import ObjectsMessage
+from stereod.bus.messages import ObjectsMessage, ObjectState
 from stereod.errors import InputError, MissingInputError, StereodError
 from stereod.files.paths import text_path
 from stereod.ros.mcap_writer import ExportSummary, McapRunWriter
@@ -110,11 +111,34 @@ def _jsonl_messages(
                         )
                     )
                     continue
+                odd = [o.track_id for o in msg.objects if not _plausible(o)]
+                if odd:
+                    skip(
+                        InputError(
+                            f"{path} line {n}: track {odd[0]}'s position or velocity is not "
+                            f"finite, or beyond {MAX_COORDINATE:g} m or m/s; {regenerate}"
+                        )
+                    )
+                    continue
                 yield n, msg, line
         except OSError as exc:
             raise InputError(f"{path}: cannot read JSONL file: {exc.strerror}") from exc
     if skipped > DAMAGED_SAID and damaged is not None:
         damaged.append(f"{path}: {skipped - DAMAGED_SAID} more damaged lines skipped")
+
+
+MAX_COORDINATE = 1e6
+"""The largest position (m) or velocity component (m/s) of an exported object: far beyond
+what a stereo webcam sees, where a ROS consumer's arithmetic still holds (``plot`` keeps the
+same bound)."""
+
+
+def _plausible(o: ObjectState) -> bool:
+    """Whether an object's position and velocity are finite and within
+    :data:`MAX_COORDINATE`."""
+    return all(
+        math.isfinite(v) and abs(v) <= MAX_COORDINATE for v in (*o.position_m, *o.velocity_mps)
+    )
 
 
 @dataclass
