@@ -15,6 +15,7 @@ from stereod.daemon.install import UNITS, hidden_from_service, plan
 from stereod.errors import EX_CONFIG, EX_DATAERR, EX_NOINPUT, UsageError
 
 from .conftest import stereod
+from .processes import stereod_command
 
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze")
 needs_systemd = pytest.mark.skipif(
@@ -148,3 +149,26 @@ def test_the_help_names_every_unit_it_writes(tmp_path: Path) -> None:
     assert written == sorted(UNITS)
     text = " ".join(stereod("install-service", "--help").stdout.split())
     assert all(unit in text for unit in UNITS), text
+
+
+def test_stdout_that_fails_leaves_no_install_half_done(tmp_path: Path) -> None:
+    """``> /dev/full`` stopped the install after its first file (exit 70), ``| head -1`` after
+    its second: every step is done first now, then the line about stdout (exit 74), or
+    nothing for a reader that went away (exit 0)."""
+    whole = tmp_path / "whole"
+    assert stereod("install-service", "--prefix", str(whole)).returncode == 0
+    files = sorted(p.relative_to(whole) for p in whole.rglob("*") if p.is_file())
+    assert len(files) >= 5
+    full = tmp_path / "full"
+    with open("/dev/full", "w") as out:
+        res = subprocess.run(
+            stereod_command("install-service", "--prefix", str(full)),
+            stdout=out, stderr=subprocess.PIPE, text=True, timeout=60,
+        )  # fmt: skip
+    assert res.returncode == 74, res.stderr
+    assert sorted(p.relative_to(full) for p in full.rglob("*") if p.is_file()) == files
+    head = tmp_path / "head"
+    cmd = " ".join(stereod_command("install-service", "--prefix", str(head))) + " | head -1"
+    piped = subprocess.run(["bash", "-o", "pipefail", "-c", cmd], capture_output=True, text=True)
+    assert piped.returncode == 0 and piped.stderr == "", piped.stderr
+    assert sorted(p.relative_to(head) for p in head.rglob("*") if p.is_file()) == files

@@ -51,10 +51,17 @@ def run(a: argparse.Namespace) -> int:
             f"--prefix {shown(a.prefix)}: not a folder; give the folder to install under"
         )
     actions = plan(a.prefix, uninstall=a.uninstall)
+    unsaid: OSError | None = None  # stdout failed: the install goes on, whole
     for action in actions:
         if not a.dry_run:
             apply([action])  # said once done: a step that fails is the last line
-        print(("would " if a.dry_run else "") + action.describe())
+        if unsaid is None:
+            try:
+                print(("would " if a.dry_run else "") + action.describe(), flush=True)
+            except OSError as exc:  # a reader gone (`| head`) or a full disk
+                unsaid = exc
+    if unsaid is not None:
+        raise unsaid  # every step done; the command line says what became of stdout
     if not actions:
         print("nothing to do")
     return 0
