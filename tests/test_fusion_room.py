@@ -81,11 +81,15 @@ def test_room_file_loads_and_maps_rig_points_into_the_room(tmp_path: Path) -> No
         (("[4.0, 0.0, 4.0]", "[4.0, nan, 4.0]"), r"room\.rigs\.1\.translation_m\.1"),
         (("[4.0, 0.0, 4.0]", "[4.0, 0.0, 4000.0]"), r"translation_m: must be in -1000\.\.1000 m"),
         (("[0.0, -90.0, 0.0]", "[0.0, true, 0.0]"), "rotation_deg.*not true/false"),
+        (("[4.0, 0.0, 4.0]", '["4", "0", "4"]'), r"translation_m: needs three .*not quoted"),
         (("[0.0, -90.0, 0.0]", "[0.0, -90.0, inf]"), r"rotation_deg\.2"),
         (("[0.0, -90.0, 0.0]", "[0.0, 400.0]"), r"rotation_deg: needs three numbers .*not 2"),
         (("[4.0, 0.0, 4.0]", "[4.0, 0.0, 4.0, 1.0]"), r"translation_m: needs three .*not 4"),
         (('name = "lab"', 'name = "lab/x"'), r"room\.name"),
-        (("rotation_deg = [0.0, -90", "rotatoin_deg = [0.0, -90"), "rotatoin_deg: unknown field"),
+        (
+            ("rotation_deg = [0.0, -90", "rotatoin_deg = [0.0, -90"),
+            r"rotatoin_deg: unknown field \(did you mean rotation_deg\?\)",
+        ),
     ],
 )
 def test_a_bad_room_file_is_one_line_naming_the_field(

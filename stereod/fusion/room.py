@@ -104,10 +104,13 @@ class RigPose(BaseModel):
     @field_validator("translation_m", "rotation_deg", mode="before")
     @classmethod
     def _numbers(cls, v: Any) -> Any:
-        """Three numbers: a TOML ``true`` is not the number 1, and a list of another length is
-        said so (not as a missing or extra item)."""
+        """Three numbers: a TOML ``true`` is not the number 1, nor a string ``"1"`` (a
+        quoted number is refused as a boolean is), and a list of another length is said so
+        (not as a missing or extra item)."""
         if isinstance(v, (list, tuple)) and len(v) != 3:
             raise ValueError(f"needs three numbers (X, Y, Z), not {len(v)}")
+        if isinstance(v, (list, tuple)) and any(isinstance(c, str) for c in v):
+            raise ValueError('needs three numbers (X, Y, Z), not quoted text: write 1.0, not "1.0"')
         return not_bool(v)
 
     def rotation(self) -> np.ndarray:
