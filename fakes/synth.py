@@ -23,6 +23,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from stereod.errors import ConfigError, InputError, MissingInputError, describe_validation_error
+from stereod.files.bounds import UTC_NS_MAX
 from stereod.sources.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
 from stereod.sources.recording import Codec
 from stereod.sources.recording_writer import RecordingWriter
@@ -115,7 +116,7 @@ class Scene(BaseModel):
     )
     seed: int = Field(0, ge=0, le=2**32 - 1)
     t0_ns: int = Field(
-        1_000_000_000, ge=0, le=2**62, description="Monotonic time of the first frame, ns"
+        1_000_000_000, ge=0, le=UTC_NS_MAX, description="Monotonic time of the first frame, ns"
     )
     balls: list[Ball] = Field(default_factory=lambda: [Ball()], max_length=100)
     rig_spec: RigSpec | None = Field(
@@ -403,7 +404,9 @@ class _SynthSource(StereoSource):
         if flags.prerender:
             self.prerendered = {eye: self._prerender(eye) for eye in Eye}
         self._start_s: float | None = None
-        files = {} if flags.loop else {TRUTH: truth_text(scene)}  # a loop's times go past it
+        # A loop's times go past the scene, and a live source stamps its frames on the host's
+        # clock: the scene's truth holds for neither.
+        files = {} if flags.loop or flags.live else {TRUTH: truth_text(scene)}
         info = SourceInfo(
             scene.width_px, scene.height_px, scene.fps, flags.live, "synthetic scene", files=files
         )

@@ -676,13 +676,32 @@ def test_the_crash_log_holds_arguments_that_are_not_utf8(
     assert "RuntimeError: a bug" in text
 
 
-@pytest.mark.parametrize("argv", [["schema"], ["run", "--check"]])
-def test_standard_output_on_a_full_disk_is_one_line_and_exit_74(argv: list[str]) -> None:
+@pytest.mark.parametrize("argv", [["schema"], ["schema", "stereod.status/1"], ["run", "--check"]])
+@pytest.mark.parametrize("buffered", [True, False])
+def test_standard_output_on_a_full_disk_is_one_line_and_exit_74(
+    argv: list[str], buffered: bool
+) -> None:
     """``> /dev/full``: the user's output failed, not our code; it was an internal error (70,
-    a crash log and "please report it")."""
+    a crash log and "please report it"). Output smaller than the buffer fails only when it
+    is flushed: that is done before the exit too (the interpreter's own flush said it in two
+    lines of its own and exited 120), with Python's buffering or without."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    if not buffered:
+        env["PYTHONUNBUFFERED"] = "1"
     with open("/dev/full", "w") as full:
         res = subprocess.run(
-            stereod_command(*argv), stdout=full, stderr=subprocess.PIPE, text=True, timeout=60
-        )
+            stereod_command(*argv), stdout=full, stderr=subprocess.PIPE, text=True, timeout=60,
+            env=env,
+        )  # fmt: skip
     assert res.returncode == 74, res.stderr
     assert res.stderr == "stereod: cannot write to standard output: No space left on device\n"
+
+
+def test_standard_output_closed_is_no_error() -> None:
+    """Started with stdout closed (``>&-``), ``print`` writes nothing and the command runs as
+    before (watching stdout made it an internal error)."""
+    res = subprocess.run(
+        stereod_command("schema"), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        text=True, timeout=60, preexec_fn=lambda: os.close(1),
+    )  # fmt: skip
+    assert res.returncode == 0 and res.stderr == "", res.stderr

@@ -454,7 +454,35 @@ ROWS = [
         "replay with --calibration and --hfov",
         ["replay", "{d}/rec", "--calibration", "{d}/cal.json", "--hfov", "42"],
         64,
-        r"--hfov describes the canonical rig, and --calibration .*cal.json gives its own",
+        r"--hfov describes the canonical rig, and the calibration given by --calibration "
+        r"\(.*cal.json\) gives its own: leave out --hfov$",
+        lambda d: (recording(d), save(canonical(0.06, 60.0, W, H), d / "cal.json")),
+    ),
+    Row(
+        "run --check with a config's calibration and --baseline",
+        ["run", "--check", "--config", "{d}/c.toml", "--baseline", "0.2"],
+        64,
+        r"--baseline describes the canonical rig, and the calibration rig.calibration in "
+        r".*c.toml \(.*cal.json\) gives its own",
+        lambda d: (
+            save(canonical(0.06, 60.0, W, H), d / "cal.json"),
+            (d / "c.toml").write_text(f'[rig]\ncalibration = "{d}/cal.json"\n'),
+        ),
+    ),
+    Row(
+        "export with --calibration and --baseline",
+        [
+            "export",
+            "{d}/rec",
+            "--mcap",
+            "{d}/o.mcap",
+            "--calibration",
+            "{d}/cal.json",
+            "--baseline",
+            "0.2",
+        ],
+        64,
+        r"--baseline describes the canonical rig, and the calibration given by --calibration",
         lambda d: (recording(d), save(canonical(0.06, 60.0, W, H), d / "cal.json")),
     ),
     Row(
@@ -807,7 +835,9 @@ def test_an_unexpected_exception_is_one_line_naming_its_log(
     assert "Traceback" in Path(log.group(1)).read_text()
 
 
-def test_a_full_disk_on_stdout_stops_subscribe_with_73(tmp_path: Path, endpoint: str) -> None:
+def test_a_full_disk_on_stdout_stops_subscribe_with_74(tmp_path: Path, endpoint: str) -> None:
+    """As for every command: one line, exit 74 (it was 73, the code of an output that cannot
+    be created)."""
     recording(tmp_path)
     with open("/dev/full", "w") as full:
         sub = start_stereod(
@@ -819,8 +849,8 @@ def test_a_full_disk_on_stdout_stops_subscribe_with_73(tmp_path: Path, endpoint:
         )
         assert pub.returncode == 0, pub.stderr
         _, err = sub.communicate(timeout=60)
-    assert sub.returncode == 73, err
-    assert err.splitlines() == ["stereod: stdout: writing failed: No space left on device"]
+    assert sub.returncode == 74, err
+    assert err.splitlines() == ["stereod: cannot write to standard output: No space left on device"]
 
 
 def test_a_frozen_peer_does_not_make_subscribe_fail_on_its_way_out(

@@ -63,12 +63,14 @@ def test_replay_reproduces_recorded_frames_and_timestamps(tmp_path: Path, color:
 def test_a_synthetic_scene_is_recorded_with_its_truth(tmp_path: Path) -> None:
     """Recording the synthetic driver keeps the scene beside the frames as ``truth.json``, as
     ``stereod synth`` does (``stereod demo --keep`` and ``record`` kept none); a looped scene,
-    whose times run past it, keeps none."""
+    whose times run past it, and a live one, stamped on the host's clock, keep none."""
     options = {"duration_s": 0.4, "fps": 10, "width_px": 80, "height_px": 60}
     record(SyntheticDriver(options), tmp_path / "rec")
     assert scene_from_truth(tmp_path / "rec" / "truth.json") == Scene.model_validate(options)
     record(SyntheticDriver({**options, "loop": True}), tmp_path / "loop", seconds=0.2)
     assert not (tmp_path / "loop" / "truth.json").exists()
+    record(SyntheticDriver({**options, "live": True}), tmp_path / "live", seconds=0.2)
+    assert not (tmp_path / "live" / "truth.json").exists()
 
 
 def test_live_record_stops_after_seconds(tmp_path: Path) -> None:

@@ -21,14 +21,13 @@ import numpy as np
 import pytest
 import zenoh
 
-from stereod.bus.messages import StatusMessage
 from stereod.client import ObjectsMessage, subscribe_objects
 from stereod.daemon.config import ZenohConfig, load_config
 from stereod.daemon.daemon import Daemon
 from stereod.daemon.status import Health
 from stereod.sources.pairing import Pairer
 from stereod.view.overlay import HEADER_PX
-from stereod.view.server import ViewHub, ViewServer, browser_json
+from stereod.view.server import ViewServer, browser_json
 from stereod_fakes.synth import Ball, Scene, SyntheticDriver
 from tests.conftest import free_endpoint, zenoh_config
 from tests.processes import run_stereod, start_stereod
@@ -317,23 +316,33 @@ def test_page_and_socket_refuse_another_sites_host_and_origin(
     assert "evil.example" in said[0].getMessage()
 
 
-def test_a_status_with_a_nan_reaches_the_page_as_json_it_can_parse() -> None:
+def test_a_status_with_a_nan_reaches_the_page_as_json_it_can_parse(
+    endpoint: str, listener: zenoh.Session
+) -> None:
     """A status carrying a NaN (pydantic takes it) went to the page as a bare ``NaN`` token,
     which ``JSON.parse`` refuses: that update was dropped, and every page opened after it
-    stayed blank. It is now null, as a strict parser checks, in the update and the hello."""
-    hub = ViewHub("minoru", "stereod")
-    sent: list[str] = []
-    hub.emit = lambda msg: sent.append(browser_json(msg))
+    stayed blank. Through a real view server and its socket, a strict parser now reads the
+    update and a later page's hello, the NaN as null."""
     health = Health("minoru", "test", Pairer(), on_change=lambda: None)
     raw = json.loads(health.status(1.0).model_dump_json(by_alias=True))
-    raw["uptime_s"] = float("nan")
-    hub.on_status(StatusMessage.model_validate(raw))
+    payload = json.dumps({**raw, "uptime_s": float("nan")}).encode()  # Python writes NaN
 
     def strict(text: str) -> Any:
         return json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in {text[:80]}"))
 
-    assert strict(sent[-1])["status"]["uptime_s"] is None
-    assert strict(browser_json(hub.hello()))["status"]["uptime_s"] is None
+    async def pages(view: ViewServer) -> tuple[Any, Any]:
+        async with aiohttp.ClientSession() as http:
+            async with http.ws_connect(view.url + "ws") as ws:
+                strict((await ws.receive(timeout=10)).data)  # hello
+                listener.put("stereod/minoru/status", payload)
+                while (update := strict((await ws.receive(timeout=10)).data))["type"] != "status":
+                    listener.put("stereod/minoru/status", payload)
+            async with http.ws_connect(view.url + "ws") as ws:
+                return update, strict((await ws.receive(timeout=10)).data)
+
+    with ViewServer(ZenohConfig(connect=[endpoint]), port=0) as view:
+        update, hello = asyncio.run(pages(view))
+    assert update["status"]["uptime_s"] is None and hello["status"]["uptime_s"] is None
     assert strict(browser_json({"a": [1.5, float("inf")], "b": {"c": -float("inf")}})) == {
         "a": [1.5, None],
         "b": {"c": None},

@@ -13,7 +13,6 @@ anything unexpected is written in full to a crash log and summed up in one line,
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import signal
 import sys
@@ -26,7 +25,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from stereod import __version__
-from stereod.cli.common import EPILOG_KEYS, quiet_third_party
+from stereod.cli.common import EPILOG_KEYS, quiet_third_party, stdout_to_nowhere
 from stereod.errors import (
     EX_IOERR,
     EX_SOFTWARE,
@@ -196,7 +195,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     quiet_third_party()
     saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}
     stdout = sys.stdout
-    sys.stdout = _Watched(stdout)  # type: ignore[assignment]
+    if stdout is not None:  # None: started with stdout closed (>&-), and print writes nothing
+        sys.stdout = _Watched(stdout)  # type: ignore[assignment]
     try:
         return _main(argv)
     finally:  # a caller in this process (a test) gets its own handlers and stdout back
@@ -213,6 +213,8 @@ def _main(argv: Sequence[str] | None) -> int:
         if not getattr(args, "reloads_on_sighup", False):
             one_shot_signals(args.command)
         code: int = args.func(args)
+        if sys.stdout is not None:  # what is still buffered fails here, not at the exit
+            sys.stdout.flush()
         return code
     except StereodError as exc:
         if isinstance(exc, ReaderGone) and exc.stdout:  # `--jsonl /dev/stdout | head`
@@ -235,8 +237,7 @@ def _main(argv: Sequence[str] | None) -> int:
         # `stereod schema > /dev/full`: the user's output, not our bug; the interpreter's own
         # last flush goes nowhere, so this line is the only one.
         print(f"stereod: cannot write to standard output: {exc.strerror or exc}", file=sys.stderr)
-        with contextlib.suppress(OSError):
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        stdout_to_nowhere()
         return EX_IOERR
     except Exception as exc:  # the last guard: one line, the details in a file
         return _internal(exc)

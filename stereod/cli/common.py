@@ -8,6 +8,7 @@ unit in the message, so a bad flag is one line and exit 64 before anything start
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
 import os
@@ -155,7 +156,7 @@ def add_zenoh(p: argparse.ArgumentParser, *, listens: bool = True) -> None:
         + (
             "the config's, else loopback only, a free port (7447 in router mode))"
             if listens
-            else "the config's, else none: it connects)"
+            else "none: it connects)"
         ),
     )
     g.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (peer)")
@@ -243,15 +244,7 @@ def zenoh_overrides(a: argparse.Namespace) -> dict[str, Any]:
 
 
 def pipeline_overrides(a: argparse.Namespace) -> dict[str, Any]:
-    """The config overrides of :func:`add_pipeline`'s flags (unset flags are None). A
-    calibration's own baseline and field of view stand: ``--baseline`` or ``--hfov`` beside
-    ``--calibration`` is refused (they were silently ignored)."""
-    if a.calibration is not None and (a.baseline is not None or a.hfov is not None):
-        flag = "--baseline" if a.baseline is not None else "--hfov"
-        raise UsageError(
-            f"{flag} describes the canonical rig, and --calibration {a.calibration} gives its "
-            f"own: leave out {flag}"
-        )
+    """The config overrides of :func:`add_pipeline`'s flags (unset flags are None)."""
     return {
         "rig": {
             "name": a.rig,
@@ -294,19 +287,26 @@ def load_checked(path: Path | None, overrides: dict[str, Any]) -> tuple[Any, Any
 
 def check_calibration(cfg: Any, path: Path | None, overrides: dict[str, Any]) -> None:
     """Read the calibration file a configuration ``cfg`` (from ``path`` and ``overrides``)
-    names, if any; its error says which setting named it, for the user to change."""
+    names, if any; its error says which setting named it, for the user to change. A
+    calibration's own baseline and field of view stand: ``--baseline`` or ``--hfov`` beside
+    one (given by the flag or by the config) is refused (they were silently ignored)."""
     from stereod.files.config_input import origin
     from stereod.vision.calibration import load as load_calibration
 
     if cfg.rig.calibration is None:
         return
+    where = origin(("rig", "calibration"), path, overrides)
+    named = "given by --calibration" if where == "command line" else f"rig.calibration in {where}"
+    rig = overrides.get("rig") or {}
+    for flag, field in (("--baseline", "baseline_m"), ("--hfov", "hfov_deg")):
+        if rig.get(field) is not None:
+            raise UsageError(
+                f"{flag} describes the canonical rig, and the calibration {named} "
+                f"({cfg.rig.calibration}) gives its own: leave out {flag}"
+            )
     try:
         load_calibration(cfg.rig.calibration)
     except StereodError as exc:
-        where = origin(("rig", "calibration"), path, overrides)
-        named = (
-            "given by --calibration" if where == "command line" else (f"rig.calibration in {where}")
-        )
         raise type(exc)(f"{exc}; it is {named}") from exc
 
 
@@ -444,8 +444,18 @@ def say(text: str) -> None:
     try:
         print(text, flush=True, file=sys.stderr if _summaries_to_stderr else sys.stdout)
     except BrokenPipeError:
-        # Later flushes (at exit) would fail again: point stdout at nothing.
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        stdout_to_nowhere()
+
+
+def stdout_to_nowhere() -> None:
+    """Point standard output's descriptor at /dev/null: it failed (a reader gone, a full
+    disk), and the interpreter's own last flush would fail again, with a message of its own."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, sys.stdout.fileno())
+        finally:
+            os.close(null)
 
 
 def summarise(problems: list[str], shown: int = 3) -> str:

@@ -19,7 +19,7 @@ from stereod.cli.common import (
     summaries_off_stdout,
     summarise,
 )
-from stereod.errors import EX_DATAERR, ConfigError, one_line
+from stereod.errors import EX_DATAERR, ConfigError, UsageError, one_line
 from stereod.files.output_file import check_outputs, stopped_by_signals
 
 TOPICS = """\
@@ -69,7 +69,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="FILE",
         help="the calibration the run used (default: the recording's own, or the canonical rig)",
     )
-    add_canonical_rig(p, defaults=True, context="canonical rig, as the run used: ")
+    add_canonical_rig(p, defaults=False, context="canonical rig, as the run used: ")
     p.add_argument(
         "--no-images",
         action="store_true",
@@ -101,15 +101,21 @@ def _export(a: argparse.Namespace) -> int:
             "nothing to export: give the run's recording directory and/or --jsonl RUN.jsonl"
         )
     check_outputs({"--mcap": a.mcap}, [a.jsonl, a.calibration, a.recording])
+    for flag, value in (("--baseline", a.baseline), ("--hfov", a.hfov)):
+        if value is not None and a.calibration is not None:
+            raise UsageError(
+                f"{flag} describes the canonical rig, and the calibration given by "
+                f"--calibration ({a.calibration}) gives its own: leave out {flag}"
+            )
     cal = load(a.calibration) if a.calibration is not None else None
+    rig = {"baseline_m": a.baseline, "hfov_deg": a.hfov}
     summaries_off_stdout(a.mcap)
     summary = export_run(
         a.mcap,
         jsonl=a.jsonl,
         recording=a.recording,
         calibration=cal,
-        baseline_m=a.baseline,
-        hfov_deg=a.hfov,
+        **{k: v for k, v in rig.items() if v is not None},  # else the Minoru's
         include_images=not a.no_images,
         image_format="png" if a.png else "jpeg",
         jpeg_quality=a.jpeg_quality,

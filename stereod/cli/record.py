@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 from stereod.cli.common import (
     add_config,
     add_driver,
+    check_calibration,
     command_log_level,
     number,
     path_arg,
@@ -44,7 +45,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "numbers, the camera settings and the calibration in force into a recording "
         "directory (replay it with `stereod replay DIR`). It records until --seconds, the end "
         "of the input, or Ctrl-C or SIGTERM, which end it normally: what was recorded is kept, "
-        "and --mcap is written with it.",
+        "and --mcap is written with it (stopped before the first frame, nothing is kept, and "
+        "the exit is 128 plus the signal's number).",
     )
     p.add_argument("out", type=path_arg, help="recording directory to create")
     p.add_argument(
@@ -78,6 +80,7 @@ def run(a: argparse.Namespace) -> int:
     ov = {"driver": {"name": a.driver}} if a.driver else {}
     cfg = load_config(a.config, ov)
     setup_logging(command_log_level(cfg))
+    check_calibration(cfg, a.config, ov)
     driver = load_driver(cfg.driver.name, cfg.driver.options, origin=a.config)
     stop = threading.Event()
     caught: list[int] = []

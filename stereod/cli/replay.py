@@ -158,13 +158,13 @@ def driver_options(a: argparse.Namespace) -> dict[str, Any]:
 def utc_instant_arg(text: str) -> int:
     """An argparse type: a UTC instant as integer ns since 1970, or ISO 8601 with a zone
     (``Z`` or ``+01:00``), to the nanosecond (more digits than 9 after the point refused)."""
-    from stereod.files.bounds import UTC_NS_MAX
+    from stereod.files.bounds import UTC_START_NS_MAX
 
-    beyond = f"{text!r}: outside 1970..2116 (the latest instant a stamp may carry is {UTC_NS_MAX})"
+    beyond = f"{text!r}: outside 1970..2100 (the stamps after it must stay within 64 bits)"
     t = text.strip()
     if re.fullmatch(r"[0-9]{1,19}", t):
         ns = int(t)
-        if ns > UTC_NS_MAX:
+        if ns > UTC_START_NS_MAX:
             raise argparse.ArgumentTypeError(beyond)
         return ns
     m = re.fullmatch(r"(.+?T\d\d:\d\d:\d\d)(?:\.(\d{1,9}))?(Z|[+-]\d\d:?\d\d)", t)
@@ -184,7 +184,7 @@ def utc_instant_arg(text: str) -> int:
     delta = whole - epoch
     ns = (delta.days * 86_400 + delta.seconds) * 10**9 + delta.microseconds * 1000
     ns += int((m.group(2) or "0").ljust(9, "0"))
-    if not 0 <= ns <= UTC_NS_MAX:
+    if not 0 <= ns <= UTC_START_NS_MAX:
         raise argparse.ArgumentTypeError(beyond)
     return ns
 

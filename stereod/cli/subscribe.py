@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 from stereod.cli.common import DEFAULT_CONNECT, add_zenoh, number, zenoh_overrides
 from stereod.cli.interrupt import wait_until
 from stereod.cli.signals import relayed
-from stereod.errors import OutputError, UsageError, describe_validation_error
+from stereod.errors import UsageError, describe_validation_error
 
 if TYPE_CHECKING:
     import zenoh
@@ -112,8 +112,6 @@ def run(a: argparse.Namespace) -> int:
             )
         wait_until(done, None if a.duration is None else a.duration - (time.monotonic() - start))
         sub.undeclare()
-    if failed:
-        if isinstance(failed[0], BrokenPipeError):
-            raise failed[0]  # `stereod subscribe | head`: the reader had enough (exit 0)
-        raise OutputError(f"stdout: writing failed: {failed[0].strerror}")
+    if failed:  # a reader that had enough (`| head`, exit 0), or a full disk (exit 74)
+        raise failed[0]
     return 0

@@ -289,10 +289,17 @@ PLAYBACK_RATE = Bound(
     zero_off=True,
 )
 
+MAX_COORDINATE = 1e6
+"""The largest position (m) or velocity component and speed (m/s) a run's or a truth's file
+may hold for ``plot`` and ``export``: far beyond any scene a stereo webcam sees, well short of
+what overflows a figure's axes or a consumer's arithmetic (1e308 does)."""
 UTC_NS_MAX = 2**62
 """The latest UTC instant (ns since 1970, early in 2116) a stamp may carry: beyond it, a
 replay's stream time or a fusion step's period added to it could pass the 64 bits that every
 reader of the wire holds an integer in."""
+UTC_START_NS_MAX = 4_102_444_800 * 10**9
+"""The latest first instant (ns, 2100-01-01) a replay may be given: the stream time it adds
+then stays within :data:`UTC_NS_MAX` for 16 years of recording."""
 ROS_TIME_NS_MAX = (2**31 - 1) * 10**9 + 999_999_999
 """The latest instant (ns) a ROS 2 ``builtin_interfaces/Time`` holds (its seconds are int32:
 2038-01-19): what an MCAP of ROS 2 messages can stamp."""

@@ -24,11 +24,12 @@ from collections import deque
 
 import numpy as np
 import zenoh
+from pydantic import ValidationError
 
 from stereod.bus import keys
 from stereod.bus.messages import OBJECT_SCHEMA, ObjectsMessage, encoding_for
 from stereod.bus.publish import Publisher
-from stereod.errors import InputError
+from stereod.errors import InputError, describe_validation_error, one_line
 from stereod.files.output_file import AtomicOutput
 from stereod.fusion.clock import ClockWatch
 from stereod.fusion.fuser import Fuser
@@ -170,8 +171,9 @@ class FuseNode:
         else to the model (whose JSON parser bounds nesting itself)."""
         try:
             msg = decode(payload)
-        except ValueError as exc:
-            why = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+        except ValueError as exc:  # pydantic's text spans lines: its fields, on one
+            why = describe_validation_error(exc) if isinstance(exc, ValidationError) else str(exc)
+            why = one_line(why)[:200] or type(exc).__name__
             with self.lock:
                 self.rejected += 1
                 self.last_rejected = why
@@ -356,8 +358,7 @@ class FuseNode:
 
         if mcap_skipped:
             problems.append(
-                f"room messages left out of the MCAP: {mcap_skipped} (the last: {mcap_problem}; "
-                "a rig's clock is wrong)"
+                f"room messages left out of the MCAP: {mcap_skipped} (the last: {mcap_problem})"
             )
 
         def pct(a: np.ndarray | None, q: float) -> float | None:

@@ -28,6 +28,7 @@ from pydantic import ValidationError
 
 from stereod.bus.messages import ObjectsMessage, ObjectState
 from stereod.errors import InputError, MissingInputError, StereodError
+from stereod.files.bounds import MAX_COORDINATE
 from stereod.files.paths import text_path
 from stereod.ros.mcap_writer import ExportSummary, McapRunWriter
 from stereod.ros.names import NS_PER_S, value_text
@@ -125,12 +126,6 @@ def _jsonl_messages(
             raise InputError(f"{path}: cannot read JSONL file: {exc.strerror}") from exc
     if skipped > DAMAGED_SAID and damaged is not None:
         damaged.append(f"{path}: {skipped - DAMAGED_SAID} more damaged lines skipped")
-
-
-MAX_COORDINATE = 1e6
-"""The largest position (m) or velocity component (m/s) of an exported object: far beyond
-what a stereo webcam sees, where a ROS consumer's arithmetic still holds (``plot`` keeps the
-same bound)."""
 
 
 def _plausible(o: ObjectState) -> bool:

@@ -47,6 +47,7 @@ from typing import Any, Final
 import numpy as np
 
 from stereod.errors import InputError
+from stereod.files.bounds import ROS_TIME_NS_MAX
 from stereod.sources.frames import Eye
 from stereod.vision.calibration import Calibration
 
@@ -58,7 +59,6 @@ BODY_TO_OPTICAL: Final = (-0.5, 0.5, -0.5, 0.5)
 
 _OPTICAL_TO_BODY: Final = (0.5, -0.5, 0.5, 0.5)
 NS_PER_S: Final = 1_000_000_000
-_INT32_MAX: Final = 2**31 - 1
 
 Quaternion = tuple[float, float, float, float]
 
@@ -184,7 +184,7 @@ class RosNames:
 
 def ros_time(stamp_ns: int) -> dict[str, int]:
     sec, nsec = divmod(int(stamp_ns), NS_PER_S)
-    if stamp_ns < 0 or sec > _INT32_MAX:
+    if not 0 <= stamp_ns <= ROS_TIME_NS_MAX:
         raise InputError(
             f"stamp {stamp_ns} ns is outside ROS time (0 to 2^31 s): the UTC offset is wrong"
         )

@@ -27,6 +27,7 @@ from pydantic import ValidationError
 
 from stereod.bus.messages import ObjectsMessage, ObjectState
 from stereod.errors import InputError, MissingInputError, NotInstalledError, UsageError
+from stereod.files.bounds import MAX_COORDINATE, UTC_NS_MAX
 from stereod.files.output_file import AtomicOutput, output_target, written_in_place
 
 FIGSIZE_IN = (12.0, 6.0)
@@ -212,10 +213,9 @@ def read_truth(path: Path, t0_ns: int) -> list[TruthSeries]:
     return out
 
 
-MAX_TRUTH_M = 1e6
-"""Largest position (m) or speed (m/s) a truth or a run may give: far beyond any scene a
-stereo webcam sees, well short of what overflows the axes' arithmetic (1e308 does)."""
-MAX_TRUTH_T_NS = 2**62
+MAX_TRUTH_M = MAX_COORDINATE
+"""Largest position (m) or speed (m/s) a truth or a run may give."""
+MAX_TRUTH_T_NS = UTC_NS_MAX
 """Largest truth time, ns since the epoch (year 2116)."""
 
 
@@ -350,11 +350,15 @@ def figure_target(out: Path) -> tuple[Path, str]:
     ``pdf``, ``svg``, ...), ``.png`` added when it has none, as matplotlib would. A suffix
     matplotlib cannot write is refused before any work, listing those it can, and so is what
     cannot be an output at all (a folder, a socket: :func:`output_target`'s rule)."""
-    output_target(out)
+    if out.is_dir():  # a folder, not a name to add .png to (`-o /tmp` wrote /tmp.png)
+        output_target(out)
     if not out.suffix:
         if written_in_place(out):  # /dev/null, a FIFO: that file, as PNG
             return out, "png"
-        return out.with_name(out.name + ".png"), "png"
+        target = out.with_name(out.name + ".png")
+        output_target(target)
+        return target, "png"
+    output_target(out)
     fmt = out.suffix[1:].lower()
     # PGF is LaTeX source that needs a TeX installation even to write: not offered.
     supported = sorted(set(_figure_class()().canvas.get_supported_filetypes()) - {"pgf"})
