@@ -19,7 +19,7 @@ from stereod.cli.common import (
     summaries_off_stdout,
     summarise,
 )
-from stereod.errors import EX_DATAERR, ConfigError, UsageError, one_line
+from stereod.errors import EX_DATAERR, ConfigError, StereodError, UsageError, one_line
 from stereod.files.output_file import check_outputs, stopped_by_signals
 
 TOPICS = """\
@@ -107,7 +107,12 @@ def _export(a: argparse.Namespace) -> int:
                 f"{flag} describes the canonical rig, and the calibration given by "
                 f"--calibration ({a.calibration}) gives its own: leave out {flag}"
             )
-    cal = load(a.calibration) if a.calibration is not None else None
+    cal = None
+    if a.calibration is not None:
+        try:
+            cal = load(a.calibration)
+        except StereodError as exc:
+            raise type(exc)(f"{exc}; it is given by --calibration") from exc
     rig = {"baseline_m": a.baseline, "hfov_deg": a.hfov}
     summaries_off_stdout(a.mcap)
     summary = export_run(
