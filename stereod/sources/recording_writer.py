@@ -128,7 +128,9 @@ class RecordingWriter:
         try:
             for eye in Eye:
                 try:
-                    fh = (self._tmp / f"{eye.value}.csv").open("w", newline="")
+                    # a row a frame, on disk as it is written (what a killed recorder leaves,
+                    # and what a watcher sees, says how far it got)
+                    fh = (self._tmp / f"{eye.value}.csv").open("w", newline="", buffering=1)
                     fh.write(f"t_ns,seq,{CHECKSUM_COLUMN}\n" if self._checksums else "t_ns,seq\n")
                 except OSError as exc:
                     raise OutputError(
