@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import resource
 import signal
 import subprocess
@@ -705,3 +706,19 @@ def test_standard_output_closed_is_no_error() -> None:
         text=True, timeout=60, preexec_fn=lambda: os.close(1),
     )  # fmt: skip
     assert res.returncode == 0 and res.stderr == "", res.stderr
+
+
+def test_run_with_a_file_source_ends_with_its_summary(tmp_path: Path) -> None:
+    """``stereod run`` on the replay driver prints what it did at the end, as ``replay`` does
+    (it printed nothing, so a newcomer could not tell whether anything was processed); a
+    camera's daemon still prints none (its journal would get one at every stop)."""
+    rec = write_scene(Scene(width_px=160, height_px=120, fps=15, duration_s=1.0), tmp_path / "r")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'[driver]\nname = "replay"\n[driver.options]\npath = "{rec}"\n')
+    res = stereod("run", "--config", str(cfg), "--rate", "0")
+    assert res.returncode == 0, res.stderr
+    assert re.fullmatch(
+        r"15 pairs from 15 left and 15 right frames, 15 messages published, \d+ object "
+        r"observations in [\d.]+ s; drops: none\n",
+        res.stdout,
+    ), res.stdout

@@ -355,7 +355,7 @@ def setup_logging(level: str) -> None:
 def run_daemon(
     daemon: Any,
     *,
-    quiet: bool = False,
+    quiet: bool | None = False,
     problems_fail: bool = True,
     progress: Any = None,
     reloads: bool = True,
@@ -368,7 +368,8 @@ def run_daemon(
     when its input ended and was bad (a truncated recording played by the replay driver). A
     fatal error is raised after the summary (its one line is the caller's to print).
     ``progress`` (a :class:`~stereod.cli.progress.Progress`) is closed before the summary is
-    printed."""
+    printed. ``quiet`` None: the summary only for a file source (a camera's service writes
+    none to its journal at every stop)."""
     if problems_fail:
         daemon.health.log_problems = False
 
@@ -393,10 +394,12 @@ def run_daemon(
         return _ended(daemon, summary, t0, quiet=quiet, problems_fail=problems_fail)
 
 
-def _ended(daemon: Any, summary: Any, t0: float, *, quiet: bool, problems_fail: bool) -> int:
+def _ended(daemon: Any, summary: Any, t0: float, *, quiet: bool | None, problems_fail: bool) -> int:
     """:func:`run_daemon`'s summary line and exit code once the run is over."""
     if isinstance(summary.error, ReaderGone) and summary.error.stdout:
         stdout_gone()
+    if quiet is None:  # said for a file source that was opened, not for a camera
+        quiet = daemon.health.live or not daemon.health.source_description
     if not quiet:
         drops = ", ".join(f"{k} {v}" for k, v in summary.drops.items()) or "none"
         say(

@@ -61,4 +61,4 @@ def run(a: argparse.Namespace) -> int:
         wait_subscriber_s=a.wait_subscriber,
         reload_config=lambda: load_checked(path, ov)[0],
     )
-    return run_daemon(daemon, quiet=True, problems_fail=False)
+    return run_daemon(daemon, quiet=None, problems_fail=False)
