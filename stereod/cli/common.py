@@ -298,16 +298,24 @@ def check_calibration(cfg: Any, path: Path | None, overrides: dict[str, Any]) ->
     where = origin(("rig", "calibration"), path, overrides)
     named = "given by --calibration" if where == "command line" else f"rig.calibration in {where}"
     rig = overrides.get("rig") or {}
-    for flag, field in (("--baseline", "baseline_m"), ("--hfov", "hfov_deg")):
-        if rig.get(field) is not None:
-            raise UsageError(
-                f"{flag} describes the canonical rig, and the calibration {named} "
-                f"({cfg.rig.calibration}) gives its own: leave out {flag}"
-            )
+    refuse_rig_flags(named, cfg.rig.calibration, rig.get("baseline_m"), rig.get("hfov_deg"))
     try:
         load_calibration(cfg.rig.calibration)
     except StereodError as exc:
         raise type(exc)(f"{exc}; it is {named}") from exc
+
+
+def refuse_rig_flags(
+    named: str, calibration: Path, baseline: float | None, hfov: float | None
+) -> None:
+    """Refuse (64) ``--baseline`` or ``--hfov`` given beside a ``calibration`` (``named``: the
+    setting that gave it), whose own baseline and field of view stand."""
+    for flag, value in (("--baseline", baseline), ("--hfov", hfov)):
+        if value is not None:
+            raise UsageError(
+                f"{flag} describes the canonical rig, and the calibration {named} "
+                f"({calibration}) gives its own: leave out {flag}"
+            )
 
 
 def run_inputs(config: Path | None, cfg: Any, driver: Any = None) -> list[Path]:

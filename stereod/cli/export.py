@@ -15,11 +15,12 @@ from stereod.cli.common import (
     number,
     path_arg,
     recording_arg,
+    refuse_rig_flags,
     say,
     summaries_off_stdout,
     summarise,
 )
-from stereod.errors import EX_DATAERR, ConfigError, StereodError, UsageError, one_line
+from stereod.errors import EX_DATAERR, ConfigError, StereodError, one_line
 from stereod.files.output_file import check_outputs, stopped_by_signals
 
 TOPICS = """\
@@ -101,14 +102,9 @@ def _export(a: argparse.Namespace) -> int:
             "nothing to export: give the run's recording directory and/or --jsonl RUN.jsonl"
         )
     check_outputs({"--mcap": a.mcap}, [a.jsonl, a.calibration, a.recording])
-    for flag, value in (("--baseline", a.baseline), ("--hfov", a.hfov)):
-        if value is not None and a.calibration is not None:
-            raise UsageError(
-                f"{flag} describes the canonical rig, and the calibration given by "
-                f"--calibration ({a.calibration}) gives its own: leave out {flag}"
-            )
     cal = None
     if a.calibration is not None:
+        refuse_rig_flags("given by --calibration", a.calibration, a.baseline, a.hfov)
         try:
             cal = load(a.calibration)
         except StereodError as exc:

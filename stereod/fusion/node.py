@@ -355,7 +355,6 @@ class FuseNode:
                 f"samples on a rig's objects key that were not objects: {rejected} (the last: "
                 f"{last_rejected})"
             )
-
         if mcap_skipped:
             problems.append(
                 f"room messages left out of the MCAP: {mcap_skipped} (the last: {mcap_problem})"
