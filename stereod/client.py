@@ -38,6 +38,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import queue
 import threading
 import time
@@ -344,15 +345,20 @@ def object_events(
     return EventStream(session, maxsize, rig=rig, prefix=prefix)
 
 
-def zenoh_config(*connect: str, listen: Sequence[str] = ()) -> zenoh.Config:
+def zenoh_config(
+    *connect: str, listen: Sequence[str] = (), config_file: str | os.PathLike[str] | None = None
+) -> zenoh.Config:
     """A Zenoh config for a program that uses a daemon: connect to each ``connect`` endpoint
     (where a daemon listens, e.g. ``"tcp/127.0.0.1:7447"``) and listen on ``listen`` only
     (nowhere by default: the program accepts no connection from anyone), with no multicast
     scouting. An endpoint that is not up yet (the program was started before the
     daemon) is tried again every 100 to 250 ms, not after Zenoh's default 1 to 4 s, so the
-    program sees the daemon as soon as it listens. A malformed endpoint is a ValueError."""
+    program sees the daemon as soon as it listens. ``config_file``: a Zenoh JSON5 file to
+    start from (TLS certificates and ``enable_mtls`` to reach a secured daemon), as a daemon's
+    ``[zenoh] config_file``. A malformed endpoint or a bad file is a ValueError."""
+    extra = {} if config_file is None else {"config_file": os.fspath(config_file)}
     try:
-        cfg = ZenohConfig(connect=list(connect), listen=list(listen))
+        cfg = ZenohConfig(connect=list(connect), listen=list(listen), **extra)
         return session_config(cfg, consumer=True)
     except ValidationError as exc:
         raise ValueError(describe_validation_error(exc, "zenoh")) from None

@@ -272,3 +272,76 @@ def test_the_readme_zenoh_file_is_one_zenoh_accepts() -> None:
     zenoh.Config.from_json5(block.group(1))
     for word in ('default_permission: "deny"', "enable_mtls: true", "cert_common_names"):
         assert word in block.group(1)
+
+
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+
+
+def docs_json5(page: str, marker: str, paths: dict[str, Path]) -> str:
+    """The json5 block of ``docs/<page>`` that holds ``marker``, its paths replaced by
+    ``paths`` (each documented path to a file of this test's PKI)."""
+    blocks = re.findall(r"```json5\n(.*?)```", (DOCS / page).read_text(), re.S)
+    block = next(b for b in blocks if marker in b)
+    for documented, here in paths.items():
+        assert documented in block, f"{documented} not in {page}'s block"
+        block = block.replace(documented, str(here))
+    return block
+
+
+def test_the_documented_consumer_file_reaches_the_secured_daemon(
+    secured: tuple[Path, str], tmp_path: Path
+) -> None:
+    """The Deployment page's consumer file, its paths this test's, lets `stereod subscribe
+    --zenoh-config` and `client.zenoh_config(config_file=...)` read the daemon behind mTLS;
+    the same file without ``enable_mtls`` is refused the link (the page says why it is
+    there)."""
+    d, endpoint = secured
+    block = docs_json5(
+        "deployment.md",
+        "dashboard.pem",
+        {
+            "/etc/stereod/tls/ca.pem": d / "ca.pem",
+            "/etc/stereod/tls/dashboard.pem": d / "consumer.pem",
+            "/etc/stereod/tls/dashboard.key": d / "consumer.key",
+        },
+    )
+    good = tmp_path / "dashboard.json5"
+    good.write_text(block)
+    proc = start_stereod(
+        "subscribe", "stereod/minoru/status", "--json", "--count", "1", "--duration", "30",
+        "--connect", endpoint, "--zenoh-config", str(good),
+    )  # fmt: skip
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    assert json.loads(out.splitlines()[0])["state"] == "running"
+    from stereod.client import zenoh_config
+
+    with zenoh.open(zenoh_config(endpoint, config_file=good)) as s:
+        assert wait_alive(s, rig="minoru", timeout_s=20)
+    without = tmp_path / "no-mtls.json5"
+    without.write_text(re.sub(r"enable_mtls: true,?", "", block))
+    with pytest.raises(zenoh.ZError, match="Unable to connect"):
+        zenoh.open(zenoh_config(endpoint, config_file=without))
+
+
+def test_the_documented_rig_file_presents_its_certificate(
+    secured: tuple[Path, str], tmp_path: Path
+) -> None:
+    """The three-host page's rig file (the client side of the TLS link to the router), its
+    paths this test's, connects to a listener that requires a client certificate."""
+    d, endpoint = secured
+    block = docs_json5(
+        "deployment-room.md",
+        "rig-a.pem",
+        {
+            "/etc/stereod/tls/ca.pem": d / "ca.pem",
+            "/etc/stereod/tls/rig-a.pem": d / "consumer.pem",
+            "/etc/stereod/tls/rig-a.key": d / "consumer.key",
+        },
+    )
+    f = tmp_path / "rig.json5"
+    f.write_text(block)
+    from stereod.client import zenoh_config
+
+    with zenoh.open(zenoh_config(endpoint, config_file=f)) as s:
+        assert wait_alive(s, rig="minoru", timeout_s=20)

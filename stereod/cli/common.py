@@ -161,6 +161,14 @@ def add_zenoh(p: argparse.ArgumentParser, *, listens: bool = True) -> None:
     )
     g.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (peer)")
     g.add_argument("--prefix", help="key prefix (default: stereod)")
+    if not listens:
+        g.add_argument(
+            "--zenoh-config",
+            metavar="FILE",
+            help="a Zenoh config file (JSON5: TLS certificates, mTLS) to start from, as a "
+            "daemon's [zenoh] config_file; the flags above go on top of it (without "
+            "--connect or --listen, the file's endpoints stand)",
+        )
 
 
 def add_canonical_rig(
@@ -240,7 +248,23 @@ def add_pipeline(p: argparse.ArgumentParser) -> None:
 
 
 def zenoh_overrides(a: argparse.Namespace) -> dict[str, Any]:
-    return {"connect": a.connect, "listen": a.listen, "mode": a.mode, "prefix": a.prefix}
+    """The ``[zenoh]`` overrides of :func:`add_zenoh`'s flags (unset flags are None)."""
+    return {
+        "connect": a.connect,
+        "listen": a.listen,
+        "mode": a.mode,
+        "prefix": a.prefix,
+        "config_file": getattr(a, "zenoh_config", None),
+    }
+
+
+def consumer_zenoh(a: argparse.Namespace) -> dict[str, Any]:
+    """A consumer's (subscribe, view) ``[zenoh]`` settings from its flags: those given, and
+    :data:`DEFAULT_CONNECT` when neither an endpoint nor a Zenoh file says where to go."""
+    ov = {k: v for k, v in zenoh_overrides(a).items() if v is not None}
+    if not ov.get("connect") and not ov.get("listen") and "config_file" not in ov:
+        ov["connect"] = [DEFAULT_CONNECT]
+    return ov
 
 
 def pipeline_overrides(a: argparse.Namespace) -> dict[str, Any]:

@@ -9,7 +9,7 @@ import threading
 import time
 from typing import TYPE_CHECKING
 
-from stereod.cli.common import DEFAULT_CONNECT, add_zenoh, number, zenoh_overrides
+from stereod.cli.common import DEFAULT_CONNECT, add_zenoh, consumer_zenoh, number
 from stereod.cli.interrupt import wait_until
 from stereod.cli.signals import relayed
 from stereod.errors import UsageError, describe_validation_error
@@ -23,8 +23,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "subscribe",
         help="print what arrives on the bus",
         description="Subscribe to stereod keys and print each sample readably (or --json). "
-        f"Without --connect or --listen it connects to {DEFAULT_CONNECT} (where `stereod "
-        "demo` listens; give a daemon `[zenoh] listen` or `--listen` to reach it there).",
+        f"Without --connect, --listen or --zenoh-config it connects to {DEFAULT_CONNECT} "
+        "(where `stereod demo` listens; give a daemon `[zenoh] listen` or `--listen` to reach "
+        "it there).",
     )
     p.add_argument(
         "keyexpr", nargs="?", default="stereod/**", help="key expression (default: stereod/**)"
@@ -56,9 +57,7 @@ def run(a: argparse.Namespace) -> int:
     from stereod.bus.subscribe import format_sample, json_line
     from stereod.daemon.config_zenoh import ZenohConfig
 
-    ov = {k: v for k, v in zenoh_overrides(a).items() if v is not None}
-    if not ov.get("connect") and not ov.get("listen"):
-        ov["connect"] = [DEFAULT_CONNECT]
+    ov = consumer_zenoh(a)
     try:
         zcfg = ZenohConfig(**ov)
     except ValidationError as exc:

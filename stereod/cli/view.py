@@ -9,7 +9,7 @@ import signal
 import threading
 
 from stereod.bus.keys import DEFAULT_RIG, RIG_PATTERN
-from stereod.cli.common import DEFAULT_CONNECT, add_zenoh, number, setup_logging, zenoh_overrides
+from stereod.cli.common import DEFAULT_CONNECT, add_zenoh, consumer_zenoh, number, setup_logging
 from stereod.cli.interrupt import wait_until
 from stereod.cli.signals import relayed
 from stereod.errors import ConfigError, UsageError, describe_validation_error
@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "needed) that shows the annotated overlay image, a top view of the room with each "
         "track's trail and velocity, speed and heading of the selected track, and the "
         "daemon's health. The daemon encodes images only while a view (or any subscriber) "
-        f"listens. Without --connect or --listen it connects to {DEFAULT_CONNECT}.",
+        f"listens. Without --connect, --listen or --zenoh-config it connects to {DEFAULT_CONNECT}.",
     )
     p.add_argument("--rig", default=DEFAULT_RIG, help=f"rig name (default: {DEFAULT_RIG})")
     p.add_argument(
@@ -68,9 +68,7 @@ def run(a: argparse.Namespace) -> int:
     from stereod.daemon.config_zenoh import ZenohConfig
 
     setup_logging("WARNING")
-    ov = {k: v for k, v in zenoh_overrides(a).items() if v is not None}
-    if not ov.get("connect") and not ov.get("listen"):
-        ov["connect"] = [DEFAULT_CONNECT]
+    ov = consumer_zenoh(a)
     try:
         zcfg = ZenohConfig(**ov)
     except ValidationError as exc:
@@ -87,7 +85,7 @@ def run(a: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         stack.enter_context(relayed(dict.fromkeys((signal.SIGINT, signal.SIGTERM), on_signal)))
         server = stack.enter_context(ViewServer(zcfg, rig=a.rig, host=a.host, port=a.port))
-        where = ", ".join(zcfg.connect or zcfg.listen)
+        where = ", ".join(zcfg.connect or zcfg.listen) or f"the endpoints of {zcfg.config_file}"
         also = ""
         if a.foxglove:
             from stereod.ros.foxglove import FoxgloveBridge
