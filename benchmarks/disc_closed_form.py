@@ -49,7 +49,9 @@ from stereod.vision.disc import PAD_PX, Candidate, disc_centres
 SUB = 16
 """Samples per pixel side when integrating a pixel's colour."""
 
-Centres = Callable[[Sequence[Candidate]], list[tuple[float, float] | None]]
+Point = tuple[float, float]
+Centres = Callable[..., list[Point | None]]
+"""A centring method, called as the detector calls :func:`disc_centres`."""
 
 
 def soft_matte_centres(blobs: Sequence[Candidate], local: bool) -> list[tuple[float, float] | None]:
@@ -105,11 +107,26 @@ def soft_matte_centres(blobs: Sequence[Candidate], local: bool) -> list[tuple[fl
     return out
 
 
+def as_detector_calls(centres: Callable[[Sequence[Candidate]], list[Point | None]]) -> Centres:
+    """``centres`` called as the detector calls :func:`disc_centres` (the blobs, their warm
+    starts, a list that takes each blob's radius): a closed form starts from nothing and
+    gives no radius (nan)."""
+
+    def call(
+        blobs: Sequence[Candidate], starts: object = None, radii: list[float] | None = None
+    ) -> list[Point | None]:
+        if radii is not None:
+            radii.extend([math.nan] * len(blobs))
+        return centres(blobs)
+
+    return call
+
+
 METHODS: dict[str, Centres] = {
-    "matte": lambda blobs: [None] * len(blobs),
+    "matte": as_detector_calls(lambda blobs: [None] * len(blobs)),
     "fit": disc_centres,
-    "global": lambda blobs: soft_matte_centres(blobs, local=False),
-    "local": lambda blobs: soft_matte_centres(blobs, local=True),
+    "global": as_detector_calls(lambda blobs: soft_matte_centres(blobs, local=False)),
+    "local": as_detector_calls(lambda blobs: soft_matte_centres(blobs, local=True)),
 }
 
 
@@ -202,9 +219,11 @@ def errors(
     rng = np.random.default_rng(seed)
     grey = name == "grey"
 
-    def timed(blobs: Sequence[Candidate]) -> list[tuple[float, float] | None]:
+    def timed(
+        blobs: Sequence[Candidate], starts: object = None, radii: list[float] | None = None
+    ) -> list[Point | None]:
         start = time.thread_time()
-        out = method(blobs)
+        out = method(blobs, starts, radii)
         if timing is not None and blobs:
             timing.append((time.thread_time() - start) / len(blobs))
         return out

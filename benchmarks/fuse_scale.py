@@ -210,8 +210,14 @@ def main() -> int:
         help="the nice value of the generators and the room's subscriber, which stand in for "
         "other hosts (default %(default)s)",
     )
-    p.add_argument("--out", type=Path, default=ROOT / "docs" / "bench" / "fuse_scale.md")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=report.DOCS_BENCH,
+        help="folder of the markdown table (default docs/bench), or a .md file",
+    )
     a = p.parse_args()
+    a.out = report.table_path(p, a.out, "fuse_scale.md")
     if a.node_nice is None:
         a.node_nice = unit_nice() if may_nice(unit_nice()) else 0
         if a.node_nice != unit_nice():

@@ -284,7 +284,12 @@ def main() -> int:
         help="how late the right eye is, in frames (0.5: the most two free-running eyes are "
         "apart; the earlier eye is detected while the later is awaited)",
     )
-    ap.add_argument("--out", type=Path, default=report.DOCS_BENCH / "latency.md")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=report.DOCS_BENCH,
+        help="folder of the markdown table (default docs/bench), or a .md file",
+    )
     ap.add_argument(
         "--grey",
         action="store_true",
@@ -293,6 +298,7 @@ def main() -> int:
     ap.add_argument("--no-floor", action="store_true", help="skip the floor (detect = false)")
     ap.add_argument("--breakdown", action="store_true", help="also the daemon's own timings")
     a = ap.parse_args()
+    a.out = report.table_path(ap, a.out, "latency.md")
     rows = [
         "| size | rate | frames | daemon | messages | p50 latency | p99 latency | max latency "
         "| CPU (one core) | RSS (peak) | synthetic camera | own RSS | of it, mapped files |",

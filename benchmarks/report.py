@@ -7,6 +7,7 @@ last committed run, and running the benchmark again updates it.
 
 from __future__ import annotations
 
+import argparse
 import os
 import platform
 import statistics
@@ -106,4 +107,18 @@ def write(name: str, text: str, out: Path | None = None) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / name
     path.write_text(text.rstrip("\n") + "\n")
+    return path
+
+
+def table_path(parser: argparse.ArgumentParser, out: Path, name: str) -> Path:
+    """Where ``--out`` puts the table ``name``: into ``out`` when it is a folder (or names no
+    ``.md`` file), else ``out`` itself; checked before the benchmark runs, so that a long run
+    does not end unable to write (a parser error, exit 2)."""
+    path = out if out.suffix == ".md" and not out.is_dir() else out / name
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        parser.error(f"--out {out}: cannot make {path.parent}: {exc.strerror}")
+    if path.is_dir() or not os.access(path.parent, os.W_OK):
+        parser.error(f"--out {out}: cannot write {path}")
     return path

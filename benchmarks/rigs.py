@@ -37,6 +37,7 @@ import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import report
 from latency import camera_mb, config, free_endpoint, proc_cpu_s, proc_mem_mb, stats
 
 from tests.processes import start_stereod
@@ -73,9 +74,11 @@ def main() -> int:
     ap.add_argument(
         "--out",
         type=Path,
-        default=Path(__file__).resolve().parents[1] / "docs" / "bench" / "rigs.md",
+        default=report.DOCS_BENCH,
+        help="folder of the markdown table (default docs/bench), or a .md file",
     )
     a = ap.parse_args()
+    a.out = report.table_path(ap, a.out, "rigs.md")
     width, height = (int(v) for v in a.size.split("x"))
     names = [f"rig{k}" for k in range(a.rigs)]
     endpoints = [free_endpoint() for _ in names]

@@ -16,6 +16,7 @@ Usage: ``python benchmarks/size_noise.py``.
 
 from __future__ import annotations
 
+import argparse
 import itertools
 import math
 import sys
@@ -57,6 +58,7 @@ def samples(case: acc.Case) -> list[float]:
 
 
 def main() -> None:
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     print(f"SIZE_NOISE = {skew.SIZE_NOISE}")
     print("mode                 pairs   sd(k)   95th pct |k|   max |k|")
     for mode in acc.MODES:

@@ -112,6 +112,46 @@ def test_the_link_check_finds_a_broken_link(tmp_path: Path) -> None:
     assert relative_links(text) == ["missing.md", "img/none.png", "here.md"]
 
 
+SOURCE_PATH = re.compile(
+    r"`((?:stereod|fakes|drivers|benchmarks|tests|systemd|udev|foxglove)/[\w./-]+"
+    r"\.(?:py|md|toml|json|service|rules|sh))`"
+)
+"""A file of the repository named in code quotes (``stereod/daemon/memory.py``)."""
+
+
+def test_the_pages_name_source_files_that_exist() -> None:
+    """Every file of the repository a page names in code quotes is there (modules moved into
+    packages left ``stereod/memory.py`` behind in the pages once)."""
+    named = [(page, m.group(1)) for page in pages() for m in SOURCE_PATH.finditer(page.read_text())]
+    missing = [
+        f"{page.relative_to(ROOT)}: {path}" for page, path in named if not (ROOT / path).exists()
+    ]
+    assert not missing, missing
+    assert len(named) > 20
+    assert SOURCE_PATH.findall("see `stereod/memory.py` and `stereod/rooms/lab/objects`") == [
+        "stereod/memory.py"
+    ]
+
+
+def test_the_layout_names_folders_that_exist() -> None:
+    """The development page's layout of the repository names only folders that are there."""
+    text = (DOCS / "development.md").read_text()
+    block = text[text.index("## Layout of the repository") :].split("```")[1]
+    folders = re.findall(r"^ *([\w/]+/) ", block, re.M)
+    parents: dict[int, str] = {}
+    missing = []
+    for line in block.splitlines():
+        m = re.match(r"^( *)([\w]+/)(?: |$)", line)
+        if not m:
+            continue
+        depth = len(m.group(1)) // 2
+        path = parents.get(depth - 1, "") + m.group(2) if depth else m.group(2)
+        parents[depth] = path
+        if not (ROOT / path).is_dir():
+            missing.append(path)
+    assert len(folders) > 10 and not missing, missing
+
+
 def test_the_cli_reference_has_every_command() -> None:
     page = gen_ref().cli_page()
     installed = {ep.name for ep in entry_points(group="stereod.commands")}

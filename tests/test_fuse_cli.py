@@ -165,10 +165,17 @@ def test_a_bad_room_file_is_one_line_and_exit_78(tmp_path: Path) -> None:
 
 def test_a_node_that_heard_from_no_rig_says_how_to_connect_them(tmp_path: Path) -> None:
     """A node on its own (no rig's daemon connected to it) ends on SIGTERM with exit 0, its
-    count of nothing, and one line naming the room's rigs and how to connect them."""
+    count of nothing, and one line naming the room's rigs and how to connect them; its
+    outputs, with nothing to hold, leave a previous run's files as they were."""
     room = tmp_path / "room.toml"
     room.write_text(ROOM)
-    fuse = start_stereod("fuse", "--room", str(room), "--listen", free_endpoint())
+    jsonl, mcap = tmp_path / "room.jsonl", tmp_path / "room.mcap"
+    jsonl.write_text("earlier\n")
+    mcap.write_text("earlier\n")
+    fuse = start_stereod(
+        "fuse", "--room", str(room), "--listen", free_endpoint(), "--jsonl", str(jsonl),
+        "--mcap", str(mcap),
+    )  # fmt: skip
     assert fuse.stderr is not None
     for line in fuse.stderr:  # until its subscriptions are up
         if "fusing 3 rigs" in line:
@@ -179,6 +186,8 @@ def test_a_node_that_heard_from_no_rig_says_how_to_connect_them(tmp_path: Path) 
     assert out.startswith("0 room messages (0 fusion steps) from 0 rig messages")
     (said,) = [line for line in err.splitlines() if "no message came" in line]
     assert "(a, b, c)" in said and "--connect / --listen" in said
+    assert f"no room message: {jsonl} and {mcap} not written" in out
+    assert jsonl.read_text() == "earlier\n" and mcap.read_text() == "earlier\n"
 
 
 def test_a_rig_whose_clock_reads_after_2038_leaves_the_mcap_but_not_the_node(

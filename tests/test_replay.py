@@ -542,3 +542,34 @@ def test_a_named_pipe_whose_reader_dies_is_an_error(rec: Path, tmp_path: Path) -
     reader.join()
     assert res.returncode == 73, res.stderr
     assert res.stderr == f"stereod: {fifo}: its reader closed it\n"
+
+
+def test_a_loop_stopped_before_its_first_pair_leaves_both_outputs_as_they_were(
+    tmp_path: Path,
+) -> None:
+    """A looping replay waiting for a subscriber, stopped before any pair, writes neither
+    output: a previous run's JSONL and MCAP stay whole (the JSONL used to be emptied while
+    the MCAP was kept), and the summary says both were not written."""
+    from .conftest import free_endpoint
+    from .sockets import process_sockets
+
+    rec = tmp_path / "rec"
+    lossless_recording(rec, n=4)
+    jsonl, mcap = tmp_path / "run.jsonl", tmp_path / "run.mcap"
+    jsonl.write_text("earlier\n")
+    mcap.write_text("earlier\n")
+    endpoint = free_endpoint()
+    port = int(endpoint.rsplit(":", 1)[1])
+    proc = start_stereod(
+        "replay", str(rec), "--loop", "--wait-subscriber", "60", "--listen", endpoint,
+        "--jsonl", str(jsonl), "--mcap", str(mcap),
+    )  # fmt: skip
+    deadline = time.monotonic() + 30
+    while not any(s.listening and s.port == port for s in process_sockets(proc.pid)):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.05)
+    time.sleep(0.3)  # its signal handlers are set before the session opens
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert jsonl.read_text() == "earlier\n" and mcap.read_text() == "earlier\n", (out, err)
+    assert f"no pair was processed: {jsonl} and {mcap} not written" in out + err

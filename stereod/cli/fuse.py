@@ -359,16 +359,20 @@ def run(a: argparse.Namespace) -> int:
                 status_pub.undeclare()
             if node.error is not None:
                 raise node.error
-            if jsonl is not None:
-                jsonl.commit()
-            if mcap is not None:
-                mcap.close()
-            committed = True
+            if node.room_messages:
+                if jsonl is not None:
+                    jsonl.commit()
+                if mcap is not None:
+                    mcap.close()
+                committed = True
             say(
                 f"{node.room_messages} room messages ({node.steps} fusion steps) from "
                 f"{sum(node.received.values())} rig messages; "
                 f"{len(fuser.restarts)} rig restarts seen"
             )
+            unwritten = [str(p) for p in (a.jsonl, a.mcap) if p is not None]
+            if not committed and unwritten:  # a file from an earlier run stays as it was
+                say(f"no room message: {' and '.join(unwritten)} not written")
             if not any(node.received.values()):
                 print(NOTHING_RECEIVED.format(rigs=", ".join(r.name for r in room.rigs)),
                       file=sys.stderr)  # fmt: skip

@@ -275,11 +275,12 @@ def run(a: argparse.Namespace) -> int:
         if mcap is not None:
             mcap.abort()
         raise
-    if mcap is None:
-        return code
-    summary = mcap.commit()
-    if not a.quiet:
-        say(summary.line() if summary else f"no pair was processed: {a.mcap} not written")
+    unwritten = [str(p) for p in _replaced_files(a)] if not daemon.summary.pairs else []
+    summary = mcap.commit() if mcap is not None else None
+    if unwritten and not a.quiet:  # (a file from an earlier run stays as it was)
+        say(f"no pair was processed: {' and '.join(unwritten)} not written")
+    elif summary is not None and not a.quiet:
+        say(summary.line())
     return code
 
 

@@ -240,7 +240,9 @@ class Daemon:
                 self._settled = True
                 failed = self._fatal is not None
             if jsonl is not None:
-                if failed:  # a failed run never replaces what the file held before
+                # A failed run never replaces what the file held before, nor one that wrote
+                # no message (stopped before its first pair).
+                if failed or (not jsonl.in_place and jsonl.tell() == 0):
                     jsonl.discard()
                 else:
                     jsonl.commit()
