@@ -13,7 +13,7 @@ import zenoh
 from stereod.bus.publish import Publisher, open_session, session_config
 from stereod.client import wait_alive
 from stereod.daemon.config import ZenohConfig
-from stereod.errors import UnavailableError
+from stereod.errors import ConfigError, UnavailableError
 
 
 def test_objects_tracks_deletes_and_failing_queryable(
@@ -165,3 +165,28 @@ def test_an_endpoint_another_process_listens_on_is_unavailable_not_a_config_erro
     with pytest.raises(UnavailableError, match="another process listens there") as err:
         open_session(ZenohConfig(listen=[endpoint]))
     assert err.value.exit_code == 69
+
+
+@pytest.mark.parametrize(
+    ("text", "said"),
+    [
+        ('{ connect: { endpoints: ["tcp/127.0.0.1:notaport"] } }', "connect.endpoints"),
+        ('{ listen: { endpoints: ["tcp/[::1"] } }', "listen.endpoints 'tcp/[::1'"),
+        ('{ listen: { endpoints: { router: ["foo/1.2.3.4:1"], peer: [] } } }', "unknown protocol"),
+        ('{ connect: { endpoints: ["tcp/127.0.0.1"] } }', "tcp/127.0.0.1"),
+    ],
+)
+def test_an_endpoint_in_a_zenoh_file_is_checked_as_one_in_our_settings(
+    tmp_path: Path, text: str, said: str
+) -> None:
+    """A malformed endpoint in the Zenoh file (a list, or one per mode) is a ConfigError naming
+    the file and the endpoint, as `run --check` reports it; it used to pass, then never
+    connect or fail to open without saying where."""
+    own = tmp_path / "zenoh.json5"
+    own.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        session_config(ZenohConfig(config_file=own))
+    assert str(own) in str(err.value) and said in str(err.value)
+    own.write_text('{ connect: { endpoints: ["tcp/127.0.0.1:7447"] }, listen: { endpoints: '
+                   '{ router: ["tcp/[::1]:7447"], peer: ["udp/127.0.0.1:0"] } } }')  # fmt: skip
+    session_config(ZenohConfig(config_file=own))

@@ -23,6 +23,7 @@ from typing import Any
 import zenoh
 
 from stereod.bus import keys
+from stereod.bus.endpoints import check_endpoint
 from stereod.bus.messages import OBJECT_SCHEMA, OBJECTS_SCHEMA, STATUS_SCHEMA, encoding_for
 from stereod.daemon.config_zenoh import ZenohConfig
 from stereod.errors import ConfigError, MissingInputError, UnavailableError
@@ -90,6 +91,22 @@ def _zenoh_default(key: str) -> str:
     return str(zenoh.Config().get_json(key))
 
 
+def _check_file_endpoints(zc: zenoh.Config, path: Path) -> None:
+    """Refuse a malformed endpoint in a Zenoh file's ``connect`` or ``listen`` as the same
+    endpoint is refused in stereod's own settings (Zenoh takes ``tcp/host:notaport`` and then
+    never connects, or fails to open naming neither the file nor the endpoint)."""
+    for section in ("connect", "listen"):
+        given = json.loads(zc.get_json(f"{section}/endpoints"))
+        lists = given.values() if isinstance(given, dict) else [given]  # per mode, or one list
+        for endpoint in (e for listed in lists for e in (listed or [])):
+            try:
+                check_endpoint(str(endpoint))
+            except ValueError as exc:
+                raise ConfigError(
+                    f"{shown(path)}: {section}.endpoints {endpoint!r}: {exc} (zenoh.config_file)"
+                ) from None
+
+
 def session_config(cfg: ZenohConfig, *, consumer: bool = False) -> zenoh.Config:
     """A Zenoh config from ours. Without ``config_file``: mode, endpoints, and no multicast
     scouting unless asked. With it, the file (Zenoh's own JSON5: TLS, access control, ...) is
@@ -111,6 +128,7 @@ def session_config(cfg: ZenohConfig, *, consumer: bool = False) -> zenoh.Config:
                 f"{cfg.config_file}: invalid Zenoh config file: {zenoh_reason(exc)} "
                 "(zenoh.config_file)"
             ) from exc
+        _check_file_endpoints(zc, cfg.config_file)
     else:
         zc = zenoh.Config()
     settings: list[tuple[str, str, object]] = []
