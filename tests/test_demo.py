@@ -19,6 +19,7 @@ from stereod.tracking.motion import angle_diff_deg
 from stereod.view.demo import (
     DEMO_PORT,
     DemoBall,
+    demo_config,
     free_tcp_port,
     listening_session,
     run_demo,
@@ -202,3 +203,16 @@ def test_demo_view_on_a_port_in_use_names_its_own_flag(tmp_path: Path) -> None:
     assert "pick another port with --view-port, or --view-port 0" in lines[0]
     assert "with --port" not in lines[0]
     assert not list(tmp_path.glob("stereod-demo-*"))
+
+
+def test_the_demo_s_config_queryable_names_the_replay_it_runs(tmp_path: Path) -> None:
+    """The configuration the demo's daemon runs and reports on its ``config`` key is the
+    replay of its scene (it reported the camera driver of the defaults, with no options, while
+    its status said replay)."""
+    from stereod.daemon.redact import public_config
+
+    cfg = demo_config("tcp/127.0.0.1:17447", tmp_path / "scene")
+    public = public_config(cfg)
+    assert public["driver"]["name"] == "replay"
+    assert public["driver"]["options"]["path"] == "scene"  # a path reduced to its name
+    assert public["zenoh"]["listen"] == ["tcp/127.0.0.1:17447"]

@@ -50,3 +50,25 @@ def test_every_rig_message_s_added_latency_is_counted_in_the_status_histogram() 
     assert sum(between) == 2
     assert between[EDGES_MS.index(40.0)] == 1 and between[EDGES_MS.index(200.0)] == 1
     assert quantile_ms(between, 0.5) <= 40.0 < quantile_ms(between, 0.99) <= 200.0
+
+
+def test_a_rig_silent_past_the_rig_timeout_is_not_live_though_no_stamp_moves_on() -> None:
+    """Both rigs of a room fall silent: no newer stamp comes to make them stale, yet each is
+    not live once its last message is older than the rig timeout by the node's clock, and the
+    status says which and for how long (they stayed live for ever)."""
+    from stereod.bus.messages import dump_objects
+    from stereod.fusion.wire import decode
+    from stereod_fakes.room_messages import RigSim, Walker
+
+    node = _node(20.0)
+    t0 = time.time_ns()
+    walker = [Walker(1, (0.3, 0.0, 3.0), (0.2, 0.0, 0.0), t0)]
+    now = time.monotonic()
+    for name, age_s in (("a", 0.0), ("b", 5.0)):
+        payload, _ = dump_objects(RigSim(RigPose(name=name), seed=1).message(walker, t0))
+        node.fuser.ingest_wire(decode(payload))
+        node._count([(now - age_s, f"stereod/{name}/objects", payload)])
+    status = node.status()
+    assert status.rigs["a"].live and not status.rigs["b"].live
+    (said,) = [p for p in status.problems if "no message for" in p]
+    assert said.startswith("rig b: no message for 5.0 s") and "1 s" in said

@@ -118,6 +118,9 @@ class FuseNode:
         self.added_hist = LatencyHistogram()
         """Every rig message's added latency since start, in bins (for the status)."""
         self._steps_at = (self.start, 0)
+        self.heard_at: dict[str, float] = {}
+        """Each rig's last message's arrival (monotonic s): a rig silent past the fuser's
+        ``rig_timeout_s`` is not live, even while no other rig's stamp moves on."""
         self._rig_of: dict[str, str] = {}
         self._states: dict[int, bytes] = {}
         """Each live room track's object JSON, as last written (by id)."""
@@ -228,13 +231,14 @@ class FuseNode:
 
     def _count(self, batch: list[tuple[float, str, bytes]]) -> None:
         with self.lock:
-            for _, key, _ in batch:
+            for rx, key, _ in batch:
                 rig = self._rig_of.get(key)
                 if rig is None:
                     parsed = keys.parse(key, prefix=self.prefix)
                     rig = self._rig_of[key] = parsed[0] if parsed else ""
                 if rig in self.received:
                     self.received[rig] += 1
+                    self.heard_at[rig] = max(self.heard_at.get(rig, 0.0), rx)
 
     def room_next(self) -> Room:
         """The room the next step fuses: one read again and not yet taken, else the running
@@ -313,8 +317,11 @@ class FuseNode:
         now = time.monotonic()
         latest = self.fuser.latest_ns()
         live = set(self.fuser.live_rigs(latest)) if latest is not None else set()
+        timeout_s = self.fuser.params.rig_timeout_s
         rigs = {}
         with self.lock:
+            silent = {r: now - t for r, t in self.heard_at.items() if now - t > timeout_s}
+            live -= set(silent)
             for r in self.room.rigs:
                 est = self.clock.estimate(r.name)
                 rigs[r.name] = RigLink(
@@ -346,6 +353,12 @@ class FuseNode:
             if link.clock_off and link.clock_offset_ms is not None
         ]
         problems += [f"rig {n}: no message yet" for n, link in rigs.items() if not link.messages]
+        problems += [
+            f"rig {n}: no message for {s:.1f} s (over the rig timeout, {timeout_s:g} s): is "
+            "its daemon running and connected?"
+            for n, s in silent.items()
+            if n in rigs
+        ]
         if self.reload_problem is not None:
             problems.append(self.reload_problem)
         if dropped:

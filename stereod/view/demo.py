@@ -31,7 +31,7 @@ from stereod.bus.subscribe import format_object
 from stereod.cli.interrupt import wait_until
 from stereod.cli.signals import relayed
 from stereod.client import Event, ObjectsMessage, subscribe_objects
-from stereod.daemon.config import ZenohConfig, load_config
+from stereod.daemon.config import StereodConfig, ZenohConfig, load_config
 from stereod.daemon.daemon import Daemon
 from stereod.errors import UnavailableError
 from stereod.sources.drivers import load_driver
@@ -101,6 +101,14 @@ class DemoBall:
         }
 
 
+def demo_config(endpoint: str, recording: Path) -> StereodConfig:
+    """The demo daemon's configuration: the replay of ``recording``, listening on
+    ``endpoint``, the rest as the environment and defaults say (what its ``config``
+    queryable reports: the replay, not the camera driver the defaults name)."""
+    source = {"name": "replay", "options": {"path": str(recording)}}
+    return load_config(overrides={"zenoh": {"listen": [endpoint]}, "driver": source})
+
+
 def run_demo(
     *,
     rate: float = 1.0,
@@ -126,7 +134,7 @@ def run_demo(
             zenoh_cfg = load_config().zenoh  # the STEREOD_ZENOH__* variables hold here too
             listening = stack.enter_context(listening_session(base=zenoh_cfg))
             endpoint = listening.endpoint
-            cfg = load_config(overrides={"zenoh": {"listen": [endpoint]}})
+            cfg = demo_config(endpoint, out)
             received: list[ObjectsMessage] = []
             lock = threading.Lock()
             closed: list[BrokenPipeError] = []
@@ -147,7 +155,7 @@ def run_demo(
 
             daemon = Daemon(
                 cfg,
-                load_driver("replay", {"path": out}),
+                load_driver(cfg.driver.name, cfg.driver.options),  # as config queries say
                 rate=rate,
                 wait_subscriber_s=10.0,
                 session=listening.session,
