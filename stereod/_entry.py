@@ -8,14 +8,22 @@ from __future__ import annotations
 import signal
 import sys
 
+HANGUPS: list[int] = []
+"""SIGHUPs that came before the command was known (see :func:`main`)."""
+
+
+def _remember(signum: int, _frame: object) -> None:
+    HANGUPS.append(signum)
+
 
 def main() -> int:
-    """Run the ``stereod`` command: exit 130 on a Ctrl-C during its imports. SIGHUP is ignored
-    until the command is known: the daemon (``run``) then handles it as a reload once it has
-    read its configuration, any other command ends on it as on SIGTERM (see
-    :func:`stereod.cli.one_shot_signals`)."""
+    """Run the ``stereod`` command: exit 130 on a Ctrl-C during its imports. A SIGHUP is only
+    remembered until the command is known: a daemon (``run``, ``fuse``) then handles the next
+    as a reload once it has read its files (one before that asked for nothing they would not
+    read anyway), any other command ends on it as on SIGTERM, at once if it came during
+    start-up (see :func:`stereod.cli.one_shot_signals`)."""
     if hasattr(signal, "SIGHUP"):
-        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+        signal.signal(signal.SIGHUP, _remember)
     try:
         from stereod.cli import main as command
     except KeyboardInterrupt:
@@ -23,5 +31,6 @@ def main() -> int:
     return command()
 
 
-if __name__ == "__main__":
+if __name__ == "__main__":  # (python -m stereod._entry): one module, so one HANGUPS
+    sys.modules.setdefault("stereod._entry", sys.modules[__name__])
     sys.exit(main())

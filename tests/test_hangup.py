@@ -35,16 +35,23 @@ def parts(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.name.endswith(".part"))
 
 
-def hang_up_when(proc: subprocess.Popen, started: Callable[[], bool]) -> tuple[int, str]:
-    """Send SIGHUP once ``started()`` (the command is writing its output), then wait for the
-    process; its exit code and stderr. The wait for the start is bounded only so that a
-    broken command fails the test instead of hanging it."""
+def hang_up_when(
+    proc: subprocess.Popen, started: Callable[[], bool], then: signal.Signals | None = None
+) -> tuple[int, str]:
+    """Send SIGHUP once ``started()`` (the command is writing its output), and ``then`` a
+    second later if given, then wait for the process; its exit code and stderr. The wait for
+    the start is bounded only so that a broken command fails the test instead of hanging
+    it."""
     deadline = time.monotonic() + 120
     while not started():
         assert proc.poll() is None, f"ended before the signal: {proc.communicate()}"
         assert time.monotonic() < deadline, "the command never started writing"
-        time.sleep(0.05)
+        time.sleep(0.01)
     proc.send_signal(signal.SIGHUP)
+    if then is not None:
+        time.sleep(1.0)
+        assert proc.poll() is None, f"ended on the SIGHUP: {proc.communicate()}"
+        proc.send_signal(then)
     _, err = proc.communicate(timeout=120)
     return proc.returncode, err
 
@@ -125,3 +132,40 @@ def test_looping_replay_ends_normally(long_recording: Path, tmp_path: Path) -> N
     assert code == 0, err
     assert jsonl.exists()
     assert parts(tmp_path) == []
+
+
+def catches_sighup(pid: int) -> bool:
+    """Whether process ``pid`` has a handler of its own for SIGHUP (bit 1 of SigCgt)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) & 1 << (signal.SIGHUP - 1))
+    return False
+
+
+def test_a_hang_up_during_start_up_ends_a_one_shot_command_before_it_writes(
+    long_recording: Path, tmp_path: Path
+) -> None:
+    """SIGHUP while the command is still importing (its entry point remembers it, nothing
+    else can act yet) ends the command as interrupted as soon as it knows what it is, its
+    output untouched (it used to be ignored: the replay ran to its end and replaced the
+    file)."""
+    out = tmp_path / "run.jsonl"
+    out.write_text("the previous run\n")
+    proc = start_stereod("replay", str(long_recording), "-q", "--jsonl", str(out), cwd=tmp_path)
+    code, err = hang_up_when(proc, lambda: catches_sighup(proc.pid))
+    assert code == 129, err
+    assert "replay interrupted by SIGHUP" in err
+    assert out.read_text() == "the previous run\n" and parts(tmp_path) == []
+
+
+def test_a_hang_up_during_start_up_leaves_the_fusion_node_running(tmp_path: Path) -> None:
+    """The fusion node reloads on SIGHUP; one during its start-up asks for nothing it will not
+    read anyway, and it runs on (it used to end with 129), to end normally on SIGTERM."""
+    from .conftest import free_endpoint
+    from .fuse_procs import ROOM
+
+    room = tmp_path / "room.toml"
+    room.write_text(ROOM)
+    proc = start_stereod("fuse", "--room", str(room), "--listen", free_endpoint())
+    code, err = hang_up_when(proc, lambda: catches_sighup(proc.pid), then=signal.SIGTERM)
+    assert code == 0, err

@@ -188,6 +188,11 @@ def one_shot_signals(command: str) -> None:
     if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
         signal.signal(signal.SIGTERM, on_term)
     signal.signal(signal.SIGHUP, on_hup)
+    from stereod._entry import HANGUPS
+
+    if HANGUPS:  # a hang-up during start-up: the command ends before it does anything
+        HANGUPS.clear()
+        on_hup(signal.SIGHUP, None)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -212,6 +217,8 @@ def _main(argv: Sequence[str] | None) -> int:
         args = build_parser().parse_args(argv)
         if not getattr(args, "reloads_on_sighup", False):
             one_shot_signals(args.command)
+        else:  # its reload handler comes with its files; until then, one is ignored
+            signal.signal(signal.SIGHUP, signal.SIG_IGN)
         code: int = args.func(args)
         if sys.stdout is not None:  # what is still buffered fails here, not at the exit
             sys.stdout.flush()

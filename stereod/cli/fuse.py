@@ -142,7 +142,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="the least severe log lines written to stderr (default INFO)",
     )
     add_zenoh(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, reloads_on_sighup=True)  # its handler comes with the room
 
 
 NOTHING_RECEIVED = (
