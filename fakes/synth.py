@@ -481,3 +481,6 @@ class SyntheticDriver(Driver):
 
     def open(self) -> StereoSource:
         return _SynthSource(self.scene, self.flags)
+
+    def frame_size(self) -> tuple[int, int]:
+        return self.scene.width_px, self.scene.height_px

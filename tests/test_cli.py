@@ -722,3 +722,34 @@ def test_run_with_a_file_source_ends_with_its_summary(tmp_path: Path) -> None:
         r"observations in [\d.]+ s; drops: none\n",
         res.stdout,
     ), res.stdout
+
+
+@pytest.mark.parametrize(
+    "driver",
+    [
+        '[driver]\nname = "synthetic"\n[driver.options]\nwidth_px = 320\nheight_px = 240\n',
+        '[driver]\nname = "v4l2_minoru"\n[driver.options]\nwidth = 320\nheight = 240\n',
+    ],
+    ids=["synthetic", "v4l2_minoru"],
+)
+def test_run_check_holds_the_calibration_against_the_frames_asked_for(
+    tmp_path: Path, driver: str
+) -> None:
+    """A calibration made for 640x480 beside a driver asked for 320x240 fails ``run --check``
+    as it fails the run (it passed the check, then the run exited 78); one of the asked size
+    passes."""
+    from stereod.vision.calibration import canonical, save
+
+    save(canonical(0.06, 60.0, 640, 480), tmp_path / "big.json")
+    save(canonical(0.06, 60.0, 320, 240), tmp_path / "small.json")
+    for cal, code in (("big", 78), ("small", 0)):
+        cfg = tmp_path / f"{cal}.toml"
+        cfg.write_text(f'[rig]\ncalibration = "{tmp_path / cal}.json"\n{driver}')
+        res = stereod("run", "--config", str(cfg), "--check")
+        assert res.returncode == code, res.stderr
+    one_line_error(
+        stereod("run", "--config", str(tmp_path / "big.toml"), "--check"),
+        78,
+        "made for 640x480 frames, the stream is 320x240: calibrate at this size or change "
+        f"the camera mode; it is rig.calibration in {tmp_path / 'big.toml'}",
+    )

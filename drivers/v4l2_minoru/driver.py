@@ -341,6 +341,10 @@ class MinoruDriver(Driver):
             _control_id(name)
         self.io = io
 
+    def frame_size(self) -> tuple[int, int]:
+        """The mode asked for (a Minoru streams its modes at the size asked)."""
+        return self.options.width, self.options.height
+
     def _paths(self) -> tuple[str, str]:
         o = self.options
         found = {}

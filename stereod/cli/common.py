@@ -305,13 +305,19 @@ def load_checked(path: Path | None, overrides: dict[str, Any]) -> tuple[Any, Any
         name_origin=origin(("driver", "name"), path, overrides),
     )
     session_config(cfg.zenoh)
-    check_calibration(cfg, path, overrides)
+    check_calibration(cfg, path, overrides, driver.frame_size())
     return cfg, driver
 
 
-def check_calibration(cfg: Any, path: Path | None, overrides: dict[str, Any]) -> None:
+def check_calibration(
+    cfg: Any,
+    path: Path | None,
+    overrides: dict[str, Any],
+    frame_size: tuple[int, int] | None = None,
+) -> None:
     """Read the calibration file a configuration ``cfg`` (from ``path`` and ``overrides``)
-    names, if any; its error says which setting named it, for the user to change. A
+    names, if any, made for ``frame_size`` (width, height px) where the driver's options say
+    it; its error says which setting named it, for the user to change. A
     calibration's own baseline and field of view stand: ``--baseline`` or ``--hfov`` beside
     one (given by the flag or by the config) is refused (they were silently ignored)."""
     from stereod.files.config_input import origin
@@ -324,7 +330,7 @@ def check_calibration(cfg: Any, path: Path | None, overrides: dict[str, Any]) ->
     rig = overrides.get("rig") or {}
     refuse_rig_flags(named, cfg.rig.calibration, rig.get("baseline_m"), rig.get("hfov_deg"))
     try:
-        load_calibration(cfg.rig.calibration)
+        load_calibration(cfg.rig.calibration, frame_size)
     except StereodError as exc:
         raise type(exc)(f"{exc}; it is {named}") from exc
 

@@ -253,3 +253,9 @@ class Driver(ABC):
         recording folder, videos, timestamp CSVs, device nodes), so that no output of the
         command is one of them; empty for a source that reads no file."""
         return []
+
+    def frame_size(self) -> tuple[int, int] | None:
+        """The (width, height) px of the frames the options ask for, known before the source
+        is opened (so that ``run --check`` can hold a calibration against it); None when only
+        the opened source knows."""
+        return None
