@@ -100,15 +100,30 @@ def test_ctrl_c_while_the_demo_plays_stops_it_cleanly(tmp_path: Path) -> None:
 
 
 def test_sigterm_while_the_view_waits_for_a_page_removes_the_scene(tmp_path: Path) -> None:
-    """``timeout`` or ``kill`` while ``demo --view`` waits for a page: the demo ends as on
-    Ctrl-C (exit 130, no traceback) and its scene's temporary folder is gone."""
-    _stopped_cleanly(tmp_path, ["--view", "--view-port", "0"], "view: open", signal.SIGTERM)
+    """``timeout`` or ``kill`` while ``demo --view`` waits for a page: the demo ends as
+    interrupted (exit 143, its line, no traceback) and its scene's temporary folder is gone."""
+    err = _stopped_cleanly(
+        tmp_path, ["--view", "--view-port", "0"], "view: open", signal.SIGTERM, 143
+    )
+    assert err.splitlines() == ["stereod: demo interrupted by SIGTERM"]
 
 
-def _stopped_cleanly(tmp_path: Path, flags: list[str], until: str, sig: signal.Signals) -> None:
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGTERM, 143), (signal.SIGHUP, 129)])
+def test_sigterm_or_sighup_while_the_demo_plays_ends_it_as_interrupted(
+    tmp_path: Path, sig: signal.Signals, code: int
+) -> None:
+    """SIGTERM or SIGHUP mid-scene stops the daemon cleanly and exits 128 plus the signal,
+    with one line naming it (it exited 130, as on Ctrl-C, and said nothing)."""
+    err = _stopped_cleanly(tmp_path, ["--rate", "1"], "t ", sig, code)
+    assert err.splitlines() == [f"stereod: demo interrupted by {sig.name}"]
+
+
+def _stopped_cleanly(
+    tmp_path: Path, flags: list[str], until: str, sig: signal.Signals, code: int = 130
+) -> str:
     """Start ``stereod demo`` with ``flags`` (its temporary folder under ``tmp_path``), send
-    ``sig`` once a line starts with ``until``, and check it ended as on Ctrl-C: exit 130, no
-    traceback, its scene's folder gone."""
+    ``sig`` once a line starts with ``until``, and check it ended cleanly: exit ``code``, no
+    traceback, its scene's folder gone; its stderr."""
     proc = start_stereod("demo", *flags, env={"TMPDIR": str(tmp_path)})
     assert proc.stdout is not None
     try:
@@ -123,9 +138,10 @@ def _stopped_cleanly(tmp_path: Path, flags: list[str], until: str, sig: signal.S
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
-    assert proc.returncode == 130, err
+    assert proc.returncode == code, err
     assert "Traceback" not in err
     assert not list(tmp_path.glob("stereod-demo-*"))
+    return err
 
 
 def test_a_reader_that_stops_reading_ends_the_demo_quietly() -> None:

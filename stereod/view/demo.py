@@ -33,7 +33,8 @@ from stereod.cli.signals import relayed
 from stereod.client import Event, ObjectsMessage, subscribe_objects
 from stereod.daemon.config import StereodConfig, ZenohConfig, load_config
 from stereod.daemon.daemon import Daemon
-from stereod.errors import UnavailableError
+from stereod.errors import Interrupted, UnavailableError
+from stereod.files.output_file import signal_name
 from stereod.sources.drivers import load_driver
 from stereod.sources.record import record
 from stereod.tracking.motion import angle_diff_deg, circular_median_deg
@@ -184,11 +185,14 @@ def run_demo(
             stack.enter_context(
                 subscribe_objects(session, on_event, rig=cfg.rig.name, prefix=cfg.zenoh.prefix)
             )
-            interrupted = threading.Event()
-            with _stopping_on_signals(daemon, interrupted):
+            stopped_by: list[int] = []
+            with _stopping_on_signals(daemon, stopped_by):
                 summary = daemon.run()
-            if interrupted.is_set():
-                raise KeyboardInterrupt  # stopped cleanly; the caller exits 130
+            if stopped_by == [signal.SIGINT]:
+                raise KeyboardInterrupt  # Ctrl-C, stopped cleanly; the caller exits 130
+            if stopped_by:
+                name = signal_name(stopped_by[0])
+                raise Interrupted(f"demo interrupted by {name}", stopped_by[0])
             if closed:
                 raise closed[0]
             if summary.error is not None:
@@ -197,7 +201,7 @@ def run_demo(
             code = report(ball, rig, received)
             if view:
                 print(f"view: the page stays at {page.url} until Ctrl-C", flush=True)
-                with contextlib.suppress(KeyboardInterrupt):
+                with contextlib.suppress(KeyboardInterrupt, Interrupted):  # the normal end
                     wait_until(threading.Event())
     return code
 
@@ -255,26 +259,28 @@ def _handling(
 
 
 def _sigterm_as_interrupt() -> contextlib.AbstractContextManager[None]:
-    """SIGTERM (``timeout``, ``kill``) ends the demo as Ctrl-C does, so whatever it waits for
-    (a page to open, Ctrl-C at the end) the scene's temporary folder is removed."""
+    """SIGTERM (``timeout``, ``kill``) and SIGHUP end the demo as interrupted, with their own
+    line and exit code (143, 129), so whatever it waits for (a page to open, Ctrl-C at the
+    end) the scene's temporary folder is removed."""
 
-    def on_sigterm(_signum: int, _frame: object) -> None:
-        raise KeyboardInterrupt
+    def on_signal(signum: int, _frame: object) -> None:
+        raise Interrupted(f"demo interrupted by {signal_name(signum)}", signum)
 
-    return _handling((signal.SIGTERM,), on_sigterm)
+    return _handling((signal.SIGTERM, signal.SIGHUP), on_signal)
 
 
 def _stopping_on_signals(
-    daemon: Daemon, interrupted: threading.Event
+    daemon: Daemon, stopped_by: list[int]
 ) -> contextlib.AbstractContextManager[None]:
-    """While the daemon runs, Ctrl-C or SIGTERM stops it as ``stereod run`` does (its threads
-    drain and end, the scene's folder is removed) and sets ``interrupted``."""
+    """While the daemon runs, Ctrl-C, SIGTERM or SIGHUP stops it as ``stereod run`` does (its
+    threads drain and end, the scene's folder is removed), the signal kept in
+    ``stopped_by``."""
 
-    def on_signal(_signum: int) -> None:
-        interrupted.set()
+    def on_signal(signum: int) -> None:
+        stopped_by.append(signum)
         daemon.stop()
 
-    return relayed(dict.fromkeys((signal.SIGINT, signal.SIGTERM), on_signal))
+    return relayed(dict.fromkeys((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), on_signal))
 
 
 def report(ball: DemoBall, rig: CanonicalRig, received: list[ObjectsMessage]) -> int:
