@@ -31,7 +31,7 @@ from stereod.bus.messages import CanonicalGeometry, DaemonState, StatusMessage, 
 from stereod.bus.publish import Publisher
 from stereod.daemon.capture import Capture, Queued
 from stereod.daemon.config import StereodConfig
-from stereod.daemon.memory import separate_large_buffers
+from stereod.daemon.memory import release_library_pages, separate_large_buffers
 from stereod.daemon.output import Output
 from stereod.daemon.params import pipeline_params
 from stereod.daemon.processing import Outgoing, PipelineWorker
@@ -230,8 +230,10 @@ class Daemon:
                 check_outputs({"--jsonl": self.jsonl}, [*info.inputs, *self._inputs])
             params = pipeline_params(self.cfg, info.width, info.height)
             jsonl = AtomicOutput(self.jsonl) if self.jsonl is not None else None
+            pipeline = Pipeline(params)
+            release_library_pages()  # everything is loaded: keep mapped what runs from here
             try:
-                self._run(source, Pipeline(params), jsonl)
+                self._run(source, pipeline, jsonl)
             except BaseException:
                 if jsonl is not None:
                     jsonl.discard()

@@ -1,4 +1,5 @@
-"""How the C allocator places the daemon's large buffers, so that memory freed is given back.
+"""The daemon's resident memory: how the C allocator places its large buffers, so that memory
+freed is given back, and which pages of its libraries it keeps mapped.
 
 glibc's malloc maps a block of its own for an allocation at or above a threshold (128 KiB at
 first) when its heap cannot serve it, and unmaps it when freed. But each time such a block is
@@ -10,6 +11,14 @@ bytes a pixel keeps what a frame needs (a BGR frame is 3 bytes a pixel; a differ
 mask less) in the heap, reused without page faults, while everything larger (a float32
 background is 4 bytes a pixel in grey and 12 in colour, the warm-up's stack ten frames) is a
 mapping of its own that goes back to the system when freed.
+
+The libraries it loads are most of the rest (OpenCV's code alone is 30 MB, Zenoh's 15). The
+kernel maps a library's pages in runs of up to 64 KB around each page touched, where the file is
+in the page cache (fault-around): the same daemon's own RSS read 91 MB from a clone whose
+libraries the cache had mostly let go, and 118 MB from a fresh install, all of it in cache.
+:func:`release_library_pages` unmaps their pages once the daemon has started (they stay in the
+page cache: a page used again comes back as a minor fault) and turns fault-around off for them,
+so what stays mapped is what the daemon runs.
 """
 
 from __future__ import annotations
@@ -17,6 +26,7 @@ from __future__ import annotations
 import ctypes
 import logging
 import os
+import re
 
 log = logging.getLogger(__name__)
 
@@ -70,3 +80,59 @@ def separate_large_buffers(width: int, height: int) -> int | None:
         return None
     log.debug("blocks from %d bytes are mapped on their own", threshold)
     return threshold
+
+
+MADV_RANDOM = 1
+"""madvise's advice: no read-ahead, and no fault-around, for the range (<sys/mman.h>)."""
+MADV_DONTNEED = 4
+"""madvise's advice: unmap the range's pages (a file's stay in the page cache)."""
+_MAPPING = re.compile(r"^([0-9a-f]+)-([0-9a-f]+) (\S+) \S+ \S+ \S+\s*(\S.*)?$")
+
+
+def library_mappings(smaps: str) -> list[tuple[int, int, int]]:
+    """(start, end, resident kB) of each mapping of a shared library in ``smaps`` (the text
+    of ``/proc/<pid>/smaps``) whose pages are all the file's: not writable, and holding no
+    private copy (a relocated read-only segment does; unmapping it would lose the
+    relocations)."""
+    out: list[tuple[int, int, int]] = []
+    current: list[int] | None = None
+    for line in smaps.splitlines():
+        m = _MAPPING.match(line)
+        if m:
+            path, perms = m.group(4) or "", m.group(3)
+            library = path.startswith("/") and ".so" in path.rsplit("/", 1)[-1]
+            current = [int(m.group(1), 16), int(m.group(2), 16), 0, 0]
+            if library and "w" not in perms:
+                out.append((current[0], current[1], 0))
+                current[3] = len(out)
+            continue
+        if current is None or not current[3]:
+            continue
+        key, _, value = line.partition(":")
+        if key == "Rss":
+            start, end, _ = out[current[3] - 1]
+            out[current[3] - 1] = (start, end, int(value.split()[0]))
+        elif key == "Anonymous" and int(value.split()[0]):
+            out[current[3] - 1] = (0, 0, 0)  # a private copy in it: left alone
+    return [m for m in out if m[1] > m[0]]
+
+
+def release_library_pages() -> int:
+    """Unmap the pages of the shared libraries mapped now, and turn fault-around off for
+    them (module docstring); the kB unmapped (their resident size before), 0 where
+    ``/proc/self/smaps`` or madvise is not there (not Linux)."""
+    try:
+        with open("/proc/self/smaps", encoding="ascii", errors="replace") as fh:
+            mappings = library_mappings(fh.read())
+        madvise = ctypes.CDLL(None, use_errno=True).madvise
+    except (OSError, AttributeError):
+        return 0
+    madvise.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int)
+    madvise.restype = ctypes.c_int
+    released = 0
+    for start, end, rss_kb in mappings:
+        random = madvise(start, end - start, MADV_RANDOM) == 0
+        if random and madvise(start, end - start, MADV_DONTNEED) == 0:
+            released += rss_kb
+    log.debug("library pages unmapped: %d kB", released)
+    return released
