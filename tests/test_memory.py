@@ -101,3 +101,71 @@ def test_an_environment_that_tunes_malloc_is_left_alone(
 def test_a_frame_size_must_be_positive() -> None:
     with pytest.raises(ValueError, match="frame size must be positive, got 0x480"):
         separate_large_buffers(0, 480)
+
+
+SMAPS = """\
+7f0000000000-7f0000100000 r-xp 00000000 08:01 11 /venv/cv2/cv2.abi3.so
+Rss:                 800 kB
+Anonymous:             0 kB
+7f0000100000-7f0000110000 r--p 00100000 08:01 11 /venv/cv2/cv2.abi3.so
+Rss:                  64 kB
+Anonymous:            64 kB
+7f0000110000-7f0000120000 rw-p 00110000 08:01 11 /venv/cv2/cv2.abi3.so
+Rss:                  64 kB
+Anonymous:            64 kB
+7f0000200000-7f0000300000 r--p 00000000 08:01 12 /usr/lib/libc.so.6
+Rss:                 120 kB
+Anonymous:             0 kB
+7f0000300000-7f0000400000 r--p 00000000 08:01 13 /usr/share/locale/archive
+Rss:                 500 kB
+Anonymous:             0 kB
+7f0000400000-7f0000500000 rw-p 00000000 00:00 0 [heap]
+Rss:                1000 kB
+Anonymous:          1000 kB
+"""
+
+
+def test_only_library_pages_that_are_all_the_file_s_are_released() -> None:
+    """A library's code and read-only data are taken; its relocated read-only segment (a
+    private copy: unmapping it would lose the relocations), its writable data, other files
+    and anonymous memory are not."""
+    from stereod.daemon.memory import library_mappings
+
+    assert library_mappings(SMAPS) == [
+        (0x7F0000000000, 0x7F0000100000, 800),
+        (0x7F0000200000, 0x7F0000300000, 120),
+    ]
+
+
+RELEASE_CHILD = """
+import numpy as np, cv2
+from stereod.daemon.memory import library_mappings, release_library_pages
+def libraries_kb():
+    return sum(kb for _, _, kb in library_mappings(open("/proc/self/smaps").read()))
+rng = np.random.default_rng(1)
+img = rng.integers(0, 255, (240, 320, 3), np.uint8)
+def work():
+    grey = cv2.cvtColor(cv2.GaussianBlur(img, (5, 5), 0), cv2.COLOR_BGR2GRAY)
+    return cv2.findContours(cv2.threshold(grey, 128, 255, 0)[1], 0, 2)[0]
+before = work()
+mapped = libraries_kb()
+released = release_library_pages()
+after = work()
+same = len(before) == len(after) and all((a == b).all() for a, b in zip(before, after))
+print(mapped, released, libraries_kb(), same)
+"""
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/smaps"), reason="needs Linux's /proc")
+def test_released_library_pages_leave_the_process_working_on_what_it_uses() -> None:
+    """In a process that loaded NumPy and OpenCV and ran them: release unmaps most of their
+    resident pages, and the same OpenCV calls then give the same result, mapping back only
+    a small part of what was released."""
+    res = subprocess.run(
+        [sys.executable, "-c", RELEASE_CHILD], capture_output=True, text=True, timeout=120
+    )
+    assert res.returncode == 0, res.stderr
+    mapped, released, after, same = res.stdout.split()
+    assert same == "True"
+    assert int(released) > 0.8 * int(mapped) > 0
+    assert int(after) < 0.5 * int(mapped)
