@@ -573,3 +573,16 @@ def test_a_loop_stopped_before_its_first_pair_leaves_both_outputs_as_they_were(
     out, err = proc.communicate(timeout=30)
     assert jsonl.read_text() == "earlier\n" and mcap.read_text() == "earlier\n", (out, err)
     assert f"no pair was processed: {jsonl} and {mcap} not written" in out + err
+
+
+def test_jsonl_dash_is_standard_output_not_a_file_named_dash(tmp_path: Path) -> None:
+    """``--jsonl -`` writes the messages to standard output, the summary to stderr, and makes
+    no file named ``-`` (it did)."""
+    rec = tmp_path / "rec"
+    lossless_recording(rec, n=4)
+    res = run_stereod("replay", str(rec), "--rate", "0", "--jsonl", "-", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    assert lines and all(json.loads(line)["schema"] == "stereod.objects/1" for line in lines)
+    assert " pairs from " in res.stderr
+    assert not (tmp_path / "-").exists()

@@ -89,6 +89,12 @@ def path_arg(text: str) -> Path:
     return Path(text)
 
 
+def output_arg(text: str) -> Path:
+    """An argparse type: an output file, ``-`` for standard output (``/dev/stdout``: written
+    in place, a line at a time)."""
+    return Path("/dev/stdout") if text == "-" else path_arg(text)
+
+
 def recording_arg(text: str) -> Path:
     """An argparse type: a recording, named by its folder or by its manifest file
     (``rec/recording.json`` is the recording ``rec``)."""

@@ -26,6 +26,7 @@ from stereod.cli.common import (
     add_config,
     add_zenoh,
     number,
+    output_arg,
     path_arg,
     say,
     setup_logging,
@@ -66,10 +67,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_config(p, " (its [zenoh] section: endpoints, mode, TLS through config_file)")
     p.add_argument(
         "--jsonl",
-        type=path_arg,
+        type=output_arg,
         metavar="FILE",
         help="also write every room objects message, one per line (replaced at a clean stop; a "
-        "device or FIFO written in place; /dev/stdout sends the summary to stderr)",
+        "device or FIFO written in place; - or /dev/stdout: standard output, and the summary "
+        "goes to stderr)",
     )
     p.add_argument(
         "--mcap",

@@ -24,6 +24,7 @@ from stereod.cli.common import (
     command_log_level,
     load_checked,
     number,
+    output_arg,
     path_arg,
     pipeline_overrides,
     recording_arg,
@@ -95,13 +96,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument(
         "--jsonl",
-        type=path_arg,
+        type=output_arg,
         metavar="FILE",
         help="also write every objects message, exactly as published, one per line (the file "
         "is replaced unless the run fails or, without --loop, is interrupted, and an input found "
         "truncated or damaged still gives the file of what played, exit 65; a "
         "symbolic link is written through, a device or FIFO such as /dev/null in place, a "
-        "line at a time; /dev/stdout sends the summary to stderr)",
+        "line at a time; - or /dev/stdout: standard output, and the summary goes to stderr)",
     )
     p.add_argument(
         "--mcap",
