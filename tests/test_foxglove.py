@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 from stereod.bus.messages import ObjectsMessage
 from stereod.daemon.config import load_config
 from stereod.daemon.daemon import Daemon
-from stereod.errors import UnavailableError
+from stereod.errors import ConfigError, UnavailableError
 from stereod.ros.foxglove import READVERTISE_AFTER, READVERTISE_TRIES, FoxgloveBridge
 from stereod.view.overlay import HEADER_PX
 from stereod_fakes.synth import Ball, Scene, SyntheticDriver
@@ -356,6 +356,17 @@ def test_port_in_use_is_one_line(session_client: Any) -> None:
     ):
         FoxgloveBridge(session, port=bridge.port).start()
     assert "\n" not in str(exc.value)
+
+
+def test_a_host_that_is_not_this_machine_s_names_the_host_flag() -> None:
+    """A host that does not resolve is a ConfigError whose hint is --foxglove-host (it said to
+    pick another port)."""
+    with (
+        zenoh.open(zenoh_config()) as session,
+        pytest.raises(ConfigError, match=r"999\.1\.1\.1:0: .*\(check --foxglove-host") as exc,
+    ):
+        FoxgloveBridge(session, host="999.1.1.1", port=0).start()
+    assert "--foxglove-port" not in str(exc.value)
 
 
 def test_view_command_serves_foxglove(endpoint: str, listener: zenoh.Session) -> None:

@@ -346,11 +346,16 @@ class FoxgloveBridge:
             self._close_channels()
             reason = (exc.strerror or str(exc)) if isinstance(exc, OSError) else str(exc)
             reason = reason.removeprefix("FoxgloveError: ")
-            text = (
-                f"foxglove: cannot serve on {self.host}:{self.port}: {reason} (pick another "
-                "with --foxglove-port, or 0 for any free one)"
-            )
             in_use = isinstance(exc, OSError) and exc.errno == errno.EADDRINUSE
+            no_host = isinstance(exc, socket.gaierror) or (
+                isinstance(exc, OSError) and exc.errno == errno.EADDRNOTAVAIL
+            )
+            hint = (
+                "check --foxglove-host: a name or address of this machine"
+                if no_host
+                else "pick another with --foxglove-port, or 0 for any free one"
+            )
+            text = f"foxglove: cannot serve on {self.host}:{self.port}: {reason} ({hint})"
             if in_use or "Address already in use" in reason:  # taken now, maybe free later
                 raise UnavailableError(text) from exc
             raise ConfigError(text) from exc
