@@ -92,20 +92,25 @@ def test_a_second_daemon_under_the_same_rig_name_says_so(
     endpoint: str, listener: zenoh.Session
 ) -> None:
     """Two daemons publishing one rig's keys on one bus mix their messages; the one that comes
-    second finds the first's liveliness token and says so on its status (the first never
-    learns of it: Zenoh merges two tokens on one key)."""
+    second finds the first's liveliness token and says so on its status, and the first, to
+    which Zenoh merges the two tokens on one key, says so once the second's status comes on
+    its rig's status key (it never learned of it)."""
     first = Daemon(config(endpoint), SyntheticDriver({"duration_s": 3.0, "fps": 15}), rate=1.0)
     thread, _ = start(first)
     try:
         wait_alive(listener, "stereod/minoru/alive")
         second = Daemon(config(endpoint), SyntheticDriver({"duration_s": 0.5, "fps": 15}))
         summary = second.run()
+        deadline = time.monotonic() + 10  # the first's next status period or two
+        while time.monotonic() < deadline and not first.health.problems():
+            time.sleep(0.05)
     finally:
         first.stop()
         thread.join(15)
     assert summary.error is None
     assert any("another stereod already publishes rig 'minoru'" in p for p in summary.problems)
-    assert not any("another stereod" in p for p in first.health.problems())
+    (said,) = [p for p in first.health.problems() if "another stereod" in p]
+    assert said.startswith("another stereod publishes rig 'minoru' under stereod/minoru/ too")
 
 
 def test_live_source_runs_one_thread_per_eye(endpoint: str, listener: zenoh.Session) -> None:

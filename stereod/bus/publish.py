@@ -9,6 +9,7 @@ query everything else. Publishing never blocks the pipeline: puts use congestion
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import json
 import logging
@@ -251,6 +252,11 @@ class Publisher:
         self.published = 0
         self.errors = 0
         self.rig_taken = False
+        self._sent: collections.deque[int] = collections.deque(maxlen=16)
+        self.foreign_status_at: float | None = None
+        """When (monotonic s) a status this publisher did not send last came on its own status
+        key: another daemon publishes the same rig (Zenoh merges two liveliness tokens on one
+        key, so the first of two daemons learns of the second only this way)."""
         """Whether another daemon's ``alive`` token for this rig was on the bus at open: two
         daemons under one rig name mix their messages and answer each other's queries."""
 
@@ -280,6 +286,9 @@ class Publisher:
         self._entities.append(self._track_probe)
         if self._on_status_subscriber is not None:
             self._entities.append(self._status.declare_matching_listener(self._matching))
+        self._entities.append(
+            s.declare_subscriber(keys.status(self.rig, prefix=self.prefix), self._on_status)
+        )
         for name, fn in self._queryables.items():
             self._entities.append(
                 s.declare_queryable(
@@ -371,8 +380,13 @@ class Publisher:
             pub.delete()
             pub.undeclare()
 
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        if hash(sample.payload.to_bytes()) not in self._sent:
+            self.foreign_status_at = time.monotonic()
+
     def status(self, payload: bytes) -> None:
         with self._lock:
+            self._sent.append(hash(payload))  # before the put: its echo may come at once
             try:
                 self._status.put(payload)
             except zenoh.ZError as exc:

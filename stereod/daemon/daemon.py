@@ -59,6 +59,8 @@ RELOAD_REFUSED = "reload refused, keeping the running configuration"
 RELOAD_WAITING = "reload: changes to"
 """How a reload's note of settings that wait for a restart begins; the next reload taken
 replaces it."""
+RIG_SHARED = "another stereod"
+"""How the note that another daemon publishes this rig's keys begins."""
 
 UNPAIRED_SHARE = 0.1
 """At the end of a file, more than this share of its frames without a partner is a fault of
@@ -153,6 +155,7 @@ class Daemon:
         after that is logged, not made the run's, so what is reported matches what is on disk."""
         self._source: StereoSource | None = None
         self._problems_said: set[str] = set()
+        self._shared_said = False
         """What the source has said of its input and this run has reported (see
         :meth:`_input_problems`)."""
         self._worker: PipelineWorker | None = None
@@ -418,6 +421,7 @@ class Daemon:
             if self._status_now.is_set() or now - last >= period:
                 self._status_now.clear()
                 self._input_problems()
+                self._rig_shared(pub, period)
                 status = self.health.status(max(now - last, 1e-3))
                 pub.status(dump(status))
                 self._notify_status(status)
@@ -503,11 +507,30 @@ class Daemon:
         status (a running service keeps running: the token may be a vanished peer's, held
         until its lease ends)."""
         self.health.problem(
-            f"another stereod already publishes rig {self.cfg.rig.name!r} under {pub.base}/: "
+            f"{RIG_SHARED} already publishes rig {self.cfg.rig.name!r} under {pub.base}/: "
             "their messages mix and either may answer a query; give each daemon its own "
             "[rig] name",
             notice=True,
         )
+        self._shared_said = True
+
+    def _rig_shared(self, pub: Publisher, period: float) -> None:
+        """Say on the status while another daemon's statuses come on this rig's status key
+        (one that started after this one: its token merged into this one's), and take it off
+        once none came for three status periods (3 s at least)."""
+        seen = pub.foreign_status_at
+        recent = seen is not None and time.monotonic() - seen <= max(3 * period, 3.0)
+        if recent and not self._shared_said:
+            self.health.problem(
+                f"{RIG_SHARED} publishes rig {self.cfg.rig.name!r} under {pub.base}/ too (its "
+                "status came on this rig's key): their messages mix and either may answer a "
+                "query; give each daemon its own [rig] name",
+                notice=True,
+            )
+            self._shared_said = True
+        elif not recent and self._shared_said and seen is not None:
+            self.health.resolved(RIG_SHARED)
+            self._shared_said = False
 
     def _effective(self, new: StereodConfig) -> StereodConfig:
         """What of a reloaded configuration runs now: all of it but what only a restart can
