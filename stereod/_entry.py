@@ -28,7 +28,13 @@ def main() -> int:
         from stereod.cli import main as command
     except KeyboardInterrupt:
         return 130
-    return command()
+    code = command()
+    # The command is over: a signal now (Ctrl-C twice, ``timeout`` signalling the group while
+    # the interpreter winds down) changes nothing of what it did, nor its exit code.
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
+    return code
 
 
 if __name__ == "__main__":  # (python -m stereod._entry): one module, so one HANGUPS

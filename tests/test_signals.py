@@ -140,3 +140,25 @@ def test_a_signal_handed_on_by_another_handler_runs_that_handlers_work() -> None
         handler(signal.SIGHUP, None)
         assert done.wait(5)
     assert got == [signal.SIGHUP]
+
+
+@pytest.mark.parametrize("command", ["subscribe", "view"])
+def test_a_second_signal_while_a_consumer_winds_down_keeps_its_clean_exit(command: str) -> None:
+    """``subscribe`` and ``view`` end on a signal with 0; a second one 10 ms later (Ctrl-C
+    pressed twice, ``timeout`` signalling the group) while they wind down changes nothing (it
+    killed them by the signal, 143)."""
+    import signal
+    import time
+
+    from .conftest import free_endpoint
+    from .processes import start_stereod
+
+    extra = ["--port", "0"] if command == "view" else []
+    proc = start_stereod(command, "--connect", free_endpoint(), *extra)
+    time.sleep(3.0)  # up, and waiting
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGTERM)
+    time.sleep(0.01)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
