@@ -23,6 +23,8 @@ boundary with ``raise ... from exc`` so callers only ever catch ``StereodError``
 from __future__ import annotations
 
 import difflib
+import errno
+import socket
 import typing
 from collections.abc import Sequence
 from typing import Any
@@ -147,6 +149,14 @@ def describe_validation_error(exc: ValidationError, prefix: str = "", model: Any
     section the model sits in (``driver.options``), if any; ``model``, the model's class, lets
     a misspelt field be answered with the nearest real one."""
     return "; ".join(describe_error(e, prefix, model) for e in exc.errors(include_url=False))
+
+
+def serve_hint(exc: BaseException, host_flag: str, port_flag: str) -> str:
+    """What to change when a server cannot bind: the host flag for a name that does not
+    resolve or an address that is not this machine's, else the port flag."""
+    if isinstance(exc, socket.gaierror) or getattr(exc, "errno", None) == errno.EADDRNOTAVAIL:
+        return f"check {host_flag}: a name or address of this machine"
+    return f"pick another with {port_flag}, or {port_flag} 0 for any free one"
 
 
 def one_line(text: str) -> str:

@@ -37,6 +37,7 @@ from stereod.daemon.params import pipeline_params
 from stereod.daemon.processing import Outgoing, PipelineWorker
 from stereod.daemon.redact import public_config, public_text
 from stereod.daemon.sdnotify import Notifier
+from stereod.daemon.shared_rig import SharedRig
 from stereod.daemon.status import Health, geometry_note
 from stereod.errors import InternalError, ReaderGone, StereodError
 from stereod.files.output_file import AtomicOutput, check_outputs, give_up_writing
@@ -59,8 +60,6 @@ RELOAD_REFUSED = "reload refused, keeping the running configuration"
 RELOAD_WAITING = "reload: changes to"
 """How a reload's note of settings that wait for a restart begins; the next reload taken
 replaces it."""
-RIG_SHARED = "another stereod"
-"""How the note that another daemon publishes this rig's keys begins."""
 
 UNPAIRED_SHARE = 0.1
 """At the end of a file, more than this share of its frames without a partner is a fault of
@@ -155,13 +154,13 @@ class Daemon:
         after that is logged, not made the run's, so what is reported matches what is on disk."""
         self._source: StereoSource | None = None
         self._problems_said: set[str] = set()
-        self._shared_said = False
         """What the source has said of its input and this run has reported (see
         :meth:`_input_problems`)."""
         self._worker: PipelineWorker | None = None
         self._publisher: Publisher | None = None
         self.pairer = Pairer(int(cfg.pairing.tolerance_ms * 1e6), cfg.pairing.max_pending)
         self.health = Health(cfg.rig.name, driver.name, self.pairer, self._status_now.set)
+        self._shared = SharedRig(self.health, cfg.rig.name)
         self.summary = RunSummary()
         self.images: ImageWorker | None = None
         """The image worker of the last run (its counters), None when images were off."""
@@ -312,7 +311,7 @@ class Daemon:
         with Publisher(cfg.zenoh, cfg.rig.name, queryables, status_now, session=session) as pub:
             self._publisher = pub
             if pub.rig_taken:
-                self._rig_taken(pub)
+                self._shared.taken_at_open(pub.base)
             self._wait_for_subscriber(pub)
             if not self._stop.is_set():
                 h.state = DaemonState.RUNNING
@@ -421,7 +420,7 @@ class Daemon:
             if self._status_now.is_set() or now - last >= period:
                 self._status_now.clear()
                 self._input_problems()
-                self._rig_shared(pub, period)
+                self._shared.check(pub.foreign_status_at, pub.base, period)
                 status = self.health.status(max(now - last, 1e-3))
                 pub.status(dump(status))
                 self._notify_status(status)
@@ -501,36 +500,6 @@ class Daemon:
         log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)
         self._notifier.notify(READY=1)
         self._status_now.set()
-
-    def _rig_taken(self, pub: Publisher) -> None:
-        """Another daemon's ``alive`` token for this rig was on the bus at open: say so on the
-        status (a running service keeps running: the token may be a vanished peer's, held
-        until its lease ends)."""
-        self.health.problem(
-            f"{RIG_SHARED} already publishes rig {self.cfg.rig.name!r} under {pub.base}/: "
-            "their messages mix and either may answer a query; give each daemon its own "
-            "[rig] name",
-            notice=True,
-        )
-        self._shared_said = True
-
-    def _rig_shared(self, pub: Publisher, period: float) -> None:
-        """Say on the status while another daemon's statuses come on this rig's status key
-        (one that started after this one: its token merged into this one's), and take it off
-        once none came for three status periods (3 s at least)."""
-        seen = pub.foreign_status_at
-        recent = seen is not None and time.monotonic() - seen <= max(3 * period, 3.0)
-        if recent and not self._shared_said:
-            self.health.problem(
-                f"{RIG_SHARED} publishes rig {self.cfg.rig.name!r} under {pub.base}/ too (its "
-                "status came on this rig's key): their messages mix and either may answer a "
-                "query; give each daemon its own [rig] name",
-                notice=True,
-            )
-            self._shared_said = True
-        elif not recent and self._shared_said and seen is not None:
-            self.health.resolved(RIG_SHARED)
-            self._shared_said = False
 
     def _effective(self, new: StereodConfig) -> StereodConfig:
         """What of a reloaded configuration runs now: all of it but what only a restart can

@@ -11,10 +11,9 @@ MCAP export (:mod:`stereod.ros.export_mcap`), so a layout made for the file work
     Foxglove app <--ws://127.0.0.1:8766-- front <--loopback-- foxglove-sdk server (ros2msg
                                           schemas, cdr)
 
-The front takes the clients of both names of the protocol: ``foxglove.sdk.v1`` (foxglove-sdk,
-current Foxglove) and ``foxglove.websocket.v1`` (older Foxglove releases, Lichtblick, tools of
-the roslibjs era), which foxglove-sdk alone refuses with HTTP 400 and which carries the same
-messages; it hands each connection to the server byte for byte, the protocol header renamed.
+The front takes both names of the protocol, ``foxglove.sdk.v1`` (current Foxglove) and
+``foxglove.websocket.v1`` (older releases, Lichtblick; the same messages, which foxglove-sdk
+alone refuses with HTTP 400), and hands each connection on byte for byte, its header renamed.
 
 Channels (``<rig>`` as in the export):
 
@@ -25,22 +24,19 @@ Channels (``<rig>`` as in the export):
   own capture instant as in the export (:func:`eye_instants`, from the message's stamp and
   skew and the daemon's ``pairing.skew_compensation``), once the geometry is known;
 * ``/stereod/<rig>/{left,right}/image/compressed`` and ``/stereod/<rig>/overlay/image/
-  compressed`` (the annotated overlay, both eyes side by side; not in the export): the daemon's
-  JPEGs, an eye's stamped with that eye's instant, the overlay with the pair's. The view
-  subscribes to an image's Zenoh key only while some Foxglove client subscribes to its channel,
-  since the daemon encodes an image only while someone listens; at most
+  compressed`` (both eyes annotated side by side; not in the export): the daemon's JPEGs, an
+  eye's stamped with its instant, the overlay with the pair's, subscribed on Zenoh only while
+  a Foxglove client subscribes (the daemon encodes only for a listener), at most
   ``daemon.image_rate_hz`` a second;
 * ``/stereod/<rig>/tracks/odom``, ``.../tracks/markers``, ``/stereod/<rig>/objects`` and one
-  ``.../tracks/track_<id>/speed_heading`` per track (advertised at the track's first valid
-  velocity, withdrawn as soon as a message no longer holds the track: at most as many of these
-  channels as tracks alive at once, however long the run; a returning Foxglove plot of an
-  ended track keeps the points it has; advertised again, a few times, while no client has
-  subscribed to it and clients watch others, since a subscription can cross its
-  advertisement and be refused). Markers live 3 frame periods unless refreshed, and a
-  DELETEALL clears them when the daemon's liveliness token goes away (it stopped or died).
+  ``.../tracks/track_<id>/speed_heading`` per track (advertised at its first valid velocity,
+  withdrawn once a message no longer holds it: as many channels as tracks alive at once; a
+  Foxglove plot of an ended track keeps its points; advertised again, a few times, while no
+  client subscribed to it, since a subscription can cross its advertisement). Markers live 3
+  frame periods unless refreshed; a DELETEALL clears them when the daemon's liveliness token
+  goes (it stopped or died).
 
-A message is encoded only when some client subscribes to its channel. Every message's log time
-is its stamp (the capture instant, UTC).
+A message is encoded only for a channel a client subscribes to; its log time is its stamp.
 """
 
 from __future__ import annotations
@@ -71,7 +67,13 @@ from stereod.client import (
     subscribe_images,
     subscribe_objects,
 )
-from stereod.errors import ConfigError, NotInstalledError, StereodError, UnavailableError
+from stereod.errors import (
+    ConfigError,
+    NotInstalledError,
+    StereodError,
+    UnavailableError,
+    serve_hint,
+)
 from stereod.ros.mapping import RosMessage, RosMessages
 from stereod.ros.names import cdr_encoder, ros2_msgdef
 from stereod.sources.frames import Eye
@@ -347,14 +349,7 @@ class FoxgloveBridge:
             reason = (exc.strerror or str(exc)) if isinstance(exc, OSError) else str(exc)
             reason = reason.removeprefix("FoxgloveError: ")
             in_use = isinstance(exc, OSError) and exc.errno == errno.EADDRINUSE
-            no_host = isinstance(exc, socket.gaierror) or (
-                isinstance(exc, OSError) and exc.errno == errno.EADDRNOTAVAIL
-            )
-            hint = (
-                "check --foxglove-host: a name or address of this machine"
-                if no_host
-                else "pick another with --foxglove-port, or 0 for any free one"
-            )
+            hint = serve_hint(exc, "--foxglove-host", "--foxglove-port")
             text = f"foxglove: cannot serve on {self.host}:{self.port}: {reason} ({hint})"
             if in_use or "Address already in use" in reason:  # taken now, maybe free later
                 raise UnavailableError(text) from exc

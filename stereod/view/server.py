@@ -27,7 +27,6 @@ import ipaddress
 import json
 import logging
 import math
-import socket
 import threading
 from pathlib import Path
 from typing import Any
@@ -51,7 +50,7 @@ from stereod.client import (
     subscribe_status,
 )
 from stereod.daemon.config_zenoh import ZenohConfig
-from stereod.errors import ConfigError, UnavailableError
+from stereod.errors import ConfigError, UnavailableError, serve_hint
 from stereod.vision.calibration import Calibration
 
 log = logging.getLogger(__name__)
@@ -343,12 +342,7 @@ class ViewServer:
                         f"{where} (another program serves there; pick another port with "
                         f"{flag}, or {flag} 0 for any free one)"
                     ) from err
-                hint = (
-                    "check --host: a name or address of this machine"
-                    if isinstance(err, socket.gaierror) or err.errno == errno.EADDRNOTAVAIL
-                    else f"pick another with {flag}, or {flag} 0 for any free one"
-                )
-                raise ConfigError(f"{where} ({hint})") from err
+                raise ConfigError(f"{where} ({serve_hint(err, '--host', flag)})") from err
             raise err
         hub = self.hub
         try:

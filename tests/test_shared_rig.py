@@ -1,0 +1,45 @@
+"""The note that another daemon publishes this rig's keys: said while the other's statuses
+come (or its token was found at open), taken off the status once they stop."""
+
+from __future__ import annotations
+
+import time
+
+from stereod.daemon.shared_rig import RIG_SHARED, SharedRig
+from stereod.daemon.status import Health
+from stereod.sources.pairing import Pairer
+
+
+def _on_status(h: Health) -> list[str]:
+    return [p for p in h.status(1.0).problems if p.startswith(RIG_SHARED)]
+
+
+def test_another_daemon_s_status_is_said_while_it_comes_and_taken_off_after() -> None:
+    h = Health("bench", "test", Pairer(), on_change=lambda: None)
+    shared = SharedRig(h, "bench")
+    shared.check(None, "stereod/bench", 1.0)  # nobody else: nothing said
+    assert _on_status(h) == []
+    now = time.monotonic()
+    shared.check(now - 0.5, "stereod/bench", 1.0)
+    shared.check(now - 0.2, "stereod/bench", 1.0)  # said once, not at every tick
+    (said,) = _on_status(h)
+    assert said.startswith("another stereod publishes rig 'bench' under stereod/bench/ too")
+    shared.check(now - 2.9, "stereod/bench", 1.0)  # within 3 s: still there
+    assert len(_on_status(h)) == 1
+    shared.check(now - 3.5, "stereod/bench", 1.0)  # none for 3 periods (3 s at least): gone
+    assert _on_status(h) == []
+    assert sum(p.startswith(RIG_SHARED) for p in h.problems()) == 1  # the summary keeps it
+    shared.check(now - 0.1, "stereod/bench", 2.0)  # it came back: said again
+    shared.check(now - 5.0, "stereod/bench", 2.0)  # 2 s periods: kept for 6 s
+    assert len(_on_status(h)) == 1
+
+
+def test_a_token_found_at_open_stays_said_until_a_status_shows_the_other_has_gone() -> None:
+    """The token found at open is said at once; with no status from the other yet (its lease
+    may still be held), the check keeps it."""
+    h = Health("bench", "test", Pairer(), on_change=lambda: None)
+    shared = SharedRig(h, "bench")
+    shared.taken_at_open("stereod/bench")
+    shared.check(None, "stereod/bench", 1.0)
+    (said,) = _on_status(h)
+    assert said.startswith("another stereod already publishes rig 'bench'")
