@@ -311,7 +311,7 @@ class Daemon:
         with Publisher(cfg.zenoh, cfg.rig.name, queryables, status_now, session=session) as pub:
             self._publisher = pub
             if pub.rig_taken:
-                self._shared.taken_at_open(pub.base)
+                self._rig_taken(pub)
             self._wait_for_subscriber(pub)
             if not self._stop.is_set():
                 h.state = DaemonState.RUNNING
@@ -500,6 +500,10 @@ class Daemon:
         log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)
         self._notifier.notify(READY=1)
         self._status_now.set()
+
+    def _rig_taken(self, pub: Publisher) -> None:
+        """Another daemon's token for this rig was on the bus at open (a replay refuses)."""
+        self._shared.taken_at_open(pub.base)
 
     def _effective(self, new: StereodConfig) -> StereodConfig:
         """What of a reloaded configuration runs now: all of it but what only a restart can
