@@ -7,6 +7,7 @@ import os
 import platform
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -132,8 +133,8 @@ def test_only_library_pages_that_are_all_the_file_s_are_released() -> None:
     from stereod.daemon.memory import library_mappings
 
     assert library_mappings(SMAPS) == [
-        (0x7F0000000000, 0x7F0000100000, 800),
-        (0x7F0000200000, 0x7F0000300000, 120),
+        (0x7F0000000000, 0x7F0000100000, 800, "/venv/cv2/cv2.abi3.so"),
+        (0x7F0000200000, 0x7F0000300000, 120, "/usr/lib/libc.so.6"),
     ]
 
 
@@ -141,7 +142,7 @@ RELEASE_CHILD = """
 import numpy as np, cv2
 from stereod.daemon.memory import library_mappings, release_library_pages
 def libraries_kb():
-    return sum(kb for _, _, kb in library_mappings(open("/proc/self/smaps").read()))
+    return sum(m.rss_kb for m in library_mappings(open("/proc/self/smaps").read()))
 rng = np.random.default_rng(1)
 img = rng.integers(0, 255, (240, 320, 3), np.uint8)
 def work():
@@ -169,3 +170,64 @@ def test_released_library_pages_leave_the_process_working_on_what_it_uses() -> N
     assert same == "True"
     assert int(released) > 0.8 * int(mapped) > 0
     assert int(after) < 0.5 * int(mapped)
+
+
+def _cached_fraction(path: str) -> float:
+    """The share of ``path``'s pages in the page cache: mincore(2) on a mapping of it."""
+    import ctypes
+    import mmap
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.mmap.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int, ctypes.c_int,
+                          ctypes.c_int, ctypes.c_long)  # fmt: skip
+    libc.mmap.restype = ctypes.c_void_p
+    libc.mincore.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p)
+    libc.munmap.argtypes = (ctypes.c_void_p, ctypes.c_size_t)
+    size = os.path.getsize(path)
+    pages = -(-size // mmap.PAGESIZE)
+    vec = (ctypes.c_ubyte * pages)()
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        addr = libc.mmap(None, size, mmap.PROT_READ, mmap.MAP_SHARED, fd, 0)
+        assert addr not in (None, ctypes.c_void_p(-1).value), ctypes.get_errno()
+        try:
+            assert libc.mincore(addr, size, vec) == 0, ctypes.get_errno()
+        finally:
+            libc.munmap(addr, size)
+    finally:
+        os.close(fd)
+    return sum(b & 1 for b in vec) / pages
+
+
+def _filesystem(path: Path) -> str:
+    """The type of the file system ``path`` is on (the longest mount point above it)."""
+    best, kind = "", ""
+    with open("/proc/self/mounts") as fh:
+        for line in fh:
+            _, point, fstype, *_ = line.split()
+            if str(path.resolve()).startswith(point.rstrip("/") + "/") and len(point) > len(best):
+                best, kind = point, fstype
+    return kind
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/smaps"), reason="needs Linux's /proc")
+def test_a_file_no_process_maps_leaves_the_page_cache(tmp_path: Path) -> None:
+    """After it was read, a file's pages are in the cache; once dropped, (almost) none are
+    (a page another process maps would stay; nothing maps this one)."""
+    from stereod.daemon.memory import drop_cached_pages
+
+    if _filesystem(tmp_path) in ("tmpfs", "ramfs"):
+        pytest.skip("the temporary folder is in memory: its pages are not a cache")
+    path = tmp_path / "lib.so"
+    path.write_bytes(os.urandom(4 << 20))
+    os.sync()  # dirty pages are not dropped: written out first
+    path.read_bytes()
+    assert _cached_fraction(str(path)) > 0.9
+    assert drop_cached_pages(str(path))
+    assert _cached_fraction(str(path)) < 0.1
+
+
+def test_a_file_that_is_not_there_is_no_error(tmp_path: Path) -> None:
+    from stereod.daemon.memory import drop_cached_pages
+
+    assert not drop_cached_pages(str(tmp_path / "gone.so"))

@@ -12,13 +12,15 @@ mask less) in the heap, reused without page faults, while everything larger (a f
 background is 4 bytes a pixel in grey and 12 in colour, the warm-up's stack ten frames) is a
 mapping of its own that goes back to the system when freed.
 
-The libraries it loads are most of the rest (OpenCV's code alone is 30 MB, Zenoh's 15). The
-kernel maps a library's pages in runs of up to 64 KB around each page touched, where the file is
-in the page cache (fault-around): the same daemon's own RSS read 91 MB from a clone whose
-libraries the cache had mostly let go, and 118 MB from a fresh install, all of it in cache.
-:func:`release_library_pages` unmaps their pages once the daemon has started (they stay in the
-page cache: a page used again comes back as a minor fault) and turns fault-around off for them,
-so what stays mapped is what the daemon runs.
+The libraries it loads are most of the rest (OpenCV's code alone is 30 MB, Zenoh's 15). A
+page touched maps back, where the file is in the page cache, with what the cache holds around
+it: up to 64 KB (fault-around), or the whole large folio the import's read-ahead put it in (a
+single OpenCV call brought back 5 MB of its code). The same daemon's own RSS read 91 MB from a
+clone whose libraries the cache had mostly let go, and 118 MB from a fresh install, all of it
+in cache. :func:`release_library_pages` unmaps their pages once the daemon has started, turns
+read-ahead off for them and drops from the page cache what no process maps (a page another
+process runs stays): a page used again is read back alone, so what stays mapped is what the
+daemon runs. The cost is a few hundred small reads in the first frames.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import ctypes
 import logging
 import os
 import re
+from typing import NamedTuple
 
 log = logging.getLogger(__name__)
 
@@ -83,44 +86,69 @@ def separate_large_buffers(width: int, height: int) -> int | None:
 
 
 MADV_RANDOM = 1
-"""madvise's advice: no read-ahead, and no fault-around, for the range (<sys/mman.h>)."""
+"""madvise's advice: no read-ahead for the range (<sys/mman.h>)."""
 MADV_DONTNEED = 4
 """madvise's advice: unmap the range's pages (a file's stay in the page cache)."""
 _MAPPING = re.compile(r"^([0-9a-f]+)-([0-9a-f]+) (\S+) \S+ \S+ \S+\s*(\S.*)?$")
 
 
-def library_mappings(smaps: str) -> list[tuple[int, int, int]]:
-    """(start, end, resident kB) of each mapping of a shared library in ``smaps`` (the text
-    of ``/proc/<pid>/smaps``) whose pages are all the file's: not writable, and holding no
-    private copy (a relocated read-only segment does; unmapping it would lose the
-    relocations)."""
-    out: list[tuple[int, int, int]] = []
-    current: list[int] | None = None
+class LibraryMapping(NamedTuple):
+    """One mapping of a shared library: its addresses, resident size (kB) and file."""
+
+    start: int
+    end: int
+    rss_kb: int
+    path: str
+
+
+def library_mappings(smaps: str) -> list[LibraryMapping]:
+    """Each mapping of a shared library in ``smaps`` (the text of ``/proc/<pid>/smaps``)
+    whose pages are all the file's: not writable, and holding no private copy (a relocated
+    read-only segment does; unmapping it would lose the relocations)."""
+    out: list[LibraryMapping | None] = []
+    current: LibraryMapping | None = None
     for line in smaps.splitlines():
         m = _MAPPING.match(line)
         if m:
             path, perms = m.group(4) or "", m.group(3)
             library = path.startswith("/") and ".so" in path.rsplit("/", 1)[-1]
-            current = [int(m.group(1), 16), int(m.group(2), 16), 0, 0]
+            current = None
             if library and "w" not in perms:
-                out.append((current[0], current[1], 0))
-                current[3] = len(out)
+                current = LibraryMapping(int(m.group(1), 16), int(m.group(2), 16), 0, path)
+                out.append(current)
             continue
-        if current is None or not current[3]:
+        if current is None:
             continue
         key, _, value = line.partition(":")
         if key == "Rss":
-            start, end, _ = out[current[3] - 1]
-            out[current[3] - 1] = (start, end, int(value.split()[0]))
+            current = current._replace(rss_kb=int(value.split()[0]))
+            out[-1] = current
         elif key == "Anonymous" and int(value.split()[0]):
-            out[current[3] - 1] = (0, 0, 0)  # a private copy in it: left alone
-    return [m for m in out if m[1] > m[0]]
+            out[-1] = current = None  # a private copy in it: left alone
+    return [m for m in out if m is not None]
+
+
+def drop_cached_pages(path: str) -> bool:
+    """Ask the kernel to drop ``path``'s pages from the page cache where no process maps
+    them (a page another process runs stays). Whether the advice was taken."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return False
+    try:
+        os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
+    except (OSError, AttributeError):
+        return False
+    finally:
+        os.close(fd)
+    return True
 
 
 def release_library_pages() -> int:
-    """Unmap the pages of the shared libraries mapped now, and turn fault-around off for
-    them (module docstring); the kB unmapped (their resident size before), 0 where
-    ``/proc/self/smaps`` or madvise is not there (not Linux)."""
+    """Unmap the pages of the shared libraries mapped now, turn read-ahead off for them and
+    drop their unmapped pages from the page cache (module docstring); the kB unmapped
+    (their resident size before), 0 where ``/proc/self/smaps`` or madvise is not there (not
+    Linux)."""
     try:
         with open("/proc/self/smaps", encoding="ascii", errors="replace") as fh:
             mappings = library_mappings(fh.read())
@@ -130,9 +158,12 @@ def release_library_pages() -> int:
     madvise.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int)
     madvise.restype = ctypes.c_int
     released = 0
-    for start, end, rss_kb in mappings:
+    files: set[str] = set()
+    for start, end, rss_kb, path in mappings:
         random = madvise(start, end - start, MADV_RANDOM) == 0
         if random and madvise(start, end - start, MADV_DONTNEED) == 0:
             released += rss_kb
-    log.debug("library pages unmapped: %d kB", released)
+            files.add(path)
+    dropped = sum(drop_cached_pages(path) for path in sorted(files))
+    log.debug("library pages unmapped: %d kB; %d files' cache dropped", released, dropped)
     return released
