@@ -56,7 +56,7 @@ def test_queryables_liveliness_and_status_on_new_subscriber(
     endpoint: str, listener: zenoh.Session
 ) -> None:
     cfg = config(endpoint, status_period_s=30.0)
-    daemon = Daemon(cfg, SyntheticDriver({"duration_s": 3.0, "fps": 15}), rate=1.0)
+    daemon = Daemon(cfg, SyntheticDriver({"duration_s": 20.0, "fps": 15}), rate=1.0)
     thread, _ = start(daemon)
     try:
         wait_alive(listener, "stereod/minoru/alive")
@@ -72,12 +72,20 @@ def test_queryables_liveliness_and_status_on_new_subscriber(
         assert stats["pairs"] >= 5 and min(stats["frames"].values()) >= stats["pairs"]
         assert 0 < stats["pipeline_ms_p50"] <= stats["pipeline_ms_p99"] < 1000
         assert stats["publish_errors"] == 0 and stats["queue_depth"] >= 0
-        # The status period is 30 s: a status arriving at once comes from the new-subscriber path.
+        # The status period is 30 s and the run 20 s: a status arriving at once, running,
+        # comes from the new-subscriber path (not the period, nor the end of the run).
         got = threading.Event()
-        sub = listener.declare_subscriber("stereod/minoru/status", lambda s: got.set())
+        states: list[str] = []
+
+        def on_status(sample: zenoh.Sample) -> None:
+            states.append(json.loads(sample.payload.to_bytes())["state"])
+            got.set()
+
+        sub = listener.declare_subscriber("stereod/minoru/status", on_status)
         t0 = time.monotonic()
         assert got.wait(5), "no status re-sent for a new subscriber"
         assert time.monotonic() - t0 < 5
+        assert states[0] == "running"
         sub.undeclare()
     finally:
         daemon.stop()

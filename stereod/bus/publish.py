@@ -285,7 +285,15 @@ class Publisher:
         self._track_probe = s.declare_publisher(keys.track(self.rig, 0, prefix=self.prefix))
         self._entities.append(self._track_probe)
         if self._on_status_subscriber is not None:
-            self._entities.append(self._status.declare_matching_listener(self._matching))
+            # A probe for the matching status alone, reaching remote sessions only: this
+            # session's own subscriber to the key (for another daemon's status, below) would
+            # keep the status key matched for ever, and no new subscriber would be told.
+            probe = s.declare_publisher(
+                keys.status(self.rig, prefix=self.prefix),
+                allowed_destination=zenoh.Locality.REMOTE,
+            )
+            # The listener goes before its publisher (undeclared in this order).
+            self._entities += [probe.declare_matching_listener(self._matching), probe]
         self._entities.append(
             s.declare_subscriber(keys.status(self.rig, prefix=self.prefix), self._on_status)
         )
