@@ -162,3 +162,69 @@ def test_a_second_signal_while_a_consumer_winds_down_keeps_its_clean_exit(comman
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
+
+
+def test_a_signal_kept_during_start_up_reaches_the_handlers_installed_later() -> None:
+    """defer() keeps a SIGUSR2 that came before the command had its handlers (its default
+    action would end the process) and relayed() hands it to them once installed."""
+    from stereod.cli.signals import defer, deferred_left
+
+    before = signal.getsignal(signal.SIGUSR2)
+    got: list[int] = []
+    done = threading.Event()
+    try:
+        defer((signal.SIGUSR2,))
+        os.kill(os.getpid(), signal.SIGUSR2)
+        time.sleep(0.05)  # still alive: kept, not acted on
+        with relayed({signal.SIGUSR2: lambda s: (got.append(s), done.set())}):
+            assert done.wait(5)
+        assert got == [signal.SIGUSR2]
+        assert deferred_left() is None  # taken
+    finally:
+        signal.signal(signal.SIGUSR2, before)
+
+
+def test_a_signal_kept_that_no_handler_took_is_left_to_say() -> None:
+    from stereod.cli.signals import defer, deferred_left
+
+    before = signal.getsignal(signal.SIGUSR2)
+    try:
+        defer((signal.SIGUSR2,))
+        os.kill(os.getpid(), signal.SIGUSR2)
+        time.sleep(0.05)
+        assert deferred_left() == signal.SIGUSR2
+        assert deferred_left() is None  # forgotten once asked
+    finally:
+        signal.signal(signal.SIGUSR2, before)
+
+
+@pytest.mark.parametrize("reaches_handlers, code", [(True, 0), (False, 143)])
+def test_a_sigterm_while_a_long_running_command_starts(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], reaches_handlers: bool,
+    code: int,
+) -> None:  # fmt: skip
+    """A SIGTERM while the fusion node (or the daemon) reads its files stops it as one once
+    running does (exit 0) when its handlers come; a command that ends before it has any
+    (``run --check``) ends as interrupted, 143 with one line. (The default action killed the
+    node with no word.)"""
+    import stereod.cli as cli
+    from stereod.cli import fuse
+
+    stopped: list[int] = []
+
+    def starts(_args: object) -> int:
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.05)  # its files read, its session opened
+        if reaches_handlers:
+            done = threading.Event()
+            with relayed({signal.SIGTERM: lambda s: (stopped.append(s), done.set())}):
+                assert done.wait(5)
+        return 0
+
+    monkeypatch.setattr(fuse, "run", starts)
+    assert cli.main(["fuse", "--room", "room.toml"]) == code
+    err = capsys.readouterr().err
+    if reaches_handlers:
+        assert stopped == [signal.SIGTERM] and err == ""
+    else:
+        assert err == "stereod: fuse interrupted by SIGTERM\n"

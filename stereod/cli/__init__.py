@@ -26,11 +26,13 @@ from typing import Any, NoReturn
 
 from stereod import __version__
 from stereod.cli.common import EPILOG_KEYS, quiet_third_party, stdout_to_nowhere
+from stereod.cli.signals import defer, deferred_left
 from stereod.errors import (
     EX_IOERR,
     EX_SOFTWARE,
     EX_USAGE,
     InternalError,
+    Interrupted,
     ReaderGone,
     StereodError,
     one_line,
@@ -215,11 +217,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main(argv: Sequence[str] | None) -> int:
     try:
         args = build_parser().parse_args(argv)
-        if not getattr(args, "reloads_on_sighup", False):
+        reloads = getattr(args, "reloads_on_sighup", False)
+        if not reloads:
             one_shot_signals(args.command)
-        else:  # its reload handler comes with its files; until then, one is ignored
-            signal.signal(signal.SIGHUP, signal.SIG_IGN)
+        else:  # its handlers come with its files: until then a SIGHUP is ignored, and a
+            signal.signal(signal.SIGHUP, signal.SIG_IGN)  # SIGTERM kept for them
+            defer((signal.SIGTERM,))
         code: int = args.func(args)
+        early = deferred_left() if reloads else None
+        if early is not None and code == 0:  # ended before its handlers were in
+            raise Interrupted(f"{args.command} interrupted by {signal_name(early)}", early)
         if sys.stdout is not None:  # what is still buffered fails here, not at the exit
             sys.stdout.flush()
         return code

@@ -23,6 +23,35 @@ from typing import Any
 log = logging.getLogger(__name__)
 
 
+_EARLY: list[int] = []
+"""Signals :func:`defer` kept, in the order they came, until a :func:`relayed` block takes
+them."""
+
+
+def defer(signums: tuple[signal.Signals, ...]) -> None:
+    """Until a :func:`relayed` block installs handlers for them, each of ``signums`` is kept
+    instead of acted on, and handed to those handlers then: a long-running command still
+    starting (reading its files, before its outputs or its session are open) then stops as
+    it would once running, not killed by the signal's default action. Off the main thread
+    nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def keep(signum: int, _frame: FrameType | None) -> None:
+        _EARLY.append(signum)  # a list's append is atomic: no lock a handler could wait on
+
+    for signum in signums:
+        signal.signal(signum, keep)
+
+
+def deferred_left() -> int | None:
+    """The first signal :func:`defer` kept that no :func:`relayed` block took (the command
+    ended before it had one, as ``run --check`` does), or None; they are forgotten."""
+    left = _EARLY[0] if _EARLY else None
+    _EARLY.clear()
+    return left
+
+
 @contextlib.contextmanager
 def relayed(handlers: Mapping[signal.Signals, Callable[[int], None]]) -> Iterator[None]:
     """Within the block, each signal of ``handlers`` calls its handler with the signal's
@@ -56,6 +85,9 @@ def relayed(handlers: Mapping[signal.Signals, Callable[[int], None]]) -> Iterato
     try:
         for signum in handlers:
             previous[signum] = signal.signal(signum, catcher(signum))
+        for kept in [k for k in _EARLY if k in handlers]:  # kept by defer() until now
+            _EARLY.remove(kept)
+            pending.put((signal.Signals(kept), kept))
         yield
     finally:
         for signum, handler in previous.items():
