@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 from stereod.daemon.shared_rig import RIG_SHARED, SharedRig
 from stereod.daemon.status import Health
 from stereod.sources.pairing import Pairer
@@ -34,7 +36,7 @@ def test_another_daemon_s_status_is_said_while_it_comes_and_taken_off_after() ->
     assert len(_on_status(h)) == 1
 
 
-def test_a_token_found_at_open_stays_said_until_a_status_shows_the_other_has_gone() -> None:
+def test_a_token_found_at_open_is_said_at_once_and_kept_while_no_status_of_the_other_came() -> None:
     """The token found at open is said at once; with no status from the other yet (its lease
     may still be held), the check keeps it."""
     h = Health("bench", "test", Pairer(), on_change=lambda: None)
@@ -43,3 +45,38 @@ def test_a_token_found_at_open_stays_said_until_a_status_shows_the_other_has_gon
     shared.check(None, "stereod/bench", 1.0)
     (said,) = _on_status(h)
     assert said.startswith("another stereod already publishes rig 'bench'")
+
+
+def test_the_note_pushed_off_the_status_by_other_problems_is_said_again(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The status key shows the last 20 problems: while the other daemon lasts, a note that
+    a flapping eye's problems pushed off comes back at the next tick, and is logged as one
+    problem (at 1, 10, 100 times), not at each."""
+    h = Health("bench", "test", Pairer(), on_change=lambda: None)
+    shared = SharedRig(h, "bench")
+    shared.check(time.monotonic(), "stereod/bench", 1.0)
+    for k in range(20):
+        h.problem(f"left eye down ({k})", "eye down")
+    assert _on_status(h) == []
+    shared.check(time.monotonic(), "stereod/bench", 1.0)
+    (said,) = _on_status(h)
+    assert "publishes rig 'bench' under stereod/bench/ too" in said
+    shared.check(time.monotonic(), "stereod/bench", 1.0)  # there: not said again
+    assert sum(p.startswith(RIG_SHARED) for p in h.problems()) == 2
+    assert sum(r.getMessage().startswith(RIG_SHARED) for r in caplog.records) == 1
+
+
+def test_a_token_found_at_open_is_said_again_too_and_goes_when_the_other_s_status_stops() -> None:
+    h = Health("bench", "test", Pairer(), on_change=lambda: None)
+    shared = SharedRig(h, "bench")
+    shared.taken_at_open("stereod/bench")
+    for k in range(20):
+        h.problem(f"right eye down ({k})", "eye down")
+    shared.check(None, "stereod/bench", 1.0)
+    (said,) = _on_status(h)
+    assert said.startswith("another stereod already publishes rig 'bench'")
+    shared.check(time.monotonic() - 0.5, "stereod/bench", 1.0)  # the other's status came
+    assert len(_on_status(h)) == 1
+    shared.check(time.monotonic() - 3.5, "stereod/bench", 1.0)  # and stopped: gone
+    assert _on_status(h) == []

@@ -154,6 +154,12 @@ class Health:
             self._problems.extend(kept)
         self._on_change()
 
+    def showing(self, prefix: str) -> bool:
+        """Whether a recent problem on the status key begins with ``prefix`` (the key keeps
+        the last 20: an older one has fallen off)."""
+        with self.lock:
+            return any(p.startswith(prefix) for p in self._problems)
+
     def drop(self, reason: str, n: int = 1) -> None:
         with self.lock:
             self._drops[reason] += n
