@@ -61,7 +61,7 @@ from stereod.bus.messages import (
 )
 from stereod.bus.publish import session_config
 from stereod.daemon.config_zenoh import ZenohConfig
-from stereod.errors import ConfigError, describe_validation_error, one_line
+from stereod.errors import StereodError, describe_validation_error, one_line
 
 if TYPE_CHECKING:
     from stereod.vision.calibration import Calibration
@@ -355,14 +355,15 @@ def zenoh_config(
     daemon) is tried again every 100 to 250 ms, not after Zenoh's default 1 to 4 s, so the
     program sees the daemon as soon as it listens. ``config_file``: a Zenoh JSON5 file to
     start from (TLS certificates and ``enable_mtls`` to reach a secured daemon), as a daemon's
-    ``[zenoh] config_file``. A malformed endpoint or a bad file is a ValueError."""
+    ``[zenoh] config_file``. A malformed endpoint, or a file that is bad or not there, is a
+    ValueError naming it."""
     extra = {} if config_file is None else {"config_file": os.fspath(config_file)}
     try:
         cfg = ZenohConfig(connect=list(connect), listen=list(listen), **extra)
         return session_config(cfg, consumer=True)
     except ValidationError as exc:
         raise ValueError(describe_validation_error(exc, "zenoh")) from None
-    except ConfigError as exc:
+    except StereodError as exc:  # a bad file, or one that is not there
         raise ValueError(str(exc)) from None
 
 

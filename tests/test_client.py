@@ -179,6 +179,15 @@ def test_zenoh_config_tries_a_missing_daemon_again_soon() -> None:
         client.zenoh_config("nonsense")
 
 
+def test_zenoh_config_file_that_is_not_there_or_a_folder_is_a_value_error(
+    tmp_path: Path,
+) -> None:
+    """As its docstring says: a caller catching ValueError is told, the file named."""
+    for where in (tmp_path / "gone.json5", tmp_path):
+        with pytest.raises(ValueError, match=str(where.name)):
+            client.zenoh_config("tcp/127.0.0.1:7447", config_file=where)
+
+
 @pytest.mark.slow
 def test_readme_client_example_started_before_the_daemon(endpoint: str) -> None:
     """As the README says to run it: the program first, the daemon a few seconds later (here
