@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from stereod.bus.publish import Publisher, open_session, session_config
+from stereod.bus.publish import Publisher, open_session, session_config, session_summary
 from stereod.client import wait_alive
 from stereod.daemon.config import ZenohConfig
 from stereod.errors import ConfigError, UnavailableError
@@ -190,3 +190,34 @@ def test_an_endpoint_in_a_zenoh_file_is_checked_as_one_in_our_settings(
     own.write_text('{ connect: { endpoints: ["tcp/127.0.0.1:7447"] }, listen: { endpoints: '
                    '{ router: ["tcp/[::1]:7447"], peer: ["udp/127.0.0.1:0"] } } }')  # fmt: skip
     session_config(ZenohConfig(config_file=own))
+
+
+def test_the_session_summary_says_the_mode_and_endpoints_a_zenoh_file_gives(
+    tmp_path: Path,
+) -> None:
+    """A start-up line names what the session takes: our flags, or a Zenoh file's mode and
+    endpoints (a client file's, a file with per-mode lists), or that it has none."""
+    assert session_summary(ZenohConfig(connect=["tcp/127.0.0.1:7447"]), consumer=True) == (
+        "peer, to tcp/127.0.0.1:7447"
+    )
+    assert session_summary(ZenohConfig(listen=["tcp/127.0.0.1:7448"])) == (
+        "peer, listening on tcp/127.0.0.1:7448"
+    )
+    client = tmp_path / "client.json5"
+    client.write_text('{mode: "client", connect: {endpoints: ["tcp/127.0.0.1:7461"]}}')
+    assert session_summary(ZenohConfig(config_file=client), consumer=True) == (
+        "client, to tcp/127.0.0.1:7461"
+    )
+    per_mode = tmp_path / "per_mode.json5"
+    per_mode.write_text(
+        '{mode: "router", listen: {endpoints: {router: ["tcp/127.0.0.1:7462"], '
+        'peer: ["tcp/127.0.0.1:7463"]}}}'
+    )
+    assert session_summary(ZenohConfig(config_file=per_mode)) == (
+        "router, listening on tcp/127.0.0.1:7462"
+    )
+    empty = tmp_path / "empty.json5"
+    empty.write_text("{}")
+    assert session_summary(ZenohConfig(config_file=empty), consumer=True) == (
+        "peer, with no endpoint to connect to or listen on"
+    )

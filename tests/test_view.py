@@ -238,6 +238,7 @@ def test_view_command_prints_its_url_and_stops_on_sigint(endpoint: str) -> None:
         line = proc.stdout.readline()
         url = re.search(r"open (http://127\.0\.0\.1:\d+/) ", line)
         assert url, line
+        assert f"Zenoh peer, to {endpoint})" in line
         with urllib.request.urlopen(url.group(1), timeout=10) as r:
             page = r.read().decode()
         assert '<canvas id="map"' in page and "/static/view.js" in page

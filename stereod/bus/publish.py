@@ -427,3 +427,20 @@ class Publisher:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+def session_summary(cfg: ZenohConfig, *, consumer: bool = False) -> str:
+    """The mode and endpoints a session opened with ``cfg`` takes, a config file's included,
+    for a start-up line: ``client, to tcp/10.0.0.5:7447``."""
+    zc = session_config(cfg, consumer=consumer)
+    mode = json.loads(zc.get_json("mode")) or "peer"  # Zenoh's default
+
+    def endpoints(key: str) -> list[str]:
+        given = json.loads(zc.get_json(key)) or []
+        return list(given.get(mode, []) if isinstance(given, dict) else given)  # per mode
+
+    said = [f"to {', '.join(e)}" for e in [endpoints("connect/endpoints")] if e]
+    said += [f"listening on {', '.join(e)}" for e in [endpoints("listen/endpoints")] if e]
+    if not said:
+        said = ["with no endpoint to connect to or listen on"]
+    return f"{mode}, {'; '.join(said)}"

@@ -75,6 +75,7 @@ def run(a: argparse.Namespace) -> int:
         raise ConfigError(f"zenoh flags: {describe_validation_error(exc)}") from exc
     if not re.match(RIG_PATTERN, a.rig):
         raise UsageError(f"--rig {a.rig!r}: use letters, digits, '_' and '-' only")
+    from stereod.bus.publish import session_summary
     from stereod.view.server import ViewServer
 
     done = threading.Event()
@@ -85,7 +86,7 @@ def run(a: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         stack.enter_context(relayed(dict.fromkeys((signal.SIGINT, signal.SIGTERM), on_signal)))
         server = stack.enter_context(ViewServer(zcfg, rig=a.rig, host=a.host, port=a.port))
-        where = ", ".join(zcfg.connect or zcfg.listen) or f"the endpoints of {zcfg.config_file}"
+        where = session_summary(zcfg, consumer=True)  # a Zenoh file's mode and endpoints too
         also = ""
         if a.foxglove:
             from stereod.ros.foxglove import FoxgloveBridge
@@ -101,8 +102,7 @@ def run(a: argparse.Namespace) -> int:
             stack.enter_context(bridge)
             also = f", Foxglove at {bridge.url}"
         print(
-            f"stereod view: open {server.url}{also} (rig {a.rig}, Zenoh {zcfg.mode} at "
-            f"{where}); Ctrl-C to stop",
+            f"stereod view: open {server.url}{also} (rig {a.rig}, Zenoh {where}); Ctrl-C to stop",
             flush=True,
         )
         wait_until(done)
