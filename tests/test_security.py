@@ -288,6 +288,20 @@ def docs_json5(page: str, marker: str, paths: dict[str, Path]) -> str:
     return block
 
 
+def client_block(d: Path, page: str, name: str) -> str:
+    """The JSON5 block of docs page ``page`` whose certificate is ``<name>.pem``, its CA,
+    certificate and key those of this test's consumer in ``d``."""
+    return docs_json5(
+        page,
+        f"{name}.pem",
+        {
+            "/etc/stereod/tls/ca.pem": d / "ca.pem",
+            f"/etc/stereod/tls/{name}.pem": d / "consumer.pem",
+            f"/etc/stereod/tls/{name}.key": d / "consumer.key",
+        },
+    )
+
+
 def test_the_documented_consumer_file_reaches_the_secured_daemon(
     secured: tuple[Path, str], tmp_path: Path
 ) -> None:
@@ -296,15 +310,7 @@ def test_the_documented_consumer_file_reaches_the_secured_daemon(
     the same file without ``enable_mtls`` is refused the link (the page says why it is
     there)."""
     d, endpoint = secured
-    block = docs_json5(
-        "deployment.md",
-        "dashboard.pem",
-        {
-            "/etc/stereod/tls/ca.pem": d / "ca.pem",
-            "/etc/stereod/tls/dashboard.pem": d / "consumer.pem",
-            "/etc/stereod/tls/dashboard.key": d / "consumer.key",
-        },
-    )
+    block = client_block(d, "deployment.md", "dashboard")
     good = tmp_path / "dashboard.json5"
     good.write_text(block)
     proc = start_stereod(
@@ -330,15 +336,7 @@ def test_the_documented_rig_file_presents_its_certificate(
     """The three-host page's rig file (the client side of the TLS link to the router), its
     paths this test's, connects to a listener that requires a client certificate."""
     d, endpoint = secured
-    block = docs_json5(
-        "deployment-room.md",
-        "rig-a.pem",
-        {
-            "/etc/stereod/tls/ca.pem": d / "ca.pem",
-            "/etc/stereod/tls/rig-a.pem": d / "consumer.pem",
-            "/etc/stereod/tls/rig-a.key": d / "consumer.key",
-        },
-    )
+    block = client_block(d, "deployment-room.md", "rig-a")
     f = tmp_path / "rig.json5"
     f.write_text(block)
     from stereod.client import zenoh_config
