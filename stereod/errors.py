@@ -95,6 +95,13 @@ class OutputError(StereodError):
     exit_code = EX_CANTCREAT
 
 
+class StdoutWriteError(OutputError):
+    """This process's standard output, given as an output file (``--jsonl -`` or
+    ``/dev/stdout``), failed while being written: a full disk or a device error."""
+
+    exit_code = EX_IOERR
+
+
 class ReaderGone(OutputError):
     """An output written in place (stdout, a named pipe) whose reader closed it. When it is
     the process's stdout (``--jsonl /dev/stdout | head``) a command ends quietly with 0, as

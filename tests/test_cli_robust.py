@@ -853,6 +853,21 @@ def test_a_full_disk_on_stdout_stops_subscribe_with_74(tmp_path: Path, endpoint:
     assert err.splitlines() == ["stereod: cannot write to standard output: No space left on device"]
 
 
+@pytest.mark.parametrize("jsonl", ["-", "/dev/stdout"])
+def test_a_full_disk_on_stdout_given_as_the_jsonl_is_74_too(tmp_path: Path, jsonl: str) -> None:
+    """``--jsonl -`` (or ``/dev/stdout``) into a full disk is standard output failing, as
+    for every command: one line, 74 (it was 73, the code of an output file that cannot be
+    created)."""
+    recording(tmp_path)
+    with open("/dev/full", "w") as full:
+        proc = start_stereod(
+            "replay", str(tmp_path / "rec"), "--rate", "0", "-q", "--jsonl", jsonl, stdout=full
+        )
+        _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 74, err
+    assert err.splitlines() == ["stereod: cannot write to standard output: No space left on device"]
+
+
 def test_a_frozen_peer_does_not_make_subscribe_fail_on_its_way_out(
     listener: object, endpoint: str
 ) -> None:

@@ -42,7 +42,14 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
 
-from stereod.errors import Interrupted, MissingInputError, OutputError, ReaderGone, UsageError
+from stereod.errors import (
+    Interrupted,
+    MissingInputError,
+    OutputError,
+    ReaderGone,
+    StdoutWriteError,
+    UsageError,
+)
 from stereod.files.paths import file_kind, shown
 from stereod.files.stop import check_stop, clear_stop, pending_stop, raise_stop
 
@@ -353,6 +360,8 @@ class AtomicOutput:
             return ReaderGone(f"{self.path}: its reader closed it", stdout=self.stdout)
         if self.in_place and exc.errno == errno.ETIMEDOUT:
             return ReaderGone(f"{self.path}: its reader stopped reading", stdout=self.stdout)
+        if self.stdout:  # as any command's standard output that fails: 74
+            return StdoutWriteError(f"cannot write to standard output: {exc.strerror}")
         return OutputError(f"{self.path}: writing failed: {exc.strerror}")
 
     def write(self, data: bytes) -> int:
