@@ -307,6 +307,9 @@ class ReplayDriver(Driver):
                 describe_validation_error(exc, "driver.options", ReplayOptions)
             ) from exc
 
+    def options_read(self) -> dict[str, Any]:
+        return self.options.model_dump(mode="json", exclude_unset=True)
+
     def inputs(self) -> list[Path]:
         """The recording folder (its files with it), or the two videos and their CSVs."""
         o = self.options

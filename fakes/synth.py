@@ -482,5 +482,11 @@ class SyntheticDriver(Driver):
     def open(self) -> StereoSource:
         return _SynthSource(self.scene, self.flags)
 
+    def options_read(self) -> dict[str, Any]:
+        return {
+            **self.flags.model_dump(mode="json", exclude_unset=True),
+            **self.scene.model_dump(mode="json", exclude_unset=True),
+        }
+
     def frame_size(self) -> tuple[int, int]:
         return self.scene.width_px, self.scene.height_px

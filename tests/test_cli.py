@@ -753,3 +753,23 @@ def test_run_check_holds_the_calibration_against_the_frames_asked_for(
         "made for 640x480 frames, the stream is 320x240: calibrate at this size or change "
         f"the camera mode; it is rig.calibration in {tmp_path / 'big.toml'}",
     )
+
+
+@pytest.mark.parametrize(
+    "driver, env, shown",
+    [
+        ("synthetic", {"FPS": "15", "COLOR": "false"}, {"fps": 15.0, "color": False}),
+        ("v4l2_minoru", {"FPS": "15"}, {"fps": 15.0, "pixel_format": "yuyv"}),
+        ("replay", {"PATH": "rec", "LOOP": "true"}, {"path": "rec", "loop": True}),
+    ],
+)
+def test_run_check_prints_the_driver_options_as_the_driver_read_them(
+    tmp_path: Path, driver: str, env: dict[str, str], shown: dict[str, object]
+) -> None:
+    """Options from the environment are strings until the driver reads them: ``--check``
+    prints what the run will use (it printed ``"fps": "15"``), and the V4L2 driver's pixel
+    format as the bus's bandwidth chose it."""
+    variables = {f"STEREOD_DRIVER__OPTIONS__{k}": v for k, v in env.items()}
+    res = stereod("run", "--check", "--driver", driver, env=variables, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout)["driver"]["options"] == shown

@@ -345,6 +345,11 @@ class MinoruDriver(Driver):
         """The mode asked for (a Minoru streams its modes at the size asked)."""
         return self.options.width, self.options.height
 
+    def options_read(self) -> dict[str, Any]:
+        """The options given, and the pixel format the bus's bandwidth chose."""
+        given = self.options.model_dump(mode="json", exclude_unset=True)
+        return {**given, "pixel_format": self.options.pixel_format}
+
     def _paths(self) -> tuple[str, str]:
         o = self.options
         found = {}

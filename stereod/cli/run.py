@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 
 from stereod.cli.common import (
     EPILOG_KEYS,
@@ -52,7 +53,11 @@ def run(a: argparse.Namespace) -> int:
     cfg, driver = load_checked(path, ov)
     setup_logging(cfg.daemon.log_level)
     if a.check:
-        print(cfg.model_dump_json(indent=2))
+        shown = cfg.model_dump(mode="json")
+        read = driver.options_read()
+        if read is not None:  # as the driver read them: "15" from the environment is 15
+            shown["driver"]["options"] = read
+        print(json.dumps(shown, indent=2))
         return 0
     daemon = Daemon(
         cfg,

@@ -259,3 +259,8 @@ class Driver(ABC):
         is opened (so that ``run --check`` can hold a calibration against it); None when only
         the opened source knows."""
         return None
+
+    def options_read(self) -> dict[str, Any] | None:
+        """The options given, as the driver read them (``"15"`` from the environment as the
+        number 15), for ``run --check`` to print; None to print them as given."""
+        return None
