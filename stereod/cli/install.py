@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from stereod.cli.common import path_arg
@@ -44,13 +45,23 @@ def _prefix_arg(text: str) -> Path:
 
 
 def run(a: argparse.Namespace) -> int:
-    from stereod.daemon.install import apply, plan
+    from stereod.daemon.install import apply, hidden_from_service, plan, stereod_executable
 
     if a.prefix.exists() and not a.prefix.is_dir():
         raise UsageError(
             f"--prefix {shown(a.prefix)}: not a folder; give the folder to install under"
         )
     actions = plan(a.prefix, uninstall=a.uninstall)
+    exe = stereod_executable()
+    hidden = None if a.uninstall or a.prefix == Path("/") else hidden_from_service(exe)
+    if hidden is not None:  # the system install refuses this; a staged one is said to
+        print(
+            f"stereod install-service: warning: the units run {hidden}: they cannot start "
+            "once installed unless stereod is installed where a service can run it "
+            "(e.g. /opt/stereod)",
+            file=sys.stderr,
+            flush=True,
+        )
     unsaid: OSError | None = None  # stdout failed: the install goes on, whole
     for action in actions:
         if not a.dry_run:
