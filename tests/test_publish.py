@@ -14,6 +14,7 @@ from stereod.bus.publish import Publisher, open_session, session_config, session
 from stereod.client import wait_alive
 from stereod.daemon.config import ZenohConfig
 from stereod.errors import ConfigError, UnavailableError
+from tests.conftest import stereod
 
 
 def test_objects_tracks_deletes_and_failing_queryable(
@@ -216,8 +217,28 @@ def test_the_session_summary_says_the_mode_and_endpoints_a_zenoh_file_gives(
     assert session_summary(ZenohConfig(config_file=per_mode)) == (
         "router, listening on tcp/127.0.0.1:7462"
     )
-    empty = tmp_path / "empty.json5"
-    empty.write_text("{}")
-    assert session_summary(ZenohConfig(config_file=empty), consumer=True) == (
+    scouting = tmp_path / "scouting.json5"
+    scouting.write_text("{scouting: {multicast: {enabled: true}}}")
+    assert session_summary(ZenohConfig(config_file=scouting), consumer=True) == (
         "peer, with no endpoint to connect to or listen on"
     )
+
+
+def test_a_consumer_file_that_reaches_nothing_is_refused(tmp_path: Path) -> None:
+    """A program's Zenoh file with no endpoint and multicast scouting off would wait for ever
+    in silence (``subscribe`` did): it is refused, naming the file and the fix; a daemon's
+    listens on loopback by default, and one that scouts may find peers."""
+    empty = tmp_path / "empty.json5"
+    empty.write_text("{}")
+    with pytest.raises(ConfigError, match=r"empty\.json5: the Zenoh session would have no"):
+        session_config(ZenohConfig(config_file=empty), consumer=True)
+    assert session_summary(ZenohConfig(config_file=empty)).startswith(
+        "peer, listening on tcp/127.0.0.1:"
+    )
+    res = stereod("subscribe", "--zenoh-config", str(empty), "--duration", "5")
+    assert res.returncode == 78 and res.stdout == "", res
+    assert res.stderr.splitlines() == [
+        f"stereod: {empty}: the Zenoh session would have no endpoint to connect to or listen "
+        "on, and multicast scouting is off, so it would reach no daemon: add connect: "
+        '{endpoints: ["tcp/HOST:7447"]} to the file, or give --connect'
+    ]

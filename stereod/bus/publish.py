@@ -160,7 +160,32 @@ def session_config(cfg: ZenohConfig, *, consumer: bool = False) -> zenoh.Config:
             raise ConfigError(
                 f"zenoh.{field} = {json.dumps(value)[:80]}: {zenoh_reason(exc)}"
             ) from exc
+    if consumer and cfg.config_file is not None and not _reaches_out(zc):
+        raise ConfigError(
+            f"{cfg.config_file}: the Zenoh session would have no endpoint to connect to or "
+            "listen on, and multicast scouting is off, so it would reach no daemon: add "
+            'connect: {endpoints: ["tcp/HOST:7447"]} to the file, or give --connect'
+        )
     return zc
+
+
+def _mode(zc: zenoh.Config) -> str:
+    return json.loads(zc.get_json("mode")) or "peer"  # Zenoh's default
+
+
+def _endpoints(zc: zenoh.Config, key: str) -> list[str]:
+    """The endpoints at ``key`` (``connect/endpoints``, ``listen/endpoints``) for the
+    config's mode (a file may give them per mode)."""
+    given = json.loads(zc.get_json(key)) or []
+    return list(given.get(_mode(zc), []) if isinstance(given, dict) else given)
+
+
+def _reaches_out(zc: zenoh.Config) -> bool:
+    """Whether a session of ``zc`` can meet another: an endpoint, or multicast scouting."""
+    scouting = json.loads(zc.get_json("scouting/multicast/enabled"))
+    return bool(_endpoints(zc, "connect/endpoints") or _endpoints(zc, "listen/endpoints")) or (
+        scouting is True
+    )
 
 
 def open_session(cfg: ZenohConfig, *, consumer: bool = False) -> zenoh.Session:
@@ -433,14 +458,8 @@ def session_summary(cfg: ZenohConfig, *, consumer: bool = False) -> str:
     """The mode and endpoints a session opened with ``cfg`` takes, a config file's included,
     for a start-up line: ``client, to tcp/10.0.0.5:7447``."""
     zc = session_config(cfg, consumer=consumer)
-    mode = json.loads(zc.get_json("mode")) or "peer"  # Zenoh's default
-
-    def endpoints(key: str) -> list[str]:
-        given = json.loads(zc.get_json(key)) or []
-        return list(given.get(mode, []) if isinstance(given, dict) else given)  # per mode
-
-    said = [f"to {', '.join(e)}" for e in [endpoints("connect/endpoints")] if e]
-    said += [f"listening on {', '.join(e)}" for e in [endpoints("listen/endpoints")] if e]
+    said = [f"to {', '.join(e)}" for e in [_endpoints(zc, "connect/endpoints")] if e]
+    said += [f"listening on {', '.join(e)}" for e in [_endpoints(zc, "listen/endpoints")] if e]
     if not said:
         said = ["with no endpoint to connect to or listen on"]
-    return f"{mode}, {'; '.join(said)}"
+    return f"{_mode(zc)}, {'; '.join(said)}"
