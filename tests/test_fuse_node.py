@@ -72,3 +72,27 @@ def test_a_rig_silent_past_the_rig_timeout_is_not_live_though_no_stamp_moves_on(
     assert status.rigs["a"].live and not status.rigs["b"].live
     (said,) = [p for p in status.problems if "no message for" in p]
     assert said.startswith("rig b: no message for 5.0 s") and "1 s" in said
+
+
+def test_a_rig_heard_whose_stamps_lie_behind_the_rig_timeout_is_said() -> None:
+    """Rig b's messages come, but its host's clock is 2 s behind: its tracks are left out of
+    the room (not live), and the status says why and what to check (it said nothing: b
+    showed as not live with no problem)."""
+    from stereod.bus.messages import dump_objects
+    from stereod.fusion.wire import decode
+    from stereod_fakes.room_messages import RigSim, Walker
+
+    node = _node(20.0)
+    t0 = time.time_ns()
+    now = time.monotonic()
+    for name, behind_s in (("a", 0.0), ("b", 2.0)):
+        t = t0 - int(behind_s * 1e9)
+        walker = [Walker(1, (0.3, 0.0, 3.0), (0.2, 0.0, 0.0), t)]
+        payload, _ = dump_objects(RigSim(RigPose(name=name), seed=1).message(walker, t))
+        node.fuser.ingest_wire(decode(payload))
+        node._count([(now, f"stereod/{name}/objects", payload)])
+    status = node.status()
+    assert status.rigs["a"].live and not status.rigs["b"].live
+    (said,) = [p for p in status.problems if "behind" in p]
+    assert said.startswith("rig b: its stamps are 2.0 s behind rig a's, past the rig timeout")
+    assert "check both hosts' clocks" in said

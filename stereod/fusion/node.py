@@ -312,6 +312,29 @@ class FuseNode:
                     self.mcap_skipped += 1
                     self.mcap_problem = str(exc)
 
+    def _behind(
+        self,
+        rigs: dict[str, RigLink],
+        silent: dict[str, float],
+        latest: int | None,
+        timeout_s: float,
+    ) -> list[str]:
+        """Rigs whose messages come but whose stamps lie more than the rig timeout behind the
+        newest rig's: their tracks are left out of the room, which only their clocks (or a
+        replay's ``--utc-start``) can explain, so the status says so."""
+        stamps = {n: link.last_stamp_utc_ns for n, link in rigs.items()}
+        heard = {n: t for n, t in stamps.items() if t is not None and n not in silent}
+        if latest is None or not heard:
+            return []
+        newest = max(heard, key=lambda n: heard[n])
+        return [
+            f"rig {n}: its stamps are {(latest - t) / 1e9:.1f} s behind rig {newest}'s, past the "
+            f"rig timeout ({timeout_s:g} s), so its tracks are left out of the room: check "
+            "both hosts' clocks (chrony, PTP), or the replays' --utc-start"
+            for n, t in heard.items()
+            if latest - t > timeout_s * 1e9
+        ]
+
     def status(self, state: str = "running") -> FuseStatus:
         """The node's status now."""
         now = time.monotonic()
@@ -359,6 +382,7 @@ class FuseNode:
             for n, s in silent.items()
             if n in rigs
         ]
+        problems += self._behind(rigs, silent, latest, timeout_s)
         if self.reload_problem is not None:
             problems.append(self.reload_problem)
         if dropped:
