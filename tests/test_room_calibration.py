@@ -250,3 +250,43 @@ def test_bad_rig_arguments_are_one_line(tmp_path: Path, extra: list[str], patter
         "--square", "0.05",
     )  # fmt: skip
     one_line_error(res, 64, pattern)
+
+
+@pytest.mark.parametrize(
+    ("extra", "said"),
+    [
+        (["--min-pairs", "9"], "rig a saw the board in 8 views, fewer than --min-pairs 9"),
+        (["--max-rms", "0.01"], "rig a's reprojection RMS of its own views is "),
+    ],
+)
+def test_a_room_calibration_that_fails_its_limits_is_refused_unless_forced(
+    tmp_path: Path, extra: list[str], said: str
+) -> None:
+    """--min-pairs (views a rig saw the board in) and --max-rms hold for --room as for a rig's
+    calibration: exit 65 and nothing written (they were accepted, then ignored), or written
+    with --force and said."""
+    args = write_views(tmp_path, 8, {k: RIGS[k] for k in "ab"})
+    out = tmp_path / "room.toml"
+    cmd = ["calibrate", "--room", str(out), *args, "--board", "9x6", "--square", "0.05", *extra]
+    res = stereod(*cmd)
+    assert res.returncode == 65, res.stderr
+    (line,) = res.stderr.splitlines()
+    assert line.startswith("stereod: room calibration is clearly bad: ") and said in line, line
+    assert line.endswith(f"not written to {out} (use --force to write it anyway)")
+    assert not out.exists()
+    forced = stereod(*cmd, "--force")
+    assert forced.returncode == 0 and "written anyway (--force)" in forced.stderr
+    assert [r.name for r in load_room(out).rigs] == ["a", "b"]
+
+
+def test_the_default_limits_pass_a_good_room_and_a_stereo_calibration_needs_3_pairs(
+    tmp_path: Path,
+) -> None:
+    args = write_views(tmp_path, 3, {k: RIGS[k] for k in "ab"})
+    _, rigs = run_room(tmp_path, args)  # 3 views a rig: the least --room takes by default
+    assert set(rigs) == {"a", "b"}
+    res = stereod(
+        "calibrate", "--pairs", str(tmp_path), "--board", "9x6", "--square", "0.05",
+        "--min-pairs", "2",
+    )  # fmt: skip
+    one_line_error(res, 64, r"--min-pairs 2: a stereo calibration needs 3 pairs or more")

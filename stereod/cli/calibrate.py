@@ -19,7 +19,7 @@ from stereod.cli.common import (
 )
 from stereod.cli.progress import Progress
 from stereod.errors import UsageError
-from stereod.files.bounds import MIN_BOARD_CORNERS, SQUARE_M
+from stereod.files.bounds import MIN_BOARD_CORNERS, MIN_PAIRS, MIN_ROOM_VIEWS, SQUARE_M
 from stereod.files.output_file import check_outputs, stopped_by_signals
 
 if TYPE_CHECKING:
@@ -91,17 +91,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument(
         "--min-pairs",
-        type=number(3, 10000, integer=True),
-        default=6,
+        type=number(1, 10000, integer=True),
         metavar="N",
-        help="fewest usable pairs accepted (default 6)",
+        help=f"fewest usable pairs accepted (default {MIN_PAIRS}, at least 3); with --room, "
+        f"fewest views of the board each rig must have (default {MIN_ROOM_VIEWS})",
     )
     p.add_argument(
         "--max-rms",
         type=number(0.0, 100.0, lo_open=True, unit="px"),
         default=1.0,
         metavar="PX",
-        help="largest stereo RMS accepted, px (default 1.0)",
+        help="largest stereo RMS accepted, px (default 1.0); with --room, the largest "
+        "reprojection RMS of a rig's board views, its own and through the room",
     )
     p.add_argument(
         "--corner-window",
@@ -187,7 +188,9 @@ def run(a: argparse.Namespace) -> int:
     board = Board(cols=cols, rows=rows, square=a.square)
     if a.room is not None or a.rig:
         return _room(a, board)
-    limits = cb.Limits(min_pairs=a.min_pairs, max_rms_px=a.max_rms)
+    if a.min_pairs is not None and a.min_pairs < 3:
+        raise UsageError(f"--min-pairs {a.min_pairs}: a stereo calibration needs 3 pairs or more")
+    limits = cb.Limits(min_pairs=a.min_pairs or MIN_PAIRS, max_rms_px=a.max_rms)
     pairs = None
     if not a.live:
         pairs = cb.pairs_in_directory(a.pairs) if a.pairs else cb.pairs_from_list(a.list)
@@ -217,6 +220,7 @@ def run(a: argparse.Namespace) -> int:
 def _room(a: argparse.Namespace, board: Board) -> int:
     """``--room``: the rigs' poses from their shared board views, written as a room file."""
     from stereod.vision import room_calibration as room_cal
+    from stereod.vision.calibrate import CalibrationRejected
     from stereod.vision.calibration import create_output, load
 
     if a.room is None:
@@ -234,6 +238,17 @@ def _room(a: argparse.Namespace, board: Board) -> int:
     with stopped_by_signals("calibrate", a.room), create_output(a.room) as out:
         report = room_cal.calibrate_room(rigs, board)
         print(room_cal.format_report(report))
+        problems = room_cal.check_report(report, a.min_pairs or MIN_ROOM_VIEWS, a.max_rms)
+        if problems:
+            bad = f"room calibration is clearly bad: {'; '.join(problems)}"
+            if not a.force:
+                out.discard()
+                print(
+                    f"stereod: {bad}; not written to {a.room} (use --force to write it anyway)",
+                    file=sys.stderr,
+                )
+                return CalibrationRejected.exit_code
+            print(f"stereod: {bad}; written anyway (--force)", file=sys.stderr)
         out.write(room_cal.room_toml(a.room_name, report).encode())
     print(f"wrote {a.room} (room {a.room_name!r}, {len(rigs)} rigs)")
     return 0

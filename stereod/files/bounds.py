@@ -135,6 +135,12 @@ MIN_BOARD_CORNERS = 3
 """The fewest inner corners a side of a chessboard may have: OpenCV's
 ``findChessboardCorners`` refuses fewer ("both width and height of the pattern should have
 bigger than 2")."""
+MIN_PAIRS = 6
+"""``calibrate``'s default fewest usable chessboard pairs: fewer leave the focal length and
+the lens distortion poorly fixed."""
+MIN_ROOM_VIEWS = 3
+"""``calibrate --room``'s default fewest board views each rig must have: one view's pose is
+one noisy measurement of the rig-to-rig transform, a few average out."""
 STATUS_PERIOD_S = Bound(
     ("daemon.status_period_s",),
     0.05,

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from stereod.errors import CalibrationError, InputError, MissingInputError
+from stereod.files.bounds import MIN_PAIRS
 from stereod.files.paths import text_path
 from stereod.sources.frames import Frame
 from stereod.sources.pairing import Pairer
@@ -50,7 +51,7 @@ class Limits:
     """When a calibration is refused: fewer than ``min_pairs`` usable pairs, or a stereo RMS
     above ``max_rms_px`` (px)."""
 
-    min_pairs: int = 6
+    min_pairs: int = MIN_PAIRS
     max_rms_px: float = 1.0
 
 

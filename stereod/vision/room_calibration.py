@@ -264,6 +264,26 @@ def calibrate_room(rigs: Sequence[RigViews], board: Board) -> RoomReport:
     return RoomReport(results, loops)
 
 
+def check_report(report: RoomReport, min_views: int, max_rms_px: float) -> list[str]:
+    """What makes a room calibration clearly bad: a rig that saw the board in fewer than
+    ``min_views`` views, or whose reprojection RMS (its own board poses, or the board other
+    rigs saw carried to it through the room) exceeds ``max_rms_px`` (a wrong board size or
+    square, a blurred view). Empty when it passes."""
+    problems = []
+    for r in report.rigs:
+        if r.views < min_views:
+            problems.append(
+                f"rig {r.name} saw the board in {r.views} views, fewer than --min-pairs {min_views}"
+            )
+        for what, rms in (("of its own views", r.rms_px), ("through the room", r.room_rms_px)):
+            if rms is not None and rms > max_rms_px:
+                problems.append(
+                    f"rig {r.name}'s reprojection RMS {what} is {rms:.3f} px, above --max-rms "
+                    f"{max_rms_px:g}"
+                )
+    return problems
+
+
 def room_toml(name: str, report: RoomReport) -> str:
     """The room file (TOML) of ``report``: each rig's translation (m) and rotation (deg,
     ``R = Rz Ry Rx``), with the quality figures as comments."""
