@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 from stereod.bus.messages import ObjectsMessage
 from stereod.daemon.config import load_config
 from stereod.daemon.daemon import Daemon
-from stereod.errors import ConfigError, UnavailableError
+from stereod.errors import UnavailableError, UsageError
 from stereod.ros.foxglove import READVERTISE_AFTER, READVERTISE_TRIES, FoxgloveBridge
 from stereod.view.overlay import HEADER_PX
 from stereod_fakes.synth import Ball, Scene, SyntheticDriver
@@ -359,11 +359,11 @@ def test_port_in_use_is_one_line(session_client: Any) -> None:
 
 
 def test_a_host_that_is_not_this_machine_s_names_the_host_flag() -> None:
-    """A host that does not resolve is a ConfigError whose hint is --foxglove-host (it said to
-    pick another port)."""
+    """A host that does not resolve is a usage error (exit 64, as a flag's bad value) whose
+    hint is --foxglove-host (it said to pick another port, then exited 78)."""
     with (
         zenoh.open(zenoh_config()) as session,
-        pytest.raises(ConfigError, match=r"999\.1\.1\.1:0: .*\(check --foxglove-host") as exc,
+        pytest.raises(UsageError, match=r"999\.1\.1\.1:0: .*\(check --foxglove-host") as exc,
     ):
         FoxgloveBridge(session, host="999.1.1.1", port=0).start()
     assert "--foxglove-port" not in str(exc.value)

@@ -68,10 +68,10 @@ from stereod.client import (
     subscribe_objects,
 )
 from stereod.errors import (
-    ConfigError,
     NotInstalledError,
     StereodError,
     UnavailableError,
+    UsageError,
     serve_hint,
 )
 from stereod.ros.mapping import RosMessage, RosMessages
@@ -312,8 +312,8 @@ class FoxgloveBridge:
 
     def start(self) -> FoxgloveBridge:
         """Start the server and subscribe to the rig; :class:`UnavailableError` when the port
-        is in use, :class:`ConfigError` when the address cannot be bound otherwise,
-        :class:`NotInstalledError` without foxglove-sdk."""
+        is in use, :class:`UsageError` (the flags' host or port) when the address cannot be
+        bound otherwise, :class:`NotInstalledError` without foxglove-sdk."""
         try:
             import foxglove
         except ImportError as exc:
@@ -353,7 +353,7 @@ class FoxgloveBridge:
             text = f"foxglove: cannot serve on {self.host}:{self.port}: {reason} ({hint})"
             if in_use or "Address already in use" in reason:  # taken now, maybe free later
                 raise UnavailableError(text) from exc
-            raise ConfigError(text) from exc
+            raise UsageError(text) from exc  # a host or port of the flags that cannot be
         self.port = self._front.port
         self._subs.append(
             subscribe_objects(self.session, self._on_event, rig=self.rig, prefix=self.prefix)

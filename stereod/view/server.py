@@ -50,7 +50,7 @@ from stereod.client import (
     subscribe_status,
 )
 from stereod.daemon.config_zenoh import ZenohConfig
-from stereod.errors import ConfigError, UnavailableError, serve_hint
+from stereod.errors import UnavailableError, UsageError, serve_hint
 from stereod.vision.calibration import Calibration
 
 log = logging.getLogger(__name__)
@@ -326,7 +326,7 @@ class ViewServer:
 
     def start(self) -> ViewServer:
         """Open the session, subscribe, serve the page; raise :class:`UnavailableError` when
-        the port is in use (another program serves there), :class:`ConfigError` when the
+        the port is in use (another program serves there), :class:`UsageError` when the
         address cannot be bound otherwise (a host that is not this machine's)."""
         self._thread = threading.Thread(target=self._serve, name="view-http", daemon=True)
         self._thread.start()
@@ -342,7 +342,7 @@ class ViewServer:
                         f"{where} (another program serves there; pick another port with "
                         f"{flag}, or {flag} 0 for any free one)"
                     ) from err
-                raise ConfigError(f"{where} ({serve_hint(err, '--host', flag)})") from err
+                raise UsageError(f"{where} ({serve_hint(err, '--host', flag)})") from err
             raise err
         hub = self.hub
         try:
