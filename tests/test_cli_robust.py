@@ -162,10 +162,25 @@ ROWS = [
         lambda d: (d / "c.toml").write_bytes(b"\xff\xfe[x"),
     ),
     Row(
+        "--jsonl ''",
+        ["replay", "{d}/rec", "--rate", "0", "--jsonl", ""],
+        64,
+        "--jsonl: is empty: give a file name, or - for standard output",
+        recording,
+    ),
+    Row(
+        "fuse --jsonl ''",
+        ["fuse", "--room", "{d}/room.toml", "--jsonl", " "],
+        64,
+        "--jsonl: is empty",
+        lambda d: (d / "room.toml").write_text('[room]\nname = "lab"\n[[room.rigs]]\nname = "a"\n'),
+    ),
+    Row(
         "--jsonl /dev/full",
         ["replay", "{d}/rec", "--rate", "0", "--jsonl", "/dev/full"],
         73,
-        "/dev/full: writing failed: No space left",
+        "/dev/full: writing failed: No space left on device; free space on its file system, "
+        "or write it elsewhere",
         recording,
     ),
     Row(

@@ -91,7 +91,10 @@ def path_arg(text: str) -> Path:
 
 def output_arg(text: str) -> Path:
     """An argparse type: an output file, ``-`` for standard output (``/dev/stdout``: written
-    in place, a line at a time)."""
+    in place, a line at a time); an empty one (which would be the folder the command runs
+    in) is refused."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty: give a file name, or - for standard output")
     return Path("/dev/stdout") if text == "-" else path_arg(text)
 
 

@@ -314,6 +314,19 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
+_WRITE_HINTS = {
+    errno.ENOSPC: "; free space on its file system, or write it elsewhere",
+    errno.EDQUOT: "; your disk quota is used up: free some, or write it elsewhere",
+    errno.EFBIG: "; too large for its file system: write it elsewhere",
+}
+"""What to do when a write fails, by errno (nothing added for the others)."""
+
+
+def write_failed(exc: OSError) -> str:
+    """``writing failed: REASON``, and what to do where the reason says (a full disk)."""
+    return f"writing failed: {exc.strerror}{_WRITE_HINTS.get(exc.errno or 0, '')}"
+
+
 class AtomicOutput:
     """A binary output file written by the module's rule; use as a context manager or call
     :meth:`commit` / :meth:`discard`. Write errors become :class:`OutputError` (exit 73).
@@ -362,7 +375,7 @@ class AtomicOutput:
             return ReaderGone(f"{self.path}: its reader stopped reading", stdout=self.stdout)
         if self.stdout:  # as any command's standard output that fails: 74
             return StdoutWriteError(f"cannot write to standard output: {exc.strerror}")
-        return OutputError(f"{self.path}: writing failed: {exc.strerror}")
+        return OutputError(f"{self.path}: {write_failed(exc)}")
 
     def write(self, data: bytes) -> int:
         """Write ``data``; the number of bytes written."""

@@ -20,6 +20,7 @@ from stereod.errors import (
     OutputError,
     StereodError,
 )
+from stereod.files.output_file import write_failed
 from stereod.files.paths import text_path
 from stereod.files.stop import check_stop
 from stereod.sources.frames import Eye, Frame
@@ -210,7 +211,7 @@ class RecordingWriter:
             )
             self._ts[frame.eye].write(row + "\n")
         except OSError as exc:
-            raise OutputError(f"{self.directory}: writing failed: {exc.strerror}") from exc
+            raise OutputError(f"{self.directory}: {write_failed(exc)}") from exc
         self._counts[frame.eye] += 1
 
     def _check_space(self) -> None:
@@ -273,7 +274,7 @@ class RecordingWriter:
             os.replace(self._tmp, self.directory)
         except OSError as exc:
             self.discard()
-            raise OutputError(f"{self.directory}: writing failed: {exc.strerror}") from exc
+            raise OutputError(f"{self.directory}: {write_failed(exc)}") from exc
 
     def discard(self) -> None:
         """Drop everything written; ``directory`` stays as it was."""
