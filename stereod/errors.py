@@ -186,9 +186,27 @@ def describe_error(e: Any, prefix: str = "", model: Any = None) -> str:
         return f"{loc}: unknown field ({hint})"
     if e["type"] == "missing":
         return f"{loc}: required field is missing"
+    if e["type"] == "string_pattern_mismatch":
+        msg = _PATTERNS.get(str(e.get("ctx", {}).get("pattern")), msg)
+    elif e["type"] == "too_short" and "min_length" in e.get("ctx", {}):
+        n = e["ctx"]["min_length"]
+        msg = f"needs at least {n} item{'s' if n != 1 else ''}"
     if "input" in e and not isinstance(e["input"], dict | list):
         return f"{loc} = {_shown(e['input'])}: {msg}"
     return f"{loc}: {msg}"
+
+
+_PATTERNS = {
+    r"^[A-Za-z0-9_\-]+$": "use ASCII letters, digits, '_' and '-' only (one Zenoh key chunk)",
+    r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$": (
+        "use ASCII letters, digits, '_' and '-', in parts split by '/' (no wildcards)"
+    ),
+    r"^/?([A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*)?/?$": (
+        "a ROS name: ASCII letters, digits and '_', parts split by '/', each starting with a letter"
+    ),
+}
+"""What each name pattern of the configuration and room files means, said instead of the
+regular expression (the patterns of ``stereod.bus.keys`` and the ROS 2 namespace)."""
 
 
 def nearest_field(model: Any, loc: Sequence[int | str]) -> str | None:

@@ -85,7 +85,10 @@ def test_room_file_loads_and_maps_rig_points_into_the_room(tmp_path: Path) -> No
         (("[0.0, -90.0, 0.0]", "[0.0, -90.0, inf]"), r"rotation_deg\.2"),
         (("[0.0, -90.0, 0.0]", "[0.0, 400.0]"), r"rotation_deg: needs three numbers .*not 2"),
         (("[4.0, 0.0, 4.0]", "[4.0, 0.0, 4.0, 1.0]"), r"translation_m: needs three .*not 4"),
-        (('name = "lab"', 'name = "lab/x"'), r"room\.name"),
+        (
+            ('name = "lab"', 'name = "lab/x"'),
+            r"room\.name = 'lab/x': use ASCII letters, digits, '_' and '-' only",
+        ),
         (
             ("rotation_deg = [0.0, -90", "rotatoin_deg = [0.0, -90"),
             r"rotatoin_deg: unknown field \(did you mean rotation_deg\?\)",
@@ -119,3 +122,21 @@ def test_a_room_file_saved_with_a_byte_order_mark_reads_as_without(tmp_path: Pat
     f.write_bytes(("\ufeff" + ROOM).encode())
     room = load_room(f)
     assert room.name == "lab" and [r.name for r in room.rigs] == ["a", "b"]
+
+
+def test_a_room_with_no_rig_says_so_in_words(tmp_path: Path) -> None:
+    """Not pydantic's "List should have at least 1 item after validation, not 0"."""
+    path = write(tmp_path, '[room]\nname = "lab"\nrigs = []\n')
+    with pytest.raises(ConfigError, match=r"room\.rigs: needs at least 1 item$"):
+        load_room(path)
+
+
+def test_every_name_pattern_of_the_files_is_said_in_words() -> None:
+    """A name that breaks a pattern is told what the pattern allows, not the regular
+    expression: each pattern the configuration and room files use has its words."""
+    from stereod.bus import keys
+    from stereod.daemon.config import Ros2Config
+    from stereod.errors import _PATTERNS
+
+    namespace = Ros2Config.model_fields["namespace"].metadata[0].pattern
+    assert {keys.RIG_PATTERN, keys.PREFIX_PATTERN, namespace} <= set(_PATTERNS)
