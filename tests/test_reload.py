@@ -176,6 +176,8 @@ def test_no_new_file_kills_a_running_daemon(tmp_path: Path, endpoint: str) -> No
                 assert proc.poll() is None, f"{what}: the daemon died"
                 latest = statuses[-1]["problems"][-1]
                 assert "keeping the running configuration" in latest, latest
+                refused = [p for p in statuses[-1]["problems"] if "reload refused" in p]
+                assert refused == [latest], refused  # the refusal before is replaced
                 assert str(tmp_path) not in latest, f"a private path on the bus: {latest}"
                 assert query_config(s, rig="svc")["detector"]["threshold"] == 25.0
             cfg.write_text(good(endpoint, threshold=31.0))

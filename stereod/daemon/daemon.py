@@ -471,7 +471,7 @@ class Daemon:
             params = pipeline_params(cfg, width, height)
         except Exception as exc:  # nothing in a new file may kill a running daemon
             reason = str(exc) if isinstance(exc, StereodError) else f"{type(exc).__name__}: {exc}"
-            self.health.problem(f"{RELOAD_REFUSED}: {reason}", notice=True)
+            self.health.restate(RELOAD_REFUSED, f"{RELOAD_REFUSED}: {reason}", notice=True)
             self._notifier.notify(READY=1)
             return
         waiting = [

@@ -154,6 +154,12 @@ class Health:
             self._problems.extend(kept)
         self._on_change()
 
+    def restate(self, prefix: str, text: str, *, notice: bool = False) -> None:
+        """Say ``text`` in place of the recent problems that begin with ``prefix``: the
+        latest refusal of a reload replaces the one before, whose file is no more."""
+        self.resolved(prefix)
+        self.problem(text, notice=notice)
+
     def showing(self, prefix: str) -> bool:
         """Whether a recent problem on the status key begins with ``prefix`` (the key keeps
         the last 20: an older one has fallen off)."""
