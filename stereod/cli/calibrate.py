@@ -202,19 +202,25 @@ def run(a: argparse.Namespace) -> int:
     with stopped_by_signals("calibrate", a.out), create_output(a.out) as out:
         report = _live(a, board, limits) if pairs is None else _files(a, pairs, board, limits)
         print(cb.format_report(report))
-        if report.problems:
-            bad = f"calibration is clearly bad: {'; '.join(report.problems)}"
-            if not a.force:
-                out.discard()
-                print(
-                    f"stereod: {bad}; not written to {a.out} (use --force to write it anyway)",
-                    file=sys.stderr,
-                )
-                return cb.CalibrationRejected.exit_code
-            print(f"stereod: {bad}; written anyway (--force)", file=sys.stderr)
+        if refused("calibration", report.problems, a.out, a.force):
+            out.discard()
+            return cb.CalibrationRejected.exit_code
         write(report.calibration, out)
     print(f"wrote {a.out} (calibration id {report.calibration.id})")
     return 0
+
+
+def refused(what: str, problems: list[str], out: Path, force: bool) -> bool:
+    """Whether a result with ``problems`` is refused (not written to ``out``); said on stderr
+    either way, and written anyway with ``force``."""
+    if not problems:
+        return False
+    bad = f"{what} is clearly bad: {'; '.join(problems)}"
+    if force:
+        print(f"stereod: {bad}; written anyway (--force)", file=sys.stderr)
+        return False
+    print(f"stereod: {bad}; not written to {out} (use --force to write it anyway)", file=sys.stderr)
+    return True
 
 
 def _room(a: argparse.Namespace, board: Board) -> int:
@@ -239,16 +245,9 @@ def _room(a: argparse.Namespace, board: Board) -> int:
         report = room_cal.calibrate_room(rigs, board)
         print(room_cal.format_report(report))
         problems = room_cal.check_report(report, a.min_pairs or MIN_ROOM_VIEWS, a.max_rms)
-        if problems:
-            bad = f"room calibration is clearly bad: {'; '.join(problems)}"
-            if not a.force:
-                out.discard()
-                print(
-                    f"stereod: {bad}; not written to {a.room} (use --force to write it anyway)",
-                    file=sys.stderr,
-                )
-                return CalibrationRejected.exit_code
-            print(f"stereod: {bad}; written anyway (--force)", file=sys.stderr)
+        if refused("room calibration", problems, a.room, a.force):
+            out.discard()
+            return CalibrationRejected.exit_code
         out.write(room_cal.room_toml(a.room_name, report).encode())
     print(f"wrote {a.room} (room {a.room_name!r}, {len(rigs)} rigs)")
     return 0
