@@ -228,3 +228,25 @@ def test_a_sigterm_while_a_long_running_command_starts(
         assert stopped == [signal.SIGTERM] and err == ""
     else:
         assert err == "stereod: fuse interrupted by SIGTERM\n"
+
+
+def test_a_signal_kept_for_a_command_that_failed_is_not_handed_to_the_next(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A SIGTERM kept while a node started, which then failed on its files, is forgotten with
+    it: a later command in the same process (a test's) does not stop on it at once."""
+    import stereod.cli as cli
+    from stereod.cli import fuse
+    from stereod.errors import ConfigError
+
+    def fails(_args: object) -> int:
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.05)
+        raise ConfigError("room.toml: bad")
+
+    monkeypatch.setattr(fuse, "run", fails)
+    assert cli.main(["fuse", "--room", "room.toml"]) == 78
+    got: list[int] = []
+    with relayed({signal.SIGTERM: got.append}):
+        time.sleep(0.2)
+    assert got == []

@@ -209,6 +209,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:  # a caller in this process (a test) gets its own handlers and stdout back
         sys.stdout = stdout
         clear_stop()
+        deferred_left()  # and no signal kept for a command that ended on an error
         for signum, handler in saved.items():
             if handler is not None:
                 signal.signal(signum, handler)
