@@ -127,7 +127,7 @@ def test_a_staged_install_of_a_stereod_the_service_cannot_see_is_warned_of(
     err = capsys.readouterr().err
     if warned:
         assert err.count("\n") == 1 and err.startswith(STAGED_WARNING)
-        assert f"the units run {executable} is under" in err
+        assert f"warning: {executable} is under" in err and "cannot start" in err
     else:
         assert err == ""
 

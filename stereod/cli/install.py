@@ -56,9 +56,9 @@ def run(a: argparse.Namespace) -> int:
     hidden = None if a.uninstall or a.prefix == Path("/") else hidden_from_service(exe)
     if hidden is not None:  # the system install refuses this; a staged one is said to
         print(
-            f"stereod install-service: warning: the units run {hidden}: they cannot start "
-            "once installed unless stereod is installed where a service can run it "
-            "(e.g. /opt/stereod)",
+            f"stereod install-service: warning: {hidden}: the units written run it and cannot "
+            "start once installed; install stereod where a service can run it (e.g. "
+            "/opt/stereod)",
             file=sys.stderr,
             flush=True,
         )
