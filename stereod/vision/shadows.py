@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stereod.vision.luminance import MEAN_RGB
+from stereod.vision.luminance import MEAN_RGB, channel_mean
 
 SHADOW_WINDOW_PX = 7
 """Side (px) of the window a shadow's texture is compared with the background's over (5 px
@@ -111,8 +111,8 @@ def _relit(
     lo, hi = ratio
     # The brightness ratio first, on one channel: most of an object is no candidate, and the
     # rest of the test runs only around the candidates.
-    fl8 = cv2.transform(frame, MEAN_RGB) if frame.ndim == 3 else frame
-    bl8 = cv2.transform(background, MEAN_RGB) if frame.ndim == 3 else background
+    fl8 = channel_mean(frame) if frame.ndim == 3 else frame
+    bl8 = channel_mean(background) if frame.ndim == 3 else background
     r = fl8.astype(np.float32) / (bl8.astype(np.float32) + np.float32(1.0))
     cand_all = cv2.bitwise_and(cv2.inRange(r, lo, hi), foreground)
     if cv2.countNonZero(cand_all) == 0:
