@@ -20,9 +20,11 @@ from stereod_fakes.world import (
     Scene,
     Trajectory,
     Transport,
+    person_sit_walk,
     robot_ball,
     write_scene,
 )
+from stereod_fakes.world.textures import _remap
 from stereod_fakes.world.transport import yuyv_422
 
 BG, FG = 50.0, 250.0
@@ -167,3 +169,21 @@ def test_mjpeg_round_trip() -> None:
     assert mse > 0.0 and 10.0 * math.log10(255.0**2 / mse) > 28.0
     low = replace(scene, transport=Transport(mjpeg_quality=20)).render("left", t)
     assert np.mean((low.astype(np.float64) - raw) ** 2) > mse
+
+
+def test_a_lookup_of_no_texels_is_empty() -> None:
+    atlas = np.ones((4, 4, 3), np.float32)
+    none = np.zeros((0, 5), np.float32)
+    assert _remap(atlas, none, none).shape == (0, 5, 3)
+
+
+def test_rolling_shutter_renders_a_band_with_no_background_in_it() -> None:
+    # Frame 468 of this scene once failed in OpenCV's remap: one of its rolling shutter's
+    # bands needed no background ray (found by rendering the whole scene from the CLI).
+    scene = replace(
+        person_sit_walk(8.0, lit=True),
+        transport=Transport(rolling_shutter=True, readout_s=0.03, mjpeg_quality=80),
+    )
+    img = scene.render("left", scene.frame_times("left")[468])
+    assert img.shape == (scene.rig.height_px, scene.rig.width_px, 3)
+    assert 20 < float(img.mean()) < 235

@@ -153,8 +153,11 @@ def _make_textures(rig: Rig, room: Room, seed: int) -> _Textures:
 
 
 def _remap(atlas: F32, mx: F32, my: F32) -> F32:
-    """Bilinear lookup of ``atlas`` at float texel coordinates (any shape, any size)."""
+    """Bilinear lookup of ``atlas`` at float texel coordinates (any shape, any size, none
+    included: a band of rows where no ray needs the background)."""
     n = mx.size
+    if n == 0:
+        return np.zeros((*mx.shape, 3), np.float32)
     cols = min(max(n, 1), 1024)
     rows = -(-n // cols)
     px = np.zeros(rows * cols, np.float32)
