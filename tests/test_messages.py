@@ -5,10 +5,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from stereod.bus.messages import ObjectsMessage, ObjectState, dump, dump_objects
+from stereod.bus.messages import ObjectsMessage, ObjectState, dump, dump_objects, object_state
 from stereod.cli.schema import wire_messages
+from stereod.tracking.types import Observation, TrackLifecycle, TrackState
+from stereod.vision.grouping import extent_m
 
 GOLDEN = Path(__file__).parent / "golden" / "schemas.json"
 
@@ -101,3 +104,29 @@ def test_the_objects_payload_is_dumps_to_the_byte_with_each_object_serialised_on
     payload, states = dump_objects(msg)
     assert payload == dump(msg)
     assert states == [(o.track_id, dump(o)) for o in msg.objects]
+
+
+def test_an_objects_extent_is_its_boxes_seen_at_the_published_depth() -> None:
+    """A blob box 30 x 60 px seen at 12 m (a mismatch's disparity) while the track's filter
+    holds the object at 4 m: the published box is 30 x 60 px at 4 m (f = 600 px: 0.2 x 0.4 m),
+    around the published position, not the 0.6 x 1.2 m the boxes make at 12 m."""
+    f, z_seen, z = 600.0, 12.0, 4.0
+    box = np.array([300, 200, 30, 60])
+    centroid = np.array([315.0, 230.0])
+    seen = np.array([0.3, 0.1, z_seen])
+    lo, hi = extent_m(seen, box, box, centroid, f)
+    z2 = np.zeros(2)
+    ob = Observation(
+        seen, np.eye(3), z2, z2, centroid, centroid, box, box, 1800, 1800, 50.0, 0.6,
+        extent_m=(lo - seen, hi - seen),
+    )  # fmt: skip
+    at = np.array([0.1, 0.03, z])
+    state = TrackState(
+        7, TrackLifecycle.CONFIRMED, 0, ob, at, np.eye(3), np.zeros(3), np.eye(3), False,
+        False, 0.0, 1.0, 0.0, 180.0, None, 1.0, False,
+    )  # fmt: skip
+    wire = object_state(state, 0, 0)
+    assert wire.extent_min_m is not None and wire.extent_max_m is not None
+    size = np.subtract(wire.extent_max_m, wire.extent_min_m)
+    assert size == pytest.approx([30 * z / f, 60 * z / f, 30 * z / f])
+    assert all(a < p < b for a, p, b in zip(wire.extent_min_m, at, wire.extent_max_m))

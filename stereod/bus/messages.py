@@ -342,7 +342,12 @@ def object_state(s: TrackState, stamp_utc_ns: int, skew_ns: int) -> ObjectState:
     vsig = _sigmas(s.velocity_cov)
     lo = hi = None
     if ob.extent_m is not None:
-        lo, hi = _vec(s.position_m + ob.extent_m[0]), _vec(s.position_m + ob.extent_m[1])
+        # The blobs' boxes seen at the published depth: the observation's extent is their rays
+        # cut at its own depth, which the filtered (or a coasting track's) position may not be.
+        z_seen, z = float(ob.position_m[2]), float(s.position_m[2])
+        k = z / z_seen if z_seen > 0 and z > 0 else 1.0
+        lo = _vec(s.position_m + k * ob.extent_m[0])
+        hi = _vec(s.position_m + k * ob.extent_m[1])
     return ObjectState(
         track_id=s.track_id,
         state=s.lifecycle,
