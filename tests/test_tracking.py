@@ -1386,3 +1386,20 @@ def test_a_ball_whose_blob_joins_a_person_beside_it_is_not_moved_onto_them() -> 
                 assert float(np.linalg.norm(s.position_m - p)) < 0.05, (k, s.position_m, p)
     on_ball = [s.track_id for s in states if float(np.linalg.norm(s.position_m - p)) < 0.05]
     assert on_ball == [1], states
+
+
+def test_pieces_of_an_object_hold_a_filter_whose_motion_was_a_guess() -> None:
+    """A track started on a mismatch (0.1 m deeper each frame: 3 m/s away) whose object then
+    stands at 3.2 m, seen in pieces only (a blob a third of its outline's size, where it
+    stands): a piece does not move a filter whose prediction it agrees with, but one that
+    left the object is held to it, not run 3 m off in a second while the pieces keep it
+    seen."""
+    tracker = Tracker(TrackerParams())
+    for k, z in enumerate((3.0, 3.1, 3.2)):
+        step(tracker, k * DT_NS, [np.array([0.0, 0.0, z])])
+    for k in range(3, 33):
+        states, ended = step(tracker, k * DT_NS, [np.array([0.0, 0.0, 3.2])], size_m=0.03)
+        assert not ended and [s.track_id for s in states] == [1]
+    last = states[0]
+    assert last.lifecycle is not TrackLifecycle.TENTATIVE
+    assert abs(float(last.position_m[2]) - 3.2) < 0.25, last.position_m

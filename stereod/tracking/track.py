@@ -155,6 +155,32 @@ class TrackFilters:
             tr.kf, tr.other = tr.other, tr.kf
             tr.falling = not tr.falling
 
+    def _piece(self, tr: Track, t_ns: int, ob: Observation) -> None:
+        """A piece of the object seen, the rest hidden: its position lies within the object's
+        last whole outline (``tr.last``'s extent, or its width each way) around the centre.
+        Where the prediction is that close to it (on each axis, within half the outline and
+        three sigmas of the piece's own noise), the filter is only predicted: the piece's
+        centroid says less than the motion does. Where it is not, the filter's motion was a
+        guess that left the object (a pedestrian's, started on a mismatch at 16 m/s, once ran
+        40 m off in 2 s while pieces of them kept it seen), and the piece is folded in with
+        half the outline as further noise on each axis."""
+        last = tr.last
+        if last.extent_m is not None:
+            half = 0.5 * (last.extent_m[1] - last.extent_m[0])
+        else:
+            half = np.full(3, 0.5 * last.size_m)
+        r = ob.cov_m2 * tr.noise_scale
+        predicted = np.array(kalman.point_at(tr.kf, t_ns, self._accel(tr.falling)))
+        off = np.abs(ob.position_m - predicted)
+        if bool(np.all(off <= half + 3.0 * np.sqrt(np.diag(r)))):
+            self._predict(tr, t_ns)
+            return
+        r = r + np.diag(half * half)
+        q = self._q(tr)
+        tr.kf, _ = self._step(tr.kf, t_ns, ob, r, q, self._accel(tr.falling))
+        if tr.other is not None:
+            tr.other, _ = self._step(tr.other, t_ns, ob, r, q, self._accel(not tr.falling))
+
     def _step(
         self,
         kf: kalman.KalmanState,

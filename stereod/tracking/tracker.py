@@ -259,14 +259,16 @@ class Tracker(Association):
                 elif recut or (self._confirmed(tr) and not blended and _reshaped(tr.last, ob)):
                     self._anchor(tr, t_ns, ob)  # an end of it showed or went: not a motion
                     self._shift_histories(tr, ob, t_left, t_right)
-                elif self._confirmed(tr) and (
-                    _shrunk(tr.last, ob) or (blended and _off_edge(tr, ob, t_ns))
-                ):
-                    # A piece of it shows, the rest hidden, or the edge it is read by is not
-                    # its own: predicted, and its last whole outline kept to tell the next
-                    # pair's blob by.
+                elif self._confirmed(tr) and blended and _off_edge(tr, ob, t_ns):
+                    # The edge it is read by is not its own: predicted, and its last whole
+                    # outline kept to tell the next pair's blob by.
                     piece = True
                     self._predict(tr, t_ns)
+                elif self._confirmed(tr) and _shrunk(tr.last, ob):
+                    # A piece of it shows, the rest hidden: folded in as loosely as the outline
+                    # it is part of, and that outline kept as above.
+                    piece = True
+                    self._piece(tr, t_ns, ob)
                 else:
                     self._filter(tr, t_ns, ob)
                 tr.hits += 1
