@@ -21,6 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from stereod.errors import ConfigError, InputError, MissingInputError, describe_validation_error
+from stereod.files.output_file import same_file
 from stereod.files.paths import TextPath, text_path
 from stereod.sources.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
 from stereod.sources.recording import (
@@ -69,8 +70,19 @@ class ReplayOptions(BaseModel):
             has_ts = self.left_ts is not None or self.right_ts is not None
             if has_ts and (self.left_ts is None or self.right_ts is None):
                 raise ValueError("timestamps need both left_ts and right_ts")
-            if has_ts == (self.fps is not None):
+            if has_ts and self.fps is not None:
+                raise ValueError(
+                    "fps and left_ts/right_ts are exclusive: give fps (frame i at i / fps) or "
+                    "the two timestamp files, not both"
+                )
+            if not has_ts and self.fps is None:
                 raise ValueError("plain videos need either fps or left_ts and right_ts")
+            if same_file(self.left_video, self.right_video):
+                raise ValueError(
+                    "left_video and right_video are one file: each eye needs its own video "
+                    "(one video for both has no disparity, and every match between the eyes "
+                    "would be a wrong one)"
+                )
         return self
 
 

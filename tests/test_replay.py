@@ -295,6 +295,11 @@ def test_bad_inputs_are_refused_up_front(
         ({}, "either path"),
         ({"left_video": "a"}, "both left_video and right_video"),
         ({"left_video": "a", "right_video": "b"}, "either fps or left_ts"),
+        (
+            {"left_video": "a", "right_video": "b", "fps": 10, "left_ts": "c", "right_ts": "d"},
+            "exclusive: give fps .* or the two timestamp files, not both",
+        ),
+        ({"left_video": "a", "right_video": "a", "fps": 10}, "one file: each eye needs its own"),
         ({"left_video": "a", "right_video": "b", "fps": -1}, r"driver.options.fps"),
         ({"path": "x", "bogus": 1}, r"driver.options.bogus"),
     ],
@@ -302,6 +307,21 @@ def test_bad_inputs_are_refused_up_front(
 def test_option_errors_name_the_field(options: dict, pattern: str) -> None:
     with pytest.raises(ConfigError, match=pattern):
         ReplayDriver(options)
+
+
+def test_one_video_as_both_eyes_is_refused_through_a_link_and_from_the_flags(
+    tmp_path: Path,
+) -> None:
+    video = write_video(tmp_path / "v.avi", 4)
+    (tmp_path / "link.avi").symlink_to(video)
+    with pytest.raises(ConfigError, match="one file: each eye needs its own video"):
+        ReplayDriver({"left_video": video, "right_video": tmp_path / "link.avi", "fps": 10})
+    r = run_stereod(
+        "replay", "--left-video", str(video), "--right-video", str(video), "--fps", "10"
+    )
+    assert r.returncode == 64, r.stderr
+    assert "--left-video and --right-video are one file" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
 # -- `stereod replay`: where its outputs go, and a run a signal stops ----------------------------

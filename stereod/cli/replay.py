@@ -210,6 +210,14 @@ def plain_video_flags(a: argparse.Namespace) -> None:
         raise UsageError(
             "plain videos need their capture times: give --fps HZ or --left-ts/--right-ts CSV"
         )
+    from stereod.files.output_file import same_file
+
+    if same_file(a.left_video, a.right_video):
+        raise UsageError(
+            "--left-video and --right-video are one file: each eye needs its own video (one "
+            "video for both has no disparity, and every match between the eyes would be a "
+            "wrong one)"
+        )
 
 
 def run(a: argparse.Namespace) -> int:
