@@ -39,9 +39,14 @@ class Track:
     last_seen_ns: int = 0
     last_moving_ns: int | None = None
     """When the object was last seen clearly moving (speed above ``stationary_mps`` and three
-    sigmas); only an object seen moving holds the background, for ``hold_still_s`` after that
-    (a track born still, like a ghost of the background, never does, unless it parted from an
-    object moving then: it takes that one's instant, see ``Tracker._parted``)."""
+    sigmas, or its centroid out of reach of where it last moved in the images, see
+    :data:`STILL_REACH`); only an object seen moving holds the background, for
+    ``hold_still_s`` after that (a track born still, like a ghost of the background, never
+    does, unless it parted from an object moving then: it takes that one's instant, see
+    ``Tracker._parted``)."""
+    moved_at_px: tuple[np.ndarray, np.ndarray] | None = None
+    """Where the object's whole outline's centroids were (left, right image px) when it was
+    last seen moving, or first seen whole."""
     stationary: bool = False
     """Whether the track was last reported ``stationary``: standing still, held out of the
     background."""
@@ -366,8 +371,13 @@ class TrackFilters:
         heading_valid = valid and across <= bound and heading_sigma <= VALID_HEADING_SIGMA_DEG
         # Seen moving: confirmed, and its speed clearly above nil (three sigmas), even where
         # the velocity is too uncertain to publish as valid (a walking person's centre jumps
-        # as arms and legs swing, and their speed's sigma stays above the valid bound).
+        # as arms and legs swing, and their speed's sigma stays above the valid bound); or,
+        # where depth is too coarse for the speed to tell (a walker 11 m off, their speed's
+        # sigma 1 m/s), gone across the images from where it last moved.
         if started and confirmed and spd > max(p.stationary_mps, 3.0 * spd_sigma):
+            tr.last_moving_ns = t_ns
+            tr.moved_at_px = None
+        if observed and confirmed and _left_its_place(tr):
             tr.last_moving_ns = t_ns
         still_for = None if tr.last_moving_ns is None else (t_ns - tr.last_moving_ns) * 1e-9
         if still_for is not None and still_for >= p.hold_still_s:
@@ -409,3 +419,32 @@ def behind(tr: Track) -> bool:
     runs a track's position is its first sight, which for a fast object seen with the eyes'
     skew may well lie there; that only places it."""
     return tr.started and not float(tr.kf.position_m[2]) > 0.0
+
+
+STILL_REACH = 0.5
+"""How far an object's centroid may wander in the images, as a share of its size (the square
+root of its blob's area, px), and still be where it was: a seated person waving, a robot
+turning on the spot, a segmentation that takes in an arm or leaves out a leg. A walker
+leaves it within half a second at any range."""
+STILL_REACH_MIN_PX = 3.0
+"""The least reach (px): a small blob's centroid is a pixel or two off from frame to frame."""
+
+
+def _left_its_place(tr: Track) -> bool:
+    """Whether the track's last whole outline (``tr.last``) lies, in either eye, further than
+    :data:`STILL_REACH` of its size from where it was last seen moving
+    (``tr.moved_at_px``), which then moves there; where that is not known yet, it starts
+    here. A clipped outline's centroid moves with the cut: it says nothing."""
+    ob = tr.last
+    if ob.clipped:
+        return False
+    here = (ob.left_image_px, ob.right_image_px)
+    if tr.moved_at_px is None:
+        tr.moved_at_px = here
+        return False
+    reach = max(STILL_REACH_MIN_PX, STILL_REACH * math.sqrt(tr.area_px))
+    for now, then in zip(here, tr.moved_at_px, strict=True):
+        if math.hypot(float(now[0] - then[0]), float(now[1] - then[1])) > reach:
+            tr.moved_at_px = here
+            return True
+    return False
