@@ -1403,3 +1403,32 @@ def test_pieces_of_an_object_hold_a_filter_whose_motion_was_a_guess() -> None:
     last = states[0]
     assert last.lifecycle is not TrackLifecycle.TENTATIVE
     assert abs(float(last.position_m[2]) - 3.2) < 0.25, last.position_m
+
+
+def test_an_unseen_track_predicted_out_of_both_images_ends_there() -> None:
+    """A ball crossing to the right at 3 m/s, 2 m off (5.3 m across the 60 deg view), last
+    seen 20 px inside the right edge: unseen, its prediction leaves both images (by more than
+    half its size) within three pairs, and the track ends there, not after ``max_coast_s``
+    (15 pairs) of a position nothing in view can hide."""
+    ends = {}
+    for view in (None, (RIG.width_px, RIG.height_px)):
+        tracker = Tracker(TrackerParams(), RIG.rectified.project)
+        tracker.view_px = view
+        path = line([0.0, 0.0, 2.0], [3.0, 0.0, 0.0])
+        k = 0
+        while True:  # seen while its left image stays 20 px inside the right edge
+            p = path(k * DT_NS * 1e-9)
+            (lpx,), _ = RIG.project(p[None, :])
+            if lpx[0] > RIG.width_px - 20:
+                break
+            step(tracker, k * DT_NS, [p])
+            k += 1
+        last_seen = k - 1
+        while True:
+            _, ended = step(tracker, k * DT_NS, [])
+            if ended:
+                ends[view is not None] = k - last_seen
+                break
+            k += 1
+    assert ends[True] <= 3, ends
+    assert ends[False] > 14, ends

@@ -66,6 +66,8 @@ The data are in :mod:`stereod.tracking.types`, association in
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from stereod.tracking import kalman, measure
@@ -115,6 +117,9 @@ class Tracker(Association):
         self.line_ns = 0.0
         """How much later a rolling shutter reads each image row than the one above (ns); 0
         for a global shutter (set by the pipeline from ``readout_s``)."""
+        self.view_px: tuple[int, int] | None = None
+        """The images' width and height (px; set by the pipeline): an unseen track whose
+        prediction leaves both has left the view."""
         g = np.asarray(params.gravity_mps2, dtype=np.float64)
         self._gravity: np.ndarray | None = g if np.any(g != 0.0) else None
         self._tracks: dict[int, Track] = {}
@@ -324,7 +329,9 @@ class Tracker(Association):
                 continue
             tr.hidden_in = self._hiding(tr, eye_times_ns, boxes)
             unseen_ns = t_ns - tr.last_seen_ns
-            if unseen_ns > coast_ns and (tr.hidden_in is None or unseen_ns > hidden_ns):
+            if (unseen_ns > coast_ns and (tr.hidden_in is None or unseen_ns > hidden_ns)) or (
+                self._left_view(tr, eye_times_ns)
+            ):
                 ended.append(tid)
                 del self._tracks[tid]
             else:
@@ -342,6 +349,21 @@ class Tracker(Association):
             else:
                 tr.hidden_in = _held_in(tr.hidden_in, boxes)
         return states, ended
+
+    def _left_view(self, tr: Track, eye_times_ns: tuple[int, int]) -> bool:
+        """Whether an unseen track whose filter runs is predicted outside both images (by more
+        than half its size, px): its object left the view, or its filter left its object (a
+        pedestrian's, on a guessed velocity, once coasted across and out of the view for
+        1.6 s while blobs it had passed kept it hidden); nothing in view hides it."""
+        if self.view_px is None or not tr.started:
+            return False
+        w, h = self.view_px
+        margin = 0.5 * math.sqrt(tr.area_px)
+        pred = self._predict_px(tr, *self._row_instants(tr, eye_times_ns))
+        return not any(
+            -margin <= float(x) <= w + margin and -margin <= float(y) <= h + margin
+            for x, y in (pred.left, pred.right)
+        )
 
     def _shift_histories(self, tr: Track, ob: Observation, t_left: int, t_right: int) -> None:
         """Move each eye's 2D track of ``tr`` by how far ``ob``'s centroid (px) lies from
