@@ -76,6 +76,24 @@ def test_a_flag_naming_another_driver_leaves_the_files_driver_options_out(tmp_pa
             "[matching]\nmin_disparity_px = 10.0\nmax_disparity_px = 5.0\n",
             r"matching\.max_disparity_px = 5\.0: must be larger than min_disparity_px \(10\)",
         ),
+        (
+            "[tracking]\nfreeze_s = 10\nhold_still_s = 20\n",
+            r"tracking: hold_still_s and freeze_s are one setting \(freeze_s is the older name of "
+            r"hold_still_s\): give it once",
+        ),
+        (
+            "[tracking]\nhold_still_s = 0.5\nstill_after_s = 10\n",
+            r"tracking: hold_still_s 0\.5 s is shorter than still_after_s 10 s: .* at least "
+            r"still_after_s, or 0 never to hold one",
+        ),
+        (
+            "[grouping]\nmax_object_size_m = 0.1\nmax_gap_m = 5\n",
+            r"grouping: max_gap_m 5 m is larger than max_object_size_m 0\.1 m",
+        ),
+        ("[grouping]\nmax_object_size_m = 0\n", r"max_object_size_m = 0: .* greater than or equal"),
+        ("[tracking]\nstationary_mps = 1e9\n", r"stationary_mps = 1000000000\.0: .* less than"),
+        ("[tracking]\nvalid_speed_sigma_mps = 1e300\n", r"valid_speed_sigma_mps = 1e\+300"),
+        ("[detector]\nmax_foreground = 1e-9\n", r"max_foreground = 1e-09: .* greater than"),
     ],
 )
 def test_bad_values_are_one_line_naming_the_field(tmp_path: Path, toml: str, pattern: str) -> None:
@@ -151,3 +169,17 @@ def test_a_config_saved_with_a_byte_order_mark_reads_as_without(tmp_path: Path) 
     f = tmp_path / "c.toml"
     f.write_bytes("\ufeff[rig]\nbaseline_m = 0.07\n".encode())
     assert load_config(f).rig.baseline_m == 0.07
+
+
+def test_an_older_name_is_read_from_the_environment_too(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("STEREOD_TRACKING__FREEZE_S", "3")
+    assert load_config().tracking.hold_still_s == 3.0
+    monkeypatch.setenv("STEREOD_TRACKING__HOLD_STILL_S", "4")
+    with pytest.raises(ConfigError, match=r"environment STEREOD_TRACKING__\*: .* give it once"):
+        load_config()
+
+
+def test_holding_a_stopped_object_never_is_allowed(tmp_path: Path) -> None:
+    f = tmp_path / "c.toml"
+    f.write_text("[tracking]\nhold_still_s = 0\nstill_after_s = 10\n")
+    assert load_config(f).tracking.hold_still_s == 0.0

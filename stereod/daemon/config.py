@@ -36,10 +36,11 @@ from pydantic import (
     ValidationError,
     ValidationInfo,
     field_validator,
+    model_validator,
 )
 
 from stereod.bus import keys
-from stereod.daemon.config_section import Section, pipeline_default
+from stereod.daemon.config_section import Section, field_names, pipeline_default
 from stereod.daemon.config_tracking import TrackingConfig
 from stereod.daemon.config_zenoh import ZenohConfig as ZenohConfig
 from stereod.errors import ConfigError, UsageError, describe_error
@@ -149,9 +150,10 @@ class DetectorConfig(Section):
     )
     max_foreground: float = Field(
         _DETECT.max_foreground,
-        gt=0.0,
+        ge=0.01,
         le=1.0,
-        description="Share of the image above which a frame is saturated (no blobs)",
+        description="Share of the image above which a foreground is a near object only if "
+        "neither changed light nor a moved camera explains it (without near_objects: no blobs)",
     )
     max_blobs: int = Field(
         _DETECT.max_blobs, ge=1, le=100000, description="More blobs than this: saturated"
@@ -268,13 +270,25 @@ class GroupingConfig(Section):
     enabled: bool = Field(_GROUP.enabled, description="Group blob pairs into objects by depth")
     max_object_size_m: float = Field(
         _GROUP.max_object_size_m,
-        ge=0.0,
+        ge=0.05,
         le=20.0,
-        description="Largest object's width, height and depth, m (a standing person: 1.8)",
+        description="Largest width, height and depth of what pieces grouped into one object "
+        "span, m (a standing person: 1.8; one blob wider, several people in it, stays one)",
     )
     max_gap_m: float = Field(
         _GROUP.max_gap_m, ge=0.0, le=5.0, description="Largest gap between pieces of one object, m"
     )
+
+    @model_validator(mode="after")
+    def _gap_within_size(self) -> GroupingConfig:
+        if self.max_gap_m > self.max_object_size_m:
+            raise ValueError(
+                f"max_gap_m {self.max_gap_m:g} m is larger than max_object_size_m "
+                f"{self.max_object_size_m:g} m: a gap between two pieces lies within the object "
+                "they make; lower max_gap_m or raise max_object_size_m"
+            )
+        return self
+
     disparity_margin_px: float = Field(
         _GROUP.disparity_margin_px,
         ge=0.0,
@@ -386,7 +400,19 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
         parts = name[len(ENV_PREFIX) :].lower().split("__")
         section = StereodConfig.model_fields.get(parts[0])
         fields = getattr(section.annotation, "model_fields", {}) if section else {}
-        fld = fields.get(parts[1]) if len(parts) > 1 else None
+        fld = None
+        if len(parts) > 1:
+            fld = fields.get(parts[1])
+            if fld is None and section is not None:  # an older name the field is read by
+                owner = next(
+                    (
+                        n
+                        for n, names in field_names(section.annotation).items()
+                        if parts[1] in names
+                    ),
+                    None,
+                )
+                fld = fields.get(owner) if owner is not None else None
         if fld is None or (len(parts) > 2 and typing.get_origin(fld.annotation) is not dict):
             raise ConfigError(
                 f"environment variable {name}: names no configuration field (use "

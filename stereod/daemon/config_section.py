@@ -7,7 +7,14 @@ from __future__ import annotations
 import typing
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
+from pydantic import (
+    AliasChoices,
+    BaseModel,
+    ConfigDict,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from stereod.files.bounds import not_bool
 
@@ -25,6 +32,33 @@ class Section(BaseModel):
         if kind in (int, float) or typing.get_origin(kind) is tuple:
             return not_bool(v)
         return v
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_name_each(cls, data: Any) -> Any:
+        """A field given under two of its names (``hold_still_s`` and its older ``freeze_s``)
+        is refused as such, not as an unknown key."""
+        if isinstance(data, dict):
+            for name, names in field_names(cls).items():
+                given = [n for n in names if n in data]
+                if len(given) > 1:
+                    raise ValueError(
+                        f"{' and '.join(given)} are one setting ({given[1]} is the older name "
+                        f"of {name}): give it once"
+                    )
+        return data
+
+
+def field_names(model: type[BaseModel]) -> dict[str, list[str]]:
+    """Each field of ``model`` that has other names it is read by: its name, then those."""
+    out: dict[str, list[str]] = {}
+    for name, info in model.model_fields.items():
+        alias = info.validation_alias
+        if isinstance(alias, AliasChoices):
+            others = [a for a in alias.choices if isinstance(a, str) and a != name]
+            if others:
+                out[name] = [name, *others]
+    return out
 
 
 def pipeline_default(name: str) -> Any:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from typing import Annotated
 
-from pydantic import AliasChoices, Field, field_validator
+from pydantic import AliasChoices, Field, field_validator, model_validator
 
 from stereod.daemon.config_section import Section, pipeline_default
 from stereod.files.bounds import (
@@ -68,7 +68,11 @@ class TrackingConfig(Section):
         _TRACK.confirm_hits, ge=1, le=1000, description="Observations to confirm a track"
     )
     valid_speed_sigma_mps: float = Field(
-        _TRACK.valid_speed_sigma_mps, gt=0.0, description="Speed sigma for a valid velocity, m/s"
+        _TRACK.valid_speed_sigma_mps,
+        gt=0.0,
+        le=10.0,
+        description="Speed sigma for a valid velocity, m/s (a speed known no better than 10 m/s "
+        "is not known)",
     )
     valid_speed_sigma_rel: float = Field(
         _TRACK.valid_speed_sigma_rel, ge=0.0, le=1.0, description="Or this share of the speed"
@@ -102,7 +106,10 @@ class TrackingConfig(Section):
         description="Not seen moving this long: the object is stationary, s",
     )
     stationary_mps: float = Field(
-        _TRACK.stationary_mps, ge=0.0, description="Below this an object is stopped"
+        _TRACK.stationary_mps,
+        ge=0.0,
+        le=1.0,
+        description="Below this an object is stopped, m/s (a slow walk is 1 m/s)",
     )
     gravity_mps2: tuple[float, float, float] = Field(
         _TRACK.gravity_mps2,
@@ -118,6 +125,17 @@ class TrackingConfig(Section):
         if not all(math.isfinite(c) and abs(c) <= 100.0 for c in v):
             raise ValueError("each component must be finite and at most 100 m/s^2")
         return v
+
+    @model_validator(mode="after")
+    def _held_once_stopped(self) -> TrackingConfig:
+        if 0.0 < self.hold_still_s < self.still_after_s:
+            raise ValueError(
+                f"hold_still_s {self.hold_still_s:g} s is shorter than still_after_s "
+                f"{self.still_after_s:g} s: a stopped object would be learned into the "
+                "background before it counts as stopped; make it at least still_after_s, or 0 "
+                "never to hold one"
+            )
+        return self
 
     def params(self) -> TrackerParams:
         return TrackerParams(**self.model_dump(exclude={"freeze_background"}))

@@ -71,10 +71,12 @@ def origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) -
     if node is not None:
         return "command line"
     names = {k.upper() for k in os.environ}
-    for n in range(len(loc), 1, -1):
+    for n in range(len(loc), 0, -1):
         env = ENV_PREFIX + "__".join(str(p) for p in loc[:n]).upper()
-        if env in names or any(k.startswith(env + "__") for k in names):
+        if n > 1 and env in names:
             return f"environment {env}"
+        if any(k.startswith(env + "__") for k in names):  # a part of it
+            return f"environment {env}" if n > 1 else f"environment {env}__*"
     return str(path) if path is not None else "defaults"
 
 
