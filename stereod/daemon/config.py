@@ -403,15 +403,10 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
         fld = None
         if len(parts) > 1:
             fld = fields.get(parts[1])
-            if fld is None and section is not None:  # an older name the field is read by
-                owner = next(
-                    (
-                        n
-                        for n, names in field_names(section.annotation).items()
-                        if parts[1] in names
-                    ),
-                    None,
-                )
+            kind = section.annotation if section else None
+            if fld is None and isinstance(kind, type) and issubclass(kind, Section):
+                # an older name the field is read by
+                owner = next((n for n, ns in field_names(kind).items() if parts[1] in ns), None)
                 fld = fields.get(owner) if owner is not None else None
         if fld is None or (len(parts) > 2 and typing.get_origin(fld.annotation) is not dict):
             raise ConfigError(
