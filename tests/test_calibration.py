@@ -100,6 +100,21 @@ def test_size_mismatch_and_missing_file(tmp_path: Path) -> None:
         load(path)
 
 
+@pytest.mark.parametrize(
+    "content",
+    [
+        b"RIFF\x00\x01AVI " + b"[" * 100,  # a video whose bytes hold many brackets
+        b"\x89PNG\r\n\x1a\n\xff\xfe",  # an image: not UTF-8
+        b'{"image_size": [640, 480]\x00}',  # text with a NUL in it
+    ],
+)
+def test_a_file_that_is_not_text_is_not_a_calibration(tmp_path: Path, content: bytes) -> None:
+    path = tmp_path / "c.avi"
+    path.write_bytes(content)
+    with pytest.raises(CalibrationError, match=r"c\.avi: not a calibration file: it is not text"):
+        load(path)
+
+
 def test_ros_camera_info_round_trip(tmp_path: Path) -> None:
     cal = a_calibration()
     left, right = export_ros(cal, tmp_path)

@@ -375,7 +375,16 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
         raise MissingInputError(f"{path}: no such calibration file") from exc
     except OSError as exc:
         raise CalibrationError(f"{path}: cannot read calibration file: {exc.strerror}") from exc
-    check_depth(text.decode("utf-8", "replace"), "json", str(path), CalibrationError)
+    try:
+        decoded = text.decode("utf-8")
+    except UnicodeDecodeError:
+        decoded = "\0"
+    if "\0" in decoded:  # a video, an image: no calibration, whatever its brackets say
+        raise CalibrationError(
+            f"{path}: not a calibration file: it is not text (a calibration is the JSON "
+            "`stereod calibrate` writes, or `stereod calibration import` makes of OpenCV's)"
+        )
+    check_depth(decoded, "json", str(path), CalibrationError)
     try:
         cal = Calibration.model_validate_json(text)
     except ValidationError as exc:
