@@ -338,6 +338,20 @@ def rec(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_scene(scene, tmp_path_factory.mktemp("replay") / "rec")
 
 
+def test_a_readout_longer_than_the_frame_period_is_said_and_the_run_goes_on(rec: Path) -> None:
+    """``readout_s`` 0.1 s against frames 1/15 s apart (the recording's): a rolling shutter
+    reads a frame within its period, so the run says so once (a notice: exit 0); 0.05 s is
+    said nothing of."""
+    env = {**os.environ, "STEREOD_RIG__READOUT_S": "0.1"}
+    res = run_stereod("replay", str(rec), "--rate", "0", *LOOPBACK, env=env)
+    assert res.returncode == 0, res.stderr
+    said = [line for line in res.stderr.splitlines() if "rig.readout_s" in line]
+    assert said and "longer than the frame period 0.0667 s (15 Hz)" in said[0], res.stderr
+    env["STEREOD_RIG__READOUT_S"] = "0.05"
+    res = run_stereod("replay", str(rec), "--rate", "0", *LOOPBACK, env=env)
+    assert res.returncode == 0 and "rig.readout_s" not in res.stderr, res.stderr
+
+
 class FifoReader:
     """A named pipe at ``path`` and a thread reading all that is written into it, as the
     program at the other end of a ``mkfifo`` would."""

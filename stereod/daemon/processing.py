@@ -11,7 +11,9 @@ A pair that fails to process is counted and skipped; the thread goes on.
 
 from __future__ import annotations
 
+import itertools
 import logging
+import statistics
 import threading
 import time
 from collections.abc import Callable
@@ -74,6 +76,10 @@ def _empty(pair: StereoPair) -> PairResult:
     )
 
 
+READOUT_CHECK_PAIRS = 8
+"""Pairs whose left instants give the frame period ``readout_s`` is checked against."""
+
+
 class PipelineWorker:
     """Runs one pipeline on the pairs of one run (thread target: :meth:`loop`)."""
 
@@ -107,6 +113,9 @@ class PipelineWorker:
         self.detect = True
         """Whether pairs go through the pipeline; False publishes an empty result per pair
         (``[daemon] detect = false``: the floor a benchmark compares the daemon with)."""
+        self._lefts_ns: list[int] | None = []
+        """The first pairs' left capture instants (ns) under the configuration in force,
+        until :meth:`_check_readout` has read the frame period from them (then None)."""
 
     @property
     def rig(self) -> CanonicalRig | CalibratedRig:
@@ -126,6 +135,7 @@ class PipelineWorker:
         if params is None:
             return
         self.pipeline, ended = self.pipeline.reconfigured(params)
+        self._lefts_ns = []
         rig = params.rig
         self.health.geometry = rig.geometry
         self.health.calibration_id = rig.calibration_id
@@ -160,6 +170,7 @@ class PipelineWorker:
                     log.debug("pair %d failed", pair.seq, exc_info=True)
                     continue
                 self._count_saturated()
+                self._check_readout(pair)
                 self.health.pair_done(
                     result.timings.pipeline_ms, pair.skew_ns * 1e-6, result.row_residuals_px
                 )
@@ -196,6 +207,29 @@ class PipelineWorker:
         return PairImages(
             pair.left.image, pair.right.image, p.left.mask, p.right.mask, p.params.rig
         )
+
+    def _check_readout(self, pair: StereoPair) -> None:
+        """Once per configuration, from its first :data:`READOUT_CHECK_PAIRS` pairs: a
+        ``readout_s`` longer than the frame period (their left instants' median step) cannot
+        be a rolling shutter's, which reads a frame within its period; each blob's instant
+        would be put that far off. Said on the status key (a notice: the run goes on)."""
+        if self._lefts_ns is None:
+            return
+        self._lefts_ns.append(pair.left.t_ns)
+        if len(self._lefts_ns) < READOUT_CHECK_PAIRS:
+            return
+        period_s = statistics.median(b - a for a, b in itertools.pairwise(self._lefts_ns)) * 1e-9
+        self._lefts_ns = None
+        readout_s = self.pipeline.params.readout_s
+        if period_s > 0.0 and readout_s > period_s:
+            self.health.problem(
+                f"rig.readout_s {readout_s:g} s is longer than the frame period "
+                f"{period_s:.4f} s ({1.0 / period_s:.3g} Hz): a rolling shutter reads a frame "
+                "within its period; measure it (docs: concepts, rolling shutter), or set 0 for "
+                "a global shutter",
+                "readout_too_long",
+                notice=True,
+            )
 
     def _count_saturated(self) -> None:
         """Report frames the detectors found saturated (all foreground) since the last pair."""
