@@ -1432,3 +1432,21 @@ def test_an_unseen_track_predicted_out_of_both_images_ends_there() -> None:
             k += 1
     assert ends[True] <= 3, ends
     assert ends[False] > 14, ends
+
+
+def test_an_object_in_front_of_a_track_starts_its_own_and_hides_it() -> None:
+    """A person followed at 3.7 m, then a board 0.5 m wide held up at 0.65 m in front of them,
+    its blob over where the person should be in both eyes: the board is another object (its
+    disparity 5.7 times the person's), so it starts a track, and the person's coasts hidden
+    behind it; not the person's own blob, joined by something, that starts nothing."""
+    tracker = Tracker(TrackerParams(), RIG.rectified.project)
+    person = np.array([0.0, 0.0, 3.7])
+    for k in range(10):
+        step(tracker, k * DT_NS, [person], size_m=0.4)
+    board = seen(np.array([0.02, 0.0, 0.65]), size_m=0.5)
+    states, ended = fold(tracker, 10 * DT_NS, [board])
+    assert not ended
+    by_id = {s.track_id: s for s in states}
+    assert set(by_id) == {1, 2}, by_id
+    assert by_id[1].lifecycle is TrackLifecycle.COASTING
+    assert abs(float(by_id[2].position_m[2]) - 0.65) < 0.05

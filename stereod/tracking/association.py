@@ -86,6 +86,21 @@ def _pieces(
     return piece
 
 
+NEARER = 1.5
+"""A blob whose disparity is more than this many times a track's predicted one (and
+:data:`NEARER_PX` more) is nearer than that track's object, at two thirds of its depth or
+less: another object in front of it, not it joined by its shadow or a neighbour."""
+NEARER_PX = 2.0
+
+
+def _nearer(centres: np.ndarray, pred: Prediction) -> bool:
+    """Whether a detection (``centres``: its left and right centroids, px) is clearly nearer
+    than where a track is predicted (:data:`NEARER`)."""
+    disparity = float(centres[0, 0] - centres[1, 0])
+    predicted = float(pred.left[0] - pred.right[0])
+    return disparity > NEARER * predicted + NEARER_PX
+
+
 def _stacked(a: Track, b: Track) -> bool:
     """Whether two tracks' last boxes share columns in both eyes (x, y, w, h px): one lies
     above the other, as a person's head, torso and legs do."""
@@ -279,14 +294,18 @@ class Association(TrackFilters):
                     out[rows_in[i]] = tracks[cols_in[j]].track_id
         # A blob that holds, in both eyes, where a confirmed track left unmatched should be is
         # that object disturbed (joined by a shadow the detector did not leave out, or by
-        # another object): it starts no track of its own while that one lives on, hidden.
+        # another object): it starts no track of its own while that one lives on, hidden. One
+        # clearly nearer than that track is another object, in front of it, that hides it.
         taken = {t for t in out if t is not None}
         unseen = [j for j, tr in enumerate(tracks) if confirmed[j] and tr.track_id not in taken]
         free = [i for i in range(n) if out[i] is None and may_start[i]]
         if free:  # (pieces matter only to a detection that may still start a track)
             piece = _pieces(detections, centres, bboxes, out, tracks)
             for i in free:
-                holds = any(inside[0, i, j] and inside[1, i, j] for j in unseen)
+                holds = any(
+                    inside[0, i, j] and inside[1, i, j] and not _nearer(centres[i], preds[j])
+                    for j in unseen
+                )
                 may_start[i] = not holds and not bool(piece[i]) and not gone[i]
         # A blob that would start a track but came out, in both eyes, of the blob that hid a
         # confirmed track in the last pair is that object reappearing (two people who crossed
