@@ -7,6 +7,7 @@ import math
 import os
 import re
 import resource
+import shutil
 import signal
 import subprocess
 import threading
@@ -269,10 +270,11 @@ def test_run_on_a_truncated_recording_exits_65_as_replay_does(
     header announces (DATA.md), says so in its log, and exits 65 as ``replay`` does: its input
     ended and was bad. A service must not report such a run as a success."""
     tree = shared_data("video", "tree.avi")
+    right = shutil.copyfile(tree, tmp_path / "tree_right.avi")  # each eye its own file
     cfg = tmp_path / "stereod.toml"
     cfg.write_text(
         f'[driver]\nname = "replay"\n[driver.options]\nleft_video = "{tree}"\n'
-        f'right_video = "{tree}"\nfps = 15\n[zenoh]\nconnect = ["{endpoint}"]\n'
+        f'right_video = "{right}"\nfps = 15\n[zenoh]\nconnect = ["{endpoint}"]\n'
     )
     res = stereod("run", "--config", str(cfg), "--rate", "0")
     assert res.returncode == 65, res.stderr
@@ -449,10 +451,11 @@ def test_inputs_that_are_no_regular_files_or_far_too_large_are_refused_unread(
 
 def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
     one_line_error(stereod("replay", str(tmp_path / "nope")), 66, "no such recording directory")
-    junk = tmp_path / "junk.avi"
+    junk, junk2 = tmp_path / "junk.avi", tmp_path / "junk2.avi"
     junk.write_text("junk")
+    junk2.write_text("junk")
     one_line_error(
-        stereod("replay", "--left-video", str(junk), "--right-video", str(junk), "--fps", "10"),
+        stereod("replay", "--left-video", str(junk), "--right-video", str(junk2), "--fps", "10"),
         65,
         "junk.avi: cannot open as a video|junk.avi: no frame decodes",
     )
@@ -519,14 +522,15 @@ def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
     )
 
 
-def test_truncated_video_finishes_and_says_so() -> None:
+def test_truncated_video_finishes_and_says_so(tmp_path: Path) -> None:
     tree = shared_data("video", "tree.avi")
+    right = shutil.copyfile(tree, tmp_path / "right.avi")  # each eye its own file
     res = stereod(
         "replay",
         "--left-video",
         str(tree),
         "--right-video",
-        str(tree),
+        str(right),
         "--fps",
         "15",
         "--rate",
@@ -549,6 +553,7 @@ def test_different_sizes_and_counts_between_eyes(tmp_path: Path) -> None:
         return str(tmp_path / name)
 
     a, b, c = video("a.avi", 5, (64, 48)), video("b.avi", 5, (32, 24)), video("c.avi", 3, (64, 48))
+    d = video("d.avi", 5, (64, 48))
     one_line_error(
         stereod("replay", "--left-video", a, "--right-video", b, "--fps", "10"),
         65,
@@ -567,7 +572,7 @@ def test_different_sizes_and_counts_between_eyes(tmp_path: Path) -> None:
             "--left-video",
             a,
             "--right-video",
-            a,
+            d,
             "--left-ts",
             str(ts),
             "--right-ts",

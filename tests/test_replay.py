@@ -9,6 +9,7 @@ import io
 import json
 import os
 import re
+import shutil
 import signal
 import stat
 import subprocess
@@ -111,10 +112,11 @@ def test_a_loop_keeps_a_truncated_eye_in_step_with_the_other(tmp_path: Path) -> 
     assert {f.seq % 10 for f in left if f is not None} == {0, 1, 2, 3}
 
 
-def test_truncated_video_plays_what_decodes_and_says_so() -> None:
+def test_truncated_video_plays_what_decodes_and_says_so(tmp_path: Path) -> None:
     tree = shared_data("video", "tree.avi")
+    other = shutil.copyfile(tree, tmp_path / "right.avi")  # each eye its own file
     left, right, problems = read_all(
-        ReplayDriver({"left_video": tree, "right_video": tree, "fps": 15})
+        ReplayDriver({"left_video": tree, "right_video": other, "fps": 15})
     )
     assert len(left) == len(right) == 68
     assert problems and "truncated" in problems[0] and "444" in problems[0] and "68" in problems[0]

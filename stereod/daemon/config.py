@@ -36,7 +36,6 @@ from pydantic import (
     ValidationError,
     ValidationInfo,
     field_validator,
-    model_validator,
 )
 
 from stereod.bus import keys
@@ -279,16 +278,6 @@ class GroupingConfig(Section):
         _GROUP.max_gap_m, ge=0.0, le=5.0, description="Largest gap between pieces of one object, m"
     )
 
-    @model_validator(mode="after")
-    def _gap_within_size(self) -> GroupingConfig:
-        if self.max_gap_m > self.max_object_size_m:
-            raise ValueError(
-                f"max_gap_m {self.max_gap_m:g} m is larger than max_object_size_m "
-                f"{self.max_object_size_m:g} m: a gap between two pieces lies within the object "
-                "they make; lower max_gap_m or raise max_object_size_m"
-            )
-        return self
-
     disparity_margin_px: float = Field(
         _GROUP.disparity_margin_px,
         ge=0.0,
@@ -393,6 +382,7 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
     table value is JSON; a variable that names no field is refused, as an unknown TOML key is."""
     env = os.environ if environ is None else environ
     out: dict[str, Any] = {}
+    older: dict[str, set[str]] = {}  # field -> sections where an older name of it was set
     for name, value in sorted(env.items()):
         upper = name.upper()
         if not upper.startswith(ENV_PREFIX) or upper in ENV_OTHER:
@@ -405,9 +395,22 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
             fld = fields.get(parts[1])
             kind = section.annotation if section else None
             if fld is None and isinstance(kind, type) and issubclass(kind, Section):
-                # an older name the field is read by
+                # an older name the field is read by: taken under the field's own
                 owner = next((n for n, ns in field_names(kind).items() if parts[1] in ns), None)
-                fld = fields.get(owner) if owner is not None else None
+                if owner is not None:
+                    fld = fields[owner]
+                    if owner in out.get(parts[0], {}) or parts[0] in older.get(owner, ()):
+                        raise ConfigError(
+                            f"environment variable {name}: the older name of "
+                            f"STEREOD_{parts[0].upper()}__{owner.upper()}, which is set too: "
+                            "set one of them"
+                        )
+                    older.setdefault(owner, set()).add(parts[0])
+                    parts = [parts[0], owner, *parts[2:]]
+            elif fld is not None and parts[0] in older.get(parts[1], ()):
+                raise ConfigError(
+                    f"environment variable {name}: an older name of it is set too: set one of them"
+                )
         if fld is None or (len(parts) > 2 and typing.get_origin(fld.annotation) is not dict):
             raise ConfigError(
                 f"environment variable {name}: names no configuration field (use "
@@ -441,6 +444,29 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
     return out
 
 
+def canonical_names(data: dict[str, Any], where: str) -> dict[str, Any]:
+    """``data``'s tables with a field given by an older name put under its own, so that a
+    later source (the environment, a flag) giving it by either name wins as for any field;
+    one given under both names in ``data`` (read from ``where``) is refused."""
+    out = dict(data)
+    for section, table in data.items():
+        fld = StereodConfig.model_fields.get(section)
+        kind = fld.annotation if fld else None
+        if not (isinstance(table, dict) and isinstance(kind, type) and issubclass(kind, Section)):
+            continue
+        for name, names in field_names(kind).items():
+            given = [n for n in names if n in table]
+            if len(given) > 1:
+                raise ConfigError(
+                    f"{where}: {section}.{given[1]} is the older name of {section}.{name}, "
+                    "which is given too: give one of them"
+                )
+            if given and given[0] != name:
+                table = {(name if k == given[0] else k): v for k, v in table.items()}
+        out[section] = table
+    return out
+
+
 def load_config(path: Path | None = None, overrides: dict[str, Any] | None = None) -> StereodConfig:
     """Build the configuration from ``path`` (TOML), the environment and ``overrides`` (flags),
     later ones winning, and validate it once.
@@ -450,7 +476,7 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
     file names leaves the file's driver options out (they are that other driver's); a file
     that names none gives its options to whichever driver runs.
     """
-    data = read_toml(path) if path is not None else {}
+    data = canonical_names(read_toml(path), str(path)) if path is not None else {}
     flags = prune(overrides or {})
     below = merge(data, environment())
     named = flags.get("driver", {}).get("name") if isinstance(flags.get("driver"), dict) else None

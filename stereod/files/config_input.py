@@ -60,6 +60,13 @@ def merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
 def origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) -> str:
     """Where the value at ``loc`` (``("driver", "name")``) came from: a flag, the environment
     (its variable, or one for a part of it), the file, or defaults."""
+    if len(loc) == 1:  # a section's error between its fields (one setting under two names)
+        if path is not None:
+            return str(path)
+        env = f"{ENV_PREFIX}{str(loc[0]).upper()}__"
+        if any(k.upper().startswith(env) for k in os.environ):
+            return f"environment {env}*"
+        return "command line" if overrides.get(loc[0]) is not None else "defaults"
     node: Any = overrides
     for part in loc:
         if isinstance(node, dict):
@@ -71,12 +78,10 @@ def origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) -
     if node is not None:
         return "command line"
     names = {k.upper() for k in os.environ}
-    for n in range(len(loc), 0, -1):
+    for n in range(len(loc), 1, -1):
         env = ENV_PREFIX + "__".join(str(p) for p in loc[:n]).upper()
-        if n > 1 and env in names:
+        if env in names or any(k.startswith(env + "__") for k in names):
             return f"environment {env}"
-        if any(k.startswith(env + "__") for k in names):  # a part of it
-            return f"environment {env}" if n > 1 else f"environment {env}__*"
     return str(path) if path is not None else "defaults"
 
 
