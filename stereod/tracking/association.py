@@ -86,19 +86,30 @@ def _pieces(
     return piece
 
 
-NEARER = 1.5
-"""A blob whose disparity is more than this many times a track's predicted one (and
-:data:`NEARER_PX` more) is nearer than that track's object, at two thirds of its depth or
-less: another object in front of it, not it joined by its shadow or a neighbour."""
-NEARER_PX = 2.0
+APART = 1.5
+"""A detection whose disparity is more than this many times a track's predicted one (and
+:data:`APART_PX` more), or less than its inverse, is at another depth than that track's
+object (two thirds of its depth or less, or one and a half times or more): another object,
+not it joined by its shadow or a neighbour (whose blend of disparities lies between)."""
+APART_PX = 2.0
 
 
-def _nearer(centres: np.ndarray, pred: Prediction) -> bool:
-    """Whether a detection (``centres``: its left and right centroids, px) is clearly nearer
-    than where a track is predicted (:data:`NEARER`)."""
-    disparity = float(centres[0, 0] - centres[1, 0])
-    predicted = float(pred.left[0] - pred.right[0])
-    return disparity > NEARER * predicted + NEARER_PX
+def _apart(
+    centres: np.ndarray, ends: np.ndarray, started: list[bool], detections: list[Detection]
+) -> np.ndarray:
+    """(detection, track) bool: the detection (``centres`` (n, 2, 2): left and right
+    centroids, px) at clearly another depth (:data:`APART`) than where the track is predicted
+    (``ends[0]``, ``ends[2]``: (k, 2) left and right, px), for tracks whose filter runs
+    (``started``) and detections whose disparity is their object's (not cut by the image's
+    side, which shows each eye another part of it)."""
+    d = centres[:, 0, 0] - centres[:, 1, 0]
+    dp = ends[0][:, 0] - ends[2][:, 0]
+    apart = (d[:, None] > APART * dp[None, :] + APART_PX) | (
+        dp[None, :] > APART * d[:, None] + APART_PX
+    )
+    apart &= np.asarray(started, bool)[None, :]
+    apart &= ~np.array([det.clipped for det in detections], bool)[:, None]
+    return apart
 
 
 def _stacked(a: Track, b: Track) -> bool:
@@ -217,11 +228,17 @@ class Association(TrackFilters):
             resumes &= boxes.ious(bboxes[:, 1], last[1]) >= RESUME_IOU
             cost[resumes | recut] = RESUME_COST
             self._recut = {(int(i), tracks[int(j)].track_id) for i, j in np.argwhere(recut)}
+        # A detection at clearly another depth than where a running track is predicted is not
+        # that track's object, however near in the images (a board held up before a person
+        # and taken away: the person is not the board's); nor does it hold it (below).
+        apart = _apart(centres, ends, [tr.started for tr in tracks], detections)
+        cost[apart] = np.inf
         cost[gone] = np.inf
         # whether each track's prediction falls in each detection's box, left and right eye
         inside = np.stack(
             (boxes.insides(ends[0], bboxes[:, 0]), boxes.insides(ends[2], bboxes[:, 1]))
         )
+        inside &= ~apart
         shared: list[int] = []
         if int(np.count_nonzero(confirmed)) >= 2:  # (one confirmed track shares nothing)
             hosted = (inside & confirmed).sum(axis=2)  # (eye, detection): confirmed tracks in it
@@ -295,17 +312,15 @@ class Association(TrackFilters):
         # A blob that holds, in both eyes, where a confirmed track left unmatched should be is
         # that object disturbed (joined by a shadow the detector did not leave out, or by
         # another object): it starts no track of its own while that one lives on, hidden. One
-        # clearly nearer than that track is another object, in front of it, that hides it.
+        # clearly nearer than that track (``apart``) is another object, in front of it, that
+        # hides it.
         taken = {t for t in out if t is not None}
         unseen = [j for j, tr in enumerate(tracks) if confirmed[j] and tr.track_id not in taken]
         free = [i for i in range(n) if out[i] is None and may_start[i]]
         if free:  # (pieces matter only to a detection that may still start a track)
             piece = _pieces(detections, centres, bboxes, out, tracks)
             for i in free:
-                holds = any(
-                    inside[0, i, j] and inside[1, i, j] and not _nearer(centres[i], preds[j])
-                    for j in unseen
-                )
+                holds = any(inside[0, i, j] and inside[1, i, j] for j in unseen)
                 may_start[i] = not holds and not bool(piece[i]) and not gone[i]
         # A blob that would start a track but came out, in both eyes, of the blob that hid a
         # confirmed track in the last pair is that object reappearing (two people who crossed

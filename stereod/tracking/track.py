@@ -44,12 +44,16 @@ class Track:
     ``hold_still_s`` after that (a track born still, like a ghost of the background, never
     does, unless it parted from an object moving then: it takes that one's instant, see
     ``Tracker._parted``)."""
-    moved_at_px: tuple[np.ndarray, np.ndarray] | None = None
-    """Where the object's whole outline's centroids were (left, right image px) when it was
-    last seen moving, or first seen whole."""
+    moved_at_px: tuple[int, np.ndarray, np.ndarray] | None = None
+    """When (ns) and where the object's whole outline's centroids were (left, right image px)
+    that its image motion is measured from: where it was last seen moving, or first seen
+    whole, or ``still_after_s`` ago (a blob that creeps, or fades, slower than that is still);
+    None after a jump of its centroid that was no motion (an end of it segmented or not)."""
     stationary: bool = False
     """Whether the track was last reported ``stationary``: standing still, held out of the
     background."""
+    speed_known: bool = False
+    """Whether the track was last reported with a valid velocity (``velocity_valid``)."""
     freeze_spent: bool = False
     """Set once the object has been still for ``hold_still_s``: the background then takes it, and
     the apparent motion of a blob fading into the background never re-arms the freeze."""
@@ -300,6 +304,7 @@ class TrackFilters:
         or motion (folded in as a measurement, a person's 0.26 m drop as their legs showed
         again widened the filter until it put them 0.3 m from the rig)."""
         self._predict(tr, t_ns)
+        tr.moved_at_px = None  # (nor is the jump an image motion)
         oz = float(ob.position_m[2])
         for kf in (tr.kf, tr.other):
             if kf is not None and oz > 0 and float(kf.x[2]) > 0:
@@ -322,6 +327,7 @@ class TrackFilters:
         tr.positions.clear()
         tr.left_history.clear()
         tr.right_history.clear()
+        tr.moved_at_px = None
 
     def _anew(self, tr: Track, t_ns: int, ob: Observation) -> None:
         """A tentative track given blobs of another width two pairs running
@@ -365,6 +371,7 @@ class TrackFilters:
         confirmed = self._confirmed(tr)
         bound = max(p.valid_speed_sigma_mps, p.valid_speed_sigma_rel * spd)
         valid = started and confirmed and spd_sigma <= bound
+        tr.speed_known = valid
         # The direction: across it within the speed's bound, and a heading sigma within
         # VALID_HEADING_SIGMA_DEG (the speed's absolute floor would otherwise give anything
         # slow on the ground, or falling, a "known" direction).
@@ -377,7 +384,7 @@ class TrackFilters:
         if started and confirmed and spd > max(p.stationary_mps, 3.0 * spd_sigma):
             tr.last_moving_ns = t_ns
             tr.moved_at_px = None
-        if observed and confirmed and _left_its_place(tr):
+        if observed and confirmed and _left_its_place(tr, t_ns, p.still_after_s):
             tr.last_moving_ns = t_ns
         still_for = None if tr.last_moving_ns is None else (t_ns - tr.last_moving_ns) * 1e-9
         if still_for is not None and still_for >= p.hold_still_s:
@@ -430,21 +437,22 @@ STILL_REACH_MIN_PX = 3.0
 """The least reach (px): a small blob's centroid is a pixel or two off from frame to frame."""
 
 
-def _left_its_place(tr: Track) -> bool:
+def _left_its_place(tr: Track, t_ns: int, within_s: float) -> bool:
     """Whether the track's last whole outline (``tr.last``) lies, in either eye, further than
-    :data:`STILL_REACH` of its size from where it was last seen moving
-    (``tr.moved_at_px``), which then moves there; where that is not known yet, it starts
-    here. A clipped outline's centroid moves with the cut: it says nothing."""
+    :data:`STILL_REACH` of its size from where it was ``tr.moved_at_px`` says, within
+    ``within_s`` (s) of then: it moved, and is measured from here on. Where that is not known,
+    or longer ago, it is measured from here on, and has not moved. A clipped outline's
+    centroid moves with the cut: it says nothing."""
     ob = tr.last
     if ob.clipped:
         return False
-    here = (ob.left_image_px, ob.right_image_px)
-    if tr.moved_at_px is None:
-        tr.moved_at_px = here
+    at = tr.moved_at_px
+    if at is None or t_ns - at[0] > within_s * 1e9:
+        tr.moved_at_px = (t_ns, ob.left_image_px, ob.right_image_px)
         return False
     reach = max(STILL_REACH_MIN_PX, STILL_REACH * math.sqrt(tr.area_px))
-    for now, then in zip(here, tr.moved_at_px, strict=True):
+    for now, then in ((ob.left_image_px, at[1]), (ob.right_image_px, at[2])):
         if math.hypot(float(now[0] - then[0]), float(now[1] - then[1])) > reach:
-            tr.moved_at_px = here
+            tr.moved_at_px = (t_ns, ob.left_image_px, ob.right_image_px)
             return True
     return False

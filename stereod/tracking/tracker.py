@@ -50,9 +50,11 @@ given a blob of another width (beyond ``REGROWN``: the object merged with its lo
 holds it aside for a pair, and begins again from the second such pair in a row; a confirmed track
 seen moving that has not moved for ``still_after_s`` is ``stationary`` (held out of the
 background for ``hold_still_s``, so it stays seen and keeps its id when it moves on); a confirmed
-track not seen in a pair is ``coasting`` (predicted) until ``max_coast_s`` has passed, then it
-ends. A tentative track ends at its first miss, except that one seen once waits one pair
-(still ``tentative``): an object entering the view is small, and one eye may miss it once.
+track not seen in a pair is ``coasting`` (predicted) until ``max_coast_s`` has passed (longer
+while hidden, see :meth:`Tracker.update`; sooner if its velocity is a guess its prediction
+takes out of the view), then it ends. A tentative track ends at its first miss, except that
+one seen once waits one pair (still ``tentative``): an object entering the view is small,
+and one eye may miss it once.
 A confirmed track found to be a piece of another's object (at one depth, moving with it: a
 box a robot pushes) is kept as a member of that object, unpublished and not ended, for up to
 ``max_member_s``: a blob that would start a track, coming out of that object's blobs, takes
@@ -351,14 +353,16 @@ class Tracker(Association):
         return states, ended
 
     def _left_view(self, tr: Track, eye_times_ns: tuple[int, int]) -> bool:
-        """Whether an unseen track whose filter runs is predicted outside both images (by more
-        than half its size, px): its object left the view, or its filter left its object (a
-        pedestrian's, on a guessed velocity, once coasted across and out of the view for
-        1.6 s while blobs it had passed kept it hidden); nothing in view hides it."""
-        if self.view_px is None or not tr.started:
+        """Whether an unseen track whose motion is a guess (no valid velocity) is predicted
+        outside both images, by its size and an eighth of the image (a calibrated rig's
+        rectified points reach past the frame): nothing in view hides it, and its filter has
+        left its object (a pedestrian's, on a guessed velocity, once coasted across and out of
+        the view for 1.6 s while blobs it had passed kept it hidden). One whose velocity is
+        known coasts as long as ever: a ball thrown over the top of the view comes back."""
+        if self.view_px is None or not tr.started or tr.speed_known:
             return False
         w, h = self.view_px
-        margin = 0.5 * math.sqrt(tr.area_px)
+        margin = math.sqrt(tr.area_px) + 0.125 * max(w, h)
         pred = self._predict_px(tr, *self._row_instants(tr, eye_times_ns))
         return not any(
             -margin <= float(x) <= w + margin and -margin <= float(y) <= h + margin
