@@ -96,20 +96,21 @@ APART_PX = 2.0
 
 def _apart(
     centres: np.ndarray, ends: np.ndarray, started: list[bool], detections: list[Detection]
-) -> np.ndarray:
-    """(detection, track) bool: the detection (``centres`` (n, 2, 2): left and right
-    centroids, px) at clearly another depth (:data:`APART`) than where the track is predicted
-    (``ends[0]``, ``ends[2]``: (k, 2) left and right, px), for tracks whose filter runs
-    (``started``) and detections whose disparity is their object's (not cut by the image's
-    side, which shows each eye another part of it)."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """(detection, track) bool, twice: the detection (``centres`` (n, 2, 2): left and right
+    centroids, px) clearly nearer, and clearly farther (:data:`APART`), than where the track
+    is predicted (``ends[0]``, ``ends[2]``: (k, 2) left and right, px); for tracks whose
+    filter runs (``started``) and detections whose disparity is their object's (not cut by
+    the image's side, which shows each eye another part of it)."""
     d = centres[:, 0, 0] - centres[:, 1, 0]
     dp = ends[0][:, 0] - ends[2][:, 0]
-    apart = (d[:, None] > APART * dp[None, :] + APART_PX) | (
-        dp[None, :] > APART * d[:, None] + APART_PX
+    judged = (
+        np.asarray(started, bool)[None, :]
+        & ~np.array([det.clipped for det in detections], bool)[:, None]
     )
-    apart &= np.asarray(started, bool)[None, :]
-    apart &= ~np.array([det.clipped for det in detections], bool)[:, None]
-    return apart
+    nearer = (d[:, None] > APART * dp[None, :] + APART_PX) & judged
+    farther = (dp[None, :] > APART * d[:, None] + APART_PX) & judged
+    return nearer, farther
 
 
 def _stacked(a: Track, b: Track) -> bool:
@@ -228,16 +229,21 @@ class Association(TrackFilters):
             resumes &= boxes.ious(bboxes[:, 1], last[1]) >= RESUME_IOU
             cost[resumes | recut] = RESUME_COST
             self._recut = {(int(i), tracks[int(j)].track_id) for i, j in np.argwhere(recut)}
-        # A detection at clearly another depth than where a running track is predicted is not
-        # that track's object, however near in the images (a board held up before a person
-        # and taken away: the person is not the board's); nor does it hold it (below).
-        apart = _apart(centres, ends, [tr.started for tr in tracks], detections)
-        cost[apart] = np.inf
-        cost[gone] = np.inf
         # whether each track's prediction falls in each detection's box, left and right eye
         inside = np.stack(
             (boxes.insides(ends[0], bboxes[:, 0]), boxes.insides(ends[2], bboxes[:, 1]))
         )
+        # A detection clearly nearer than where a running track is predicted is not that
+        # track's object, however near in the images: another object in front of it (a board
+        # held up before a person); nor does it hold it (below). One clearly farther is not
+        # it either where a confirmed track it holds in both eyes is at its depth (the board
+        # taken away: the person is not the board's); without one, its own disparity may be
+        # what is off (a person's ragged outline as they stand up reads 3 px for 13).
+        nearer, farther = _apart(centres, ends, [tr.started for tr in tracks], detections)
+        at_depth = inside[0] & inside[1] & ~nearer & ~farther & confirmed
+        apart = nearer | (farther & at_depth.any(axis=1)[:, None])
+        cost[apart] = np.inf
+        cost[gone] = np.inf
         inside &= ~apart
         shared: list[int] = []
         if int(np.count_nonzero(confirmed)) >= 2:  # (one confirmed track shares nothing)
