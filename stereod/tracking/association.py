@@ -233,15 +233,16 @@ class Association(TrackFilters):
         inside = np.stack(
             (boxes.insides(ends[0], bboxes[:, 0]), boxes.insides(ends[2], bboxes[:, 1]))
         )
-        # A detection clearly nearer than where a running track is predicted is not that
-        # track's object, however near in the images: another object in front of it (a board
-        # held up before a person); nor does it hold it (below). One clearly farther is not
-        # it either where a confirmed track it holds in both eyes is at its depth (the board
-        # taken away: the person is not the board's); without one, its own disparity may be
-        # what is off (a person's ragged outline as they stand up reads 3 px for 13).
+        # A detection at clearly another depth than where a running track is predicted is not
+        # that track's object where a confirmed track it holds in both eyes is at its depth (a
+        # board held up before a person and taken away: the person is not the board's).
+        # Without one, the disparity that is off may be either's: a person's ragged outline
+        # as they stand up reads 3 px for 13, and a filter that took a few such reads is off
+        # when the outline is whole again. A detection clearly nearer than a hidden track does
+        # not hold it either (below): it is another object, in front of it.
         nearer, farther = _apart(centres, ends, [tr.started for tr in tracks], detections)
         at_depth = inside[0] & inside[1] & ~nearer & ~farther & confirmed
-        apart = nearer | (farther & at_depth.any(axis=1)[:, None])
+        apart = (nearer | farther) & at_depth.any(axis=1)[:, None]
         cost[apart] = np.inf
         cost[gone] = np.inf
         inside &= ~apart
@@ -318,15 +319,16 @@ class Association(TrackFilters):
         # A blob that holds, in both eyes, where a confirmed track left unmatched should be is
         # that object disturbed (joined by a shadow the detector did not leave out, or by
         # another object): it starts no track of its own while that one lives on, hidden. One
-        # clearly nearer than that track (``apart``) is another object, in front of it, that
-        # hides it.
+        # clearly nearer than that track is another object, in front of it, that hides it.
         taken = {t for t in out if t is not None}
         unseen = [j for j, tr in enumerate(tracks) if confirmed[j] and tr.track_id not in taken]
         free = [i for i in range(n) if out[i] is None and may_start[i]]
         if free:  # (pieces matter only to a detection that may still start a track)
             piece = _pieces(detections, centres, bboxes, out, tracks)
             for i in free:
-                holds = any(inside[0, i, j] and inside[1, i, j] for j in unseen)
+                holds = any(
+                    inside[0, i, j] and inside[1, i, j] and not nearer[i, j] for j in unseen
+                )
                 may_start[i] = not holds and not bool(piece[i]) and not gone[i]
         # A blob that would start a track but came out, in both eyes, of the blob that hid a
         # confirmed track in the last pair is that object reappearing (two people who crossed
