@@ -111,7 +111,7 @@ def test_size_mismatch_and_missing_file(tmp_path: Path) -> None:
 def test_a_file_that_is_not_text_is_not_a_calibration(tmp_path: Path, content: bytes) -> None:
     path = tmp_path / "c.avi"
     path.write_bytes(content)
-    with pytest.raises(CalibrationError, match=r"c\.avi: not a calibration file: it is not text"):
+    with pytest.raises(CalibrationError, match=r"c\.avi: not a calibration file: it is not UTF-8"):
         load(path)
 
 

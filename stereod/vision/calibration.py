@@ -381,7 +381,7 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
         decoded = "\0"
     if "\0" in decoded:  # a video, an image: no calibration, whatever its brackets say
         raise CalibrationError(
-            f"{path}: not a calibration file: it is not text (a calibration is the JSON "
+            f"{path}: not a calibration file: it is not UTF-8 text (a calibration is the JSON "
             "`stereod calibrate` writes, or `stereod calibration import` makes of OpenCV's)"
         )
     check_depth(decoded, "json", str(path), CalibrationError)
