@@ -86,31 +86,37 @@ def _pieces(
     return piece
 
 
-APART = 1.5
-"""A detection whose disparity is more than this many times a track's predicted one (and
-:data:`APART_PX` more), or less than its inverse, is at another depth than that track's
-object (two thirds of its depth or less, or one and a half times or more): another object,
-not it joined by its shadow or a neighbour (whose blend of disparities lies between)."""
-APART_PX = 2.0
+NEARER = 1.5
+"""A detection whose disparity is more than this many times a hidden track's predicted one
+(and :data:`DISPARITY_SLACK_PX` more) is nearer than that track's object, at two thirds of its
+depth or less: another object in front of it, not it joined by its shadow or a neighbour
+(whose blend of disparities lies between)."""
+OTHER_DEPTH = 2.0
+"""A detection whose disparity is more than this many times a track's predicted one, or less
+than its inverse (beyond :data:`DISPARITY_SLACK_PX`), is at another depth than that track's
+object, if another track is at its own (:data:`AT_DEPTH`): a walker's ragged outline can read
+a third of its disparity, so less than that is no evidence alone."""
+AT_DEPTH = 0.15
+"""A detection whose disparity is within this share of a track's predicted one (or
+:data:`DISPARITY_SLACK_PX`) is at that track's depth."""
+DISPARITY_SLACK_PX = 2.0
 
 
-def _apart(
+def _disparities(
     centres: np.ndarray, ends: np.ndarray, started: list[bool], detections: list[Detection]
-) -> tuple[np.ndarray, np.ndarray]:
-    """(detection, track) bool, twice: the detection (``centres`` (n, 2, 2): left and right
-    centroids, px) clearly nearer, and clearly farther (:data:`APART`), than where the track
-    is predicted (``ends[0]``, ``ends[2]``: (k, 2) left and right, px); for tracks whose
-    filter runs (``started``) and detections whose disparity is their object's (not cut by
-    the image's side, which shows each eye another part of it)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The detections' disparities ((n,) px, from ``centres`` (n, 2, 2): left and right
+    centroids), the tracks' predicted ones ((k,) px, from ``ends[0]`` and ``ends[2]``: left
+    and right predictions), and which pairs of the two can be compared ((n, k) bool: a track
+    whose filter runs, ``started``, and a detection whose disparity is its object's, not cut
+    by the image's side, which shows each eye another part of it)."""
     d = centres[:, 0, 0] - centres[:, 1, 0]
     dp = ends[0][:, 0] - ends[2][:, 0]
     judged = (
         np.asarray(started, bool)[None, :]
         & ~np.array([det.clipped for det in detections], bool)[:, None]
     )
-    nearer = (d[:, None] > APART * dp[None, :] + APART_PX) & judged
-    farther = (dp[None, :] > APART * d[:, None] + APART_PX) & judged
-    return nearer, farther
+    return d, dp, judged
 
 
 def _stacked(a: Track, b: Track) -> bool:
@@ -238,11 +244,18 @@ class Association(TrackFilters):
         # board held up before a person and taken away: the person is not the board's).
         # Without one, the disparity that is off may be either's: a person's ragged outline
         # as they stand up reads 3 px for 13, and a filter that took a few such reads is off
-        # when the outline is whole again. A detection clearly nearer than a hidden track does
-        # not hold it either (below): it is another object, in front of it.
-        nearer, farther = _apart(centres, ends, [tr.started for tr in tracks], detections)
-        at_depth = inside[0] & inside[1] & ~nearer & ~farther & confirmed
-        apart = (nearer | farther) & at_depth.any(axis=1)[:, None]
+        # when the outline is whole again. A detection clearly nearer than a hidden track
+        # (``NEARER``) does not hold it either (below): it is another object, in front of it.
+        seen_d, predicted_d, judged = _disparities(
+            centres, ends, [tr.started for tr in tracks], detections
+        )
+        dd, dpp = seen_d[:, None], predicted_d[None, :]
+        slack = DISPARITY_SLACK_PX
+        nearer = judged & (dd > NEARER * dpp + slack)
+        other = judged & ((dd > OTHER_DEPTH * dpp + slack) | (dpp > OTHER_DEPTH * dd + slack))
+        at_depth = judged & (np.abs(dd - dpp) <= np.maximum(slack, AT_DEPTH * dd))
+        held = inside[0] & inside[1] & at_depth & confirmed
+        apart = other & held.any(axis=1)[:, None]
         cost[apart] = np.inf
         cost[gone] = np.inf
         inside &= ~apart
