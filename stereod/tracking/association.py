@@ -251,9 +251,12 @@ class Association(TrackFilters):
         )
         dd, dpp = seen_d[:, None], predicted_d[None, :]
         slack = DISPARITY_SLACK_PX
-        nearer = judged & (dd > NEARER * dpp + slack)
-        other = judged & ((dd > OTHER_DEPTH * dpp + slack) | (dpp > OTHER_DEPTH * dd + slack))
-        at_depth = judged & (np.abs(dd - dpp) <= np.maximum(slack, AT_DEPTH * dd))
+        # (as differences: a fast object's centroids, taken at two instants, may have a small
+        # or negative disparity, where ratios mean nothing)
+        gap = np.abs(dd - dpp)
+        nearer = judged & (dd - dpp > (NEARER - 1.0) * np.maximum(dpp, 0.0) + slack)
+        other = judged & (gap > (OTHER_DEPTH - 1.0) * np.maximum(np.minimum(dd, dpp), 0.0) + slack)
+        at_depth = judged & (gap <= np.maximum(slack, AT_DEPTH * np.abs(dd)))
         held = inside[0] & inside[1] & at_depth & confirmed
         apart = other & held.any(axis=1)[:, None]
         cost[apart] = np.inf
