@@ -171,3 +171,15 @@ def test_a_ball_coming_at_the_rig_through_a_webcam() -> None:
         speed_mps=0.9,
     )
     check(acc.score(case, acc.run_case(case)))
+
+
+@pytest.mark.parametrize("speed", [10.0, 20.0])
+def test_a_ball_thrown_across_at_60_deg_keeps_one_id(speed: float) -> None:
+    """At 320x240 and 60 deg a ball thrown across the view moves 33 px (at 10 m/s) between
+    the eyes' instants, half a frame apart: its raw centroids read a small or negative
+    disparity, which the association's depth tests must not take for another object's
+    (taken as a ratio, it gave the ball a second id)."""
+    case = acc.world_preset("fast_ball", acc.MODES[1], seed=0, direction="lateral", speed_mps=speed)
+    score = acc.score(case, acc.run_case(case))
+    (ball,) = score.objects
+    assert score.ghosts == [] and len(ball.track_ids) == 1, ball.track_ids
