@@ -205,10 +205,9 @@ class Pipeline:
         self.params = params
         self.left = Detector(params.detector)
         self.right = Detector(params.detector)
-        self.tracker = Tracker(params.tracker, params.rig.rectified.project)
-        self._line_ns = params.readout_s * 1e9 / params.rig.height_px
-        self.tracker.line_ns = self._line_ns
-        self.tracker.view_px = (params.rig.width_px, params.rig.height_px)
+        rig = params.rig
+        self.tracker = Tracker(params.tracker, rig.rectified.project, (rig.width_px, rig.height_px))
+        self.tracker.line_ns = self._line_ns = params.readout_s * 1e9 / rig.height_px
         self._pending: list[Learning | None] = [None, None]
         """Each eye's eq. 3 rectangles (frozen, released) from the last pair, for the next;
         ``None`` once that eye has learned (or before the first pair)."""

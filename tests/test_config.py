@@ -207,3 +207,11 @@ def test_holding_a_stopped_object_never_is_allowed(tmp_path: Path) -> None:
     f = tmp_path / "c.toml"
     f.write_text("[tracking]\nhold_still_s = 0\nstill_after_s = 10\n")
     assert load_config(f).tracking.hold_still_s == 0.0
+
+
+def test_a_stop_longer_than_the_default_hold_lengthens_the_hold(tmp_path: Path) -> None:
+    f = tmp_path / "c.toml"
+    f.write_text("[tracking]\nstill_after_s = 200\n")
+    tracking = load_config(f).tracking
+    assert tracking.still_after_s == 200.0 and tracking.hold_still_s == 200.0
+    assert tracking.params().hold_still_s == 200.0

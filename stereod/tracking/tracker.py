@@ -89,11 +89,16 @@ class Tracker(Association):
     """Per pair: :meth:`associate` detections in the images, then :meth:`update` with the
     observations triangulated from them (after skew compensation) and the same assignment."""
 
-    def __init__(self, params: TrackerParams, project: Projector | None = None) -> None:
+    def __init__(
+        self,
+        params: TrackerParams,
+        project: Projector | None = None,
+        view_px: tuple[int, int] | None = None,
+    ) -> None:
         """``project`` maps a rig-frame point (m) to rectified px in one eye; with it,
         a track whose filter runs is looked for where its 3D prediction projects (which
         follows perspective: an object coming at the camera speeds up in the image), else
-        where its image velocity leads."""
+        where its image velocity leads. ``view_px``: the images' width and height (px)."""
         self.params = params
         self._project = project
         self._merging: dict[int, int] = {}
@@ -119,9 +124,9 @@ class Tracker(Association):
         self.line_ns = 0.0
         """How much later a rolling shutter reads each image row than the one above (ns); 0
         for a global shutter (set by the pipeline from ``readout_s``)."""
-        self.view_px: tuple[int, int] | None = None
-        """The images' width and height (px; set by the pipeline): an unseen track whose
-        prediction leaves both has left the view."""
+        self.view_px = view_px
+        """The images' width and height (px): an unseen track whose motion is a guess and
+        whose prediction leaves both has left the view (:meth:`_left_view`)."""
         g = np.asarray(params.gravity_mps2, dtype=np.float64)
         self._gravity: np.ndarray | None = g if np.any(g != 0.0) else None
         self._tracks: dict[int, Track] = {}
