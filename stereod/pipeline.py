@@ -256,7 +256,7 @@ class Pipeline:
         )
         ended: list[int] = []
         if params.tracker == self.params.tracker and same_geometry:
-            new.tracker = self.tracker
+            new.tracker, self.tracker.line_ns = self.tracker, new.tracker.line_ns
         else:
             ended = self.tracker.end_all()
             new.tracker.continue_after(self.tracker)

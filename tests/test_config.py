@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from stereod.daemon.config import load_config
-from stereod.errors import EX_CONFIG, ConfigError, MissingInputError
+from stereod.errors import EX_CONFIG, ConfigError, MissingInputError, UsageError
 from stereod.tracking.types import TrackerParams
 
 
@@ -199,8 +199,18 @@ def test_a_sections_own_error_names_where_its_fields_came_from(
     with pytest.raises(ConfigError, match=r"c\.toml: invalid config: tracking\.stationary"):
         load_config(f)
     monkeypatch.setenv("STEREOD_TRACKING__HOLD_STILL_S", "0.5")
-    with pytest.raises(ConfigError, match=r"environment STEREOD_TRACKING__\*: .* hold_still_s"):
+    with pytest.raises(ConfigError, match=r"^environment STEREOD_TRACKING__\*: .* hold_still_s"):
         load_config()
+    f.write_text("[detector]\nbeta = 0.05\n")  # a file, with no [tracking]
+    with pytest.raises(ConfigError, match=r"^environment STEREOD_TRACKING__\*: .* hold_still_s"):
+        load_config(f)
+    f.write_text("[tracking]\nstill_after_s = 10\n")
+    with pytest.raises(ConfigError, match=r"c\.toml and environment STEREOD_TRACKING__\*: inv"):
+        load_config(f)
+    monkeypatch.delenv("STEREOD_TRACKING__HOLD_STILL_S")
+    monkeypatch.delenv("STEREOD_TRACKING__CONFIRM_HITS")
+    with pytest.raises(UsageError, match=r"^command line: invalid config: tracking: hold_still"):
+        load_config(None, {"tracking": {"hold_still_s": 0.5, "still_after_s": 10.0}})
 
 
 def test_holding_a_stopped_object_never_is_allowed(tmp_path: Path) -> None:
@@ -213,5 +223,6 @@ def test_a_stop_longer_than_the_default_hold_lengthens_the_hold(tmp_path: Path) 
     f = tmp_path / "c.toml"
     f.write_text("[tracking]\nstill_after_s = 200\n")
     tracking = load_config(f).tracking
-    assert tracking.still_after_s == 200.0 and tracking.hold_still_s == 200.0
-    assert tracking.params().hold_still_s == 200.0
+    assert tracking.still_after_s == 200.0 and tracking.hold_still_s == 320.0  # 200 + 120
+    assert tracking.params().hold_still_s == 320.0
+    assert "hold_still_s" not in tracking.model_fields_set

@@ -319,6 +319,20 @@ def test_a_reconfigured_pipeline_keeps_the_pending_background_update() -> None:
         np.testing.assert_array_equal(a.background, b.background)
 
 
+def test_a_reload_of_the_readout_reaches_the_tracker_it_keeps() -> None:
+    """A reload that changes only ``readout_s`` keeps the tracks (and the tracker), whose
+    association then takes each row's instant with the new readout, as the skew stage does:
+    30 ms over 240 rows is 125 us a row."""
+    from stereod.pipeline import Pipeline
+    from stereod.vision.geometry.stereo import CanonicalRig
+
+    params = PipelineParams(CanonicalRig(0.06, 60.0, 320, 240))
+    first = Pipeline(params)
+    second, ended = first.reconfigured(dataclasses.replace(params, readout_s=0.03))
+    assert ended == [] and second.tracker is first.tracker
+    assert second.tracker.line_ns == pytest.approx(0.03e9 / 240)
+
+
 def test_two_workers_find_what_one_finds(monkeypatch: pytest.MonkeyPatch) -> None:
     """The eyes on two threads (forced here for a small frame) give the same tracks, to the
     bit, as on one: each eye's detector is its own, and eq. 3 runs in the same order."""

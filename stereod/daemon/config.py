@@ -478,7 +478,8 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
     """
     data = canonical_names(read_toml(path), str(path)) if path is not None else {}
     flags = prune(overrides or {})
-    below = merge(data, environment())
+    env = environment()
+    below = merge(data, env)
     named = flags.get("driver", {}).get("name") if isinstance(flags.get("driver"), dict) else None
     under = below.get("driver")
     if isinstance(under, dict) and named is not None and under.get("name", named) != named:
@@ -486,7 +487,10 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
     try:
         return StereodConfig.model_validate(merge(below, flags))
     except ValidationError as exc:
-        errors = [(origin(tuple(e["loc"]), path, flags), e) for e in exc.errors(include_url=False)]
+        errors = [
+            (origin(tuple(e["loc"]), path, flags, (data, env)), e)
+            for e in exc.errors(include_url=False)
+        ]
         parts = [
             f"{origin}: invalid config: {describe_error(e, model=StereodConfig)}"
             for origin, e in errors

@@ -81,7 +81,7 @@ class TrackingConfig(Section):
         _TRACK.hold_still_s,
         validation_alias=AliasChoices("hold_still_s", "freeze_s"),
         description="A stopped object is held out of the background, keeping its id, this long, s "
-        "(at least still_after_s; freeze_s, its older name, is read too)",
+        "(past still_after_s; freeze_s, its older name, is read too)",
     )
     size_gate: float = Field(
         _TRACK.size_gate,
@@ -128,12 +128,14 @@ class TrackingConfig(Section):
 
     @model_validator(mode="after")
     def _held_once_stopped(self) -> TrackingConfig:
-        """A stopped object is held at least until it counts as stopped: a ``still_after_s``
-        beyond the default hold lengthens the hold with it; a hold given shorter (but not 0,
-        never) is refused."""
+        """A stopped object is held beyond the moment it counts as stopped: a
+        ``still_after_s`` beyond the default hold lengthens the hold by it (the default hold
+        then counts from there; the hold stays unset, as given); a hold given shorter (but
+        not 0, never) is refused."""
         if 0.0 < self.hold_still_s < self.still_after_s:
             if "hold_still_s" not in self.model_fields_set:
-                self.hold_still_s = self.still_after_s
+                self.hold_still_s = min(self.hold_still_s + self.still_after_s, HOLD_STILL_S.hi)
+                self.model_fields_set.discard("hold_still_s")
                 return self
             raise ValueError(
                 f"hold_still_s {self.hold_still_s:g} s is shorter than still_after_s "

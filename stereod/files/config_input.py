@@ -57,16 +57,28 @@ def merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def origin(loc: tuple[Any, ...], path: Path | None, overrides: dict[str, Any]) -> str:
+def origin(
+    loc: tuple[Any, ...],
+    path: Path | None,
+    overrides: dict[str, Any],
+    tables: tuple[dict[str, Any], dict[str, Any]] = ({}, {}),
+) -> str:
     """Where the value at ``loc`` (``("driver", "name")``) came from: a flag, the environment
-    (its variable, or one for a part of it), the file, or defaults."""
-    if len(loc) == 1:  # a section's error between its fields (one setting under two names)
-        if path is not None:
-            return str(path)
-        env = f"{ENV_PREFIX}{str(loc[0]).upper()}__"
-        if any(k.upper().startswith(env) for k in os.environ):
-            return f"environment {env}*"
-        return "command line" if overrides.get(loc[0]) is not None else "defaults"
+    (its variable, or one for a part of it), the file, or defaults. An error of a section as a
+    whole (between its fields) names every source that gave that section fields: the file and
+    the environment's as read (``tables``), and the flags."""
+    if len(loc) == 1:
+        section = str(loc[0])
+        sources = [
+            name
+            for name, given in (
+                (str(path), section in tables[0]),
+                (f"environment {ENV_PREFIX}{section.upper()}__*", section in tables[1]),
+                ("command line", overrides.get(section) is not None),
+            )
+            if given
+        ]
+        return " and ".join(sources) or "defaults"
     node: Any = overrides
     for part in loc:
         if isinstance(node, dict):

@@ -91,14 +91,6 @@ NEARER = 1.5
 (and :data:`DISPARITY_SLACK_PX` more) is nearer than that track's object, at two thirds of its
 depth or less: another object in front of it, not it joined by its shadow or a neighbour
 (whose blend of disparities lies between)."""
-OTHER_DEPTH = 2.0
-"""A detection whose disparity is more than this many times a track's predicted one, or less
-than its inverse (beyond :data:`DISPARITY_SLACK_PX`), is at another depth than that track's
-object, if another track is at its own (:data:`AT_DEPTH`): a walker's ragged outline can read
-a third of its disparity, so less than that is no evidence alone."""
-AT_DEPTH = 0.15
-"""A detection whose disparity is within this share of a track's predicted one (or
-:data:`DISPARITY_SLACK_PX`) is at that track's depth."""
 DISPARITY_SLACK_PX = 2.0
 
 
@@ -239,29 +231,18 @@ class Association(TrackFilters):
         inside = np.stack(
             (boxes.insides(ends[0], bboxes[:, 0]), boxes.insides(ends[2], bboxes[:, 1]))
         )
-        # A detection at clearly another depth than where a running track is predicted is not
-        # that track's object where a confirmed track it holds in both eyes is at its depth (a
-        # board held up before a person and taken away: the person is not the board's).
-        # Without one, the disparity that is off may be either's: a person's ragged outline
-        # as they stand up reads 3 px for 13, and a filter that took a few such reads is off
-        # when the outline is whole again. A detection clearly nearer than a hidden track
-        # (``NEARER``) does not hold it either (below): it is another object, in front of it.
+        # A detection clearly nearer than a hidden track (its disparity against the track's
+        # predicted one, as a difference: a fast object's centroids, taken at two instants,
+        # may read a small or negative disparity, where ratios mean nothing) does not hold it
+        # (below): it is another object, in front of it (a board held up before a person).
         seen_d, predicted_d, judged = _disparities(
             centres, ends, [tr.started for tr in tracks], detections
         )
-        dd, dpp = seen_d[:, None], predicted_d[None, :]
-        slack = DISPARITY_SLACK_PX
-        # (as differences: a fast object's centroids, taken at two instants, may have a small
-        # or negative disparity, where ratios mean nothing)
-        gap = np.abs(dd - dpp)
-        nearer = judged & (dd - dpp > (NEARER - 1.0) * np.maximum(dpp, 0.0) + slack)
-        other = judged & (gap > (OTHER_DEPTH - 1.0) * np.maximum(np.minimum(dd, dpp), 0.0) + slack)
-        at_depth = judged & (gap <= np.maximum(slack, AT_DEPTH * np.abs(dd)))
-        held = inside[0] & inside[1] & at_depth & confirmed
-        apart = other & held.any(axis=1)[:, None]
-        cost[apart] = np.inf
+        dpp = predicted_d[None, :]
+        nearer = judged & (
+            seen_d[:, None] - dpp > (NEARER - 1.0) * np.maximum(dpp, 0.0) + DISPARITY_SLACK_PX
+        )
         cost[gone] = np.inf
-        inside &= ~apart
         shared: list[int] = []
         if int(np.count_nonzero(confirmed)) >= 2:  # (one confirmed track shares nothing)
             hosted = (inside & confirmed).sum(axis=2)  # (eye, detection): confirmed tracks in it

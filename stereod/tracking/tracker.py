@@ -360,10 +360,10 @@ class Tracker(Association):
     def _left_view(self, tr: Track, eye_times_ns: tuple[int, int]) -> bool:
         """Whether an unseen track whose motion is a guess (no valid velocity) is predicted
         outside both images, by its size and an eighth of the image (a calibrated rig's
-        rectified points reach past the frame): nothing in view hides it, and its filter has
-        left its object (a pedestrian's, on a guessed velocity, once coasted across and out of
-        the view for 1.6 s while blobs it had passed kept it hidden). One whose velocity is
-        known coasts as long as ever: a ball thrown over the top of the view comes back."""
+        rectified points reach past the frame): it ends, hidden or not, for its guess has left
+        the view (a pedestrian's once coasted across and out of it for 1.6 s while blobs it
+        had passed kept it hidden). One whose velocity is known coasts as long as ever: a ball
+        thrown over the top of the view comes back."""
         if self.view_px is None or not tr.started or tr.speed_known:
             return False
         w, h = self.view_px
