@@ -1451,6 +1451,28 @@ def test_an_object_in_front_of_a_track_starts_its_own_and_hides_it() -> None:
             assert abs(float(by_id[2].position_m[2]) - 0.65) < 0.05
 
 
+def test_the_object_behind_takes_its_blob_back_when_the_one_in_front_goes() -> None:
+    """The board of the test above, taken away after 5 to 30 pairs (0.17 to 1 s): the blob
+    where both tracks are predicted is at the person's disparity, far less than the board's
+    (a sixth), so it is not the board in front with something joining it; the person's track
+    takes it at once, and the board's coasts."""
+    person = np.array([0.0, 0.0, 3.7])
+    for held in (5, 10, 30):
+        for x in (0.0, 0.02, -0.05):
+            tracker = Tracker(TrackerParams(), RIG.rectified.project)
+            for k in range(10):
+                step(tracker, k * DT_NS, [person], size_m=0.4)
+            board = seen(np.array([x, 0.0, 0.65]), size_m=0.5)
+            for k in range(10, 10 + held):
+                fold(tracker, k * DT_NS, [board])
+            for k in range(10 + held, 20 + held):
+                states, _ = step(tracker, k * DT_NS, [person], size_m=0.4)
+                by_id = {s.track_id: s for s in states}
+                assert by_id[1].lifecycle is TrackLifecycle.CONFIRMED, (held, x, k, by_id)
+                assert abs(float(by_id[1].position_m[2]) - 3.7) < 0.05
+                assert by_id[2].lifecycle is TrackLifecycle.COASTING, (held, x, k, by_id)
+
+
 def test_a_piece_where_the_prediction_agrees_leaves_the_filter_predicted() -> None:
     """A ball followed for a second at 0.5 m/s, then seen for a pair as a piece (a blob a
     third of its size, its centroid 1.5 cm to one side, within half the ball's outline of the

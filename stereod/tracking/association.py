@@ -242,6 +242,11 @@ class Association(TrackFilters):
         nearer = judged & (
             seen_d[:, None] - dpp > (NEARER - 1.0) * np.maximum(dpp, 0.0) + DISPARITY_SLACK_PX
         )
+        # A detection clearly farther than a track (the same test, the other way round) is not
+        # that object in front with another joining it, whose blend of disparities lies
+        # between theirs: the object in front has gone (a board taken away from before a
+        # person), and the blob is what was behind it.
+        farther = judged & (NEARER * np.maximum(seen_d, 0.0)[:, None] + DISPARITY_SLACK_PX < dpp)
         cost[gone] = np.inf
         shared: list[int] = []
         if int(np.count_nonzero(confirmed)) >= 2:  # (one confirmed track shares nothing)
@@ -271,7 +276,7 @@ class Association(TrackFilters):
             # (:meth:`_in_front`). Else it is one of them (the other hidden behind it) if it
             # looks like that one alone: its box where that one's box should be, in both eyes.
             # Failing both, both coast until they part in both eyes.
-            front = self._in_front(tracks, hosts, inside[:, i], preds)
+            front = self._in_front(tracks, hosts[~farther[i, hosts]], inside[:, i], preds)
             if front is not None:
                 keep = min(cost[i, front[0]], RESUME_COST)
                 cost[i, :] = np.inf
