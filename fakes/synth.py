@@ -376,12 +376,13 @@ class _SynthEye(EyeSource):
         k = self._k
         self._k += 1
         lap, i = divmod(k, n)
-        t = sc.frame_time_s(self.eye, i) + lap * n / sc.fps
+        t_scene = sc.frame_time_s(self.eye, i)  # each lap plays the scene's own instants again
+        t = t_scene + lap * n / sc.fps
         if src.prerendered is not None:
             img = src.prerendered[self.eye][i]
         else:
             with src.render_lock:
-                img = src.renderer.render(self.eye, t, src.backgrounds[self.eye])
+                img = src.renderer.render(self.eye, t_scene, src.backgrounds[self.eye])
         if not src.flags.live:
             return Frame(self.eye, img, sc.t_ns(t), k)
         # Like a camera: the frame is delivered at its capture instant, stamped on the host's

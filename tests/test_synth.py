@@ -101,6 +101,25 @@ def test_synthetic_driver_streams_the_scene() -> None:
         assert rf is not None and rf.t_ns - lf[0].t_ns == 10_000_000
 
 
+@pytest.mark.parametrize("prerender", [False, True])
+def test_a_looped_scene_shows_the_same_frames_each_lap(prerender: bool) -> None:
+    """``loop = true`` plays the scene again and again: each lap's frames are the first lap's
+    (the ball comes back; without sensor noise, to the bit), and only their timestamps go on,
+    a lap later each time."""
+    options = {"duration_s": 0.5, "fps": 10, "loop": True, "prerender": prerender, "noise_sigma": 0}
+    ball = {"heading_deg": 90, "speed_mps": 0.5, "t_mid_s": 0.25, "t_on_s": 0.0, "t_off_s": 0.5}
+    with SyntheticDriver({**options, "balls": [ball]}).open() as src:
+        frames = [src.left.read() for _ in range(15)]
+    assert all(f is not None for f in frames)
+    for k in range(5):
+        first, again, third = frames[k], frames[k + 5], frames[k + 10]
+        assert first is not None and again is not None and third is not None
+        np.testing.assert_array_equal(again.image, first.image)
+        np.testing.assert_array_equal(third.image, first.image)
+        assert again.t_ns - first.t_ns == third.t_ns - again.t_ns == 500_000_000
+    assert not np.array_equal(frames[0].image, frames[2].image)  # (the ball moves in a lap)
+
+
 @pytest.mark.parametrize(
     ("size", "more"),
     [("321x241", []), ("320x241", ["--codec", "mjpg", "--color"]), ("1x1", [])],
