@@ -368,12 +368,12 @@ class Pipeline:
     def _check(self, pair: StereoPair) -> None:
         """Refuse a pair whose frames do not fit the rig or the eyes' time lines."""
         if not isinstance(pair, StereoPair):
-            raise TypeError(
-                f"process takes a StereoPair(seq, left, right) of two Frames, got "
-                f"{type(pair).__name__}"
-            )
+            got = type(pair).__name__
+            raise TypeError(f"process takes a StereoPair(seq, left, right) of Frames, got {got}")
         for frame, eye in ((pair.left, Eye.LEFT), (pair.right, Eye.RIGHT)):
             why = self._refusal(frame, eye)
+            if why is None and pair.left.image.ndim != frame.image.ndim:
+                why = "one eye's frame is grey and the other's BGR: give both in one format"
             if why is not None:
                 raise ValueError(f"pair {pair.seq}: {why}")
 
@@ -387,14 +387,13 @@ class Pipeline:
         return ahead[2]
 
     def process(self, pair: StereoPair) -> PairResult:
-        """Run one pair through eq. 2-5, 9, 12 and 21-23, stage by stage: :meth:`_detect`,
-        :meth:`_match`, :meth:`_associate`, then for each detection :meth:`_skew` (when skew is
-        compensated) and :meth:`_triangulate`, then the tracker's update (each track's two Kalman
-        filters, tracks started and ended, speed and heading) and :meth:`_learn`; with no blob
-        in either eye and no live track, every stage after detection is skipped. A pair
-        the pipeline cannot use (an eye's frame not the rig's size, or not at least
-        ``MIN_FRAME_INTERVAL_NS`` later than that eye's frame in the last pair) raises
-        ValueError before anything is changed."""
+        """Run one pair through eq. 2-5, 9, 12 and 21-23: :meth:`_detect`, :meth:`_match`,
+        :meth:`_associate`, then per detection :meth:`_skew` (skew compensated) and
+        :meth:`_triangulate`, the tracker's update (filters, tracks started and ended, speed and
+        heading) and :meth:`_learn`; with no blob and no live track, all after detection is
+        skipped. A pair the pipeline cannot use (a frame not the rig's size, the eyes' formats
+        unlike, a frame not ``MIN_FRAME_INTERVAL_NS`` after that eye's in the last pair)
+        raises ValueError before anything is changed."""
         p = self.params
         self._check(pair)
         t0 = time.perf_counter_ns()

@@ -54,3 +54,19 @@ def test_capture_times_are_integer_nanoseconds() -> None:
         Frame(Eye.LEFT, GREY, 1.5, 0)  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="integer count of nanoseconds"):
         StereoPair.of(GREY, GREY, 0.0, 0.0)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("t", [-1, 2**63, 2**70])
+def test_a_capture_time_no_monotonic_clock_gives_is_refused(t: int) -> None:
+    """A monotonic clock counts ns from 0 in a signed 64-bit integer: a time outside that is
+    refused with the frame, so no pipeline ever holds it as its last (after which it would
+    refuse every real frame as not later)."""
+    with pytest.raises(ValueError, match=rf"left frame 3: t_ns {t} is not a monotonic clock's"):
+        Frame(Eye.LEFT, GREY, t, 3)
+    assert Frame(Eye.LEFT, GREY, 2**63 - 1, 3).t_ns == 2**63 - 1
+
+
+@pytest.mark.parametrize("t", [True, np.bool_(True)])
+def test_a_capture_time_given_as_a_truth_value_is_refused(t: object) -> None:
+    with pytest.raises(TypeError, match=r"integer count of nanoseconds, got (np\.)?True"):
+        Frame(Eye.LEFT, GREY, t, 0)  # type: ignore[arg-type]

@@ -563,10 +563,11 @@ def test_one_view_in_both_eyes_never_makes_a_track_at_infinity(disparity_px: int
 
 
 def test_a_pair_the_pipeline_cannot_use_is_refused_before_anything_changes() -> None:
-    """A frame not of the rig's size, eyes given the wrong way round, or a capture time that
-    is not later than its eye's last one (or so little later that it is in another unit)
-    raise a ValueError that names the pair, the eye and what to change, before anything
-    changes: the run then gives what it gives without the bad pairs, to the bit."""
+    """A frame not of the rig's size, eyes given the wrong way round, one eye grey and the
+    other BGR, or a capture time that is not later than its eye's last one (or so little
+    later that it is in another unit) raise a ValueError that names the pair, the eye and
+    what to change, before anything changes: the run then gives what it gives without the
+    bad pairs, to the bit."""
     import math
 
     from stereod import CanonicalRig, Frame, Pipeline, StereoPair
@@ -611,6 +612,9 @@ def test_a_pair_the_pipeline_cannot_use_is_refused_before_anything_changes() -> 
         ms = StereoPair.of(wall, wall, last + 66, t, seq=k)  # times in ms read as ns
         with pytest.raises(ValueError, match=f"pair {k}: the left frame was captured 66 ns after"):
             pipe.process(ms)
+        bgr = np.dstack((wall, wall, wall))
+        with pytest.raises(ValueError, match=f"pair {k}: one eye's frame is grey and the other"):
+            pipe.process(StereoPair.of(wall, bgr, t, t, seq=k))
         # a frame of another size is not detected ahead either (the detector would start
         # its background afresh for it)
         assert not pipe.detect_ahead(Frame(Eye.RIGHT, small, t, k))

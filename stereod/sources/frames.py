@@ -72,12 +72,23 @@ class Frame:
             )
         if not image.flags.c_contiguous:
             object.__setattr__(self, "image", np.ascontiguousarray(image))
-        if isinstance(self.t_ns, float) or not isinstance(self.t_ns, (int, np.integer)):
+        t = self.t_ns
+        if isinstance(t, (bool, np.bool_, float)) or not isinstance(t, (int, np.integer)):
             raise TypeError(
                 f"{where}: t_ns must be an integer count of nanoseconds, got "
-                f"{self.t_ns!r}: for seconds, use round(t * 1e9)"
+                f"{t!r}: for seconds, use round(t * 1e9)"
             )
-        object.__setattr__(self, "t_ns", int(self.t_ns))
+        if not 0 <= int(t) <= MAX_T_NS:
+            raise ValueError(
+                f"{where}: t_ns {int(t)} is not a monotonic clock's count of nanoseconds "
+                f"(0 to 2^63 - 1)"
+            )
+        object.__setattr__(self, "t_ns", int(t))
+
+
+MAX_T_NS = 2**63 - 1
+"""The largest capture instant (ns) a frame may carry: a monotonic clock's count fits a
+signed 64-bit integer, as the kernel's timestamps, the wire format and recordings do."""
 
 
 @dataclass(frozen=True, slots=True)
