@@ -507,7 +507,30 @@ def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
     one_line_error(
         stereod("run", "--config", str(synthetic), "--check", env=env),
         78,
-        r"environment STEREOD_DRIVER__OPTIONS: driver\.options\.width_px = 'abc'",
+        r"environment STEREOD_DRIVER__OPTIONS__WIDTH_PX: driver\.options\.width_px = 'abc'",
+    )
+    # ... each option by its own variable, and one from the file by the file
+    env = {"STEREOD_DRIVER__OPTIONS__BALLS": '[{"heading_deg": 60, "speed_mps": "x"}]'}
+    one_line_error(
+        stereod("run", "--config", str(synthetic), "--check", env=env),
+        78,
+        r"environment STEREOD_DRIVER__OPTIONS__BALLS: driver\.options\.balls\.0\.speed_mps = 'x'",
+    )
+    slow = tmp_path / "slow.toml"
+    slow.write_text('[driver]\nname = "synthetic"\n[driver.options]\nfps = -3\n')
+    one_line_error(
+        stereod(
+            "run", "--config", str(slow), "--check", env={"STEREOD_DRIVER__OPTIONS__SEED": "1"}
+        ),
+        78,
+        rf"{re.escape(str(slow))}: driver\.options\.fps = -3",
+    )
+    # A driver named by the flag runs without the file's options (another driver's): what it
+    # lacks is the flag's to give, not the file's fault.
+    one_line_error(
+        stereod("record", str(tmp_path / "rec"), "--driver", "replay", "--config", str(synthetic)),
+        78,
+        r"command line: --driver replay is given no options .*give either path",
     )
     one_line_error(
         stereod("replay", str(tmp_path), "--baseline", "-1"),

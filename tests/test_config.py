@@ -125,6 +125,15 @@ def test_environment_reaches_lists_and_driver_options(monkeypatch: pytest.Monkey
     # A pair is JSON too (it was taken as a string and refused: "a valid tuple").
     monkeypatch.setenv("STEREOD_DETECTOR__SHADOW_RATIO", "[0.3, 0.9]")
     assert load_config().detector.shadow_ratio == (0.3, 0.9)
+    # A driver's option written as a JSON list or table is one (the driver knows its types:
+    # a scalar stays text for it to read).
+    balls = [{"heading_deg": 60, "speed_mps": 0.7}]
+    monkeypatch.setenv("STEREOD_DRIVER__OPTIONS__BALLS", ' [{"heading_deg": 60, "speed_mps": 0.7}]')
+    monkeypatch.setenv("STEREOD_DRIVER__OPTIONS__CONTROLS", '{"gain": 0}')
+    assert load_config().driver.options == {"fps": "30", "balls": balls, "controls": {"gain": 0}}
+    monkeypatch.setenv("STEREOD_DRIVER__OPTIONS__BALLS", '[{"heading_deg": 60,')
+    with pytest.raises(ConfigError, match=r"STEREOD_DRIVER__OPTIONS__BALLS=.*written as JSON"):
+        load_config()
 
 
 @pytest.mark.parametrize(

@@ -13,6 +13,7 @@ from stereod.cli.common import (
     add_config,
     add_driver,
     number,
+    open_driver,
     path_arg,
     recording_arg,
     size_arg,
@@ -270,7 +271,6 @@ def _files(
 
 def _live(a: argparse.Namespace, board: Board, limits: cb.Limits) -> cb.Report:
     from stereod.daemon.config import load_config
-    from stereod.sources.drivers import load_driver
     from stereod.sources.frames import merged
     from stereod.vision import calibrate as cb
 
@@ -281,7 +281,7 @@ def _live(a: argparse.Namespace, board: Board, limits: cb.Limits) -> cb.Report:
         ov["driver"] = {"name": a.driver}
     cfg = load_config(a.config, ov)
     collector = cb.LiveCollector(board)
-    driver = load_driver(cfg.driver.name, cfg.driver.options, origin=a.config)
+    driver = open_driver(cfg, a.config, ov)
     # Not the config's calibration: this run does not read it, and replacing it is the point.
     check_outputs({"--out": a.out}, [a.config, *driver.inputs()])
     with (

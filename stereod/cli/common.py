@@ -303,19 +303,35 @@ def load_checked(path: Path | None, overrides: dict[str, Any]) -> tuple[Any, Any
     passes all three."""
     from stereod.bus.publish import session_config
     from stereod.daemon.config import load_config
-    from stereod.files.config_input import origin
-    from stereod.sources.drivers import load_driver
 
     cfg = load_config(path, overrides)
-    driver = load_driver(
-        cfg.driver.name,
-        cfg.driver.options,
-        origin=origin(("driver", "options"), path, overrides),
-        name_origin=origin(("driver", "name"), path, overrides),
-    )
+    driver = open_driver(cfg, path, overrides)
     session_config(cfg.zenoh)
     check_calibration(cfg, path, overrides, driver.frame_size())
     return cfg, driver
+
+
+def open_driver(cfg: Any, path: Path | None, overrides: dict[str, Any]) -> Any:
+    """The driver a configuration ``cfg`` (from ``path`` and the flags ``overrides``) names,
+    with its options; a bad option's error names where that option came from (the file, its
+    environment variable, a flag). A driver named by ``--driver`` runs without the file's
+    options when the file names another driver: missing options are then said to be the
+    flag's, with where they go."""
+    from stereod.files.config_input import origin
+    from stereod.sources.drivers import load_driver
+
+    named = origin(("driver", "name"), path, overrides)
+    bare = named == "command line" and not cfg.driver.options
+
+    def where(key: str | None) -> str:
+        if bare:
+            return (
+                f"command line: --driver {cfg.driver.name} is given no options (a config's "
+                "[driver.options] go with the [driver] name it gives)"
+            )
+        return origin(("driver", "options", *([key] if key else [])), path, overrides)
+
+    return load_driver(cfg.driver.name, cfg.driver.options, origin=where, name_origin=named)
 
 
 def check_calibration(

@@ -22,6 +22,7 @@ from stereod.cli.common import (
     check_calibration,
     command_log_level,
     number,
+    open_driver,
     path_arg,
     run_inputs,
     setup_logging,
@@ -75,13 +76,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 def run(a: argparse.Namespace) -> int:
     from stereod.daemon.config import load_config
-    from stereod.sources.drivers import load_driver
 
     ov = {"driver": {"name": a.driver}} if a.driver else {}
     cfg = load_config(a.config, ov)
     setup_logging(command_log_level(cfg))
     check_calibration(cfg, a.config, ov)
-    driver = load_driver(cfg.driver.name, cfg.driver.options, origin=a.config)
+    driver = open_driver(cfg, a.config, ov)
     stop = threading.Event()
     caught: list[int] = []
 

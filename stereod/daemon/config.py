@@ -417,7 +417,11 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
                 "STEREOD_<SECTION>__<FIELD>, e.g. STEREOD_DETECTOR__BETA; see stereod run --check)"
             )
         parsed: Any = value
-        if len(parts) == 2 and typing.get_origin(fld.annotation) in (list, tuple, dict):
+        # a field that holds a list or table, or an entry of a table of options (a driver's,
+        # whose types its driver knows) written as a JSON list or table
+        nested = len(parts) > 2 and value.lstrip()[:1] in ("[", "{")
+        holder = typing.get_origin(fld.annotation) in (list, tuple, dict)
+        if nested or (len(parts) == 2 and holder):
             where = f"environment variable {name}"
             check_depth(value, "json", where, ConfigError)
             try:

@@ -92,7 +92,9 @@ def origin(
     names = {k.upper() for k in os.environ}
     for n in range(len(loc), 1, -1):
         env = ENV_PREFIX + "__".join(str(p) for p in loc[:n]).upper()
-        if env in names or any(k.startswith(env + "__") for k in names):
+        # the variable of this table or of one holding it, or (for the whole of ``loc``)
+        # one of its parts
+        if env in names or (n == len(loc) and any(k.startswith(env + "__") for k in names)):
             return f"environment {env}"
     return str(path) if path is not None else "defaults"
 
