@@ -525,6 +525,13 @@ def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
         78,
         rf"{re.escape(str(slow))}: driver\.options\.fps = -3",
     )
+    # MCAP goes to a file: "-" is standard output for --jsonl only (it made a file named "-")
+    for command in ("replay", "export", "record"):
+        one_line_error(
+            stereod(command, str(tmp_path / "rec"), "--mcap", "-"),
+            64,
+            r"--mcap: - \(standard output\) is for --jsonl: give the file's name",
+        )
     # A driver named by the flag runs without the file's options (another driver's): what it
     # lacks is the flag's to give, not the file's fault.
     one_line_error(

@@ -590,6 +590,21 @@ def test_jsonl_of_another_run_is_refused(recorded: Recorded, tmp_path: Path) -> 
     assert list(tmp_path.iterdir()) == [other]
 
 
+@pytest.mark.parametrize("text", ["", "\n\n"])
+def test_a_jsonl_without_a_message_is_refused_and_nothing_is_written(
+    recorded: Recorded, tmp_path: Path, text: str
+) -> None:
+    """An empty file given as the run's messages is the wrong file (a run's has one message a
+    pair, objects or none): refused, as `stereod plot` refuses it, not an MCAP of frames with no
+    tracks and exit 0."""
+    empty = tmp_path / "empty.jsonl"
+    empty.write_text(text)
+    with pytest.raises(InputError) as exc:
+        export_run(tmp_path / "x.mcap", jsonl=empty, recording=recorded.rec)
+    one_line(exc, str(empty), "no objects messages in the file")
+    assert list(tmp_path.iterdir()) == [empty]
+
+
 # -- the writer on its own: unknown sigmas, calibrated rigs ----------------------------------
 
 

@@ -89,6 +89,19 @@ def path_arg(text: str) -> Path:
     return Path(text)
 
 
+def file_arg(text: str) -> Path:
+    """An argparse type: an output written to a file only (MCAP: binary, with an index at its
+    end); ``-`` and an empty name are refused."""
+    if text == "-":
+        raise argparse.ArgumentTypeError(
+            "- (standard output) is for --jsonl: give the file's name (or /dev/stdout to write "
+            "it there all the same)"
+        )
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty: give a file name")
+    return path_arg(text)
+
+
 def output_arg(text: str) -> Path:
     """An argparse type: an output file, ``-`` for standard output (``/dev/stdout``: written
     in place, a line at a time); an empty one (which would be the folder the command runs

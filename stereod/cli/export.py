@@ -12,6 +12,7 @@ import sys
 
 from stereod.cli.common import (
     add_canonical_rig,
+    file_arg,
     number,
     path_arg,
     recording_arg,
@@ -63,7 +64,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="FILE",
         help="the run's objects messages, one JSON per line (`stereod replay --jsonl`)",
     )
-    p.add_argument("--mcap", type=path_arg, metavar="OUT", required=True, help="MCAP file to write")
+    p.add_argument("--mcap", type=file_arg, metavar="OUT", required=True, help="MCAP file to write")
     p.add_argument(
         "--calibration",
         type=path_arg,

@@ -25,6 +25,7 @@ from stereod.bus import keys
 from stereod.cli.common import (
     add_config,
     add_zenoh,
+    file_arg,
     number,
     output_arg,
     path_arg,
@@ -75,7 +76,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument(
         "--mcap",
-        type=path_arg,
+        type=file_arg,
         metavar="FILE",
         help="also write the room's tracks as ROS 2 messages (Odometry, markers, JSON) in the "
         "room frame, with /tf_static placing every rig's frame in the room (replaced at a "

@@ -21,6 +21,7 @@ from stereod.cli.common import (
     add_driver,
     check_calibration,
     command_log_level,
+    file_arg,
     number,
     open_driver,
     path_arg,
@@ -64,7 +65,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument(
         "--mcap",
-        type=path_arg,
+        type=file_arg,
         metavar="OUT",
         help="also write an MCAP file with ROS 2 messages: each eye's frames, camera_info and "
         "tf (the geometry of the config's [rig]); replaced only when the recording succeeds",

@@ -22,6 +22,7 @@ from stereod.cli.common import (
     add_wait_subscriber,
     check_calibration,
     command_log_level,
+    file_arg,
     load_checked,
     number,
     output_arg,
@@ -106,7 +107,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument(
         "--mcap",
-        type=path_arg,
+        type=file_arg,
         metavar="OUT",
         help="also write the run as MCAP with ROS 2 messages: the frames of every pair, "
         "camera_info, tf and the tracks, as `stereod export` does (written as --jsonl is)",

@@ -164,6 +164,11 @@ def _scan_jsonl(path: Path, bounds: tuple[int, int] | None, recording: Path | No
             )
     if scan.problems and not scan.count:  # no message at all: no run's JSONL
         raise InputError(scan.problems[0].removesuffix("; skipped"))
+    if not scan.count:
+        raise InputError(
+            f"{path}: no objects messages in the file (an empty run's file has one per pair); "
+            "give the run's `stereod replay --jsonl` output"
+        )
     return scan
 
 
