@@ -78,6 +78,6 @@ def test_the_daemon_status_carries_the_clock_discipline() -> None:
     from stereod.sources.pairing import Pairer
 
     h = Health("bench", "test", Pairer(), on_change=lambda: None)
-    status = StatusMessage.model_validate_json(h.status(1.0).model_dump_json(by_alias=True))
+    status = StatusMessage.model_validate_json(h.status().model_dump_json(by_alias=True))
     assert status.clock is not None
     assert status.clock == read_discipline() or status.clock.source == "unknown"

@@ -379,7 +379,7 @@ def test_status_says_uncalibrated_depths_rest_on_the_field_of_view(endpoint: str
     """Without a calibration the status says plainly what every depth assumes."""
     daemon = Daemon(config(endpoint), SyntheticDriver({"duration_s": 1.0, "fps": 15}), rate=0)
     daemon.run()
-    notes = daemon.health.status(1.0).notes
+    notes = daemon.health.status().notes
     assert len(notes) == 1 and "60 deg" in notes[0] and "stereod calibrate" in notes[0]
 
 

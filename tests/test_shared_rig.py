@@ -13,7 +13,7 @@ from stereod.sources.pairing import Pairer
 
 
 def _on_status(h: Health) -> list[str]:
-    return [p for p in h.status(1.0).problems if p.startswith(RIG_SHARED)]
+    return [p for p in h.status().problems if p.startswith(RIG_SHARED)]
 
 
 def test_another_daemon_s_status_is_said_while_it_comes_and_taken_off_after() -> None:

@@ -325,7 +325,7 @@ def test_a_status_with_a_nan_reaches_the_page_as_json_it_can_parse(
     stayed blank. Through a real view server and its socket, a strict parser now reads the
     update and a later page's hello, the NaN as null."""
     health = Health("minoru", "test", Pairer(), on_change=lambda: None)
-    raw = json.loads(health.status(1.0).model_dump_json(by_alias=True))
+    raw = json.loads(health.status().model_dump_json(by_alias=True))
     payload = json.dumps({**raw, "uptime_s": float("nan")}).encode()  # Python writes NaN
 
     def strict(text: str) -> Any:

@@ -176,7 +176,7 @@ class EyeStatus(_Model):
     """Health of one eye."""
 
     state: EyeState
-    fps: float = Field(description="Frames per second over the last status period")
+    fps: float = Field(description="Frames per second, over half a second at least")
     frames: int
     errors: int = Field(description="Frames the source reported as bad and skipped")
     last_error: str | None = None

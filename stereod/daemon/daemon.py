@@ -362,7 +362,7 @@ class Daemon:
             self._input_problems(final=True)
             self._check_paired()
             h.state = DaemonState.FINISHED
-            pub.status(dump(h.status(1.0)))
+            pub.status(dump(h.status()))
             self.summary.objects = worker.objects
 
     def _ros2(self, pub: Publisher) -> Ros2Live | None:
@@ -408,7 +408,7 @@ class Daemon:
     ) -> None:
         period = self.cfg.daemon.status_period_s
         last = time.monotonic()
-        pub.status(dump(self.health.status(period)))
+        pub.status(dump(self.health.status()))
         watchdog = self._notifier.watchdog_s
         last_dog = 0.0
         while sender.is_alive():
@@ -421,7 +421,7 @@ class Daemon:
                 self._status_now.clear()
                 self._input_problems()
                 self._shared.check(pub.foreign_status_at, pub.base, period)
-                status = self.health.status(max(now - last, 1e-3))
+                status = self.health.status(now)
                 pub.status(dump(status))
                 self._notify_status(status)
                 last = now

@@ -36,23 +36,43 @@ def _nonzero(counts: dict[str, int]) -> dict[str, int]:
     return {k: v for k, v in sorted(counts.items()) if v}
 
 
+RATE_WINDOW_S = 0.5
+"""The shortest time (s) a rate on the status key is measured over: a status sent sooner after
+the last measure (at a new subscriber's request, or the last one of a run) repeats that
+measure, rather than one over a few milliseconds (0 frames a second while streaming)."""
+
+
+class Rate:
+    """How fast a count grows (per s), measured over windows of at least
+    :data:`RATE_WINDOW_S` from ``start_s`` (monotonic s) on."""
+
+    def __init__(self, start_s: float) -> None:
+        self._at_s = start_s
+        self._count = 0
+        self.value = 0.0
+
+    def at(self, count: int, now_s: float) -> float:
+        """The rate over the window that ends at ``now_s`` with ``count``, if it is long
+        enough (then a new window starts), else the last window's."""
+        dt = now_s - self._at_s
+        if dt >= RATE_WINDOW_S:
+            self.value = (count - self._count) / dt
+            self._at_s, self._count = now_s, count
+        return self.value
+
+
 class EyeHealth:
     """One eye's state and frame count (updated by its capture thread)."""
 
-    def __init__(self) -> None:
+    def __init__(self, start_s: float = 0.0) -> None:
         self.state = EyeState.STARTING
         self.frames = 0
         self.errors = 0
         self.last_error: str | None = None
         self.last_frame_s = 0.0
         """When (monotonic s) its last frame arrived; 0 before the first."""
-        self._frames_at_last_status = 0
-
-    def fps(self, period_s: float) -> float:
-        """Frames per second since the previous call, over ``period_s`` seconds."""
-        n = self.frames - self._frames_at_last_status
-        self._frames_at_last_status = self.frames
-        return n / period_s if period_s > 0 else 0.0
+        self.rate = Rate(start_s)
+        """Its frames per second (see :class:`Rate`)."""
 
 
 STALL_S = 3.0
@@ -83,14 +103,14 @@ class Health:
         self.driver = driver
         self.pairer = pairer
         self.lock = threading.Lock()
-        self.eyes = {Eye.LEFT: EyeHealth(), Eye.RIGHT: EyeHealth()}
+        self.started_s = time.monotonic()
+        self.eyes = {Eye.LEFT: EyeHealth(self.started_s), Eye.RIGHT: EyeHealth(self.started_s)}
         self.state = DaemonState.STARTING
         self.live = False
         self.source_description = ""
         self.geometry = Geometry.CANONICAL
         self.calibration_id: str | None = None
         self.geometry_note = ""
-        self.started_s = time.monotonic()
         self.last_frame_s = 0.0
         self.published = 0
         self.publish_errors = 0
@@ -108,6 +128,9 @@ class Health:
         self._problem_counts: dict[str, int] = {}
         self._pipeline_ms: collections.deque[float] = collections.deque(maxlen=2000)
         self._skews_ms: list[float] = []
+        self._pairs_done = 0
+        self._pair_rate = Rate(self.started_s)
+        """Pairs processed per second (see :class:`Rate`)."""
         self._residuals: list[float] = []
         self._clock = DisciplineCache()
         """How this host's UTC clock is kept (chrony, PTP), for the status key."""
@@ -178,6 +201,7 @@ class Health:
         with self.lock:
             self._pipeline_ms.append(pipeline_ms)
             self._skews_ms.append(abs(skew_ms))
+            self._pairs_done += 1
             self._residuals.extend(residuals_px.tolist())
 
     def notes(self) -> list[str]:
@@ -246,18 +270,21 @@ class Health:
 
     # -- messages ----------------------------------------------------------------------------
 
-    def _eye_status(self, eye: Eye, period_s: float) -> EyeStatus:
+    def _eye_status(self, eye: Eye, now_s: float) -> EyeStatus:
         h = self.eyes[eye]
         return EyeStatus(
             state=h.state,
-            fps=round(h.fps(period_s), 3),
+            fps=round(h.rate.at(h.frames, now_s), 3),
             frames=h.frames,
             errors=h.errors,
             last_error=public_text(h.last_error) if h.last_error is not None else None,
         )
 
-    def status(self, period_s: float) -> StatusMessage:
-        """The status message for the last ``period_s`` seconds (resets per-period figures)."""
+    def status(self, now_s: float | None = None) -> StatusMessage:
+        """The status message at ``now_s`` (monotonic s, by default now): figures of the time
+        since the last one (skews, residuals; reset), and rates over at least
+        :data:`RATE_WINDOW_S`."""
+        now = time.monotonic() if now_s is None else now_s
         self.check_stalls()
         with self.lock:
             skews, self._skews_ms = self._skews_ms, []
@@ -277,10 +304,10 @@ class Health:
             uptime_s=round(time.monotonic() - self.started_s, 3),
             driver=self.driver,
             source=public_text(self.source_description),
-            left=self._eye_status(Eye.LEFT, period_s),
-            right=self._eye_status(Eye.RIGHT, period_s),
+            left=self._eye_status(Eye.LEFT, now),
+            right=self._eye_status(Eye.RIGHT, now),
             pairs=self.pairer.stats.pairs,
-            pairs_per_s=round(len(skews) / period_s, 3),
+            pairs_per_s=round(self._pair_rate.at(self._pairs_done, now), 3),
             published=self.published,
             drops=drops,
             errors=errors,
