@@ -498,7 +498,7 @@ def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
         stereod("run", "--config", str(tmp_path / "none.toml")), 66, "no such config file"
     )
     one_line_error(
-        stereod("run", "--driver", "warp"), 78, "command line: driver.name = 'warp': no such driver"
+        stereod("run", "--driver", "warp"), 64, "command line: driver.name = 'warp': no such driver"
     )
     # A driver option from the environment is blamed on the environment, not on the file.
     synthetic = tmp_path / "synthetic.toml"
@@ -536,7 +536,7 @@ def test_bad_inputs_give_one_line_and_nonzero_exit(tmp_path: Path) -> None:
     # lacks is the flag's to give, not the file's fault.
     one_line_error(
         stereod("record", str(tmp_path / "rec"), "--driver", "replay", "--config", str(synthetic)),
-        78,
+        64,
         r"command line: --driver replay is given no options .*give either path",
     )
     one_line_error(

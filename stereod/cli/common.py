@@ -327,9 +327,9 @@ def load_checked(path: Path | None, overrides: dict[str, Any]) -> tuple[Any, Any
 def open_driver(cfg: Any, path: Path | None, overrides: dict[str, Any]) -> Any:
     """The driver a configuration ``cfg`` (from ``path`` and the flags ``overrides``) names,
     with its options; a bad option's error names where that option came from (the file, its
-    environment variable, a flag). A driver named by ``--driver`` runs without the file's
-    options when the file names another driver: missing options are then said to be the
-    flag's, with where they go."""
+    environment variable, a flag: then it is a usage error, exit 64). A driver named by
+    ``--driver`` runs without the file's options when the file names another driver: missing
+    options are then said to be the flag's, with where they go."""
     from stereod.files.config_input import origin
     from stereod.sources.drivers import load_driver
 
@@ -344,7 +344,12 @@ def open_driver(cfg: Any, path: Path | None, overrides: dict[str, Any]) -> Any:
             )
         return origin(("driver", "options", *([key] if key else [])), path, overrides)
 
-    return load_driver(cfg.driver.name, cfg.driver.options, origin=where, name_origin=named)
+    try:
+        return load_driver(cfg.driver.name, cfg.driver.options, origin=where, name_origin=named)
+    except ConfigError as exc:
+        if str(exc).startswith("command line"):  # a bad flag, exit 64
+            raise UsageError(str(exc)) from exc
+        raise
 
 
 def check_calibration(
