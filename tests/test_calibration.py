@@ -168,6 +168,12 @@ def test_opencv_filestorage_import_triangulates_like_the_source(tmp_path: Path) 
     np.testing.assert_allclose(b, a, rtol=1e-9)
     with pytest.raises(MissingInputError, match="no such OpenCV calibration file"):
         import_opencv(tmp_path / "nope.yml", None, (640, 480))
+    # the extrinsics, not named, were looked for beside the intrinsics: the error says so
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    (alone / "intr.yml").write_bytes((tmp_path / "intrinsics.yml").read_bytes())
+    with pytest.raises(MissingInputError, match=r"extrinsics\.yml: .*looked for beside intr\.yml"):
+        import_opencv(alone / "intr.yml", None, (640, 480))
 
 
 def test_show_says_how_many_pairs_were_rejected(tmp_path: Path) -> None:

@@ -197,13 +197,20 @@ def import_opencv(
     Q``) such as OpenCV's ``stereo_calib`` sample writes; ``extrinsics`` defaults to
     ``extrinsics.yml`` beside the intrinsics. The rectification is recomputed for
     ``image_size`` when the file lacks it."""
+    beside = extrinsics is None
     if extrinsics is None:
         extrinsics = intrinsics.with_name("extrinsics" + intrinsics.suffix)
     arrays: dict[str, np.ndarray] = {}
     names = {"M1": "K1", "D1": "D1", "M2": "K2", "D2": "D2"}
     for path, wanted in ((intrinsics, names), (extrinsics, {"R": "R", "T": "T"})):
         if not path.exists():
-            raise MissingInputError(f"{path}: no such OpenCV calibration file")
+            hint = ""
+            if beside and path == extrinsics:  # not named: looked for beside the intrinsics
+                hint = (
+                    f" (R and T, looked for beside {intrinsics.name}: give the extrinsics "
+                    "file after the intrinsics)"
+                )
+            raise MissingInputError(f"{path}: no such OpenCV calibration file{hint}")
         found = read_opencv_storage(
             path, "an OpenCV calibration file", InputError, _matrices(list(wanted))
         )
