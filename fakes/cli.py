@@ -117,11 +117,15 @@ def parse_ball(spec: str) -> dict[str, Any]:
     one line and exit 64)."""
     out: dict[str, Any] = {}
     centre = [0.0, 0.1, 1.8]
+    given: set[str] = set()
     for part in filter(None, spec.split(",")):
         k, sep, v = part.partition("=")
         k = k.strip()
         if not sep:
             raise argparse.ArgumentTypeError(f"{spec!r}: expected key=value, got {part!r}")
+        if k in given:
+            raise argparse.ArgumentTypeError(f"{spec!r}: {k} is given twice: give it once")
+        given.add(k)
         try:
             val = number(-1e6, 1e6)(v)
         except argparse.ArgumentTypeError as exc:

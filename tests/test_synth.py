@@ -173,6 +173,24 @@ def test_synth_refuses_a_ball_that_cannot_be_seen(tmp_path: Path, ball: str, pat
 
 
 @pytest.mark.parametrize(
+    ("ball", "pattern"),
+    [
+        ("heading=60,z=1.8,z=2", r"z is given twice: give it once"),
+        ("heading=60,speed", r"expected key=value, got 'speed'"),
+        ("heading=60,spin=1", r"unknown key 'spin'"),
+    ],
+)
+def test_a_ball_spec_that_is_not_one_ball_is_a_flag_error(
+    tmp_path: Path, ball: str, pattern: str
+) -> None:
+    """A key given twice (the last one was kept without a word), one without a value or an
+    unknown one: exit 64, one line, nothing written."""
+    res = stereod("synth", str(tmp_path / "s"), "--ball", ball)
+    one_line_error(res, 64, rf"--ball.*{pattern}")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
     ("size", "pattern"),
     [
         (
