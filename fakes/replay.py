@@ -23,7 +23,15 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from stereod.errors import ConfigError, InputError, MissingInputError, describe_validation_error
 from stereod.files.output_file import same_file
 from stereod.files.paths import TextPath, text_path
-from stereod.sources.frames import Driver, Eye, EyeSource, Frame, SourceInfo, StereoSource
+from stereod.sources.frames import (
+    Driver,
+    Eye,
+    EyeCounters,
+    EyeSource,
+    Frame,
+    SourceInfo,
+    StereoSource,
+)
 from stereod.sources.recording import (
     MANIFEST,
     checksum,
@@ -157,6 +165,7 @@ class VideoEye(EyeSource):
         self.lap: tuple[int, int] | None = None
         """How far (ns, sequence numbers) each lap of a loop moves this eye's stamps; both
         eyes get the same (:func:`common_lap`), else each eye's own decoded frames decide."""
+        self._counters = EyeCounters()
         self.decoded = 0
         self.bad_frames = 0
         self.damaged: list[int] = []
@@ -218,7 +227,17 @@ class VideoEye(EyeSource):
             self.decoded += 1
             self._lap_frames += 1
             t, seq = self._stamp(i)
+            if self._seq is not None and 0 < i < len(self._seq):
+                missed = int(self._seq[i] - self._seq[i - 1]) - 1  # the camera's, as recorded
+                if missed > 0:
+                    gaps = self._counters.drops
+                    gaps["sequence_gap"] = gaps.get("sequence_gap", 0) + missed
             return Frame(self.eye, img, t + self._offset_ns, seq + self._seq_offset)
+
+    def counters(self) -> EyeCounters:
+        """Frames the camera took that the recording lacks (gaps in its sequence numbers),
+        counted as each frame after one is played (again on each lap of a loop)."""
+        return EyeCounters(dict(self._counters.drops), {})
 
     def damage_problems(self) -> list[str]:
         """The line naming the frames left out for their CRC-32, once: at the end of the first

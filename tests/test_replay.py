@@ -78,6 +78,22 @@ def test_videos_with_timestamp_files(tmp_path: Path) -> None:
     assert [f.t_ns for f in right] == [12, 22, 32, 42, 52]
 
 
+def test_frames_the_camera_lost_are_counted_as_it_would_count_them(tmp_path: Path) -> None:
+    """A timestamp file's sequence numbers that jump (100, 101, 108: six frames the camera
+    took and the recording lacks) are the camera's sequence gaps: the replayed eye counts
+    them as the live one does, as each frame after a gap is played."""
+    l, r = write_video(tmp_path / "l.avi", 4), write_video(tmp_path / "r.avi", 4)
+    lt = tmp_path / "l.csv"
+    lt.write_text("t_ns,seq\n10,100\n20,101\n90,108\n100,109\n")
+    rt = write_ts(tmp_path / "r.csv", [12, 22, 92, 102])
+    options = {"left_video": l, "right_video": r, "left_ts": lt, "right_ts": rt}
+    with ReplayDriver(options).open() as src:
+        seqs = [f.seq for f in iter(src.left.read, None)]
+        assert seqs == [100, 101, 108, 109]
+        assert src.left.counters().drops == {"sequence_gap": 6}
+        assert src.right.counters().drops == {}
+
+
 def test_loop_continues_timestamps(tmp_path: Path) -> None:
     l, r = write_video(tmp_path / "l.avi", 4), write_video(tmp_path / "r.avi", 4)
     with ReplayDriver({"left_video": l, "right_video": r, "fps": 10, "loop": True}).open() as src:
