@@ -31,6 +31,7 @@ from stereod.sources.frames import (
     Frame,
     SourceInfo,
     StereoSource,
+    frames_missed,
 )
 from stereod.sources.recording import (
     MANIFEST,
@@ -228,15 +229,16 @@ class VideoEye(EyeSource):
             self._lap_frames += 1
             t, seq = self._stamp(i)
             if self._seq is not None and 0 < i < len(self._seq):
-                missed = int(self._seq[i] - self._seq[i - 1]) - 1  # the camera's, as recorded
-                if missed > 0:
+                missed = frames_missed(int(self._seq[i - 1]), int(self._seq[i]))  # as recorded
+                if missed:
                     gaps = self._counters.drops
                     gaps["sequence_gap"] = gaps.get("sequence_gap", 0) + missed
             return Frame(self.eye, img, t + self._offset_ns, seq + self._seq_offset)
 
     def counters(self) -> EyeCounters:
-        """Frames the camera took that the recording lacks (gaps in its sequence numbers),
-        counted as each frame after one is played (again on each lap of a loop)."""
+        """Frames the camera took that the recording lacks (gaps in its sequence numbers,
+        whatever lost them: the camera, or the recorder skipping a frame that would not
+        decode), counted as each frame after one is played (again on each lap of a loop)."""
         return EyeCounters(dict(self._counters.drops), {})
 
     def damage_problems(self) -> list[str]:

@@ -80,18 +80,30 @@ def test_videos_with_timestamp_files(tmp_path: Path) -> None:
 
 def test_frames_the_camera_lost_are_counted_as_it_would_count_them(tmp_path: Path) -> None:
     """A timestamp file's sequence numbers that jump (100, 101, 108: six frames the camera
-    took and the recording lacks) are the camera's sequence gaps: the replayed eye counts
-    them as the live one does, as each frame after a gap is played."""
-    l, r = write_video(tmp_path / "l.avi", 4), write_video(tmp_path / "r.avi", 4)
+    took and the recording lacks) are sequence gaps: the replayed eye counts them, as each
+    frame after a gap is played, and the run's summary says so. Numbers that go back (a
+    camera re-plugged counts from 0 again) are no gap."""
+    l, r = write_video(tmp_path / "l.avi", 6), write_video(tmp_path / "r.avi", 6)
     lt = tmp_path / "l.csv"
-    lt.write_text("t_ns,seq\n10,100\n20,101\n90,108\n100,109\n")
-    rt = write_ts(tmp_path / "r.csv", [12, 22, 92, 102])
+    frame = 66_666_667  # ns, 15 Hz
+    frames = [0, 1, 8, 9, 10, 11]  # the camera's frames that made it, by when it took them
+    lt.write_text(
+        "t_ns,seq\n"
+        + "".join(f"{k * frame},{seq}\n" for k, seq in zip(frames, [100, 101, 108, 109, 0, 1]))
+    )
+    rt = write_ts(tmp_path / "r.csv", [k * frame + 1_000_000 for k in frames])
     options = {"left_video": l, "right_video": r, "left_ts": lt, "right_ts": rt}
     with ReplayDriver(options).open() as src:
         seqs = [f.seq for f in iter(src.left.read, None)]
-        assert seqs == [100, 101, 108, 109]
+        assert seqs == [100, 101, 108, 109, 0, 1]
         assert src.left.counters().drops == {"sequence_gap": 6}
         assert src.right.counters().drops == {}
+    res = run_stereod(
+        "replay", "--left-video", str(l), "--right-video", str(r), "--left-ts", str(lt),
+        "--right-ts", str(rt), "--rate", "0", "--listen", "tcp/127.0.0.1:0",
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert "drops: left_sequence_gap 6" in res.stdout
 
 
 def test_loop_continues_timestamps(tmp_path: Path) -> None:

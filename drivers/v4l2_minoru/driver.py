@@ -37,6 +37,7 @@ from stereod.sources.frames import (
     Frame,
     SourceInfo,
     StereoSource,
+    frames_missed,
 )
 
 from . import bandwidth, raw
@@ -248,8 +249,8 @@ class CameraEye(EyeSource):
             if cap.error:
                 self._count(self._counters.errors, "frame_error")
                 continue
-            if self._last_seq is not None and cap.sequence > self._last_seq + 1:
-                self._count(self._counters.drops, "sequence_gap", cap.sequence - self._last_seq - 1)
+            if missed := frames_missed(self._last_seq, cap.sequence):
+                self._count(self._counters.drops, "sequence_gap", missed)
             self._last_seq = cap.sequence
             t_ns = cap.t_ns
             if not cap.monotonic:

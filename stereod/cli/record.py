@@ -176,9 +176,9 @@ class _RecordProgress:
     def __call__(self, frame: Frame) -> None:
         if self.first_ns is None:
             self.first_ns = frame.t_ns
-        last = self.last_seq.get(frame.eye)
-        if last is not None and frame.seq > last + 1:
-            self.drops += frame.seq - last - 1
+        from stereod.sources.frames import frames_missed  # (imported by the run already)
+
+        self.drops += frames_missed(self.last_seq.get(frame.eye), frame.seq)
         self.last_seq[frame.eye] = frame.seq
         self.frames += 1
         self.bar.set(

@@ -78,17 +78,25 @@ class Frame:
                 f"{where}: t_ns must be an integer count of nanoseconds, got "
                 f"{t!r}: for seconds, use round(t * 1e9)"
             )
-        if not 0 <= int(t) <= MAX_T_NS:
+        if not -MAX_T_NS - 1 <= int(t) <= MAX_T_NS:
             raise ValueError(
-                f"{where}: t_ns {int(t)} is not a monotonic clock's count of nanoseconds "
-                f"(0 to 2^63 - 1)"
+                f"{where}: t_ns {int(t)} does not fit a clock's signed 64-bit count of "
+                "nanoseconds (-2^63 to 2^63 - 1)"
             )
         object.__setattr__(self, "t_ns", int(t))
 
 
+def frames_missed(last_seq: int | None, seq: int) -> int:
+    """How many frames a camera took between its sequence numbers ``last_seq`` and ``seq`` that
+    were never seen: 0 for the first frame, for the next one, and after the counter went back
+    (a camera re-plugged counts from 0 again)."""
+    return 0 if last_seq is None else max(int(seq) - int(last_seq) - 1, 0)
+
+
 MAX_T_NS = 2**63 - 1
-"""The largest capture instant (ns) a frame may carry: a monotonic clock's count fits a
-signed 64-bit integer, as the kernel's timestamps, the wire format and recordings do."""
+"""The largest capture instant (ns) a frame may carry (the least: -2^63): a clock's count fits
+a signed 64-bit integer, as the kernel's timestamps and the wire format do. (A time line of
+one's own may start below 0: a right eye stamped 10 ms before a left eye's 0.)"""
 
 
 @dataclass(frozen=True, slots=True)

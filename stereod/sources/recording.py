@@ -203,9 +203,9 @@ def read_timestamps(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Read a timestamp CSV: header ``t_ns`` (optionally ``t_ns,seq``), one integer row per frame.
 
     Returns (n,) int64 times (ns) and (n,) int64 sequence numbers (row index when absent).
-    Times and sequence numbers must strictly increase; the error names the file and row. A
-    recording's ``crc32`` column is ignored here (a plain video's timestamps):
-    :func:`read_frame_index` reads it.
+    Times must strictly increase; the error names the file and row. (Sequence numbers may go
+    back: a camera re-plugged during a recording counts from 0 again.) A recording's ``crc32``
+    column is ignored here (a plain video's timestamps): :func:`read_frame_index` reads it.
     """
     t, seq, _ = read_frame_index(path, checksums=False)
     return t, seq
@@ -254,13 +254,6 @@ def read_frame_index(
         raise InputError(
             f"{path} line {j + 2}: timestamp {t[j]} is not after {t[j - 1]} "
             "(timestamps must strictly increase)"
-        )
-    bad = np.flatnonzero(np.diff(seq) <= 0)
-    if bad.size:
-        j = int(bad[0]) + 1
-        raise InputError(
-            f"{path} line {j + 2}: sequence number {seq[j]} is not after {seq[j - 1]} "
-            "(a camera numbers its frames in the order it takes them)"
         )
     return t, seq, _checksums(path, rows) if checksums and has_seq else None
 
