@@ -417,8 +417,9 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
                 "STEREOD_<SECTION>__<FIELD>, e.g. STEREOD_DETECTOR__BETA; see stereod run --check)"
             )
         parsed: Any = value
-        # a field that holds a list or table, or an entry of a table of options (a driver's,
-        # whose types its driver knows) written as a JSON list or table
+        # a field that holds a list or table; or an entry of a table of options (a driver's,
+        # whose types its driver knows) that reads as a JSON list or table (else it is text,
+        # for the driver to read: a path may start with "[")
         nested = len(parts) > 2 and value.lstrip()[:1] in ("[", "{")
         holder = typing.get_origin(fld.annotation) in (list, tuple, dict)
         if nested or (len(parts) == 2 and holder):
@@ -427,10 +428,13 @@ def environment(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
             try:
                 parsed = json.loads(value)
             except ValueError:
-                raise ConfigError(
-                    f"environment variable {name}={value!r}: a list or table is written as JSON, "
-                    "e.g. STEREOD_ZENOH__CONNECT='[\"tcp/127.0.0.1:7447\"]'"
-                ) from None
+                if nested:
+                    parsed = value
+                else:
+                    raise ConfigError(
+                        f"environment variable {name}={value!r}: a list or table is written as "
+                        "JSON, e.g. STEREOD_ZENOH__CONNECT='[\"tcp/127.0.0.1:7447\"]'"
+                    ) from None
         node = out
         for part in parts[:-1]:
             node = node.setdefault(part, {})
