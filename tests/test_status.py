@@ -84,3 +84,14 @@ def test_rates_are_measured_over_half_a_second_at_least() -> None:
         h.pair_done(1.0, 0.0, np.zeros(0))
     later = h.status(t0 + 2.0)
     assert (later.left.fps, later.pairs_per_s) == (15.0, 15.0)
+
+
+def test_a_run_shorter_than_a_rate_window_is_measured_over_what_there_was() -> None:
+    """A run of 0.3 s that processed 9 pairs ends with 30 a second on its last status, not 0
+    (no window of half a second ever closed)."""
+    h = live_health()
+    t0 = h.started_s
+    assert h.status(t0 + 0.01).pairs_per_s == 0.0  # (the status at start)
+    for _ in range(9):
+        h.pair_done(1.0, 0.0, np.zeros(0))
+    assert h.status(t0 + 0.3, final=True).pairs_per_s == 30.0

@@ -362,7 +362,7 @@ class Daemon:
             self._input_problems(final=True)
             self._check_paired()
             h.state = DaemonState.FINISHED
-            pub.status(dump(h.status()))
+            pub.status(dump(h.status(final=True)))
             self.summary.objects = worker.objects
 
     def _ros2(self, pub: Publisher) -> Ros2Live | None:

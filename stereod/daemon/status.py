@@ -49,15 +49,17 @@ class Rate:
     def __init__(self, start_s: float) -> None:
         self._at_s = start_s
         self._count = 0
+        self._measured = False
         self.value = 0.0
 
-    def at(self, count: int, now_s: float) -> float:
+    def at(self, count: int, now_s: float, final: bool = False) -> float:
         """The rate over the window that ends at ``now_s`` with ``count``, if it is long
-        enough (then a new window starts), else the last window's."""
+        enough (then a new window starts), else the last window's; ``final``: the run ends,
+        and a run shorter than one window is measured over what there was."""
         dt = now_s - self._at_s
-        if dt >= RATE_WINDOW_S:
+        if dt >= RATE_WINDOW_S or (final and not self._measured and dt > 0):
             self.value = (count - self._count) / dt
-            self._at_s, self._count = now_s, count
+            self._at_s, self._count, self._measured = now_s, count, True
         return self.value
 
 
@@ -270,20 +272,21 @@ class Health:
 
     # -- messages ----------------------------------------------------------------------------
 
-    def _eye_status(self, eye: Eye, now_s: float) -> EyeStatus:
+    def _eye_status(self, eye: Eye, now_s: float, final: bool) -> EyeStatus:
         h = self.eyes[eye]
         return EyeStatus(
             state=h.state,
-            fps=round(h.rate.at(h.frames, now_s), 3),
+            fps=round(h.rate.at(h.frames, now_s, final), 3),
             frames=h.frames,
             errors=h.errors,
             last_error=public_text(h.last_error) if h.last_error is not None else None,
         )
 
-    def status(self, now_s: float | None = None) -> StatusMessage:
+    def status(self, now_s: float | None = None, final: bool = False) -> StatusMessage:
         """The status message at ``now_s`` (monotonic s, by default now): figures of the time
         since the last one (skews, residuals; reset), and rates over at least
-        :data:`RATE_WINDOW_S`."""
+        :data:`RATE_WINDOW_S` (``final``: the run's last, which measures a run shorter than
+        that over what there was)."""
         now = time.monotonic() if now_s is None else now_s
         self.check_stalls()
         with self.lock:
@@ -304,10 +307,10 @@ class Health:
             uptime_s=round(time.monotonic() - self.started_s, 3),
             driver=self.driver,
             source=public_text(self.source_description),
-            left=self._eye_status(Eye.LEFT, now),
-            right=self._eye_status(Eye.RIGHT, now),
+            left=self._eye_status(Eye.LEFT, now, final),
+            right=self._eye_status(Eye.RIGHT, now, final),
             pairs=self.pairer.stats.pairs,
-            pairs_per_s=round(self._pair_rate.at(self._pairs_done, now), 3),
+            pairs_per_s=round(self._pair_rate.at(self._pairs_done, now, final), 3),
             published=self.published,
             drops=drops,
             errors=errors,
