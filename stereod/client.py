@@ -52,6 +52,10 @@ from pydantic import ValidationError
 
 from stereod.bus import keys
 from stereod.bus.messages import (
+    OBJECT_SCHEMA,
+    OBJECTS_SCHEMA,
+    STATS_SCHEMA,
+    STATUS_SCHEMA,
     CanonicalGeometry,
     ImageInfo,
     ObjectsMessage,
@@ -175,11 +179,16 @@ def parse_payload(payload: bytes) -> ObjectsMessage | ObjectState | StatusMessag
 
 
 _MODELS: dict[str, type[ObjectsMessage | ObjectState | StatusMessage | StatsMessage]] = {
-    "stereod.objects": ObjectsMessage,
-    "stereod.object": ObjectState,
-    "stereod.daemon.status": StatusMessage,
-    "stereod.stats": StatsMessage,
+    schema.split("/", 1)[0]: model
+    for schema, model in (
+        (OBJECTS_SCHEMA, ObjectsMessage),
+        (OBJECT_SCHEMA, ObjectState),
+        (STATUS_SCHEMA, StatusMessage),
+        (STATS_SCHEMA, StatsMessage),
+    )
 }
+"""Each message's class by its schema's family (the daemon's status was keyed by a family it
+never sends, and came back as plain data)."""
 
 
 def subscribe_objects(

@@ -154,6 +154,22 @@ def test_parse_payload_is_lenient() -> None:
     assert isinstance(parse_payload(golden), ObjectsMessage)
 
 
+def test_parse_payload_gives_every_message_the_daemon_sends_its_class() -> None:
+    """What the daemon publishes on each key, parsed back: objects, one object, status and
+    stats each come back as their class (the status came back as plain data: its class was
+    keyed by a schema the daemon never sends)."""
+    from stereod.daemon.status import Health
+    from stereod.sources.pairing import Pairer
+
+    golden = ObjectsMessage.model_validate_json(
+        (Path(__file__).parent / "golden" / "objects_example.json").read_bytes()
+    )
+    health = Health("bench", "test", Pairer(), on_change=lambda: None)
+    for message in (golden, golden.objects[0], health.status(), health.stats()):
+        payload = message.model_dump_json(by_alias=True).encode()
+        assert type(parse_payload(payload)) is type(message), type(message).__name__
+
+
 @pytest.mark.slow
 def test_readme_client_example_runs(endpoint: str) -> None:
     """The README's client program, as a user would run it, against a running daemon."""
