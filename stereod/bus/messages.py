@@ -224,8 +224,12 @@ class StatusMessage(_Model):
     reconnects: dict[str, int] = Field(
         default_factory=dict, description="Times each eye streamed again after being down"
     )
-    skew_ms_mean: float | None
-    skew_ms_max: float | None
+    skew_ms_mean: float | None = Field(
+        description="Mean of |right - left| capture instants over the period, ms (no sign)"
+    )
+    skew_ms_max: float | None = Field(
+        description="Largest |right - left| over the period, ms (objects' skew_ns has the sign)"
+    )
     queue_depth: int
     geometry: Geometry
     calibration_id: str | None = None
