@@ -92,6 +92,9 @@ NEARER = 1.5
 depth or less: another object in front of it, not it joined by its shadow or a neighbour
 (whose blend of disparities lies between)."""
 DISPARITY_SLACK_PX = 2.0
+GONE_WIDTH = 0.8
+"""A blob at most this share of a track's own width (its outline seen whole, at its predicted
+depth) in both eyes cannot hold that object whole (:meth:`Association._gone_from_front`)."""
 
 
 def _disparities(
@@ -242,10 +245,10 @@ class Association(TrackFilters):
         nearer = judged & (
             seen_d[:, None] - dpp > (NEARER - 1.0) * np.maximum(dpp, 0.0) + DISPARITY_SLACK_PX
         )
-        # A detection clearly farther than a track (the same test, the other way round) is not
-        # that object in front with another joining it, whose blend of disparities lies
-        # between theirs: the object in front has gone (a board taken away from before a
-        # person), and the blob is what was behind it.
+        # A detection clearly farther than a track (the same test, the other way round) may
+        # be that object in front with a larger one behind joining it (a ball before a person:
+        # the blend of their disparities is near the person's); but not when it is clearly
+        # narrower than that object (:meth:`_gone_from_front`).
         farther = judged & (NEARER * np.maximum(seen_d, 0.0)[:, None] + DISPARITY_SLACK_PX < dpp)
         cost[gone] = np.inf
         shared: list[int] = []
@@ -276,7 +279,10 @@ class Association(TrackFilters):
             # (:meth:`_in_front`). Else it is one of them (the other hidden behind it) if it
             # looks like that one alone: its box where that one's box should be, in both eyes.
             # Failing both, both coast until they part in both eyes.
-            front = self._in_front(tracks, hosts[~farther[i, hosts]], inside[:, i], preds)
+            left_in = [
+                j for j in hosts if not (farther[i, j] and self._gone_from_front(d, tracks[j]))
+            ]
+            front = self._in_front(tracks, np.array(left_in, np.intp), inside[:, i], preds)
             if front is not None:
                 keep = min(cost[i, front[0]], RESUME_COST)
                 cost[i, :] = np.inf
@@ -373,6 +379,24 @@ class Association(TrackFilters):
                 self._tracks[m.track_id] = m
                 out[i] = m.track_id
         return out, may_start
+
+    def _gone_from_front(self, d: Detection, tr: Track) -> bool:
+        """Whether a track predicted in front of what is behind it, in a blob clearly farther
+        than it, has gone from that blob: the blob is narrower than :data:`GONE_WIDTH` of the
+        object's own width (its outline seen whole, at its predicted depth) in both eyes, so
+        it cannot hold it (what was behind a board taken away; a ball in front of a person
+        is whole in the blob of the two, as wide as the person)."""
+        if self._project is None or tr.outline_m is None or not tr.started:
+            return False
+        x, y, z = (float(v) for v in tr.kf.position_m)
+        if z <= 0.0:
+            return False
+        for box, left in ((d.left_bbox_px, True), (d.right_bbox_px, False)):
+            a = self._project(x - tr.outline_m[0], y, z, left)[0]
+            b = self._project(x + tr.outline_m[1], y, z, left)[0]
+            if float(box[2]) > GONE_WIDTH * abs(b - a):
+                return False
+        return True
 
     @classmethod
     def _predicted_boxes(
