@@ -415,21 +415,36 @@ def _wait_s(timeout_s: float | None, *, forever: bool) -> float | None:
     return float(timeout_s)
 
 
+QUERY_RETRY_S = 0.1
+"""How long (s) a query that nothing served waits before asking again, within its timeout: a
+session just opened has not yet learnt of the daemons on the bus."""
+
+
 def _query(session: zenoh.Session, key: str, timeout_s: float) -> bytes:
+    """The first reply to a query of ``key`` within ``timeout_s``. Zenoh says at once when
+    nothing on the bus serves a key as far as the session knows; a session opened a moment
+    ago knows of no daemon yet, so the query is asked again until the timeout."""
     wait_s = _wait_s(timeout_s, forever=False)
     assert wait_s is not None
-    start = time.monotonic()
-    for reply in session.get(key, timeout=wait_s):
-        if reply.ok is not None:
-            return reply.ok.payload.to_bytes()
-        error = reply.err.payload.to_bytes()
-        if error == b"Timeout":  # Zenoh's own answer for a queryable that did not reply in time
+    end = time.monotonic() + wait_s
+    while True:
+        left = end - time.monotonic()
+        asked = time.monotonic()
+        for reply in session.get(key, timeout=max(left, 1e-3)):
+            if reply.ok is not None:
+                return reply.ok.payload.to_bytes()
+            error = reply.err.payload.to_bytes()
+            if error == b"Timeout":  # Zenoh's answer for a queryable that did not reply in time
+                break
+            raise QueryError(f"{key}: the daemon replied with an error: {error!r}")
+        served = time.monotonic() - asked >= 0.5 * left  # (it waited for a reply: one serves it)
+        if served or end - time.monotonic() <= QUERY_RETRY_S:
             break
-        raise QueryError(f"{key}: the daemon replied with an error: {error!r}")
-    if time.monotonic() - start < 0.5 * wait_s:  # Zenoh knew at once that nothing serves it
+        time.sleep(QUERY_RETRY_S)
+    if not served:
         raise QueryError(
-            f"{key}: no daemon on the bus answers it (is one running with this rig name and "
-            "prefix? see wait_alive)"
+            f"{key}: no daemon on the bus answered it within {wait_s:g} s (is one running with "
+            "this rig name and prefix, and reachable from this session's endpoints?)"
         )
     raise QueryError(f"{key}: no reply within {wait_s:g} s (is the daemon running? see wait_alive)")
 
