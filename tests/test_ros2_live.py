@@ -281,6 +281,8 @@ def test_a_ros_subscriber_discovers_the_node_and_decodes_its_data(
     thread.start()
     got: dict[str, list[tuple[tuple, Any]]] = {"odom": [], "image": [], "info": [], "left": []}
     subs: list[Any] = []
+    markers: list[Any] = []  # (kept until the daemon has stopped)
+    cleared: list[zenoh.Sample] = []
     try:
         tokens = _graph(listener, 3, want=8, timeout=15)
         nodes = [t for t in tokens if t["kind"] == "NN"]
@@ -309,6 +311,8 @@ def test_a_ros_subscriber_discovers_the_node_and_decodes_its_data(
             return on
 
         subs.append(listener.declare_subscriber(key(odom), collect("odom")))
+        markers_key = key(pubs["/stereod/minoru/tracks/markers"])
+        markers.append(listener.declare_subscriber(markers_key, lambda s: cleared.append(s)))
         image = pubs["/stereod/minoru/right/image/compressed"]
         subs.append(listener.declare_subscriber(key(image), collect("image")))
         info = pubs["/stereod/minoru/right/camera_info"]
@@ -336,7 +340,15 @@ def test_a_ros_subscriber_discovers_the_node_and_decodes_its_data(
             s.undeclare()
         daemon.stop()
         thread.join(20)
+        time.sleep(0.2)
+        for s in markers:
+            s.undeclare()
     assert not thread.is_alive()
+    # The daemon gone, its markers are cleared: the last MarkerArray is one DELETEALL.
+    assert cleared, "no MarkerArray arrived"
+    array = "visualization_msgs/msg/MarkerArray"
+    last = jazzy.deserialize_cdr(cleared[-1].payload.to_bytes(), array)
+    assert [m.action for m in last.markers] == [3]
     assert statics, "no /tf_static for a late transient-local subscriber"
     tfm = jazzy.deserialize_cdr(statics[0].payload.to_bytes(), "tf2_msgs/msg/TFMessage")
     assert len(tfm.transforms) == 3

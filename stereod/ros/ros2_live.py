@@ -493,8 +493,12 @@ class Ros2Live:
                 )
 
     def close(self) -> None:
-        """Withdraw the publishers and the node from the ROS graph (idempotent)."""
+        """Clear the markers (a DELETEALL: a viewer would show the last tracks until they
+        expire), then withdraw the publishers and the node from the ROS graph (idempotent)."""
         with self._lock:
+            if self._endpoints:
+                with contextlib.suppress(Exception):  # (the session may be closed already)
+                    self._put(self.ros.delete_all_markers(time.time_ns()))
             endpoints = list(self._endpoints.values())
             self._endpoints.clear()
             token, self._node_token = self._node_token, None
