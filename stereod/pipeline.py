@@ -546,22 +546,23 @@ class Pipeline:
         """The triangulate stage, for matched pair ``k`` (detection ``det`` of track ``tid``,
         its blobs seen at ``times``, ns): its ``centroids`` (left, right, rectified px, and
         whether both were brought to one instant; ``one_instant``: they are at one) to a
-        position (m, rig frame) by eq. 9, with a covariance from the centroid error (eq. 12)
-        widened against the track's last observation and the growth its filter expects
-        (:func:`stereod.vision.geometry.triangulate.triangulate_object`). Gives the
-        observation, or None when its position cannot be used (:func:`in_range`)."""
+        position by eq. 9, its covariance from the centroid error (eq. 12) widened as
+        :func:`~stereod.vision.geometry.triangulate.triangulate_object` and, for a first sight
+        of eyes apart in time, :func:`~stereod.tracking.measure.apart_in_time` say."""
         p = self.params
         lb, rb, (tri_left, tri_right, exact) = m.left, m.right, centroids
         i, j, clipped = int(m.matches[k, 0]), int(m.matches[k, 1]), det.clipped
         track = self.tracker.track(tid) if tid is not None else None
-        before = track.last if track is not None else None
-        growth = measure.expected_growth(track, times)
+        before, growth = track.last if track else None, measure.expected_growth(track, times)
         t = triangulate_object(
             p.rig, lb, rb, i, j, tri_left, tri_right, p.centroid_sigma_px, clipped, before,
             growth, one_instant, silhouette_depth=p.silhouette_depth, refined=p.refine.enabled,
             size_noise=skew.SIZE_NOISE,
         )  # fmt: skip
         ob = measure.observation(t, lb, rb, i, j, m.left_px[k], m.right_px[k], exact, clipped)
+        if not exact and times[0] != times[1] and not (track and track.started):
+            dt, v = (times[1] - times[0]) * 1e-9, p.tracker.manoeuvre_sigma_mps
+            ob = measure.apart_in_time(ob, dt, v, p.rig.focal_px)
         usable = in_range(t.position_m, t.cov_m2, exact, p.rig, p.matching.min_disparity_px)
         return ob if usable else None
 

@@ -121,6 +121,24 @@ def depth_ratios(
     return out[0], out[1]
 
 
+def apart_in_time(
+    ob: Observation, skew_s: float, speed_sigma_mps: float, focal_px: float
+) -> Observation:
+    """An observation whose eyes' centroids are ``skew_s`` apart in time and could not be
+    brought to one instant (a track's first sight, before its image motion is known): an
+    object moving across the view at ``speed_sigma_mps`` (one sigma) moves in one eye's
+    image by ``speed f / Z`` px a second before the other eye sees it, which is as much
+    disparity error. Its covariance is widened along its ray by what that does to its
+    position (P scales as 1/d: dP/dd = -P/d, eq. 9 and 12): at 2 m, 30 ms of skew at
+    2 m/s reads Z within 2 m, not the 7 cm of its centroids alone."""
+    z, d = float(ob.position_m[2]), float(ob.disparity_px)
+    if skew_s == 0.0 or z <= 0.0 or d <= 0.0:
+        return ob
+    sigma_d = speed_sigma_mps * focal_px / z * abs(skew_s)
+    ray = ob.position_m / d
+    return dataclasses.replace(ob, cov_m2=ob.cov_m2 + np.outer(ray, ray) * sigma_d * sigma_d)
+
+
 def observation(
     t: Triangulated,
     lb: Blobs,
