@@ -808,3 +808,12 @@ def test_run_check_prints_the_driver_options_as_the_driver_read_them(
     res = stereod("run", "--check", "--driver", driver, env=variables, cwd=tmp_path)
     assert res.returncode == 0, res.stderr
     assert json.loads(res.stdout)["driver"]["options"] == shown
+
+
+def test_run_check_prints_the_log_level_the_run_logs_at(tmp_path: Path) -> None:
+    """``STEREOD_LOG_LEVEL`` is no field of the configuration, but the run logs at it:
+    ``--check`` prints that level (it printed the configured INFO)."""
+    for env, level in (({}, "INFO"), ({"STEREOD_LOG_LEVEL": "debug"}, "DEBUG")):
+        res = stereod("run", "--check", "--driver", "synthetic", env=env, cwd=tmp_path)
+        assert res.returncode == 0, res.stderr
+        assert json.loads(res.stdout)["daemon"]["log_level"] == level

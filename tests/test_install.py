@@ -132,6 +132,23 @@ def test_a_staged_install_of_a_stereod_the_service_cannot_see_is_warned_of(
         assert err == ""
 
 
+def test_a_dry_run_of_a_system_install_the_service_cannot_see_shows_its_steps(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A dry run changes nothing, so it shows the steps of a system install (it refused, and
+    showed none, for a stereod under /tmp), with the one warning that the install refuses."""
+    import stereod.daemon.install as install
+    from stereod.cli import main
+
+    monkeypatch.setattr(install, "stereod_executable", lambda: "/tmp/x/bin/stereod")
+    assert main(["install-service", "--dry-run"]) == 0
+    out, err = capsys.readouterr()
+    assert "would write /etc/systemd/system/stereod.service" in out
+    assert err.count("\n") == 1 and "(the install itself refuses)" in err
+    assert main(["install-service"]) == 64  # (refused before any step)
+    assert "is under /tmp" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("unit", ["stereod.service", "stereod@.service", "stereod-fuse@.service"])
 def test_the_service_does_not_restart_into_a_bad_or_missing_configuration(
     tmp_path: Path, unit: str

@@ -51,14 +51,15 @@ def run(a: argparse.Namespace) -> int:
         raise UsageError(
             f"--prefix {shown(a.prefix)}: not a folder; give the folder to install under"
         )
-    actions = plan(a.prefix, uninstall=a.uninstall)
+    actions = plan(a.prefix, uninstall=a.uninstall, refuse=not a.dry_run)
     exe = stereod_executable()
-    hidden = None if a.uninstall or a.prefix == Path("/") else hidden_from_service(exe)
-    if hidden is not None:  # the system install refuses this; a staged one is said to
+    system = a.prefix == Path("/") and not a.dry_run  # (refused by plan)
+    hidden = None if a.uninstall or system else hidden_from_service(exe)
+    if hidden is not None:  # the system install refuses this; a staged or dry one is said to
         print(
             f"stereod install-service: warning: {hidden}: the units written run it and cannot "
             "start once installed; install stereod where a service can run it (e.g. "
-            "/opt/stereod)",
+            "/opt/stereod)" + (" (the install itself refuses)" if a.dry_run else ""),
             file=sys.stderr,
             flush=True,
         )

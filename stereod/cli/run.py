@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 
 from stereod.cli.common import (
     EPILOG_KEYS,
@@ -57,6 +58,8 @@ def run(a: argparse.Namespace) -> int:
         read = driver.options_read()
         if read is not None:  # as the driver read them: "15" from the environment is 15
             shown["driver"]["options"] = read
+        # the level the run logs at: STEREOD_LOG_LEVEL (no field) overrides the configured one
+        shown["daemon"]["log_level"] = logging.getLevelName(logging.getLogger().level)
         print(json.dumps(shown, indent=2))
         return 0
     daemon = Daemon(

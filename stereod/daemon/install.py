@@ -74,14 +74,18 @@ def _resource(package: str, name: str) -> str:
     return importlib.resources.files(package).joinpath(name).read_text()
 
 
-def plan(prefix: Path, *, uninstall: bool = False, executable: str | None = None) -> list[Action]:
-    """The steps of an install (or uninstall) under ``prefix`` (``/`` for the real system)."""
+def plan(
+    prefix: Path, *, uninstall: bool = False, executable: str | None = None, refuse: bool = True
+) -> list[Action]:
+    """The steps of an install (or uninstall) under ``prefix`` (``/`` for the real system);
+    ``refuse``: a system install of a stereod the service cannot see is a UsageError (off for
+    a dry run, which shows the steps all the same)."""
     exe = executable or stereod_executable()
     unit_dir = prefix / "etc/systemd/system"
     rules_dir = prefix / "etc/udev/rules.d"
     config = prefix / "etc/stereod" / CONFIG
     system = prefix == Path("/")
-    hidden = hidden_from_service(exe) if system and not uninstall else None
+    hidden = hidden_from_service(exe) if system and not uninstall and refuse else None
     if hidden is not None:
         raise UsageError(
             f"install-service: {hidden}: install stereod where a service can run it, e.g. "
