@@ -1473,32 +1473,41 @@ def test_the_object_behind_takes_its_blob_back_when_the_one_in_front_goes() -> N
                 assert by_id[2].lifecycle is TrackLifecycle.COASTING, (held, x, k, by_id)
 
 
-def test_a_small_object_in_front_of_a_large_one_stays_seen_in_their_blob() -> None:
-    """A ball 12 cm across at 1 m crosses in front of a person 0.5 m wide at 3.7 m: their blob
-    is as wide as the person, and its disparity near the person's (a sixth of the ball's). It
-    is not what was behind a ball that has gone (the blob holds the ball whole): the ball is
-    read by its free side and stays seen, the person coasts behind it. (While the ball is in
-    the middle of the person's box neither side of the blob is its own: two pairs read it
-    0.4-0.5 m off in depth.)"""
-    near = line([-0.2, 0.0, 1.0], [0.5, 0.0, 0.0])
-    far = line([0.52, 0.0, 3.7], [-0.6, 0.0, 0.0])
+@pytest.mark.parametrize(
+    ("near_m", "near_size_m", "far_m", "far_size_m"),
+    [(1.0, 0.12, 3.7, 0.5), (1.5, 0.3, 5.0, 1.2)],
+)
+def test_a_small_object_in_front_of_a_large_one_stays_seen_in_their_blob(
+    near_m: float, near_size_m: float, far_m: float, far_size_m: float
+) -> None:
+    """A ball 12 cm across at 1 m crosses in front of a person 0.5 m wide at 3.7 m (or a
+    person 0.3 m wide at 1.5 m in front of an object 1.2 m wide at 5 m): their blob is as wide
+    as the one behind, and its disparity near that one's. It is not what was behind an object
+    that has gone (the blob holds the near one whole): the near one is read by its free side
+    and stays seen within a few centimetres, the far one coasts behind it. Once the near one
+    is in the middle of the far one's box, neither side of the blob is its own: an edge far
+    from the depth its filter expects is not taken (it was, and the near track ran 13 m off
+    while the far one was reported 2.5 m from where it was)."""
+    near = line([-0.2 * near_m, 0.0, near_m], [0.5, 0.0, 0.0])
+    far = line([0.14 * far_m, 0.0, far_m], [-0.6, 0.0, 0.0])
     tracker = Tracker(TrackerParams(), RIG.rectified.project)
-    errors = []
+    merged = 0
     for k in range(45):
         t = k * DT_NS
         a, b = near(t * 1e-9), far(t * 1e-9)
-        (det_a, _), (det_b, _) = seen(a, size_m=0.12), seen(b, size_m=0.5)
+        (det_a, _), (det_b, _) = seen(a, size_m=near_size_m), seen(b, size_m=far_size_m)
         if k >= 10 and iou(det_a.left_bbox_px, det_b.left_bbox_px) > 0.0:
-            states, _ = fold(tracker, t, [merged_seen(a, b, 0.12, 0.5)])
+            merged += 1
+            states, _ = fold(tracker, t, [merged_seen(a, b, near_size_m, far_size_m)])
             by_id = {s.track_id: s for s in states}
             assert by_id[1].lifecycle is TrackLifecycle.CONFIRMED, (k, by_id)
+            assert float(np.linalg.norm(by_id[1].position_m - a)) < 0.05, (k, by_id[1])
             assert by_id[2].lifecycle is TrackLifecycle.COASTING, (k, by_id)
-            errors.append(float(np.linalg.norm(by_id[1].position_m - a)))
         else:
-            states, _ = fold(tracker, t, [seen(a, size_m=0.12), seen(b, size_m=0.5)])
+            pairs = [seen(a, size_m=near_size_m), seen(b, size_m=far_size_m)]
+            states, _ = fold(tracker, t, pairs)
             assert {s.track_id for s in states} == {1, 2}
-    assert len(errors) >= 10
-    assert sum(e > 0.05 for e in errors) <= 2 and max(errors) < 0.6, errors
+    assert merged >= 10
 
 
 def test_a_piece_where_the_prediction_agrees_leaves_the_filter_predicted() -> None:

@@ -176,6 +176,13 @@ def observation(
     )
 
 
+EDGE_AGREES = 0.25
+"""The most an edge's disparity may differ from what the filter expects (a share of that, and
+at least ``EDGE_AGREES_PX``) to be the object's own: one much farther is the edge of what
+joins it, reached across it (a near person in the middle of a wider far object's blob: both
+sides are the far one's)."""
+EDGE_AGREES_PX = 2.0
+
 OUTLINE_SIGMA = 0.15
 """The sigma of a centre placed from an object's free edge by its own outline (a share of its
 width): a walking person's swinging arms and legs move their silhouette's centroid within
@@ -231,9 +238,12 @@ def by_edge(
     if not joined_right:
         sides.reverse()
     mine = [(e, right) for e, right in sides if e > behind_px and e > 0]
-    if len(mine) == 2 and expected_m is not None and expected_m > 0 and ob.position_m[2] > 0:
-        # disparity is inverse depth: the edge nearest the expected depth's disparity
+    if expected_m is not None and expected_m > 0 and ob.position_m[2] > 0:
+        # disparity is inverse depth: the edge nearest the expected depth's disparity, and
+        # none that is far from it
         d_expected = ob.disparity_px * float(ob.position_m[2]) / ob.depth_factor / expected_m
+        slack = max(EDGE_AGREES * d_expected, EDGE_AGREES_PX)
+        mine = [side for side in mine if abs(side[0] - d_expected) <= slack]
         mine.sort(key=lambda side: abs(side[0] - d_expected))
     if not mine or ob.disparity_px <= 0:
         return dataclasses.replace(ob, clipped=True, edge_depth=False)
