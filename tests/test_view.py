@@ -10,6 +10,7 @@ import signal
 import socket
 import tempfile
 import threading
+import time
 import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
@@ -335,9 +336,16 @@ def test_a_status_with_a_nan_reaches_the_page_as_json_it_can_parse(
         async with aiohttp.ClientSession() as http:
             async with http.ws_connect(view.url + "ws") as ws:
                 strict((await ws.receive(timeout=10)).data)  # hello
-                listener.put("stereod/minoru/status", payload)
-                while (update := strict((await ws.receive(timeout=10)).data))["type"] != "status":
+                deadline = time.monotonic() + 15.0
+                while True:  # (put again until the view's subscription routes it)
                     listener.put("stereod/minoru/status", payload)
+                    try:
+                        update = strict((await ws.receive(timeout=0.5)).data)
+                    except TimeoutError:
+                        assert time.monotonic() < deadline, "no status reached the page"
+                        continue
+                    if update["type"] == "status":
+                        break
             async with http.ws_connect(view.url + "ws") as ws:
                 return update, strict((await ws.receive(timeout=10)).data)
 
