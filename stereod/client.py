@@ -187,8 +187,8 @@ _MODELS: dict[str, type[ObjectsMessage | ObjectState | StatusMessage | StatsMess
         (STATS_SCHEMA, StatsMessage),
     )
 }
-"""Each message's class by its schema's family (the daemon's status was keyed by a family it
-never sends, and came back as plain data)."""
+"""Each message's class by its schema's family (the schema before its ``/version``), from the
+schemas the daemon stamps."""
 
 
 def subscribe_objects(

@@ -73,7 +73,7 @@ class Frame:
         if not image.flags.c_contiguous:
             object.__setattr__(self, "image", np.ascontiguousarray(image))
         t = self.t_ns
-        if isinstance(t, (bool, np.bool_, float)) or not isinstance(t, (int, np.integer)):
+        if isinstance(t, (bool, float)) or not isinstance(t, (int, np.integer)):
             raise TypeError(
                 f"{where}: t_ns must be an integer count of nanoseconds, got "
                 f"{t!r}: for seconds, use round(t * 1e9)"

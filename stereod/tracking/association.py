@@ -245,11 +245,6 @@ class Association(TrackFilters):
         nearer = judged & (
             seen_d[:, None] - dpp > (NEARER - 1.0) * np.maximum(dpp, 0.0) + DISPARITY_SLACK_PX
         )
-        # A detection clearly farther than a track (the same test, the other way round) may
-        # be that object in front with a larger one behind joining it (a ball before a person:
-        # the blend of their disparities is near the person's); but not when it is clearly
-        # narrower than that object (:meth:`_gone_from_front`).
-        farther = judged & (NEARER * np.maximum(seen_d, 0.0)[:, None] + DISPARITY_SLACK_PX < dpp)
         cost[gone] = np.inf
         shared: list[int] = []
         if int(np.count_nonzero(confirmed)) >= 2:  # (one confirmed track shares nothing)
@@ -279,9 +274,14 @@ class Association(TrackFilters):
             # (:meth:`_in_front`). Else it is one of them (the other hidden behind it) if it
             # looks like that one alone: its box where that one's box should be, in both eyes.
             # Failing both, both coast until they part in both eyes.
-            left_in = [
-                j for j in hosts if not (farther[i, j] and self._gone_from_front(d, tracks[j]))
-            ]
+            # A detection clearly farther than a track (the nearer test the other way round)
+            # may be that object in front with a larger one behind joining it (a ball before a
+            # person: the blend of their disparities is near the person's); but not when it
+            # is clearly narrower than that object (:meth:`_gone_from_front`).
+            farther = judged[i] & (
+                NEARER * max(float(seen_d[i]), 0.0) + DISPARITY_SLACK_PX < predicted_d
+            )
+            left_in = [j for j in hosts if not (farther[j] and self._gone_from_front(d, tracks[j]))]
             front = self._in_front(tracks, np.array(left_in, np.intp), inside[:, i], preds)
             if front is not None:
                 keep = min(cost[i, front[0]], RESUME_COST)
