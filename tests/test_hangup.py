@@ -30,6 +30,15 @@ def long_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_scene(scene, tmp_path_factory.mktemp("long") / "rec")
 
 
+@pytest.fixture(scope="module")
+def export_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A recording whose export takes long enough to be caught writing on a loaded host:
+    about 0.6 s of writing at 320x240 (0.15 s at 160x120 was sometimes over before the
+    signal came)."""
+    scene = Scene(width_px=320, height_px=240, fps=15, duration_s=30, balls=[Ball()])
+    return write_scene(scene, tmp_path_factory.mktemp("export") / "rec")
+
+
 def parts(folder: Path) -> list[Path]:
     """Temporary outputs (files or folders) left in ``folder``."""
     return sorted(p for p in folder.iterdir() if p.name.endswith(".part"))
@@ -57,11 +66,11 @@ def hang_up_when(
 
 
 def test_export_ends_as_interrupted_and_keeps_the_old_file(
-    long_recording: Path, tmp_path: Path
+    export_recording: Path, tmp_path: Path
 ) -> None:
     out = tmp_path / "run.mcap"
     out.write_bytes(b"the previous export")
-    proc = start_stereod("export", str(long_recording), "--mcap", str(out), cwd=tmp_path)
+    proc = start_stereod("export", str(export_recording), "--mcap", str(out), cwd=tmp_path)
     code, err = hang_up_when(proc, lambda: bool(parts(tmp_path)))
     assert code == 129, err
     assert err.splitlines() == [f"stereod: export interrupted by SIGHUP; {out} left as it was"]
