@@ -213,13 +213,12 @@ class Pipeline:
         ``None`` once that eye has learned (or before the first pair)."""
         self._ahead: list[tuple[int, int, Blobs] | None] = [None, None]
         """Per eye, (seq, t_ns, blobs) of a frame detected before its pair was formed."""
-        self._last: list[tuple[int, int] | None] = [None, None]
-        """Per eye, (seq, t_ns) of its frame in the last pair processed."""
+        self._last: list[tuple[int, int, int] | None] = [None, None]
+        """Per eye, (seq, t_ns, image ndim) of its frame in the last pair processed."""
         self.pairing: PairerStats | None = None
         """The pairer's counts of the last :meth:`run` (None before one)."""
         self.detected_ahead = 0
-        """Frames whose detection was done before their pair formed (:meth:`detect_ahead`)
-        and then used."""
+        """Frames detected before their pair formed (:meth:`detect_ahead`) and then used."""
         parallel = params.rig.width_px * params.rig.height_px >= PARALLEL_MIN_PX
         self._pool = (
             ThreadPoolExecutor(1, thread_name_prefix="detect")
@@ -319,11 +318,11 @@ class Pipeline:
         eye's last frame), so that when the pair comes only the other eye is left to detect:
         the eyes free-run up to half a frame apart, and the earlier one's detection is done
         in that wait instead of after it. Only the frame that follows the eye's frame in the
-        last pair processed, in number and in time, is taken (the detectors see each eye's
-        frames in order), once; returns whether it was. Call it from the thread that calls
-        :meth:`process`. The result is the same, to the bit, as detecting the frame with its
-        pair, unless its pair never comes (the pairer dropped the frame): its detection then
-        still leaves what it saw of the light (the gain) and of the foreground to the next."""
+        last pair processed, in number, time and format, is taken (the detectors see each eye's
+        frames in order; a new format is left to its pair), once; returns whether it was. Call
+        it from the thread that calls :meth:`process`. The result is the same, to the bit, as
+        detecting the frame with its pair, unless its pair never comes (the pairer dropped the
+        frame): its detection still leaves what it saw of the light and foreground to the next."""
         if not isinstance(frame, Frame):
             raise TypeError(f"detect_ahead takes a Frame, got {type(frame).__name__}")
         e = 0 if frame.eye is Eye.LEFT else 1
@@ -332,6 +331,7 @@ class Pipeline:
             self._ahead[e] is not None
             or last is None
             or frame.seq != last[0] + 1
+            or frame.image.ndim != last[2]
             or self._refusal(frame, frame.eye) is not None  # left to its pair to report
         ):
             return False
@@ -467,7 +467,7 @@ class Pipeline:
         rb = rb if rb is not None else self._eye(1, pair.right.image, pair.right.t_ns, both)
         if both:
             fit_round_blobs(((self.left, lb), (self.right, rb)))
-        self._last = [(pair.left.seq, pair.left.t_ns), (pair.right.seq, pair.right.t_ns)]
+        self._last = [(f.seq, f.t_ns, f.image.ndim) for f in (pair.left, pair.right)]
         return lb, rb
 
     def _match(self, pair: StereoPair, lb: Blobs, rb: Blobs, eye_times: tuple[int, int]) -> Matched:

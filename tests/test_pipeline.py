@@ -615,9 +615,10 @@ def test_a_pair_the_pipeline_cannot_use_is_refused_before_anything_changes() -> 
         bgr = np.dstack((wall, wall, wall))
         with pytest.raises(ValueError, match=f"pair {k}: one eye's frame is grey and the other"):
             pipe.process(StereoPair.of(wall, bgr, t, t, seq=k))
-        # a frame of another size is not detected ahead either (the detector would start
-        # its background afresh for it)
+        # a frame of another size or format is not detected ahead either (the detector would
+        # start its background afresh for it, and its pair may be refused)
         assert not pipe.detect_ahead(Frame(Eye.RIGHT, small, t, k))
+        assert not pipe.detect_ahead(Frame(Eye.RIGHT, bgr, t, k))
 
     clean, refused = run(False), run(True)
     assert any(tracks for _, tracks in clean[12:])
