@@ -281,6 +281,43 @@ def test_a_daemon_whose_jsonl_reader_goes_away_runs_on_and_says_so(
     assert gone == [f"{fifo}: its reader closed it; the JSONL output is no longer written"]
 
 
+def test_a_live_daemon_whose_jsonl_reader_stops_reading_publishes_on_and_says_so(
+    endpoint: str, tmp_path: Path
+) -> None:
+    """``run --jsonl FIFO`` on a camera: a reader that keeps the pipe open but stops reading
+    would hold the output thread, and every Zenoh message behind it. After
+    ``JSONL_STALL_S`` the JSONL counts as gone, the status says so, and publishing goes on."""
+    import fcntl
+
+    from stereod.daemon.daemon import JSONL_STALL_S
+
+    fifo = tmp_path / "objects.fifo"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # open, and never read
+    fcntl.fcntl(reader, 1031, 4096)  # F_SETPIPE_SZ: a page, full after a few messages
+    options = {"live": True, "loop": True, "fps": 30, "duration_s": 2.0}
+    options |= {"width_px": 160, "height_px": 120}
+    daemon = Daemon(config(endpoint), SyntheticDriver(options), jsonl=fifo)
+    thread, out = start(daemon)
+    said = f"{fifo}: its reader took nothing for {JSONL_STALL_S:g} s"
+    try:
+        deadline = time.monotonic() + 30
+        while not any(said in p for p in daemon.health.problems()):
+            assert time.monotonic() < deadline and thread.is_alive(), daemon.health.problems()
+            time.sleep(0.1)
+        assert daemon._publisher is not None
+        before = daemon._publisher.published
+        time.sleep(1.0)
+        assert daemon._publisher.published >= before + 15  # 30 pairs a second flow on
+    finally:
+        daemon.stop()
+        thread.join(30)
+        os.close(reader)
+    summary = out["summary"]
+    assert summary.error is None
+    assert f"{said}; the JSONL output is no longer written" in summary.problems
+
+
 def test_stats_before_run() -> None:
     """Every attribute exists from the constructor on: the stats are empty, not an error."""
     daemon = Daemon(load_config(), SyntheticDriver({"duration_s": 1.0}))

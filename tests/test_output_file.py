@@ -7,6 +7,7 @@ import os
 import shutil
 import tempfile
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -114,6 +115,45 @@ def test_a_pipe_whose_reader_stops_reading_is_given_up_once_asked() -> None:
         os.close(read_fd)
         with contextlib.suppress(OSError):
             os.close(write_fd)
+
+
+def test_a_stall_limit_gives_up_a_reader_that_stops_reading_and_keeps_one_that_reads() -> None:
+    """:meth:`AtomicOutput.limit_stall`: a write that waits longer than the limit for the
+    pipe's reader fails as the reader gone, naming the limit; a slow reader that takes data
+    within it is written to the end."""
+    read_fd, write_fd = os.pipe()
+    try:
+        out = AtomicOutput(Path(f"/proc/self/fd/{write_fd}"))
+        out.limit_stall(0.3)
+        with pytest.raises(ReaderGone, match=r"its reader took nothing for 0\.3 s"):
+            for _ in range(64):  # 4 MB: far more than a pipe holds, and nobody reads
+                out.write(b"x" * 65536)
+                out.flush()
+        out.discard()
+    finally:
+        os.close(read_fd)
+        with contextlib.suppress(OSError):
+            os.close(write_fd)
+    read_fd, write_fd = os.pipe()
+    got = bytearray()
+
+    def slow() -> None:
+        while chunk := os.read(read_fd, 65536):
+            got.extend(chunk)
+            time.sleep(0.05)
+
+    reader = threading.Thread(target=slow)
+    reader.start()
+    try:
+        with AtomicOutput(Path(f"/proc/self/fd/{write_fd}")) as out:
+            out.limit_stall(0.3)
+            for k in range(40):
+                out.write(bytes([k]) * 65536)
+    finally:
+        os.close(write_fd)
+        reader.join(10)
+        os.close(read_fd)
+    assert bytes(got) == b"".join(bytes([k]) * 65536 for k in range(40))
 
 
 def test_a_reader_that_reads_gets_everything() -> None:

@@ -17,7 +17,6 @@ internal error (exit 70) naming the log.
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
@@ -27,7 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from stereod.bus.images import ImagePublishers, ImageWorker
-from stereod.bus.messages import CanonicalGeometry, DaemonState, StatusMessage, dump
+from stereod.bus.messages import DaemonState, StatusMessage, dump
 from stereod.bus.publish import Publisher
 from stereod.daemon.capture import Capture, Queued
 from stereod.daemon.config import StereodConfig
@@ -35,7 +34,8 @@ from stereod.daemon.memory import release_library_pages, separate_large_buffers
 from stereod.daemon.output import Output
 from stereod.daemon.params import pipeline_params
 from stereod.daemon.processing import Outgoing, PipelineWorker
-from stereod.daemon.redact import public_config, public_text
+from stereod.daemon.reload import RELOAD_REFUSED, RELOAD_WAITING, effective, waiting
+from stereod.daemon.replies import calibration_reply, config_reply
 from stereod.daemon.sdnotify import Notifier
 from stereod.daemon.shared_rig import SharedRig
 from stereod.daemon.status import Health, geometry_note
@@ -55,12 +55,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-RELOAD_REFUSED = "reload refused, keeping the running configuration"
-"""How a refused reload's problem begins; a reload taken later takes those off the status."""
-RELOAD_WAITING = "reload: changes to"
-"""How a reload's note of settings that wait for a restart begins; the next reload taken
-replaces it."""
-
 UNPAIRED_SHARE = 0.1
 """At the end of a file, more than this share of its frames without a partner is a fault of
 the input (its eyes' timestamps disagree), not chance: a few frames at its ends may be."""
@@ -68,6 +62,10 @@ the input (its eyes' timestamps disagree), not chance: a few frames at its ends 
 STOP_WRITE_S = 2.0
 """Once a stop is asked for, how long (s) an output written in place (a pipe) may wait for a
 reader that stopped reading before it counts as gone: the daemon then ends all the same."""
+JSONL_STALL_S = 2.0
+"""How long (s) a live daemon's JSONL written into a pipe may wait for its reader to take a
+message: a reader that stays open and stops reading would otherwise hold the output thread,
+and with it every Zenoh message. It then counts as gone (said on the status key)."""
 
 DROP_PIPELINE_BEHIND = "pipeline_behind"
 """A pair waited too long for the pipeline and a newer one replaced it (live sources)."""
@@ -232,6 +230,8 @@ class Daemon:
                 check_outputs({"--jsonl": self.jsonl}, [*info.inputs, *self._inputs])
             params = pipeline_params(self.cfg, info.width, info.height)
             jsonl = AtomicOutput(self.jsonl) if self.jsonl is not None else None
+            if jsonl is not None and info.live:
+                jsonl.limit_stall(JSONL_STALL_S)
             pipeline = Pipeline(params)
             release_library_pages()  # everything is loaded: keep mapped what runs from here
             try:
@@ -303,8 +303,8 @@ class Daemon:
         worker.detect = cfg.daemon.detect
         self._worker = worker
         queryables = {
-            "config": lambda: json.dumps(public_config(self.cfg)).encode(),
-            "calibration": self._calibration_json,
+            "config": lambda: config_reply(self.cfg),
+            "calibration": lambda: calibration_reply(worker.rig),
             "stats": self.stats,
         }
         status_now, session = self._status_now.set, self._session
@@ -467,30 +467,18 @@ class Daemon:
         self._notifier.notify(RELOADING=1)
         try:
             new = self._reload_config()
-            cfg = self._effective(new)
+            cfg = effective(self.cfg, new)
             params = pipeline_params(cfg, width, height)
         except Exception as exc:  # nothing in a new file may kill a running daemon
             reason = str(exc) if isinstance(exc, StereodError) else f"{type(exc).__name__}: {exc}"
             self.health.restate(RELOAD_REFUSED, f"{RELOAD_REFUSED}: {reason}", notice=True)
             self._notifier.notify(READY=1)
             return
-        waiting = [
-            name
-            for name, now, then in (
-                ("driver", new.driver, self.cfg.driver),
-                ("zenoh", new.zenoh, self.cfg.zenoh),
-                ("daemon", new.daemon, self.cfg.daemon),
-                ("ros2", new.ros2, self.cfg.ros2),
-                ("rig.name", new.rig.name, self.cfg.rig.name),
-                ("pairing.tolerance_ms", new.pairing.tolerance_ms, cfg.pairing.tolerance_ms),
-                ("pairing.max_pending", new.pairing.max_pending, cfg.pairing.max_pending),
-            )
-            if now != then
-        ]
+        waits = waiting(self.cfg, new)
         self.health.resolved(RELOAD_WAITING)  # what an earlier reload said waits may not now
-        if waiting:
+        if waits:
             self.health.problem(
-                f"{RELOAD_WAITING} {', '.join(waiting)} take effect at the next restart",
+                f"{RELOAD_WAITING} {', '.join(waits)} take effect at the next restart",
                 notice=True,
             )
         assert self._worker is not None
@@ -504,26 +492,6 @@ class Daemon:
     def _rig_taken(self, pub: Publisher) -> None:
         """Another daemon's token for this rig was on the bus at open (a replay refuses)."""
         self._shared.taken_at_open(pub.base)
-
-    def _effective(self, new: StereodConfig) -> StereodConfig:
-        """What of a reloaded configuration runs now: all of it but what only a restart can
-        change (the driver, Zenoh, the daemon's threads and queues, the rig's name and the
-        pairer), which stays as it runs. The config queryable reports this."""
-        return new.model_copy(
-            update={
-                "driver": self.cfg.driver,
-                "zenoh": self.cfg.zenoh,
-                "daemon": self.cfg.daemon,
-                "ros2": self.cfg.ros2,
-                "rig": new.rig.model_copy(update={"name": self.cfg.rig.name}),
-                "pairing": new.pairing.model_copy(
-                    update={
-                        "tolerance_ms": self.cfg.pairing.tolerance_ms,
-                        "max_pending": self.cfg.pairing.max_pending,
-                    }
-                ),
-            }
-        )
 
     def _wait_for_subscriber(self, pub: Publisher) -> None:
         deadline = time.monotonic() + self.wait_subscriber_s
@@ -576,25 +544,3 @@ class Daemon:
         s.published = self._publisher.published if self._publisher is not None else 0
         s.error = self._fatal
         return s
-
-    def _calibration_json(self) -> bytes:
-        assert self._worker is not None
-        r = self._worker.rig
-        if isinstance(r, CalibratedRig):
-            cal = r.calibration
-            return (
-                cal.model_copy(update={"source": public_text(cal.source)})
-                .model_dump_json()
-                .encode()
-            )
-        return dump(
-            CanonicalGeometry(
-                baseline_m=r.baseline_m,
-                hfov_deg=r.hfov_deg,
-                width_px=r.width_px,
-                height_px=r.height_px,
-                focal_px=r.focal_px,
-                cx_px=r.cx_px,
-                cy_px=r.cy_px,
-            )
-        )

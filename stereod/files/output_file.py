@@ -258,12 +258,14 @@ _POLL_MS = 200
 class _InPlaceWriter(io.RawIOBase):
     """Writes a descriptor written in place without ever blocking in ``write``: each chunk of
     at most ``PIPE_BUF`` bytes waits until the descriptor polls writable, and that wait ends
-    with ``ETIMEDOUT`` once :attr:`deadline` (monotonic s) has passed."""
+    with ``ETIMEDOUT`` once :attr:`deadline` (monotonic s) has passed, or once it has lasted
+    :attr:`stall_s` (s) where that is set."""
 
     def __init__(self, fd: int) -> None:
         super().__init__()
         self._fd = fd
         self.deadline: float | None = None
+        self.stall_s: float | None = None
         self._poll = select.poll()
         self._poll.register(fd, select.POLLOUT)
 
@@ -274,10 +276,14 @@ class _InPlaceWriter(io.RawIOBase):
         return self._fd
 
     def write(self, b: Any) -> int:
+        started = time.monotonic()
         while not self._poll.poll(_POLL_MS):
-            deadline = self.deadline
-            if deadline is not None and time.monotonic() >= deadline:
+            now, deadline, stall = time.monotonic(), self.deadline, self.stall_s
+            if deadline is not None and now >= deadline:
                 raise OSError(errno.ETIMEDOUT, "its reader stopped reading")
+            if stall is not None and now - started >= stall:
+                self.deadline = now  # given up: what is still buffered is not waited for
+                raise OSError(errno.ETIMEDOUT, f"its reader took nothing for {stall:g} s")
         return os.write(self._fd, memoryview(b)[:_CHUNK])
 
     def close(self) -> None:
@@ -372,10 +378,18 @@ class AtomicOutput:
         if self.in_place and exc.errno == errno.EPIPE:
             return ReaderGone(f"{self.path}: its reader closed it", stdout=self.stdout)
         if self.in_place and exc.errno == errno.ETIMEDOUT:
-            return ReaderGone(f"{self.path}: its reader stopped reading", stdout=self.stdout)
+            return ReaderGone(f"{self.path}: {exc.strerror}", stdout=self.stdout)
         if self.stdout:  # as any command's standard output that fails: 74
             return StdoutWriteError(f"cannot write to standard output: {exc.strerror}")
         return OutputError(f"{self.path}: {write_failed(exc)}")
+
+    def limit_stall(self, seconds: float) -> None:
+        """Let a write into a pipe (an output written in place) wait at most ``seconds`` for
+        its reader to take data, then fail as :class:`ReaderGone`: a live daemon cannot be
+        held by a reader that stays open and stops reading. Nothing changes for a file."""
+        raw = getattr(self._fh, "raw", None)
+        if isinstance(raw, _InPlaceWriter):
+            raw.stall_s = seconds
 
     def write(self, data: bytes) -> int:
         """Write ``data``; the number of bytes written."""
