@@ -318,6 +318,47 @@ def test_a_live_daemon_whose_jsonl_reader_stops_reading_publishes_on_and_says_so
     assert f"{said}; the JSONL output is no longer written" in summary.problems
 
 
+def test_a_hung_pipeline_stops_feeding_the_watchdog_and_says_so(
+    endpoint: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Frames flowing is not enough to feed systemd's watchdog: a pipeline thread stuck on
+    one pair (a driver or library call that never returns) stops the pings, so systemd
+    restarts the daemon, and the status key says which thread is stuck."""
+    import stereod.daemon.daemon as daemon_module
+    from stereod.daemon.sdnotify import Notifier
+
+    from .processes import collect, receiver
+
+    monkeypatch.setattr(daemon_module, "STUCK_S", 0.5)
+    sock, address = receiver(tmp_path)
+    notifier = Notifier({"NOTIFY_SOCKET": address, "WATCHDOG_USEC": "400000"})
+    options = {"live": True, "loop": True, "fps": 30, "duration_s": 2.0}
+    options |= {"width_px": 160, "height_px": 120}
+    daemon = Daemon(config(endpoint), SyntheticDriver(options), notifier=notifier)
+    release = threading.Event()
+    thread, out = start(daemon)
+    try:
+        assert "WATCHDOG=1" in collect(sock, "WATCHDOG=1", 20)
+        assert daemon._worker is not None
+        pipeline = daemon._worker.pipeline
+        monkeypatch.setattr(pipeline, "process", lambda pair: release.wait(30))
+        deadline = time.monotonic() + 10
+        while not any("pipeline thread: stuck" in p for p in daemon.health.problems()):
+            assert time.monotonic() < deadline, daemon.health.problems()
+            time.sleep(0.05)
+        collect(sock, "no such line", 0.3)  # what was sent before it was seen stuck
+        later = collect(sock, "WATCHDOG=1", 1.5)
+        assert "WATCHDOG=1" not in later, later
+        assert daemon.health.frames_flowing(1.0)  # frames flow all the while
+    finally:
+        release.set()
+        daemon.stop()
+        thread.join(30)
+        notifier.close()
+        sock.close()
+    assert out["summary"].error is None
+
+
 def test_stats_before_run() -> None:
     """Every attribute exists from the constructor on: the stats are empty, not an error."""
     daemon = Daemon(load_config(), SyntheticDriver({"duration_s": 1.0}))

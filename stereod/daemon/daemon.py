@@ -62,6 +62,11 @@ the input (its eyes' timestamps disagree), not chance: a few frames at its ends 
 STOP_WRITE_S = 2.0
 """Once a stop is asked for, how long (s) an output written in place (a pipe) may wait for a
 reader that stopped reading before it counts as gone: the daemon then ends all the same."""
+STUCK_S = 5.0
+"""A pipeline or output thread working on one item (a pair, a message) for longer than this
+(s) is hung (a live source's: a file's may wait for its JSONL's reader): said on the status
+key, and the systemd watchdog is no longer fed. A pair takes milliseconds, and a live JSONL
+write into a pipe gives up after ``JSONL_STALL_S``."""
 JSONL_STALL_S = 2.0
 """How long (s) a live daemon's JSONL written into a pipe may wait for its reader to take a
 message: a reader that stays open and stops reading would otherwise hold the output thread,
@@ -425,8 +430,10 @@ class Daemon:
                 pub.status(dump(status))
                 self._notify_status(status)
                 last = now
+            moving = not (self.health.live and self.health.check_stuck(STUCK_S))
             if watchdog and now - last_dog >= watchdog / 2 and self.health.frames_flowing(watchdog):
-                self._notifier.notify(WATCHDOG=1)
+                if moving:
+                    self._notifier.notify(WATCHDOG=1)
                 last_dog = now
 
     def _input_problems(self, final: bool = False) -> None:

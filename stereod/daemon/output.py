@@ -52,23 +52,31 @@ class Output:
                 break
             if item is None:
                 continue
-            if item.message is None:
-                self.publisher.objects_end(item.ended)
-                continue
-            self.publisher.objects(item.payload, item.tracks, item.ended)
-            self.health.published = self.publisher.published
-            self.health.publish_errors = self.publisher.errors
-            if self._on_message is not None:
-                self._on_message(item)
-            if self.jsonl is not None:
-                try:
-                    self.jsonl.write(item.payload + b"\n")
-                    if self.jsonl.in_place:  # a pipe or terminal gets each message as it comes
-                        self.jsonl.flush()
-                except OutputError as exc:
-                    self.jsonl.discard()
-                    self.jsonl = None
-                    if isinstance(exc, ReaderGone):
-                        self._on_reader_gone(exc)
-                    else:
-                        self._on_fatal(exc)
+            self.health.busy("output")
+            try:
+                self._send(item)
+            finally:
+                self.health.idle("output")
+
+    def _send(self, item: Outgoing) -> None:
+        """Publish one item, hand it on, and write it to the JSONL."""
+        if item.message is None:
+            self.publisher.objects_end(item.ended)
+            return
+        self.publisher.objects(item.payload, item.tracks, item.ended)
+        self.health.published = self.publisher.published
+        self.health.publish_errors = self.publisher.errors
+        if self._on_message is not None:
+            self._on_message(item)
+        if self.jsonl is not None:
+            try:
+                self.jsonl.write(item.payload + b"\n")
+                if self.jsonl.in_place:  # a pipe or terminal gets each message as it comes
+                    self.jsonl.flush()
+            except OutputError as exc:
+                self.jsonl.discard()
+                self.jsonl = None
+                if isinstance(exc, ReaderGone):
+                    self._on_reader_gone(exc)
+                else:
+                    self._on_fatal(exc)

@@ -159,6 +159,7 @@ class PipelineWorker:
                     continue
                 pair = what
                 queued_ms = (time.perf_counter_ns() - queued_at) * 1e-6
+                self.health.busy("pipeline")
                 try:
                     result = self.pipeline.process(pair) if self.detect else _empty(pair)
                     outgoing = self.outgoing(result, queued_ms)
@@ -169,6 +170,8 @@ class PipelineWorker:
                     )
                     log.debug("pair %d failed", pair.seq, exc_info=True)
                     continue
+                finally:
+                    self.health.idle("pipeline")
                 self._count_saturated()
                 self._check_readout(pair)
                 self.health.pair_done(

@@ -137,6 +137,10 @@ class Health:
         self._clock = DisciplineCache()
         """How this host's UTC clock is kept (chrony, PTP), for the status key."""
         self._on_change = on_change
+        self._busy: dict[str, float] = {}
+        """Per thread (``pipeline``, ``output``), when (monotonic s) it took the item it is
+        working on; absent while it waits for one."""
+        self._stuck: set[str] = set()
 
     def watch(self, *eyes: EyeSource) -> None:
         """Read these eyes' own counters (sequence gaps, corrupt frames) too."""
@@ -226,6 +230,33 @@ class Health:
         daemon is not hung; an eye that is down is reported and reopened by its own thread,
         which a restart would not do better)."""
         return time.monotonic() - self.last_frame_s < within_s
+
+    def busy(self, thread: str) -> None:
+        """``thread`` took an item to work on (a pair, a message)."""
+        self._busy[thread] = time.monotonic()
+
+    def idle(self, thread: str) -> None:
+        """``thread`` is done with its item."""
+        self._busy.pop(thread, None)
+
+    def check_stuck(self, limit_s: float) -> bool:
+        """Whether a thread has worked on one item for more than ``limit_s`` (s): the daemon
+        is hung though frames flow (the watchdog is then no longer fed, and systemd restarts
+        it). Said on the status key once per thread, and taken off when it moves again."""
+        now = time.monotonic()
+        stuck = {t: now - at for t, at in list(self._busy.items()) if now - at > limit_s}
+        for thread, age in stuck.items():
+            if thread not in self._stuck:
+                self._stuck.add(thread)
+                self.problem(
+                    f"{thread} thread: stuck on one item for {age:.0f} s; the watchdog is no "
+                    "longer fed",
+                    f"{thread}_stuck",
+                )
+        for thread in self._stuck - stuck.keys():
+            self._stuck.discard(thread)
+            self.resolved(f"{thread} thread: stuck")
+        return bool(stuck)
 
     def check_stalls(self) -> None:
         """Report each live eye that is streaming but has had no frame for ``STALL_S``: it is
