@@ -359,6 +359,43 @@ def test_a_hung_pipeline_stops_feeding_the_watchdog_and_says_so(
     assert out["summary"].error is None
 
 
+def test_a_stopped_file_run_writes_every_pair_it_processed_in_order(
+    endpoint: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """SIGTERM on ``run`` over a file: the pairs already processed still go out. With the
+    output slower than the pipeline they were thrown away once the stop came, between pairs
+    that went out, and the JSONL was kept with holes and nothing counted."""
+    import random
+
+    from stereod.pipeline import Pipeline
+
+    real, rnd = Pipeline.process, random.Random(1)
+
+    def process(self: Pipeline, pair: Any) -> Any:
+        time.sleep(rnd.uniform(0.0, 0.04))
+        return real(self, pair)
+
+    monkeypatch.setattr(Pipeline, "process", process)
+    jsonl = tmp_path / "objects.jsonl"
+    options = {"fps": 15, "duration_s": 60.0, "width_px": 160, "height_px": 120}
+    daemon = Daemon(
+        config(endpoint, publish_queue_size=1, queue_size=20),
+        SyntheticDriver(options),
+        rate=0,
+        jsonl=jsonl,
+        on_message=lambda item: time.sleep(0.03),
+    )
+    thread, out = start(daemon)
+    time.sleep(1.5)
+    daemon.stop()
+    thread.join(60)
+    summary = out["summary"]
+    seqs = [json.loads(line)["seq"] for line in jsonl.read_text().splitlines()]
+    assert summary.error is None and len(seqs) > 10
+    assert seqs == list(range(len(seqs)))
+    assert summary.published == len(seqs)
+
+
 def test_stats_before_run() -> None:
     """Every attribute exists from the constructor on: the stats are empty, not an error."""
     daemon = Daemon(load_config(), SyntheticDriver({"duration_s": 1.0}))

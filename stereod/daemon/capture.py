@@ -213,5 +213,6 @@ class Capture:
             pairs = self.pairer.flush()
         now = time.perf_counter_ns()
         for p in pairs:
-            self.pairs.put((p, now), self.stop)
+            if not self.pairs.put((p, now), self.stop):
+                break  # stopped: what is left goes from the end only, never from between
         self.pairs.close()

@@ -295,6 +295,7 @@ class Daemon:
             on_ready=self._ready,
             on_fatal=self.fail,
         )
+        output_gone = threading.Event()
         worker = PipelineWorker(
             pipeline,
             pairs,
@@ -302,7 +303,7 @@ class Daemon:
             h,
             rig_name=cfg.rig.name,
             utc_offset_ns=lambda: capture.utc_offset_ns,
-            stop=self._stop,
+            output_gone=output_gone,
         )
         worker.keep_pairs = self._keep_frames
         worker.detect = cfg.daemon.detect
@@ -347,9 +348,11 @@ class Daemon:
                 for t in [*threads, *([painter] if painter else [])]:
                     t.start()
                 self._status_loop(pub, sender, info.width, info.height)
+                output_gone.set()  # the output thread has ended: nothing waits for it
                 for t in threads:
                     t.join()
             finally:  # also on Ctrl-C in this thread: no thread outlives the run
+                output_gone.set()
                 if any(t.is_alive() for t in threads):
                     self.stop()
                     for t in threads:

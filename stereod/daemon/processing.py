@@ -92,7 +92,7 @@ class PipelineWorker:
         *,
         rig_name: str,
         utc_offset_ns: Callable[[], int | None],
-        stop: threading.Event,
+        output_gone: threading.Event,
     ) -> None:
         self.pipeline = pipeline
         self.pairs = pairs
@@ -100,7 +100,10 @@ class PipelineWorker:
         self.health = health
         self.rig_name = rig_name
         self._utc_offset_ns = utc_offset_ns
-        self._stop = stop
+        self._output_gone = output_gone
+        """Set once the output thread has ended: a put into a full queue then gives up. Until
+        then every result goes out, after a stop too (the output drains what is queued), so a
+        stopped file's JSONL holds every pair processed, in order."""
         self._pending: PipelineParams | None = None
         self._lock = threading.Lock()
         self._saturated: dict[str, int] = {}
@@ -141,7 +144,7 @@ class PipelineWorker:
         self.health.calibration_id = rig.calibration_id
         self.health.geometry_note = geometry_note(rig)
         if ended:
-            self.out.put(Outgoing(None, ended=ended), self._stop)
+            self.out.put(Outgoing(None, ended=ended), self._output_gone)
 
     def loop(self) -> None:
         try:
@@ -182,11 +185,11 @@ class PipelineWorker:
                     outgoing.images = self._images(pair)
                 if self.keep_pairs:
                     outgoing.pair = pair
-                self.out.put(outgoing, self._stop)
+                self.out.put(outgoing, self._output_gone)
             self._swap()
             ended = self.pipeline.finish()
             if ended:
-                self.out.put(Outgoing(None, ended=ended), self._stop)
+                self.out.put(Outgoing(None, ended=ended), self._output_gone)
         finally:
             self.pipeline.close()
             self.out.close()
