@@ -74,3 +74,57 @@ def test_the_first_frame_after_an_eye_was_down_counts_a_reconnect() -> None:
     assert health.eyes[Eye.RIGHT].state is EyeState.STREAMING
     assert health.counters()[2] == {"right": 1}
     assert health.problems()[-1] == "right eye streaming again"
+
+
+class _Failing(EyeSource):
+    """An eye whose every read fails with ``exc`` (a camera that opens and then fails each
+    read, say), and whose recovery fails too when ``recover_fails``."""
+
+    def __init__(self, eye: Eye, exc: Exception, recover_fails: bool = False) -> None:
+        self.eye, self.exc, self.recover_fails = eye, exc, recover_fails
+        self.reads = self.recovered = 0
+
+    def read(self) -> Frame | None:
+        self.reads += 1
+        raise self.exc
+
+    def recover(self) -> None:
+        self.recovered += 1
+        if self.recover_fails:
+            raise OSError("the device node is gone")
+
+
+def run_eye_for(cap: Capture, eye: EyeSource, seconds: float) -> None:
+    t = threading.Thread(target=cap._eye_loop, args=(eye,))
+    t.start()
+    cap.stop.wait(seconds)
+    cap.stop.set()
+    t.join(10)
+    assert not t.is_alive()
+
+
+def test_a_camera_lost_on_every_read_is_retried_with_a_backoff() -> None:
+    """A lost camera is retried at once (its source reopens it with a backoff of its own),
+    but one lost again before any frame waits 0.1, 0.2, 0.4 s...: it was retried thousands
+    of times a second, each retry a problem and a status message."""
+    from stereod.errors import DeviceLost
+
+    cap, health, _ = capture()
+    eye = _Failing(Eye.LEFT, DeviceLost("/dev/video0: read failed: EIO"))
+    run_eye_for(cap, eye, 1.0)
+    assert 4 <= eye.reads <= 6, eye.reads  # at 0, 0, 0.1, 0.3, 0.7 s (and 1.5 s)
+    assert health.counters()[1]["left_lost"] == eye.reads
+    assert health.eyes[Eye.LEFT].state is EyeState.DOWN
+
+
+def test_an_eye_whose_recovery_fails_too_is_retried_and_said() -> None:
+    """A recovery that raises is said on the status and retried after the pause: it used to
+    end the eye's thread, and with it the daemon."""
+    cap, health, _ = capture()
+    eye = _Failing(Eye.RIGHT, ValueError("short buffer"), recover_fails=True)
+    run_eye_for(cap, eye, 0.5)
+    assert eye.reads >= 2 and eye.recovered == eye.reads
+    assert any(
+        p == "right eye: recovering it failed: the device node is gone; retrying"
+        for p in health.problems()
+    ), health.problems()

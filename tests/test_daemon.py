@@ -210,6 +210,26 @@ def test_wrong_size_frame_mid_stream_is_skipped_and_reported(
     assert "frame 7 is 32x24" in final["problems"][-1]
 
 
+def test_a_failed_run_says_failed_on_its_last_status(
+    endpoint: str, listener: zenoh.Session
+) -> None:
+    """A run that ends with an error says ``failed``, not ``finished``, on its last status,
+    with the error as its last problem."""
+    statuses: list[dict] = []
+    sub = listener.declare_subscriber(
+        "stereod/minoru/status", lambda s: statuses.append(json.loads(s.payload.to_bytes()))
+    )
+    left: list[Frame | Exception] = list(frames(Eye.LEFT, 20))
+    left.insert(8, RuntimeError("the decoder crashed"))
+    daemon = Daemon(config(endpoint), ListDriver(left, frames(Eye.RIGHT, 20)), rate=0)
+    summary = daemon.run()
+    time.sleep(0.3)
+    sub.undeclare()
+    assert summary.error is not None
+    assert statuses[-1]["state"] == "failed", statuses[-1]
+    assert "the decoder crashed" in statuses[-1]["problems"][-1]
+
+
 def test_pipeline_behind_drops_oldest_and_counts(endpoint: str) -> None:
     """A live source faster than the pipeline: memory stays bounded, drops are counted."""
     n = 400

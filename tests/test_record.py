@@ -18,7 +18,7 @@ from mcap.reader import make_reader
 
 import stereod.sources.drivers as drivers
 from stereod.cli import main
-from stereod.errors import InputError, InternalError, StereodError
+from stereod.errors import DeviceLost, InputError, InternalError, StereodError
 from stereod.sources.frames import Driver, Eye, EyeSource, Frame, StereoSource, merged
 from stereod.sources.record import record
 from stereod.vision.calibration import canonical, save
@@ -253,6 +253,43 @@ def test_a_failing_eye_stops_both_and_is_raised(
         assert got.value.__cause__ is fault
     counts = recorded_frames(out)
     assert counts["left"] == 10 and 0 < counts["right"] <= 13, counts
+
+
+class _LostEye(EyeSource):
+    """An eye of another source that is lost at its read number ``at`` and on every read
+    after (a camera that opens, then fails each read); counts those reads."""
+
+    def __init__(self, inner: EyeSource, at: int) -> None:
+        self.eye, self._inner, self._at, self._k, self.lost = inner.eye, inner, at, 0, 0
+
+    def read(self) -> Frame | None:
+        self._k += 1
+        if self._k > self._at:
+            self.lost += 1
+            raise DeviceLost("/dev/video0: read failed: Input/output error")
+        return self._inner.read()
+
+    def interrupt(self) -> None:
+        self._inner.interrupt()
+
+
+def test_a_camera_lost_on_every_read_is_retried_with_a_backoff(tmp_path: Path) -> None:
+    """The recorder retried a lost camera at once, for ever: millions of times a second.
+    Now at once, then after 0.1, 0.2, 0.4 s...; the other eye records on."""
+    inner = FaultyDriver(RuntimeError("unused")).inner
+    lost: list[_LostEye] = []
+
+    class LostDriver(Driver):
+        name = "lost"
+
+        def open(self) -> StereoSource:
+            src = inner.open()
+            lost.append(_LostEye(src.left, 10))
+            return StereoSource(lost[0], src.right, src.info)
+
+    counts = record(LostDriver(), tmp_path / "rec", seconds=1.5)
+    assert counts["left"] == 10 and counts["right"] >= 25, counts
+    assert 3 <= lost[0].lost <= 7, lost[0].lost
 
 
 @pytest.fixture

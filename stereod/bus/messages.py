@@ -71,6 +71,9 @@ class DaemonState(str, enum.Enum):
     """A stop was asked for (SIGTERM, SIGINT, end of input): the queues drain."""
     FINISHED = "finished"
     """Everything was processed; the session is about to close."""
+    FAILED = "failed"
+    """The run ended with an error (the last of ``problems``); the session is about to
+    close."""
 
 
 class _Model(BaseModel):

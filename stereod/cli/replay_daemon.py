@@ -39,7 +39,8 @@ class InterruptibleReplay(Daemon):
         caught: list[int] = []  # touched by the signals thread only
 
         def interrupted(signum: int) -> None:
-            if not caught and self.health.state is not DaemonState.FINISHED:  # the first wins
+            ended = self.health.state in (DaemonState.FINISHED, DaemonState.FAILED)
+            if not caught and not ended:  # the first wins
                 caught.append(signum)
                 self.fail(Interrupted(f"interrupted by {signal_name(signum)}", signum))
 

@@ -26,15 +26,20 @@ from collections.abc import Callable
 from stereod.bus.messages import EyeState
 from stereod.daemon.status import Health
 from stereod.errors import DeviceLost
-from stereod.sources.frames import EyeSource, Frame, StereoPair, StereoSource, merged
+from stereod.sources.frames import (
+    RETRY_FIRST_S,
+    RETRY_MAX_S,
+    EyeSource,
+    Frame,
+    StereoPair,
+    StereoSource,
+    merged,
+)
 from stereod.sources.pairing import RESYNC_AFTER, Pairer
 from stereod.sources.queues import BoundedQueue
 
 log = logging.getLogger(__name__)
 
-RETRY_FIRST_S = 0.1
-"""Pause after an eye's first unexpected failure (s); doubles per repeat, up to RETRY_MAX_S."""
-RETRY_MAX_S = 5.0
 MAX_PACED_GAP_S = 5.0
 """A file's frames are paced at their capture times, but a gap between two of them longer
 than this (s, stream time) is not slept through: the replay goes on at once and says so (a
@@ -139,7 +144,7 @@ class Capture:
         h = self.health
         health = h.eyes[eye.eye]
         name = eye.eye.value
-        pause = RETRY_FIRST_S
+        pause, failing = RETRY_FIRST_S, False
         try:
             while not self.stop.is_set():
                 try:
@@ -151,16 +156,20 @@ class Capture:
                     lost = isinstance(exc, DeviceLost)
                     h.error(f"{name}_{'lost' if lost else 'failed'}")
                     h.problem(f"{name} eye down: {health.last_error}; retrying", f"{name}_down")
-                    if not lost:  # a lost device is reopened, with backoff, by its source
+                    if not lost:  # a lost device is reopened by its source
                         log.debug("%s eye: unexpected failure", name, exc_info=True)
-                        eye.recover()
-                        if self.stop.wait(pause):
-                            break
-                        pause = min(pause * 2, RETRY_MAX_S)
+                        self._recover(eye)
+                    if lost and not failing:  # at once: its source reopens it with a backoff
+                        failing = True
+                        continue
+                    failing = True
+                    if self.stop.wait(pause):
+                        break
+                    pause = min(pause * 2, RETRY_MAX_S)
                     continue
                 if frame is None:
                     break
-                pause = RETRY_FIRST_S
+                pause, failing = RETRY_FIRST_S, False
                 if not self.push(frame):
                     break
         finally:
@@ -171,6 +180,19 @@ class Capture:
                 last = self._eyes_done == 2
             if last:
                 self._end()
+
+    def _recover(self, eye: EyeSource) -> None:
+        """Ask ``eye`` to recover after a failed read; a recovery that fails too is said,
+        and the eye is read again after the pause all the same."""
+        try:
+            eye.recover()
+        except Exception as exc:
+            log.debug("%s eye: recovery failed", eye.eye.value, exc_info=True)
+            why = str(exc) or type(exc).__name__
+            self.health.problem(
+                f"{eye.eye.value} eye: recovering it failed: {why}; retrying",
+                f"{eye.eye.value}_down",
+            )
 
     def _merge_loop(self) -> None:
         t_first: int | None = None

@@ -369,7 +369,9 @@ class Daemon:
                     self.images = images
             self._input_problems(final=True)
             self._check_paired()
-            h.state = DaemonState.FINISHED
+            with self._fatal_lock:
+                failed = self._fatal is not None
+            h.state = DaemonState.FAILED if failed else DaemonState.FINISHED
             pub.status(dump(h.status(final=True)))
             self.summary.objects = worker.objects
 

@@ -98,6 +98,13 @@ MAX_T_NS = 2**63 - 1
 a signed 64-bit integer, as the kernel's timestamps and the wire format do. (A time line of
 one's own may start below 0: a right eye stamped 10 ms before a left eye's 0.)"""
 
+RETRY_FIRST_S = 0.1
+"""Pause (s) before an eye whose reads keep failing is read again; doubles per failure in a
+row, up to :data:`RETRY_MAX_S`. A lost camera's first retry is at once (its source reopens
+it, with a backoff of its own); one that fails again without a frame between waits too, so a
+camera that opens and then fails every read is not reopened thousands of times a second."""
+RETRY_MAX_S = 5.0
+
 
 @dataclass(frozen=True, slots=True)
 class StereoPair:

@@ -15,6 +15,7 @@ success: the command exits with the error's code, and ``--mcap`` is not written.
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -22,10 +23,20 @@ from pathlib import Path
 
 from stereod.errors import DeviceLost, InternalError, StereodError
 from stereod.files.output_file import follow_links
-from stereod.sources.frames import Driver, EyeSource, Frame, SourceInfo, merged
+from stereod.sources.frames import (
+    RETRY_FIRST_S,
+    RETRY_MAX_S,
+    Driver,
+    EyeSource,
+    Frame,
+    SourceInfo,
+    merged,
+)
 from stereod.sources.recording import Codec
 from stereod.sources.recording_writer import RecordingWriter
 from stereod.vision.calibration import load as load_calibration
+
+log = logging.getLogger(__name__)
 
 
 def record(
@@ -94,12 +105,19 @@ def record(
                 errors: list[StereodError] = []
 
                 def eye_loop(eye: EyeSource) -> None:
+                    pause = 0.0  # a lost camera: at once, then with a backoff (RETRY_FIRST_S)
                     try:
                         while not stop.is_set():
                             try:
                                 frame = eye.read()
-                            except DeviceLost:
+                            except DeviceLost as exc:
+                                if not pause:
+                                    log.warning("%s eye lost: %s; retrying", eye.eye.value, exc)
+                                if stop.wait(pause):
+                                    return
+                                pause = min(max(2 * pause, RETRY_FIRST_S), RETRY_MAX_S)
                                 continue
+                            pause = 0.0
                             if frame is None:
                                 return
                             with lock:
