@@ -416,6 +416,46 @@ def test_a_stopped_file_run_writes_every_pair_it_processed_in_order(
     assert summary.published == len(seqs)
 
 
+def test_a_reloaded_pipeline_that_cannot_be_made_leaves_the_running_one(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Making the new pipeline of a valid reload failed on the pipeline thread (out of
+    memory, say) and ended the daemon with exit 70. The running pipeline and configuration
+    now stay, and the status key says why."""
+    from stereod.daemon.reload import RELOAD_REFUSED
+    from stereod.pipeline import Pipeline
+
+    options = {"live": True, "loop": True, "fps": 30, "duration_s": 2.0}
+    options |= {"width_px": 160, "height_px": 120}
+    cfg = config(endpoint)
+    new = cfg.model_copy(update={"detector": cfg.detector.model_copy(update={"threshold": 31})})
+    daemon = Daemon(cfg, SyntheticDriver(options), reload_config=lambda: new)
+
+    def no_memory(self: Pipeline, params: Any) -> Any:
+        raise MemoryError("no room for the new pipeline")
+
+    monkeypatch.setattr(Pipeline, "reconfigured", no_memory)
+    thread, out = start(daemon)
+    try:
+        deadline = time.monotonic() + 20
+        while daemon.health.stats().pairs < 5:
+            assert time.monotonic() < deadline and thread.is_alive()
+            time.sleep(0.05)
+        daemon.reload()
+        said = f"{RELOAD_REFUSED}: MemoryError: no room for the new pipeline"
+        while said not in daemon.health.problems():
+            assert time.monotonic() < deadline and thread.is_alive(), daemon.health.problems()
+            time.sleep(0.05)
+        pairs = daemon.health.stats().pairs
+        time.sleep(0.5)
+        assert daemon.health.stats().pairs > pairs  # it runs on
+        assert daemon.cfg.detector.threshold == cfg.detector.threshold
+    finally:
+        daemon.stop()
+        thread.join(30)
+    assert out["summary"].error is None
+
+
 def test_stats_before_run() -> None:
     """Every attribute exists from the constructor on: the stats are empty, not an error."""
     daemon = Daemon(load_config(), SyntheticDriver({"duration_s": 1.0}))

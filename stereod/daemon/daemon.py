@@ -494,7 +494,13 @@ class Daemon:
                 notice=True,
             )
         assert self._worker is not None
-        self._worker.reconfigure(params)
+
+        def failed(why: str, running: StereodConfig = self.cfg) -> None:
+            if self.cfg is cfg:  # no later reload has replaced it
+                self.cfg = running
+            self.health.restate(RELOAD_REFUSED, f"{RELOAD_REFUSED}: {why}", notice=True)
+
+        self._worker.reconfigure(params, failed)
         self.cfg = cfg
         self.health.resolved(RELOAD_REFUSED)
         log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)

@@ -104,7 +104,7 @@ class PipelineWorker:
         """Set once the output thread has ended: a put into a full queue then gives up. Until
         then every result goes out, after a stop too (the output drains what is queued), so a
         stopped file's JSONL holds every pair processed, in order."""
-        self._pending: PipelineParams | None = None
+        self._pending: tuple[PipelineParams, Callable[[str], None] | None] | None = None
         self._lock = threading.Lock()
         self._saturated: dict[str, int] = {}
         self.keep_pairs = False
@@ -125,19 +125,29 @@ class PipelineWorker:
         """The geometry in force (after a pending reconfiguration, the new one)."""
         with self._lock:
             pending = self._pending
-        return (pending or self.pipeline.params).rig
+        return (pending[0] if pending else self.pipeline.params).rig
 
-    def reconfigure(self, params: PipelineParams) -> None:
-        """Use ``params`` from the next pair on (any thread; the last call wins)."""
+    def reconfigure(
+        self, params: PipelineParams, on_failure: Callable[[str], None] | None = None
+    ) -> None:
+        """Use ``params`` from the next pair on (any thread; the last call wins). Should the
+        new pipeline fail to be made, the running one stays and ``on_failure`` is told why."""
         with self._lock:
-            self._pending = params
+            self._pending = (params, on_failure)
 
     def _swap(self) -> None:
         with self._lock:
-            params, self._pending = self._pending, None
-        if params is None:
+            pending, self._pending = self._pending, None
+        if pending is None:
             return
-        self.pipeline, ended = self.pipeline.reconfigured(params)
+        params, on_failure = pending
+        try:
+            self.pipeline, ended = self.pipeline.reconfigured(params)
+        except Exception as exc:  # nothing a reload brings may end a running daemon
+            log.warning("reload: the new pipeline could not be made", exc_info=True)
+            if on_failure is not None:
+                on_failure(f"{type(exc).__name__}: {exc}")
+            return
         self._lefts_ns = []
         rig = params.rig
         self.health.geometry = rig.geometry
