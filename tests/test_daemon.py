@@ -456,6 +456,38 @@ def test_a_reloaded_pipeline_that_cannot_be_made_leaves_the_running_one(
     assert out["summary"].error is None
 
 
+def test_a_reload_of_the_geometry_reaches_the_ros2_node(endpoint: str) -> None:
+    """A SIGHUP with a new field of view (or calibration) reached the pipeline and the
+    calibration queryable but not ROS 2, whose camera_info kept the start-up focal length
+    (138.6 px for 208.4): positions of one geometry beside the intrinsics of another."""
+    import math
+
+    def cfg(hfov: float) -> Any:
+        overrides = {"zenoh": {"connect": [endpoint]}, "rig": {"hfov_deg": hfov}}
+        return load_config(overrides={**overrides, "ros2": {"enabled": True}})
+
+    hfov = {"now": 60.0}
+    options = {"live": True, "loop": True, "fps": 15, "duration_s": 2.0}
+    options |= {"width_px": 160, "height_px": 120}
+    daemon = Daemon(cfg(60.0), SyntheticDriver(options), reload_config=lambda: cfg(hfov["now"]))
+    thread, out = start(daemon)
+    try:
+        deadline = time.monotonic() + 20
+        while daemon.ros2 is None or daemon.health.stats().pairs < 3:
+            assert time.monotonic() < deadline and thread.is_alive()
+            time.sleep(0.05)
+        hfov["now"] = 42.0
+        daemon.reload()
+        want = 80 / math.tan(math.radians(21.0))  # f = (w / 2) / tan(hfov / 2), px
+        while abs(daemon.ros2.ros.calibration.array("P1")[0, 0] - want) > 1e-6:
+            assert time.monotonic() < deadline, daemon.health.problems()
+            time.sleep(0.05)
+    finally:
+        daemon.stop()
+        thread.join(30)
+    assert out["summary"].error is None
+
+
 def test_stats_before_run() -> None:
     """Every attribute exists from the constructor on: the stats are empty, not an error."""
     daemon = Daemon(load_config(), SyntheticDriver({"duration_s": 1.0}))

@@ -45,8 +45,9 @@ from stereod.pipeline import Pipeline
 from stereod.sources.frames import Driver, Eye, StereoSource
 from stereod.sources.pairing import Pairer
 from stereod.sources.queues import BoundedQueue
-from stereod.vision.calibration import canonical
+from stereod.vision.calibration import Calibration, canonical
 from stereod.vision.geometry.rectified import CalibratedRig
+from stereod.vision.geometry.stereo import CanonicalRig
 
 if TYPE_CHECKING:
     import zenoh
@@ -360,7 +361,6 @@ class Daemon:
                             t.join()
                 if ros2 is not None:
                     ros2.close()
-                    self.ros2 = ros2
                 if images is not None and painter is not None:
                     images.close()
                     if painter.ident is not None:
@@ -381,11 +381,7 @@ class Daemon:
         if not r.enabled:
             return None
         assert self._worker is not None
-        rig = self._worker.rig
-        if isinstance(rig, CalibratedRig):
-            cal = rig.calibration
-        else:
-            cal = canonical(rig.baseline_m, rig.hfov_deg, rig.width_px, rig.height_px)
+        cal = _ros_calibration(self._worker.rig)
         d = self.cfg.daemon
         from stereod.ros.ros2_live import Ros2Live  # with its CDR encoders: only when [ros2] is on
 
@@ -401,6 +397,7 @@ class Daemon:
             health=self.health,
         )
         log.info("ros2: node %s, domain %d", ros2.node, r.domain_id)
+        self.ros2 = ros2
         return ros2
 
     def _image_worker(self, pub: Publisher) -> ImageWorker | None:
@@ -495,17 +492,30 @@ class Daemon:
             )
         assert self._worker is not None
 
-        def failed(why: str, running: StereodConfig = self.cfg) -> None:
+        def failed(
+            why: str, running: StereodConfig = self.cfg, rig: Rig = self._worker.rig
+        ) -> None:
             if self.cfg is cfg:  # no later reload has replaced it
                 self.cfg = running
+                self._ros2_geometry(rig)
             self.health.restate(RELOAD_REFUSED, f"{RELOAD_REFUSED}: {why}", notice=True)
 
+        self.health.resolved(RELOAD_REFUSED)  # before the swap, which may refuse it yet
         self._worker.reconfigure(params, failed)
         self.cfg = cfg
-        self.health.resolved(RELOAD_REFUSED)
+        self._ros2_geometry(params.rig)
         log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)
         self._notifier.notify(READY=1)
         self._status_now.set()
+
+    def _ros2_geometry(self, rig: Rig) -> None:
+        """Give the ROS 2 node of this run (if any) the geometry of ``rig``."""
+        ros2 = self.ros2
+        if ros2 is not None and self._publisher is not None:
+            try:
+                ros2.set_geometry(_ros_calibration(rig))
+            except Exception as exc:  # ROS output never stops the daemon
+                self.health.problem(f"ros2: the new geometry was not taken: {exc}", "ros2_error")
 
     def _rig_taken(self, pub: Publisher) -> None:
         """Another daemon's token for this rig was on the bus at open (a replay refuses)."""
@@ -562,3 +572,14 @@ class Daemon:
         s.published = self._publisher.published if self._publisher is not None else 0
         s.error = self._fatal
         return s
+
+
+Rig = CanonicalRig | CalibratedRig
+
+
+def _ros_calibration(rig: Rig) -> Calibration:
+    """The calibration ROS 2 publishes for ``rig`` (camera_info, tf): a calibrated rig's own,
+    or the canonical rig's (``vision.calibration.canonical``)."""
+    if isinstance(rig, CalibratedRig):
+        return rig.calibration
+    return canonical(rig.baseline_m, rig.hfov_deg, rig.width_px, rig.height_px)

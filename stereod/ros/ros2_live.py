@@ -437,6 +437,16 @@ class Ros2Live:
         """The publishers by ROS topic name."""
         return dict(self._endpoints)
 
+    def set_geometry(self, calibration: Calibration) -> None:
+        """Use ``calibration`` for camera_info from the next pair on, and send ``/tf_static``
+        again (a reload brought a new calibration)."""
+        with self._lock:
+            self.ros.set_geometry(calibration)
+            if "tf_static" in self.topics:
+                tf = self.ros.tf_static(time.time_ns())
+                if tf is not None:
+                    self._put(tf)
+
     def images_wanted(self) -> bool:
         """Whether some ROS subscriber matches an image topic now."""
         return any(
