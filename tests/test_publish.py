@@ -109,6 +109,40 @@ def test_a_session_given_to_the_publisher_stays_open_with_nothing_of_it_left(
     assert ("stereod/r/after", "PUT") in got
 
 
+def test_a_failing_delete_is_counted_and_the_other_tracks_still_end(endpoint: str) -> None:
+    """A DELETE that Zenoh refuses (here: the session closed under the publisher) was
+    raised out of ``objects_end`` and ended the daemon with exit 70, and inside ``objects``
+    it skipped the other ended tracks' DELETEs. It is counted and logged; every ended track
+    is withdrawn."""
+    session = open_session(ZenohConfig(connect=[endpoint]))
+    pub = Publisher(ZenohConfig(), "r", {}, session=session).open()
+    pub.objects(b"{}", [(1, b"{}"), (2, b"{}"), (3, b"{}")], [])
+    session.close()
+    pub.objects_end([1])
+    pub.objects(b"{}", [], [2, 3])
+    assert pub.errors == 1 + 1 + 2  # the DELETEs of 1, 2 and 3, and the objects message
+    assert pub._tracks == {}
+    pub.close()
+
+
+def test_a_publisher_whose_open_fails_leaves_nothing_declared(endpoint: str) -> None:
+    """A declaration that fails half-way through ``open`` left the session open (or, on
+    a session the caller gave, the entities declared so far): they are withdrawn."""
+    session = open_session(ZenohConfig(connect=[endpoint]))
+    try:
+        bad = {"config": lambda: b"{}", "no good": lambda: b"{}"}  # no such queryable
+        with pytest.raises(ValueError, match="no queryable 'no good'"):
+            Publisher(ZenohConfig(), "r", bad, session=session).open()
+        assert not list(session.liveliness().get("stereod/r/alive", timeout=0.5))
+        assert not list(session.get("stereod/r/config", timeout=0.5))
+    finally:
+        session.close()
+    own = Publisher(ZenohConfig(connect=[endpoint]), "r", {"no good": lambda: b"{}"})
+    with pytest.raises(ValueError, match="no queryable 'no good'"):
+        own.open()
+    assert own._session is None  # its own session was closed
+
+
 def test_session_config_has_no_multicast_by_default() -> None:
     cfg = session_config(ZenohConfig(listen=["tcp/127.0.0.1:0"]))
     assert '"enabled":false' in cfg.get_json("scouting/multicast").replace(" ", "")

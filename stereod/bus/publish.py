@@ -288,6 +288,15 @@ class Publisher:
     def open(self) -> Publisher:
         s = self._given if self._given is not None else open_session(self._cfg)
         self._session = s
+        try:
+            self._declare(s)
+        except BaseException:  # nothing declared stays behind, and a session of ours closes
+            self.close()
+            raise
+        return self
+
+    def _declare(self, s: zenoh.Session) -> None:
+        """Declare the publishers, probes, subscriber, queryables and token on ``s``."""
         if self._cfg.connect and not reachable(s):
             log.warning(
                 "no Zenoh peer or router reachable at %s; publishing anyway, and connecting "
@@ -332,7 +341,6 @@ class Publisher:
         self.rig_taken = self._token_on_bus(s, alive)
         self._alive = s.liveliness().declare_token(alive)
         log.info("zenoh session open, publishing under %s/", self.base)
-        return self
 
     def _token_on_bus(self, s: zenoh.Session, alive: str) -> bool:
         """Whether a liveliness token on ``alive`` is on the bus now. A peer just connected
@@ -386,12 +394,12 @@ class Publisher:
                         )
                         self._tracks[tid] = pub
                     pub.put(body)
-                for tid in ended:
-                    self._end_track(tid)
                 self.published += 1
             except zenoh.ZError as exc:
                 self.errors += 1
                 log.warning("publish failed: %s", exc)
+            for tid in ended:  # each, whatever became of the others
+                self._end_track(tid)
 
     def objects_end(self, ended: list[int]) -> None:
         """A DELETE on each ended track's key, with no objects message (end of input)."""
@@ -408,9 +416,17 @@ class Publisher:
         )
 
     def _end_track(self, tid: int) -> None:
+        """A DELETE on the track's key, and its publisher withdrawn (even when the DELETE
+        fails: counted in :attr:`errors`, never raised)."""
         pub = self._tracks.pop(tid, None)
-        if pub is not None:
+        if pub is None:
+            return
+        try:
             pub.delete()
+        except zenoh.ZError as exc:
+            self.errors += 1
+            log.warning("publish failed: the DELETE of track %d: %s", tid, exc)
+        with contextlib.suppress(zenoh.ZError):
             pub.undeclare()
 
     def _on_status(self, sample: zenoh.Sample) -> None:
@@ -434,9 +450,12 @@ class Publisher:
                 return
             for tid in list(self._tracks):
                 self._end_track(tid)
-            self._alive.undeclare()
-            for e in (*self._entities, self._objects, self._status):
-                e.undeclare()
+            declared = (getattr(self, n, None) for n in ("_alive", "_objects", "_status"))
+            alive, objects, status = declared  # any may be missing: an open that failed
+            for e in (alive, *self._entities, objects, status):
+                if e is not None:
+                    with contextlib.suppress(zenoh.ZError):
+                        e.undeclare()
             self._entities.clear()
             if self._given is None:
                 close_session(self._session)
