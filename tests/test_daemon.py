@@ -488,6 +488,56 @@ def test_a_reload_of_the_geometry_reaches_the_ros2_node(endpoint: str) -> None:
     assert out["summary"].error is None
 
 
+class _HangingEye(EyeSource):
+    """A live eye whose reads return frames until ``hang`` is set, then never return (until
+    the test releases them): a driver whose read cannot be interrupted."""
+
+    def __init__(self, eye: Eye, hang: threading.Event, release: threading.Event) -> None:
+        self.eye, self.hang, self.release, self.k = eye, hang, release, 0
+
+    def read(self) -> Frame | None:
+        if self.hang.is_set():
+            self.release.wait(60)
+            return None
+        time.sleep(0.02)
+        self.k += 1
+        return Frame(self.eye, np.full((48, 64), 100, np.uint8), time.monotonic_ns(), self.k)
+
+
+def test_a_stop_does_not_wait_for_ever_for_a_read_that_never_returns(endpoint: str) -> None:
+    """The daemon waited for every eye's thread: one read that never returns (a third-party
+    driver with no interrupt) kept it from ending, and its JSONL uncommitted. It now leaves
+    such an eye behind ``EYES_STOP_S`` after the stop, says so, and ends."""
+    hang, release = threading.Event(), threading.Event()
+
+    class HangingDriver(Driver):
+        name = "hanging"
+
+        def open(self) -> StereoSource:
+            eyes = (_HangingEye(Eye.LEFT, hang, release), _HangingEye(Eye.RIGHT, hang, release))
+            return StereoSource(*eyes, SourceInfo(64, 48, 50.0, True, "hanging reads"))
+
+    daemon = Daemon(config(endpoint), HangingDriver())
+    thread, out = start(daemon)
+    try:
+        deadline = time.monotonic() + 20
+        while daemon.health.stats().pairs < 5:
+            assert time.monotonic() < deadline and thread.is_alive()
+            time.sleep(0.05)
+        hang.set()
+        time.sleep(0.2)
+        daemon.stop()
+        thread.join(10)
+        assert not thread.is_alive()
+    finally:
+        release.set()
+        thread.join(10)
+    summary = out["summary"]
+    assert summary.error is None
+    late = [p for p in summary.problems if "reading still 1 s after the stop" in p]
+    assert late and late[0].startswith("capture-"), summary.problems
+
+
 def test_stats_before_run() -> None:
     """Every attribute exists from the constructor on: the stats are empty, not an error."""
     daemon = Daemon(load_config(), SyntheticDriver({"duration_s": 1.0}))

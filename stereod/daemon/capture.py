@@ -181,6 +181,13 @@ class Capture:
             if last:
                 self._end()
 
+    def leave_behind(self) -> None:
+        """Stop waiting for eyes whose read has not returned since the stop (a driver whose
+        read cannot be interrupted): no pair is queued from here on, and the pipeline ends
+        with what is queued. Their threads end when their reads return, or with the
+        process."""
+        self.pairs.close()
+
     def _recover(self, eye: EyeSource) -> None:
         """Ask ``eye`` to recover after a failed read; a recovery that fails too is said,
         and the eye is read again after the pause all the same."""

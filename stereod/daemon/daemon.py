@@ -18,6 +18,7 @@ internal error (exit 70) naming the log.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -36,6 +37,7 @@ from stereod.daemon.params import pipeline_params
 from stereod.daemon.processing import Outgoing, PipelineWorker
 from stereod.daemon.reload import RELOAD_REFUSED, RELOAD_WAITING, effective, waiting
 from stereod.daemon.replies import calibration_reply, config_reply
+from stereod.daemon.ros2_node import Rig, give_geometry, make_node
 from stereod.daemon.sdnotify import Notifier
 from stereod.daemon.shared_rig import SharedRig
 from stereod.daemon.status import Health, geometry_note
@@ -45,9 +47,6 @@ from stereod.pipeline import Pipeline
 from stereod.sources.frames import Driver, Eye, StereoSource
 from stereod.sources.pairing import Pairer
 from stereod.sources.queues import BoundedQueue
-from stereod.vision.calibration import Calibration, canonical
-from stereod.vision.geometry.rectified import CalibratedRig
-from stereod.vision.geometry.stereo import CanonicalRig
 
 if TYPE_CHECKING:
     import zenoh
@@ -63,6 +62,9 @@ the input (its eyes' timestamps disagree), not chance: a few frames at its ends 
 STOP_WRITE_S = 2.0
 """Once a stop is asked for, how long (s) an output written in place (a pipe) may wait for a
 reader that stopped reading before it counts as gone: the daemon then ends all the same."""
+EYES_STOP_S = 1.0
+"""How long (s) after a stop the daemon waits for an eye's read to return before it leaves
+that eye behind and ends the run with what is queued (systemd waits 2 s, as the docs say)."""
 STUCK_S = 5.0
 """A pipeline or output thread working on one item (a pair, a message) for longer than this
 (s) is hung (a live source's: a file's may wait for its JSONL's reader): said on the status
@@ -258,8 +260,11 @@ class Daemon:
                     jsonl.commit()
         return self._finish()
 
-    def _thread(self, target: Callable[[], None], name: str) -> threading.Thread:
-        """A thread whose unexpected failure ends the run instead of vanishing."""
+    def _thread(
+        self, target: Callable[[], None], name: str, daemon: bool = False
+    ) -> threading.Thread:
+        """A thread whose unexpected failure ends the run instead of vanishing (``daemon``:
+        one the process need not wait for, an eye whose read may hang)."""
 
         def guarded() -> None:
             try:
@@ -267,7 +272,7 @@ class Daemon:
             except BaseException as exc:
                 self.fail(exc)
 
-        return threading.Thread(target=guarded, name=name)
+        return threading.Thread(target=guarded, name=name, daemon=daemon)
 
     def _run(self, source: StereoSource, pipeline: Pipeline, jsonl: AtomicOutput | None) -> None:
         cfg, info, h = self.cfg, source.info, self.health
@@ -327,7 +332,7 @@ class Daemon:
             if images is not None:
                 worker.want_images = images.wanted
                 on_message = _both(images.offer, self._on_message)
-            ros2 = self._ros2(pub)
+            ros2 = self.ros2 = make_node(cfg, pub.session, worker.rig, h)
             if ros2 is not None:  # frames by reference: each eye's instant, images on demand
                 worker.keep_pairs = True
                 on_message = _both(ros2.offer, on_message)
@@ -340,25 +345,27 @@ class Daemon:
                 on_message=on_message,
                 on_reader_gone=self._jsonl_reader_gone,
             )
-            threads = [self._thread(loop, name) for name, loop in capture.loops()]
-            threads.append(self._thread(worker.loop, "pipeline"))
+            eyes = [self._thread(loop, name, daemon=True) for name, loop in capture.loops()]
             sender = self._thread(output.loop, "output")
-            threads.append(sender)
+            threads = [self._thread(worker.loop, "pipeline"), sender]
             painter = self._thread(images.loop, "images") if images is not None else None
             try:
-                for t in [*threads, *([painter] if painter else [])]:
+                for t in [*eyes, *threads, *([painter] if painter else [])]:
                     t.start()
-                self._status_loop(pub, sender, info.width, info.height)
+                self._status_loop(pub, sender, capture, eyes, (info.width, info.height))
                 output_gone.set()  # the output thread has ended: nothing waits for it
                 for t in threads:
                     t.join()
             finally:  # also on Ctrl-C in this thread: no thread outlives the run
                 output_gone.set()
-                if any(t.is_alive() for t in threads):
+                if any(t.is_alive() for t in [*eyes, *threads]):
                     self.stop()
                     for t in threads:
                         if t.ident is not None:
                             t.join()
+                for t in eyes:  # left behind after EYES_STOP_S when their reads hang
+                    if t.ident is not None:
+                        t.join(EYES_STOP_S)
                 if ros2 is not None:
                     ros2.close()
                 if images is not None and painter is not None:
@@ -375,31 +382,6 @@ class Daemon:
             pub.status(dump(h.status(final=True)))
             self.summary.objects = worker.objects
 
-    def _ros2(self, pub: Publisher) -> Ros2Live | None:
-        """The ROS 2 node of ``[ros2]`` on the daemon's session, or None when it is off."""
-        r = self.cfg.ros2
-        if not r.enabled:
-            return None
-        assert self._worker is not None
-        cal = _ros_calibration(self._worker.rig)
-        d = self.cfg.daemon
-        from stereod.ros.ros2_live import Ros2Live  # with its CDR encoders: only when [ros2] is on
-
-        ros2 = Ros2Live(
-            pub.session,
-            self.cfg.rig.name,
-            calibration=cal,
-            domain_id=r.domain_id,
-            namespace=r.namespace,
-            topics=r.topics,
-            image_rate_hz=d.image_rate_hz,
-            jpeg_quality=d.image_quality,
-            health=self.health,
-        )
-        log.info("ros2: node %s, domain %d", ros2.node, r.domain_id)
-        self.ros2 = ros2
-        return ros2
-
     def _image_worker(self, pub: Publisher) -> ImageWorker | None:
         """The image thread's worker, or None when images are off (``image_rate_hz = 0``)."""
         d = self.cfg.daemon
@@ -411,9 +393,15 @@ class Daemon:
         )
 
     def _status_loop(
-        self, pub: Publisher, sender: threading.Thread, width: int, height: int
+        self,
+        pub: Publisher,
+        sender: threading.Thread,
+        capture: Capture,
+        eyes: list[threading.Thread],
+        size: tuple[int, int],
     ) -> None:
         period = self.cfg.daemon.status_period_s
+        stopped_at: float | None = None
         last = time.monotonic()
         pub.status(dump(self.health.status()))
         watchdog = self._notifier.watchdog_s
@@ -423,7 +411,17 @@ class Daemon:
             now = time.monotonic()
             if self._reload_requested.is_set():
                 self._reload_requested.clear()
-                self._do_reload(width, height)
+                self._do_reload(*size)
+            if self._stop.is_set() and stopped_at is None:
+                stopped_at = now
+            elif stopped_at is not None and now - stopped_at > EYES_STOP_S:
+                if late := [t.name for t in eyes if t.is_alive()]:
+                    self.health.problem(
+                        f"{', '.join(late)}: reading still {EYES_STOP_S:g} s after the stop "
+                        "(the driver's read cannot be interrupted); left behind"
+                    )
+                    capture.leave_behind()
+                stopped_at = math.inf
             if self._status_now.is_set() or now - last >= period:
                 self._status_now.clear()
                 self._input_problems()
@@ -497,25 +495,16 @@ class Daemon:
         ) -> None:
             if self.cfg is cfg:  # no later reload has replaced it
                 self.cfg = running
-                self._ros2_geometry(rig)
+                give_geometry(self.ros2, rig, self.health)
             self.health.restate(RELOAD_REFUSED, f"{RELOAD_REFUSED}: {why}", notice=True)
 
         self.health.resolved(RELOAD_REFUSED)  # before the swap, which may refuse it yet
         self._worker.reconfigure(params, failed)
         self.cfg = cfg
-        self._ros2_geometry(params.rig)
+        give_geometry(self.ros2, params.rig, self.health)
         log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)
         self._notifier.notify(READY=1)
         self._status_now.set()
-
-    def _ros2_geometry(self, rig: Rig) -> None:
-        """Give the ROS 2 node of this run (if any) the geometry of ``rig``."""
-        ros2 = self.ros2
-        if ros2 is not None and self._publisher is not None:
-            try:
-                ros2.set_geometry(_ros_calibration(rig))
-            except Exception as exc:  # ROS output never stops the daemon
-                self.health.problem(f"ros2: the new geometry was not taken: {exc}", "ros2_error")
 
     def _rig_taken(self, pub: Publisher) -> None:
         """Another daemon's token for this rig was on the bus at open (a replay refuses)."""
@@ -572,14 +561,3 @@ class Daemon:
         s.published = self._publisher.published if self._publisher is not None else 0
         s.error = self._fatal
         return s
-
-
-Rig = CanonicalRig | CalibratedRig
-
-
-def _ros_calibration(rig: Rig) -> Calibration:
-    """The calibration ROS 2 publishes for ``rig`` (camera_info, tf): a calibrated rig's own,
-    or the canonical rig's (``vision.calibration.canonical``)."""
-    if isinstance(rig, CalibratedRig):
-        return rig.calibration
-    return canonical(rig.baseline_m, rig.hfov_deg, rig.width_px, rig.height_px)
