@@ -10,7 +10,7 @@ import numpy as np
 from stereod.bus.messages import EyeState
 from stereod.daemon.capture import Capture
 from stereod.daemon.status import Health
-from stereod.sources.frames import Eye, EyeSource, Frame, SourceInfo, StereoSource
+from stereod.sources.frames import Eye, EyeSource, Frame, SourceInfo, StereoPair, StereoSource
 from stereod.sources.pairing import Pairer
 from stereod.sources.queues import BoundedQueue
 
@@ -128,3 +128,47 @@ def test_an_eye_whose_recovery_fails_too_is_retried_and_said() -> None:
         p == "right eye: recovering it failed: the device node is gone; retrying"
         for p in health.problems()
     ), health.problems()
+
+
+def test_pairs_are_queued_in_the_order_they_were_decided(monkeypatch) -> None:
+    """Pairs were decided under one lock and queued after it, so an eye's thread that lost
+    the CPU in between let the other eye's later pair overtake its own (the pipeline then
+    refused the older pair). Here the left eye's thread stops right after deciding pair 0,
+    until the right eye's thread has pushed the frame that decides pair 1 (or 0.5 s)."""
+    import stereod.daemon.capture as capture_module
+
+    cap, _, pairs = capture()
+    cap.push(Frame(Eye.LEFT, IMG, 0, 0))
+    cap.push(Frame(Eye.RIGHT, IMG, 5 * MS, 0))
+    decided, pushed = threading.Event(), threading.Event()
+    real = capture_module.time
+
+    class Slow:
+        def __getattr__(self, name: str) -> object:
+            return getattr(real, name)
+
+        def perf_counter_ns(self) -> int:
+            if threading.current_thread().name == "left" and not decided.is_set():
+                decided.set()  # pair 0 is decided, not yet queued
+                pushed.wait(0.5)
+            return real.perf_counter_ns()
+
+    monkeypatch.setattr(capture_module, "time", Slow())
+
+    def right() -> None:
+        decided.wait(5)
+        cap.push(Frame(Eye.RIGHT, IMG, 38 * MS, 1))  # decides pair 1
+        pushed.set()
+
+    threads = [
+        threading.Thread(target=cap.push, args=(Frame(Eye.LEFT, IMG, 33 * MS, 1),), name="left"),
+        threading.Thread(target=right, name="right"),
+    ]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(10)
+    queued = []
+    while (item := pairs.get(0)) is not None:
+        queued.append(item[0])
+    assert [p.left.seq for p in queued if isinstance(p, StereoPair)] == [0, 1]

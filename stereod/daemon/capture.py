@@ -72,6 +72,7 @@ class Capture:
         self.pairs = pairs
         self.health = health
         self.stop = stop
+        self._order = threading.Lock()
         self.rate = rate
         self._on_ready = on_ready
         self._on_fatal = on_fatal
@@ -93,7 +94,13 @@ class Capture:
         return [("capture", self._merge_loop)]
 
     def push(self, frame: Frame) -> bool:
-        """Take one frame; False when the pipeline's queue no longer accepts pairs."""
+        """Take one frame; False when the pipeline's queue no longer accepts pairs. One eye's
+        frame at a time, from pairing to queueing: a pair decided by one eye's thread cannot
+        be overtaken by a later one the other's decided meanwhile."""
+        with self._order:
+            return self._push(frame)
+
+    def _push(self, frame: Frame) -> bool:
         h = self.health
         size = (self.info.height, self.info.width)
         if frame.image.shape[:2] != size:
