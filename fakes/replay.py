@@ -20,7 +20,13 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from stereod.errors import ConfigError, InputError, MissingInputError, describe_validation_error
+from stereod.errors import (
+    ConfigError,
+    InputError,
+    MissingInputError,
+    StereodError,
+    describe_validation_error,
+)
 from stereod.files.output_file import same_file
 from stereod.files.paths import TextPath, text_path
 from stereod.sources.frames import (
@@ -342,6 +348,22 @@ class ReplayDriver(Driver):
 
     def options_read(self) -> dict[str, Any]:
         return self.options.model_dump(mode="json", exclude_unset=True)
+
+    def frame_size(self) -> tuple[int, int] | None:
+        """The recording's size from its manifest, or the left video's from its first frame,
+        so that ``run --check`` holds a calibration against it; None where they cannot be
+        read (opening the source then says why)."""
+        o = self.options
+        try:
+            if o.path is not None:
+                man = read_manifest(o.path)
+                return man.width, man.height
+            if o.left_video is not None and o.left_video.is_file():
+                w, h, _ = probe_video(o.left_video)
+                return w, h
+        except StereodError:
+            return None
+        return None
 
     def inputs(self) -> list[Path]:
         """The recording folder (its files with it), or the two videos and their CSVs."""

@@ -790,6 +790,39 @@ def test_run_check_holds_the_calibration_against_the_frames_asked_for(
     )
 
 
+def test_run_check_holds_the_calibration_against_a_recording_and_two_videos(
+    tmp_path: Path,
+) -> None:
+    """The replay driver's size is known once its recording's manifest (or the left video)
+    is read: ``run --check`` passed a 640x480 calibration beside a 320x240 recording, and
+    the run then exited 78."""
+    from stereod.vision.calibration import canonical, save
+    from stereod_fakes.synth import Ball, Scene, write_scene
+
+    rec = write_scene(
+        Scene(width_px=320, height_px=240, duration_s=0.4, balls=[Ball()]), tmp_path / "rec"
+    )
+    save(canonical(0.06, 60.0, 640, 480), tmp_path / "big.json")
+    save(canonical(0.06, 60.0, 320, 240), tmp_path / "small.json")
+    videos = sorted(p.name for p in rec.iterdir() if p.suffix in (".avi", ".mkv", ".mp4"))
+    sources = {
+        "recording": f'path = "{rec}"\n',
+        "videos": f'left_video = "{rec / videos[0]}"\nright_video = "{rec / videos[1]}"\n'
+        "fps = 15\n",
+    }
+    for name, options in sources.items():
+        for cal, code in (("big", 78), ("small", 0)):
+            cfg = tmp_path / f"{name}-{cal}.toml"
+            cfg.write_text(
+                f'[rig]\ncalibration = "{tmp_path / cal}.json"\n[driver]\nname = "replay"\n'
+                f"[driver.options]\n{options}"
+            )
+            res = stereod("run", "--config", str(cfg), "--check")
+            assert res.returncode == code, (name, cal, res.stderr)
+            if code:
+                assert "made for 640x480 frames, the stream is 320x240" in res.stderr
+
+
 @pytest.mark.parametrize(
     "driver, env, shown",
     [
