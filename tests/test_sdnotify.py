@@ -136,3 +136,33 @@ def test_garbage_calibration_on_reload_keeps_the_old_one(tmp_path: Path, endpoin
     )
     assert statuses[-1]["calibration_id"] == cal.id
     assert proc.returncode == 0, err
+
+
+def test_a_run_killed_by_the_watchdog_leaves_every_thread_stack_in_the_journal(
+    tmp_path: Path, endpoint: str
+) -> None:
+    """systemd's watchdog ends a hung daemon with SIGABRT: its stderr (the journal) then
+    holds each thread's Python stack, the pipeline thread's loop among them, to say where
+    it hung."""
+    sock, address = receiver(tmp_path)
+    cfg = tmp_path / "svc.toml"
+    write_config(cfg, endpoint, 25.0)
+    env = {**os.environ, "NOTIFY_SOCKET": address}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "stereod._entry", "run", "--config", str(cfg)],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert "READY=1" in collect(sock, "READY=1", 30)
+        proc.send_signal(signal.SIGABRT)
+        _, err = proc.communicate(timeout=20)
+    finally:
+        proc.kill()
+        sock.close()
+    assert proc.returncode == -signal.SIGABRT
+    assert "Fatal Python error: Aborted" in err, err[-2000:]
+    assert "stereod/daemon/processing.py" in err and "in loop" in err, err[-2000:]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import json
 import logging
 
@@ -62,6 +63,9 @@ def run(a: argparse.Namespace) -> int:
         shown["daemon"]["log_level"] = logging.getLevelName(logging.getLogger().level)
         print(json.dumps(shown, indent=2))
         return 0
+    # Each thread's Python stack to stderr (the journal) should the process die by a signal
+    # such as the SIGABRT of systemd's watchdog: where a stuck thread was stuck.
+    faulthandler.enable()
     daemon = Daemon(
         cfg,
         driver,
