@@ -34,20 +34,45 @@ BOARD = Board(cols=9, rows=6, square=0.03)
 
 def test_reproduces_opencv_sample_reference_figures() -> None:
     """DATA.md: with the sample's corner refinement (11 px window), mono RMS 0.408 / 0.458,
-    stereo RMS 0.447, |T| 3.345 squares, epipolar error 0.290 px."""
+    and, intrinsics fixed, stereo RMS 0.447, |T| 3.345 squares, fx about 536 / 542, epipolar
+    error 0.290 px. The joint refinement starts from those per-eye results and can only fit
+    better: it gave 0.444 px, 3.338 squares, fx 535.7 / 539.6 and 0.262 px."""
     pairs = pairs_from_list(shared_data("opencv_stereo", "stereo_calib.xml"))
     r = calibrate_files(pairs, Board(cols=9, rows=6, square=1.0), window=11)
     q = r.quality
     assert q.pairs_used == 13
     assert q.rms_left_px == pytest.approx(0.408, abs=0.01)
     assert q.rms_right_px == pytest.approx(0.458, abs=0.01)
-    assert q.rms_stereo_px == pytest.approx(0.447, abs=0.01)
-    assert r.calibration.baseline == pytest.approx(3.345, abs=0.01)
-    assert q.epipolar_error_px == pytest.approx(0.290, abs=0.01)
+    assert 0.40 < q.rms_stereo_px <= 0.447 + 0.001
+    assert r.calibration.baseline == pytest.approx(3.345, rel=0.005)
+    assert r.calibration.array("K1")[0, 0] == pytest.approx(536, rel=0.01)
+    assert r.calibration.array("K2")[0, 0] == pytest.approx(542, rel=0.01)
+    assert q.epipolar_error_px <= 0.290 + 0.001
     assert r.problems == []
     # The window adapted to the squares' size fits the same images better.
     better = calibrate_files(pairs, Board(cols=9, rows=6, square=1.0))
     assert better.quality.rms_stereo_px < q.rms_stereo_px
+
+
+def test_baseline_direction_of_a_rendered_rig_is_recovered() -> None:
+    """The baseline's direction, not only its length: with each eye's intrinsics fixed after
+    calibrating it alone, each principal point's error (1-2 px) turned T by 3.9 deg on these
+    views (0.5-3.9 deg over 20 seeds of 20 views, stereo RMS 0.11-0.14 px throughout), and
+    the published rig frame turns with T. Refined jointly, the worst of the 20 seeds is
+    0.31 deg and 0.10 % in length: bounds of 0.5 deg and 0.5 %. The boards are rendered by
+    casting each pixel's ray through the rig's true intrinsics and distortion (fakes.rig),
+    nothing of the calibration code."""
+    rig = minoru_like()
+    views = board_views(rig, 640, 480, 9, 6, 0.03, random_board_poses(20, 9, 6, 0.03, seed=13))
+    found, rejected, size = detect_pairs(views, BOARD)
+    assert rejected == []
+    r = calibrate(found, BOARD, size)
+    assert r.problems == [] and r.quality.rms_stereo_px < 0.2
+    t, truth = r.calibration.array("T").ravel(), rig.T.ravel()
+    cos = float(t @ truth) / (np.linalg.norm(t) * np.linalg.norm(truth))
+    off = np.degrees(np.arccos(min(1.0, cos)))
+    assert off < 0.5, f"baseline direction off by {off:.2f} deg, T = {t}, true {truth}"
+    assert np.linalg.norm(t) == pytest.approx(rig.baseline_m, rel=0.005)
 
 
 def test_recovers_a_non_canonical_rig_from_rendered_boards() -> None:
