@@ -237,11 +237,23 @@ def _room(a: argparse.Namespace, board: Board) -> int:
         raise UsageError("--room needs two --rig NAME=CAL:DIR or more")
     if len(set(names)) != len(names):
         raise UsageError(f"--rig: a name is given twice ({names}); give each rig one name")
-    rigs = []
+    rigs, mismatches = [], []
     for name, cal_path, folder in a.rig:
         images = room_cal.left_images(folder)
         check_outputs({"--room": a.room}, [cal_path, *images.values()])
-        rigs.append(room_cal.RigViews(name, load(cal_path), images))
+        cal = load(cal_path)
+        rigs.append(room_cal.RigViews(name, cal, images))
+        mismatches.append(room_cal.square_mismatch(name, cal_path, cal, a.square))
+    unchecked = [r.name for r in rigs if r.calibration.board is None]
+    if unchecked:
+        print(
+            f"rig(s) {', '.join(unchecked)}: the calibration records no board, so --square "
+            f"{a.square:g} is not checked against it (the room's distances scale with --square)"
+        )
+    if mismatch := next((m for m in mismatches if m is not None), None):
+        if not a.force:
+            raise CalibrationRejected(f"{mismatch}; nothing written to {a.room}")
+        print(f"stereod: {mismatch}; going on (--force)", file=sys.stderr)
     with stopped_by_signals("calibrate", a.room), create_output(a.room) as out:
         report = room_cal.calibrate_room(rigs, board)
         print(room_cal.format_report(report))

@@ -124,6 +124,26 @@ def rig_frame(cal: Calibration) -> Pose:
     return Pose(cal.array("R1"), np.array([-half, 0.0, 0.0]))
 
 
+def square_mismatch(name: str, cal_path: Path, cal: Calibration, square: float) -> str | None:
+    """Why ``square`` (``--square``, m) does not fit rig ``name``'s calibration, or ``None``.
+
+    The board's poses, and so the room's translations, scale with ``square``: a wrong one
+    moves every rig by its ratio to the true one while every reprojection RMS stays the same
+    (the corners are fitted as well at any scale). A calibration made by ``stereod calibrate``
+    records its board's square (the unit of its baseline); another value is refused unless
+    the room's board is another board than the rig's (``--force``). A calibration that
+    records no board (an imported one) cannot be checked."""
+    if cal.board is None or math.isclose(cal.board.square, square, rel_tol=1e-6):
+        return None
+    rec = cal.board.square
+    return (
+        f"--square {square:g} but rig {name}'s calibration {cal_path} was made with squares of "
+        f"{rec:g}: the room's distances scale with --square (by {square / rec:.3g} here) and no "
+        f"RMS shows it; give --square {rec:g}, or --force if the room's board is another "
+        "board than the rig's"
+    )
+
+
 def left_images(folder: Path) -> dict[str, Path]:
     """A rig's left-eye images by file name: those in ``folder/left`` when it exists, else the
     images in ``folder`` whose names do not contain ``right``."""
@@ -267,8 +287,9 @@ def calibrate_room(rigs: Sequence[RigViews], board: Board) -> RoomReport:
 def check_report(report: RoomReport, min_views: int, max_rms_px: float) -> list[str]:
     """What makes a room calibration clearly bad: a rig that saw the board in fewer than
     ``min_views`` views, or whose reprojection RMS (its own board poses, or the board other
-    rigs saw carried to it through the room) exceeds ``max_rms_px`` (a wrong board size or
-    square, a blurred view). Empty when it passes."""
+    rigs saw carried to it through the room) exceeds ``max_rms_px`` (a blurred view, images of
+    different instants; not a wrong square, which scales the poses and leaves every RMS the
+    same: :func:`square_mismatch`). Empty when it passes."""
     problems = []
     for r in report.rigs:
         if r.views < min_views:
