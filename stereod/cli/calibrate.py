@@ -33,7 +33,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "calibrate",
         help="calibrate the stereo rig from chessboard pairs",
         description="Find a chessboard in both images of each pair, calibrate each camera, "
-        "then the pair with the intrinsics fixed, then rectify (Zhang's method, OpenCV). "
+        "then refine both cameras and the pair together, then rectify (Zhang's method, "
+        "OpenCV). "
         "Prints per-camera and stereo RMS, epipolar error, baseline, rectified row residual "
         "and per-pair residuals. Refuses a clearly bad result (too few pairs, RMS above "
         "--max-rms, left and right swapped) unless --force; exit 65 then.",
