@@ -38,6 +38,7 @@ from stereod.vision.calibration import (
     Quality,
     from_arrays,
     rectify,
+    swapped_problem,
 )
 from stereod.vision.calibration_io import OpenCVProblem, read_opencv_storage
 
@@ -358,12 +359,9 @@ def calibrate(
             f"stereo RMS {rms:.3f} px is above {limits.max_rms_px:g} px: drop blurred pairs or "
             "check --board and --square"
         )
-    tx = float(np.asarray(t).ravel()[0])
-    if tx > 0:
-        problems.append(
-            f"left and right look swapped (T.x = {tx:+.4g} > 0: the 'right' camera is on the "
-            "left): swap the left and right images (or the eyes' ports) and calibrate again"
-        )
+    swapped = swapped_problem(t)
+    if swapped is not None:
+        problems.append(swapped)
     return Report(cal, sorted(pairs, key=lambda p: p.name), problems)
 
 
