@@ -335,3 +335,39 @@ def test_sigterm_while_collecting_leaves_no_file_and_exits_143(tmp_path: Path) -
         == f"stereod: calibrate interrupted by SIGTERM; {tmp_path}/c.json left as it was"
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["live.toml"]
+
+
+def test_a_square_that_makes_the_baseline_impossible_is_named(tmp_path: Path) -> None:
+    """--square 0.001 on OpenCV's sample pairs: |T| is 3.345 squares (DATA.md), so 3.3 mm,
+    under the 5 mm a rig can have. The message blamed pairs not taken at once; it now gives
+    the baseline and names --square."""
+    res = stereod(
+        "calibrate", "--pairs", str(shared_data("opencv_stereo")), "--board", "9x6",
+        "--square", "0.001", "--out", str(tmp_path / "c.json"),
+    )  # fmt: skip
+    one_line_error(
+        res,
+        65,
+        r"the baseline came out [\d.]+ mm with --square 0\.001, outside a rig's 0\.005\.\.10 m: "
+        r"every length of the result scales with --square",
+    )
+    mm = float(res.stderr.split("came out ")[1].split(" mm")[0])
+    assert mm == pytest.approx(3.345, rel=0.01)
+    assert not (tmp_path / "c.json").exists()
+
+
+def test_the_rms_refusal_names_the_worst_pair(tmp_path: Path) -> None:
+    """Pair 05 given pair 06's right image (not of one instant): its epipolar error is tens of
+    px where the others' are under one before the fit is spoilt; the refusal names it and no
+    longer suggests --square, which cannot change an RMS."""
+    for p in shared_data("opencv_stereo").glob("*.jpg"):
+        (tmp_path / p.name).write_bytes(p.read_bytes())
+    (tmp_path / "right05.jpg").write_bytes(shared_data("opencv_stereo", "right06.jpg").read_bytes())
+    res = stereod(
+        "calibrate", "--pairs", str(tmp_path), "--board", "9x6", "--square", "0.025",
+        "--out", str(tmp_path / "c.json"),
+    )  # fmt: skip
+    one_line_error(
+        res, 65, r"stereo RMS [\d.]+ px is above 1 px; the worst pair is left05\.jpg \(epipolar"
+    )
+    assert "--square" not in res.stderr

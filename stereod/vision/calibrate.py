@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from stereod.errors import CalibrationError, InputError, MissingInputError
-from stereod.files.bounds import MIN_PAIRS
+from stereod.files.bounds import BASELINE_M, MIN_PAIRS
 from stereod.files.paths import text_path
 from stereod.sources.frames import Frame
 from stereod.sources.pairing import Pairer
@@ -343,6 +343,14 @@ def calibrate(
     except CalibrationError as exc:  # no rig: a result no calibration file can hold
         first = str(exc).removeprefix("calibration: ").split(" (", 1)[0].split("; ", 1)[0]
         same = ", the same view in both eyes?" if baseline < 1e-3 else ""
+        if not same and BASELINE_M.problem(baseline) is not None:
+            # Every length scales with --square: a baseline out of bounds is a wrong square.
+            raise InputError(
+                f"{source or 'the pairs'}: the baseline came out {baseline * 1000:.4g} mm with "
+                f"--square {board.square:g}, outside a rig's {BASELINE_M.range_text()}: every "
+                "length of the result scales with --square; check it is the side of one "
+                "square in metres"
+            ) from exc
         raise InputError(
             f"{source or 'the pairs'}: the board's views give no stereo rig ({first}{same}): "
             "give pairs whose left and right images come from the two eyes at once; no "
@@ -355,9 +363,14 @@ def calibrate(
             "the board at different distances and angles"
         )
     if rms > limits.max_rms_px:
+        # --square scales lengths only and cannot change an RMS: name the pair that fits worst.
+        errs = [float(e.mean()) for e in epis]
+        worst = int(np.argmax(errs))
         problems.append(
-            f"stereo RMS {rms:.3f} px is above {limits.max_rms_px:g} px: drop blurred pairs or "
-            "check --board and --square"
+            f"stereo RMS {rms:.3f} px is above {limits.max_rms_px:g} px; the worst pair is "
+            f"{found[worst][0]} (epipolar error {errs[worst]:.3g} px, the median pair's "
+            f"{float(np.median(errs)):.3g} px): drop it, or other blurred pairs or pairs whose "
+            "images were not taken at once"
         )
     swapped = swapped_problem(t)
     if swapped is not None:
