@@ -251,7 +251,7 @@ def test_a_square_other_than_the_rigs_calibrations_is_refused_unless_forced(
 
 
 def test_views_of_different_instants_are_refused(tmp_path: Path) -> None:
-    """Rig b's images of two views swapped (not of one instant): exit 78, the view named."""
+    """Rig b's images of two views swapped (not of one instant): exit 65, the view named."""
     args = write_views(tmp_path, 3, {k: RIGS[k] for k in "ab"})
     b = tmp_path / "views_b"
     (b / "view00.png").rename(b / "tmp.png")
@@ -259,19 +259,28 @@ def test_views_of_different_instants_are_refused(tmp_path: Path) -> None:
     (b / "tmp.png").rename(b / "view01.png")
     out = tmp_path / "room.toml"
     res = stereod("calibrate", "--room", str(out), *args, "--board", "9x6", "--square", "0.05")
-    one_line_error(res, 78, r"view view0[01]\.png: rigs a and b disagree")
+    one_line_error(res, 65, r"view view0[01]\.png: rigs a and b disagree")
     assert not out.exists()
 
 
 def test_a_rig_without_a_shared_view_is_one_line(tmp_path: Path) -> None:
-    """A rig whose images share no name with the others' is refused (exit 78), nothing
-    written."""
+    """A rig whose images share no name with the others' is refused (exit 65, as the docs say
+    of every refusal; it was 78, a configuration's), nothing written."""
     args = write_views(tmp_path, 2, {k: RIGS[k] for k in "ab"})
     for p in (tmp_path / "views_b").iterdir():
         p.rename(p.with_name("other_" + p.name))
     out = tmp_path / "room.toml"
     res = stereod("calibrate", "--room", str(out), *args, "--board", "9x6", "--square", "0.05")
-    one_line_error(res, 78, r"rig b shares no board view")
+    one_line_error(res, 65, r"rig b shares no board view")
+    assert not out.exists()
+
+
+def test_a_board_found_in_no_image_is_refused_with_65(tmp_path: Path) -> None:
+    """--board 8x6 for a 9x6 board: no rig finds it; a refusal, exit 65 (it was 78)."""
+    args = write_views(tmp_path, 2, {k: RIGS[k] for k in "ab"})
+    out = tmp_path / "room.toml"
+    res = stereod("calibrate", "--room", str(out), *args, "--board", "8x6", "--square", "0.05")
+    one_line_error(res, 65, r"rig a: the 8x6 board was found in none of its 2 images")
     assert not out.exists()
 
 
@@ -280,6 +289,11 @@ def test_a_rig_without_a_shared_view_is_one_line(tmp_path: Path) -> None:
     [
         (["--rig", "a=x.json"], r"NAME=CAL:DIR"),
         (["--rig", "a=x.json:y"], r"two --rig"),
+        (
+            ["--rig", "a=x.json:y", "--rig", "b=x.json:y", "--out", "z.json"],
+            r"--out z\.json: "
+            r"--room writes the room file it names \(.*r\.toml\); drop --out",
+        ),
     ],
 )
 def test_bad_rig_arguments_are_one_line(tmp_path: Path, extra: list[str], pattern: str) -> None:

@@ -84,9 +84,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--out",
         type=path_arg,
-        default=Path("calibration.json"),
         metavar="FILE",
-        help="calibration file to write (default calibration.json)",
+        help="calibration file to write (default calibration.json; not with --room, whose "
+        "file is the one --room names)",
     )
     p.add_argument(
         "--force", action="store_true", help="write even a calibration that fails the checks"
@@ -190,6 +190,7 @@ def run(a: argparse.Namespace) -> int:
     board = Board(cols=cols, rows=rows, square=a.square)
     if a.room is not None or a.rig:
         return _room(a, board)
+    a.out = a.out or Path("calibration.json")
     if a.min_pairs is not None and a.min_pairs < 3:
         raise UsageError(f"--min-pairs {a.min_pairs}: a stereo calibration needs 3 pairs or more")
     limits = cb.Limits(min_pairs=a.min_pairs or MIN_PAIRS, max_rms_px=a.max_rms)
@@ -233,6 +234,10 @@ def _room(a: argparse.Namespace, board: Board) -> int:
 
     if a.room is None:
         raise UsageError("--rig is for --room: add --room OUT.toml")
+    if a.out is not None:
+        raise UsageError(
+            f"--out {a.out}: --room writes the room file it names ({a.room}); drop --out"
+        )
     names = [name for name, _, _ in a.rig]
     if len(names) < 2:
         raise UsageError("--room needs two --rig NAME=CAL:DIR or more")

@@ -178,8 +178,9 @@ def _board_pose(cal: Calibration, corners: np.ndarray, obj: np.ndarray) -> tuple
 
 def calibrate_room(rigs: Sequence[RigViews], board: Board) -> RoomReport:
     """Each rig's pose in the frame of ``rigs[0]`` from the views (images of one name) that
-    two rigs or more saw; raises :class:`CalibrationError` when a rig shares no view with
-    the others or never finds the board."""
+    two rigs or more saw; raises :class:`InputError` (exit 65, as every refused calibration)
+    when a rig shares no view with the others, never finds the board, or two rigs' views of
+    one name disagree."""
     obj = board_points(board)
     poses: dict[str, dict[str, Pose]] = {}
     corners_of: dict[str, dict[str, np.ndarray]] = {}
@@ -202,7 +203,7 @@ def calibrate_room(rigs: Sequence[RigViews], board: Board) -> RoomReport:
             poses[rig.name][view], corners_of[rig.name][view] = pose, c
             errs.append(err)
         if not errs:
-            raise CalibrationError(
+            raise InputError(
                 f"rig {rig.name}: the {board.cols}x{board.rows} board was found in none of "
                 f"its {len(rig.images)} images: check --board and the images"
             )
@@ -220,7 +221,7 @@ def calibrate_room(rigs: Sequence[RigViews], board: Board) -> RoomReport:
             for v, p in zip(shared, rel, strict=True):
                 off = rotation_angle_deg(ab.r.T @ p.r)
                 if off > MAX_VIEW_DISAGREEMENT_DEG:
-                    raise CalibrationError(
+                    raise InputError(
                         f"view {v}: rigs {a} and {b} disagree with their other shared views by "
                         f"{off:.1f} deg (a board seen upside down, its corners numbered from "
                         "the other end, or images not taken at one instant): leave it out"
@@ -239,7 +240,7 @@ def calibrate_room(rigs: Sequence[RigViews], board: Board) -> RoomReport:
                 queue.append(b)
     lost = [n for n in names if n not in room]
     if lost:
-        raise CalibrationError(
+        raise InputError(
             f"rig {lost[0]} shares no board view with rig {names[0]} nor with a rig chained "
             "to it: take views (same file name in each rig's folder) that both rigs see"
         )
