@@ -20,6 +20,7 @@ from stereod.vision.calibrate import (
     detect_pairs,
     pairs_from_list,
     pairs_in_directory,
+    read_image,
 )
 from stereod.vision.calibration import MIN_BOARD_CORNERS, Board, load, rotation_angle_deg
 from stereod_fakes.rig import board_views, minoru_like, random_board_poses, write_board_recording
@@ -371,3 +372,26 @@ def test_the_rms_refusal_names_the_worst_pair(tmp_path: Path) -> None:
         res, 65, r"stereo RMS [\d.]+ px is above 1 px; the worst pair is left05\.jpg \(epipolar"
     )
     assert "--square" not in res.stderr
+
+
+def test_an_image_cut_short_is_called_damaged_and_libjpeg_stays_quiet(tmp_path: Path) -> None:
+    """A real JPEG truncated to 12 kB of its 25 kB: libjpeg printed "Premature end of JPEG
+    file" past OpenCV's silenced log, and the pair was blamed on the board. Now one line
+    names the file as damaged (65); a PNG without its IEND chunk likewise."""
+    for n in ("01", "02", "03", "04"):
+        for eye in ("left", "right"):
+            src = shared_data("opencv_stereo", f"{eye}{n}.jpg").read_bytes()
+            (tmp_path / f"{eye}{n}.jpg").write_bytes(src)
+    (tmp_path / "left04.jpg").write_bytes((tmp_path / "left04.jpg").read_bytes()[:12000])
+    res = stereod(
+        "calibrate", "--pairs", str(tmp_path), "--board", "9x6", "--square", "0.025",
+        "--out", str(tmp_path / "c.json"),
+    )  # fmt: skip
+    one_line_error(
+        res, 65, r"left04\.jpg: a damaged image \(the JPEG stops before its end marker: cut short\)"
+    )
+    png = tmp_path / "p.png"
+    cv2.imwrite(str(png), np.zeros((48, 64), np.uint8))
+    png.write_bytes(png.read_bytes()[:-20])
+    with pytest.raises(InputError, match=r"p\.png: a damaged image \(the PNG stops before"):
+        read_image(png)

@@ -123,14 +123,35 @@ def _gray(image: np.ndarray) -> np.ndarray:
 
 
 def read_image(path: Path) -> np.ndarray:
-    """A grey image from a file; errors name the file."""
-    name = text_path(path, "calibration image")
+    """A grey image from a file; errors name the file. The bytes are decoded in memory
+    (``cv2.imread`` lets libjpeg print "Premature end of JPEG file" on stderr, past OpenCV's
+    silenced log, and returns what it could decode); a JPEG or PNG cut short (no end marker)
+    is refused as damaged rather than searched for a board it has lost."""
+    text_path(path, "calibration image")
     if not path.is_file():
         raise MissingInputError(f"{path}: no such image file")
-    img = cv2.imread(name, cv2.IMREAD_GRAYSCALE)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise MissingInputError(f"{path}: cannot read the image: {exc.strerror}") from exc
+    cut = _cut_short(data)
+    if cut is not None:
+        raise InputError(f"{path}: a damaged image ({cut}): copy it again or drop the pair")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
     if img is None:
         raise InputError(f"{path}: not a readable image")
     return img
+
+
+def _cut_short(data: bytes) -> str | None:
+    """Why an image's bytes end before the image does (a JPEG without its end-of-image marker
+    FF D9, a PNG without its IEND chunk, in the last 1 kB), or None."""
+    tail = data[-1024:]
+    if data.startswith(b"\xff\xd8") and b"\xff\xd9" not in tail:
+        return "the JPEG stops before its end marker: cut short"
+    if data.startswith(b"\x89PNG\r\n\x1a\n") and b"IEND" not in tail:
+        return "the PNG stops before its IEND chunk: cut short"
+    return None
 
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
