@@ -320,18 +320,18 @@ def calibrate(
     right = [c for _, _, c in found]
     rms_l, k1, d1, _, _ = cv2.calibrateCamera(obj, left, image_size, None, None)
     rms_r, k2, d2, _, _ = cv2.calibrateCamera(obj, right, image_size, None, None)
-    rms, k1, d1, k2, d2, r, t, _, f = cv2.stereoCalibrate(
-        obj,
-        left,
-        right,
-        k1,
-        d1,
-        k2,
-        d2,
-        image_size,
-        flags=cv2.CALIB_USE_INTRINSIC_GUESS,
-        criteria=STEREO_CRITERIA,
-    )
+    fixed = cv2.stereoCalibrate(
+        obj, left, right, k1, d1, k2, d2, image_size,
+        flags=cv2.CALIB_FIX_INTRINSIC, criteria=STEREO_CRITERIA,
+    )  # fmt: skip
+    joint = cv2.stereoCalibrate(
+        obj, left, right, k1, d1, k2, d2, image_size,
+        flags=cv2.CALIB_USE_INTRINSIC_GUESS, criteria=STEREO_CRITERIA,
+    )  # fmt: skip
+    # The joint fit is kept when it fits at least as well with principal points in the image;
+    # a pair that is no pair (two instants) can send it astray (cx 696 px in a 640 px image),
+    # and then the fixed-intrinsics fit says more about what is wrong.
+    rms, k1, d1, k2, d2, r, t, _, f = joint if _sound(joint, fixed, image_size) else fixed
     rect = rectify(image_size, k1, d1, k2, d2, r, t)
     pairs = list(rejected)
     epis, rows = [], []
@@ -397,6 +397,18 @@ def calibrate(
     if swapped is not None:
         problems.append(swapped)
     return Report(cal, sorted(pairs, key=lambda p: p.name), problems)
+
+
+def _sound(joint: Sequence, fixed: Sequence, image_size: tuple[int, int]) -> bool:
+    """Whether a joint ``stereoCalibrate`` result fits at least as well as the one with the
+    intrinsics fixed (RMS, px) and keeps both principal points, and the rectified ones, inside
+    the image."""
+    w, h = image_size
+    if not joint[0] <= fixed[0] + 1e-9:
+        return False
+    rect = rectify(image_size, joint[1], joint[2], joint[3], joint[4], joint[5], joint[6])
+    ks = (joint[1], joint[3], rect["P1"], rect["P2"])
+    return all(0 <= k[0, 2] <= w and 0 <= k[1, 2] <= h for k in ks)
 
 
 def calibrate_files(
