@@ -20,6 +20,7 @@ from stereod.vision.calibrate import (
     detect_pairs,
     pairs_from_list,
     pairs_in_directory,
+    read_image,
 )
 from stereod.vision.calibration import MIN_BOARD_CORNERS, Board, load, rotation_angle_deg
 from stereod_fakes.rig import board_views, minoru_like, random_board_poses, write_board_recording
@@ -34,20 +35,45 @@ BOARD = Board(cols=9, rows=6, square=0.03)
 
 def test_reproduces_opencv_sample_reference_figures() -> None:
     """DATA.md: with the sample's corner refinement (11 px window), mono RMS 0.408 / 0.458,
-    stereo RMS 0.447, |T| 3.345 squares, epipolar error 0.290 px."""
+    and, intrinsics fixed, stereo RMS 0.447, |T| 3.345 squares, fx about 536 / 542, epipolar
+    error 0.290 px. The joint refinement starts from those per-eye results and can only fit
+    better: it gave 0.444 px, 3.338 squares, fx 535.7 / 539.6 and 0.262 px."""
     pairs = pairs_from_list(shared_data("opencv_stereo", "stereo_calib.xml"))
     r = calibrate_files(pairs, Board(cols=9, rows=6, square=1.0), window=11)
     q = r.quality
     assert q.pairs_used == 13
     assert q.rms_left_px == pytest.approx(0.408, abs=0.01)
     assert q.rms_right_px == pytest.approx(0.458, abs=0.01)
-    assert q.rms_stereo_px == pytest.approx(0.447, abs=0.01)
-    assert r.calibration.baseline == pytest.approx(3.345, abs=0.01)
-    assert q.epipolar_error_px == pytest.approx(0.290, abs=0.01)
+    assert 0.40 < q.rms_stereo_px <= 0.447 + 0.001
+    assert r.calibration.baseline == pytest.approx(3.345, rel=0.005)
+    assert r.calibration.array("K1")[0, 0] == pytest.approx(536, rel=0.01)
+    assert r.calibration.array("K2")[0, 0] == pytest.approx(542, rel=0.01)
+    assert q.epipolar_error_px <= 0.290 + 0.001
     assert r.problems == []
     # The window adapted to the squares' size fits the same images better.
     better = calibrate_files(pairs, Board(cols=9, rows=6, square=1.0))
     assert better.quality.rms_stereo_px < q.rms_stereo_px
+
+
+def test_baseline_direction_of_a_rendered_rig_is_recovered() -> None:
+    """The baseline's direction, not only its length: with each eye's intrinsics fixed after
+    calibrating it alone, each principal point's error (1-2 px) turned T by 3.9 deg on these
+    views (0.5-3.9 deg over 20 seeds of 20 views, stereo RMS 0.11-0.14 px throughout), and
+    the published rig frame turns with T. Refined jointly, the worst of the 20 seeds is
+    0.31 deg and 0.10 % in length: bounds of 0.5 deg and 0.5 %. The boards are rendered by
+    casting each pixel's ray through the rig's true intrinsics and distortion (fakes.rig),
+    nothing of the calibration code."""
+    rig = minoru_like()
+    views = board_views(rig, 640, 480, 9, 6, 0.03, random_board_poses(20, 9, 6, 0.03, seed=13))
+    found, rejected, size = detect_pairs(views, BOARD)
+    assert rejected == []
+    r = calibrate(found, BOARD, size)
+    assert r.problems == [] and r.quality.rms_stereo_px < 0.2
+    t, truth = r.calibration.array("T").ravel(), rig.T.ravel()
+    cos = float(t @ truth) / (np.linalg.norm(t) * np.linalg.norm(truth))
+    off = np.degrees(np.arccos(min(1.0, cos)))
+    assert off < 0.5, f"baseline direction off by {off:.2f} deg, T = {t}, true {truth}"
+    assert np.linalg.norm(t) == pytest.approx(rig.baseline_m, rel=0.005)
 
 
 def test_recovers_a_non_canonical_rig_from_rendered_boards() -> None:
@@ -310,3 +336,62 @@ def test_sigterm_while_collecting_leaves_no_file_and_exits_143(tmp_path: Path) -
         == f"stereod: calibrate interrupted by SIGTERM; {tmp_path}/c.json left as it was"
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["live.toml"]
+
+
+def test_a_square_that_makes_the_baseline_impossible_is_named(tmp_path: Path) -> None:
+    """--square 0.001 on OpenCV's sample pairs: |T| is 3.345 squares (DATA.md), so 3.3 mm,
+    under the 5 mm a rig can have. The message blamed pairs not taken at once; it now gives
+    the baseline and names --square."""
+    res = stereod(
+        "calibrate", "--pairs", str(shared_data("opencv_stereo")), "--board", "9x6",
+        "--square", "0.001", "--out", str(tmp_path / "c.json"),
+    )  # fmt: skip
+    one_line_error(
+        res,
+        65,
+        r"the baseline came out [\d.]+ mm with --square 0\.001, outside a rig's 0\.005\.\.10 m: "
+        r"every length of the result scales with --square",
+    )
+    mm = float(res.stderr.split("came out ")[1].split(" mm")[0])
+    assert mm == pytest.approx(3.345, rel=0.01)
+    assert not (tmp_path / "c.json").exists()
+
+
+def test_the_rms_refusal_names_the_worst_pair(tmp_path: Path) -> None:
+    """Pair 05 given pair 06's right image (not of one instant): its epipolar error is tens of
+    px where the others' are under one before the fit is spoilt; the refusal names it and no
+    longer suggests --square, which cannot change an RMS."""
+    for p in shared_data("opencv_stereo").glob("*.jpg"):
+        (tmp_path / p.name).write_bytes(p.read_bytes())
+    (tmp_path / "right05.jpg").write_bytes(shared_data("opencv_stereo", "right06.jpg").read_bytes())
+    res = stereod(
+        "calibrate", "--pairs", str(tmp_path), "--board", "9x6", "--square", "0.025",
+        "--out", str(tmp_path / "c.json"),
+    )  # fmt: skip
+    one_line_error(
+        res, 65, r"stereo RMS [\d.]+ px is above 1 px; the worst pair is left05\.jpg \(epipolar"
+    )
+    assert "--square" not in res.stderr
+
+
+def test_an_image_cut_short_is_called_damaged_and_libjpeg_stays_quiet(tmp_path: Path) -> None:
+    """A real JPEG truncated to 12 kB of its 25 kB: libjpeg printed "Premature end of JPEG
+    file" past OpenCV's silenced log, and the pair was blamed on the board. Now one line
+    names the file as damaged (65); a PNG without its IEND chunk likewise."""
+    for n in ("01", "02", "03", "04"):
+        for eye in ("left", "right"):
+            src = shared_data("opencv_stereo", f"{eye}{n}.jpg").read_bytes()
+            (tmp_path / f"{eye}{n}.jpg").write_bytes(src)
+    (tmp_path / "left04.jpg").write_bytes((tmp_path / "left04.jpg").read_bytes()[:12000])
+    res = stereod(
+        "calibrate", "--pairs", str(tmp_path), "--board", "9x6", "--square", "0.025",
+        "--out", str(tmp_path / "c.json"),
+    )  # fmt: skip
+    one_line_error(
+        res, 65, r"left04\.jpg: a damaged image \(the JPEG stops before its end marker: cut short\)"
+    )
+    png = tmp_path / "p.png"
+    cv2.imwrite(str(png), np.zeros((48, 64), np.uint8))
+    png.write_bytes(png.read_bytes()[:-20])
+    with pytest.raises(InputError, match=r"p\.png: a damaged image \(the PNG stops before"):
+        read_image(png)

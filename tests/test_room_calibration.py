@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from stereod.fusion.room import RigPose, load_room
-from stereod.vision.calibration import Calibration, from_arrays, save
+from stereod.vision.calibration import Board, Calibration, from_arrays, save
 
 from .conftest import stereod
 from .test_cli import one_line_error
@@ -34,8 +34,11 @@ def rot(rx: float, ry: float, rz: float) -> np.ndarray:
     return mz @ my @ mx
 
 
-def rig_calibration(k1: float, small_turn_deg: float) -> tuple[dict[str, np.ndarray], Calibration]:
-    """A non-canonical rig: distortion and a slight turn between the eyes (R1 is no identity)."""
+def rig_calibration(
+    k1: float, small_turn_deg: float, board: Board | None = None
+) -> tuple[dict[str, np.ndarray], Calibration]:
+    """A non-canonical rig: distortion and a slight turn between the eyes (R1 is no identity);
+    ``board`` is recorded as the board it was calibrated with."""
     k = np.array([[600.0, 0, 322.0], [0, 598.0, 241.0], [0, 0, 1]])
     r = cv2.Rodrigues(np.array([0.0, math.radians(small_turn_deg), 0.01]))[0]
     arrays = {
@@ -46,7 +49,7 @@ def rig_calibration(k1: float, small_turn_deg: float) -> tuple[dict[str, np.ndar
         "R": r,
         "T": np.array([-0.06, 0.002, 0.001]),
     }
-    return arrays, from_arrays((W, H), arrays)
+    return arrays, from_arrays((W, H), arrays, board=board)
 
 
 def left_in_rig(arrays: dict[str, np.ndarray], r1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -106,14 +109,18 @@ def board_poses(n: int) -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 def write_views(
-    tmp: Path, n: int, rigs: dict[str, tuple], keep: dict[str, set[int]] | None = None
+    tmp: Path,
+    n: int,
+    rigs: dict[str, tuple],
+    keep: dict[str, set[int]] | None = None,
+    board: Board | None = None,
 ) -> list[str]:
-    """Each rig's calibration file and its folder of rendered left-eye views (those of
-    ``keep[rig]`` when given); --rig args."""
+    """Each rig's calibration file (recording ``board`` when given) and its folder of rendered
+    left-eye views (those of ``keep[rig]`` when given); --rig args."""
     args = []
     poses = board_poses(n)
     for idx, (name, (t, angles)) in enumerate(rigs.items()):
-        arrays, cal = rig_calibration(-0.05 - 0.02 * idx, 0.5 + 0.3 * idx)
+        arrays, cal = rig_calibration(-0.05 - 0.02 * idx, 0.5 + 0.3 * idx, board)
         save(cal, tmp / f"cal_{name}.json")
         rr, rt = rot(*angles), np.asarray(t)
         lr, lt = left_in_rig(arrays, cal.array("R1"))
@@ -212,8 +219,39 @@ def test_a_rig_mounted_upside_down(tmp_path: Path) -> None:
     )
 
 
+def test_a_square_other_than_the_rigs_calibrations_is_refused_unless_forced(
+    tmp_path: Path,
+) -> None:
+    """The board's poses scale with --square and no RMS changes, so twice the true square put
+    rig b twice as far away, silently. The rigs' calibrations record the square (0.05): a
+    --square of 0.10 is refused (exit 65, the rig, the file and the square to give named,
+    nothing written); with --force, for a room board that really is another one, it is
+    written and rig b lands twice as far from rig a as it is, as the message says."""
+    board = Board(cols=COLS, rows=ROWS, square=SQUARE)
+    args = write_views(tmp_path, 4, {k: RIGS[k] for k in "ab"}, board=board)
+    out = tmp_path / "room.toml"
+    cmd = ["calibrate", "--room", str(out), *args, "--board", "9x6", "--square", "0.1"]
+    one_line_error(
+        stereod(*cmd),
+        65,
+        r"--square 0\.1 but rig a's calibration .*cal_a\.json was made with squares of 0\.05: "
+        r"the room's distances scale with --square \(by 2 here\) and no RMS shows it; give "
+        r"--square 0\.05, or --force if the room's board is another board than the rig's; "
+        r"nothing written to .*room\.toml",
+    )
+    assert not out.exists()
+    forced = stereod(*cmd, "--force")
+    assert forced.returncode == 0 and "going on (--force)" in forced.stderr
+    b = {r.name: r for r in load_room(out).rigs}["b"]
+    # twice as far (within 1 %: the rigs' half baselines, in the calibrations' unit, are not)
+    far = float(np.linalg.norm(b.translation_m)) / float(np.linalg.norm(RIGS["b"][0]))
+    assert far == pytest.approx(2.0, rel=0.01)
+    _, rigs = run_room(tmp_path, args)  # --square 0.05, the recorded one
+    check_poses(rigs, 3.0, 0.1)
+
+
 def test_views_of_different_instants_are_refused(tmp_path: Path) -> None:
-    """Rig b's images of two views swapped (not of one instant): exit 78, the view named."""
+    """Rig b's images of two views swapped (not of one instant): exit 65, the view named."""
     args = write_views(tmp_path, 3, {k: RIGS[k] for k in "ab"})
     b = tmp_path / "views_b"
     (b / "view00.png").rename(b / "tmp.png")
@@ -221,19 +259,28 @@ def test_views_of_different_instants_are_refused(tmp_path: Path) -> None:
     (b / "tmp.png").rename(b / "view01.png")
     out = tmp_path / "room.toml"
     res = stereod("calibrate", "--room", str(out), *args, "--board", "9x6", "--square", "0.05")
-    one_line_error(res, 78, r"view view0[01]\.png: rigs a and b disagree")
+    one_line_error(res, 65, r"view view0[01]\.png: rigs a and b disagree")
     assert not out.exists()
 
 
 def test_a_rig_without_a_shared_view_is_one_line(tmp_path: Path) -> None:
-    """A rig whose images share no name with the others' is refused (exit 78), nothing
-    written."""
+    """A rig whose images share no name with the others' is refused (exit 65, as the docs say
+    of every refusal; it was 78, a configuration's), nothing written."""
     args = write_views(tmp_path, 2, {k: RIGS[k] for k in "ab"})
     for p in (tmp_path / "views_b").iterdir():
         p.rename(p.with_name("other_" + p.name))
     out = tmp_path / "room.toml"
     res = stereod("calibrate", "--room", str(out), *args, "--board", "9x6", "--square", "0.05")
-    one_line_error(res, 78, r"rig b shares no board view")
+    one_line_error(res, 65, r"rig b shares no board view")
+    assert not out.exists()
+
+
+def test_a_board_found_in_no_image_is_refused_with_65(tmp_path: Path) -> None:
+    """--board 8x6 for a 9x6 board: no rig finds it; a refusal, exit 65 (it was 78)."""
+    args = write_views(tmp_path, 2, {k: RIGS[k] for k in "ab"})
+    out = tmp_path / "room.toml"
+    res = stereod("calibrate", "--room", str(out), *args, "--board", "8x6", "--square", "0.05")
+    one_line_error(res, 65, r"rig a: the 8x6 board was found in none of its 2 images")
     assert not out.exists()
 
 
@@ -242,6 +289,11 @@ def test_a_rig_without_a_shared_view_is_one_line(tmp_path: Path) -> None:
     [
         (["--rig", "a=x.json"], r"NAME=CAL:DIR"),
         (["--rig", "a=x.json:y"], r"two --rig"),
+        (
+            ["--rig", "a=x.json:y", "--rig", "b=x.json:y", "--out", "z.json"],
+            r"--out z\.json: "
+            r"--room writes the room file it names \(.*r\.toml\); drop --out",
+        ),
     ],
 )
 def test_bad_rig_arguments_are_one_line(tmp_path: Path, extra: list[str], pattern: str) -> None:

@@ -33,7 +33,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "calibrate",
         help="calibrate the stereo rig from chessboard pairs",
         description="Find a chessboard in both images of each pair, calibrate each camera, "
-        "then the pair with the intrinsics fixed, then rectify (Zhang's method, OpenCV). "
+        "then refine both cameras and the pair together, then rectify (Zhang's method, "
+        "OpenCV). "
         "Prints per-camera and stereo RMS, epipolar error, baseline, rectified row residual "
         "and per-pair residuals. Refuses a clearly bad result (too few pairs, RMS above "
         "--max-rms, left and right swapped) unless --force; exit 65 then.",
@@ -83,9 +84,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--out",
         type=path_arg,
-        default=Path("calibration.json"),
         metavar="FILE",
-        help="calibration file to write (default calibration.json)",
+        help="calibration file to write (default calibration.json; not with --room, whose "
+        "file is the one --room names)",
     )
     p.add_argument(
         "--force", action="store_true", help="write even a calibration that fails the checks"
@@ -189,6 +190,7 @@ def run(a: argparse.Namespace) -> int:
     board = Board(cols=cols, rows=rows, square=a.square)
     if a.room is not None or a.rig:
         return _room(a, board)
+    a.out = a.out or Path("calibration.json")
     if a.min_pairs is not None and a.min_pairs < 3:
         raise UsageError(f"--min-pairs {a.min_pairs}: a stereo calibration needs 3 pairs or more")
     limits = cb.Limits(min_pairs=a.min_pairs or MIN_PAIRS, max_rms_px=a.max_rms)
@@ -232,16 +234,32 @@ def _room(a: argparse.Namespace, board: Board) -> int:
 
     if a.room is None:
         raise UsageError("--rig is for --room: add --room OUT.toml")
+    if a.out is not None:
+        raise UsageError(
+            f"--out {a.out}: --room writes the room file it names ({a.room}); drop --out"
+        )
     names = [name for name, _, _ in a.rig]
     if len(names) < 2:
         raise UsageError("--room needs two --rig NAME=CAL:DIR or more")
     if len(set(names)) != len(names):
         raise UsageError(f"--rig: a name is given twice ({names}); give each rig one name")
-    rigs = []
+    rigs, mismatches = [], []
     for name, cal_path, folder in a.rig:
         images = room_cal.left_images(folder)
         check_outputs({"--room": a.room}, [cal_path, *images.values()])
-        rigs.append(room_cal.RigViews(name, load(cal_path), images))
+        cal = load(cal_path)
+        rigs.append(room_cal.RigViews(name, cal, images))
+        mismatches.append(room_cal.square_mismatch(name, cal_path, cal, a.square))
+    unchecked = [r.name for r in rigs if r.calibration.board is None]
+    if unchecked:
+        print(
+            f"rig(s) {', '.join(unchecked)}: the calibration records no board, so --square "
+            f"{a.square:g} is not checked against it (the room's distances scale with --square)"
+        )
+    if mismatch := next((m for m in mismatches if m is not None), None):
+        if not a.force:
+            raise CalibrationRejected(f"{mismatch}; nothing written to {a.room}")
+        print(f"stereod: {mismatch}; going on (--force)", file=sys.stderr)
     with stopped_by_signals("calibrate", a.room), create_output(a.room) as out:
         report = room_cal.calibrate_room(rigs, board)
         print(room_cal.format_report(report))

@@ -86,5 +86,6 @@ def run(a: argparse.Namespace) -> int:
     extrinsics = a.extrinsics or a.intrinsics.with_name("extrinsics" + a.intrinsics.suffix)
     check_outputs({"--out": a.out}, [a.intrinsics, extrinsics])
     cal_mod.save(cal, a.out)
+    print(f"{cal.source}: rectified focal length P1 {cal.array('P1')[0, 0]:.1f} px")
     print(f"wrote {a.out} (calibration id {cal.id}, baseline |T| {cal.baseline:.5g})")
     return 0

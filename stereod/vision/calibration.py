@@ -295,6 +295,18 @@ def _geometry_problem(name: str, a: np.ndarray, data: dict[str, Any]) -> str | N
     return None
 
 
+def swapped_problem(t: np.ndarray) -> str | None:
+    """Why a rig of translation ``t`` (left to right camera) has its eyes swapped, or None:
+    the right camera must sit at +x of the left one, so T's x component is negative."""
+    tx = float(np.asarray(t).ravel()[0])
+    if tx > 0:
+        return (
+            f"left and right look swapped (T.x = {tx:+.4g} > 0: the 'right' camera is on the "
+            "left): swap the left and right images (or the eyes' ports) and calibrate again"
+        )
+    return None
+
+
 def from_arrays(
     image_size: tuple[int, int],
     arrays: dict[str, np.ndarray],

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Literal, TypeVar
@@ -16,11 +17,18 @@ from stereod.errors import (
     MissingInputError,
     OutputError,
     StereodError,
+    UsageError,
 )
 from stereod.files.nesting import Syntax, check_depth
 from stereod.files.output_file import output_target
 from stereod.files.paths import read_input_file
-from stereod.vision.calibration import Calibration, create_output, from_arrays
+from stereod.vision.calibration import (
+    MAX_ENTRY,
+    Calibration,
+    create_output,
+    from_arrays,
+    swapped_problem,
+)
 
 T = TypeVar("T")
 
@@ -142,14 +150,17 @@ def _cv_reason(exc: BaseException) -> str:
 
 
 def _matrices(
-    keys: list[str],
+    keys: list[str], optional: tuple[str, ...] = ()
 ) -> Callable[[cv2.FileStorage], dict[str, np.ndarray] | OpenCVProblem]:
-    """A FileStorage reader of the matrices ``keys`` as float64 arrays."""
+    """A FileStorage reader of the matrices ``keys`` as float64 arrays; those of ``optional``
+    may be missing (they are left out of the result)."""
 
     def read(fs: cv2.FileStorage) -> dict[str, np.ndarray] | OpenCVProblem:
         out = {}
         for key in keys:
             node = fs.getNode(key)
+            if node.empty() and key in optional:
+                continue
             if node.empty():
                 return OpenCVProblem(f"field {key} is missing")
             m = _matrix_node(node)
@@ -190,19 +201,39 @@ def _matrix_node(node: cv2.FileNode) -> np.ndarray | str:
     return np.array(values, dtype=np.float64).reshape(r, c)
 
 
+RECTIFICATION = ("R1", "R2", "P1", "P2", "Q")
+"""The rectification matrices an extrinsics file may hold, as stereo_calib writes them."""
+_NUMBERS = {"M1": 9, "M2": 9, "R": 9, "T": 3, "R1": 9, "R2": 9, "P1": 12, "P2": 12, "Q": 16}
+_OURS = {"M1": "K1", "M2": "K2"}
+_THEIRS = {"K1": "M1", "K2": "M2"}
+PRINCIPAL_POINT_SPAN = (0.3, 0.7)
+"""Where a camera's principal point may lie, as a fraction of the image's side: within a few
+per cent of the middle for a webcam; at a quarter or at the edge, the calibration was made at
+another size than ``--size`` (twice or half of it)."""
+RECTIFICATION_TOL = 1e-4
+"""How far R2 R may differ from R1 (per entry), and R2 T from the x axis (relative to |T|),
+in a rectification that fits R and T: stereoRectify makes them agree to rounding."""
+
+
 def import_opencv(
     intrinsics: Path, extrinsics: Path | None, image_size: tuple[int, int]
 ) -> Calibration:
     """Read OpenCV FileStorage files (``M1 D1 M2 D2`` and ``R T``, optionally ``R1 R2 P1 P2
     Q``) such as OpenCV's ``stereo_calib`` sample writes; ``extrinsics`` defaults to
-    ``extrinsics.yml`` beside the intrinsics. The rectification is recomputed for
-    ``image_size`` when the file lacks it."""
+    ``extrinsics.yml`` beside the intrinsics. The file's rectification is kept when it holds
+    all five matrices and they fit R and T (whatever ``alpha`` made them: its focal length is
+    the file's); otherwise it is computed for ``image_size`` (alpha -1, as ``calibrate``
+    does). The result's ``source`` says which. Errors name the file that holds the bad value
+    (65), or ``--size`` when the principal points say the calibration was made at another
+    size (64); a rig whose right camera is on the left is refused as ``calibrate`` does."""
     beside = extrinsics is None
     if extrinsics is None:
         extrinsics = intrinsics.with_name("extrinsics" + intrinsics.suffix)
     arrays: dict[str, np.ndarray] = {}
-    names = {"M1": "K1", "D1": "D1", "M2": "K2", "D2": "D2"}
-    for path, wanted in ((intrinsics, names), (extrinsics, {"R": "R", "T": "T"})):
+    for path, wanted, optional in (
+        (intrinsics, ["M1", "D1", "M2", "D2"], ()),
+        (extrinsics, ["R", "T", *RECTIFICATION], RECTIFICATION),
+    ):
         if not path.exists():
             hint = ""
             if beside and path == extrinsics:  # not named: looked for beside the intrinsics
@@ -212,32 +243,122 @@ def import_opencv(
                 )
             raise MissingInputError(f"{path}: no such OpenCV calibration file{hint}")
         found = read_opencv_storage(
-            path, "an OpenCV calibration file", InputError, _matrices(list(wanted))
+            path, "an OpenCV calibration file", InputError, _matrices(wanted, optional)
         )
-        arrays.update({ours: found[key] for key, ours in wanted.items()})
-    for key, ours, size in (("M1", "K1", 9), ("M2", "K2", 9), ("R", "R", 9), ("T", "T", 3)):
-        if arrays[ours].size != size:
-            where = intrinsics if key.startswith("M") else extrinsics
-            raise InputError(
-                f"{where}: field {key} has {arrays[ours].size} numbers, a {key} has {size}"
-            )
+        for key, m in found.items():
+            _check_numbers(path, key, m)
+            arrays[_OURS.get(key, key)] = m
     for d in ("D1", "D2"):
-        v = arrays[d].ravel()
-        if v.size < 5:
-            v = np.concatenate([v, np.zeros(5 - v.size)])
-        elif v.size > 5:
-            if np.any(v[5:] != 0):
-                raise CalibrationError(
-                    f"{intrinsics}: field {d} has {v.size} coefficients (rational model); "
-                    "only plumb-bob k1 k2 p1 p2 k3 is supported"
-                )
-            v = v[:5]
-        arrays[d] = v.reshape(1, 5)
-    if not all(np.all(np.isfinite(a)) for a in arrays.values()):
-        raise InputError(f"{intrinsics}: a matrix holds a non-finite number (NaN or infinity)")
+        arrays[d] = _plumb_bob(intrinsics, d, arrays[d])
+    _check_size(intrinsics, arrays, image_size)
+    swapped = swapped_problem(arrays["T"])
+    if swapped is not None:
+        raise InputError(f"{extrinsics}: {swapped}")
+    held = [k for k in RECTIFICATION if k in arrays]
+    if len(held) == len(RECTIFICATION):
+        problem = _rectification_problem(arrays)
+        if problem is not None:
+            raise InputError(
+                f"{extrinsics}: R1 R2 P1 P2 Q do not fit R and T ({problem}): remove them from "
+                "the file to have them computed, or write them again with R and T"
+            )
+        how = f"rectification read from {extrinsics.name}"
+    else:
+        for k in held:
+            del arrays[k]
+        missing = " ".join(k for k in RECTIFICATION if k not in held)
+        how = f"rectification computed ({extrinsics.name} lacks {missing})"
     try:
-        return from_arrays(image_size, arrays, source=f"imported from {intrinsics.name}")
+        return from_arrays(image_size, arrays, source=f"imported from {intrinsics.name}; {how}")
     except CalibrationError as exc:
-        raise CalibrationError(f"{intrinsics}: {str(exc).removeprefix('calibration: ')}") from exc
+        text = str(exc).removeprefix("calibration: ").split("; the file is damaged")[0]
+        field = text.split(" ", 1)[0].split(":", 1)[0].split(".", 1)[0]
+        where = intrinsics if field in ("K1", "D1", "K2", "D2") else extrinsics
+        text = f"field {_THEIRS.get(field, field)}{text[len(field) :]}"
+        raise InputError(f"{where}: {text}") from exc
     except cv2.error as exc:
         raise InputError(f"{intrinsics}: cannot rectify these matrices: {_cv_reason(exc)}") from exc
+
+
+def _check_numbers(path: Path, key: str, m: np.ndarray) -> None:
+    """Matrix ``key`` of ``path`` has its number of entries, all finite and within any
+    calibration's; else an error naming the file and the field."""
+    want = _NUMBERS.get(key)
+    if want is not None and m.size != want:
+        raise InputError(f"{path}: field {key} has {m.size} numbers, a {key} has {want}")
+    if not np.all(np.isfinite(m)):
+        raise InputError(f"{path}: field {key} holds a non-finite number (NaN or infinity)")
+    if np.abs(m).max() > MAX_ENTRY:
+        raise InputError(
+            f"{path}: field {key} holds {np.abs(m).max():g}, beyond any calibration "
+            f"(|x| <= {MAX_ENTRY:g})"
+        )
+
+
+def _plumb_bob(path: Path, key: str, d: np.ndarray) -> np.ndarray:
+    """Distortion ``key`` as the five plumb-bob coefficients (1, 5): fewer are padded with
+    zeros; more (the rational model) are refused unless those past the fifth are zero."""
+    v = d.ravel()
+    if v.size < 5:
+        v = np.concatenate([v, np.zeros(5 - v.size)])
+    elif v.size > 5:
+        if np.any(v[5:] != 0):
+            raise InputError(
+                f"{path}: field {key} has {v.size} coefficients (rational model); "
+                "only plumb-bob k1 k2 p1 p2 k3 is supported"
+            )
+        v = v[:5]
+    return v.reshape(1, 5)
+
+
+def _check_size(path: Path, arrays: dict[str, np.ndarray], size: tuple[int, int]) -> None:
+    """The principal points of M1 and M2 lie near the middle of a ``size`` (w, h) image;
+    else ``--size`` is not the size the calibration was made at (the files do not record
+    it), and the error says which size the principal points suggest."""
+    lo, hi = PRINCIPAL_POINT_SPAN
+    for key in ("K1", "K2"):
+        k = arrays[key]
+        cx, cy = float(k[0, 2]), float(k[1, 2])
+        if not all(lo * side <= c <= hi * side for c, side in ((cx, size[0]), (cy, size[1]))):
+            raise UsageError(
+                f"--size {size[0]}x{size[1]}: {path}'s {_THEIRS[key]} has its principal point "
+                f"at ({cx:.1f}, {cy:.1f}) px, {cx / size[0]:.0%} and {cy / size[1]:.0%} of "
+                "that image (near 50 % in a camera): the calibration was made at another size; "
+                f"give --size of its images ({_likely_size(cx, cy)})"
+            )
+
+
+_CAMERA_MODES: tuple[tuple[int, int], ...] = (
+    *((160, 120), (320, 240), (352, 288), (640, 360), (640, 480), (800, 600), (960, 540)),
+    *((1024, 768), (1280, 720), (1280, 960), (1600, 1200), (1920, 1080), (3840, 2160)),
+)
+"""Common webcam modes (w, h), px: the hint for a --size that does not fit."""
+
+
+def _likely_size(cx: float, cy: float) -> str:
+    """The common camera mode whose middle is nearest a principal point (px), as a hint."""
+    w, h = min(_CAMERA_MODES, key=lambda m: math.hypot(m[0] / 2 - cx, m[1] / 2 - cy))
+    twice = f"{2 * cx:.0f}x{2 * cy:.0f}"
+    return f"{w}x{h} is the common mode nearest; twice the principal point is {twice}"
+
+
+def _rectification_problem(a: dict[str, np.ndarray]) -> str | None:
+    """Why the file's R1 R2 P1 P2 Q are not a rectification of its R and T, or None: R2 R
+    must be R1 (both eyes turned to one orientation), R2 T lie along x with the sign of P2's
+    baseline term, and P1 and P2 share their focal lengths and row centre (Q and the
+    baseline's length are checked where every calibration is loaded)."""
+    r1, r2 = a["R1"].reshape(3, 3), a["R2"].reshape(3, 3)
+    p1, p2 = a["P1"].reshape(3, 4), a["P2"].reshape(3, 4)
+    t = a["T"].ravel()
+    turn = float(np.abs(r2 @ a["R"].reshape(3, 3) - r1).max())
+    if turn > RECTIFICATION_TOL:
+        return f"R2 R differs from R1 by {turn:.2g}"
+    moved = r2 @ t
+    if float(np.abs(moved[1:]).max()) > RECTIFICATION_TOL * float(np.linalg.norm(t)):
+        return f"R2 T = ({moved[0]:.4g}, {moved[1]:.4g}, {moved[2]:.4g}) is not along x"
+    if p2[0, 0] > 0 and (p2[0, 3] / p2[0, 0]) * moved[0] < 0:
+        return f"P2[0][3] = {p2[0, 3]:.6g} has the other sign than T's x part"
+    for what, i, j in (("fx", 0, 0), ("fy", 1, 1), ("cy", 1, 2)):
+        if abs(p1[i, j] - p2[i, j]) > 1e-3 * max(abs(p1[i, j]), 1.0):
+            return f"P1 and P2 have {what} {p1[i, j]:.6g} and {p2[i, j]:.6g}"
+    return None

@@ -124,6 +124,26 @@ def rig_frame(cal: Calibration) -> Pose:
     return Pose(cal.array("R1"), np.array([-half, 0.0, 0.0]))
 
 
+def square_mismatch(name: str, cal_path: Path, cal: Calibration, square: float) -> str | None:
+    """Why ``square`` (``--square``, m) does not fit rig ``name``'s calibration, or ``None``.
+
+    The board's poses, and so the room's translations, scale with ``square``: a wrong one
+    moves every rig by its ratio to the true one while every reprojection RMS stays the same
+    (the corners are fitted as well at any scale). A calibration made by ``stereod calibrate``
+    records its board's square (the unit of its baseline); another value is refused unless
+    the room's board is another board than the rig's (``--force``). A calibration that
+    records no board (an imported one) cannot be checked."""
+    if cal.board is None or math.isclose(cal.board.square, square, rel_tol=1e-6):
+        return None
+    rec = cal.board.square
+    return (
+        f"--square {square:g} but rig {name}'s calibration {cal_path} was made with squares of "
+        f"{rec:g}: the room's distances scale with --square (by {square / rec:.3g} here) and no "
+        f"RMS shows it; give --square {rec:g}, or --force if the room's board is another "
+        "board than the rig's"
+    )
+
+
 def left_images(folder: Path) -> dict[str, Path]:
     """A rig's left-eye images by file name: those in ``folder/left`` when it exists, else the
     images in ``folder`` whose names do not contain ``right``."""
@@ -158,8 +178,9 @@ def _board_pose(cal: Calibration, corners: np.ndarray, obj: np.ndarray) -> tuple
 
 def calibrate_room(rigs: Sequence[RigViews], board: Board) -> RoomReport:
     """Each rig's pose in the frame of ``rigs[0]`` from the views (images of one name) that
-    two rigs or more saw; raises :class:`CalibrationError` when a rig shares no view with
-    the others or never finds the board."""
+    two rigs or more saw; raises :class:`InputError` (exit 65, as every refused calibration)
+    when a rig shares no view with the others, never finds the board, or two rigs' views of
+    one name disagree."""
     obj = board_points(board)
     poses: dict[str, dict[str, Pose]] = {}
     corners_of: dict[str, dict[str, np.ndarray]] = {}
@@ -182,7 +203,7 @@ def calibrate_room(rigs: Sequence[RigViews], board: Board) -> RoomReport:
             poses[rig.name][view], corners_of[rig.name][view] = pose, c
             errs.append(err)
         if not errs:
-            raise CalibrationError(
+            raise InputError(
                 f"rig {rig.name}: the {board.cols}x{board.rows} board was found in none of "
                 f"its {len(rig.images)} images: check --board and the images"
             )
@@ -200,7 +221,7 @@ def calibrate_room(rigs: Sequence[RigViews], board: Board) -> RoomReport:
             for v, p in zip(shared, rel, strict=True):
                 off = rotation_angle_deg(ab.r.T @ p.r)
                 if off > MAX_VIEW_DISAGREEMENT_DEG:
-                    raise CalibrationError(
+                    raise InputError(
                         f"view {v}: rigs {a} and {b} disagree with their other shared views by "
                         f"{off:.1f} deg (a board seen upside down, its corners numbered from "
                         "the other end, or images not taken at one instant): leave it out"
@@ -219,7 +240,7 @@ def calibrate_room(rigs: Sequence[RigViews], board: Board) -> RoomReport:
                 queue.append(b)
     lost = [n for n in names if n not in room]
     if lost:
-        raise CalibrationError(
+        raise InputError(
             f"rig {lost[0]} shares no board view with rig {names[0]} nor with a rig chained "
             "to it: take views (same file name in each rig's folder) that both rigs see"
         )
@@ -267,8 +288,9 @@ def calibrate_room(rigs: Sequence[RigViews], board: Board) -> RoomReport:
 def check_report(report: RoomReport, min_views: int, max_rms_px: float) -> list[str]:
     """What makes a room calibration clearly bad: a rig that saw the board in fewer than
     ``min_views`` views, or whose reprojection RMS (its own board poses, or the board other
-    rigs saw carried to it through the room) exceeds ``max_rms_px`` (a wrong board size or
-    square, a blurred view). Empty when it passes."""
+    rigs saw carried to it through the room) exceeds ``max_rms_px`` (a blurred view, images of
+    different instants; not a wrong square, which scales the poses and leaves every RMS the
+    same: :func:`square_mismatch`). Empty when it passes."""
     problems = []
     for r in report.rigs:
         if r.views < min_views:
