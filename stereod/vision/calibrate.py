@@ -18,9 +18,10 @@ seen in both eyes in a pose that differs enough from those already kept.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -318,16 +319,17 @@ def calibrate(
     obj = [board_points(board)] * len(found)
     left = [c for _, c, _ in found]
     right = [c for _, _, c in found]
-    rms_l, k1, d1, _, _ = cv2.calibrateCamera(obj, left, image_size, None, None)
-    rms_r, k2, d2, _, _ = cv2.calibrateCamera(obj, right, image_size, None, None)
-    fixed = cv2.stereoCalibrate(
-        obj, left, right, k1, d1, k2, d2, image_size,
-        flags=cv2.CALIB_FIX_INTRINSIC, criteria=STEREO_CRITERIA,
-    )  # fmt: skip
-    joint = cv2.stereoCalibrate(
-        obj, left, right, k1, d1, k2, d2, image_size,
-        flags=cv2.CALIB_USE_INTRINSIC_GUESS, criteria=STEREO_CRITERIA,
-    )  # fmt: skip
+    with _one_thread():  # OpenCV's threads sum in varying order: ids differed run to run
+        rms_l, k1, d1, _, _ = cv2.calibrateCamera(obj, left, image_size, None, None)
+        rms_r, k2, d2, _, _ = cv2.calibrateCamera(obj, right, image_size, None, None)
+        fixed = cv2.stereoCalibrate(
+            obj, left, right, k1, d1, k2, d2, image_size,
+            flags=cv2.CALIB_FIX_INTRINSIC, criteria=STEREO_CRITERIA,
+        )  # fmt: skip
+        joint = cv2.stereoCalibrate(
+            obj, left, right, k1, d1, k2, d2, image_size,
+            flags=cv2.CALIB_USE_INTRINSIC_GUESS, criteria=STEREO_CRITERIA,
+        )  # fmt: skip
     # The joint fit is kept when it fits at least as well with principal points in the image;
     # a pair that is no pair (two instants) can send it astray (cx 696 px in a 640 px image),
     # and then the fixed-intrinsics fit says more about what is wrong.
@@ -397,6 +399,19 @@ def calibrate(
     if swapped is not None:
         problems.append(swapped)
     return Report(cal, sorted(pairs, key=lambda p: p.name), problems)
+
+
+@contextlib.contextmanager
+def _one_thread() -> Iterator[None]:
+    """OpenCV on one thread within: the same pairs then give the same calibration to the
+    last bit, and so the same id (with its threads, sums taken in another order each run
+    moved the numbers by about 1e-12, and every run had an id of its own)."""
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
 
 
 def _sound(joint: Sequence, fixed: Sequence, image_size: tuple[int, int]) -> bool:
