@@ -49,6 +49,36 @@ def test_save_load_round_trip_and_id(tmp_path: Path) -> None:
     assert other.id != cal.id
 
 
+def _turned(deg: float) -> np.ndarray:
+    """A rotation of ``deg`` about the y axis."""
+    return cv2.Rodrigues(np.array([0.0, np.radians(deg), 0.0]))[0]
+
+
+@pytest.mark.parametrize(
+    ("edit", "said"),
+    [
+        (lambda c: {"P2": (c.array("P2") * [[1.05], [1], [1]]).tolist()}, "P1 and P2 have fx"),
+        (lambda c: {"R1": (_turned(5.0) @ c.array("R1")).tolist()}, "R2 R differs from R1"),
+        (lambda c: {"T": (-c.array("T")).tolist()}, r"P2\[0\]\[3\] = .* has the other sign"),
+    ],
+    ids=["P2 focal 5 % off", "R1 turned 5 deg", "T flipped"],
+)
+def test_a_file_edited_by_hand_must_still_be_one_rig(tmp_path: Path, edit, said: str) -> None:
+    """A file whose id was removed (to accept an edit) loaded whatever its numbers: P2's
+    focal length 5 % off P1's put a point 41 cm off, R1 turned 5 deg 1.39 m off. Its
+    rectification must fit its R and T, with the right eye at +x."""
+    cal = a_calibration()
+    edited = cal.model_copy(update={**edit(cal), "id": ""})
+    path = tmp_path / "edited.json"
+    path.write_text(edited.model_dump_json())
+    with pytest.raises(
+        CalibrationError, match=rf"edited.json: its numbers are not one rig's \({said}"
+    ):
+        load(path, (640, 480))
+    path.write_text(cal.model_copy(update={"id": ""}).model_dump_json())
+    assert load(path, (640, 480)).id == cal.id  # unedited, it loads as it was
+
+
 def test_a_vector_written_flat_is_read_as_the_column_or_row_it_stands_for(
     tmp_path: Path,
 ) -> None:

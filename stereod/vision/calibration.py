@@ -295,6 +295,34 @@ def _geometry_problem(name: str, a: np.ndarray, data: dict[str, Any]) -> str | N
     return None
 
 
+RECTIFICATION_TOL = 1e-4
+"""How far R2 R may differ from R1 (per entry), and R2 T from the x axis (relative to |T|),
+in a rectification that fits R and T: stereoRectify makes them agree to rounding."""
+
+
+def rectification_problem(a: dict[str, np.ndarray]) -> str | None:
+    """Why the file's R1 R2 P1 P2 Q are not a rectification of its R and T, or None: R2 R
+    must be R1 (both eyes turned to one orientation), R2 T lie along x with the sign of P2's
+    baseline term, and P1 and P2 share their focal lengths and row centre (Q and the
+    baseline's length are checked where every calibration is loaded). ``a`` holds the arrays
+    by name (R T R1 R2 P1 P2)."""
+    r1, r2 = a["R1"].reshape(3, 3), a["R2"].reshape(3, 3)
+    p1, p2 = a["P1"].reshape(3, 4), a["P2"].reshape(3, 4)
+    t = a["T"].ravel()
+    turn = float(np.abs(r2 @ a["R"].reshape(3, 3) - r1).max())
+    if turn > RECTIFICATION_TOL:
+        return f"R2 R differs from R1 by {turn:.2g}"
+    moved = r2 @ t
+    if float(np.abs(moved[1:]).max()) > RECTIFICATION_TOL * float(np.linalg.norm(t)):
+        return f"R2 T = ({moved[0]:.4g}, {moved[1]:.4g}, {moved[2]:.4g}) is not along x"
+    if p2[0, 0] > 0 and (p2[0, 3] / p2[0, 0]) * moved[0] < 0:
+        return f"P2[0][3] = {p2[0, 3]:.6g} has the other sign than T's x part"
+    for what, i, j in (("fx", 0, 0), ("fy", 1, 1), ("cy", 1, 2)):
+        if abs(p1[i, j] - p2[i, j]) > 1e-3 * max(abs(p1[i, j]), 1.0):
+            return f"P1 and P2 have {what} {p1[i, j]:.6g} and {p2[i, j]:.6g}"
+    return None
+
+
 def swapped_problem(t: np.ndarray) -> str | None:
     """Why a rig of translation ``t`` (left to right camera) has its eyes swapped, or None:
     the right camera must sit at +x of the left one, so T's x component is negative."""
@@ -407,7 +435,14 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> Calibration:
             f"{path}: field id: {cal.id} does not match the numbers ({cal.content_id()}); "
             "the file was edited or damaged: recalibrate, or remove the id to accept it"
         )
-    if not cal.id:
+    if not cal.id:  # written or edited by hand: its numbers must still be one rig
+        arrays = {k: cal.array(k) for k in ("R", "T", "R1", "R2", "P1", "P2")}
+        problem = rectification_problem(arrays) or swapped_problem(arrays["T"])
+        if problem is not None:
+            raise CalibrationError(
+                f"{path}: its numbers are not one rig's ({problem}): recalibrate, or import "
+                "the OpenCV files it came from with `stereod calibration import`"
+            )
         cal = cal.model_copy(update={"id": cal.content_id()})
     if image_size is not None and tuple(cal.image_size) != tuple(image_size):
         raise CalibrationError(

@@ -27,6 +27,7 @@ from stereod.vision.calibration import (
     Calibration,
     create_output,
     from_arrays,
+    rectification_problem,
     swapped_problem,
 )
 
@@ -210,9 +211,6 @@ PRINCIPAL_POINT_SPAN = (0.3, 0.7)
 """Where a camera's principal point may lie, as a fraction of the image's side: within a few
 per cent of the middle for a webcam; at a quarter or at the edge, the calibration was made at
 another size than ``--size`` (twice or half of it)."""
-RECTIFICATION_TOL = 1e-4
-"""How far R2 R may differ from R1 (per entry), and R2 T from the x axis (relative to |T|),
-in a rectification that fits R and T: stereoRectify makes them agree to rounding."""
 
 
 def import_opencv(
@@ -256,7 +254,7 @@ def import_opencv(
         raise InputError(f"{extrinsics}: {swapped}")
     held = [k for k in RECTIFICATION if k in arrays]
     if len(held) == len(RECTIFICATION):
-        problem = _rectification_problem(arrays)
+        problem = rectification_problem(arrays)
         if problem is not None:
             raise InputError(
                 f"{extrinsics}: R1 R2 P1 P2 Q do not fit R and T ({problem}): remove them from "
@@ -340,25 +338,3 @@ def _likely_size(cx: float, cy: float) -> str:
     w, h = min(_CAMERA_MODES, key=lambda m: math.hypot(m[0] / 2 - cx, m[1] / 2 - cy))
     twice = f"{2 * cx:.0f}x{2 * cy:.0f}"
     return f"{w}x{h} is the common mode nearest; twice the principal point is {twice}"
-
-
-def _rectification_problem(a: dict[str, np.ndarray]) -> str | None:
-    """Why the file's R1 R2 P1 P2 Q are not a rectification of its R and T, or None: R2 R
-    must be R1 (both eyes turned to one orientation), R2 T lie along x with the sign of P2's
-    baseline term, and P1 and P2 share their focal lengths and row centre (Q and the
-    baseline's length are checked where every calibration is loaded)."""
-    r1, r2 = a["R1"].reshape(3, 3), a["R2"].reshape(3, 3)
-    p1, p2 = a["P1"].reshape(3, 4), a["P2"].reshape(3, 4)
-    t = a["T"].ravel()
-    turn = float(np.abs(r2 @ a["R"].reshape(3, 3) - r1).max())
-    if turn > RECTIFICATION_TOL:
-        return f"R2 R differs from R1 by {turn:.2g}"
-    moved = r2 @ t
-    if float(np.abs(moved[1:]).max()) > RECTIFICATION_TOL * float(np.linalg.norm(t)):
-        return f"R2 T = ({moved[0]:.4g}, {moved[1]:.4g}, {moved[2]:.4g}) is not along x"
-    if p2[0, 0] > 0 and (p2[0, 3] / p2[0, 0]) * moved[0] < 0:
-        return f"P2[0][3] = {p2[0, 3]:.6g} has the other sign than T's x part"
-    for what, i, j in (("fx", 0, 0), ("fy", 1, 1), ("cy", 1, 2)):
-        if abs(p1[i, j] - p2[i, j]) > 1e-3 * max(abs(p1[i, j]), 1.0):
-            return f"P1 and P2 have {what} {p1[i, j]:.6g} and {p2[i, j]:.6g}"
-    return None
