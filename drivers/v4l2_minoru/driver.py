@@ -50,6 +50,9 @@ log = logging.getLogger(__name__)
 
 NODE_POLL_S = 0.1
 """How often an eye whose node has gone looks for it again, s (a stat of a path or two)."""
+INTERRUPT_S = 0.1
+"""Longest single wait (s) for a frame: a read waits ``read_timeout_s`` in slices this long,
+so that a stop ends it within this (the daemon leaves an eye behind after 1 s)."""
 
 
 class MinoruOptions(BaseModel):
@@ -231,7 +234,8 @@ class CameraEye(EyeSource):
                     continue
             assert self.device is not None
             try:
-                cap = self.device.read(self.opts.read_timeout_s)
+                # in slices, so that a stop (interrupt) is seen within INTERRUPT_S
+                cap = self.device.read(min(self.opts.read_timeout_s, INTERRUPT_S))
             except DeviceLost:
                 self.close()
                 raise

@@ -138,6 +138,26 @@ def test_interrupt_ends_a_blocked_read() -> None:
     src.close()
 
 
+def test_interrupt_ends_a_read_waiting_on_a_stalled_camera_at_once() -> None:
+    """A read waits for a frame in slices of ``INTERRUPT_S``, not ``read_timeout_s`` (up to
+    10 s) at once: a stop ends it within a slice, so the daemon never leaves the eye behind."""
+    import threading
+
+    k = kernel(stall_after=2)
+    src = MinoruDriver({**OPTS, "read_timeout_s": 5.0, "stall_s": 10.0}, io=k).open()
+    while src.right.read() is not None and k.cameras["/dev/fake1"].next_seq < 2:
+        pass
+    done = threading.Event()
+    t = threading.Thread(target=lambda: (src.right.read(), done.set()))
+    t.start()
+    time.sleep(0.3)  # waiting for a frame that does not come
+    assert not done.is_set()
+    src.right.interrupt()
+    assert done.wait(2.0)  # far within the 5 s one wait took (at most INTERRUPT_S now)
+    t.join()
+    src.close()
+
+
 def test_option_errors() -> None:
     with pytest.raises(ConfigError, match=r"driver\.options\.controls\.shutter: unknown control"):
         MinoruDriver({"controls": {"shutter": 1}})
