@@ -338,6 +338,50 @@ def test_a_live_daemon_whose_jsonl_reader_stops_reading_publishes_on_and_says_so
     assert f"{said}; the JSONL output is no longer written" in summary.problems
 
 
+def test_a_slow_jsonl_reader_gets_what_it_can_take_and_holds_back_no_message(
+    endpoint: str, tmp_path: Path
+) -> None:
+    """A reader that takes a page of the pipe every half second (it never stops, so it is
+    never given up): the JSONL was written on the Zenoh thread, which then published at the
+    reader's pace (7 of 300 messages in 10 s). A live daemon's JSONL is now written from a
+    queue of its own that drops its oldest line, counted as ``jsonl_behind``."""
+    import fcntl
+
+    fifo = tmp_path / "objects.fifo"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
+    fcntl.fcntl(reader, 1031, 4096)  # F_SETPIPE_SZ: one page
+    options = {"live": True, "loop": True, "fps": 30, "duration_s": 2.0}
+    options |= {"width_px": 160, "height_px": 120}
+    daemon = Daemon(config(endpoint), SyntheticDriver(options), jsonl=fifo)
+    thread, out = start(daemon)
+    got = b""
+    try:
+        deadline = time.monotonic() + 20
+        while daemon._publisher is None or daemon._publisher.published < 10:
+            assert time.monotonic() < deadline and thread.is_alive()
+            time.sleep(0.05)
+        before, t0 = daemon._publisher.published, time.monotonic()
+        while time.monotonic() - t0 < 3.0:
+            with contextlib.suppress(BlockingIOError):
+                got += os.read(reader, 4096)
+            time.sleep(0.5)
+        published = daemon._publisher.published - before
+        assert published >= 60, published  # 90 pairs in 3 s at 30 Hz, beside a slow reader
+        assert daemon.health.counters()[0].get("jsonl_behind", 0) > 0
+    finally:
+        daemon.stop()
+        with contextlib.suppress(BlockingIOError):
+            while chunk := os.read(reader, 65536):
+                got += chunk
+        thread.join(30)
+        os.close(reader)
+    assert out["summary"].error is None
+    lines = got.split(b"\n")
+    seqs = [json.loads(line)["seq"] for line in lines[:-1]]
+    assert seqs == sorted(seqs) and len(seqs) >= 3  # whole messages, in order, gaps allowed
+
+
 def test_a_hung_pipeline_stops_feeding_the_watchdog_and_says_so(
     endpoint: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -344,6 +344,7 @@ class Daemon:
                 on_fatal=self.fail,
                 on_message=on_message,
                 on_reader_gone=self._jsonl_reader_gone,
+                live=info.live,
             )
             eyes = [self._thread(loop, name, daemon=True) for name, loop in capture.loops()]
             sender = self._thread(output.loop, "output")
