@@ -500,6 +500,69 @@ def test_a_reloaded_pipeline_that_cannot_be_made_leaves_the_running_one(
     assert out["summary"].error is None
 
 
+def test_a_reload_replaced_before_use_and_one_refused_leave_the_running_one_everywhere(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two reloads handed over before the pipeline thread took either (50 deg, then 42 deg,
+    whose pipeline cannot be made): the first is dropped and the second refused, and the
+    configuration, the calibration queryable and ROS 2 all keep the running 60 deg. They
+    took each reload as it was handed over, and could name one that never ran."""
+    import math
+
+    from stereod.daemon.reload import RELOAD_REFUSED
+    from stereod.daemon.replies import calibration_reply
+    from stereod.pipeline import Pipeline
+
+    def cfg(hfov: float) -> Any:
+        overrides = {"zenoh": {"connect": [endpoint]}, "rig": {"hfov_deg": hfov}}
+        return load_config(overrides={**overrides, "ros2": {"enabled": True}})
+
+    hfov = {"now": 60.0}
+    options = {"live": True, "loop": True, "fps": 15, "duration_s": 2.0}
+    options |= {"width_px": 160, "height_px": 120}
+    daemon = Daemon(cfg(60.0), SyntheticDriver(options), reload_config=lambda: cfg(hfov["now"]))
+    real = Pipeline.reconfigured
+
+    def reconfigured(self: Pipeline, params: Any) -> Any:
+        if params.rig.hfov_deg == 42.0:
+            raise MemoryError("no room")
+        return real(self, params)
+
+    monkeypatch.setattr(Pipeline, "reconfigured", reconfigured)
+    release = threading.Event()
+    thread, out = start(daemon)
+    try:
+        deadline = time.monotonic() + 20
+        while daemon.ros2 is None or daemon.health.stats().pairs < 3:
+            assert time.monotonic() < deadline and thread.is_alive()
+            time.sleep(0.05)
+        worker = daemon._worker
+        assert worker is not None
+        monkeypatch.setattr(worker, "_swap", lambda: release.wait(30))  # hold the hand-over
+        for h in (50.0, 42.0):
+            hfov["now"] = h
+            daemon.reload()
+            while worker._pending is None or worker._pending[0].rig.hfov_deg != h:
+                assert time.monotonic() < deadline, daemon.health.problems()
+                time.sleep(0.02)
+        monkeypatch.undo()  # the real swap (and reconfigured) again, then let it run
+        monkeypatch.setattr(Pipeline, "reconfigured", reconfigured)
+        release.set()
+        while f"{RELOAD_REFUSED}: MemoryError: no room" not in daemon.health.problems():
+            assert time.monotonic() < deadline, daemon.health.problems()
+            time.sleep(0.02)
+        assert daemon.cfg.rig.hfov_deg == 60.0
+        assert json.loads(calibration_reply(worker.rig))["hfov_deg"] == 60.0
+        want = 80 / math.tan(math.radians(30.0))
+        assert daemon.ros2 is not None
+        assert daemon.ros2.ros.calibration.array("P1")[0, 0] == pytest.approx(want)
+    finally:
+        release.set()
+        daemon.stop()
+        thread.join(30)
+    assert out["summary"].error is None
+
+
 def test_a_reload_of_the_geometry_reaches_the_ros2_node(endpoint: str) -> None:
     """A SIGHUP with a new field of view (or calibration) reached the pipeline and the
     calibration queryable but not ROS 2, whose camera_info kept the start-up focal length

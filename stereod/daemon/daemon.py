@@ -37,7 +37,7 @@ from stereod.daemon.params import pipeline_params
 from stereod.daemon.processing import Outgoing, PipelineWorker
 from stereod.daemon.reload import RELOAD_REFUSED, RELOAD_WAITING, effective, waiting
 from stereod.daemon.replies import calibration_reply, config_reply
-from stereod.daemon.ros2_node import Rig, give_geometry, make_node
+from stereod.daemon.ros2_node import give_geometry, make_node
 from stereod.daemon.sdnotify import Notifier
 from stereod.daemon.shared_rig import SharedRig
 from stereod.daemon.status import Health, geometry_note
@@ -491,19 +491,16 @@ class Daemon:
             )
         assert self._worker is not None
 
-        def failed(
-            why: str, running: StereodConfig = self.cfg, rig: Rig = self._worker.rig
-        ) -> None:
-            if self.cfg is cfg:  # no later reload has replaced it
-                self.cfg = running
-                give_geometry(self.ros2, rig, self.health)
+        def applied() -> None:  # on the pipeline thread, once the new pipeline runs
+            self.cfg = cfg
+            give_geometry(self.ros2, params.rig, self.health)
+            log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)
+
+        def failed(why: str) -> None:  # there too: the running pipeline and cfg stay
             self.health.restate(RELOAD_REFUSED, f"{RELOAD_REFUSED}: {why}", notice=True)
 
         self.health.resolved(RELOAD_REFUSED)  # before the swap, which may refuse it yet
-        self._worker.reconfigure(params, failed)
-        self.cfg = cfg
-        give_geometry(self.ros2, params.rig, self.health)
-        log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)
+        self._worker.reconfigure(params, applied, failed)
         self._notifier.notify(READY=1)
         self._status_now.set()
 

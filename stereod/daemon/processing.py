@@ -104,7 +104,8 @@ class PipelineWorker:
         """Set once the output thread has ended: a put into a full queue then gives up. Until
         then every result goes out, after a stop too (the output drains what is queued), so a
         stopped file's JSONL holds every pair processed, in order."""
-        self._pending: tuple[PipelineParams, Callable[[str], None] | None] | None = None
+        self._pending: tuple[PipelineParams, Callable[[], None], Callable[[str], None]] | None
+        self._pending = None
         self._lock = threading.Lock()
         self._saturated: dict[str, int] = {}
         self.keep_pairs = False
@@ -122,31 +123,33 @@ class PipelineWorker:
 
     @property
     def rig(self) -> CanonicalRig | CalibratedRig:
-        """The geometry in force (after a pending reconfiguration, the new one)."""
-        with self._lock:
-            pending = self._pending
-        return (pending[0] if pending else self.pipeline.params).rig
+        """The geometry in force: the running pipeline's (a reload's once it is swapped in)."""
+        return self.pipeline.params.rig
 
     def reconfigure(
-        self, params: PipelineParams, on_failure: Callable[[str], None] | None = None
+        self,
+        params: PipelineParams,
+        on_applied: Callable[[], None] = lambda: None,
+        on_failure: Callable[[str], None] = lambda why: None,
     ) -> None:
-        """Use ``params`` from the next pair on (any thread; the last call wins). Should the
-        new pipeline fail to be made, the running one stays and ``on_failure`` is told why."""
+        """Use ``params`` from the next pair on, or within a quarter second without pairs
+        (any thread; the last call wins: one replaced before it was used is dropped). Once
+        the new pipeline runs, ``on_applied`` is called; should it fail to be made, the
+        running one stays and ``on_failure`` is told why (both on the pipeline thread)."""
         with self._lock:
-            self._pending = (params, on_failure)
+            self._pending = (params, on_applied, on_failure)
 
     def _swap(self) -> None:
         with self._lock:
             pending, self._pending = self._pending, None
         if pending is None:
             return
-        params, on_failure = pending
+        params, on_applied, on_failure = pending
         try:
             self.pipeline, ended = self.pipeline.reconfigured(params)
         except Exception as exc:  # nothing a reload brings may end a running daemon
             log.warning("reload: the new pipeline could not be made", exc_info=True)
-            if on_failure is not None:
-                on_failure(f"{type(exc).__name__}: {exc}")
+            on_failure(f"{type(exc).__name__}: {exc}")
             return
         self._lefts_ns = []
         rig = params.rig
@@ -155,6 +158,7 @@ class PipelineWorker:
         self.health.geometry_note = geometry_note(rig)
         if ended:
             self.out.put(Outgoing(None, ended=ended), self._output_gone)
+        on_applied()
 
     def loop(self) -> None:
         try:
