@@ -634,7 +634,7 @@ def test_a_stop_does_not_wait_for_ever_for_a_read_that_never_returns(endpoint: s
         hang.set()
         time.sleep(0.2)
         daemon.stop()
-        thread.join(10)
+        thread.join(10)  # 1.25 s measured: 1 s for the eyes, then the drain
         assert not thread.is_alive()
     finally:
         release.set()

@@ -64,7 +64,8 @@ STOP_WRITE_S = 2.0
 reader that stopped reading before it counts as gone: the daemon then ends all the same."""
 EYES_STOP_S = 1.0
 """How long (s) after a stop the daemon waits for an eye's read to return before it leaves
-that eye behind and ends the run with what is queued (systemd waits 2 s, as the docs say)."""
+that eye behind and ends the run with what is queued (the docs promise an exit within 2 s;
+the units' ``TimeoutStopSec`` is 5 s)."""
 STUCK_S = 5.0
 """A pipeline or output thread working on one item (a pair, a message) for longer than this
 (s) is hung (a live source's: a file's may wait for its JSONL's reader): said on the status
@@ -163,6 +164,8 @@ class Daemon:
         """What the source has said of its input and this run has reported (see
         :meth:`_input_problems`)."""
         self._worker: PipelineWorker | None = None
+        self._left_behind = False
+        """Whether an eye was left behind at the stop (its read had not returned)."""
         self._publisher: Publisher | None = None
         self.pairer = Pairer(int(cfg.pairing.tolerance_ms * 1e6), cfg.pairing.max_pending)
         self.health = Health(cfg.rig.name, driver.name, self.pairer, self._status_now.set)
@@ -229,7 +232,8 @@ class Daemon:
 
     def run(self) -> RunSummary:
         """Open the source and the session, run to the end of input or :meth:`stop`."""
-        with self.driver.open() as source:
+        source = self.driver.open()
+        try:
             self._source = source
             info = source.info
             separate_large_buffers(info.width, info.height)
@@ -258,6 +262,11 @@ class Daemon:
                     jsonl.discard()
                 else:
                     jsonl.commit()
+        finally:
+            if self._left_behind:  # closing it under an eye's read could crash the process
+                log.warning("the source is left open: an eye's read has not returned")
+            else:
+                source.close()
         return self._finish()
 
     def _thread(
@@ -364,9 +373,10 @@ class Daemon:
                     for t in threads:
                         if t.ident is not None:
                             t.join()
-                for t in eyes:  # left behind after EYES_STOP_S when their reads hang
-                    if t.ident is not None:
-                        t.join(EYES_STOP_S)
+                until = time.monotonic() + EYES_STOP_S  # one wait for all, none if left behind
+                for t in eyes:
+                    if t.ident is not None and not self._left_behind:
+                        t.join(max(until - time.monotonic(), 0.0))
                 if ros2 is not None:
                     ros2.close()
                 if images is not None and painter is not None:
@@ -422,6 +432,7 @@ class Daemon:
                         "(the driver's read cannot be interrupted); left behind"
                     )
                     capture.leave_behind()
+                    self._left_behind = True
                 stopped_at = math.inf
             if self._status_now.is_set() or now - last >= period:
                 self._status_now.clear()
@@ -431,7 +442,7 @@ class Daemon:
                 pub.status(dump(status))
                 self._notify_status(status)
                 last = now
-            moving = not (self.health.live and self.health.check_stuck(STUCK_S))
+            moving = not (self.health.live and self.health.check_stuck(STUCK_S, bool(watchdog)))
             if watchdog and now - last_dog >= watchdog / 2 and self.health.frames_flowing(watchdog):
                 if moving:
                     self._notifier.notify(WATCHDOG=1)

@@ -239,18 +239,19 @@ class Health:
         """``thread`` is done with its item."""
         self._busy.pop(thread, None)
 
-    def check_stuck(self, limit_s: float) -> bool:
+    def check_stuck(self, limit_s: float, watchdog: bool = True) -> bool:
         """Whether a thread has worked on one item for more than ``limit_s`` (s): the daemon
         is hung though frames flow (the watchdog is then no longer fed, and systemd restarts
-        it). Said on the status key once per thread, and taken off when it moves again."""
+        it; ``watchdog``: whether there is one). Said on the status key once per thread, and
+        taken off when it moves again."""
         now = time.monotonic()
         stuck = {t: now - at for t, at in list(self._busy.items()) if now - at > limit_s}
         for thread, age in stuck.items():
             if thread not in self._stuck:
                 self._stuck.add(thread)
+                fed = "the watchdog is no longer fed" if watchdog else "no watchdog restarts it"
                 self.problem(
-                    f"{thread} thread: stuck on one item for {age:.0f} s; the watchdog is no "
-                    "longer fed",
+                    f"{thread} thread: stuck on one item for {age:.0f} s; {fed}",
                     f"{thread}_stuck",
                 )
         for thread in self._stuck - stuck.keys():
