@@ -601,14 +601,20 @@ class _HangingEye(EyeSource):
 
     def __init__(self, eye: Eye, hang: threading.Event, release: threading.Event) -> None:
         self.eye, self.hang, self.release, self.k = eye, hang, release, 0
+        self.reading = self.closed_while_reading = False
 
     def read(self) -> Frame | None:
         if self.hang.is_set():
+            self.reading = True
             self.release.wait(60)
+            self.reading = False
             return None
         time.sleep(0.02)
         self.k += 1
         return Frame(self.eye, np.full((48, 64), 100, np.uint8), time.monotonic_ns(), self.k)
+
+    def close(self) -> None:
+        self.closed_while_reading |= self.reading
 
 
 def test_a_stop_does_not_wait_for_ever_for_a_read_that_never_returns(endpoint: str) -> None:
@@ -617,11 +623,12 @@ def test_a_stop_does_not_wait_for_ever_for_a_read_that_never_returns(endpoint: s
     such an eye behind ``EYES_STOP_S`` after the stop, says so, and ends."""
     hang, release = threading.Event(), threading.Event()
 
+    eyes = (_HangingEye(Eye.LEFT, hang, release), _HangingEye(Eye.RIGHT, hang, release))
+
     class HangingDriver(Driver):
         name = "hanging"
 
         def open(self) -> StereoSource:
-            eyes = (_HangingEye(Eye.LEFT, hang, release), _HangingEye(Eye.RIGHT, hang, release))
             return StereoSource(*eyes, SourceInfo(64, 48, 50.0, True, "hanging reads"))
 
     daemon = Daemon(config(endpoint), HangingDriver())
@@ -636,6 +643,7 @@ def test_a_stop_does_not_wait_for_ever_for_a_read_that_never_returns(endpoint: s
         daemon.stop()
         thread.join(10)  # 1.25 s measured: 1 s for the eyes, then the drain
         assert not thread.is_alive()
+        assert not any(e.closed_while_reading for e in eyes)  # that could crash a driver
     finally:
         release.set()
         thread.join(10)

@@ -363,20 +363,18 @@ class Daemon:
                 for t in [*eyes, *threads, *([painter] if painter else [])]:
                     t.start()
                 self._status_loop(pub, sender, capture, eyes, (info.width, info.height))
-                output_gone.set()  # the output thread has ended: nothing waits for it
-                for t in threads:
-                    t.join()
             finally:  # also on Ctrl-C in this thread: no thread outlives the run
-                output_gone.set()
+                output_gone.set()  # the output thread has ended, or is to: nothing waits for it
                 if any(t.is_alive() for t in [*eyes, *threads]):
                     self.stop()
-                    for t in threads:
-                        if t.ident is not None:
-                            t.join()
                 until = time.monotonic() + EYES_STOP_S  # one wait for all, none if left behind
                 for t in eyes:
                     if t.ident is not None and not self._left_behind:
                         t.join(max(until - time.monotonic(), 0.0))
+                self._leave_behind(capture, eyes)  # before the pipeline, which waits for them
+                for t in threads:
+                    if t.ident is not None:
+                        t.join()
                 if ros2 is not None:
                     ros2.close()
                 if images is not None and painter is not None:
@@ -426,13 +424,7 @@ class Daemon:
             if self._stop.is_set() and stopped_at is None:
                 stopped_at = now
             elif stopped_at is not None and now - stopped_at > EYES_STOP_S:
-                if late := [t.name for t in eyes if t.is_alive()]:
-                    self.health.problem(
-                        f"{', '.join(late)}: reading still {EYES_STOP_S:g} s after the stop "
-                        "(the driver's read cannot be interrupted); left behind"
-                    )
-                    capture.leave_behind()
-                    self._left_behind = True
+                self._leave_behind(capture, eyes)
                 stopped_at = math.inf
             if self._status_now.is_set() or now - last >= period:
                 self._status_now.clear()
@@ -514,6 +506,18 @@ class Daemon:
         self._worker.reconfigure(params, applied, failed)
         self._notifier.notify(READY=1)
         self._status_now.set()
+
+    def _leave_behind(self, capture: Capture, eyes: list[threading.Thread]) -> None:
+        """Leave behind the eyes still reading (once): the run ends without them, and their
+        source is not closed under their reads."""
+        late = [t.name for t in eyes if t.is_alive()]
+        if late and not self._left_behind:
+            self.health.problem(
+                f"{', '.join(late)}: reading still {EYES_STOP_S:g} s after the stop (the "
+                "driver's read cannot be interrupted); left behind"
+            )
+            capture.leave_behind()
+            self._left_behind = True
 
     def _rig_taken(self, pub: Publisher) -> None:
         """Another daemon's token for this rig was on the bus at open (a replay refuses)."""

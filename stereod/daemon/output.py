@@ -93,7 +93,11 @@ class Output:
                 except Closed:
                     break
                 if line is not None:
-                    self._write(line)
+                    self.health.busy("jsonl")  # a write that hangs (a dead disk) is stuck
+                    try:
+                        self._write(line)
+                    finally:
+                        self.health.idle("jsonl")
         except BaseException as exc:  # no thread dies silently
             self._on_fatal(exc)
 

@@ -156,9 +156,9 @@ class PipelineWorker:
         self.health.geometry = rig.geometry
         self.health.calibration_id = rig.calibration_id
         self.health.geometry_note = geometry_note(rig)
+        on_applied()  # before a put that may wait: the queryables and ROS 2 agree at once
         if ended:
             self.out.put(Outgoing(None, ended=ended), self._output_gone)
-        on_applied()
 
     def loop(self) -> None:
         try:
