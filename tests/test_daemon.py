@@ -30,6 +30,18 @@ def config(endpoint: str, **daemon: Any):
     return load_config(overrides={"zenoh": {"connect": [endpoint]}, "daemon": daemon})
 
 
+def live_synthetic(fps: int) -> dict[str, Any]:
+    """Options of a small synthetic camera playing a 2 s scene live, over and over."""
+    return {
+        "live": True,
+        "loop": True,
+        "fps": fps,
+        "duration_s": 2.0,
+        "width_px": 160,
+        "height_px": 120,
+    }
+
+
 def start(daemon: Daemon) -> tuple[threading.Thread, dict]:
     out: dict = {}
     t = threading.Thread(target=lambda: out.setdefault("summary", daemon.run()))
@@ -315,8 +327,7 @@ def test_a_live_daemon_whose_jsonl_reader_stops_reading_publishes_on_and_says_so
     os.mkfifo(fifo)
     reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # open, and never read
     fcntl.fcntl(reader, 1031, 4096)  # F_SETPIPE_SZ: a page, full after a few messages
-    options = {"live": True, "loop": True, "fps": 30, "duration_s": 2.0}
-    options |= {"width_px": 160, "height_px": 120}
+    options = live_synthetic(30)
     daemon = Daemon(config(endpoint), SyntheticDriver(options), jsonl=fifo)
     thread, out = start(daemon)
     said = f"{fifo}: its reader took nothing for {JSONL_STALL_S:g} s"
@@ -351,8 +362,7 @@ def test_a_slow_jsonl_reader_gets_what_it_can_take_and_holds_back_no_message(
     os.mkfifo(fifo)
     reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
     fcntl.fcntl(reader, 1031, 4096)  # F_SETPIPE_SZ: one page
-    options = {"live": True, "loop": True, "fps": 30, "duration_s": 2.0}
-    options |= {"width_px": 160, "height_px": 120}
+    options = live_synthetic(30)
     daemon = Daemon(config(endpoint), SyntheticDriver(options), jsonl=fifo)
     thread, out = start(daemon)
     got = b""
@@ -396,8 +406,7 @@ def test_a_hung_pipeline_stops_feeding_the_watchdog_and_says_so(
     monkeypatch.setattr(daemon_module, "STUCK_S", 0.5)
     sock, address = receiver(tmp_path)
     notifier = Notifier({"NOTIFY_SOCKET": address, "WATCHDOG_USEC": "400000"})
-    options = {"live": True, "loop": True, "fps": 30, "duration_s": 2.0}
-    options |= {"width_px": 160, "height_px": 120}
+    options = live_synthetic(30)
     daemon = Daemon(config(endpoint), SyntheticDriver(options), notifier=notifier)
     release = threading.Event()
     thread, out = start(daemon)
@@ -469,8 +478,7 @@ def test_a_reloaded_pipeline_that_cannot_be_made_leaves_the_running_one(
     from stereod.daemon.reload import RELOAD_REFUSED
     from stereod.pipeline import Pipeline
 
-    options = {"live": True, "loop": True, "fps": 30, "duration_s": 2.0}
-    options |= {"width_px": 160, "height_px": 120}
+    options = live_synthetic(30)
     cfg = config(endpoint)
     new = cfg.model_copy(update={"detector": cfg.detector.model_copy(update={"threshold": 31})})
     daemon = Daemon(cfg, SyntheticDriver(options), reload_config=lambda: new)
@@ -518,8 +526,7 @@ def test_a_reload_replaced_before_use_and_one_refused_leave_the_running_one_ever
         return load_config(overrides={**overrides, "ros2": {"enabled": True}})
 
     hfov = {"now": 60.0}
-    options = {"live": True, "loop": True, "fps": 15, "duration_s": 2.0}
-    options |= {"width_px": 160, "height_px": 120}
+    options = live_synthetic(15)
     daemon = Daemon(cfg(60.0), SyntheticDriver(options), reload_config=lambda: cfg(hfov["now"]))
     real = Pipeline.reconfigured
 
@@ -574,8 +581,7 @@ def test_a_reload_of_the_geometry_reaches_the_ros2_node(endpoint: str) -> None:
         return load_config(overrides={**overrides, "ros2": {"enabled": True}})
 
     hfov = {"now": 60.0}
-    options = {"live": True, "loop": True, "fps": 15, "duration_s": 2.0}
-    options |= {"width_px": 160, "height_px": 120}
+    options = live_synthetic(15)
     daemon = Daemon(cfg(60.0), SyntheticDriver(options), reload_config=lambda: cfg(hfov["now"]))
     thread, out = start(daemon)
     try:
