@@ -99,6 +99,34 @@ def test_a_vector_written_flat_is_read_as_the_column_or_row_it_stands_for(
 
 
 @pytest.mark.parametrize(
+    ("d1", "said"),
+    [
+        ([1e8, 0, 0, 0, 0], r"makes the horizontal field of view 0\.\d+ deg: it must be in 5"),
+        ([-0.6, 0, 0, 0, 0], r"cannot be undone over the image: the point 0, 240 px comes back"),
+    ],
+    ids=["k1 1e8", "k1 -0.6 folds"],
+)
+def test_a_lens_distortion_no_lens_has_is_refused(tmp_path: Path, d1: list, said: str) -> None:
+    """A distortion coefficient of 1e8 (a typing slip) loaded, its camera seeing 0.2 deg of
+    the scene; k1 = -0.6 at this focal length folds the image before its sides, so no ray
+    reaches them. Each is refused naming D1, hand-edited (no id) or not; the rig's own
+    distortion, and none, load."""
+    cal = a_calibration()
+    path = tmp_path / "lens.json"
+    for d in ([0.0] * 5, cal.array("D1").ravel().tolist()):
+        path.write_text(cal.model_copy(update={"D1": [d], "id": ""}).model_dump_json())
+        load(path, (640, 480))
+    path.write_text(cal.model_copy(update={"D1": [d1], "id": ""}).model_dump_json())
+    with pytest.raises(CalibrationError, match=rf"lens.json: D1: lens distortion .*{said}"):
+        load(path, (640, 480))
+    with pytest.raises(CalibrationError, match=rf"calibration: D1: lens distortion .*{said}"):
+        from_arrays(
+            (640, 480),
+            {**{k: cal.array(k) for k in ("K1", "K2", "D2", "R", "T")}, "D1": np.array(d1, float)},
+        )
+
+
+@pytest.mark.parametrize(
     ("edit", "pattern"),
     [
         (lambda d: d.pop("K1"), r"K1: required field is missing"),

@@ -355,6 +355,17 @@ def calibrate(
         pairs_rejected=len(rejected),
     )
     baseline = float(np.linalg.norm(t))
+    badly_fitted = None
+    if rms > limits.max_rms_px:
+        # --square scales lengths only and cannot change an RMS: name the pair that fits worst.
+        errs = [float(e.mean()) for e in epis]
+        worst = int(np.argmax(errs))
+        badly_fitted = (
+            f"stereo RMS {rms:.3f} px is above {limits.max_rms_px:g} px; the worst pair is "
+            f"{found[worst][0]} (epipolar error {errs[worst]:.3g} px, the median pair's "
+            f"{float(np.median(errs)):.3g} px): drop it, or other blurred pairs or pairs whose "
+            "images were not taken at once"
+        )
     try:
         cal = from_arrays(
             image_size,
@@ -374,6 +385,11 @@ def calibrate(
                 "length of the result scales with --square; check it is the side of one "
                 "square in metres"
             ) from exc
+        if badly_fitted is not None:  # a fit spoilt by a bad pair: that pair is the cause
+            raise InputError(
+                f"{source or 'the pairs'}: {badly_fitted}; no calibration file can hold the "
+                f"result ({first}), --force or not"
+            ) from exc
         raise InputError(
             f"{source or 'the pairs'}: the board's views give no stereo rig ({first}{same}): "
             "give pairs whose left and right images come from the two eyes at once; no "
@@ -385,16 +401,8 @@ def calibrate(
             f"only {len(found)} usable pairs, at least {limits.min_pairs} needed: add views of "
             "the board at different distances and angles"
         )
-    if rms > limits.max_rms_px:
-        # --square scales lengths only and cannot change an RMS: name the pair that fits worst.
-        errs = [float(e.mean()) for e in epis]
-        worst = int(np.argmax(errs))
-        problems.append(
-            f"stereo RMS {rms:.3f} px is above {limits.max_rms_px:g} px; the worst pair is "
-            f"{found[worst][0]} (epipolar error {errs[worst]:.3g} px, the median pair's "
-            f"{float(np.median(errs)):.3g} px): drop it, or other blurred pairs or pairs whose "
-            "images were not taken at once"
-        )
+    if badly_fitted is not None:
+        problems.append(badly_fitted)
     swapped = swapped_problem(t)
     if swapped is not None:
         problems.append(swapped)

@@ -244,11 +244,65 @@ def _close(a: float, b: float) -> bool:
     return abs(a - b) <= RECTIFIED_REL_TOL * max(abs(a), abs(b), 1e-12)
 
 
+DISTORTION_ROUND_TRIP_PX = 0.5
+"""How far (px) an image point may come back after its lens distortion is undone and applied
+again: a lens model that a camera's calibration fits inverts over its image to far less; one
+that does not (a coefficient typed wrong) folds the image and rectifies nothing."""
+
+
+def distortion_problem(k: np.ndarray, d: np.ndarray, size: tuple[int, int]) -> str | None:
+    """Why camera matrix ``k`` with distortion ``d`` cannot be a lens over an image of
+    ``size`` (w, h, px), or None. Points of a 17 x 13 grid within the ellipse the image's
+    sides touch (its corners are left out: a fit has few board corners there, and a real fit
+    may fold them) must come back within :data:`DISTORTION_ROUND_TRIP_PX` when the
+    distortion is undone (``undistortPoints``, iterated to convergence) and applied again
+    (``projectPoints``); and the rays of the left and right sides' middles, undistorted,
+    must span a field of view within :data:`HFOV_DEG`'s bounds (the focal length's own is
+    checked apart)."""
+    w, h = size
+    xs, ys = np.meshgrid(np.linspace(0.0, w - 1.0, 17), np.linspace(0.0, h - 1.0, 13))
+    inside = ((xs / (w - 1.0) - 0.5) ** 2 + (ys / (h - 1.0) - 0.5) ** 2) <= 0.25 + 1e-9
+    px = np.column_stack((xs[inside], ys[inside]))
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-10)
+    d = d.reshape(1, -1)
+    eye = np.eye(3)
+    ideal = cv2.undistortPoints(px.reshape(-1, 1, 2), k, d, None, eye, eye, criteria)
+    rays = np.column_stack((ideal.reshape(-1, 2), np.ones(len(px))))
+    back: np.ndarray = np.full_like(px, np.nan)
+    if np.all(np.isfinite(rays)):
+        back = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), k, d)[0].reshape(-1, 2)
+    off = np.linalg.norm(back - px, axis=1)
+    worst = int(np.argmax(np.where(np.isfinite(off), off, np.inf)))
+    if not off[worst] <= DISTORTION_ROUND_TRIP_PX:
+        x, y = px[worst]
+        return (
+            f"lens distortion {d.ravel().round(6).tolist()} cannot be undone over the image: "
+            f"the point {x:.0f}, {y:.0f} px comes back {off[worst]:.3g} px off, more than "
+            f"{DISTORTION_ROUND_TRIP_PX:g}, when undistorted and distorted again"
+        )
+    # The sides' middles: the image's edges, half a px outside its first and last centres.
+    sides = np.array([[-0.5, 0.5 * (h - 1.0)], [w - 0.5, 0.5 * (h - 1.0)]])
+    hfov = {}
+    for lens in ("pinhole", "lens"):
+        coeffs = d if lens == "lens" else np.zeros_like(d)
+        ends = cv2.undistortPoints(sides.reshape(-1, 1, 2), k, coeffs, None, eye, eye, criteria)
+        (xl, _), (xr, _) = ends.reshape(2, 2)
+        hfov[lens] = math.degrees(math.atan(float(xr)) - math.atan(float(xl)))
+    problem = HFOV_DEG.problem(hfov["lens"])
+    if problem is not None and abs(hfov["lens"] - hfov["pinhole"]) > 1e-6:
+        return (
+            f"lens distortion {d.ravel().round(6).tolist()} makes the horizontal field of view "
+            f"{hfov['lens']:.3g} deg: it {problem}"
+        )
+    return None
+
+
 def _geometry_problem(name: str, a: np.ndarray, data: dict[str, Any]) -> str | None:
     """Why matrix ``name`` is outside what a real rig can be (:mod:`stereod.files.bounds`), given
     the fields validated before it (``data``: image_size, then K1 .. Q in file order), or None.
     Checked: each camera's focal lengths give a field of view within the bounds, its principal
-    point lies in the image, |T| and the rectified baseline are within the baseline's bounds
+    point lies in the image, its lens distortion can be undone over the image
+    (:func:`distortion_problem`), |T| and the rectified baseline are within the baseline's bounds
     and agree, and Q is the one P1 and P2 make."""
     size = data.get("image_size")
     if name in ("K1", "K2", "P1", "P2") and size is not None:
@@ -263,6 +317,11 @@ def _geometry_problem(name: str, a: np.ndarray, data: dict[str, Any]) -> str | N
                 )
             if not 0.0 <= c <= side:
                 return f"principal point c{axis} = {c:.6g} px is outside the image (0..{side} px)"
+    camera = {"D1": "K1", "D2": "K2"}.get(name)
+    if camera is not None and size is not None and data.get(camera) is not None:
+        problem = distortion_problem(np.asarray(data[camera], np.float64), a, size)
+        if problem is not None:
+            return problem
     if name == "T":
         problem = BASELINE_M.problem(float(np.linalg.norm(a)))
         if problem is not None:
