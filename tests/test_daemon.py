@@ -570,6 +570,61 @@ def test_a_reload_replaced_before_use_and_one_refused_leave_the_running_one_ever
     assert out["summary"].error is None
 
 
+def test_a_refusal_said_while_a_later_reload_waited_goes_once_that_one_runs(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A reload (42 deg) whose pipeline cannot be made, refused only after a second SIGHUP
+    (50 deg) had been handed over: the refusal stayed on the status key after the second
+    one ran, naming a reload that no longer mattered."""
+    from stereod.daemon.reload import RELOAD_REFUSED
+    from stereod.pipeline import Pipeline
+
+    def cfg(hfov: float) -> Any:
+        return load_config(overrides={"zenoh": {"connect": [endpoint]}, "rig": {"hfov_deg": hfov}})
+
+    hfov = {"now": 60.0}
+    daemon = Daemon(
+        cfg(60.0), SyntheticDriver(live_synthetic(15)), reload_config=lambda: cfg(hfov["now"])
+    )
+    real = Pipeline.reconfigured
+    making, release = threading.Event(), threading.Event()
+
+    def reconfigured(self: Pipeline, params: Any) -> Any:
+        if params.rig.hfov_deg == 42.0:
+            making.set()
+            release.wait(30)
+            raise MemoryError("no room")
+        return real(self, params)
+
+    monkeypatch.setattr(Pipeline, "reconfigured", reconfigured)
+    thread, out = start(daemon)
+    try:
+        deadline = time.monotonic() + 20
+        while daemon.health.stats().pairs < 3:
+            assert time.monotonic() < deadline and thread.is_alive()
+            time.sleep(0.05)
+        hfov["now"] = 42.0
+        daemon.reload()
+        assert making.wait(20)  # the pipeline thread is making the 42 deg pipeline
+        hfov["now"] = 50.0
+        daemon.reload()
+        worker = daemon._worker
+        assert worker is not None
+        while worker._pending is None or worker._pending[0].rig.hfov_deg != 50.0:
+            assert time.monotonic() < deadline, daemon.health.problems()
+            time.sleep(0.02)
+        release.set()
+        while daemon.cfg.rig.hfov_deg != 50.0:
+            assert time.monotonic() < deadline, daemon.health.problems()
+            time.sleep(0.02)
+        assert not daemon.health.showing(RELOAD_REFUSED), daemon.health.problems()
+    finally:
+        release.set()
+        daemon.stop()
+        thread.join(30)
+    assert out["summary"].error is None
+
+
 def test_a_reload_of_the_geometry_reaches_the_ros2_node(endpoint: str) -> None:
     """A SIGHUP with a new field of view (or calibration) reached the pipeline and the
     calibration queryable but not ROS 2, whose camera_info kept the start-up focal length

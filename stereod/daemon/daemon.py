@@ -495,6 +495,8 @@ class Daemon:
         assert self._worker is not None
 
         def applied() -> None:  # on the pipeline thread, once the new pipeline runs
+            # An earlier reload refused while this one waited said so after the resolve below.
+            self.health.resolved(RELOAD_REFUSED)
             self.cfg = cfg
             give_geometry(self.ros2, params.rig, self.health)
             log.info("configuration reloaded (geometry %s)", params.rig.geometry.value)
