@@ -4,6 +4,7 @@ message's added latency."""
 
 from __future__ import annotations
 
+import itertools
 import time
 
 from stereod.daemon.config import ZenohConfig
@@ -96,3 +97,59 @@ def test_a_rig_heard_whose_stamps_lie_behind_the_rig_timeout_is_said() -> None:
     (said,) = [p for p in status.problems if "behind" in p]
     assert said.startswith("rig b: its stamps are 2.0 s behind rig a's, past the rig timeout")
     assert "check both hosts' clocks" in said
+
+
+def _room_stamps(late_s: float, behind_s: float) -> tuple[dict[int, list[int]], list[int]]:
+    """Rig a's and rig b's messages of one walker, 15 Hz, one a step, each of b's after a's
+    of ``late_s`` later (its instant that much before a's newest), b's clock ``behind_s``
+    behind: every room track's published stamps (by id), and a's message stamps."""
+    import json
+
+    from stereod.bus.messages import dump_objects
+    from stereod_fakes.room_messages import RigSim, Walker
+
+    node = _node(20.0)
+    published: dict[int, list[int]] = {}
+
+    def tracks(touched: list[tuple[int, bytes]], ended: list[int]) -> None:
+        for rid, body in touched:
+            published.setdefault(rid, []).append(json.loads(body)["t_ns"])
+
+    node.pub.tracks = tracks  # type: ignore[method-assign]
+    t0 = time.time_ns()
+    behind = int(behind_s * 1e9)
+    walkers = {  # b's clock reads true time minus ``behind``: its walker starts earlier
+        "a": [Walker(1, (0.3, 0.0, 3.0), (0.2, 0.0, 0.0), t0)],
+        "b": [Walker(1, (0.3, 0.0, 3.0), (0.2, 0.0, 0.0), t0 - behind)],
+    }
+    sims = {n: RigSim(RigPose(name=n), seed=1) for n in ("a", "b")}
+    stamps_a = []
+    for k in range(30):
+        t = t0 + k * 66_666_667
+        stamps_a.append(t)
+        for name, at in (("a", t), ("b", t - int(late_s * 1e9) - behind)):
+            payload, _ = dump_objects(sims[name].message(walkers[name], at))
+            node._handle([(time.monotonic(), f"stereod/{name}/objects", payload)], None)
+    return published, stamps_a
+
+
+def test_a_rig_message_that_comes_late_never_sends_a_room_track_back_in_time() -> None:
+    """Rig b's message of an instant 33 ms before rig a's newest came after it: the room
+    tracks it touched went out stamped 33 ms back, then forward again, 30 times in 2 s (a
+    walker stepping back and forth). A step is now at the room's newest instant, b's tracks
+    predicted on to it."""
+    published, _ = _room_stamps(0.033, 0.0)
+    assert published
+    for stamps in published.values():
+        assert all(b >= a for a, b in itertools.pairwise(stamps)), stamps
+
+
+def test_a_rig_left_out_for_its_clock_does_not_restamp_the_room() -> None:
+    """Rig b's clock 3 s behind: the status said its tracks were left out of the room, yet
+    each of its messages re-stamped the room's tracks with its own time, 3 s back (122
+    times in 10 s). The room's tracks now keep rig a's instants."""
+    published, stamps_a = _room_stamps(0.0, 3.0)
+    assert published
+    for stamps in published.values():
+        assert all(b >= a for a, b in itertools.pairwise(stamps)), stamps
+        assert set(stamps) <= set(stamps_a)

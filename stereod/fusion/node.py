@@ -184,34 +184,13 @@ class FuseNode:
         return msg if self.fuser.knows(msg.rig) else None
 
     def loop(self) -> None:
-        """The fusion thread: until :attr:`done`, drain the queue, ingest each rig's newest
-        message (a rig's message replaces its previous tracks), fuse those rigs, publish."""
+        """The fusion thread: until :attr:`done`, drain the queue, fuse what came
+        (:meth:`_handle`), publish the room's message when due."""
         last_rx: float | None = None
         try:
             while not self.done.is_set():
                 self._take_room()
-                batch = self._drain()
-                newest = {key: payload for _, key, payload in batch}
-                rigs: list[str] = []
-                stamp: int | None = None
-                for payload in newest.values():
-                    msg = self._parse(payload)
-                    if msg is None:
-                        continue
-                    self.fuser.ingest_wire(msg)
-                    self.geometry = msg.geometry
-                    rigs.append(msg.rig)
-                    stamp = max(stamp or 0, self.fuser.rig_stamp(msg.rig) or 0)
-                latest = self.fuser.latest_ns()
-                if latest is not None:
-                    if batch:
-                        last_rx = max(rx for rx, _, _ in batch)
-                    if stamp is not None:
-                        self._step(stamp, rigs, [rx for rx, _, _ in batch])
-                    elif last_rx is not None and time.monotonic() - last_rx >= IDLE_STEP_S:
-                        # idle: step on by the time since the last message, to end tracks
-                        self._step(latest + int((time.monotonic() - last_rx) * 1e9), [], [])
-                self._count(batch)  # after the step: its tracks go out first
+                last_rx = self._handle(self._drain(), last_rx)
                 if self._room_due and self._room_turn(time.monotonic() - self._room_at):
                     self._publish_room()
             if self._room_due:  # the last tracks fused, before the node stops
@@ -219,6 +198,34 @@ class FuseNode:
         except BaseException as exc:  # a fatal error ends the run with its own line
             self.error = exc
             self.done.set()
+
+    def _handle(self, batch: list[tuple[float, str, bytes]], last_rx: float | None) -> float | None:
+        """Ingest each rig's newest message in ``batch`` (a rig's message replaces its
+        previous tracks) and fuse those rigs in one step, or, idle, step on by the time since
+        the last message (``last_rx``, monotonic s) to end tracks. The room's instant never
+        goes back: a rig whose message came after a newer one of another rig's has its tracks
+        predicted on to that instant, and one more than the rig timeout behind is left out
+        (it re-stamped every room track it touched with its own time, seconds back). Gives
+        the arrival of the batch's last message, or ``last_rx`` without one."""
+        newest = {key: payload for _, key, payload in batch}
+        rigs: list[str] = []
+        for payload in newest.values():
+            msg = self._parse(payload)
+            if msg is None:
+                continue
+            self.fuser.ingest_wire(msg)
+            self.geometry = msg.geometry
+            rigs.append(msg.rig)
+        latest = self.fuser.latest_ns()
+        if latest is not None:
+            if batch:
+                last_rx = max(rx for rx, _, _ in batch)
+            if rigs:
+                self._step(max(latest, self._t_ns), rigs, [rx for rx, _, _ in batch])
+            elif last_rx is not None and time.monotonic() - last_rx >= IDLE_STEP_S:
+                self._step(latest + int((time.monotonic() - last_rx) * 1e9), [], [])
+        self._count(batch)  # after the step: its tracks go out first
+        return last_rx
 
     def _room_turn(self, since_s: float) -> bool:
         """Whether the room's message, due, goes out now, ``since_s`` after the last one: once
