@@ -153,3 +153,32 @@ def test_a_rig_left_out_for_its_clock_does_not_restamp_the_room() -> None:
     for stamps in published.values():
         assert all(b >= a for a, b in itertools.pairwise(stamps)), stamps
         assert set(stamps) <= set(stamps_a)
+
+
+def test_what_is_not_a_rig_s_objects_on_its_key_is_refused_naming_the_rig() -> None:
+    """Garbage on rig b's key was counted as one of b's messages (b showed live on garbage
+    alone) and the status named no rig; a message of rig a's sent on b's key (a copied
+    config) was fused as a's. Both are now refused, named by the key's rig, and not counted
+    as b's messages."""
+    from stereod.bus.messages import dump_objects
+    from stereod_fakes.room_messages import RigSim, Walker
+
+    node = _node(20.0)
+    node.pub.tracks = lambda touched, ended: None  # type: ignore[method-assign]
+    t0 = time.time_ns()
+    walker = [Walker(1, (0.3, 0.0, 3.0), (0.2, 0.0, 0.0), t0)]
+    own, _ = dump_objects(RigSim(RigPose(name="a"), seed=1).message(walker, t0))
+    now = time.monotonic()
+    node._handle([(now, "stereod/b/objects", b"[1, 2, 3]")], None)
+    status = node.status()
+    assert status.rigs["b"].messages == 0 and not status.rigs["b"].live
+    (said,) = [p for p in status.problems if "not its objects" in p]
+    assert said.startswith("samples on a rig's objects key that were not its objects: 1")
+    assert "(the last: rig b: " in said
+    node._handle([(now, "stereod/b/objects", own)], None)
+    status = node.status()
+    assert status.rigs["b"].messages == 0 and node.fuser.rig_stamp("a") is None
+    (said,) = [p for p in status.problems if "not its objects" in p]
+    assert said.endswith("2 (the last: rig b: a message of rig 'a' on its key)")
+    node._handle([(now, "stereod/a/objects", own)], None)
+    assert node.status().rigs["a"].messages == 1 and node.fuser.rig_stamp("a") == t0

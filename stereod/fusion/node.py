@@ -168,20 +168,35 @@ class FuseNode:
             batch.append(self.inbox.popleft())
         return batch
 
-    def _parse(self, payload: bytes) -> RigWire | None:
-        """A rig's message as arrays, or None (counted) for anything else: ``wire.decode``
-        reads a plain message with ``msgspec``, with no model per object, and leaves anything
-        else to the model (whose JSON parser bounds nesting itself)."""
+    def _parse(self, key: str, payload: bytes) -> RigWire | None:
+        """A rig's message as arrays, or None (counted, the rig named) for anything else, or
+        for a message of another rig than its key's: ``wire.decode`` reads a plain message
+        with ``msgspec``, with no model per object, and leaves anything else to the model
+        (whose JSON parser bounds nesting itself)."""
+        rig = self._rig(key)
         try:
             msg = decode(payload)
         except ValueError as exc:  # pydantic's text spans lines: its fields, on one
             why = describe_validation_error(exc) if isinstance(exc, ValidationError) else str(exc)
-            why = one_line(why)[:200] or type(exc).__name__
-            with self.lock:
-                self.rejected += 1
-                self.last_rejected = why
+            self._reject(rig, one_line(why)[:200] or type(exc).__name__)
+            return None
+        if msg.rig != rig:  # another rig's name (a copied config): its tracks are not rig's
+            self._reject(rig, f"a message of rig {msg.rig[:40]!r} on its key")
             return None
         return msg if self.fuser.knows(msg.rig) else None
+
+    def _reject(self, rig: str, why: str) -> None:
+        with self.lock:
+            self.rejected += 1
+            self.last_rejected = f"rig {rig}: {why}"
+
+    def _rig(self, key: str) -> str:
+        """The rig whose objects key ``key`` is ("" for none)."""
+        rig = self._rig_of.get(key)
+        if rig is None:
+            parsed = keys.parse(key, prefix=self.prefix)
+            rig = self._rig_of[key] = parsed[0] if parsed else ""
+        return rig
 
     def loop(self) -> None:
         """The fusion thread: until :attr:`done`, drain the queue, fuse what came
@@ -207,11 +222,13 @@ class FuseNode:
         predicted on to that instant, and one more than the rig timeout behind is left out
         (it re-stamped every room track it touched with its own time, seconds back). Gives
         the arrival of the batch's last message, or ``last_rx`` without one."""
-        newest = {key: payload for _, key, payload in batch}
+        newest = {key: (rx, payload) for rx, key, payload in batch}
         rigs: list[str] = []
-        for payload in newest.values():
-            msg = self._parse(payload)
+        refused: set[tuple[float, str]] = set()
+        for key, (rx, payload) in newest.items():
+            msg = self._parse(key, payload)
             if msg is None:
+                refused.add((rx, key))
                 continue
             self.fuser.ingest_wire(msg)
             self.geometry = msg.geometry
@@ -224,7 +241,7 @@ class FuseNode:
                 self._step(max(latest, self._t_ns), rigs, [rx for rx, _, _ in batch])
             elif last_rx is not None and time.monotonic() - last_rx >= IDLE_STEP_S:
                 self._step(latest + int((time.monotonic() - last_rx) * 1e9), [], [])
-        self._count(batch)  # after the step: its tracks go out first
+        self._count([b for b in batch if (b[0], b[1]) not in refused])  # after the step
         return last_rx
 
     def _room_turn(self, since_s: float) -> bool:
@@ -239,10 +256,7 @@ class FuseNode:
     def _count(self, batch: list[tuple[float, str, bytes]]) -> None:
         with self.lock:
             for rx, key, _ in batch:
-                rig = self._rig_of.get(key)
-                if rig is None:
-                    parsed = keys.parse(key, prefix=self.prefix)
-                    rig = self._rig_of[key] = parsed[0] if parsed else ""
+                rig = self._rig(key)
                 if rig in self.received:
                     self.received[rig] += 1
                     self.heard_at[rig] = max(self.heard_at.get(rig, 0.0), rx)
@@ -396,8 +410,8 @@ class FuseNode:
             problems.append(f"rig messages dropped, the fusion fell behind: {dropped}")
         if rejected:
             problems.append(
-                f"samples on a rig's objects key that were not objects: {rejected} (the last: "
-                f"{last_rejected})"
+                f"samples on a rig's objects key that were not its objects: {rejected} (the "
+                f"last: {last_rejected})"
             )
         if mcap_skipped:
             problems.append(
