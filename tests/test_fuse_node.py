@@ -7,6 +7,8 @@ from __future__ import annotations
 import itertools
 import time
 
+import pytest
+
 from stereod.daemon.config import ZenohConfig
 from stereod.fusion.clock import ClockWatch
 from stereod.fusion.fuser import Fuser
@@ -182,3 +184,16 @@ def test_what_is_not_a_rig_s_objects_on_its_key_is_refused_naming_the_rig() -> N
     assert said.endswith("2 (the last: rig b: a message of rig 'a' on its key)")
     node._handle([(now, "stereod/a/objects", own)], None)
     assert node.status().rigs["a"].messages == 1 and node.fuser.rig_stamp("a") == t0
+
+
+def test_a_reload_that_adds_a_rig_says_so(caplog: pytest.LogCaptureFixture) -> None:
+    """A room file read again with rig c added logged "3 rigs, no rig moved", naming no new
+    rig; it now names it."""
+    import logging
+
+    node = _node(20.0)
+    node.pending_room = Room(name="lab", rigs=[RigPose(name=n) for n in ("a", "b", "c")])
+    with caplog.at_level(logging.INFO, logger="stereod.fuse"):
+        node._take_room()
+    assert "room file reloaded: 3 rigs, added: c; no rig moved" in caplog.text
+    assert node.fuser.knows("c") and "c" in node.received

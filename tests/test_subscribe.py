@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 from stereod.bus.subscribe import format_sample, json_line
+from stereod.fusion.room import RigPose
 
 EXAMPLE = Path(__file__).parent / "golden" / "objects_example.json"
 
@@ -52,3 +53,32 @@ def test_json_lines_are_json_whatever_the_payload() -> None:
     assert "\n" not in spread and json.loads(spread) == {"seq": 2}
     assert json.loads(json_line("k/1", b"", deleted=True)) == {"key": "k/1", "delete": True}
     assert json.loads(json_line("k", "caf\u00e9 au lait".encode()))["bytes"] == 13  # not JSON
+
+
+def test_a_fusion_node_s_status_lists_each_rig() -> None:
+    """A room's status printed as one 2 kB line of raw JSON (its latency histograms
+    included), where the deployment guide promised each rig listed as live with its message
+    count, restarts and clock offset; now a line per rig, and the last problem."""
+    import time
+
+    from stereod.bus.messages import dump_objects
+    from stereod.fusion.wire import decode
+    from stereod_fakes.room_messages import RigSim, Walker
+    from tests.test_fuse_node import _node
+
+    node = _node(20.0)
+    t0 = time.time_ns()
+    payload, _ = dump_objects(
+        RigSim(RigPose(name="a"), seed=1).message([Walker(1, (0.3, 0, 3), (0.2, 0, 0), t0)], t0)
+    )
+    node.fuser.ingest_wire(decode(payload))
+    node._count([(time.monotonic(), "stereod/a/objects", payload)])
+    body = node.status().model_dump_json(by_alias=True).encode()
+    text = format_sample("stereod/rooms/lab/status", body)
+    head, a, b, problem = text.splitlines()
+    assert head.startswith("stereod/rooms/lab/status: running  room lab  rigs 1 of 2 live")
+    assert a.split() == ["rig", "a", "live", "messages", "1", "tracks", "1", "restarts", "0",
+                         "clock", "offset", "+0.0", "ms"]  # fmt: skip
+    assert b.split()[:3] == ["rig", "b", "NOT"]
+    assert problem == "  last problem: rig b: no message yet"
+    assert format_sample("k", body.replace(b'"room":"lab"', b'"room":7')).startswith("k: {")

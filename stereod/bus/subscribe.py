@@ -7,6 +7,7 @@ from collections.abc import Sequence
 
 from stereod.bus.messages import ObjectsMessage, ObjectState, StatusMessage
 from stereod.client import parse_payload
+from stereod.fusion.status import FUSE_STATUS_SCHEMA, FuseStatus
 
 
 def _v(vec: Sequence[float] | None, fmt: str = "{:+.3f}") -> str:
@@ -65,4 +66,29 @@ def format_sample(key: str, payload: bytes, deleted: bool = False) -> str:
         return line
     if msg is None:
         return f"{key}: {len(payload)} bytes (not JSON)"
+    if isinstance(msg, dict) and msg.get("schema") == FUSE_STATUS_SCHEMA:
+        try:
+            return format_fuse_status(key, FuseStatus.model_validate(msg))
+        except ValueError:  # a newer node's, or a broken one: as it came
+            pass
     return f"{key}: {json.dumps(msg)}"
+
+
+def format_fuse_status(key: str, st: FuseStatus) -> str:
+    """A fusion node's status as a block: the room's line, one line per rig (live or not,
+    messages, tracks, restarts, clock offset), and its last problem."""
+    live = sum(r.live for r in st.rigs.values())
+    added = "-" if st.added_ms_p50 is None else f"{st.added_ms_p50:.1f}/{st.added_ms_p99:.1f} ms"
+    lines = [
+        f"{key}: {st.state}  room {st.room}  rigs {live} of {len(st.rigs)} live  tracks "
+        f"{st.tracks}  steps {st.steps_per_s:.1f}/s  added p50/p99 {added}"
+    ]
+    for name, r in st.rigs.items():
+        clock = "-" if r.clock_offset_ms is None else f"{r.clock_offset_ms:+.1f} ms"
+        lines.append(
+            f"  rig {name:<12} {'live' if r.live else 'NOT LIVE':<8} messages {r.messages}  "
+            f"tracks {r.tracks}  restarts {r.restarts}  clock offset {clock}"
+        )
+    if st.problems:
+        lines.append(f"  last problem: {st.problems[-1]}")
+    return "\n".join(lines)

@@ -273,6 +273,7 @@ class FuseNode:
             room, self.pending_room = self.pending_room, None
         if room is None:
             return
+        added = [r.name for r in room.rigs if not self.fuser.knows(r.name)]
         with self.lock:  # the status reads the room, the rigs' clocks and links together
             changed = self.fuser.set_room(room)
             self.clock.set_rigs([r.name for r in room.rigs], changed)
@@ -282,8 +283,9 @@ class FuseNode:
         if self.mcap is not None:
             self.mcap.set_room(room)
         log.info(
-            "room file reloaded: %d rigs, %s",
+            "room file reloaded: %d rigs, %s%s",
             len(room.rigs),
+            f"added: {', '.join(added)}; " if added else "",
             f"moved or gone: {', '.join(changed)}" if changed else "no rig moved",
         )
 

@@ -176,7 +176,9 @@ def load_room(path: Path) -> Room:
     try:
         text = read_input_file(path, "a room file", too_large=ConfigError).decode("utf-8-sig")
     except FileNotFoundError as exc:
-        raise MissingInputError(f"{where}: no such room file (pass --room FILE)") from exc
+        raise MissingInputError(
+            f"{where}: no such room file: check the path given to --room"
+        ) from exc
     except OSError as exc:
         raise MissingInputError(f"{where}: cannot read the room file: {exc.strerror}") from exc
     except UnicodeDecodeError as exc:
