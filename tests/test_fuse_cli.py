@@ -231,3 +231,20 @@ def test_a_rig_whose_clock_reads_after_2038_leaves_the_mcap_but_not_the_node(
     assert status.steps > 0 and " room messages " in out
     with mcap.open("rb") as f:
         assert make_reader(f).get_summary() is not None
+
+
+def test_the_run_s_last_line_names_a_rig_never_heard_from() -> None:
+    """Rig a heard and rig b never: the last line said only "from 1 rig messages"; it now
+    names b (with no rig heard, a line of its own names them all)."""
+    from stereod.cli.fuse import summary
+    from tests.test_fuse_node import _node
+
+    node = _node(20.0)
+    assert summary(node, 0).endswith("from 0 rig messages; 0 rig restarts seen")
+    node.received["a"] = 3
+    assert summary(node, 1) == (
+        "0 room messages (0 fusion steps) from 3 rig messages; 1 rig restarts seen; never "
+        "heard from rig b"
+    )
+    node.received["b"] = 1
+    assert summary(node, 1).endswith("1 rig restarts seen")

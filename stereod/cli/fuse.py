@@ -224,6 +224,19 @@ def _reload(
     notifier.notify(READY=1)
 
 
+def summary(node: FuseNode, restarts: int) -> str:
+    """The run's last line: room messages, steps and rig messages, rig restarts, and the
+    room's rigs never heard from, when others were (all silent has a line of its own)."""
+    line = (
+        f"{node.room_messages} room messages ({node.steps} fusion steps) from "
+        f"{sum(node.received.values())} rig messages; {restarts} rig restarts seen"
+    )
+    silent = [rig for rig, n in node.received.items() if not n]
+    if silent and len(silent) < len(node.received):
+        line += f"; never heard from rig {', '.join(silent)}"
+    return line
+
+
 def run(a: argparse.Namespace) -> int:
     """Fuse the room until SIGINT or SIGTERM (exit 0), reading the room file again on SIGHUP;
     a bad room file or configuration at start is one line and 78, a missing one 66, an
@@ -368,11 +381,7 @@ def run(a: argparse.Namespace) -> int:
                 if mcap is not None:
                     mcap.close()
                 committed = True
-            say(
-                f"{node.room_messages} room messages ({node.steps} fusion steps) from "
-                f"{sum(node.received.values())} rig messages; "
-                f"{len(fuser.restarts)} rig restarts seen"
-            )
+            say(summary(node, len(fuser.restarts)))
             unwritten = [str(p) for p in (a.jsonl, a.mcap) if p is not None]
             if not committed and unwritten:  # a file from an earlier run stays as it was
                 say(f"no room message: {' and '.join(unwritten)} not written")
